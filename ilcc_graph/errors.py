@@ -1,0 +1,46 @@
+"""One exception tree for the whole toolkit.
+
+``InputError`` means the user's files or arguments are wrong (command line exit 2).
+``FrameError`` and its subclasses mean one frame cannot be used; the pipeline records the
+reason and skips the frame. ``CalibrationImpossible`` means no result can come from the data
+given (exit 3).
+"""
+
+from __future__ import annotations
+
+
+class CalibrationError(Exception):
+    """Base of every error the toolkit raises on purpose."""
+
+
+class InputError(CalibrationError):
+    """A file, a configuration key or an argument is wrong; the message names it."""
+
+
+class FrameError(CalibrationError):
+    """One frame cannot be used; the message is the reason recorded for it."""
+
+
+class BoardNotFound(FrameError):
+    """No segment of the scan passes the chessboard tests."""
+
+
+class CornersNotFound(FrameError):
+    """The chessboard's inner corners were not found in the image."""
+
+
+class CorrespondenceError(FrameError):
+    """Image and LiDAR corners of a frame cannot be ordered consistently."""
+
+
+class CalibrationImpossible(CalibrationError):
+    """Too little usable data for any estimate (exit code 3)."""
+
+
+class IndeterminateSystem(CalibrationError):
+    """The factor graph's information matrix is singular: the data do not fix the extrinsic."""
+
+
+EXIT_OK = 0
+EXIT_INPUT = 2
+EXIT_IMPOSSIBLE = 3
