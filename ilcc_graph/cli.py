@@ -1,0 +1,404 @@
+"""The ``ilcc-graph`` command line: the only place that decides output folders."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ilcc_graph.errors import EXIT_IMPOSSIBLE, EXIT_INPUT, CalibrationImpossible, InputError
+
+log = logging.getLogger("ilcc_graph")
+
+EXAMPLES = """\
+examples:
+  ilcc-graph demo                                   simulate the standard panoramic set and calibrate it
+  ilcc-graph simulate sim/ --lidar hdl32 --camera equirectangular --frames 20 --seed 0
+  ilcc-graph calibrate DATA --out out/run1          scans in DATA/pcd, images in DATA/img, DATA/config.yaml
+  ilcc-graph calibrate DATA --refine paper          the paper's refinement (no covariance), for comparison
+  ilcc-graph lidar-corners DATA --out out/lidar     the LiDAR stage alone: board points, pose, corners
+  ilcc-graph image-corners DATA --out out/image     the image stage alone: corners drawn and numbered
+  ilcc-graph export out/latest/calibration.yaml --format ros-tf
+
+exit codes: 0 success, 2 bad usage or bad input, 3 calibration impossible from the data given
+"""
+
+
+# ----------------------------------------------------------------------------------------------
+# Small helpers
+
+
+class _Progress:
+    """One progress-bar helper: a callback (done, total) drawing a tqdm bar on stderr."""
+
+    def __init__(self, desc: str) -> None:
+        self.desc = desc
+        self.bar = None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.bar is None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(
+                total=total, desc=self.desc, unit="frame", leave=False, file=sys.stderr, disable=None
+            )
+        self.bar.n = done
+        self.bar.refresh()
+        if done >= total:
+            self.bar.close()
+
+
+def _run_dir(out: str | None, root: str = "out") -> Path:
+    """``out`` as given, else ``out/<timestamp>`` with an ``out/latest`` link to it."""
+    if out:
+        path = Path(out)
+        path.mkdir(parents=True, exist_ok=True)
+        return path
+    path = Path(root) / time.strftime("%Y%m%d-%H%M%S")
+    path.mkdir(parents=True, exist_ok=True)
+    latest = Path(root) / "latest"
+    try:
+        if latest.is_symlink() or latest.exists():
+            latest.unlink()
+        latest.symlink_to(path.name)
+    except OSError:
+        pass
+    return path
+
+
+def _need_dir(path: str) -> Path:
+    p = Path(path)
+    if not p.is_dir():
+        raise InputError(f"{p}: not a directory (expected a data set with config.yaml, pcd/ and img/)")
+    return p
+
+
+def _print_table(rows: Sequence[Sequence[object]], header: Sequence[str]) -> None:
+    cells = [[str(c) for c in header]] + [[str(c) for c in r] for r in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
+    for j, r in enumerate(cells):
+        print("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
+        if j == 0:
+            print("  ".join("-" * w for w in widths))
+
+
+# ----------------------------------------------------------------------------------------------
+# Summaries
+
+
+def _sigmas(cov: np.ndarray) -> np.ndarray:
+    """1-sigma (deg, deg, deg, mm, mm, mm) from a Pose3-tangent covariance (NaN when none)."""
+    s = np.sqrt(np.clip(np.diag(cov), 0.0, None)) if np.all(np.isfinite(cov)) else np.full(6, np.nan)
+    return np.concatenate([np.degrees(s[:3]), 1e3 * s[3:]])
+
+
+def summarise(T: np.ndarray, cov: np.ndarray, truth: np.ndarray | None = None) -> str:
+    """A short human summary of an extrinsic (and its error against a truth, if given)."""
+    import gtsam
+
+    pose = gtsam.Pose3(T)
+    rpy = np.degrees(pose.rotation().rpy())
+    sig = _sigmas(cov)
+    lines = ["T_cam_lidar (p_cam = R p_lidar + t):"]
+    lines += ["  [" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in T]
+    names = ("roll", "pitch", "yaw")
+    lines.append("rotation (deg, Rz(yaw) Ry(pitch) Rx(roll)); 1-sigma about the body axes rx, ry, rz:")
+    lines += [f"  {n:5s} {v:+10.4f}   sigma {s:.4f}" for n, v, s in zip(names, rpy, sig[:3])]
+    lines.append("translation (mm):")
+    lines += [f"  {n:5s} {1e3 * v:+10.2f}   sigma {s:.2f}" for n, v, s in zip("xyz", T[:3, 3], sig[3:])]
+    if truth is not None:
+        err = gtsam.Pose3(truth).between(pose)  # T_true^-1 T_est
+        rot = np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(err.rotation())))
+        trans = 1e3 * np.linalg.norm(T[:3, 3] - truth[:3, 3])
+        lines.append(f"against the truth: rotation error {rot:.4f} deg, translation error {trans:.2f} mm")
+        if np.all(np.isfinite(cov)):
+            xi = gtsam.Pose3.Logmap(pose.between(gtsam.Pose3(truth)))  # T_true = T_est Exp(xi)
+            nees = float(xi @ np.linalg.solve(cov, xi))
+            lines.append(f"  NEES {nees:.2f} (chi-square, 6 dof: 95 % of runs below 12.6)")
+    return "\n".join(lines)
+
+
+def _frames_table(cal) -> None:
+    rows = []
+    for f in cal.frames:
+        rms = "" if f.rms_bearing_error_mrad is None else f"{f.rms_bearing_error_mrad:.3f}"
+        rows.append((f.name, "yes" if f.used else "no", rms, f.reason or ""))
+    _print_table(rows, ("frame", "used", "rms mrad", "reason"))
+
+
+# ----------------------------------------------------------------------------------------------
+# Commands
+
+
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from ilcc_graph.simulate import simulate_dataset, standard_spec
+
+    spec = standard_spec(
+        lidar=args.lidar,
+        camera=args.camera,
+        width=args.width,
+        frames=args.frames,
+        seed=args.seed,
+        noise_scale=args.noise_scale,
+    )
+    out = simulate_dataset(Path(args.out), spec, progress=_Progress("simulate"))
+    print(f"wrote {spec.n_frames} frames to {out}")
+    return 0
+
+
+def _write_outputs(out: Path, config, cal) -> None:
+    from ilcc_graph.config import config_to_dict
+    from ilcc_graph.io import write_calibration, write_yaml
+
+    write_yaml(out / "config.resolved.yaml", config_to_dict(config))
+    write_calibration(out / "calibration.yaml", cal)
+
+
+def _calibrate(data: Path, out: Path, args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
+    from ilcc_graph.pipeline import CalibrateOptions, calibrate_dataset
+
+    options = CalibrateOptions(refine=args.refine, robust=args.robust, jobs=args.jobs)
+    t0 = time.perf_counter()
+    config, cal = calibrate_dataset(data, options, progress=_Progress("frames"))
+    _write_outputs(out, config, cal)
+    _frames_table(cal)
+    print()
+    print(summarise(cal.T_cam_lidar, cal.covariance, truth))
+    print(
+        f"\n{sum(f.used for f in cal.frames)} of {len(cal.frames)} frames used; "
+        f"{time.perf_counter() - t0:.1f} s; wrote {out / 'calibration.yaml'}"
+    )
+    return 0
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    data = _need_dir(args.data[0])
+    if len(args.data) > 1:
+        raise InputError("several sessions at once are not supported yet; give one data set")
+    return _calibrate(data, _run_dir(args.out), args)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from ilcc_graph.io import read_ground_truth
+    from ilcc_graph.simulate import simulate_dataset, standard_spec
+
+    spec = standard_spec(lidar="hdl32", camera="equirectangular", width=args.width, frames=20, seed=args.seed)
+    data = (
+        Path(args.data)
+        if args.data
+        else Path(args.cache) / f"demo-hdl32-equirect{args.width}-seed{args.seed}"
+    )
+    if (data / "ground_truth.yaml").is_file():
+        print(f"re-using the simulated data set in {data}")
+    else:
+        print(
+            f"simulating the standard panoramic set (HDL-32E, {args.width}x{args.width // 2}, 20 frames) "
+            f"into {data}"
+        )
+        simulate_dataset(data, spec, progress=_Progress("simulate"))
+    truth = read_ground_truth(data).T_cam_lidar
+    return _calibrate(data, _run_dir(args.out), args, truth)
+
+
+def cmd_lidar_corners(args: argparse.Namespace) -> int:
+    from ilcc_graph.config import load_config
+    from ilcc_graph.io import list_frames, write_pcd, write_yaml
+    from ilcc_graph.pipeline import run_lidar_stage
+    from ilcc_graph.types import Scan
+
+    data = _need_dir(args.data)
+    config = load_config(data / "config.yaml")
+    frames, unpaired = list_frames(data, require_image=False)
+    out = _run_dir(args.out)
+    results = run_lidar_stage(frames, config, args.jobs, _Progress("lidar"))
+    rows = []
+    for paths, res in zip(frames, results):
+        if isinstance(res, Exception):
+            write_yaml(out / f"{paths.name}.yaml", {"name": paths.name, "found": False, "reason": str(res)})
+            rows.append((paths.name, "no", "", str(res)))
+            continue
+        write_yaml(
+            out / f"{paths.name}.yaml",
+            {
+                "name": paths.name,
+                "found": True,
+                "T_lidar_board": res.T_lidar_board,
+                "covariance": res.covariance,
+                "sigma": dict(
+                    zip(
+                        ("rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm"),
+                        _sigmas(res.covariance).round(4).tolist(),
+                    )
+                ),
+                "half_turn_ambiguous": res.half_turn_ambiguous,
+                "corners_lidar": res.corners_lidar,
+                "n_points": int(len(res.points_lidar)),
+                "cost": res.cost,
+                "diagnostics": res.diagnostics,
+            },
+        )
+        write_pcd(out / f"{paths.name}_board.pcd", Scan(res.points_lidar, res.intensity))
+        rows.append((paths.name, "yes", len(res.points_lidar), ""))
+    _print_table(rows, ("frame", "found", "points", "reason"))
+    for stem, why in unpaired:
+        print(f"{stem}: skipped ({why})")
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_image_corners(args: argparse.Namespace) -> int:
+    from ilcc_graph.config import load_config
+    from ilcc_graph.io import list_frames, read_image, write_image, write_yaml
+    from ilcc_graph.pipeline import run_image_stage
+    from ilcc_graph.report.overlays import draw_corners
+
+    data = _need_dir(args.data)
+    config = load_config(data / "config.yaml")
+    frames, unpaired = list_frames(data, require_scan=False)
+    out = _run_dir(args.out)
+    results = run_image_stage(frames, config, args.jobs, _Progress("images"))
+    rows = []
+    for paths, res in zip(frames, results):
+        if isinstance(res, Exception):
+            write_yaml(out / f"{paths.name}.yaml", {"name": paths.name, "found": False, "reason": str(res)})
+            rows.append((paths.name, "no", "", str(res)))
+            continue
+        sig = np.sqrt(np.mean(np.trace(res.cov_px, axis1=1, axis2=2) / 2))
+        write_yaml(
+            out / f"{paths.name}.yaml",
+            {
+                "name": paths.name,
+                "found": True,
+                "half_turn_ambiguous": res.half_turn_ambiguous,
+                "image_corners": res.uv,
+                "bearings": res.bearings,
+                "cov_px": res.cov_px,
+                "diagnostics": res.diagnostics,
+            },
+        )
+        write_image(out / f"{paths.name}_corners.png", draw_corners(read_image(paths.image), res.uv))
+        rows.append((paths.name, "yes", f"{sig:.3f}", ""))
+    _print_table(rows, ("frame", "found", "sigma px", "reason"))
+    for stem, why in unpaired:
+        print(f"{stem}: skipped ({why})")
+    print(f"wrote {out}")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from ilcc_graph.export import export_calibration
+    from ilcc_graph.io import atomic_write, read_calibration
+
+    text = export_calibration(read_calibration(Path(args.calibration)), args.format)
+    if args.out:
+        atomic_write(Path(args.out), text)
+        print(f"wrote {args.out}")
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+# ----------------------------------------------------------------------------------------------
+# Parser and entry point
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="ilcc-graph",
+        description="Calibrate a 3D LiDAR against a camera (panoramic, pinhole, fisheye) with a printed "
+        "chessboard, and say how sure the result is.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("-v", "--verbose", action="store_true", help="log more detail")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    def add(name: str, fn: Callable[[argparse.Namespace], int], help: str) -> argparse.ArgumentParser:
+        sp = sub.add_parser(name, help=help, description=help)
+        sp.set_defaults(fn=fn)
+        return sp
+
+    jobs = max(1, min(2, os.cpu_count() or 1))
+
+    def solve_args(sp: argparse.ArgumentParser) -> None:
+        sp.add_argument("--out", help="output folder (default: out/<timestamp>, linked as out/latest)")
+        sp.add_argument(
+            "--refine",
+            choices=("graph", "paper"),
+            default="graph",
+            help="graph: our factor graph with covariance (default); paper: the paper's refinement",
+        )
+        sp.add_argument(
+            "--robust", choices=("huber", "cauchy"), default=None, help="robust kernel on the bearing factors"
+        )
+        sp.add_argument("--jobs", type=int, default=jobs, help=f"processes for the per-frame stages ({jobs})")
+
+    sp = add("calibrate", cmd_calibrate, "calibrate from a data set (DATA/config.yaml, DATA/pcd, DATA/img)")
+    sp.add_argument("data", nargs="+", metavar="DATA")
+    solve_args(sp)
+
+    sp = add(
+        "demo", cmd_demo, "simulate the standard panoramic set (or reuse it), calibrate, compare to truth"
+    )
+    sp.add_argument("--width", type=int, default=8000, help="panorama width in pixels (default 8000)")
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--data", help="where the simulated set lives (default: under --cache)")
+    sp.add_argument(
+        "--cache",
+        default=os.path.join(os.path.expanduser("~"), ".cache", "ilcc_graph"),
+        help="folder for simulated data sets (default ~/.cache/ilcc_graph)",
+    )
+    solve_args(sp)
+
+    sp = add("simulate", cmd_simulate, "write a simulated data set with ground truth")
+    sp.add_argument("out", metavar="OUT")
+    sp.add_argument("--lidar", default="hdl32", choices=("hdl32", "hdl64", "vlp16", "vlp32c", "os1-64"))
+    sp.add_argument("--camera", default="equirectangular", choices=("equirectangular", "pinhole", "fisheye"))
+    sp.add_argument("--frames", type=int, default=20)
+    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--noise-scale", type=float, default=1.0, help="multiplier on the baseline LiDAR noise")
+    sp.add_argument("--width", type=int, default=None, help="image width (default 8000 for panoramas)")
+
+    sp = add("lidar-corners", cmd_lidar_corners, "the LiDAR stage alone: board, pose, covariance, corners")
+    sp.add_argument("data", metavar="DATA")
+    sp.add_argument("--out", help="output folder (default: out/<timestamp>)")
+    sp.add_argument("--jobs", type=int, default=jobs)
+
+    sp = add("image-corners", cmd_image_corners, "the image stage alone: corners, uncertainty, drawings")
+    sp.add_argument("data", metavar="DATA")
+    sp.add_argument("--out", help="output folder (default: out/<timestamp>)")
+    sp.add_argument("--jobs", type=int, default=jobs)
+
+    sp = add("export", cmd_export, "write a calibration in another tool's format")
+    sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")
+    sp.add_argument("--format", required=True, choices=("json", "ros-tf", "kitti", "kalibr"))
+    sp.add_argument("--out", help="file to write (default: standard output)")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s: %(message)s"
+    )
+    try:
+        return args.fn(args)
+    except InputError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_INPUT
+    except CalibrationImpossible as err:
+        print(f"calibration impossible: {err}", file=sys.stderr)
+        return EXIT_IMPOSSIBLE
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
