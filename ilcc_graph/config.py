@@ -21,11 +21,11 @@ ILCC's schema (mfxox/ILCC ``config.yaml``; its tuples are often strings such as 
 - ``LiDAR_type`` ``hdl32`` | ``hdl64`` | ``vlp16_puck`` -> ``lidar.model`` (when absent, from
   ``laser_beams_num`` 16/32/64)
 - ``intensity_col_ind`` -> ``lidar.intensity_column`` (used only for CSV files without header)
-- ``marker_range_limit`` (farthest board range, m) -> ``board.roi.range_m = [0, limit]``
 - ``camera_type`` ``panoramic`` (default) -> equirectangular of ``image_res`` = (height, width);
   ``perspective`` -> pinhole with ``instrinsic_para`` (9 numbers, row-major K) and no
   distortion; its size is read from the first image in ``<config dir>/img`` or else ``image_res``.
-- ILCC's processing keys (``backend``, ``multi_proc``, ``jdc_thre_ratio``, ...) are accepted and ignored.
+- ILCC's processing keys (``backend``, ``multi_proc``, ``jdc_thre_ratio``, ...) are accepted and ignored;
+  so is ``marker_range_limit`` (ILCC tests it on segment centroids; as a point ROI it would clip boards).
 
 Roi: azimuth = ``atan2(y, x)`` in degrees, elevation = ``atan2(z, hypot(x, y))`` in degrees,
 range = ``|p|`` in metres, all in the LiDAR frame. ``azimuth_deg`` with min > max is an interval
@@ -90,10 +90,13 @@ class Roi:
     def to_dict(self) -> dict:
         return {
             k: [float(v[0]), float(v[1])]
-            for k, v in (("azimuth_deg", self.azimuth_deg), ("elevation_deg", self.elevation_deg),
-                         ("range_m", self.range_m))
+            for k, v in (
+                ("azimuth_deg", self.azimuth_deg),
+                ("elevation_deg", self.elevation_deg),
+                ("range_m", self.range_m),
+            )
             if v is not None
-        }  # fmt: skip
+        }
 
 
 @dataclass(frozen=True)
@@ -140,8 +143,15 @@ class _Checker:
                 path = f"{prefix}.{k}" if prefix else str(k)
                 raise self.fail(path, d[k], f"no such key; allowed keys here: {sorted(allowed)}")
 
-    def number(self, v: Any, key: str, lo: float | None = None, hi: float | None = None,
-               integer: bool = False, lo_open: bool = False) -> float:  # fmt: skip
+    def number(
+        self,
+        v: Any,
+        key: str,
+        lo: float | None = None,
+        hi: float | None = None,
+        integer: bool = False,
+        lo_open: bool = False,
+    ) -> float:
         what = "an integer" if integer else "a number"
         rng = ""
         if lo is not None or hi is not None:
@@ -182,7 +192,13 @@ class _Checker:
 _TOP_KEYS = ("board", "lidar", "camera")
 _BOARD_KEYS = ("squares", "square_size", "margin", "lower_left", "roi")
 _ROI_KEYS = ("azimuth_deg", "elevation_deg", "range_m")
-_LIDAR_KEYS = ("model", "vertical_angles_deg", "horizontal_resolution_deg", "range_sigma_m", "intensity_column")
+_LIDAR_KEYS = (
+    "model",
+    "vertical_angles_deg",
+    "horizontal_resolution_deg",
+    "range_sigma_m",
+    "intensity_column",
+)
 _CAMERA_KEYS = {
     "equirectangular": ("model", "width", "height"),
     "pinhole": ("model", "width", "height", "K", "dist"),
@@ -211,13 +227,16 @@ def _parse_board(c: _Checker, d: dict) -> tuple[Board, Roi | None]:
         r = c.section(d["roi"], "board.roi")
         c.unknown(r, _ROI_KEYS, "board.roi")
         roi = Roi(
-            azimuth_deg=None if r.get("azimuth_deg") is None
+            azimuth_deg=None
+            if r.get("azimuth_deg") is None
             else c.interval(r["azimuth_deg"], "board.roi.azimuth_deg", -180.0, 180.0, wrap=True),
-            elevation_deg=None if r.get("elevation_deg") is None
+            elevation_deg=None
+            if r.get("elevation_deg") is None
             else c.interval(r["elevation_deg"], "board.roi.elevation_deg", -90.0, 90.0),
-            range_m=None if r.get("range_m") is None
+            range_m=None
+            if r.get("range_m") is None
             else c.interval(r["range_m"], "board.roi.range_m", 0.0, 1000.0),
-        )  # fmt: skip
+        )
         if roi.is_empty():
             roi = None
     return Board(rows, cols, s, m_long, m_short, lower_left), roi
@@ -230,12 +249,16 @@ def _parse_lidar(c: _Checker, d: dict) -> tuple[LidarModel, int | None]:
     res = d.get("horizontal_resolution_deg")
     if name == "generic":
         if angles is None:
-            raise c.fail("lidar.vertical_angles_deg", _MISSING, "a list of beam elevations in degrees (generic)")
+            raise c.fail(
+                "lidar.vertical_angles_deg", _MISSING, "a list of beam elevations in degrees (generic)"
+            )
         if res is None:
             raise c.fail("lidar.horizontal_resolution_deg", _MISSING, "a number in (0, 10] degrees (generic)")
     if angles is not None:
         if not isinstance(angles, (list, tuple)) or len(angles) < 1:
-            raise c.fail("lidar.vertical_angles_deg", angles, "a non-empty list of numbers in (-90, 90) degrees")
+            raise c.fail(
+                "lidar.vertical_angles_deg", angles, "a non-empty list of numbers in (-90, 90) degrees"
+            )
         a = c.numbers(angles, "lidar.vertical_angles_deg", None, lo=-89.999, hi=89.999)
         if len(set(a)) != len(a):
             raise c.fail("lidar.vertical_angles_deg", angles, "distinct beam elevations")
@@ -263,8 +286,11 @@ def _intensity_column(c: _Checker, v: Any, key: str) -> int:
 def _matrix3(c: _Checker, v: Any, key: str) -> list[list[float]]:
     if isinstance(v, (list, tuple)) and len(v) == 9 and not any(isinstance(x, (list, tuple)) for x in v):
         v = [list(v[0:3]), list(v[3:6]), list(v[6:9])]
-    if not (isinstance(v, (list, tuple)) and len(v) == 3 and all(isinstance(r, (list, tuple)) and len(r) == 3
-                                                                  for r in v)):  # fmt: skip
+    if not (
+        isinstance(v, (list, tuple))
+        and len(v) == 3
+        and all(isinstance(r, (list, tuple)) and len(r) == 3 for r in v)
+    ):
         raise c.fail(key, v, "a 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
     K = [c.numbers(r, f"{key}[{i}]", 3) for i, r in enumerate(v)]
     if not (K[0][0] > 0 and K[1][1] > 0 and K[1][0] == 0 and K[2] == [0.0, 0.0, 1.0]):
@@ -280,13 +306,17 @@ def _parse_camera(c: _Checker, d: dict) -> CameraModel:
     out: dict[str, Any] = {"model": kind, "width": int(w), "height": int(h)}
     if kind == "equirectangular":
         if w != 2 * h:
-            raise c.fail("camera.width", d.get("width"), f"2 * height = {2 * int(h)} for an equirectangular image")
+            raise c.fail(
+                "camera.width", d.get("width"), f"2 * height = {2 * int(h)} for an equirectangular image"
+            )
     else:
         out["K"] = _matrix3(c, d.get("K", _MISSING), "camera.K")
         sizes = _DIST_SIZES[kind]
         dist = d.get("dist")
-        out["dist"] = [0.0] * sizes[-1 if kind == "fisheye" else 1] if dist is None else c.numbers(
-            dist, "camera.dist", sizes
+        out["dist"] = (
+            [0.0] * sizes[-1 if kind == "fisheye" else 1]
+            if dist is None
+            else c.numbers(dist, "camera.dist", sizes)
         )
     try:
         return make_camera(out)
@@ -304,14 +334,32 @@ def _parse_ours(c: _Checker, d: dict, source: str) -> Config:
 
 # --------------------------------------------------------------------------- ILCC's schema
 _ILCC_USED = (
-    "pattern_size", "grid_length", "LiDAR_type", "camera_type", "instrinsic_para", "image_res",
-    "start_pattern_corner", "intensity_col_ind", "laser_beams_num", "marker_range_limit",
-)  # fmt: skip
+    "pattern_size",
+    "grid_length",
+    "LiDAR_type",
+    "camera_type",
+    "instrinsic_para",
+    "image_res",
+    "start_pattern_corner",
+    "intensity_col_ind",
+    "laser_beams_num",
+)
 _ILCC_IGNORED = (
-    "base_dir", "image_format", "backend", "output_img_with_dectected_corners", "back_proj_corners",
-    "file_name_digits", "jdc_thre_ratio", "agglomerative_cluster_th_ratio",
-    "chessboard_detect_planar_PCA_ratio", "multi_proc", "proc_num", "poses_num", "not_segmented",
-)  # fmt: skip
+    "base_dir",
+    "image_format",
+    "backend",
+    "output_img_with_dectected_corners",
+    "back_proj_corners",
+    "file_name_digits",
+    "jdc_thre_ratio",
+    "agglomerative_cluster_th_ratio",
+    "chessboard_detect_planar_PCA_ratio",
+    "multi_proc",
+    "proc_num",
+    "poses_num",
+    "not_segmented",
+    "marker_range_limit",
+)
 _ILCC_BEAMS = {16: "vlp16", 32: "hdl32", 64: "hdl64"}
 
 
@@ -356,12 +404,8 @@ def _parse_ilcc(c: _Checker, d: dict, source: str, base: Path | None) -> Config:
     if isinstance(spc, bool) or spc not in (0, 1):
         raise c.fail("start_pattern_corner", spc, "0 (black) or 1 (white)")
     board_d["lower_left"] = "black" if spc == 0 else "white"
-    if d.get("marker_range_limit") is not None:
-        board_d["roi"] = {"range_m": [0.0, c.number(d["marker_range_limit"], "marker_range_limit", lo=0.0,
-                                                    hi=1000.0, lo_open=True)]}  # fmt: skip
-    c2 = _Checker(source)
     try:
-        board, roi = _parse_board(c2, board_d)
+        board, roi = _parse_board(c, board_d)
     except InputError as e:  # rename our keys back to ILCC's in the message
         msg = str(e).replace("board.squares", "pattern_size").replace("board.square_size", "grid_length")
         raise InputError(msg) from None
@@ -394,7 +438,9 @@ def _parse_ilcc(c: _Checker, d: dict, source: str, base: Path | None) -> Config:
         if res is None:
             raise c.fail("image_res", _MISSING, "(height, width) of the panoramic images")
         if res[0] != 2 * res[1]:
-            raise c.fail("image_res", d["image_res"], "(height, width) with width = 2 * height (equirectangular)")
+            raise c.fail(
+                "image_res", d["image_res"], "(height, width) with width = 2 * height (equirectangular)"
+            )
         cam_d: dict[str, Any] = {"model": "equirectangular", "width": res[0], "height": res[1]}
     else:
         if d.get("instrinsic_para") is None:
@@ -426,11 +472,15 @@ def parse_config(d: Any, source: str = "<config>", base_dir: Path | str | None =
     """
     c = _Checker(source)
     if not isinstance(d, dict):
-        raise InputError(f"{source}: expected a mapping with sections board, lidar, camera; got {type(d).__name__}")
+        raise InputError(
+            f"{source}: expected a mapping with sections board, lidar, camera; got {type(d).__name__}"
+        )
     if _is_ilcc(d):
         ours = [k for k in d if k in _TOP_KEYS]
         if ours:
-            raise c.fail(ours[0], d[ours[0]], "either our schema (board, lidar, camera) or ILCC's keys, not both")
+            raise c.fail(
+                ours[0], d[ours[0]], "either our schema (board, lidar, camera) or ILCC's keys, not both"
+            )
         return _parse_ilcc(c, d, source, Path(base_dir) if base_dir is not None else None)
     return _parse_ours(c, d, source)
 
@@ -459,7 +509,9 @@ def config_to_dict(cfg: Config) -> dict:
     """The resolved configuration in our schema (plain Python types), e.g. to write beside results."""
     b = cfg.board
     margin: float | list[float] = (
-        float(b.margin_long) if b.margin_long == b.margin_short else [float(b.margin_long), float(b.margin_short)]
+        float(b.margin_long)
+        if b.margin_long == b.margin_short
+        else [float(b.margin_long), float(b.margin_short)]
     )
     board: dict[str, Any] = {
         "squares": [int(b.rows), int(b.cols)],

@@ -16,6 +16,12 @@ import gtsam
 import numpy as np
 
 from ilcc_graph.errors import InputError
+from ilcc_graph.io import read_calibration, sigma_from_covariance
+
+__all__ = [
+    "load_calibration", "extrinsic_prior", "invert_with_covariance", "check_rigid", "check_covariance",
+    "to_pose3", "sigma_from_covariance",
+]  # fmt: skip
 
 POSE3_DOF = 6
 _RIGID_TOL = 1e-6  # max |R^T R - I| and |last row - [0 0 0 1]| accepted in a file
@@ -79,47 +85,13 @@ def to_pose3(T: gtsam.Pose3 | np.ndarray, what: str = "T_cam_lidar") -> gtsam.Po
     return gtsam.Pose3(check_rigid(T, what))
 
 
-def _read_T_and_cov(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    """Raw ``T_cam_lidar`` and ``covariance`` from a calibration file, unchecked.
-
-    Uses ``ilcc_graph.io.read_calibration`` when the io package provides it, else reads the two
-    keys with ``yaml.safe_load`` (the file format is in ``shared/interface.md``).
-    """
-    try:
-        from ilcc_graph.io import read_calibration  # type: ignore[attr-defined]
-    except ImportError:
-        read_calibration = None
-    if read_calibration is not None:
-        cal = read_calibration(path)
-        return np.asarray(cal.T_cam_lidar), np.asarray(cal.covariance)
-
-    import yaml
-
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except OSError as e:
-        raise InputError(f"{path}: cannot read calibration file ({e.strerror or e})") from e
-    except yaml.YAMLError as e:
-        raise InputError(f"{path}: not valid YAML ({e})") from e
-    if not isinstance(doc, dict):
-        raise InputError(f"{path}: expected a mapping with keys T_cam_lidar and covariance")
-    out = []
-    for key in ("T_cam_lidar", "covariance"):
-        if key not in doc:
-            raise InputError(f"{path}: missing key {key!r}")
-        try:
-            out.append(np.asarray(doc[key], dtype=np.float64))
-        except (TypeError, ValueError) as e:
-            raise InputError(f"{path}: key {key!r} is not a numeric matrix ({e})") from e
-    return out[0], out[1]
-
-
 def load_calibration(path: str | Path) -> tuple[gtsam.Pose3, np.ndarray]:
     """Load the extrinsic and its covariance from a ``calibration.yaml``.
 
     Parameters
     ----------
-    path : the calibration file written by ``ilcc-graph calibrate``.
+    path : the calibration file written by ``ilcc-graph calibrate`` (read with
+        ``ilcc_graph.io.read_calibration``; only ``T_cam_lidar`` and ``covariance`` are used).
 
     Returns
     -------
@@ -134,7 +106,8 @@ def load_calibration(path: str | Path) -> tuple[gtsam.Pose3, np.ndarray]:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: calibration file not found")
-    T, cov = _read_T_and_cov(path)
+    cal = read_calibration(path)  # InputError for unreadable YAML, missing keys, wrong shapes
+    T, cov = cal.T_cam_lidar, cal.covariance
     try:
         return gtsam.Pose3(check_rigid(T, "T_cam_lidar")), check_covariance(cov, "covariance")
     except ValueError as e:
@@ -175,9 +148,7 @@ def extrinsic_prior(
     return gtsam.PriorFactorPose3(key, pose, noise)
 
 
-def invert_with_covariance(
-    pose: gtsam.Pose3 | np.ndarray, cov: np.ndarray
-) -> tuple[gtsam.Pose3, np.ndarray]:
+def invert_with_covariance(pose: gtsam.Pose3 | np.ndarray, cov: np.ndarray) -> tuple[gtsam.Pose3, np.ndarray]:
     """The inverse pose and its covariance in the same right-perturbation convention.
 
     With ``T_true = T * Exp(xi)``: ``T_true^-1 = Exp(-xi) T^-1 = T^-1 * Exp(-Ad(T) xi)``, since
@@ -199,19 +170,3 @@ def invert_with_covariance(
     Ad = T.AdjointMap()
     out = Ad @ cov @ Ad.T
     return T.inverse(), 0.5 * (out + out.T)
-
-
-def sigmas(cov: np.ndarray) -> dict[str, float]:
-    """Standard deviations of a Pose3-tangent covariance in the calibration file's units.
-
-    Returns ``{rx_deg, ry_deg, rz_deg, tx_mm, ty_mm, tz_mm}``.
-    """
-    s = np.sqrt(np.diag(np.asarray(cov, dtype=np.float64)))
-    return {
-        "rx_deg": float(np.degrees(s[0])),
-        "ry_deg": float(np.degrees(s[1])),
-        "rz_deg": float(np.degrees(s[2])),
-        "tx_mm": float(1e3 * s[3]),
-        "ty_mm": float(1e3 * s[4]),
-        "tz_mm": float(1e3 * s[5]),
-    }

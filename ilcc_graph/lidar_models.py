@@ -66,7 +66,9 @@ class LidarModel:
         if np.any(np.abs(a) >= 90):
             raise ValueError(f"vertical_angles_deg must lie in (-90, 90), got {a.tolist()}")
         if not (np.isfinite(self.horizontal_resolution_deg) and 0 < self.horizontal_resolution_deg <= 10):
-            raise ValueError(f"horizontal_resolution_deg must be in (0, 10], got {self.horizontal_resolution_deg}")
+            raise ValueError(
+                f"horizontal_resolution_deg must be in (0, 10], got {self.horizontal_resolution_deg}"
+            )
         if not (self.range_sigma_m > 0 and self.beam_divergence_rad >= 0):
             raise ValueError("range_sigma_m must be > 0 and beam_divergence_rad >= 0")
         a.setflags(write=False)
@@ -130,19 +132,19 @@ def ring_from_points(points: np.ndarray, model: LidarModel) -> np.ndarray:
     return np.searchsorted(mid, el, side="left").astype(np.int32)
 
 
-_HDL32 = np.array(
-    [-30.67, -29.33, -28.00, -26.67, -25.33, -24.00, -22.67, -21.33, -20.00, -18.67, -17.33,
-     -16.00, -14.67, -13.33, -12.00, -10.67, -9.33, -8.00, -6.67, -5.33, -4.00, -2.67, -1.33,
-     0.00, 1.33, 2.67, 4.00, 5.33, 6.67, 8.00, 9.33, 10.67]
-)  # fmt: skip
+_HDL32 = np.array([
+    -30.67, -29.33, -28.00, -26.67, -25.33, -24.00, -22.67, -21.33, -20.00, -18.67, -17.33,
+    -16.00, -14.67, -13.33, -12.00, -10.67, -9.33, -8.00, -6.67, -5.33, -4.00, -2.67,
+    -1.33, 0.00, 1.33, 2.67, 4.00, 5.33, 6.67, 8.00, 9.33, 10.67,
+])  # fmt: skip
 # lower block: -24.33 .. -8.83 deg in 0.5 deg steps; upper block: -8.33 .. +2.0 deg in 1/3 deg steps
 _HDL64 = np.concatenate([-24.33 + 0.5 * np.arange(32), 2.0 - (31 - np.arange(32)) / 3.0])
 _VLP16 = np.arange(-15.0, 15.0 + 1e-9, 2.0)
-_VLP32C = np.array(
-    [-25.0, -15.639, -11.31, -8.843, -7.254, -6.148, -5.333, -4.667, -4.0, -3.667, -3.333, -3.0,
-     -2.667, -2.333, -2.0, -1.667, -1.333, -1.0, -0.667, -0.333, 0.0, 0.333, 0.667, 1.0, 1.333,
-     1.667, 2.333, 3.333, 4.667, 7.0, 10.333, 15.0]
-)  # fmt: skip
+_VLP32C = np.array([
+    -25.0, -15.639, -11.31, -8.843, -7.254, -6.148, -5.333, -4.667, -4.0, -3.667, -3.333,
+    -3.0, -2.667, -2.333, -2.0, -1.667, -1.333, -1.0, -0.667, -0.333, 0.0, 0.333,
+    0.667, 1.0, 1.333, 1.667, 2.333, 3.333, 4.667, 7.0, 10.333, 15.0,
+])  # fmt: skip
 _OS1_64 = np.linspace(-16.611, 16.611, 64)
 
 _TABLES: dict[str, tuple[np.ndarray, float, float, float]] = {
@@ -175,9 +177,14 @@ def lidar_model(
     if key == "generic":
         if vertical_angles_deg is None or horizontal_resolution_deg is None:
             raise InputError(
-                "lidar model 'generic' needs vertical_angles_deg (list of degrees) and horizontal_resolution_deg"
+                "lidar model 'generic' needs vertical_angles_deg (degrees) and horizontal_resolution_deg"
             )
-        table, res, sigma, div = np.asarray(vertical_angles_deg, float), float(horizontal_resolution_deg), 0.03, 3e-3
+        table, res, sigma, div = (
+            np.asarray(vertical_angles_deg, float),
+            float(horizontal_resolution_deg),
+            0.03,
+            3e-3,
+        )
     elif key in _TABLES:
         table, res, sigma, div = _TABLES[key]
         if vertical_angles_deg is not None:
@@ -189,6 +196,8 @@ def lidar_model(
     if range_sigma_m is not None:
         sigma = float(range_sigma_m)
     try:
-        return LidarModel(key, np.sort(np.asarray(table, float)) if key == "generic" else table, res, sigma, div)
+        return LidarModel(
+            key, np.sort(np.asarray(table, float)) if key == "generic" else table, res, sigma, div
+        )
     except ValueError as e:
         raise InputError(f"lidar model {name!r}: {e}") from None

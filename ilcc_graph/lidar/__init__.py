@@ -1,0 +1,194 @@
+"""The LiDAR stage: find the chessboard in one scan and estimate its pose and inner corners.
+
+``estimate_board(scan, board, lidar_model, roi=None, options=LidarOptions()) -> BoardFit``
+(raises ``BoardNotFound`` with the reason, ``InputError`` for a scan without usable intensity).
+Pipeline: segmentation.py (scanlines -> objects), detection.py (the paper's board tests),
+fit.py (the paper's intensity cost, Powell), covariance.py (soft-edged refinement, plane fit).
+See docs/lidar_stage.md.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+
+from ..board import Board
+from ..errors import BoardNotFound, InputError
+from ..lidar_models import LidarModel
+from ..types import BoardFit, Scan
+from .covariance import assemble_covariance, plane_covariance, soft_edge_refine
+from .detection import find_board
+from .fit import fit_in_plane, plane_frame, pose_from_in_plane, project_on_plane
+from .options import LidarOptions
+
+__all__ = ["estimate_board", "LidarOptions", "check_intensity", "fit_board_points"]
+
+
+def check_intensity(scan: Scan) -> None:
+    """Raise InputError when the scan has no usable reflectance intensity (absent, wrong size, constant)."""
+    src = scan.source or "scan"
+    inten = scan.intensity
+    if inten is None:
+        raise InputError(f"{src}: the scan has no intensity field; the chessboard is found by its reflectance")
+    inten = np.asarray(inten)
+    if inten.shape != (len(scan),):
+        raise InputError(f"{src}: intensity has shape {inten.shape}, expected ({len(scan)},)")
+    fin = inten[np.isfinite(inten)]
+    if fin.size == 0 or float(fin.max()) == float(fin.min()):
+        value = "no finite value" if fin.size == 0 else f"every value is {float(fin[0]):g}"
+        raise InputError(
+            f"{src}: the intensity field carries no information ({value}); the chessboard's squares "
+            "are told apart by reflectance intensity (check lidar.intensity_column for a CSV)"
+        )
+
+
+def _align_to_plane(T: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
+    """T_lidar_board turned by the smallest rotation so that its z is ``normal`` and its origin on the plane."""
+    z = T[:3, 2]
+    v = np.cross(z, normal)
+    sn, cs = np.linalg.norm(v), float(z @ normal)
+    R = np.eye(3)
+    if sn > 1e-12:
+        k = v / sn
+        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        R = np.eye(3) + sn * K + (1 - cs) * K @ K
+    out = np.eye(4)
+    out[:3, :3] = R @ T[:3, :3]
+    o = T[:3, 3]
+    out[:3, 3] = o - (o @ normal - offset) * normal
+    return out
+
+
+def _plane_lsq(p: np.ndarray) -> tuple[np.ndarray, float]:
+    mu = p.mean(axis=0)
+    _, _, vt = np.linalg.svd(p - mu, full_matrices=False)
+    n = vt[2] if vt[2] @ mu < 0 else -vt[2]
+    return n, float(n @ mu)
+
+
+def fit_board_points(
+    points: np.ndarray,
+    intensity: np.ndarray,
+    normal: np.ndarray,
+    offset: float,
+    board: Board,
+    lidar_model: LidarModel,
+    options: LidarOptions = LidarOptions(),
+    rng: np.random.Generator | None = None,
+) -> BoardFit:
+    """Pose, corners and covariance from the board's points (M, 3) LiDAR frame and intensities (M,).
+
+    normal/offset: the plane ``normal @ p = offset`` with the normal towards the sensor.
+    """
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(0) if rng is None else rng
+    P = np.asarray(points, dtype=np.float64)
+    inten = np.asarray(intensity, dtype=np.float64)
+    Pp = project_on_plane(P, normal, offset)
+    frame = plane_frame(Pp, normal, offset)
+    q = (Pp - frame.origin) @ frame.axes[:2].T
+    try:
+        fit = fit_in_plane(q, inten, board, options, rng)
+    except ValueError as e:
+        raise BoardNotFound(f"the board's points show no black/white contrast ({e})") from None
+    T0 = pose_from_in_plane(frame, fit.params)
+    t_powell = time.perf_counter() - t0
+
+    # keep the points on the fitted board, refit the plane on them (drops a hand, the stand)
+    Tinv = np.linalg.inv(T0)
+    b = Pp @ Tinv[:3, :3].T + Tinv[:3, 3]
+    x0, x1, y0, y1 = board.extent()
+    on = (b[:, 0] >= x0) & (b[:, 0] <= x1) & (b[:, 1] >= y0) & (b[:, 1] <= y1)
+    if on.sum() < 30:
+        raise BoardNotFound(f"only {int(on.sum())} points fall on the fitted board; the fit is not trustworthy")
+    n2, d2 = _plane_lsq(P[on])
+    T0 = _align_to_plane(T0, n2, d2)
+    Pp = project_on_plane(P, n2, d2)
+    Tinv = np.linalg.inv(T0)
+    b = Pp @ Tinv[:3, :3].T + Tinv[:3, 3]
+    on = (b[:, 0] >= x0) & (b[:, 0] <= x1) & (b[:, 1] >= y0) & (b[:, 1] <= y1)
+
+    dist = float(np.linalg.norm(P[on].mean(axis=0)))
+    step = np.deg2rad(lidar_model.horizontal_resolution_deg)
+    blur0 = 0.5 * dist * max(lidar_model.beam_divergence_rad, step)
+    soft = soft_edge_refine(b[on, :2], inten[on], board, fit.levels, blur0)
+    T = T0
+    if options.refine and soft.converged:
+        w, tx, ty = soft.xi
+        E = np.eye(4)
+        E[:3, :3] = [[np.cos(w), -np.sin(w), 0], [np.sin(w), np.cos(w), 0], [0, 0, 1]]
+        V = np.eye(2) if abs(w) < 1e-9 else np.array([[np.sin(w), -(1 - np.cos(w))], [1 - np.cos(w), np.sin(w)]]) / w
+        E[:2, 3] = V @ np.array([tx, ty])
+        T = T0 @ E
+    cov_in = soft.cov
+    if not np.all(np.isfinite(cov_in)):
+        s = board.square_size
+        cov_in = np.diag([np.deg2rad(2.0) ** 2, (s / 4) ** 2, (s / 4) ** 2])
+
+    Tinv = np.linalg.inv(T)
+    b_raw = P[on] @ Tinv[:3, :3].T + Tinv[:3, 3]
+    cov_out, s_z = plane_covariance(b_raw)
+    cov = options.covariance_inflation * assemble_covariance(cov_out, cov_in)
+    corners = board.corners_board() @ T[:3, :3].T + T[:3, 3]
+    diag: dict[str, float] = {
+        "n_points": float(on.sum()),
+        "range_m": dist,
+        "tau_l": fit.tau[0],
+        "tau_h": fit.tau[1],
+        "intensity_low": fit.levels[0],
+        "intensity_high": fit.levels[1],
+        "powell_evals": float(fit.n_evals),
+        "soft_converged": float(soft.converged),
+        "soft_blur_m": soft.blur,
+        "soft_scale": soft.scale,
+        "plane_sigma_m": s_z,
+        "refine_shift_mm": 1e3 * float(np.linalg.norm(soft.xi[1:])),
+        "time_fit_s": time.perf_counter() - t0,
+        "time_powell_s": t_powell,
+    }
+    return BoardFit(
+        T_lidar_board=T,
+        covariance=cov,
+        corners_lidar=corners,
+        points_lidar=P[on],
+        intensity=inten[on],
+        half_turn_ambiguous=board.half_turn_symmetric,
+        cost=float(fit.cost),
+        diagnostics=diag,
+    )
+
+
+def estimate_board(
+    scan: Scan,
+    board: Board,
+    lidar_model: LidarModel,
+    roi: Any | None = None,
+    options: LidarOptions = LidarOptions(),
+) -> BoardFit:
+    """Find the chessboard in one scan; its pose, covariance and inner corners in the LiDAR frame.
+
+    scan: points (N, 3) LiDAR frame, intensity (N,), ring (N,) or None (then from elevation).
+    roi: optional ``config.Roi`` (azimuth_deg, elevation_deg, range_m limits) narrowing the search.
+    Raises InputError when the scan has no usable intensity, BoardNotFound (with the reason) when
+    no segment passes the chessboard tests or the fit fails.
+    """
+    t0 = time.perf_counter()
+    check_intensity(scan)
+    pts = np.asarray(scan.points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise InputError(f"{scan.source or 'scan'}: points must be (N, 3), got {pts.shape}")
+    ring = scan.ring if scan.ring is not None else lidar_model.ring_from_points(pts)
+    rng = np.random.default_rng(0)
+    cand = find_board(pts, np.asarray(ring), board, lidar_model, roi, options, rng)
+    t_detect = time.perf_counter() - t0
+    fit = fit_board_points(
+        pts[cand.indices], np.asarray(scan.intensity, np.float64)[cand.indices], cand.normal, cand.offset,
+        board, lidar_model, options, rng,
+    )  # fmt: skip
+    fit.diagnostics.update(
+        {"time_detect_s": t_detect, "uniformity": cand.uniformity, "range_noise_m": cand.noise_sigma,
+         "candidates_tested": float(cand.tested)}
+    )  # fmt: skip
+    return fit

@@ -1,0 +1,39 @@
+"""Simulated LiDAR-camera data sets: scene, LiDAR ray casting, image rendering (pure, in memory).
+
+``simulate_frames(spec)`` yields :class:`SimFrame` objects; ``ground_truth(spec, frames)`` gives the
+content of ground_truth.yaml; ``simulate_dataset(out_dir, spec)`` (in ``export``, the one module that
+writes files) writes the data-set layout of interface.md.
+"""
+
+from __future__ import annotations
+
+from .frames import SimFrame, frame_name, ground_truth, simulate_frame, simulate_frames
+from .lidar import beam_biases, simulate_scan
+from .placements import board_placements, frame_scene
+from .render import ImageRenderer
+from .scene import Box, Scene, cast_rays
+from .spec import (
+    ImageOptions,
+    SceneOptions,
+    SimulationSpec,
+    Systematics,
+    default_camera,
+    default_T_cam_lidar,
+    paper_board,
+    standard_spec,
+)
+
+
+def simulate_dataset(*args, **kwargs):  # noqa: ANN002, ANN003 - thin lazy wrapper, see export.simulate_dataset
+    """Write a data set; see :func:`ilcc_graph.simulate.export.simulate_dataset`."""
+    from .export import simulate_dataset as _write
+
+    return _write(*args, **kwargs)
+
+
+__all__ = [
+    "Box", "ImageOptions", "ImageRenderer", "Scene", "SceneOptions", "SimFrame", "SimulationSpec",
+    "Systematics", "beam_biases", "board_placements", "cast_rays", "default_T_cam_lidar", "default_camera",
+    "frame_name", "frame_scene", "ground_truth", "paper_board", "simulate_dataset", "simulate_frame",
+    "simulate_frames", "simulate_scan", "standard_spec",
+]  # fmt: skip

@@ -1,0 +1,398 @@
+"""The extrinsic as a GTSAM factor graph: bearing factors, board priors, LM, marginal covariance.
+
+Variables: ``X(0)`` = ``T_cam_lidar`` (Pose3, ``p_cam = T_cam_lidar * p_lidar``) and ``B(i)`` =
+``T_lidar_board`` of frame i (Pose3, ``p_lidar = T_lidar_board * p_board``). Factors: per frame one
+``PriorFactorPose3`` on ``B(i)`` with the LiDAR stage's 6x6 covariance and one grouped bearing factor
+(``factors.FrameBearingFactor``) holding all its corners, each with its own 2x2 bearing covariance
+mapped from the pixel covariance through the camera model. Levenberg-Marquardt from ``T_init``;
+``gtsam.Marginals`` gives the 6x6 covariance of ``X(0)`` in the convention of interface.md
+(``T_true = T_est * Expmap(xi)``, rotation first). A frame whose residual fails a chi-square gate
+is dropped and the graph re-solved.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import B, X
+from scipy.stats import chi2 as chi2_dist
+
+from factors import POSE3_DOF, FrameBearingFactor, tangent_bases
+from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
+
+logger = logging.getLogger(__name__)
+
+MIN_FRAMES_ADVISED = 4
+MIN_CORNERS = 3
+_ROBUST_DEFAULT_K = {
+    "huber": 1.345,
+    "cauchy": 2.3849,
+    "tukey": 4.6851,
+    "geman_mcclure": 2.9846,
+    "welsch": 2.9846,
+}
+_ROBUST = {
+    "huber": gtsam.noiseModel.mEstimator.Huber,
+    "cauchy": gtsam.noiseModel.mEstimator.Cauchy,
+    "tukey": gtsam.noiseModel.mEstimator.Tukey,
+    "geman_mcclure": gtsam.noiseModel.mEstimator.GemanMcClure,
+    "welsch": gtsam.noiseModel.mEstimator.Welsch,
+}
+# Largest 1-sigma (rad or m) we still call a determined estimate.
+_MAX_SIGMA = 10.0
+
+
+@dataclass(frozen=True)
+class GraphFrame:
+    """One frame's input to the graph.
+
+    name: frame name (file stem).
+    T_lidar_board: (4, 4) board pose from the LiDAR stage, ``p_lidar = T_lidar_board @ p_board``.
+    board_cov: (6, 6) its Pose3-tangent covariance (rotation first, rad and m).
+    points_board: (K, 3) corners in the board frame, metres (``Board.corners_board()`` order).
+    bearings: (K, 3) measured bearings of the same corners, camera frame (normalised here).
+    cov_px: (K, 2, 2) pixel covariance of each image corner, px^2.
+    """
+
+    name: str
+    T_lidar_board: np.ndarray
+    board_cov: np.ndarray
+    points_board: np.ndarray
+    bearings: np.ndarray
+    cov_px: np.ndarray
+
+
+@dataclass(frozen=True)
+class GraphOptions:
+    """Solver settings.
+
+    robust: None or an m-estimator applied per corner to its whitened bearing error: ``"huber"``,
+        ``"cauchy"``, ``"tukey"``, ``"geman_mcclure"``, ``"welsch"``.
+    robust_k: the kernel's threshold in sigmas (None: the usual 95 %-efficiency value).
+    chi2_gate_prob: a frame whose chi-square (bearing and board-prior terms, 2K dof) exceeds this
+        quantile is dropped; None disables the gate.
+    max_dropped_fraction: the gate drops at most this fraction of the usable frames (a noise model
+        that is wrong for every frame should not empty the graph); the rest are kept with a warning.
+    max_iterations, relative_error_tol, absolute_error_tol: Levenberg-Marquardt stopping rules.
+    """
+
+    robust: str | None = None
+    robust_k: float | None = None
+    chi2_gate_prob: float | None = 0.999
+    max_dropped_fraction: float = 0.5
+    max_iterations: int = 100
+    relative_error_tol: float = 1e-10
+    absolute_error_tol: float = 1e-12
+
+
+@dataclass(frozen=True)
+class FrameStats:
+    """Residual statistics of one frame at the solution.
+
+    chi2: whitened squared bearing errors plus the board prior's term; dof: 2K;
+    rms_bearing_error_mrad: RMS angle between predicted and measured bearings, mrad.
+    """
+
+    chi2: float
+    dof: int
+    rms_bearing_error_mrad: float
+
+
+@dataclass(frozen=True)
+class GraphSolution:
+    """The graph's answer.
+
+    T_cam_lidar: (4, 4). covariance: (6, 6) of ``T_cam_lidar`` (interface.md convention, exactly
+    ``Marginals.marginalCovariance(X(0))``). T_lidar_board: refined board poses of the used frames.
+    per_frame: statistics of the used frames. dropped: ``(name, reason)`` in the order dropped.
+    iterations: LM iterations over all solves. timings: seconds (build, optimize, marginals, total).
+    """
+
+    T_cam_lidar: np.ndarray
+    covariance: np.ndarray
+    T_lidar_board: dict[str, np.ndarray]
+    per_frame: dict[str, FrameStats]
+    dropped: list[tuple[str, str]]
+    iterations: int
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def pose(self) -> gtsam.Pose3:
+        """``T_cam_lidar`` as a ``gtsam.Pose3``."""
+        return gtsam.Pose3(self.T_cam_lidar)
+
+
+# ------------------------------------------------------------------------------ input checks
+def _check_pose(T: np.ndarray, what: str) -> gtsam.Pose3:
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"{what}: expected a finite (4, 4) rigid transform, got shape {T.shape}")
+    R = T[:3, :3]
+    if (
+        np.abs(R.T @ R - np.eye(3)).max() > 1e-6
+        or np.linalg.det(R) < 0
+        or np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-9
+    ):
+        raise ValueError(f"{what}: not a rigid transform (rotation not orthonormal or last row not 0 0 0 1)")
+    return gtsam.Pose3(gtsam.Rot3(R), T[:3, 3])
+
+
+def _check_cov(C: np.ndarray, n: int, what: str) -> np.ndarray:
+    C = np.asarray(C, dtype=np.float64)
+    if C.shape != (n, n) or not np.all(np.isfinite(C)):
+        raise ValueError(f"{what}: expected a finite ({n}, {n}) covariance, got shape {C.shape}")
+    C = 0.5 * (C + C.T)
+    if np.linalg.eigvalsh(C).min() <= 0:
+        raise ValueError(f"{what}: covariance is not positive definite")
+    return C
+
+
+def _robust_kernel(options: GraphOptions) -> gtsam.noiseModel.mEstimator.Base | None:
+    if options.robust is None:
+        return None
+    name = options.robust.lower().replace("-", "_")
+    if name not in _ROBUST:
+        raise ValueError(
+            f"GraphOptions.robust: unknown kernel {options.robust!r}; choose from {sorted(_ROBUST)}"
+        )
+    k = _ROBUST_DEFAULT_K[name] if options.robust_k is None else float(options.robust_k)
+    if not k > 0:
+        raise ValueError(f"GraphOptions.robust_k must be > 0, got {options.robust_k!r}")
+    return _ROBUST[name].Create(k)
+
+
+@dataclass
+class _Frame:
+    """A frame ready for the graph (internal)."""
+
+    name: str
+    index: int
+    prior: gtsam.Pose3
+    prior_cov: np.ndarray
+    bearing: FrameBearingFactor
+    T_board0: gtsam.Pose3
+
+
+def _prepare(
+    frames: Sequence[GraphFrame], camera: CameraModel, robust: gtsam.noiseModel.mEstimator.Base | None
+) -> tuple[list[_Frame], list[tuple[str, str]]]:
+    ready: list[_Frame] = []
+    dropped: list[tuple[str, str]] = []
+    for i, f in enumerate(frames):
+        what = f"GraphFrame {f.name!r}"
+        prior = _check_pose(f.T_lidar_board, f"{what}.T_lidar_board")
+        prior_cov = _check_cov(f.board_cov, POSE3_DOF, f"{what}.board_cov")
+        p = np.asarray(f.points_board, dtype=np.float64)
+        b = np.asarray(f.bearings, dtype=np.float64)
+        c = np.asarray(f.cov_px, dtype=np.float64)
+        K = len(p)
+        if p.shape != (K, 3) or b.shape != (K, 3) or c.shape != (K, 2, 2):
+            raise ValueError(
+                f"{what}: need points_board (K,3), bearings (K,3), cov_px (K,2,2), "
+                f"got {p.shape}, {b.shape}, {c.shape}"
+            )
+        with np.errstate(invalid="ignore", divide="ignore"):
+            b = b / np.linalg.norm(b, axis=1, keepdims=True)
+        ok = (
+            np.all(np.isfinite(b), axis=1)
+            & np.all(np.isfinite(p), axis=1)
+            & np.all(np.isfinite(c), axis=(1, 2))
+        )
+        cov_t = np.full((K, 2, 2), np.nan)
+        if ok.any():
+            cov_t[ok] = camera.bearing_tangent_cov(b[ok], c[ok], tangent_bases(b[ok]))
+        ok &= np.all(np.isfinite(cov_t), axis=(1, 2))
+        good = np.flatnonzero(ok)
+        if good.size:
+            ok[good] = np.linalg.eigvalsh(cov_t[good]).min(axis=1) > 0
+        if ok.sum() < MIN_CORNERS:
+            dropped.append((f.name, f"only {int(ok.sum())} corners with a usable bearing and covariance"))
+            continue
+        if not ok.all():
+            logger.info(
+                "frame %s: %d of %d corners without a usable bearing covariance skipped",
+                f.name,
+                K - ok.sum(),
+                K,
+            )
+        factor = FrameBearingFactor(X(0), B(i), p[ok], b[ok], cov_t[ok], robust)
+        ready.append(_Frame(f.name, i, prior, prior_cov, factor, prior))
+    return ready, dropped
+
+
+# -------------------------------------------------------------------------------- the graph
+def _build(ready: Sequence[_Frame]) -> gtsam.NonlinearFactorGraph:
+    graph = gtsam.NonlinearFactorGraph()
+    for fr in ready:
+        graph.add(
+            gtsam.PriorFactorPose3(B(fr.index), fr.prior, gtsam.noiseModel.Gaussian.Covariance(fr.prior_cov))
+        )
+        graph.add(fr.bearing.factor())
+    return graph
+
+
+def _initial(ready: Sequence[_Frame], T_cam_lidar: gtsam.Pose3) -> gtsam.Values:
+    values = gtsam.Values()
+    values.insert(X(0), T_cam_lidar)
+    for fr in ready:
+        values.insert(B(fr.index), fr.T_board0)
+    return values
+
+
+def _optimize(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, options: GraphOptions
+) -> tuple[gtsam.Values, int]:
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(options.max_iterations))
+    params.setRelativeErrorTol(float(options.relative_error_tol))
+    params.setAbsoluteErrorTol(float(options.absolute_error_tol))
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    result = optimizer.optimize()
+    return result, int(optimizer.iterations())
+
+
+def _frame_stats(fr: _Frame, values: gtsam.Values) -> FrameStats:
+    T_cl, T_lb = values.atPose3(X(0)), values.atPose3(B(fr.index))
+    e = fr.bearing.unwhitened(T_cl, T_lb)[0]
+    r = fr.bearing.whitened(T_cl, T_lb)
+    xi = np.asarray(fr.prior.localCoordinates(T_lb))
+    chi2 = float(np.sum(r * r) + xi @ np.linalg.solve(fr.prior_cov, xi))
+    # |e| is the sine of the angle between the bearings (their angle is < 90 deg near a solution)
+    angles = np.arcsin(np.clip(np.linalg.norm(e, axis=1), 0.0, 1.0))
+    return FrameStats(chi2, 2 * fr.bearing.n_corners, float(1e3 * np.sqrt(np.mean(angles**2))))
+
+
+def _marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> np.ndarray:
+    try:
+        cov = np.asarray(gtsam.Marginals(graph, values).marginalCovariance(X(0)), dtype=np.float64)
+    except (RuntimeError, IndexError, ValueError) as exc:
+        raise IndeterminateSystem(f"the graph does not determine T_cam_lidar: {exc}") from None
+    cov = 0.5 * (cov + cov.T)
+    if not np.all(np.isfinite(cov)):
+        raise IndeterminateSystem("the marginal covariance of T_cam_lidar is not finite")
+    eig = np.linalg.eigvalsh(cov)
+    if eig.min() <= 0 or math.sqrt(eig.max()) > _MAX_SIGMA:
+        raise IndeterminateSystem(
+            "the data barely determine T_cam_lidar "
+            f"(covariance eigenvalues {eig.min():.3g} .. {eig.max():.3g})"
+        )
+    return cov
+
+
+def _gate_failures(
+    ready: Sequence[_Frame], stats: dict[str, FrameStats], prob: float
+) -> list[tuple[float, _Frame, str]]:
+    """Frames failing the gate as (log survival probability, frame, reason), worst first."""
+    failing = []
+    for fr in ready:
+        s = stats[fr.name]
+        bound = float(chi2_dist.ppf(prob, s.dof))
+        if s.chi2 > bound:
+            reason = (
+                f"chi-square gate: residual chi2 {s.chi2:.1f} > {bound:.1f} ({s.dof} dof, p={prob}); "
+                f"rms bearing error {s.rms_bearing_error_mrad:.3f} mrad"
+            )
+            failing.append((float(chi2_dist.logsf(s.chi2, s.dof)), fr, reason))
+    return sorted(failing, key=lambda item: item[0])
+
+
+def solve(
+    frames: Sequence[GraphFrame],
+    camera: CameraModel,
+    T_init: np.ndarray,
+    options: GraphOptions = GraphOptions(),
+) -> GraphSolution:
+    """Refine ``T_cam_lidar`` over all frames and return it with its marginal covariance.
+
+    Parameters
+    ----------
+    frames : the frames (see ``GraphFrame``); bearings in the camera frame of ``camera``.
+    camera : maps each corner's pixel covariance to a bearing covariance (``bearing_tangent_cov``).
+    T_init : (4, 4) starting ``T_cam_lidar`` (e.g. UPnP's).
+    options : ``GraphOptions``.
+
+    Raises
+    ------
+    CalibrationImpossible : no usable frame.
+    IndeterminateSystem : the information matrix does not determine ``T_cam_lidar``.
+    ValueError : malformed input (message names the frame and the array).
+    """
+    t_start = time.perf_counter()
+    T0 = _check_pose(T_init, "T_init")
+    if options.chi2_gate_prob is not None and not 0.0 < options.chi2_gate_prob < 1.0:
+        raise ValueError(
+            f"GraphOptions.chi2_gate_prob must be in (0, 1) or None, got {options.chi2_gate_prob!r}"
+        )
+    robust = _robust_kernel(options)
+    ready, dropped = _prepare(frames, camera, robust)
+    if not ready:
+        raise CalibrationImpossible(
+            f"no usable frame for the graph ({len(frames)} given"
+            + (f"; dropped: {'; '.join(f'{n}: {r}' for n, r in dropped)})" if dropped else ")")
+        )
+    allowed_drops = int(math.floor(options.max_dropped_fraction * len(ready)))
+    timings = {"build": 0.0, "optimize": 0.0, "marginals": 0.0}
+    iterations = 0
+    T_cam_lidar = T0
+    board_estimates: dict[int, gtsam.Pose3] = {}
+    n_gate_drops = 0
+    while True:
+        t0 = time.perf_counter()
+        graph = _build(ready)
+        values = _initial(ready, T_cam_lidar)
+        for fr in ready:
+            if fr.index in board_estimates:
+                values.update(B(fr.index), board_estimates[fr.index])
+        t1 = time.perf_counter()
+        result, n_it = _optimize(graph, values, options)
+        t2 = time.perf_counter()
+        timings["build"] += t1 - t0
+        timings["optimize"] += t2 - t1
+        iterations += n_it
+        T_cam_lidar = result.atPose3(X(0))
+        board_estimates = {fr.index: result.atPose3(B(fr.index)) for fr in ready}
+        stats = {fr.name: _frame_stats(fr, result) for fr in ready}
+        if options.chi2_gate_prob is None:
+            break
+        failing = _gate_failures(ready, stats, options.chi2_gate_prob)
+        if not failing:
+            break
+        if n_gate_drops >= allowed_drops or len(ready) == 1:
+            logger.warning(
+                "chi-square gate fails for %d frame(s) (%s) but at most %d frames may be dropped; kept",
+                len(failing),
+                ", ".join(fr.name for _, fr, _ in failing),
+                allowed_drops,
+            )
+            break
+        _, worst, reason = failing[0]
+        logger.info("dropping frame %s: %s", worst.name, reason)
+        dropped.append((worst.name, reason))
+        ready = [fr for fr in ready if fr is not worst]
+        n_gate_drops += 1
+    if len(ready) < MIN_FRAMES_ADVISED:
+        logger.warning(
+            "only %d usable frame(s) in the graph; at least %d are advised for a reliable extrinsic",
+            len(ready),
+            MIN_FRAMES_ADVISED,
+        )
+    t3 = time.perf_counter()
+    covariance = _marginal_covariance(graph, result)
+    timings["marginals"] = time.perf_counter() - t3
+    timings["total"] = time.perf_counter() - t_start
+    return GraphSolution(
+        T_cam_lidar=np.asarray(T_cam_lidar.matrix(), dtype=np.float64),
+        covariance=covariance,
+        T_lidar_board={fr.name: np.asarray(board_estimates[fr.index].matrix()) for fr in ready},
+        per_frame=stats,
+        dropped=dropped,
+        iterations=iterations,
+        timings=timings,
+    )

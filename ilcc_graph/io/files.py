@@ -1,0 +1,115 @@
+"""Atomic file writes and YAML reading/writing (numpy-aware, matrices as readable rows)."""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from ..errors import InputError
+
+__all__ = ["atomic_write", "write_yaml", "read_yaml", "dump_yaml", "to_plain"]
+
+
+def atomic_write(path: str | Path, data: bytes | str) -> Path:
+    """Write ``data`` to ``path`` so that readers see the old file or the whole new one.
+
+    Writes a temporary file in the same folder, fsyncs it and renames it over ``path``
+    (``os.replace``). Creates missing parent folders. On any error the temporary file is removed
+    and ``path`` is left as it was. Returns ``path``.
+    """
+    p = Path(path)
+    payload = data.encode("utf-8") if isinstance(data, str) else bytes(data)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(payload)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, p)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    return p
+
+
+def to_plain(x: Any) -> Any:
+    """Numpy arrays/scalars, tuples and paths -> plain lists, floats, ints, str (recursively)."""
+    if isinstance(x, dict):
+        return {str(k) if not isinstance(k, (int, float, bool)) else k: to_plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [to_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return to_plain(x.tolist())
+    if isinstance(x, np.bool_):
+        return bool(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.floating):
+        return float(x)
+    if isinstance(x, os.PathLike):
+        return os.fspath(x)
+    if x is None or isinstance(x, (bool, int, float, str)):
+        return x
+    raise TypeError(f"cannot write a {type(x).__name__} to YAML: {x!r}")
+
+
+class _Dumper(yaml.SafeDumper):
+    """Lists of scalars in flow style (matrix rows on one line); everything else block style."""
+
+
+def _represent_list(dumper: yaml.SafeDumper, data: list) -> yaml.Node:
+    flow = all(not isinstance(v, (list, dict)) for v in data) and len(data) <= 64
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+
+def _represent_float(dumper: yaml.SafeDumper, data: float) -> yaml.Node:
+    if math.isnan(data):
+        return dumper.represent_scalar("tag:yaml.org,2002:float", ".nan")
+    if math.isinf(data):
+        return dumper.represent_scalar("tag:yaml.org,2002:float", ".inf" if data > 0 else "-.inf")
+    text = repr(float(data))  # shortest string that reads back to the same double
+    if "." not in text and "e" not in text:
+        text += ".0"
+    elif "e" in text and "." not in text:  # YAML 1.1 needs a dot in 1e-05
+        mant, exp = text.split("e")
+        text = f"{mant}.0e{exp}"
+    return dumper.represent_scalar("tag:yaml.org,2002:float", text)
+
+
+_Dumper.add_representer(list, _represent_list)
+_Dumper.add_representer(float, _represent_float)
+
+
+def dump_yaml(obj: Any) -> str:
+    """YAML text of ``obj`` (numpy-aware; key order kept)."""
+    return yaml.dump(to_plain(obj), Dumper=_Dumper, sort_keys=False, allow_unicode=True, width=200)
+
+
+def write_yaml(path: str | Path, obj: Any) -> Path:
+    """Write ``obj`` as YAML, atomically. The text is made in full before the file is touched."""
+    return atomic_write(path, dump_yaml(obj))
+
+
+def read_yaml(path: str | Path) -> Any:
+    """Load a YAML file (safe loader). Missing file or bad YAML -> ``InputError`` naming the file."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{p}: file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{p}: cannot read ({e})") from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise InputError(f"{p}: not valid YAML ({' '.join(str(e).split())})") from None

@@ -1,0 +1,224 @@
+"""``calibration.yaml`` and ``ground_truth.yaml`` (interface.md, "What a calibration writes").
+
+calibration.yaml keys, in order: ``T_cam_lidar`` (4x4), ``covariance`` (6x6, GTSAM Pose3 tangent
+of T_cam_lidar, rotation first), ``sigma`` (square roots of the covariance diagonal in degrees and
+millimetres), ``frames`` (per frame: ``name``, ``used``, ``reason`` when dropped,
+``lidar_corners`` (K,3) LiDAR frame metres, ``image_corners`` (K,2) pixels,
+``rms_bearing_error_mrad``, then ``T_lidar_board`` (4x4) when known), then ``method`` and
+``diagnostics``.
+
+Reading it back gives a ``Calibration`` whose frames carry minimal ``BoardFit`` /
+``ImageCorners``: what the file stores (corners, T_lidar_board) is filled in; the rest (segment
+points, bearings, covariances) is not stored and is empty or NaN.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputError
+from ..types import BoardFit, Calibration, FrameResult, ImageCorners
+from .files import read_yaml, write_yaml
+
+__all__ = [
+    "write_calibration",
+    "read_calibration",
+    "calibration_to_dict",
+    "sigma_from_covariance",
+    "GroundTruth",
+    "write_ground_truth",
+    "read_ground_truth",
+]
+
+GROUND_TRUTH_FILE = "ground_truth.yaml"
+
+
+def sigma_from_covariance(cov: np.ndarray) -> dict[str, float]:
+    """{rx_deg, ry_deg, rz_deg, tx_mm, ty_mm, tz_mm}: square roots of the 6x6 covariance diagonal."""
+    d = np.sqrt(np.clip(np.diag(np.asarray(cov, dtype=np.float64)), 0.0, None))
+    keys = ("rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm")
+    vals = [math.degrees(v) for v in d[:3]] + [1000.0 * v for v in d[3:]]
+    return {k: float(v) for k, v in zip(keys, vals, strict=True)}
+
+
+def _frame_dict(f: FrameResult) -> dict[str, Any]:
+    d: dict[str, Any] = {"name": str(f.name), "used": bool(f.used)}
+    if f.reason is not None or not f.used:
+        d["reason"] = f.reason or "not used"
+    if f.board is not None:
+        d["lidar_corners"] = np.asarray(f.board.corners_lidar, dtype=np.float64)
+    if f.corners is not None:
+        d["image_corners"] = np.asarray(f.corners.uv, dtype=np.float64)
+    d["rms_bearing_error_mrad"] = (
+        None if f.rms_bearing_error_mrad is None else float(f.rms_bearing_error_mrad)
+    )
+    if f.board is not None:
+        d["T_lidar_board"] = np.asarray(f.board.T_lidar_board, dtype=np.float64)
+    return d
+
+
+def calibration_to_dict(cal: Calibration) -> dict[str, Any]:
+    """The calibration.yaml content as plain data (numpy arrays left for the YAML writer)."""
+    return {
+        "T_cam_lidar": np.asarray(cal.T_cam_lidar, dtype=np.float64),
+        "covariance": np.asarray(cal.covariance, dtype=np.float64),
+        "sigma": sigma_from_covariance(cal.covariance),
+        "frames": [_frame_dict(f) for f in cal.frames],
+        "method": cal.method,
+        "diagnostics": {str(k): v for k, v in cal.diagnostics.items()},
+    }
+
+
+def write_calibration(path: str | Path, cal: Calibration) -> Path:
+    """Write ``calibration.yaml`` atomically (layout in interface.md)."""
+    return write_yaml(path, calibration_to_dict(cal))
+
+
+def _matrix(src: str, v: Any, key: str, shape: tuple[int, ...], pose: bool = False) -> np.ndarray:
+    try:
+        m = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{src}: {key} is not a numeric matrix") from None
+    if m.shape != shape and not (
+        len(shape) == 2 and shape[0] == -1 and m.ndim == 2 and m.shape[1] == shape[1]
+    ):
+        if len(shape) == 2 and shape[0] == -1 and m.size == 0:
+            return np.zeros((0, shape[1]))
+        raise InputError(f"{src}: {key} has shape {m.shape}, expected {shape}".replace("-1", "K"))
+    if pose:
+        if not np.all(np.isfinite(m)):
+            raise InputError(f"{src}: {key} has non-finite entries")
+        R = m[:3, :3]
+        if (
+            not np.allclose(m[3], [0, 0, 0, 1])
+            or not np.allclose(R.T @ R, np.eye(3), atol=1e-6)
+            or np.linalg.det(R) < 0
+        ):
+            raise InputError(f"{src}: {key} is not a rigid transform (rotation block or last row wrong)")
+    return m
+
+
+def read_calibration(path: str | Path) -> Calibration:
+    """Read ``calibration.yaml`` written by :func:`write_calibration` (InputError on bad content)."""
+    p = Path(path)
+    src = str(p)
+    d = read_yaml(p)
+    if not isinstance(d, dict):
+        raise InputError(f"{src}: expected a mapping with T_cam_lidar, covariance, frames")
+    for k in ("T_cam_lidar", "covariance", "frames"):
+        if k not in d:
+            raise InputError(f"{src}: missing key {k!r}")
+    T = _matrix(src, d["T_cam_lidar"], "T_cam_lidar", (4, 4), pose=True)
+    cov = _matrix(src, d["covariance"], "covariance", (6, 6))
+    if not isinstance(d["frames"], list):
+        raise InputError(f"{src}: frames must be a list")
+    frames = []
+    for i, fd in enumerate(d["frames"]):
+        key = f"frames[{i}]"
+        if not isinstance(fd, dict) or "name" not in fd or "used" not in fd:
+            raise InputError(f"{src}: {key} must be a mapping with name and used")
+        board = None
+        if fd.get("lidar_corners") is not None:
+            corners = _matrix(src, fd["lidar_corners"], f"{key}.lidar_corners", (-1, 3))
+            Tb = (
+                _matrix(src, fd["T_lidar_board"], f"{key}.T_lidar_board", (4, 4), pose=True)
+                if fd.get("T_lidar_board") is not None
+                else np.full((4, 4), np.nan)
+            )
+            board = BoardFit(
+                T_lidar_board=Tb,
+                covariance=np.full((6, 6), np.nan),
+                corners_lidar=corners,
+                points_lidar=np.zeros((0, 3)),
+                intensity=np.zeros(0),
+                half_turn_ambiguous=False,
+            )
+        img = None
+        if fd.get("image_corners") is not None:
+            uv = _matrix(src, fd["image_corners"], f"{key}.image_corners", (-1, 2))
+            k = uv.shape[0]
+            img = ImageCorners(
+                uv=uv,
+                bearings=np.full((k, 3), np.nan),
+                cov_px=np.full((k, 2, 2), np.nan),
+                half_turn_ambiguous=False,
+            )
+        rms = fd.get("rms_bearing_error_mrad")
+        frames.append(
+            FrameResult(
+                name=str(fd["name"]),
+                used=bool(fd["used"]),
+                reason=fd.get("reason"),
+                board=board,
+                corners=img,
+                rms_bearing_error_mrad=None if rms is None else float(rms),
+            )
+        )
+    diag = d.get("diagnostics") or {}
+    if not isinstance(diag, dict):
+        raise InputError(f"{src}: diagnostics must be a mapping")
+    return Calibration(
+        T_cam_lidar=T,
+        covariance=cov,
+        frames=tuple(frames),
+        method=str(d.get("method", "graph")),
+        diagnostics=dict(diag),
+    )
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    """A simulated data set's truth: ``T_cam_lidar`` (4,4), ``T_lidar_board`` per frame stem
+    (4,4) with ``p_lidar = T_lidar_board @ p_board``, and any further keys in ``extra``."""
+
+    T_cam_lidar: np.ndarray
+    T_lidar_board: dict[str, np.ndarray]
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def write_ground_truth(
+    path: str | Path,
+    T_cam_lidar: np.ndarray,
+    T_lidar_board: dict[str, np.ndarray],
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Write ``ground_truth.yaml`` (T_cam_lidar, T_lidar_board {stem: 4x4}, then ``extra``'s keys).
+
+    path: the file, or a data folder (then ``<folder>/ground_truth.yaml``).
+    """
+    p = Path(path)
+    if p.suffix.lower() not in (".yaml", ".yml"):
+        p = p / GROUND_TRUTH_FILE
+    extra = dict(extra or {})
+    clash = {"T_cam_lidar", "T_lidar_board"} & extra.keys()
+    if clash:
+        raise ValueError(f"extra must not repeat {sorted(clash)}")
+    obj = {
+        "T_cam_lidar": np.asarray(T_cam_lidar, dtype=np.float64),
+        "T_lidar_board": {str(k): np.asarray(v, dtype=np.float64) for k, v in T_lidar_board.items()},
+    }
+    obj.update(extra)
+    return write_yaml(p, obj)
+
+
+def read_ground_truth(data_dir: str | Path) -> GroundTruth:
+    """Read ``<data_dir>/ground_truth.yaml`` (or the file itself). InputError if absent or malformed."""
+    p = Path(data_dir)
+    if p.is_dir():
+        p = p / GROUND_TRUTH_FILE
+    src = str(p)
+    d = read_yaml(p)
+    if not isinstance(d, dict) or "T_cam_lidar" not in d:
+        raise InputError(f"{src}: expected a mapping with T_cam_lidar and T_lidar_board")
+    T = _matrix(src, d["T_cam_lidar"], "T_cam_lidar", (4, 4), pose=True)
+    tb = d.get("T_lidar_board") or {}
+    if not isinstance(tb, dict):
+        raise InputError(f"{src}: T_lidar_board must map frame stems to 4x4 matrices")
+    boards = {str(k): _matrix(src, v, f"T_lidar_board.{k}", (4, 4), pose=True) for k, v in tb.items()}
+    extra = {k: v for k, v in d.items() if k not in ("T_cam_lidar", "T_lidar_board")}
+    return GroundTruth(T, boards, extra)

@@ -1,0 +1,189 @@
+"""Point-cloud readers picked by file extension, and the checks every reader shares.
+
+``read_scan(path)`` dispatches on the suffix through a small registry (``@reader(".pcd")``).
+Formats are described in interface.md; field names are matched case-insensitively with a few
+common aliases (``laser_id`` for ``ring``, VeloView's ``Points:0`` for ``x``, CloudCompare's
+``scalar_Intensity`` for ``intensity``).
+
+Rows whose x, y, z or intensity is not finite are dropped (Velodyne drivers write NaN for "no
+return"); a file whose rows are all non-finite, or that has no rows, raises ``InputError``.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..types import Scan
+
+__all__ = ["read_scan", "reader", "supported_scan_suffixes", "FIELD_ALIASES"]
+
+ReadFn = Callable[[Path, "int | None"], Scan]
+_READERS: dict[str, ReadFn] = {}
+
+#: canonical field -> accepted names (lower case)
+FIELD_ALIASES: dict[str, tuple[str, ...]] = {
+    "x": ("x", "points:0", "points_m_xyz:0", "point:0"),
+    "y": ("y", "points:1", "points_m_xyz:1", "point:1"),
+    "z": ("z", "points:2", "points_m_xyz:2", "point:2"),
+    "intensity": ("intensity", "scalar_intensity", "reflectance", "reflectivity", "i"),
+    "ring": ("ring", "laser_id", "scalar_ring", "scalar_laser_id", "ring_id"),
+}
+
+
+def reader(*suffixes: str) -> Callable[[ReadFn], ReadFn]:
+    """Register a reader ``fn(path, intensity_column) -> Scan`` for the given suffixes."""
+
+    def register(fn: ReadFn) -> ReadFn:
+        for s in suffixes:
+            _READERS[s.lower()] = fn
+        return fn
+
+    return register
+
+
+def supported_scan_suffixes() -> list[str]:
+    """Suffixes with a registered reader, e.g. ``['.bin', '.csv', '.pcd', '.ply']``."""
+    return sorted(_READERS)
+
+
+def read_scan(path: str | Path, intensity_column: int | None = None) -> Scan:
+    """Read one LiDAR scan; the reader is chosen by the file's suffix.
+
+    intensity_column: column of intensity in a CSV file without header (ignored otherwise).
+    Returns a ``Scan`` (points (N,3) float64 LiDAR frame metres, intensity (N,), ring (N,) int32
+    or None). Raises ``InputError`` naming the file and the problem.
+    """
+    p = Path(path)
+    read = _READERS.get(p.suffix.lower())
+    if read is None:
+        raise InputError(f"{p}: no reader for {p.suffix!r}; supported: {supported_scan_suffixes()}")
+    if not p.is_file():
+        raise InputError(f"{p}: file not found")
+    if p.stat().st_size == 0:
+        raise InputError(f"{p}: empty file")
+    try:
+        return read(p, intensity_column)
+    except InputError:
+        raise
+    except (ValueError, UnicodeDecodeError, OSError, IndexError) as e:
+        raise InputError(f"{p}: cannot read as a {p.suffix} point cloud ({e})") from None
+
+
+def find_fields(path: Path, names: Sequence[str], need_intensity: bool = True) -> dict[str, int | None]:
+    """Indices of x, y, z, intensity (and ring, or None) among ``names``; InputError if missing."""
+    low = [str(n).strip().strip('"').strip("'").lower() for n in names]
+    found: dict[str, int | None] = {}
+    for key, aliases in FIELD_ALIASES.items():
+        idx = next((low.index(a) for a in aliases if a in low), None)
+        if idx is None and key in ("x", "y", "z"):
+            raise InputError(f"{path}: no {key!r} field; fields present: {list(names)}")
+        if idx is None and key == "intensity" and need_intensity:
+            raise InputError(
+                f"{path}: no intensity field (looked for {list(aliases)}); fields present: {list(names)}"
+            )
+        found[key] = idx
+    return found
+
+
+def make_scan(path: Path, xyz: np.ndarray, intensity: np.ndarray, ring: np.ndarray | None) -> Scan:
+    """Check values, drop non-finite rows and build the ``Scan`` (float64 / int32 copies)."""
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    inten = np.asarray(intensity, dtype=np.float64).reshape(-1)
+    n = xyz.shape[0]
+    if n == 0:
+        raise InputError(f"{path}: the file holds no points")
+    ok = np.isfinite(xyz).all(axis=1) & np.isfinite(inten)
+    if not ok.any():
+        raise InputError(f"{path}: all {n} points have non-finite x, y, z or intensity (NaN/inf)")
+    r = None
+    if ring is not None:
+        rf = np.asarray(ring).reshape(-1)
+        if rf.dtype.kind == "f":
+            bad = ok & ~(np.isfinite(rf) & (rf == np.round(rf)))
+            if bad.any():
+                raise InputError(f"{path}: ring values must be whole numbers; found {rf[bad][:3].tolist()}")
+            rf = np.where(ok, rf, 0)
+        if (rf[ok] < 0).any() or (rf[ok] > 65535).any():
+            raise InputError(
+                f"{path}: ring values must be in [0, 65535]; found {int(rf[ok].min())}..{int(rf[ok].max())}"
+            )
+        r = rf.astype(np.int32)
+    if not ok.all():
+        xyz, inten = xyz[ok], inten[ok]
+        r = None if r is None else r[ok]
+    return Scan(
+        points=np.ascontiguousarray(xyz), intensity=np.ascontiguousarray(inten), ring=r, source=str(path)
+    )
+
+
+# --------------------------------------------------------------------------- KITTI .bin
+@reader(".bin")
+def read_kitti_bin(path: Path, intensity_column: int | None = None) -> Scan:
+    """KITTI velodyne scan: little-endian float32 records ``x y z intensity``."""
+    raw = path.read_bytes()
+    if len(raw) % 16:
+        raise InputError(
+            f"{path}: size {len(raw)} bytes is not a multiple of 16 (float32 x y z intensity); truncated?"
+        )
+    a = np.frombuffer(raw, dtype="<f4").reshape(-1, 4)
+    return make_scan(path, a[:, :3], a[:, 3], None)
+
+
+# --------------------------------------------------------------------------- ILCC / VeloView CSV
+def _is_number(tok: str) -> bool:
+    try:
+        float(tok)
+    except ValueError:
+        return False
+    return True
+
+
+@reader(".csv")
+def read_csv(path: Path, intensity_column: int | None = None) -> Scan:
+    """ILCC's CSV: comma-separated, a header row naming the columns; or no header (x y z first,
+    intensity at ``intensity_column``; a 4-column file needs none)."""
+    text = path.read_text(encoding="utf-8-sig")
+    lines = text.splitlines()
+    first = next((i for i, ln in enumerate(lines) if ln.strip()), None)
+    if first is None:
+        raise InputError(f"{path}: the file holds no points")
+    head = [t.strip() for t in lines[first].split(",")]
+    has_header = not all(_is_number(t) for t in head if t)
+    body_lines = [ln for ln in lines[first + 1 if has_header else first :] if ln.strip()]
+    ncols = len(head)
+    if has_header:
+        cols = find_fields(path, head)
+    else:
+        if intensity_column is None:
+            if ncols != 4:
+                raise InputError(
+                    f"{path}: CSV without a header row has {ncols} columns; set lidar.intensity_column "
+                    "in config.yaml to say which holds intensity"
+                )
+            intensity_column = 3
+        if not 3 <= intensity_column < ncols:
+            raise InputError(
+                f"{path}: intensity_column {intensity_column} is outside the file's {ncols} columns"
+            )
+        cols = {"x": 0, "y": 1, "z": 2, "intensity": intensity_column, "ring": None}
+    if not body_lines:
+        raise InputError(f"{path}: the file holds no points")
+    want = [cols["x"], cols["y"], cols["z"], cols["intensity"]]
+    if cols["ring"] is not None:
+        want.append(cols["ring"])
+    try:
+        data = np.loadtxt(
+            io.StringIO("\n".join(body_lines)), delimiter=",", usecols=want, ndmin=2, dtype=np.float64
+        )
+    except ValueError as e:
+        raise InputError(f"{path}: bad CSV data ({' '.join(str(e).split())})") from None
+    widths = {len(ln.split(",")) for ln in body_lines[:: max(1, len(body_lines) // 1000)]}
+    if widths != {ncols}:
+        raise InputError(f"{path}: rows have {sorted(widths)} values, the first row has {ncols}")
+    ring = data[:, 4] if cols["ring"] is not None else None
+    return make_scan(path, data[:, :3], data[:, 3], ring)

@@ -1,0 +1,198 @@
+"""Uncertainty of the board pose: a smooth refinement of the intensity fit, and the plane fit.
+
+In-plane (rz, tx, ty): Powell's cost is piecewise constant in places and has no useful
+Hessian, so the fit is refined with a *soft-edged* model of the intensities,
+
+    I(b) = a + c * w(b),   w = M(b) * (1 + ph * Sx(x) Sy(y)) / 2 + (1 - M(b)),
+
+where ``Sx(x) = (-1)^j erf(u / (sqrt(2) sigma_b))`` is a square wave blurred by a Gaussian beam
+footprint (``j`` the nearest grid line, ``u`` the signed distance to it), ``M`` the blurred
+pattern box (outside it the margin is white) and ``ph = -1`` for a black lower-left square.
+Gauss-Newton (Huber-weighted) fits (rz, tx, ty, a, c, log sigma_b); the pose covariance is the
+(rz, tx, ty) block of ``s^2 (J^T W J)^-1`` with ``s`` the residuals' robust scale.
+
+Out-of-plane (rx, ry, tz): the board-frame heights of the points, ``z = tz + rx y - ry x`` to first
+order, fitted by least squares: covariance ``s_z^2 (A^T A)^-1`` mapped to (rx, ry, tz).
+
+Both in GTSAM's Pose3 tangent at the estimate, ``T_true = T_est * Expmap(xi)``,
+``xi = (rx, ry, rz, tx, ty, tz)``; the two blocks come from independent data (intensity vs range)
+and are taken as uncorrelated.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import erf
+
+from ..board import Board
+
+__all__ = ["SoftFit", "soft_edge_refine", "soft_intensity", "plane_covariance", "assemble_covariance"]
+
+_SQRT2 = np.sqrt(2.0)
+_C = 2.0 / np.sqrt(np.pi)
+
+
+def _wave(v: np.ndarray, s: float, n_lines: int, sig: float) -> tuple[np.ndarray, np.ndarray]:
+    """Blurred square wave and its derivative along one axis (lines at 0..n_lines * s)."""
+    j = np.clip(np.round(v / s), 0, n_lines)
+    u = v - j * s
+    sign = np.where(j % 2 == 0, 1.0, -1.0)
+    z = u / (_SQRT2 * sig)
+    return sign * erf(z), sign * _C * np.exp(-z * z) / (_SQRT2 * sig)
+
+
+def _box(v: np.ndarray, width: float, sig: float) -> tuple[np.ndarray, np.ndarray]:
+    """Blurred indicator of [0, width] and its derivative."""
+    z0, z1 = v / (_SQRT2 * sig), (v - width) / (_SQRT2 * sig)
+    val = 0.5 * (erf(z0) - erf(z1))
+    der = 0.5 * _C * (np.exp(-z0 * z0) - np.exp(-z1 * z1)) / (_SQRT2 * sig)
+    return val, der
+
+
+def soft_intensity(b: np.ndarray, board: Board, a: float, c: float, sig: float) -> tuple[np.ndarray, np.ndarray]:
+    """Soft-edged model intensity at board coordinates b (N, 2) and its gradient (N, 2)."""
+    s = board.square_size
+    w_, h_ = board.pattern_size_m
+    sx, dsx = _wave(b[:, 0], s, board.cols, sig)
+    sy, dsy = _wave(b[:, 1], s, board.rows, sig)
+    mx, dmx = _box(b[:, 0], w_, sig)
+    my, dmy = _box(b[:, 1], h_, sig)
+    ph = -1.0 if board.lower_left == "black" else 1.0
+    chk = 0.5 * (1 + ph * sx * sy)
+    m = mx * my
+    w = m * chk + (1 - m)
+    dw_dx = m * 0.5 * ph * dsx * sy + dmx * my * (chk - 1)
+    dw_dy = m * 0.5 * ph * sx * dsy + mx * dmy * (chk - 1)
+    return a + c * w, c * np.stack([dw_dx, dw_dy], axis=1)
+
+
+@dataclass(frozen=True)
+class SoftFit:
+    """Result of :func:`soft_edge_refine`.
+
+    xi: (3,) in-plane correction (rz, tx, ty) in the Pose3 tangent of the start pose
+    (``T_refined = T_start * Expmap((0, 0, rz, tx, ty, 0))``).
+    cov: (3, 3) covariance of (rz, tx, ty) at the refined pose. a, c: black level and contrast.
+    blur: fitted footprint sigma (m). scale: robust residual sigma (intensity units).
+    converged: False when Gauss-Newton did not settle or moved implausibly far.
+    """
+
+    xi: np.ndarray
+    cov: np.ndarray
+    a: float
+    c: float
+    blur: float
+    scale: float
+    converged: bool
+    iterations: int
+
+
+def _se2_exp(xi: np.ndarray) -> np.ndarray:
+    """3x3 homogeneous SE(2) of the in-plane part of Pose3.Expmap((0, 0, rz, tx, ty, 0))."""
+    w, tx, ty = xi
+    if abs(w) < 1e-9:
+        V = np.eye(2)
+    else:
+        V = np.array([[np.sin(w), -(1 - np.cos(w))], [1 - np.cos(w), np.sin(w)]]) / w
+    H = np.eye(3)
+    H[:2, :2] = [[np.cos(w), -np.sin(w)], [np.sin(w), np.cos(w)]]
+    H[:2, 2] = V @ np.array([tx, ty])
+    return H
+
+
+def soft_edge_refine(
+    b0: np.ndarray, intensity: np.ndarray, board: Board, levels: tuple[float, float], blur0: float,
+    max_iter: int = 15,
+) -> SoftFit:
+    """Gauss-Newton fit of the soft-edged model to intensities at board coordinates b0 (N, 2).
+
+    b0: points in the start pose's board frame (on the board). levels: (R_L, R_H) start values.
+    """
+    r = np.asarray(intensity, dtype=np.float64)
+    a, c = float(levels[0]), float(levels[1] - levels[0])
+    lsig = float(np.log(max(blur0, 1e-3)))
+    H = np.eye(3)  # current board <- start board (in-plane)
+    b0h = np.column_stack([b0, np.ones(len(b0))])
+    converged = False
+    it = 0
+    scale = 1.0
+    J = np.zeros((len(r), 6))
+    W = np.ones(len(r))
+    for it in range(1, max_iter + 1):  # noqa: B007
+        b = (b0h @ H.T)[:, :2]
+        sig = np.exp(lsig)
+        pred, grad = soft_intensity(b, board, a, c, sig)
+        res = r - pred
+        scale = max(1.4826 * float(np.median(np.abs(res - np.median(res)))), 1e-6)
+        k = 1.5 * scale
+        W = np.where(np.abs(res) <= k, 1.0, k / np.maximum(np.abs(res), 1e-12))
+        # d b / d xi for b' = Exp(-xi) b: [[y, -1, 0], [-x, 0, -1]]
+        J[:, 0] = -(grad[:, 0] * b[:, 1] - grad[:, 1] * b[:, 0])
+        J[:, 1] = grad[:, 0]
+        J[:, 2] = grad[:, 1]
+        w_model = (pred - a) / c if c != 0 else np.zeros_like(pred)
+        J[:, 3] = -1.0
+        J[:, 4] = -w_model
+        eps = 1e-4
+        p2, _ = soft_intensity(b, board, a, c, np.exp(lsig + eps))
+        p1, _ = soft_intensity(b, board, a, c, np.exp(lsig - eps))
+        J[:, 5] = -(p2 - p1) / (2 * eps)
+        JW = J * W[:, None]
+        N = JW.T @ J + 1e-9 * np.eye(6)
+        try:
+            step = -np.linalg.solve(N, JW.T @ res)
+        except np.linalg.LinAlgError:
+            break
+        step[5] = np.clip(step[5], -0.5, 0.5)
+        H = np.linalg.inv(_se2_exp(step[:3])) @ H
+        a += step[3]
+        c += step[4]
+        lsig = float(np.clip(lsig + step[5], np.log(2e-4), np.log(0.5 * board.square_size)))
+        if abs(step[0]) < 1e-6 and np.linalg.norm(step[1:3]) < 1e-6:
+            converged = True
+            break
+    try:
+        JW = J * W[:, None]
+        cov6 = scale**2 * np.linalg.inv(JW.T @ J)
+        cov = cov6[:3, :3]
+    except np.linalg.LinAlgError:
+        cov = np.full((3, 3), np.nan)
+        converged = False
+    # the correction xi in the start pose's tangent: board_new = H board_start, T_new = T_start * H^-1
+    Hinv = np.linalg.inv(H)
+    w = float(np.arctan2(Hinv[1, 0], Hinv[0, 0]))
+    if abs(w) < 1e-9:
+        Vinv = np.eye(2)
+    else:
+        V = np.array([[np.sin(w), -(1 - np.cos(w))], [1 - np.cos(w), np.sin(w)]]) / w
+        Vinv = np.linalg.inv(V)
+    t = Vinv @ Hinv[:2, 2]
+    xi = np.array([w, t[0], t[1]])
+    if not np.all(np.isfinite(cov)) or abs(w) > np.deg2rad(5) or np.linalg.norm(t) > 0.5 * board.square_size:
+        converged = False
+    return SoftFit(xi, cov, a, c, float(np.exp(lsig)), scale, converged, it)
+
+
+def plane_covariance(b_xyz: np.ndarray) -> tuple[np.ndarray, float]:
+    """Covariance of (rx, ry, tz) from the board-frame heights of the points.
+
+    b_xyz: (N, 3) points in the board frame. Fits ``z = tz + rx y - ry x`` by least squares and
+    returns ((3, 3) covariance ordered (rx, ry, tz), robust residual sigma in metres).
+    """
+    x, y, z = b_xyz[:, 0], b_xyz[:, 1], b_xyz[:, 2]
+    A = np.column_stack([y, -x, np.ones_like(x)])
+    sol, *_ = np.linalg.lstsq(A, z, rcond=None)
+    res = z - A @ sol
+    s = max(1.4826 * float(np.median(np.abs(res - np.median(res)))), 1e-5)
+    return s**2 * np.linalg.inv(A.T @ A), s
+
+
+def assemble_covariance(cov_out: np.ndarray, cov_in: np.ndarray) -> np.ndarray:
+    """(6, 6) Pose3 covariance (rx, ry, rz, tx, ty, tz) from (rx, ry, tz) and (rz, tx, ty) blocks."""
+    C = np.zeros((6, 6))
+    io, ii = [0, 1, 5], [2, 3, 4]
+    C[np.ix_(io, io)] = cov_out
+    C[np.ix_(ii, ii)] = cov_in
+    return 0.5 * (C + C.T)

@@ -1,0 +1,70 @@
+"""Tuning knobs of the LiDAR stage (segmentation, board tests, corner fit), with defaults.
+
+Every number is dimensionless or in the unit its name says. Defaults follow the paper
+(Wang et al. 2017, Section 4) where it gives one; the others are ours and documented in
+docs/lidar_stage.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class LidarOptions:
+    """Options of :func:`ilcc_graph.lidar.estimate_board`.
+
+    Segmentation
+    ------------
+    min_range_m: points closer than this are ignored (the sensor's own housing, dust).
+    jump_ratio: a scanline breaks where two successive points are farther apart than
+        ``jump_ratio * range * azimuth step`` (plus the noise allowance); ILCC uses 5.
+    link_ratio: two points of neighbouring rings are linked when closer than
+        ``link_ratio * range * elevation step`` (plus the noise allowance).
+    noise_sigmas: the noise allowance is ``noise_sigmas * sigma`` with sigma the range noise
+        estimated from the scan itself.
+    min_links: scanline segments of neighbouring rings merge when at least this many point
+        pairs link them.
+
+    Board tests (paper, Section 4.1)
+    --------------------------------
+    count_ratio: accepted (lo, hi) of points / theoretical count of a frontal board at that range;
+        hi is widened by one ring and one column of quantisation (see docs).
+    planarity_ratio: smallest PCA variance over the total must be below this, after removing the
+        range noise's own contribution (``(noise_sigmas/2 * sigma)^2``).
+    size_ratio: (lo, hi) of the segment's extent along its PCA axes over the board's sides
+        (margin included).
+    uniformity_min: ``1 - (n_max - n_min) / n_all`` over the four quadrants must reach this.
+    ransac_threshold_m: plane inlier distance floor (grown with the noise estimate).
+    max_planes: planes tried per over-merged object when splitting it (wall behind, person).
+
+    Corner fit (paper, Section 4.2)
+    -------------------------------
+    gray_epsilon: epsilon_g of the gray zone; 2 collapses it to the midpoint between the peaks.
+    angle_step_deg, shift_step: coarse search grid of in-plane angle and translation (fraction of a
+        square) that seeds Powell.
+    n_starts: Powell starts taken from the best coarse cells.
+    powell_xtol: Powell's tolerance on (theta_z [rad], t_x [m], t_y [m]).
+    refine: run the soft-edged Gauss-Newton refinement (gives the in-plane covariance and the
+        final pose); when False the Powell pose is returned with the refinement's covariance.
+    covariance_inflation: multiplies the final covariance (1 = the derivation as documented).
+    """
+
+    min_range_m: float = 0.3
+    jump_ratio: float = 5.0
+    link_ratio: float = 2.5
+    noise_sigmas: float = 4.0
+    min_links: int = 2
+    count_ratio: tuple[float, float] = (0.5, 1.0)
+    planarity_ratio: float = 0.01
+    size_ratio: tuple[float, float] = (0.8, 1.6)
+    uniformity_min: float = 0.85
+    ransac_threshold_m: float = 0.03
+    max_planes: int = 6
+    gray_epsilon: float = 2.0
+    angle_step_deg: float = 3.0
+    shift_step: float = 0.25
+    n_starts: int = 2
+    powell_xtol: float = 1e-4
+    refine: bool = True
+    covariance_inflation: float = 1.0

@@ -1,0 +1,69 @@
+"""Write a simulated data set (the simulator's only file I/O, through ``ilcc_graph.io`` writers).
+
+Layout (interface.md): ``config.yaml`` (our schema), ``pcd/<stem>.pcd`` (binary, x y z intensity
+ring), ``img/<stem>.png``, ``ground_truth.yaml``. Every file is written atomically; the data set
+is assembled in a sibling temporary folder and renamed into place at the end, so ``out_dir``
+either holds a complete data set or is left as it was.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+from ..io import write_image, write_pcd, write_yaml
+from .frames import ground_truth, simulate_frames
+from .spec import SimulationSpec
+
+__all__ = ["simulate_dataset", "config_dict"]
+
+
+def config_dict(spec: SimulationSpec) -> dict:
+    """config.yaml content (our schema) for the spec's board, LiDAR and camera."""
+    return {"board": spec.board.to_dict(), "lidar": spec.lidar_model.to_dict(), "camera": spec.camera.to_dict()}
+
+
+def simulate_dataset(
+    out_dir: Path | str,
+    spec: SimulationSpec,
+    progress: Callable[[int, int], None] | None = None,
+) -> Path:
+    """Simulate ``spec`` and write the data set to ``out_dir`` (created; must be empty or absent).
+
+    progress: called as ``progress(done, total)`` after each frame. Returns ``out_dir``.
+    Raises ``FileExistsError`` when ``out_dir`` exists and is not empty.
+    """
+    out = Path(out_dir)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise FileExistsError(f"{out}: exists and is not an empty folder")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    try:
+        write_yaml(tmp / "config.yaml", config_dict(spec))
+        names, poses = [], []
+        total = int(spec.n_frames)
+        for k, frame in enumerate(simulate_frames(spec)):
+            write_pcd(tmp / "pcd" / f"{frame.name}.pcd", frame.scan, data="binary")
+            write_image(tmp / "img" / f"{frame.name}.png", frame.image)
+            names.append(frame.name)
+            poses.append(frame.T_lidar_board)
+            if progress is not None:
+                progress(k + 1, total)
+        gt = ground_truth(spec, [_Pose(n, T) for n, T in zip(names, poses, strict=True)])
+        write_yaml(tmp / "ground_truth.yaml", gt)
+        if out.exists():
+            out.rmdir()
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+
+
+class _Pose:
+    """Name and pose of a written frame (what :func:`ground_truth` reads from a frame)."""
+
+    def __init__(self, name: str, T) -> None:
+        self.name, self.T_lidar_board = name, T

@@ -1,0 +1,223 @@
+"""Camera images by casting one ray per pixel (more near the board), uint8 BGR.
+
+The room seen from the camera does not change between frames, so it is rendered once per data set
+(one ray through each pixel centre, in chunks of rows to bound memory) and cached. Each frame then
+re-renders only the pixels whose projected bounding box covers a moving object (board, its stand,
+the person): those pixels get a full ray cast of the whole scene, the board's box with S x S
+samples per pixel (``ImageOptions.supersample``) and the others with 2 x 2, averaged (anti-aliased
+edges). Then a Gaussian blur (``blur_sigma_px``) and Gaussian pixel noise (``noise_sigma``).
+
+Pixels follow the camera model's convention (pixel centres at integers); a sample at (u, v) looks
+along ``camera.bearing((u, v))`` from the camera centre. Shading: flat colours times a little
+Lambertian light from above; procedural value-noise texture on walls, floor and ceiling (smooth,
+so it makes no chessboard-like corners). The board prints grey 22 (black) and 225 (white).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.special import ndtri
+
+from ..camera_models import Equirectangular
+from .placements import PURPOSE_FRAME, PURPOSE_UNIT, camera_centre_lidar, frame_rng, static_scene
+from .scene import SURF_BOARD, SURF_BOARD_BACK, SURF_CEILING, SURF_GROUND, SURF_NONE, SURF_PERSON
+from .scene import SURF_POLE, SURF_WALL, Hits, Scene, cast_rays
+from .spec import SimulationSpec
+
+__all__ = ["ImageRenderer", "BOARD_BLACK", "BOARD_WHITE"]
+
+BOARD_BLACK, BOARD_WHITE = 22.0, 225.0
+_CHUNK_RAYS = 1 << 20
+_LIGHT = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
+_BGR = {
+    SURF_NONE: (235.0, 205.0, 170.0),  # sky (open scene)
+    SURF_GROUND: (95.0, 108.0, 120.0),
+    SURF_CEILING: (215.0, 215.0, 210.0),
+    SURF_WALL: (170.0, 186.0, 200.0),
+    SURF_BOARD_BACK: (70.0, 70.0, 70.0),
+    SURF_PERSON: (95.0, 55.0, 35.0),
+    SURF_POLE: (50.0, 50.0, 55.0),
+}
+_PALETTE = np.zeros((8, 3), np.float32)
+for _s, _c in _BGR.items():
+    _PALETTE[_s] = _c
+
+
+class _Texture:
+    """Smooth periodic value noise on surface coordinates (metres), values about [-1, 1].
+
+    Three octaves (lattice 0.40 m, 0.07 m, 0.015 m; amplitudes 0.55, 0.30, 0.15) summed once into a
+    2048 x 2048 float32 tile of 1 cm texels (period 20.48 m) and looked up with bilinear
+    interpolation (``cv2.remap``, wrapping).
+    """
+
+    TEXEL_M, SIZE = 0.01, 2048
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        tile = np.zeros((self.SIZE, self.SIZE), np.float32)
+        for step, amp in ((0.40, 0.55), (0.07, 0.30), (0.015, 0.15)):
+            n = max(2, int(round(self.SIZE * self.TEXEL_M / step)))
+            g = rng.uniform(-1.0, 1.0, (n, n)).astype(np.float32)
+            big = np.tile(g, (3, 3))  # periodic: interpolate the middle copy
+            big = cv2.resize(big, (3 * self.SIZE, 3 * self.SIZE), interpolation=cv2.INTER_CUBIC)
+            tile += amp * big[self.SIZE : 2 * self.SIZE, self.SIZE : 2 * self.SIZE]
+        self.tile = tile
+
+    def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        n = a.size
+        w = 1024
+        rows = -(-n // w)
+        mx = np.zeros(rows * w, np.float32)
+        my = np.zeros(rows * w, np.float32)
+        mx[:n] = a / self.TEXEL_M
+        my[:n] = b / self.TEXEL_M
+        out = cv2.remap(self.tile, mx.reshape(rows, w), my.reshape(rows, w), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_WRAP)  # fmt: skip
+        return out.reshape(-1)[:n]
+
+
+class ImageRenderer:
+    """Renders the frames of one :class:`SimulationSpec`; caches the static room."""
+
+    def __init__(self, spec: SimulationSpec) -> None:
+        self.spec = spec
+        self.camera = spec.camera
+        self.R_lidar_cam = spec.T_cam_lidar[:3, :3].T
+        self.centre = camera_centre_lidar(spec.T_cam_lidar)
+        self.texture = _Texture(frame_rng(spec.seed, PURPOSE_UNIT, 1)) if spec.image.textured_background else None
+        self._background: np.ndarray | None = None
+
+    # ------------------------------------------------------------------ shading
+    def _shade(self, hits: Hits, d: np.ndarray) -> np.ndarray:
+        """(N, 3) float32 BGR of each ray's hit."""
+        col = _PALETTE[hits.surface]
+        board = hits.surface == SURF_BOARD
+        if board.any():
+            c = self.spec.board.colour_at(hits.board_xy[board])
+            col[board] = (BOARD_BLACK + np.nan_to_num(c, nan=1.0) * (BOARD_WHITE - BOARD_BLACK))[:, None]
+        light = 0.75 + 0.25 * np.clip(hits.normal @ _LIGHT, 0.0, 1.0)
+        if self.texture is not None:
+            room = (hits.surface == SURF_GROUND) | (hits.surface == SURF_CEILING) | (hits.surface == SURF_WALL)
+            if room.any():
+                p = self.centre + d[room] * hits.t[room, None]
+                nrm = np.abs(hits.normal[room])
+                a = np.where(nrm[:, 0] > 0.5, p[:, 1], p[:, 0])
+                b = np.where(nrm[:, 2] > 0.5, p[:, 1], p[:, 2])
+                light[room] *= 1.0 + 0.12 * self.texture(a, b)
+        light[hits.surface == SURF_NONE] = 1.0
+        col *= light[:, None].astype(np.float32)
+        return col
+
+    def _trace(self, scene: Scene, uv: np.ndarray) -> np.ndarray:
+        """(N, 3) float BGR seen through pixel positions uv (N, 2); black where no ray maps there."""
+        out = np.zeros((len(uv), 3), np.float32)
+        for k in range(0, len(uv), _CHUNK_RAYS):
+            b = self.camera.bearing(uv[k : k + _CHUNK_RAYS])
+            ok = np.all(np.isfinite(b), axis=1)
+            d = b[ok] @ self.R_lidar_cam.T
+            hits = cast_rays(scene, self.centre, d)
+            out[k : k + _CHUNK_RAYS][ok] = self._shade(hits, d)
+        return out
+
+    # --------------------------------------------------------------- background
+    def background(self) -> np.ndarray:
+        """(H, W, 3) uint8: the empty room, computed once.
+
+        One ray per pixel centre; images over 4 Mpx are traced at half resolution (one ray per
+        2 x 2 block, through its centre) and scaled up bilinearly: the room is smooth and the
+        board is re-rendered at full resolution anyway.
+        """
+        if self._background is None:
+            W, H = self.camera.width, self.camera.height
+            f = 2 if W * H > 4_000_000 else 1
+            w, h = -(-W // f), -(-H // f)
+            scene = static_scene(self.spec)
+            img = np.empty((h, w, 3), dtype=np.uint8)
+            rows = max(1, _CHUNK_RAYS // w)
+            u = np.arange(w, dtype=np.float64) * f + 0.5 * (f - 1)
+            for r0 in range(0, h, rows):
+                v = np.arange(r0, min(h, r0 + rows), dtype=np.float64) * f + 0.5 * (f - 1)
+                uv = np.column_stack([np.tile(u, len(v)), np.repeat(v, w)])
+                img[r0 : r0 + len(v)] = np.clip(np.rint(self._trace(scene, uv)), 0, 255).reshape(len(v), w, 3)
+            if f > 1:
+                img = cv2.resize(img, (w * f, h * f), interpolation=cv2.INTER_LINEAR)[:H, :W].copy()
+            self._background = img
+        return self._background
+
+    # ------------------------------------------------------------------ regions
+    def _region(self, pts_lidar: np.ndarray, pad: int = 3) -> tuple[np.ndarray, np.ndarray] | None:
+        """Rows and columns (wrapped for panoramas) covering the image of LiDAR-frame points."""
+        cam = self.camera
+        W, H = cam.width, cam.height
+        T = self.spec.T_cam_lidar
+        uv = cam.project(pts_lidar @ T[:3, :3].T + T[:3, 3])
+        finite = np.all(np.isfinite(uv), axis=1)
+        if not finite.any():
+            return None
+        if isinstance(cam, Equirectangular):
+            u = uv[finite, 0]
+            u = u[0] + cam.wrap_du(u - u[0])
+            lo, hi = int(np.floor(u.min())) - pad, int(np.ceil(u.max())) + pad
+            cols = np.arange(W) if hi - lo + 1 >= W // 2 else np.mod(np.arange(lo, hi + 1), W)
+        elif not finite.all():  # partly not imageable: be safe, take everything
+            return np.arange(H), np.arange(W)
+        else:
+            lo, hi = max(0, int(np.floor(uv[:, 0].min())) - pad), min(W - 1, int(np.ceil(uv[:, 0].max())) + pad)
+            if lo > hi:
+                return None
+            cols = np.arange(lo, hi + 1)
+        v = uv[finite, 1]
+        r0, r1 = max(0, int(np.floor(v.min())) - pad), min(H - 1, int(np.ceil(v.max())) + pad)
+        if r0 > r1:
+            return None
+        return np.arange(r0, r1 + 1), cols
+
+    def _render_region(self, img: np.ndarray, scene: Scene, rows: np.ndarray, cols: np.ndarray, s: int) -> None:
+        off = (np.arange(s) + 0.5) / s - 0.5
+        sub = np.stack(np.meshgrid(off, off, indexing="xy"), axis=-1).reshape(-1, 2)  # (s*s, 2) du, dv
+        step = max(1, _CHUNK_RAYS // (len(cols) * s * s))
+        for k in range(0, len(rows), step):
+            rr = rows[k : k + step]
+            uu, vv = np.meshgrid(cols.astype(float), rr.astype(float), indexing="xy")
+            px = np.column_stack([uu.ravel(), vv.ravel()])
+            uv = (px[:, None, :] + sub[None]).reshape(-1, 2)
+            col = self._trace(scene, uv).reshape(len(px), s * s, 3).mean(axis=1)
+            img[np.ix_(rr, cols)] = np.clip(np.rint(col), 0, 255).reshape(len(rr), len(cols), 3)
+
+    # -------------------------------------------------------------------- frame
+    def render(self, scene: Scene, frame: int) -> np.ndarray:
+        """(H, W, 3) uint8 BGR image of ``scene`` (the room plus this frame's objects)."""
+        img = self.background().copy()
+        jobs = [(box.edge_samples(12), 2) for box in scene.boxes]
+        jobs.append((scene.board_outline_samples(32), int(self.spec.image.supersample)))
+        for pts, s in jobs:  # the board last: its finer samples win where boxes overlap
+            reg = self._region(pts)
+            if reg is not None:
+                self._render_region(img, scene, *reg, s)
+        opt = self.spec.image
+        if opt.blur_sigma_px > 0:
+            img = cv2.GaussianBlur(img, (0, 0), opt.blur_sigma_px)
+        if opt.noise_sigma > 0:
+            _add_noise(img, opt.noise_sigma, frame_rng(self.spec.seed, PURPOSE_FRAME, frame, 2))
+        return img
+
+
+def _add_noise(img: np.ndarray, sigma: float, rng: np.random.Generator) -> None:
+    """Add rounded Gaussian noise N(0, sigma^2) to every pixel, in place, saturating at 0 and 255.
+
+    The noise is luminance noise (the same value on the three channels), drawn as 16-bit uniform
+    integers mapped through the normal quantile function (tails cut at 4.3 sigma). As the image is
+    integer, this equals rounding ``img + n`` for a continuous Gaussian ``n``.
+    """
+    q = (np.arange(65536) + 0.5) / 65536.0
+    n = np.rint(sigma * ndtri(q))
+    pos = np.clip(n, 0, 255).astype(np.uint8)
+    neg = np.clip(-n, 0, 255).astype(np.uint8)
+    H = img.shape[0]
+    rows = max(1, (8 << 20) // (img.shape[1] * 3))
+    for r0 in range(0, H, rows):
+        chunk = img[r0 : r0 + rows]
+        k = rng.integers(0, 65536, chunk.shape[:2], dtype=np.uint16)
+        p, m = pos[k], neg[k]
+        cv2.subtract(cv2.add(chunk, cv2.merge([p, p, p])), cv2.merge([m, m, m]), dst=chunk)

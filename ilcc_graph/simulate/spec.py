@@ -1,0 +1,298 @@
+"""What to simulate: :class:`SimulationSpec` and its option groups, and :func:`standard_spec`.
+
+Frames follow ``shared/interface.md``: LiDAR x forward, y left, z up; ``T_cam_lidar`` maps LiDAR
+points into the camera frame (equirectangular: x forward, y left, z up; pinhole/fisheye: OpenCV's
+z forward, x right, y down). Lengths are metres, angles degrees where a name says ``_deg``.
+
+Default magnitudes and why:
+
+- board noise (1.6, 1.6, 10) mm along the board's x, y and normal: the paper's Section 6.2
+  baseline, times ``noise_scale``. Other surfaces: range noise with the LiDAR model's
+  ``range_sigma_m`` times ``noise_scale`` (HDL-32E: 20 mm, its data sheet accuracy).
+- :class:`Systematics` (all switchable, ``Systematics.off()`` gives the paper's white-noise
+  baseline): per-beam range bias sigma 3 mm (residual of a factory beam calibration), dark
+  surfaces reading 4 mm farther (range walk of a weak return), 0.2 % dropped returns overall and
+  up to 2 % on black print, and a global ``range_offset_m`` (0 by default).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..board import Board
+from ..camera_models import CameraModel, Equirectangular, Fisheye, Pinhole
+from ..lidar_models import LidarModel, lidar_model
+
+__all__ = [
+    "Systematics",
+    "ImageOptions",
+    "SceneOptions",
+    "SimulationSpec",
+    "standard_spec",
+    "default_T_cam_lidar",
+    "paper_board",
+]
+
+# Camera axes for pinhole/fisheye (OpenCV: x right, y down, z forward) in terms of LiDAR axes.
+R_OPENCV_LIDAR = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+#: Default camera centre in the LiDAR frame (m): a camera mounted 25 cm above the LiDAR.
+DEFAULT_CAMERA_CENTRE_LIDAR = (0.05, -0.03, 0.25)
+#: Default small rotation (rotation vector, degrees) between the nominal and the true camera axes.
+DEFAULT_ROTVEC_DEG = (2.0, -3.0, 4.0)
+
+
+def paper_board() -> Board:
+    """The board of ILCC's sample data and our default: 6 x 8 squares of 75 mm, no margin, black origin."""
+    return Board(6, 8, 0.075)
+
+
+@dataclass(frozen=True)
+class Systematics:
+    """Systematic LiDAR errors, each off when its number is 0.
+
+    beam_bias_sigma_m: sigma of a constant range bias per beam (drawn once per data set).
+    dark_range_offset_m: extra range on black print (scaled by 1 - colour; white reads true).
+    dropout: probability that a return is lost anywhere.
+    dropout_black: probability on black print (linear in 1 - colour between white and black).
+    range_offset_m: constant added to every range (a global offset, e.g. a LiDAR zero error).
+    """
+
+    beam_bias_sigma_m: float = 0.003
+    dark_range_offset_m: float = 0.004
+    dropout: float = 0.002
+    dropout_black: float = 0.02
+    range_offset_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("beam_bias_sigma_m", "dark_range_offset_m"):
+            if not np.isfinite(getattr(self, name)) or getattr(self, name) < 0:
+                raise ValueError(f"Systematics: {name} must be finite and >= 0, got {getattr(self, name)!r}")
+        for name in ("dropout", "dropout_black"):
+            if not 0.0 <= getattr(self, name) < 1.0:
+                raise ValueError(f"Systematics: {name} must be in [0, 1), got {getattr(self, name)!r}")
+        if not np.isfinite(self.range_offset_m):
+            raise ValueError(f"Systematics: range_offset_m must be finite, got {self.range_offset_m!r}")
+
+    @classmethod
+    def off(cls) -> Systematics:
+        """No systematic error at all: the paper's white-noise baseline."""
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class ImageOptions:
+    """How images are rendered.
+
+    supersample: S, the board's region is sampled S x S per pixel (other objects 2 x 2).
+    blur_sigma_px: Gaussian blur of the whole image (0 = none).
+    noise_sigma: Gaussian pixel noise, grey levels (0 = none).
+    textured_background: procedural texture on walls, floor and ceiling (else flat colours).
+    """
+
+    supersample: int = 3
+    blur_sigma_px: float = 0.6
+    noise_sigma: float = 2.0
+    textured_background: bool = True
+
+    def __post_init__(self) -> None:
+        if not (1 <= int(self.supersample) <= 8):
+            raise ValueError(f"ImageOptions: supersample must be in 1..8, got {self.supersample!r}")
+        if self.blur_sigma_px < 0 or self.noise_sigma < 0:
+            raise ValueError("ImageOptions: blur_sigma_px and noise_sigma must be >= 0")
+
+
+@dataclass(frozen=True)
+class SceneOptions:
+    """The static scene and the clutter, LiDAR frame.
+
+    lidar_height_m: LiDAR origin above the ground (ground plane at z = -lidar_height_m).
+    room: (xmin, xmax, ymin, ymax) of the walls, or None for an open scene (ground only).
+    ceiling_height_m: ceiling above the ground (ignored when ``room`` is None).
+    clutter: a person-sized box standing near some boards.
+    person_probability: chance per frame of the person when ``clutter``.
+    stand: the board stands on a thin pole reaching the ground.
+    """
+
+    lidar_height_m: float = 1.5
+    room: tuple[float, float, float, float] | None = (-4.5, 5.5, -3.5, 4.5)
+    ceiling_height_m: float = 3.0
+    clutter: bool = True
+    person_probability: float = 0.6
+    stand: bool = True
+
+
+@dataclass(frozen=True, eq=False)
+class SimulationSpec:
+    """Everything a simulated data set depends on; same spec, same bytes.
+
+    lidar: LiDAR model name (``lidar_models.MODEL_NAMES``) or a ready :class:`LidarModel`.
+    camera: the camera model (its intrinsics are the truth written to config.yaml).
+    board: the chessboard.
+    n_frames: number of frames (board placements).
+    seed: master seed; every random stream is derived from it with ``np.random.SeedSequence``.
+    noise_scale: multiplies every geometric LiDAR noise sigma (board and range noise).
+    T_cam_lidar: (4, 4) true extrinsic; None -> :func:`default_T_cam_lidar` for the camera kind.
+    board_noise_sigma_m: (3,) sigma along the board's x, y and normal, before ``noise_scale``.
+    systematics: switchable systematic errors.
+    placements: explicit ``T_lidar_board`` (4, 4) per frame (overrides ``n_frames``) or None.
+    scene, image: option groups.
+    intensity_black, intensity_white: mean LiDAR intensity on black and white print.
+    intensity_sigma_black, intensity_sigma_white: its noise on each.
+    beam_aperture_m: beam diameter at the sensor; footprint diameter = aperture + divergence * range.
+    """
+
+    lidar: str | LidarModel = "hdl32"
+    camera: CameraModel = field(default_factory=lambda: Equirectangular(8000, 4000))
+    board: Board = field(default_factory=paper_board)
+    n_frames: int = 20
+    seed: int = 0
+    noise_scale: float = 1.0
+    T_cam_lidar: np.ndarray | None = None
+    board_noise_sigma_m: tuple[float, float, float] = (0.0016, 0.0016, 0.010)
+    systematics: Systematics = field(default_factory=Systematics)
+    placements: tuple[np.ndarray, ...] | None = None
+    scene: SceneOptions = field(default_factory=SceneOptions)
+    image: ImageOptions = field(default_factory=ImageOptions)
+    intensity_black: float = 10.0
+    intensity_white: float = 80.0
+    intensity_sigma_black: float = 1.5
+    intensity_sigma_white: float = 4.0
+    beam_aperture_m: float = 0.01
+
+    def __post_init__(self) -> None:
+        model = self.lidar if isinstance(self.lidar, LidarModel) else lidar_model(self.lidar)
+        object.__setattr__(self, "_lidar_model", model)
+        T = default_T_cam_lidar(self.camera.kind) if self.T_cam_lidar is None else _check_pose(self.T_cam_lidar)
+        T.setflags(write=False)
+        object.__setattr__(self, "T_cam_lidar", T)
+        if self.placements is not None:
+            ps = tuple(_check_pose(p) for p in self.placements)
+            if not ps:
+                raise ValueError("SimulationSpec: placements must hold at least one pose")
+            object.__setattr__(self, "placements", ps)
+            object.__setattr__(self, "n_frames", len(ps))
+        if int(self.n_frames) < 1:
+            raise ValueError(f"SimulationSpec: n_frames must be >= 1, got {self.n_frames!r}")
+        if not (np.isfinite(self.noise_scale) and self.noise_scale >= 0):
+            raise ValueError(f"SimulationSpec: noise_scale must be finite and >= 0, got {self.noise_scale!r}")
+        if int(self.seed) < 0:
+            raise ValueError(f"SimulationSpec: seed must be >= 0, got {self.seed!r}")
+        sig = tuple(float(s) for s in self.board_noise_sigma_m)
+        if len(sig) != 3 or min(sig) < 0:
+            raise ValueError(f"SimulationSpec: board_noise_sigma_m must be 3 numbers >= 0, got {sig!r}")
+        object.__setattr__(self, "board_noise_sigma_m", sig)
+
+    @property
+    def lidar_model(self) -> LidarModel:
+        """The resolved :class:`LidarModel`."""
+        return self._lidar_model  # type: ignore[attr-defined]
+
+    def with_(self, **changes: Any) -> SimulationSpec:
+        """A copy with some fields changed (``dataclasses.replace``)."""
+        return replace(self, **changes)
+
+    def summary(self) -> dict[str, Any]:
+        """Plain-data description of the settings (for ground_truth.yaml)."""
+        s = self.systematics
+        return {
+            "lidar_model": self.lidar_model.name,
+            "camera_model": self.camera.kind,
+            "n_frames": int(self.n_frames),
+            "seed": int(self.seed),
+            "noise_scale": float(self.noise_scale),
+            "board_noise_sigma_m": [float(v * self.noise_scale) for v in self.board_noise_sigma_m],
+            "range_sigma_m": float(self.lidar_model.range_sigma_m * self.noise_scale),
+            "systematics": {
+                "beam_bias_sigma_m": s.beam_bias_sigma_m,
+                "dark_range_offset_m": s.dark_range_offset_m,
+                "dropout": s.dropout,
+                "dropout_black": s.dropout_black,
+                "range_offset_m": s.range_offset_m,
+            },
+            "image": {
+                "supersample": int(self.image.supersample),
+                "blur_sigma_px": float(self.image.blur_sigma_px),
+                "noise_sigma": float(self.image.noise_sigma),
+            },
+            "lidar_height_m": float(self.scene.lidar_height_m),
+        }
+
+
+def _check_pose(T: Any) -> np.ndarray:
+    T = np.array(T, dtype=np.float64)
+    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise ValueError(f"pose must be a finite (4, 4) matrix, got shape {T.shape}")
+    R = T[:3, :3]
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or abs(np.linalg.det(R) - 1) > 1e-6:
+        raise ValueError("pose's 3x3 block is not a rotation")
+    if np.abs(T[3] - [0, 0, 0, 1]).max() > 1e-12:
+        raise ValueError("pose's last row must be [0, 0, 0, 1]")
+    return T
+
+
+def default_T_cam_lidar(kind: str) -> np.ndarray:
+    """The default true extrinsic for a camera kind, (4, 4).
+
+    The camera centre sits at ``DEFAULT_CAMERA_CENTRE_LIDAR`` in the LiDAR frame (25 cm above it);
+    its axes are the nominal ones (equirectangular: the LiDAR's; pinhole/fisheye: OpenCV's with z
+    along LiDAR x) turned by the rotation vector ``DEFAULT_ROTVEC_DEG``.
+    """
+    R_small = Rotation.from_rotvec(np.deg2rad(DEFAULT_ROTVEC_DEG)).as_matrix()
+    R = R_small if kind == "equirectangular" else R_small @ R_OPENCV_LIDAR
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = -R @ np.asarray(DEFAULT_CAMERA_CENTRE_LIDAR)
+    return T
+
+
+def default_camera(kind: str, width: int | None = None) -> CameraModel:
+    """A camera of the given kind with plausible intrinsics.
+
+    equirectangular: W x W/2 (default 8000). pinhole: W x 5W/8 (default 1920 x 1200), 90 deg
+    horizontal field, mild barrel distortion. fisheye: W x 4W/5 (default 1280 x 1024), equidistant
+    f = 0.3 W (about 190 deg across the diagonal) with small k1..k4.
+    """
+    if kind == "equirectangular":
+        w = 8000 if width is None else int(width)
+        return Equirectangular(w, w // 2)
+    if kind == "pinhole":
+        w = 1920 if width is None else int(width)
+        h = (w * 5) // 8
+        f = 0.5 * w
+        K = np.array([[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]])
+        return Pinhole(w, h, K, np.array([-0.05, 0.01, 0.0, 0.0, 0.0]))
+    if kind == "fisheye":
+        w = 1280 if width is None else int(width)
+        h = (w * 4) // 5
+        f = 0.3 * w
+        K = np.array([[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]])
+        return Fisheye(w, h, K, np.array([0.02, -0.005, 0.001, 0.0]))
+    raise ValueError(f"unknown camera model {kind!r}; expected equirectangular, pinhole or fisheye")
+
+
+def standard_spec(
+    lidar: str = "hdl32",
+    camera: str = "equirectangular",
+    width: int | None = None,
+    frames: int = 20,
+    seed: int = 0,
+    noise_scale: float = 1.0,
+    **overrides: Any,
+) -> SimulationSpec:
+    """The paper's Section 6.2 set-up (and more) for a LiDAR and camera kind.
+
+    width: image width in pixels; None -> 8000 (equirectangular), 1920 (pinhole), 1280 (fisheye).
+    overrides: any other :class:`SimulationSpec` field (``systematics=Systematics.off()``, ...).
+    """
+    return SimulationSpec(
+        lidar=lidar,
+        camera=default_camera(camera, width),
+        n_frames=frames,
+        seed=seed,
+        noise_scale=noise_scale,
+        **overrides,
+    )

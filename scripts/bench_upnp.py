@@ -1,0 +1,242 @@
+"""Benchmark of ilcc_graph.init.upnp: global optimality, accuracy, time per call.
+
+1. Optimality: random problems (4-700 points; full-sphere, narrow-cone and planar-board bearings;
+   noise 0-2 mrad). The best UPnP candidate's cost is compared with the best of many random-start
+   local minimisations of the same cost with scipy (least_squares on the 6-DoF residual, cost
+   computed from its definition, independent of UPnP's quartic). Also: how many of the distinct
+   local minima scipy found are in UPnP's candidate list.
+2. Accuracy vs OpenGV's C++ UPnP (figures measured by the project through its Python binding):
+   camera within 0.5 m, depths 1.5-8 m, full-sphere bearings, 0.5 mrad noise; 35 and 700 bearings.
+
+Usage: nice python3 scripts/bench_upnp.py [--problems 1000] [--trials 300] [--out docs/bench_upnp.md]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from ilcc_graph.init.upnp import object_space_cost, refine_angular, upnp
+
+OPENGV = {35: (0.011, 0.84, 0.35), 700: (0.0025, 0.19, 0.95)}  # deg, mm, ms (medians)
+
+
+def random_problem(rng: np.random.Generator, n: int, kind: str, noise_rad: float):
+    """Points (LiDAR-like frame), noisy unit bearings (camera frame), true R, t."""
+    R = Rotation.random(random_state=rng.integers(2**31)).as_matrix()
+    t = rng.normal(size=3)
+    t *= rng.uniform(0, 0.5) / np.linalg.norm(t)
+    if kind == "sphere":
+        d = rng.normal(size=(n, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        X = d * rng.uniform(1.5, 8.0, (n, 1))
+    elif kind == "narrow":
+        half = np.radians(rng.uniform(5.0, 30.0))
+        ang = np.arccos(rng.uniform(np.cos(half), 1.0, n))
+        az = rng.uniform(0, 2 * np.pi, n)
+        d = np.stack([np.sin(ang) * np.cos(az), np.sin(ang) * np.sin(az), np.cos(ang)], 1)
+        X = d * rng.uniform(1.5, 8.0, (n, 1))
+    else:  # planar board, 0.4-1.2 m, anywhere around the camera, tilted up to 60 deg
+        side = rng.uniform(0.4, 1.2)
+        uv = rng.uniform(-side / 2, side / 2, (n, 2))
+        c = rng.normal(size=3)
+        c *= rng.uniform(1.5, 8.0) / np.linalg.norm(c)
+        Rb = Rotation.from_rotvec(rng.normal(size=3) * 0.5).as_matrix()
+        z = -c / np.linalg.norm(c)
+        x = np.cross(z, rng.normal(size=3))
+        x /= np.linalg.norm(x)
+        Rb = np.stack([x, np.cross(z, x), z], 1) @ Rb
+        X = c + uv @ Rb[:, :2].T
+    P = (X - t) @ R  # R^T (X - t): points in the LiDAR frame
+    F = X / np.linalg.norm(X, axis=1, keepdims=True)
+    if noise_rad > 0:
+        F = F + rng.normal(size=F.shape) * noise_rad
+        F /= np.linalg.norm(F, axis=1, keepdims=True)
+    return P, F, R, t
+
+
+def scipy_minima(P: np.ndarray, F: np.ndarray, rng: np.random.Generator, starts: int):
+    """Local minima of the object-space cost from random starts: list of (cost, R)."""
+    V = np.eye(3)[None] - F[:, :, None] * F[:, None, :]
+    c = P.mean(axis=0)
+    Pc = P - c
+
+    def res(x, R0):
+        R = Rotation.from_rotvec(x[:3]).as_matrix() @ R0
+        X = Pc @ R.T + x[3:]
+        return np.einsum("nab,nb->na", V, X).ravel()
+
+    out = []
+    for _ in range(starts):
+        R0 = Rotation.random(random_state=rng.integers(2**31)).as_matrix()
+        # start t at its optimum for R0 so that each start is a fair local search
+        H = V.sum(0)
+        t0 = -np.linalg.solve(H, np.einsum("nab,nb->a", V, Pc @ R0.T))
+        sol = least_squares(
+            res,
+            np.r_[np.zeros(3), t0],
+            args=(R0,),
+            method="lm",
+            xtol=1e-15,
+            ftol=1e-15,
+            gtol=1e-15,
+            max_nfev=4000,
+        )
+        R = Rotation.from_rotvec(sol.x[:3]).as_matrix() @ R0
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = sol.x[3:] - R @ c
+        out.append((object_space_cost(T, P, F), R))
+    return out
+
+
+def rot_err_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(Ra.T @ Rb) - 1) / 2, -1, 1))))
+
+
+def optimality(n_problems: int, starts: int, seed: int):
+    rng = np.random.default_rng(seed)
+    kinds = ["sphere", "narrow", "planar"]
+    rows = {k: dict(n=0, ok=0, worse=[], found=0, ref_minima=0, times=[], ncand=[]) for k in kinds}
+    failures = []
+    for i in range(n_problems):
+        kind = kinds[i % 3]
+        n = int(np.round(np.exp(rng.uniform(np.log(4), np.log(700)))))
+        noise = rng.uniform(0, 2e-3)
+        P, F, R, t = random_problem(rng, n, kind, noise)
+        t0 = time.perf_counter()
+        sols = upnp(P, F)
+        rows[kind]["times"].append(time.perf_counter() - t0)
+        ref = scipy_minima(P, F, rng, starts)
+        best_ref = min(c for c, _ in ref)
+        scale = float(np.sum((P - P.mean(0)) ** 2))
+        tol = 1e-7 * best_ref + 1e-12 * scale
+        ours = sols[0].cost
+        r = rows[kind]
+        r["n"] += 1
+        r["ncand"].append(len(sols))
+        if ours <= best_ref + tol:
+            r["ok"] += 1
+        else:
+            r["worse"].append((ours - best_ref) / max(best_ref, 1e-300))
+            failures.append((i, kind, n, noise, ours, best_ref))
+        # recall of distinct scipy minima (cost and rotation match)
+        distinct: list[tuple[float, np.ndarray]] = []
+        for c, Rr in sorted(ref, key=lambda x: x[0]):
+            if all(rot_err_deg(Rr, Rd) > 0.05 for _, Rd in distinct):
+                distinct.append((c, Rr))
+        for _c, Rr in distinct:
+            r["ref_minima"] += 1
+            if any(rot_err_deg(Rr, s.T_cam_points[:3, :3]) < 0.05 for s in sols):
+                r["found"] += 1
+        if (i + 1) % 50 == 0:
+            print(f"  {i + 1}/{n_problems} problems", flush=True)
+    return rows, failures
+
+
+def accuracy(trials: int, seed: int):
+    rng = np.random.default_rng(seed)
+    out = {}
+    for n in (35, 700):
+        er, et, erf, etf, tm, tmr = [], [], [], [], [], []
+        for _ in range(trials):
+            P, F, R, t = random_problem(rng, n, "sphere", 0.5e-3)
+            t0 = time.perf_counter()
+            T = upnp(P, F)[0].T_cam_points
+            t1 = time.perf_counter()
+            Tr = refine_angular(T, P, F)
+            t2 = time.perf_counter()
+            tm.append(t1 - t0)
+            tmr.append(t2 - t1)
+            er.append(rot_err_deg(T[:3, :3], R))
+            et.append(1e3 * np.linalg.norm(T[:3, 3] - t))
+            erf.append(rot_err_deg(Tr[:3, :3], R))
+            etf.append(1e3 * np.linalg.norm(Tr[:3, 3] - t))
+        out[n] = dict(
+            rot=np.median(er),
+            trans=np.median(et),
+            ms=1e3 * np.median(tm),
+            rot_ref=np.median(erf),
+            trans_ref=np.median(etf),
+            ms_ref=1e3 * np.median(tmr),
+        )
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--problems", type=int, default=1000)
+    ap.add_argument("--starts", type=int, default=30, help="scipy random starts per problem")
+    ap.add_argument("--trials", type=int, default=300)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--out", type=Path, default=Path(__file__).resolve().parents[1] / "docs" / "bench_upnp.md"
+    )
+    args = ap.parse_args()
+
+    rows, failures = optimality(args.problems, args.starts, args.seed)
+    acc = accuracy(args.trials, args.seed + 1)
+
+    lines = [
+        "# UPnP benchmark",
+        "",
+        f"Produced by `scripts/bench_upnp.py --problems {args.problems} "
+        f"--starts {args.starts} --trials {args.trials} --seed {args.seed}` "
+        f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}).",
+        "",
+        "## 1. Is the answer the global minimum?",
+        "",
+        f"Best UPnP candidate's cost vs the best of {args.starts} random-start scipy `least_squares` "
+        "minimisations of the same object-space cost (equal: within 1e-7 relative). "
+        "Recall: distinct scipy local minima (rotation apart > 0.05 deg) that are in UPnP's list.",
+        "",
+        "| bearings | problems | answer = best (%) | worse | recall of scipy minima | candidates (mean) "
+        "| ms/call median | ms/call p90 |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    tot_n = tot_ok = 0
+    for k, r in rows.items():
+        tot_n += r["n"]
+        tot_ok += r["ok"]
+        lines.append(
+            f"| {k} | {r['n']} | {100 * r['ok'] / max(r['n'], 1):.1f} | {len(r['worse'])} | "
+            f"{r['found']}/{r['ref_minima']} | {np.mean(r['ncand']):.2f} | "
+            f"{1e3 * np.median(r['times']):.2f} | {1e3 * np.percentile(r['times'], 90):.2f} |"
+        )
+    lines.append(f"| **all** | {tot_n} | **{100 * tot_ok / max(tot_n, 1):.2f}** | {tot_n - tot_ok} | | | | |")
+    if failures:
+        lines += ["", "Problems where UPnP's answer was worse than scipy's best:", ""]
+        for i, kind, n, noise, ours, ref in failures:
+            lines.append(f"- #{i} {kind}, N={n}, noise {1e3 * noise:.2f} mrad: {ours:.6g} vs {ref:.6g}")
+    lines += [
+        "",
+        "## 2. Accuracy (camera within 0.5 m, depths 1.5-8 m, full sphere, 0.5 mrad noise)",
+        "",
+        f"Medians over {args.trials} problems each. OpenGV: C++ UPnP measured by the project through "
+        "its Python binding (figures given in the issue). `+ angular GN`: our `refine_angular` "
+        "(Gauss-Newton on the tangent-plane bearing error) after UPnP.",
+        "",
+        "| N | method | rotation err (deg) | translation err (mm) | time (ms) |",
+        "|---|---|---|---|---|",
+    ]
+    for n, a in acc.items():
+        rd, td, ms = OPENGV[n]
+        lines.append(f"| {n} | OpenGV UPnP (C++) | {rd} | {td} | {ms} |")
+        lines.append(f"| {n} | ilcc_graph upnp | {a['rot']:.4f} | {a['trans']:.3f} | {a['ms']:.2f} |")
+        lines.append(
+            f"| {n} | ilcc_graph upnp + angular GN | {a['rot_ref']:.4f} | {a['trans_ref']:.3f} | "
+            f"{a['ms'] + a['ms_ref']:.2f} |"
+        )
+    text = "\n".join(lines) + "\n"
+    print(text)
+    args.out.write_text(text)
+    print(f"written to {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,118 @@
+"""The command line end to end: exit codes, messages, and the calibration file's schema."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from ilcc_graph.cli import main
+
+SIGMA_KEYS = {"rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm"}
+
+
+def _config(path: Path, **camera) -> None:
+    cam = camera or {"model": "equirectangular", "width": 2000, "height": 1000}
+    path.write_text(yaml.safe_dump({
+        "board": {"squares": [6, 8], "square_size": 0.075, "margin": 0.0, "lower_left": "black"},
+        "lidar": {"model": "hdl32"},
+        "camera": cam,
+    }))
+
+
+def test_help_lists_examples(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["--help"])
+    assert exc.value.code == 0
+    assert "examples:" in capsys.readouterr().out
+
+
+def test_bad_usage_is_exit_2():
+    with pytest.raises(SystemExit) as exc:
+        main(["calibrate"])
+    assert exc.value.code == 2
+
+
+def test_missing_data_dir_is_exit_2(tmp_path, capsys):
+    assert main(["calibrate", str(tmp_path / "nope"), "--out", str(tmp_path / "out")]) == 2
+    assert "nope" in capsys.readouterr().err
+
+
+def test_truncated_pcd_is_exit_2_naming_the_file(tmp_path, capsys):
+    data = tmp_path / "data"
+    (data / "pcd").mkdir(parents=True)
+    (data / "img").mkdir()
+    _config(data / "config.yaml")
+    header = ("# .PCD v0.7\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+              "WIDTH 100\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 100\nDATA binary\n")
+    (data / "pcd" / "0001.pcd").write_bytes(header.encode() + np.zeros(10 * 4, np.float32).tobytes())
+    import cv2
+
+    cv2.imwrite(str(data / "img" / "0001.png"), np.zeros((1000, 2000, 3), np.uint8))
+    assert main(["calibrate", str(data), "--out", str(tmp_path / "out"), "--jobs", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "0001.pcd" in err
+    assert not (tmp_path / "out" / "calibration.yaml").exists()
+
+
+def test_bad_config_is_exit_2_naming_the_key(tmp_path, capsys):
+    data = tmp_path / "data"
+    (data / "pcd").mkdir(parents=True)
+    (data / "img").mkdir()
+    (data / "config.yaml").write_text("board:\n  squares: [6]\n  square_size: 0.075\nlidar: {model: hdl32}\n"
+                                      "camera: {model: equirectangular, width: 2000, height: 1000}\n")
+    assert main(["calibrate", str(data), "--out", str(tmp_path / "out")]) == 2
+    assert "board.squares" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def small_panoramic_set(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("sim") / "data"
+    assert main(["simulate", str(out), "--lidar", "hdl32", "--camera", "equirectangular", "--frames", "6",
+                 "--seed", "3", "--width", "3000"]) == 0
+    return out
+
+
+def test_calibrate_writes_interface_schema(small_panoramic_set, tmp_path):
+    out = tmp_path / "out"
+    assert main(["calibrate", str(small_panoramic_set), "--out", str(out), "--jobs", "1"]) == 0
+    cal = yaml.safe_load((out / "calibration.yaml").read_text())
+    T = np.array(cal["T_cam_lidar"], float)
+    assert T.shape == (4, 4) and np.allclose(T[3], [0, 0, 0, 1])
+    assert np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-9)
+    cov = np.array(cal["covariance"], float)
+    assert cov.shape == (6, 6) and np.allclose(cov, cov.T) and np.all(np.linalg.eigvalsh(cov) > 0)
+    assert set(cal["sigma"]) == SIGMA_KEYS
+    assert np.isclose(cal["sigma"]["tx_mm"], 1e3 * np.sqrt(cov[3, 3]), rtol=1e-6)
+    assert len(cal["frames"]) == 6
+    for f in cal["frames"]:
+        assert isinstance(f["name"], str) and isinstance(f["used"], bool)
+        if f["used"]:
+            assert np.array(f["lidar_corners"]).shape == (35, 3)
+            assert np.array(f["image_corners"]).shape == (35, 2)
+            assert f["rms_bearing_error_mrad"] >= 0
+        else:
+            assert f["reason"]
+    truth = yaml.safe_load((small_panoramic_set / "ground_truth.yaml").read_text())
+    T_true = np.array(truth["T_cam_lidar"], float)
+    dR = T[:3, :3].T @ T_true[:3, :3]
+    angle = np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))
+    assert angle < 0.2
+    assert np.linalg.norm(T[:3, 3] - T_true[:3, 3]) < 0.02
+    assert (out / "config.resolved.yaml").is_file()
+
+
+def test_no_board_anywhere_is_exit_3(small_panoramic_set, tmp_path, capsys):
+    data = tmp_path / "data"
+    (data / "img").mkdir(parents=True)
+    (data / "pcd").symlink_to(small_panoramic_set / "pcd")
+    (data / "config.yaml").write_text((small_panoramic_set / "config.yaml").read_text())
+    import cv2
+
+    blank = np.full((1500, 3000, 3), 128, np.uint8)
+    for pcd in sorted((small_panoramic_set / "pcd").iterdir()):
+        cv2.imwrite(str(data / "img" / f"{pcd.stem}.png"), blank)
+    assert main(["calibrate", str(data), "--out", str(tmp_path / "out"), "--jobs", "1"]) == 3
+    assert "impossible" in capsys.readouterr().err

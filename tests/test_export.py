@@ -1,0 +1,219 @@
+"""Tests of ilcc_graph.export: every format reads back to the same transform."""
+
+from __future__ import annotations
+
+import json
+import re
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+import yaml
+
+from ilcc_graph.export import FORMATS, export_calibration
+from ilcc_graph.handoff import invert_with_covariance
+from ilcc_graph.io import sigma_from_covariance
+from ilcc_graph.types import Calibration
+
+PINHOLE = {
+    "model": "pinhole",
+    "width": 1280,
+    "height": 720,
+    "K": [[900.0, 0.0, 640.5], [0.0, 905.0, 360.25], [0.0, 0.0, 1.0]],
+    "dist": [-0.2, 0.05, 0.001, -0.002, 0.0],
+}
+FISHEYE = {
+    "model": "fisheye",
+    "width": 1024,
+    "height": 768,
+    "K": [[350.0, 0.0, 512.0], [0.0, 351.0, 384.0], [0.0, 0.0, 1.0]],
+    "dist": [0.01, -0.002, 0.0003, -0.00004],
+}
+EQUIRECT = {"model": "equirectangular", "width": 8000, "height": 4000}
+
+
+def sample(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    T = gtsam.Pose3.Expmap(np.concatenate([rng.normal(0, 1.5, 3), rng.normal(0, 0.3, 3)])).matrix()
+    A = rng.normal(size=(6, 6)) * np.array([1e-3] * 3 + [5e-3] * 3)
+    return T, A @ A.T + 1e-8 * np.eye(6)
+
+
+def quat_to_matrix(qx: float, qy: float, qz: float, qw: float) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (Hamilton, as ROS and Eigen)."""
+    n = np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    x, y, z, w = qx / n, qy / n, qz / n, qw / n
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
+
+
+def test_formats_listed():
+    assert FORMATS == ("json", "ros-tf", "kitti", "kalibr")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_json_round_trip(seed):
+    T, cov = sample(seed)
+    doc = json.loads(export_calibration((T, cov), "json", camera=PINHOLE))
+    np.testing.assert_allclose(doc["T_cam_lidar"], T, atol=1e-15)
+    np.testing.assert_allclose(np.array(doc["T_lidar_cam"]) @ T, np.eye(4), atol=1e-12)
+    np.testing.assert_allclose(doc["covariance"], cov, rtol=1e-15)
+    _, cov_inv = invert_with_covariance(T, cov)
+    np.testing.assert_allclose(doc["covariance_T_lidar_cam"], cov_inv, rtol=1e-12)
+    np.testing.assert_allclose(quat_to_matrix(*doc["quaternion_xyzw_cam_lidar"]), T[:3, :3], atol=1e-12)
+    assert doc["sigma"]["tx_mm"] == pytest.approx(1e3 * np.sqrt(cov[3, 3]))
+    assert doc["sigma"]["rz_deg"] == pytest.approx(np.degrees(np.sqrt(cov[2, 2])))
+    assert doc["camera"]["K"] == PINHOLE["K"]
+    assert "p_cam = R @ p_lidar + t" in doc["convention"]
+
+
+def parse_ros2(text: str) -> tuple[np.ndarray, str, str]:
+    line = next(
+        ln for ln in text.splitlines() if ln.startswith("ros2 run tf2_ros static_transform_publisher")
+    )
+    args = dict(re.findall(r"--([a-z-]+) (\S+)", line))
+    R = quat_to_matrix(*(float(args[k]) for k in ("qx", "qy", "qz", "qw")))
+    t = np.array([float(args[k]) for k in ("x", "y", "z")])
+    return rigid(R, t), args["frame-id"], args["child-frame-id"]
+
+
+def parse_ros1(text: str) -> tuple[np.ndarray, str, str]:
+    launch = ET.fromstring(text[text.index("<launch>") :])
+    node = launch.find("node")
+    assert (
+        node is not None and node.get("pkg") == "tf2_ros" and node.get("type") == "static_transform_publisher"
+    )
+    a = node.get("args").split()
+    assert len(a) == 9
+    R = quat_to_matrix(*(float(v) for v in a[3:7]))
+    return rigid(R, np.array([float(v) for v in a[:3]])), a[7], a[8]
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_ros_tf_frame_order(seed):
+    T, cov = sample(seed)
+    # default: LiDAR is the parent, so the published transform is the camera's pose in the LiDAR frame
+    text = export_calibration((T, cov), "ros-tf", camera=EQUIRECT)
+    for parse in (parse_ros2, parse_ros1):
+        T_pc, parent, child = parse(text)
+        assert (parent, child) == ("lidar", "camera")
+        np.testing.assert_allclose(T_pc, np.linalg.inv(T), atol=1e-12)
+    # camera as parent, custom names, pinhole: the published transform is T_cam_lidar itself
+    text = export_calibration(
+        (T, cov),
+        "ros-tf",
+        camera=PINHOLE,
+        parent="camera",
+        lidar_frame="velodyne",
+        camera_frame="cam0_optical",
+    )
+    for parse in (parse_ros2, parse_ros1):
+        T_pc, parent, child = parse(text)
+        assert (parent, child) == ("cam0_optical", "velodyne")
+        np.testing.assert_allclose(T_pc, T, atol=1e-12)
+    # a pinhole camera's frame defaults to the optical frame name
+    assert parse_ros2(export_calibration((T, cov), "ros-tf", camera=PINHOLE))[2] == "camera_optical"
+
+
+def test_ros_tf_single_flavours():
+    T, cov = sample(4)
+    ros2 = export_calibration((T, cov), "ros-tf", ros="ros2")
+    assert "<launch>" not in ros2 and parse_ros2(ros2)[1] == "lidar"
+    ros1 = export_calibration((T, cov), "ros-tf", ros="ros1")
+    assert "ros2 run" not in ros1
+    ET.fromstring(ros1)  # a whole, valid launch file
+    with pytest.raises(ValueError, match="parent"):
+        export_calibration((T, cov), "ros-tf", parent="world")
+
+
+def parse_kitti(text: str) -> dict[str, str]:
+    out = {}
+    for line in text.splitlines():
+        key, value = line.split(":", 1)
+        out[key] = value.strip()
+    return out
+
+
+def test_kitti_pinhole_round_trip():
+    T, cov = sample(5)
+    d = parse_kitti(export_calibration((T, cov), "kitti", camera=PINHOLE, calib_time="15-Mar-2012 11:37:16"))
+    assert list(d)[:5] == ["calib_time", "R", "T", "delta_f", "delta_c"]
+    assert d["calib_time"] == "15-Mar-2012 11:37:16"
+    R = np.array(d["R"].split(), dtype=float).reshape(3, 3)
+    t = np.array(d["T"].split(), dtype=float)
+    np.testing.assert_allclose(rigid(R, t), T, atol=1e-11)
+    np.testing.assert_allclose(np.array(d["delta_f"].split(), dtype=float), [0.0, 0.0])
+    assert "OpenCV" in d["camera_frame"]
+
+
+def test_kitti_equirectangular_uses_opencv_axes():
+    T, cov = sample(6)
+    d = parse_kitti(export_calibration((T, cov), "kitti", camera=EQUIRECT))
+    T_k = rigid(np.array(d["R"].split(), dtype=float).reshape(3, 3), np.array(d["T"].split(), dtype=float))
+    T_lidar_cam = np.linalg.inv(T)
+    # points ahead of, left of and above the equirectangular camera, given in the LiDAR frame
+    for p_eq, p_cv in (([5.0, 0, 0], [0, 0, 5.0]), ([0, 2.0, 0], [-2.0, 0, 0]), ([0, 0, 3.0], [0, -3.0, 0])):
+        p_lidar = T_lidar_cam @ np.array([*p_eq, 1.0])
+        np.testing.assert_allclose((T_k @ p_lidar)[:3], p_cv, atol=1e-10)
+    assert "equirectangular" in d["camera_frame"]
+
+
+def test_kalibr_round_trip():
+    T, cov = sample(7)
+    doc = yaml.safe_load(export_calibration((T, cov), "kalibr", camera=PINHOLE))
+    cam = doc["cam0"]
+    np.testing.assert_allclose(cam["T_cam_lidar"], T, atol=1e-15)
+    np.testing.assert_allclose(cam["T_cam_lidar_covariance"], cov, rtol=1e-15)
+    assert cam["camera_model"] == "pinhole"
+    assert cam["intrinsics"] == [900.0, 905.0, 640.5, 360.25]
+    assert cam["distortion_model"] == "radtan"
+    assert cam["distortion_coeffs"] == PINHOLE["dist"][:4]
+    assert cam["resolution"] == [1280, 720]
+
+    cam = yaml.safe_load(export_calibration((T, cov), "kalibr", camera=FISHEYE))["cam0"]
+    assert cam["distortion_model"] == "equidistant"
+    assert cam["distortion_coeffs"] == FISHEYE["dist"]
+
+    k3 = dict(PINHOLE, dist=[-0.2, 0.05, 0.001, -0.002, 0.01])
+    cam = yaml.safe_load(export_calibration((T, cov), "kalibr", camera=k3))["cam0"]
+    assert "distortion_model" not in cam and cam["opencv_dist"] == k3["dist"]
+
+    cam = yaml.safe_load(export_calibration((T, cov), "kalibr"))["cam0"]
+    assert "intrinsics" not in cam
+    np.testing.assert_allclose(cam["T_cam_lidar"], T, atol=1e-15)
+
+
+def test_inputs_calibration_pose_and_file(tmp_path: Path):
+    T, cov = sample(8)
+    from_pair = export_calibration((gtsam.Pose3(T), cov), "json")
+    from_cal = export_calibration(Calibration(T_cam_lidar=T, covariance=cov, frames=()), "json")
+    assert from_pair == from_cal
+    path = tmp_path / "calibration.yaml"
+    doc = {"T_cam_lidar": T.tolist(), "covariance": cov.tolist(), "sigma": sigma_from_covariance(cov)}
+    path.write_text(yaml.safe_dump({**doc, "frames": []}))
+    np.testing.assert_allclose(json.loads(export_calibration(path, "json"))["T_cam_lidar"], T, atol=1e-15)
+
+
+def test_errors():
+    T, cov = sample(9)
+    with pytest.raises(ValueError, match="unknown export format"):
+        export_calibration((T, cov), "csv")
+    with pytest.raises(ValueError, match="no option 'parent'"):
+        export_calibration((T, cov), "json", parent="camera")
+    with pytest.raises(ValueError, match="rigid"):
+        export_calibration((np.diag([1.0, 2.0, 1.0, 1.0]), cov), "json")
+    with pytest.raises(ValueError, match="unknown model"):
+        export_calibration((T, cov), "json", camera={"model": "orthographic"})
