@@ -25,6 +25,7 @@ iteration costs O(factors x variables). One factor per frame keeps both small (s
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 
 import gtsam
@@ -258,6 +259,12 @@ class FrameBearingFactor:
         self.sqrt_info = sqrt_information(c)  # (K, 2, 2)
         self.robust = robust
         self.n_corners = K
+
+    def with_robust(self, robust: gtsam.noiseModel.mEstimator.Base | None) -> FrameBearingFactor:
+        """The same measurements with another (or no) m-estimator; shares the arrays."""
+        other = copy.copy(self)
+        other.robust = robust
+        return other
 
     @property
     def dim(self) -> int:

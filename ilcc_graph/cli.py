@@ -293,9 +293,26 @@ def cmd_image_corners(args: argparse.Namespace) -> int:
 
 def cmd_export(args: argparse.Namespace) -> int:
     from ilcc_graph.export import export_calibration
-    from ilcc_graph.io import atomic_write, read_calibration
+    from ilcc_graph.io import atomic_write, read_calibration, read_yaml
 
-    text = export_calibration(read_calibration(Path(args.calibration)), args.format)
+    path = Path(args.calibration)
+    camera = None
+    resolved = path.parent / "config.resolved.yaml"  # written by `calibrate` beside its result
+    if resolved.is_file():
+        camera = read_yaml(resolved).get("camera")
+    options = {}
+    if args.format == "ros-tf":
+        options = {
+            "parent": args.parent,
+            "lidar_frame": args.lidar_frame,
+            "camera_frame": args.camera_frame,
+            "ros": args.ros,
+        }
+    options = {k: v for k, v in options.items() if v is not None}
+    try:
+        text = export_calibration(read_calibration(path), args.format, camera=camera, **options)
+    except ValueError as err:
+        raise InputError(f"{path}: {err}") from err
     if args.out:
         atomic_write(Path(args.out), text)
         print(f"wrote {args.out}")
@@ -379,6 +396,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")
     sp.add_argument("--format", required=True, choices=("json", "ros-tf", "kitti", "kalibr"))
     sp.add_argument("--out", help="file to write (default: standard output)")
+    sp.add_argument("--parent", choices=("lidar", "camera"), help="ros-tf: the parent frame (default lidar)")
+    sp.add_argument("--lidar-frame", help="ros-tf: the LiDAR's frame id (default lidar)")
+    sp.add_argument("--camera-frame", help="ros-tf: the camera's frame id (default camera)")
+    sp.add_argument("--ros", choices=("both", "ros1", "ros2"), help="ros-tf: which ROS (default both)")
     return p
 
 

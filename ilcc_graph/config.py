@@ -522,12 +522,6 @@ def config_to_dict(cfg: Config) -> dict:
     if cfg.roi is not None and not cfg.roi.is_empty():
         board["roi"] = cfg.roi.to_dict()
     lidar = cfg.lidar.to_dict()
-    if cfg.lidar.name != "generic":
-        ref = lidar_model(cfg.lidar.name)
-        if not np.array_equal(ref.vertical_angles_deg, cfg.lidar.vertical_angles_deg):
-            lidar["vertical_angles_deg"] = [float(v) for v in cfg.lidar.vertical_angles_deg]
-        if ref.horizontal_resolution_deg != cfg.lidar.horizontal_resolution_deg:
-            lidar["horizontal_resolution_deg"] = cfg.lidar.horizontal_resolution_deg
     if cfg.intensity_column is not None:
         lidar["intensity_column"] = int(cfg.intensity_column)
     camera = _plain(cfg.camera.to_dict())

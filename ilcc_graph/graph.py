@@ -73,11 +73,14 @@ class GraphFrame:
 class GraphOptions:
     """Solver settings.
 
-    robust: None or an m-estimator applied per corner to its whitened bearing error: ``"huber"``,
+    robust: None or an m-estimator applied per corner to its whitened bearing error (after a plain
+        least-squares pass from ``T_init``): ``"huber"``,
         ``"cauchy"``, ``"tukey"``, ``"geman_mcclure"``, ``"welsch"``.
     robust_k: the kernel's threshold in sigmas (None: the usual 95 %-efficiency value).
     chi2_gate_prob: a frame whose chi-square (bearing and board-prior terms, 2K dof) exceeds this
-        quantile is dropped; None disables the gate.
+        quantile is dropped; None disables the gate. With a robust kernel the gate tests the robust
+        cost ``2 sum rho`` instead (never above the chi-square), so that one outlier corner need
+        not cost its frame while a frame wrong as a whole still fails.
     max_dropped_fraction: the gate drops at most this fraction of the usable frames (a noise model
         that is wrong for every frame should not empty the graph); the rest are kept with a warning.
     max_iterations, relative_error_tol, absolute_error_tol: Levenberg-Marquardt stopping rules.
@@ -97,12 +100,15 @@ class FrameStats:
     """Residual statistics of one frame at the solution.
 
     chi2: whitened squared bearing errors plus the board prior's term; dof: 2K;
-    rms_bearing_error_mrad: RMS angle between predicted and measured bearings, mrad.
+    rms_bearing_error_mrad: RMS angle between predicted and measured bearings, mrad;
+    chi2_robust: with a robust kernel, ``2 sum_k rho(|r_k|)`` plus the prior's term (the cost the
+    solver minimised, and what the gate tests then); None without a kernel.
     """
 
     chi2: float
     dof: int
     rms_bearing_error_mrad: float
+    chi2_robust: float | None = None
 
 
 @dataclass(frozen=True)
@@ -228,13 +234,14 @@ def _prepare(
 
 
 # -------------------------------------------------------------------------------- the graph
-def _build(ready: Sequence[_Frame]) -> gtsam.NonlinearFactorGraph:
+def _build(ready: Sequence[_Frame], plain: bool = False) -> gtsam.NonlinearFactorGraph:
+    """The graph; ``plain`` leaves out the robust kernel (least squares)."""
     graph = gtsam.NonlinearFactorGraph()
     for fr in ready:
         graph.add(
             gtsam.PriorFactorPose3(B(fr.index), fr.prior, gtsam.noiseModel.Gaussian.Covariance(fr.prior_cov))
         )
-        graph.add(fr.bearing.factor())
+        graph.add((fr.bearing.with_robust(None) if plain else fr.bearing).factor())
     return graph
 
 
@@ -254,8 +261,14 @@ def _optimize(
     params.setRelativeErrorTol(float(options.relative_error_tol))
     params.setAbsoluteErrorTol(float(options.absolute_error_tol))
     optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    result = optimizer.optimize()
-    return result, int(optimizer.iterations())
+    try:
+        result = optimizer.optimize()
+    except RuntimeError as exc:
+        raise IndeterminateSystem(f"Levenberg-Marquardt failed on an indeterminate system: {exc}") from None
+    n_it = int(optimizer.iterations())
+    if n_it >= options.max_iterations:
+        logger.warning("Levenberg-Marquardt stopped at the iteration limit (%d) before converging", n_it)
+    return result, n_it
 
 
 def _frame_stats(fr: _Frame, values: gtsam.Values) -> FrameStats:
@@ -263,10 +276,15 @@ def _frame_stats(fr: _Frame, values: gtsam.Values) -> FrameStats:
     e = fr.bearing.unwhitened(T_cl, T_lb)[0]
     r = fr.bearing.whitened(T_cl, T_lb)
     xi = np.asarray(fr.prior.localCoordinates(T_lb))
-    chi2 = float(np.sum(r * r) + xi @ np.linalg.solve(fr.prior_cov, xi))
+    prior_term = float(xi @ np.linalg.solve(fr.prior_cov, xi))
+    chi2 = float(np.sum(r * r)) + prior_term
+    chi2_robust = None
+    if fr.bearing.robust is not None:
+        chi2_robust = float(np.sum(fr.bearing.evaluate(T_cl, T_lb, False)[0] ** 2)) + prior_term
     # |e| is the sine of the angle between the bearings (their angle is < 90 deg near a solution)
     angles = np.arcsin(np.clip(np.linalg.norm(e, axis=1), 0.0, 1.0))
-    return FrameStats(chi2, 2 * fr.bearing.n_corners, float(1e3 * np.sqrt(np.mean(angles**2))))
+    rms = float(1e3 * np.sqrt(np.mean(angles**2)))
+    return FrameStats(chi2, 2 * fr.bearing.n_corners, rms, chi2_robust)
 
 
 def _marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> np.ndarray:
@@ -293,13 +311,14 @@ def _gate_failures(
     failing = []
     for fr in ready:
         s = stats[fr.name]
+        value, what = (s.chi2, "chi2") if s.chi2_robust is None else (s.chi2_robust, "robust chi2")
         bound = float(chi2_dist.ppf(prob, s.dof))
-        if s.chi2 > bound:
+        if value > bound:
             reason = (
-                f"chi-square gate: residual chi2 {s.chi2:.1f} > {bound:.1f} ({s.dof} dof, p={prob}); "
+                f"chi-square gate: residual {what} {value:.1f} > {bound:.1f} ({s.dof} dof, p={prob}); "
                 f"rms bearing error {s.rms_bearing_error_mrad:.3f} mrad"
             )
-            failing.append((float(chi2_dist.logsf(s.chi2, s.dof)), fr, reason))
+            failing.append((float(chi2_dist.logsf(value, s.dof)), fr, reason))
     return sorted(failing, key=lambda item: item[0])
 
 
@@ -342,6 +361,15 @@ def solve(
     iterations = 0
     T_cam_lidar = T0
     board_estimates: dict[int, gtsam.Pose3] = {}
+    if robust is not None:
+        # Least squares first: from a start far off every residual is "large" and a redescending
+        # kernel would weight them all to zero.
+        t0 = time.perf_counter()
+        result, n_it = _optimize(_build(ready, plain=True), _initial(ready, T0), options)
+        timings["optimize"] += time.perf_counter() - t0
+        iterations += n_it
+        T_cam_lidar = result.atPose3(X(0))
+        board_estimates = {fr.index: result.atPose3(B(fr.index)) for fr in ready}
     n_gate_drops = 0
     while True:
         t0 = time.perf_counter()

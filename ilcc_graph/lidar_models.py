@@ -107,12 +107,15 @@ class LidarModel:
         return ring_from_points(points, self)
 
     def to_dict(self) -> dict:
-        """Our config schema's ``lidar`` section (without ``intensity_column``)."""
+        """Our config schema's ``lidar`` section (without ``intensity_column``); a named model
+        lists only what differs from its table (angles, resolution, range sigma)."""
         d: dict = {"model": self.name}
-        if self.name == "generic":
+        ref = _TABLES.get(self.name)
+        if ref is None or not np.array_equal(ref[0], self.vertical_angles_deg):
             d["vertical_angles_deg"] = [float(v) for v in self.vertical_angles_deg]
+        if ref is None or ref[1] != self.horizontal_resolution_deg:
             d["horizontal_resolution_deg"] = self.horizontal_resolution_deg
-        if self.range_sigma_m != _DEFAULT_SIGMA.get(self.name, 0.03):
+        if self.range_sigma_m != (0.03 if ref is None else ref[2]):
             d["range_sigma_m"] = self.range_sigma_m
         return d
 
@@ -155,7 +158,6 @@ _TABLES: dict[str, tuple[np.ndarray, float, float, float]] = {
     "vlp32c": (_VLP32C, 0.2, 0.03, 3.0e-3),
     "os1-64": (_OS1_64, 360.0 / 2048.0, 0.03, 2.3e-3),
 }
-_DEFAULT_SIGMA = {k: v[2] for k, v in _TABLES.items()} | {"generic": 0.03}
 
 MODEL_NAMES: tuple[str, ...] = (*_TABLES, "generic")
 #: ILCC's ``LiDAR_type`` values -> our names.

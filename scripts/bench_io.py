@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import tempfile
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -44,18 +45,28 @@ def main() -> None:
             "pcd ascii": (d / "b.pcd", lambda p: write_pcd(p, scan, "ascii")),
             "pcd binary_compressed": (d / "c.pcd", lambda p: write_pcd(p, scan, "binary_compressed")),
             "ply binary": (d / "d.ply", lambda p: write_ply(p, scan)),
-            "kitti bin": (d / "e.bin",
-                          lambda p: np.column_stack([pts, scan.intensity]).astype("<f4").tofile(p)),
-            "csv (header)": (d / "f.csv", lambda p: np.savetxt(
-                p, np.column_stack([pts, scan.intensity, ring]), delimiter=",", fmt="%.6g",
-                header="x,y,z,intensity,laser_id", comments="")),
+            "kitti bin": (
+                d / "e.bin",
+                lambda p: np.column_stack([pts, scan.intensity]).astype("<f4").tofile(p),
+            ),
+            "csv (header)": (
+                d / "f.csv",
+                lambda p: np.savetxt(
+                    p,
+                    np.column_stack([pts, scan.intensity, ring]),
+                    delimiter=",",
+                    fmt="%.6g",
+                    header="x,y,z,intensity,laser_id",
+                    comments="",
+                ),
+            ),
         }
         for name, (path, write) in cases.items():
-            tw = _best(lambda: write(path), 1 if "compressed" in name else REPEATS)
-            tr = _best(lambda: read_scan(path))
+            tw = _best(partial(write, path), 1 if "compressed" in name else REPEATS)
+            tr = _best(partial(read_scan, path))
             assert len(read_scan(path)) == N
             rows.append((name, path.stat().st_size / 1e6, 1000 * tr, 1000 * tw))
-    head = f"Scan I/O, {N} points (x y z intensity ring), best of {REPEATS}, this machine (shared, 2 cores)\n\n"
+    head = f"Scan I/O, {N} points (x y z intensity ring), best of {REPEATS}, shared 2-core machine\n\n"
     table = "| format | size MB | read ms | write ms |\n|---|---:|---:|---:|\n"
     table += "".join(f"| {n} | {s:.2f} | {r:.1f} | {w:.1f} |\n" for n, s, r, w in rows)
     print(head + table)

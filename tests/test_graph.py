@@ -186,3 +186,49 @@ def test_bad_input_is_named() -> None:
         solve([replace(frames[0], cov_px=frames[0].cov_px[:, :1])], CAMERA, T_TRUE.matrix())
     with pytest.raises(ValueError, match="robust"):
         solve(frames, CAMERA, T_TRUE.matrix(), GraphOptions(robust="nope"))
+
+
+def test_robust_kernel_keeps_frame_with_one_bad_corner() -> None:
+    """One corner 20 mrad off: the plain gate drops its frame, a redescending kernel keeps it."""
+    rng = np.random.default_rng(13)
+    frames, _ = synthetic_problem(rng, 6)
+    f = frames[2]
+    b = f.bearings.copy()
+    b[10] = gtsam.Unit3(b[10]).retract(np.array([0.02, 0.0])).point3()
+    frames[2] = replace(f, bearings=b)
+    T0 = perturbed(T_TRUE, rng)
+    plain = solve(frames, CAMERA, T0)
+    assert [name for name, _ in plain.dropped] == [f.name]
+    robust = solve(frames, CAMERA, T0, GraphOptions(robust="tukey"))
+    assert robust.dropped == []
+    s = robust.per_frame[f.name]
+    assert s.chi2 > 1000 and s.chi2_robust is not None and s.chi2_robust < s.chi2
+    for sol in (plain, robust):
+        xi = gtsam.Pose3(sol.T_cam_lidar).localCoordinates(T_TRUE)
+        assert np.all(np.abs(xi) < 5 * np.sqrt(np.diag(sol.covariance)))
+
+
+def test_pinhole_camera_and_corners_it_cannot_see() -> None:
+    """Bearings in OpenCV's frame; a board behind the camera has no usable corner and is dropped."""
+    from ilcc_graph.camera_models import Pinhole
+
+    camera = Pinhole(
+        1280, 960, np.array([[800.0, 0, 640], [0, 800.0, 480], [0, 0, 1]]), np.array([-0.1, 0.01, 0, 0])
+    )
+    # LiDAR x forward, y left, z up -> OpenCV z forward, x right, y down; camera 10 cm above
+    R_cv_lidar = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+    T_cl = gtsam.Pose3(gtsam.Rot3(R_cv_lidar) * gtsam.Rot3.Rz(0.02), np.array([0.02, -0.1, 0.05]))
+    rng = np.random.default_rng(17)
+    frames = []
+    while len(frames) < 6:  # keep boards whose corners all land in the image
+        f, _ = synthetic_problem(rng, 1, T_cam_lidar=T_cl, camera=camera)
+        p_cam = np.array(
+            [T_cl.transformFrom(gtsam.Pose3(f[0].T_lidar_board).transformFrom(p)) for p in f[0].points_board]
+        )
+        if np.all(camera.in_image(camera.project(p_cam))):
+            frames.append(replace(f[0], name=f"{len(frames):04d}"))
+    behind = replace(frames[0], name="behind", bearings=-frames[0].bearings)
+    sol = solve(frames + [behind], camera, perturbed(T_cl, rng, rot=0.01, trans=0.02))
+    assert sol.dropped[0][0] == "behind" and "only 0 corners" in sol.dropped[0][1]
+    xi = gtsam.Pose3(sol.T_cam_lidar).localCoordinates(T_cl)
+    assert np.all(np.abs(xi) < 5 * np.sqrt(np.diag(sol.covariance)))

@@ -131,6 +131,16 @@ def test_csv_without_header_uses_intensity_column(tmp_path: Path) -> None:
     _assert_same(read_scan(q), scan)
 
 
+def test_csv_header_without_intensity_name_uses_column(tmp_path: Path) -> None:
+    p = tmp_path / "named.csv"
+    p.write_text("x,y,z,a,b\n1,2,3,40,50\n")
+    np.testing.assert_array_equal(read_scan(p, intensity_column=4).intensity, [50])
+    with pytest.raises(
+        InputError, match=r"named\.csv: no intensity field.*fields present: \['x', 'y', 'z', 'a', 'b'\]"
+    ):
+        read_scan(p)
+
+
 def test_veloview_csv_header_names(tmp_path: Path) -> None:
     p = tmp_path / "0001.csv"
     p.write_text('"Points:0","Points:1","Points:2","intensity","laser_id"\n1,2,3,40,5\n4,5,6,50,6\n')
@@ -508,3 +518,46 @@ def test_ground_truth_round_trip(tmp_path: Path) -> None:
     assert gt.extra == {"noise": {"range_sigma_m": 0.02}, "seed": 3}
     with pytest.raises(InputError, match="not found"):
         read_ground_truth(tmp_path / "elsewhere")
+
+
+def test_list_frames_one_sensor_only(tmp_path: Path) -> None:
+    (tmp_path / "pcd").mkdir()
+    for stem in ("0002", "0001"):
+        (tmp_path / "pcd" / f"{stem}.bin").write_bytes(bytes(16))
+    with pytest.raises(InputError, match="no 'img' folder"):
+        list_frames(tmp_path)
+    frames, skipped = list_frames(tmp_path, require_image=False)
+    assert [(f.name, f.scan.name, f.image) for f in frames] == [
+        ("0001", "0001.bin", None),
+        ("0002", "0002.bin", None),
+    ]
+    assert skipped == []
+    (tmp_path / "img").mkdir()
+    (tmp_path / "img" / "0003.jpg").write_bytes(b"x")
+    frames, skipped = list_frames(tmp_path, require_scan=False)
+    assert [(f.name, f.scan, f.image.name) for f in frames] == [("0003", None, "0003.jpg")]
+    assert [s for s, _ in skipped] == ["0001", "0002"]
+
+
+def test_ply_ascii_and_big_endian(tmp_path: Path) -> None:
+    p = tmp_path / "a.ply"
+    p.write_text(
+        "ply\nformat ascii 1.0\ncomment by hand\nelement vertex 2\nproperty uchar ring\nproperty double z\n"
+        "property float scalar_Intensity\nproperty float x\nproperty float y\nelement face 1\n"
+        "property list uchar int vertex_indices\nend_header\n3 1.5 20 0.25 -2\n4 -1 30 1 2\n3 0 1 1\n"
+    )
+    s = read_scan(p)
+    np.testing.assert_array_equal(s.points, [[0.25, -2, 1.5], [1, 2, -1]])
+    np.testing.assert_array_equal(s.intensity, [20, 30])
+    np.testing.assert_array_equal(s.ring, [3, 4])
+    rec = np.array(
+        [(1.0, 2.0, 3.0, 9.0)], dtype=[("x", ">f4"), ("y", ">f4"), ("z", ">f4"), ("intensity", ">f8")]
+    )
+    q = tmp_path / "b.ply"
+    q.write_bytes(
+        b"ply\nformat binary_big_endian 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+        b"property float z\nproperty double intensity\nend_header\n" + rec.tobytes()
+    )
+    s = read_scan(q)
+    np.testing.assert_array_equal(s.points, [[1, 2, 3]])
+    assert s.intensity[0] == 9.0 and s.ring is None

@@ -119,3 +119,16 @@ def test_recorded_vlp16_rings_match_table(acfr_data) -> None:
     scan = read_scan(acfr_data / "pcd" / "pose01.pcd")
     got = lidar_model("vlp16").ring_from_points(scan.points)
     assert np.mean(got == scan.ring) > 0.99
+
+
+def test_to_dict_lists_only_overrides() -> None:
+    assert lidar_model("vlp16").to_dict() == {"model": "vlp16"}
+    m = lidar_model("vlp16", horizontal_resolution_deg=0.4, range_sigma_m=0.01)
+    assert m.to_dict() == {"model": "vlp16", "horizontal_resolution_deg": 0.4, "range_sigma_m": 0.01}
+    g = lidar_model("generic", [0.0, 1.0], 0.5)
+    assert g.to_dict() == {
+        "model": "generic",
+        "vertical_angles_deg": [0.0, 1.0],
+        "horizontal_resolution_deg": 0.5,
+    }
+    assert lidar_model(**{("name" if k == "model" else k): v for k, v in g.to_dict().items()}) == g

@@ -40,23 +40,36 @@ log = logging.getLogger(__name__)
 class OrderOptions:
     """Gates of the cross-frame consistency check.
 
-    gate_rel: a frame agrees with an extrinsic when its RMS bearing error is below
-        ``gate_rel`` x the board's angular radius (RMS angle of its corners from their mean
-        direction). The wrong half turn gives about twice that radius.
-    robust_factor, min_gate_mrad: after the consensus is refined, a frame is also dropped when its
-        error exceeds ``max(min_gate_mrad, robust_factor * median error of the agreeing frames)``.
+    gate_rel: a frame agrees with an extrinsic when its RMS bearing error is below ``gate_rel`` x
+        the RMS angle by which the half turn moves its corners in the image (what the wrong order
+        costs under the right extrinsic; twice the board's angular radius when there is no half turn).
+    robust_factor, min_gate_mrad: a frame agrees only when its error is also below
+        ``max(min_gate_mrad, robust_factor * noise)``, noise being the median over frames of each
+        frame's RMS bearing error under its own pose (an outlier fits itself, so it cannot inflate it).
     rot_gate_deg: hypotheses from single frames: a frame supports another's pose when their
         rotations differ by less than this (the wrong half turn differs by twice the angle between
         the two boards' normals).
+    cand_cost_ratio, max_candidates: per frame and order, the UPnP minima with the corners in front
+        and a cost within this ratio of the best are all hypotheses (planar PnP's tilt ambiguity).
     rounds: re-estimation rounds of the consensus.
     max_hypotheses_frames: frames whose own poses are tried as hypotheses (evenly spread).
+    max_pair_fits, partners_per_hypothesis: joint fits of a frame with frames whose rotation agrees.
+    consensus_tries: distinct pair fits grown to a full consensus.
+    ambiguity_ratio: a rival consensus with as many frames and a bearing-error sum within this ratio
+        of the best makes the result ambiguous.
     """
 
     gate_rel: float = 0.5
     rot_gate_deg: float = 10.0
-    robust_factor: float = 6.0
-    min_gate_mrad: float = 3.0
+    cand_cost_ratio: float = 4.0
+    max_candidates: int = 3
+    robust_factor: float = 8.0
+    min_gate_mrad: float = 5.0
     rounds: int = 5
+    max_pair_fits: int = 24
+    partners_per_hypothesis: int = 4
+    consensus_tries: int = 6
+    ambiguity_ratio: float = 2.0
     max_hypotheses_frames: int = 60
 
 
@@ -97,6 +110,29 @@ def _angular_radius(F: np.ndarray) -> float:
     m = F.mean(axis=0)
     m /= max(np.linalg.norm(m), 1e-300)
     return float(_rms(np.arctan2(np.linalg.norm(np.cross(F, m), axis=1), F @ m)))
+
+
+def _half_turn_size(F: np.ndarray, perm: np.ndarray | None) -> float:
+    """RMS angle (rad) by which the half turn moves the frame's corners in the image (2x the
+    board's angular radius when there is no half turn)."""
+    if perm is None:
+        return 2.0 * _angular_radius(F)
+    G = F[perm]
+    return float(_rms(np.arctan2(np.linalg.norm(np.cross(F, G), axis=1), np.sum(F * G, axis=1))))
+
+
+def _rot_angle(R: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def _score_hypothesis(a: int, d: np.ndarray, rot_gate: float):
+    """d (n, 2): rotation distance of each frame's order to the hypothesis from frame a."""
+    orders = np.argmin(d, axis=1)
+    dmin = d[np.arange(len(d)), orders]
+    sup = dmin < rot_gate
+    undecided = sup & np.all(d < rot_gate, axis=1)
+    score = (int(sup.sum()), -float(np.sum(np.where(sup, dmin / rot_gate, 1.0))))
+    return score, a, sup, undecided, orders
 
 
 def _check_inputs(lidar_corners, bearings, perm, names, flippable):
@@ -161,15 +197,24 @@ def resolve_half_turns(
         return F[j][perm] if o else F[j]
 
     # 1. each frame's own pose in each candidate order
-    own: dict[tuple[int, int], np.ndarray] = {}
+    own: dict[tuple[int, int], list[np.ndarray]] = {}
+    own_rms: dict[int, float] = {}
     alive = []
     for j in range(n):
         try:
             for o in (0, 1) if flip_ok[j] else (0,):
                 sols = upnp(L[j], oriented(j, o), prefer_front=True, tie_rtol=np.inf)
-                if not sols:
-                    raise ValueError("no pose found")
-                own[(j, o)] = sols[0].T_cam_points
+                front = [s for s in sols if s.front_fraction > 0.5]
+                if not front:
+                    raise ValueError("no pose puts its corners in front of the camera")
+                # a planar board's pose has a second, tilted minimum of similar cost (the planar PnP
+                # ambiguity): keep every front minimum within cand_cost_ratio of the best
+                own[(j, o)] = [
+                    s.T_cam_points
+                    for s in front[: options.max_candidates]
+                    if s.cost <= options.cand_cost_ratio * front[0].cost + 1e-15
+                ]
+            own_rms[j] = float(_rms(bearing_errors(own[(j, 0)][0], L[j], oriented(j, 0))))
             alive.append(j)
         except ValueError as e:
             dropped.append(
@@ -177,7 +222,7 @@ def resolve_half_turns(
             )
     if not alive:
         return OrderResult({}, dropped, {})
-    gate = {j: options.gate_rel * _angular_radius(F[j]) for j in alive}
+    gate = {j: options.gate_rel * _half_turn_size(F[j], perm) for j in alive}
 
     if len(alive) == 1:
         j = alive[0]
@@ -188,7 +233,7 @@ def resolve_half_turns(
         )
         if amb:
             log.warning(amb)
-        return OrderResult({names[j]: False}, dropped, {names[j]: own[(j, 0)]}, own[(j, 0)], amb)
+        return OrderResult({names[j]: False}, dropped, {names[j]: own[(j, 0)][0]}, own[(j, 0)][0], amb)
 
     def errors(T: np.ndarray) -> np.ndarray:
         """(n_alive, 2) RMS bearing error (rad) of each alive frame per order; inf where no flip."""
@@ -209,109 +254,111 @@ def resolve_half_turns(
     # 2. hypotheses: every frame's own pose in each order; a frame supports one when its own
     # rotation under one of its orders is within rot_gate (cheap, and blind to the big lever-arm
     # errors of one-board translations)
-    Rown = np.full((len(alive), 2, 3, 3), np.nan)
+    n_c = max(len(v) for v in own.values())
+    Rown = np.full((len(alive), 2, n_c, 3, 3), np.nan)
     for a, j in enumerate(alive):
         for o in (0, 1):
-            if (j, o) in own:
-                Rown[a, o] = own[(j, o)][:3, :3]
+            for c, Tc in enumerate(own.get((j, o), [])):
+                Rown[a, o, c] = Tc[:3, :3]
     step = max(1, int(np.ceil(len(alive) / options.max_hypotheses_frames)))
     scored = []
     for a in range(0, len(alive), step):
         for o in (0, 1):
-            if (alive[a], o) not in own:
-                continue
-            tr = np.einsum("ij,koij->ko", Rown[a, o], Rown)
-            d = np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
-            d = np.where(np.isnan(d), np.inf, d)
-            d[a, 1 - o] = np.inf  # the anchor's order is the hypothesis
-            orders = np.argmin(d, axis=1)
-            dmin = d[np.arange(len(d)), orders]
-            sup = dmin < rot_gate
-            undecided = sup & np.all(d < rot_gate, axis=1)
-            score = (int(sup.sum()), -float(np.sum(np.where(sup, dmin / rot_gate, 1.0))))
-            scored.append((score, a, sup, undecided, orders))
+            for c in range(len(own.get((alive[a], o), []))):
+                tr = np.einsum("ij,kocij->koc", Rown[a, o, c], Rown)
+                d = np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+                d = np.where(np.isnan(d), np.inf, d).min(axis=2)
+                d[a, 1 - o] = np.inf  # the anchor's order is the hypothesis
+                scored.append(_score_hypothesis(a, d, rot_gate))
     scored.sort(key=lambda s: s[0], reverse=True)
 
-    def consensus(a0: int, sup: np.ndarray, undecided: np.ndarray, orders: np.ndarray):
-        """Extrinsic from the supporting frames, then a few robust rounds on bearing errors."""
-        orders = orders.copy()
-        decided = sup & ~undecided
-        if decided.sum() < 2:  # only the anchor is sure: pick each undecided frame's order jointly with it
-            for u in np.flatnonzero(undecided):
-                rms = []
-                for o in (0, 1):
-                    orders[u] = o
-                    E2 = errors(fit(np.array([a0, u]), orders))
-                    rms.append(max(E2[a0, orders[a0]] / g[a0], E2[u, o] / g[u]))
-                orders[u] = int(np.argmin(rms))
-            decided = sup
-        T = fit(np.flatnonzero(decided), orders)
-        inl = decided
+    # noise scale: each frame's RMS bearing error under its own pose (an outlier frame fits itself)
+    noise = max(float(np.median([own_rms[j] for j in alive])), 1e-6)
+    robust = max(options.min_gate_mrad * 1e-3, options.robust_factor * noise)
+    gk = np.minimum(g, robust)
+
+    def evaluate(T: np.ndarray):
         E = errors(T)
-        for _ in range(options.rounds):
-            best_o = np.argmin(E, axis=1)
-            best_e = E[np.arange(len(E)), best_o]
-            new_inl = best_e < g
-            if new_inl.sum() >= 2:
-                med = float(np.median(best_e[new_inl]))
-                new_inl &= best_e < max(options.min_gate_mrad * 1e-3, options.robust_factor * med)
-            if new_inl.sum() < 2 or (np.array_equal(new_inl, inl) and np.array_equal(best_o, orders)):
-                break
-            inl, orders = new_inl, best_o
-            T = fit(np.flatnonzero(inl), orders)
-            E = errors(T)
         best_o = np.argmin(E, axis=1)
         best_e = E[np.arange(len(E)), best_o]
-        inl = best_e < g
-        if inl.sum() >= 2:
-            inl &= best_e < max(
-                options.min_gate_mrad * 1e-3, options.robust_factor * float(np.median(best_e[inl]))
-            )
-        score = (int(inl.sum()), -float(np.sum(np.where(inl, best_e / g, 1.0))))
+        inl = best_e < gk
+        return E, inl, best_o, (int(inl.sum()), -float(np.sum(np.where(inl, best_e, 0.0))) / noise)
+
+    def consensus(T: np.ndarray):
+        """Refit on the frames that agree with T, re-assign their orders, until stable."""
+        E, inl, best_o, score = evaluate(T)
+        for _ in range(options.rounds):
+            if inl.sum() < 2:
+                break
+            T2 = fit(np.flatnonzero(inl), best_o)
+            E2, inl2, bo2, score2 = evaluate(T2)
+            if score2 < score:
+                break
+            stable = np.array_equal(inl2, inl) and np.array_equal(bo2, best_o)
+            T, E, inl, best_o, score = T2, E2, inl2, bo2, score2
+            if stable:
+                break
         return T, E, inl, best_o, score
 
-    # 3. consensus from the best hypothesis
-    best_score, a0, sup, undecided, orders = scored[0]
-    T, E, inl, best_o, final_score = consensus(a0, sup, undecided, orders)
-    if final_score[0] < 2:
+    # 3. pair hypotheses: the best-supported single-frame poses, each with a few of its supporters,
+    # fitted jointly (a pair fixes the extrinsic far better than one board); each grown to a
+    # consensus; the most frames win, then the smaller bearing errors
+    pairs: list[tuple[int, int, int, int]] = []
+    for _score, a, sup, undecided, orders in scored:
+        if len(pairs) >= options.max_pair_fits:
+            break
+        if _score[0] < 2:
+            continue
+        partners = [b for b in np.flatnonzero(sup) if b != a]
+        for b in partners[: options.partners_per_hypothesis]:
+            for ob in (0, 1) if undecided[b] else (int(orders[b]),):
+                key = (a, int(orders[a]), int(b), ob)
+                if key not in pairs and (key[2], key[3], key[0], key[1]) not in pairs:
+                    pairs.append(key)
+    results = []
+    for a, oa, b, ob in pairs[: options.max_pair_fits]:
+        orders = np.zeros(len(alive), dtype=int)
+        orders[a], orders[b] = oa, ob
+        T0 = fit(np.array([a, b]), orders)
+        results.append((evaluate(T0)[3], T0))
+    results.sort(key=lambda r: r[0], reverse=True)
+    finals = []
+    seen: list[np.ndarray] = []
+    for _sc, T0 in results:
+        if len(finals) >= options.consensus_tries:
+            break
+        res = consensus(T0)
+        key = np.where(res[2], res[3], -1)
+        if any(np.array_equal(key, k) for k in seen):
+            continue
+        seen.append(key)
+        finals.append(res)
+    finals.sort(key=lambda r: r[4], reverse=True)
+    if not finals or finals[0][4][0] < 2:
         why = "no two frames agree on one extrinsic under either corner order"
         if len(alive) == 2:
             why = "the two frames disagree under either corner order; cannot tell which one is wrong"
         dropped += [(names[j], f"corner order inconsistent with the other frames: {why}") for j in alive]
         return OrderResult({}, dropped, {}, None, why)
+    T, E, inl, best_o, final_score = finals[0]
 
-    # rivals with as much support but another order assignment: refine them too; if one still ties
-    # with a different assignment, the data cannot decide
+    # a rival consensus with as many frames, other orders or frames, and errors of the same size:
+    # the data cannot decide
     ambiguous = None
-    key = np.where(inl, best_o, -1)
-    tried: list[np.ndarray] = [key]
-    for score, a1, sup1, und1, ord1 in scored[1:]:
-        if score[0] < best_score[0] or len(tried) > 5:
+    for _T2, _E2, inl2, _bo2, score2 in finals[1:]:
+        if score2[0] == final_score[0] and -score2[1] <= options.ambiguity_ratio * max(-final_score[1], 1e-9):
+            ambiguous = (
+                f"two extrinsics fit {final_score[0]} frames each, with different corner orders or frames "
+                f"(frames {', '.join(names[alive[a]] for a in np.flatnonzero(inl | inl2))}); "
+                "the one with the smaller bearing errors is used"
+            )
+            log.warning(ambiguous)
             break
-        k1 = np.where(sup1 & ~und1, ord1, -1)
-        if any(np.array_equal(k1, np.where(sup1 & ~und1, t, -1)) for t in tried):
-            continue
-        T2, E2, inl2, bo2, score2 = consensus(a1, sup1, und1, ord1)
-        k2 = np.where(inl2, bo2, -1)
-        tried.append(k2)
-        if np.array_equal(k2, key) or score2[0] < final_score[0]:
-            continue
-        ambiguous = (
-            f"two extrinsics fit {final_score[0]} frames each with different corner orders "
-            f"(frames {', '.join(names[alive[a]] for a in np.flatnonzero(inl | inl2))}); "
-            "the one with the smaller error is used"
-        )
-        log.warning(ambiguous)
-        if score2 > final_score:
-            T, E, inl, best_o, final_score = T2, E2, inl2, bo2, score2
-        break
 
     # 4. decisions
     flip: dict[str, bool] = {}
     per_frame: dict[str, np.ndarray] = {}
     errs: dict[str, tuple[float, float]] = {}
-    best_e = E[np.arange(len(E)), best_o]
-    robust = max(options.min_gate_mrad * 1e-3, options.robust_factor * float(np.median(best_e[inl])))
     for a, j in enumerate(alive):
         e0, e1 = 1e3 * E[a, 0], (1e3 * E[a, 1] if np.isfinite(E[a, 1]) else float("nan"))
         errs[names[j]] = (float(e0), float(e1))
@@ -319,7 +366,7 @@ def resolve_half_turns(
         e_list = f"RMS bearing error {e0:.1f} mrad as listed" + (
             f", {e1:.1f} mrad half-turned" if flip_ok[j] else ""
         )
-        limit = 1e3 * min(g[a], robust)
+        limit = 1e3 * gk[a]
         if not inl[a]:
             dropped.append(
                 (
@@ -340,5 +387,6 @@ def resolve_half_turns(
             )
             continue
         flip[names[j]] = bool(o)
-        per_frame[names[j]] = own[(j, o)]
+        cands = own[(j, o)]
+        per_frame[names[j]] = min(cands, key=lambda Tc: _rot_angle(Tc[:3, :3].T @ T[:3, :3]))
     return OrderResult(flip, dropped, per_frame, T, ambiguous, errs)

@@ -15,7 +15,11 @@ __all__ = ["FramePaths", "list_frames", "natural_key"]
 
 @dataclass(frozen=True)
 class FramePaths:
-    """One frame: its name (the shared file stem), scan file and image file."""
+    """One frame: its name (the shared file stem), scan file and image file.
+
+    ``scan`` / ``image`` are None only in frames listed with ``require_scan`` / ``require_image``
+    False.
+    """
 
     name: str
     scan: Path
@@ -47,27 +51,43 @@ def _by_stem(
     return single
 
 
-def list_frames(data_dir: str | Path) -> tuple[list[FramePaths], list[tuple[str, str]]]:
+def list_frames(
+    data_dir: str | Path, require_image: bool = True, require_scan: bool = True
+) -> tuple[list[FramePaths], list[tuple[str, str]]]:
     """Pair ``data_dir/pcd/<stem>.*`` with ``data_dir/img/<stem>.*``.
 
     Returns (frames in natural stem order, skipped [(stem, reason)]). A missing ``pcd`` or
-    ``img`` folder, or no pair at all, raises ``InputError``.
+    ``img`` folder, or no frame at all, raises ``InputError``.
+    require_image=False (LiDAR-only runs): every scan is a frame, ``image`` is None when it has
+    no partner and ``img/`` may be absent. require_scan=False likewise for image-only runs.
     """
     d = Path(data_dir)
     if not d.is_dir():
         raise InputError(f"{d}: data folder not found")
-    for sub in ("pcd", "img"):
-        if not (d / sub).is_dir():
+    for sub, required in (("pcd", require_scan), ("img", require_image)):
+        if required and not (d / sub).is_dir():
             raise InputError(f"{d}: no '{sub}' folder (expected {d / 'pcd'} and {d / 'img'})")
     skipped: list[tuple[str, str]] = []
-    scans = _by_stem(d / "pcd", supported_scan_suffixes(), "pcd", skipped)
-    images = _by_stem(d / "img", IMAGE_SUFFIXES, "img", skipped)
-    frames = [FramePaths(s, scans[s], images[s]) for s in scans.keys() & images.keys()]
-    skipped += [(s, f"scan {scans[s].name} has no image in img/") for s in scans.keys() - images.keys()]
-    skipped += [(s, f"image {images[s].name} has no scan in pcd/") for s in images.keys() - scans.keys()]
+    scans = _by_stem(d / "pcd", supported_scan_suffixes(), "pcd", skipped) if (d / "pcd").is_dir() else {}
+    images = _by_stem(d / "img", IMAGE_SUFFIXES, "img", skipped) if (d / "img").is_dir() else {}
+    stems = scans.keys() & images.keys()
+    if not require_image:
+        stems |= scans.keys()
+    if not require_scan:
+        stems |= images.keys()
+    frames = [FramePaths(s, scans.get(s), images.get(s)) for s in stems]  # type: ignore[arg-type]
+    skipped += [
+        (s, f"scan {scans[s].name} has no image in img/") for s in scans.keys() - images.keys() - stems
+    ]
+    skipped += [
+        (s, f"image {images[s].name} has no scan in pcd/") for s in images.keys() - scans.keys() - stems
+    ]
     frames.sort(key=lambda f: natural_key(f.name))
     skipped.sort(key=lambda t: natural_key(t[0]))
     if not frames:
-        detail = "; ".join(f"{s}: {r}" for s, r in skipped[:5]) or "both folders are empty"
-        raise InputError(f"{d}: no frame has both a scan in pcd/ and an image in img/ ({detail})")
+        detail = "; ".join(f"{s}: {r}" for s, r in skipped[:5]) or "the folders hold no scans or images"
+        what = (
+            "has both a scan in pcd/ and an image in img/" if require_image and require_scan else "was found"
+        )
+        raise InputError(f"{d}: no frame {what} ({detail})")
     return frames, skipped

@@ -89,7 +89,8 @@ def _matrix(src: str, v: Any, key: str, shape: tuple[int, ...], pose: bool = Fal
     ):
         if len(shape) == 2 and shape[0] == -1 and m.size == 0:
             return np.zeros((0, shape[1]))
-        raise InputError(f"{src}: {key} has shape {m.shape}, expected {shape}".replace("-1", "K"))
+        expected = "(" + ", ".join("K" if n == -1 else str(n) for n in shape) + ")"
+        raise InputError(f"{src}: {key} has shape {m.shape}, expected {expected}")
     if pose:
         if not np.all(np.isfinite(m)):
             raise InputError(f"{src}: {key} has non-finite entries")

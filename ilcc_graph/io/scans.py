@@ -145,8 +145,9 @@ def _is_number(tok: str) -> bool:
 
 @reader(".csv")
 def read_csv(path: Path, intensity_column: int | None = None) -> Scan:
-    """ILCC's CSV: comma-separated, a header row naming the columns; or no header (x y z first,
-    intensity at ``intensity_column``; a 4-column file needs none)."""
+    """ILCC's CSV: comma-separated, a header row naming the columns (intensity found by name, else
+    at ``intensity_column``); or no header: x y z first, intensity at ``intensity_column`` (a
+    4-column file needs none)."""
     text = path.read_text(encoding="utf-8-sig")
     lines = text.splitlines()
     first = next((i for i, ln in enumerate(lines) if ln.strip()), None)
@@ -157,7 +158,13 @@ def read_csv(path: Path, intensity_column: int | None = None) -> Scan:
     body_lines = [ln for ln in lines[first + 1 if has_header else first :] if ln.strip()]
     ncols = len(head)
     if has_header:
-        cols = find_fields(path, head)
+        cols = find_fields(path, head, need_intensity=intensity_column is None)
+        if cols["intensity"] is None:  # header without an intensity name: use the configured column
+            if not 3 <= int(intensity_column) < ncols:  # type: ignore[arg-type]
+                raise InputError(
+                    f"{path}: intensity_column {intensity_column} is outside the {ncols} columns"
+                )
+            cols["intensity"] = int(intensity_column)  # type: ignore[arg-type]
     else:
         if intensity_column is None:
             if ncols != 4:

@@ -77,10 +77,13 @@ def fit_board_points(
     lidar_model: LidarModel,
     options: LidarOptions = LidarOptions(),
     rng: np.random.Generator | None = None,
+    pool: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> BoardFit:
     """Pose, corners and covariance from the board's points (M, 3) LiDAR frame and intensities (M,).
 
     normal/offset: the plane ``normal @ p = offset`` with the normal towards the sensor.
+    pool: optional (points (L, 3), intensities (L,)) near the plane from which the points on the
+    fitted board are taken after the first fit (detection may have trimmed the board's corners).
     """
     t0 = time.perf_counter()
     rng = np.random.default_rng(0) if rng is None else rng
@@ -97,6 +100,9 @@ def fit_board_points(
     t_powell = time.perf_counter() - t0
 
     # keep the points on the fitted board, refit the plane on them (drops a hand, the stand)
+    if pool is not None:
+        P, inten = np.asarray(pool[0], np.float64), np.asarray(pool[1], np.float64)
+        Pp = project_on_plane(P, normal, offset)
     Tinv = np.linalg.inv(T0)
     b = Pp @ Tinv[:3, :3].T + Tinv[:3, 3]
     x0, x1, y0, y1 = board.extent()
@@ -181,11 +187,18 @@ def estimate_board(
         raise InputError(f"{scan.source or 'scan'}: points must be (N, 3), got {pts.shape}")
     ring = scan.ring if scan.ring is not None else lidar_model.ring_from_points(pts)
     rng = np.random.default_rng(0)
-    cand = find_board(pts, np.asarray(ring), board, lidar_model, roi, options, rng)
+    cand = find_board(pts, np.asarray(ring), scan.intensity, board, lidar_model, roi, options, rng)
     t_detect = time.perf_counter() - t0
+    inten = np.asarray(scan.intensity, np.float64)
+    # the pool: every point near the board's plane and not farther from its centre than the board's size
+    x0, x1, y0, y1 = board.extent()
+    centre = pts[cand.indices].mean(axis=0)
+    near = (np.abs(pts @ cand.normal - cand.offset) < max(options.ransac_threshold_m, 3 * cand.noise_sigma)) & (
+        np.linalg.norm(pts - centre, axis=1) < 0.75 * np.hypot(x1 - x0, y1 - y0)
+    )
     fit = fit_board_points(
-        pts[cand.indices], np.asarray(scan.intensity, np.float64)[cand.indices], cand.normal, cand.offset,
-        board, lidar_model, options, rng,
+        pts[cand.indices], inten[cand.indices], cand.normal, cand.offset,
+        board, lidar_model, options, rng, pool=(pts[near], inten[near]),
     )  # fmt: skip
     fit.diagnostics.update(
         {"time_detect_s": t_detect, "uniformity": cand.uniformity, "range_noise_m": cand.noise_sigma,

@@ -8,7 +8,7 @@ Hessian, so the fit is refined with a *soft-edged* model of the intensities,
 where ``Sx(x) = (-1)^j erf(u / (sqrt(2) sigma_b))`` is a square wave blurred by a Gaussian beam
 footprint (``j`` the nearest grid line, ``u`` the signed distance to it), ``M`` the blurred
 pattern box (outside it the margin is white) and ``ph = -1`` for a black lower-left square.
-Gauss-Newton (Huber-weighted) fits (rz, tx, ty, a, c, log sigma_b); the pose covariance is the
+Levenberg-Marquardt on a Huber loss fits (rz, tx, ty, a, c, log sigma_b); the pose covariance is the
 (rz, tx, ty) block of ``s^2 (J^T W J)^-1`` with ``s`` the residuals' robust scale.
 
 Out-of-plane (rx, ry, tz): the board-frame heights of the points, ``z = tz + rx y - ry x`` to first
@@ -102,61 +102,87 @@ def _se2_exp(xi: np.ndarray) -> np.ndarray:
     return H
 
 
+def _huber(res: np.ndarray, k: float) -> tuple[float, np.ndarray]:
+    a = np.abs(res)
+    rho = np.where(a <= k, 0.5 * res * res, k * (a - 0.5 * k))
+    return float(rho.sum()), np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))
+
+
 def soft_edge_refine(
     b0: np.ndarray, intensity: np.ndarray, board: Board, levels: tuple[float, float], blur0: float,
-    max_iter: int = 15,
+    max_iter: int = 40,
 ) -> SoftFit:
-    """Gauss-Newton fit of the soft-edged model to intensities at board coordinates b0 (N, 2).
+    """Levenberg-Marquardt (Huber loss) fit of the soft-edged model to intensities at board coordinates b0 (N, 2).
 
     b0: points in the start pose's board frame (on the board). levels: (R_L, R_H) start values.
+    Parameters: in-plane pose correction (rz, tx, ty) in the Pose3 tangent, black level a,
+    contrast c, log of the footprint sigma.
     """
     r = np.asarray(intensity, dtype=np.float64)
-    a, c = float(levels[0]), float(levels[1] - levels[0])
-    lsig = float(np.log(max(blur0, 1e-3)))
-    H = np.eye(3)  # current board <- start board (in-plane)
     b0h = np.column_stack([b0, np.ones(len(b0))])
-    converged = False
-    it = 0
-    scale = 1.0
-    J = np.zeros((len(r), 6))
-    W = np.ones(len(r))
-    for it in range(1, max_iter + 1):  # noqa: B007
+    sig_lo, sig_hi = np.log(2e-4), np.log(0.5 * board.square_size)
+
+    def residual(H: np.ndarray, a: float, c: float, lsig: float, jac: bool):
         b = (b0h @ H.T)[:, :2]
-        sig = np.exp(lsig)
-        pred, grad = soft_intensity(b, board, a, c, sig)
+        pred, grad = soft_intensity(b, board, a, c, np.exp(lsig))
         res = r - pred
-        scale = max(1.4826 * float(np.median(np.abs(res - np.median(res)))), 1e-6)
-        k = 1.5 * scale
-        W = np.where(np.abs(res) <= k, 1.0, k / np.maximum(np.abs(res), 1e-12))
+        if not jac:
+            return res, None
+        J = np.empty((len(r), 6))
         # d b / d xi for b' = Exp(-xi) b: [[y, -1, 0], [-x, 0, -1]]
         J[:, 0] = -(grad[:, 0] * b[:, 1] - grad[:, 1] * b[:, 0])
         J[:, 1] = grad[:, 0]
         J[:, 2] = grad[:, 1]
-        w_model = (pred - a) / c if c != 0 else np.zeros_like(pred)
         J[:, 3] = -1.0
-        J[:, 4] = -w_model
+        J[:, 4] = -(pred - a) / c if c != 0 else 0.0
         eps = 1e-4
         p2, _ = soft_intensity(b, board, a, c, np.exp(lsig + eps))
         p1, _ = soft_intensity(b, board, a, c, np.exp(lsig - eps))
         J[:, 5] = -(p2 - p1) / (2 * eps)
+        return res, J
+
+    H = np.eye(3)
+    a, c = float(levels[0]), float(levels[1] - levels[0])
+    lsig = float(np.clip(np.log(max(blur0, 1e-3)), sig_lo, sig_hi))
+    res, J = residual(H, a, c, lsig, True)
+    k = 1.5 * max(1.4826 * float(np.median(np.abs(res - np.median(res)))), 1e-6)
+    f, W = _huber(res, k)
+    lam, converged, it = 1e-3, False, 0
+    for it in range(1, max_iter + 1):  # noqa: B007
         JW = J * W[:, None]
-        N = JW.T @ J + 1e-9 * np.eye(6)
+        N = JW.T @ J
+        g = JW.T @ res
         try:
-            step = -np.linalg.solve(N, JW.T @ res)
+            step = -np.linalg.solve(N + lam * np.diag(np.diag(N) + 1e-12), g)
         except np.linalg.LinAlgError:
             break
-        step[5] = np.clip(step[5], -0.5, 0.5)
-        H = np.linalg.inv(_se2_exp(step[:3])) @ H
-        a += step[3]
-        c += step[4]
-        lsig = float(np.clip(lsig + step[5], np.log(2e-4), np.log(0.5 * board.square_size)))
-        if abs(step[0]) < 1e-6 and np.linalg.norm(step[1:3]) < 1e-6:
-            converged = True
-            break
+        Hn = np.linalg.inv(_se2_exp(step[:3])) @ H
+        an, cn = a + step[3], c + step[4]
+        ln = float(np.clip(lsig + step[5], sig_lo, sig_hi))
+        res_n, _ = residual(Hn, an, cn, ln, False)
+        fn, _ = _huber(res_n, k)
+        if fn < f:
+            small = abs(step[0]) < 1e-7 and np.linalg.norm(step[1:3]) < 1e-7 or (f - fn) < 1e-10 * f
+            H, a, c, lsig = Hn, an, cn, ln
+            res, J = residual(H, a, c, lsig, True)
+            f, W = _huber(res, k)
+            lam = max(lam / 3, 1e-9)
+            if small:
+                converged = True
+                break
+        else:
+            lam *= 5
+            if lam > 1e8:
+                converged = True  # no step lowers the cost: at the minimum
+                break
+    scale = max(1.4826 * float(np.median(np.abs(res - np.median(res)))), 1e-6)
     try:
+        # sandwich (Huber-White) covariance: A^-1 B A^-1 with A = J^T W J and B = sum (w_i r_i)^2 J_i J_i^T;
+        # it holds when the residuals' spread varies from point to point (edges vs flat squares)
         JW = J * W[:, None]
-        cov6 = scale**2 * np.linalg.inv(JW.T @ J)
-        cov = cov6[:3, :3]
+        Ainv = np.linalg.inv(JW.T @ J)
+        G = J * (W * res)[:, None]
+        cov = (Ainv @ (G.T @ G) @ Ainv)[:3, :3]
     except np.linalg.LinAlgError:
         cov = np.full((3, 3), np.nan)
         converged = False

@@ -7,7 +7,9 @@ A candidate passes the paper's tests, with the board's physical size (margin inc
    range noise's own share, estimated from the scan);
 3. a RANSAC plane holds (nearly) all of it;
 4. extent along the two PCA axes within ``size_ratio`` of the board's sides;
-5. uniformity ``1 - (n_max - n_min) / n_all >= uniformity_min`` over the four quadrants.
+5. uniformity ``1 - (n_max - n_min) / n_all >= uniformity_min`` over the four quadrants of the
+   extent, each return weighted by the board area it stands for (range^2 / cos(incidence));
+6. (ours) the intensities split into two levels (black and white print).
 
 The most uniform candidate wins. An object that fails because it is too large or not planar
 (board merged with a wall close behind, a person touching it, the stand under it) is split:
@@ -118,10 +120,31 @@ def _local_elevation_step(model: LidarModel, elevation: float) -> float:
     return float(np.interp(elevation, mids, gaps))
 
 
+def intensity_contrast(intensity: np.ndarray) -> tuple[float, float]:
+    """Two-level contrast of intensities (M,): (separation d', smaller class fraction).
+
+    Otsu's split into two classes; d' = (mean_high - mean_low) / pooled within-class sigma.
+    A printed chessboard gives d' >> 4 with both classes near half; a plain surface gives d' < 3.
+    """
+    r = np.sort(np.asarray(intensity, dtype=np.float64))
+    m = r.size
+    if m < 4 or r[-1] == r[0]:
+        return 0.0, 0.0
+    c = np.cumsum(r)
+    k = np.arange(1, m)
+    m0, m1 = c[:-1] / k, (c[-1] - c[:-1]) / (m - k)
+    between = k * (m - k) * (m1 - m0) ** 2
+    j = int(np.argmax(between))
+    lo, hi = r[: j + 1], r[j + 1 :]
+    pooled = np.sqrt((lo.var() * lo.size + hi.var() * hi.size) / m)
+    return float((hi.mean() - lo.mean()) / max(pooled, 1e-9)), float(min(lo.size, hi.size) / m)
+
+
 def board_tests(
-    p: np.ndarray, board: Board, model: LidarModel, sigma: float, options: LidarOptions
+    p: np.ndarray, board: Board, model: LidarModel, sigma: float, options: LidarOptions,
+    intensity: np.ndarray | None = None,
 ) -> tuple[bool, float, str, str]:
-    """The paper's tests on one candidate's points p (M, 3).
+    """The paper's tests on one candidate's points p (M, 3) (and intensities (M,), when given).
 
     Returns (passed, uniformity, failed test name or "", human-readable detail).
     """
@@ -157,18 +180,30 @@ def board_tests(
         )  # fmt: skip
     mid = 0.5 * (lo + hi_)
     quad = (uv[:, 0] >= mid[0]).astype(int) * 2 + (uv[:, 1] >= mid[1]).astype(int)
-    nq = np.bincount(quad, minlength=4)
-    uniformity = 1.0 - (nq.max() - nq.min()) / m
+    # each return stands for the board area r^2 d_az d_el / cos(incidence): weigh by it so that a
+    # board tilted at close range (denser on its near side) still counts as evenly covered
+    r_i = np.linalg.norm(p, axis=1)
+    cos_i = np.abs(p @ v[:, 0]) / np.maximum(r_i, 1e-9)
+    w_i = r_i**2 / np.maximum(cos_i, 0.2)
+    nq = np.bincount(quad, weights=w_i, minlength=4)
+    uniformity = 1.0 - (nq.max() - nq.min()) / nq.sum()
     if uniformity < options.uniformity_min:
         return False, uniformity, "uniformity", f"uneven ({uniformity:.2f}) {ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m"
+    if intensity is not None:
+        sep, frac = intensity_contrast(intensity)
+        if sep < options.contrast_min or frac < 0.1:
+            return (
+                False, uniformity, "contrast",
+                f"board-shaped at {dist:.2f} m but no black/white intensity contrast (d'={sep:.1f}, {frac:.0%})",
+            )  # fmt: skip
     return True, float(uniformity), "", f"{m} points at {dist:.2f} m"
 
 
 def trim_attachments(p: np.ndarray, cell: float, short_side: float) -> np.ndarray:
     """Indices of the largest compact blob of a planar piece p (M, 3): drops thin attachments.
 
-    The points go into a 2-D occupancy grid in their plane (cells of ``cell`` metres, holes between
-    rings closed first); a morphological opening with a disc of about a quarter of the board's
+    The points go into a 2-D occupancy grid in their plane (cells of ``cell`` metres, a little more
+    than the ring spacing so that rings leave no holes); a morphological opening with a disc of about a quarter of the board's
     short side removes arms, poles and edges of other objects that lie in the board's plane; the
     largest remaining blob, grown back, is kept.
     """
@@ -183,7 +218,6 @@ def trim_attachments(p: np.ndarray, cell: float, short_side: float) -> np.ndarra
         return np.arange(p.shape[0])
     occ = np.zeros(shape, bool)
     occ[ij[:, 0], ij[:, 1]] = True
-    occ = ndimage.binary_closing(occ, structure=np.ones((3, 3), bool))
     rad = max(1, int(np.floor(0.25 * short_side / cell)))
     yy, xx = np.mgrid[-rad : rad + 1, -rad : rad + 1]
     disc = xx**2 + yy**2 <= rad**2 + 0.5
@@ -199,6 +233,7 @@ def trim_attachments(p: np.ndarray, cell: float, short_side: float) -> np.ndarra
 def find_board(
     points: np.ndarray,
     ring: np.ndarray,
+    intensity: np.ndarray,
     board: Board,
     model: LidarModel,
     roi: Any | None = None,
@@ -207,10 +242,11 @@ def find_board(
 ) -> Candidate:
     """Segment the scan and return the chessboard's points; raise BoardNotFound with the reason.
 
-    points: (N, 3) LiDAR frame. ring: (N,) beam index.
+    points: (N, 3) LiDAR frame. ring: (N,) beam index. intensity: (N,).
     """
     rng = np.random.default_rng(0) if rng is None else rng
     p = np.asarray(points, dtype=np.float64)
+    inten = np.asarray(intensity, dtype=np.float64)
     inside = roi_mask(p, roi)
     if not inside.any():
         raise BoardNotFound("no point of the scan lies inside the region of interest (board.roi)")
@@ -246,14 +282,14 @@ def find_board(
         if idx.size < min_count(idx):
             return
         tested += 1
-        ok, uni, name, detail = board_tests(q, board, model, sigma, options)
+        ok, uni, name, detail = board_tests(q, board, model, sigma, options, inten[idx])
         if ok:
             n, d, inl = ransac_plane(q, thr, rng)
             if inl.mean() >= 0.9:
                 passed.append((uni, idx[inl]))
                 return
             name, detail = "plane", f"only {inl.mean():.0%} of its points on one plane; {detail}"
-        if depth == 1 and name in ("size", "uniformity", "count", "plane"):
+        if depth == 1 and name in ("size", "uniformity", "count", "plane", "contrast"):
             d = float(np.linalg.norm(q.mean(axis=0)))
             el = float(np.arctan2(q[:, 2].mean(), np.hypot(q[:, 0].mean(), q[:, 1].mean())))
             cell = 1.2 * d * max(_local_elevation_step(model, el), step_az)

@@ -152,12 +152,13 @@ def grid_l1_distance(b: np.ndarray, board: Board) -> np.ndarray:
     return dx + dy
 
 
-def _transform(params: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """b = R(theta) q + t for params (..., 3) = (theta, tx, ty) and q (N, 2) -> (..., N, 2)."""
+def _transform(params: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """b = R(theta) q + t for params (..., 3) = (theta, tx, ty), q (N, 2): (bx, by), each (..., N)."""
     params = np.asarray(params, dtype=np.float64)
-    c, s = np.cos(params[..., 0]), np.sin(params[..., 0])
-    Rt = np.stack([np.stack([c, s], -1), np.stack([-s, c], -1)], -2)  # (..., 2, 2) = R^T
-    return q @ Rt + params[..., None, 1:3]
+    th, tx, ty = params[..., 0:1], params[..., 1:2], params[..., 2:3]
+    c, s = np.cos(th), np.sin(th)
+    qx, qy = q[:, 0], q[:, 1]
+    return c * qx - s * qy + tx, s * qx + c * qy + ty
 
 
 def paper_cost(params: np.ndarray, q: np.ndarray, cls: np.ndarray, board: Board) -> np.ndarray:
@@ -169,24 +170,39 @@ def paper_cost(params: np.ndarray, q: np.ndarray, cls: np.ndarray, board: Board)
     off the model costs that distance always. q: (N, 2) plane coordinates, cls: (N,) from
     :func:`intensity_classes`. Returns a float array of shape params.shape[:-1].
     """
+    params = np.asarray(params, dtype=np.float64)
+    if params.ndim == 2 and params.shape[0] * q.shape[0] > _CHUNK:
+        per = max(1, _CHUNK // q.shape[0])  # keep temporaries cache-sized (large arrays page-fault)
+        return np.concatenate([_cost(params[i : i + per], q, cls, board) for i in range(0, len(params), per)])
+    return _cost(params, q, cls, board)
+
+
+_CHUNK = 40_000
+
+
+def _cost(params: np.ndarray, q: np.ndarray, cls: np.ndarray, board: Board) -> np.ndarray:
     s = board.square_size
-    u = _transform(params, q) * (1.0 / s)  # board coordinates in squares
-    lim = np.array([board.cols, board.rows], dtype=np.float64)
-    k = np.floor(u)
-    d = np.abs(u - np.clip(np.rint(u), 0.0, lim))  # per-axis distance to the nearest pattern line
-    inpat = ((k >= 0) & (k < lim)).all(axis=-1)
+    bx, by = _transform(params, q)
+    ux, uy = bx * (1.0 / s), by * (1.0 / s)  # board coordinates in squares
+    kx, ky = np.floor(ux), np.floor(uy)
+    # f_d: distance to the nearest pattern line (lines 0..cols, 0..rows), L1 over the two axes
+    dx = np.abs(ux - np.minimum(np.maximum(np.rint(ux), 0.0), board.cols))
+    dy = np.abs(uy - np.minimum(np.maximum(np.rint(uy), 0.0), board.rows))
+    inpat = (kx >= 0) & (kx < board.cols) & (ky >= 0) & (ky < board.rows)
     base = 0 if board.lower_left == "black" else 1
-    colour = (k.sum(axis=-1).astype(np.int64) + base) % 2
+    colour = (kx + ky + base).astype(np.int64) & 1
     if board.margin_long > 0 or board.margin_short > 0:
-        x0, x1, y0, y1 = board.extent()
-        lo, hi = np.array([x0, y0]) / s, np.array([x1, y1]) / s
-        on = ((u >= lo) & (u <= hi)).all(axis=-1)
-        d = np.minimum(d, np.minimum(np.abs(u - lo), np.abs(u - hi)))
+        x0, x1, y0, y1 = (e / s for e in board.extent())
+        on = (ux >= x0) & (ux <= x1) & (uy >= y0) & (uy <= y1)
+        if board.margin_long > 0:
+            dx = np.minimum(dx, np.minimum(np.abs(ux - x0), np.abs(ux - x1)))
+        if board.margin_short > 0:
+            dy = np.minimum(dy, np.minimum(np.abs(uy - y0), np.abs(uy - y1)))
         colour = np.where(inpat, colour, 1)
     else:
         on = inpat
-    cost_pt = np.where(on & ((cls < 0) | (colour == cls)), 0.0, d.sum(axis=-1))
-    return s * cost_pt.sum(axis=-1)
+    free = on & ((cls < 0) | (colour == cls))
+    return s * np.where(free, 0.0, dx + dy).sum(axis=-1)
 
 
 def powell_batched(

@@ -35,6 +35,8 @@ class LidarOptions:
     size_ratio: (lo, hi) of the segment's extent along its PCA axes over the board's sides
         (margin included).
     uniformity_min: ``1 - (n_max - n_min) / n_all`` over the four quadrants must reach this.
+    contrast_min: the board's intensities must split in two levels at least this many pooled
+        sigmas apart (our addition: a plain board-sized surface is not the chessboard).
     ransac_threshold_m: plane inlier distance floor (grown with the noise estimate).
     max_planes: planes tried per over-merged object when splitting it (wall behind, person).
 
@@ -59,6 +61,7 @@ class LidarOptions:
     planarity_ratio: float = 0.01
     size_ratio: tuple[float, float] = (0.8, 1.6)
     uniformity_min: float = 0.85
+    contrast_min: float = 4.0
     ransac_threshold_m: float = 0.03
     max_planes: int = 6
     gray_epsilon: float = 2.0

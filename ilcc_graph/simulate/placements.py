@@ -166,7 +166,7 @@ def _pole(scene_ground: float, T_lidar_board: np.ndarray, outline: np.ndarray) -
 
 
 def _occludes(box: Box, origins: list[np.ndarray], targets: np.ndarray) -> bool:
-    single = Scene(-1e9, None, None, boxes=(box,))
+    single = Scene(None, None, None, boxes=(box,))
     for o in origins:
         d = targets - o
         dist = np.linalg.norm(d, axis=1)

@@ -109,16 +109,26 @@ class ImageRenderer:
         col *= light[:, None].astype(np.float32)
         return col
 
-    def _trace(self, scene: Scene, uv: np.ndarray) -> np.ndarray:
-        """(N, 3) float BGR seen through pixel positions uv (N, 2); black where no ray maps there."""
+    def _trace(self, scene: Scene, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Colours (N, 3) float32 BGR and labels (N,) uint8 seen through pixel positions uv (N, 2).
+
+        label: 0 where nothing is hit (or no ray maps to the pixel), else ``3 * surface + k`` with k
+        the printed colour (0 black, 1 white) on the board and 2 elsewhere: a change of label between
+        neighbouring pixels marks an edge worth anti-aliasing.
+        """
         out = np.zeros((len(uv), 3), np.float32)
+        lab = np.zeros(len(uv), np.uint8)
         for k in range(0, len(uv), _CHUNK_RAYS):
             b = self.camera.bearing(uv[k : k + _CHUNK_RAYS])
             ok = np.all(np.isfinite(b), axis=1)
             d = b[ok] @ self.R_lidar_cam.T
             hits = cast_rays(scene, self.centre, d)
             out[k : k + _CHUNK_RAYS][ok] = self._shade(hits, d)
-        return out
+            cls = np.full(len(d), 2, np.uint8)
+            board = hits.surface == SURF_BOARD
+            cls[board] = self.spec.board.colour_at(hits.board_xy[board]) > 0.5
+            lab[k : k + _CHUNK_RAYS][ok] = np.where(hits.surface == SURF_NONE, 0, 3 * hits.surface + cls)
+        return out, lab
 
     # --------------------------------------------------------------- background
     def background(self) -> np.ndarray:
@@ -139,7 +149,7 @@ class ImageRenderer:
             for r0 in range(0, h, rows):
                 v = np.arange(r0, min(h, r0 + rows), dtype=np.float64) * f + 0.5 * (f - 1)
                 uv = np.column_stack([np.tile(u, len(v)), np.repeat(v, w)])
-                img[r0 : r0 + len(v)] = np.clip(np.rint(self._trace(scene, uv)), 0, 255).reshape(len(v), w, 3)
+                img[r0 : r0 + len(v)] = np.clip(np.rint(self._trace(scene, uv)[0]), 0, 255).reshape(len(v), w, 3)
             if f > 1:
                 img = cv2.resize(img, (w * f, h * f), interpolation=cv2.INTER_LINEAR)[:H, :W].copy()
             self._background = img
@@ -173,28 +183,45 @@ class ImageRenderer:
             return None
         return np.arange(r0, r1 + 1), cols
 
-    def _render_region(self, img: np.ndarray, scene: Scene, rows: np.ndarray, cols: np.ndarray, s: int) -> None:
-        off = (np.arange(s) + 0.5) / s - 0.5
-        sub = np.stack(np.meshgrid(off, off, indexing="xy"), axis=-1).reshape(-1, 2)  # (s*s, 2) du, dv
-        step = max(1, _CHUNK_RAYS // (len(cols) * s * s))
-        for k in range(0, len(rows), step):
-            rr = rows[k : k + step]
-            uu, vv = np.meshgrid(cols.astype(float), rr.astype(float), indexing="xy")
-            px = np.column_stack([uu.ravel(), vv.ravel()])
-            uv = (px[:, None, :] + sub[None]).reshape(-1, 2)
-            col = self._trace(scene, uv).reshape(len(px), s * s, 3).mean(axis=1)
-            img[np.ix_(rr, cols)] = np.clip(np.rint(col), 0, 255).reshape(len(rr), len(cols), 3)
+    def _render_region(self, img: np.ndarray, moving: Scene, rows: np.ndarray, cols: np.ndarray, s: int) -> None:
+        """Re-render pixels (rows x cols) with the moving objects over the cached room, in place.
+
+        One ray per pixel centre; pixels whose 3 x 3 neighbourhood changes label (object outline,
+        colour edge of the print) get S x S rays. Rays that miss every moving object show the room
+        (the cached background pixel).
+        """
+        h, w = len(rows), len(cols)
+        uu, vv = np.meshgrid(cols.astype(np.float64), rows.astype(np.float64), indexing="xy")
+        px = np.column_stack([uu.ravel(), vv.ravel()])
+        col, lab = self._trace(moving, px)
+        room = self.background()[np.ix_(rows, cols)].reshape(-1, 3).astype(np.float32)
+        miss = lab == 0
+        col[miss] = room[miss]
+        L = lab.reshape(h, w)
+        k3 = np.ones((3, 3), np.uint8)
+        edge = np.flatnonzero(cv2.dilate(L, k3) != cv2.erode(L, k3))
+        if s > 1 and edge.size:
+            off = (np.arange(s) + 0.5) / s - 0.5
+            sub = np.stack(np.meshgrid(off, off, indexing="xy"), axis=-1).reshape(-1, 2)  # (s*s, 2)
+            step = max(1, _CHUNK_RAYS // (s * s))
+            for k in range(0, edge.size, step):
+                e = edge[k : k + step]
+                c2, l2 = self._trace(moving, (px[e][:, None, :] + sub[None]).reshape(-1, 2))
+                c2 = c2.reshape(len(e), s * s, 3)
+                c2 = np.where((l2 == 0).reshape(len(e), s * s, 1), room[e][:, None, :], c2)
+                col[e] = c2.mean(axis=1)
+        img[np.ix_(rows, cols)] = np.clip(np.rint(col), 0, 255).astype(np.uint8).reshape(h, w, 3)
 
     # -------------------------------------------------------------------- frame
     def render(self, scene: Scene, frame: int) -> np.ndarray:
         """(H, W, 3) uint8 BGR image of ``scene`` (the room plus this frame's objects)."""
         img = self.background().copy()
-        jobs = [(box.edge_samples(12), 2) for box in scene.boxes]
-        jobs.append((scene.board_outline_samples(32), int(self.spec.image.supersample)))
-        for pts, s in jobs:  # the board last: its finer samples win where boxes overlap
+        moving = scene.moving_parts()
+        s = int(self.spec.image.supersample)
+        for pts in [box.edge_samples(12) for box in scene.boxes] + [scene.board_outline_samples(32)]:
             reg = self._region(pts)
             if reg is not None:
-                self._render_region(img, scene, *reg, s)
+                self._render_region(img, moving, *reg, s)
         opt = self.spec.image
         if opt.blur_sigma_px > 0:
             img = cv2.GaussianBlur(img, (0, 0), opt.blur_sigma_px)

@@ -59,19 +59,23 @@ class Box:
 class Scene:
     """Static surroundings plus one board placement.
 
-    ground_z: height of the ground plane (LiDAR frame z, negative).
+    ground_z: height of the ground plane (LiDAR frame z, negative), or None for no ground.
     room: (xmin, xmax, ymin, ymax) of the walls or None (open: ground only).
     ceiling_z: ceiling height (LiDAR frame z) or None.
     board, T_lidar_board: the chessboard and its pose, or board None for the empty room.
     boxes: the person, the stand, ...
     """
 
-    ground_z: float
+    ground_z: float | None
     room: tuple[float, float, float, float] | None
     ceiling_z: float | None
     board: Board | None = None
     T_lidar_board: np.ndarray | None = None
     boxes: tuple[Box, ...] = ()
+
+    def moving_parts(self) -> Scene:
+        """The same scene without ground, walls and ceiling (what changes from frame to frame)."""
+        return Scene(None, None, None, self.board, self.T_lidar_board, self.boxes)
 
     def board_outline_samples(self, n: int = 24) -> np.ndarray:
         """(4 n, 3) points along the physical board's outline, LiDAR frame (empty without a board)."""
@@ -105,10 +109,11 @@ def _room_exit(origin: np.ndarray, d: np.ndarray, scene: Scene) -> tuple[np.ndar
     t = np.full(n, np.inf)
     surf = np.zeros(n, dtype=np.int8)
     normal = np.zeros((n, 3))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        tg = (scene.ground_z - origin[2]) / d[:, 2]
-    hit = (d[:, 2] < 0) & (tg > 0)
-    t[hit], surf[hit], normal[hit, 2] = tg[hit], SURF_GROUND, 1.0
+    if scene.ground_z is not None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tg = (scene.ground_z - origin[2]) / d[:, 2]
+        hit = (d[:, 2] < 0) & (tg > 0)
+        t[hit], surf[hit], normal[hit, 2] = tg[hit], SURF_GROUND, 1.0
     if scene.ceiling_z is not None:
         with np.errstate(divide="ignore", invalid="ignore"):
             tc = (scene.ceiling_z - origin[2]) / d[:, 2]

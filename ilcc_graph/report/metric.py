@@ -1,0 +1,486 @@
+"""How right is an extrinsic? The paper's intensity-based re-projection error and corner errors.
+
+The intensity metric follows Wang et al. 2017, Section 6.3 (their Equation 14), as we read it
+(written out in ``docs/report.md``):
+
+1. The board's LiDAR points ``p_i`` are taken into the camera with ``T_cam_lidar`` and projected.
+2. Only points that land inside one of the quadrilaterals of the *detected* image corners count
+   (``N_in`` of them). Each cell's homography maps the point to the image pattern's coordinates
+   ``(a, b)`` (in squares; inner corner (i, j) sits at ``(j+1, i+1)``, the board frame over ``s``).
+3. A point's colour from its intensity uses the gray zone with ``epsilon_g = 4``
+   (``tau_l = (3 R_L + R_H) / 4``, ``tau_h = (R_L + 3 R_H) / 4``); points in the zone count as
+   agreeing (``f_g = 0``).
+4. A point whose intensity colour differs from the pattern's colour at ``(a, b)`` costs
+   ``f_d``: the L1 distance to the nearest grid lines, ``s (|a - round a| + |b - round b|)``
+   metres on the board; divided by the point's range it is an angle.
+5. Frame value ``E = sum_in(f_d / range) / N_in / rho`` with the attendance rate
+   ``rho = N_in / N_expected``: ``N_expected`` counts the points that the LiDAR fit puts inside
+   the inner-corner rectangle, so points pushed off the pattern by a wrong extrinsic raise the
+   error. Reported in mrad; a perfect extrinsic gives about zero.
+
+All functions are pure: numpy and the project's camera/board models in, dataclasses out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..board import Board
+from ..camera_models import CameraModel, Equirectangular
+from ..types import Calibration, FrameResult, Scan
+
+__all__ = [
+    "EPSILON_G",
+    "EvalFrame",
+    "MetricPoints",
+    "FrameEvaluation",
+    "Evaluation",
+    "gray_zone",
+    "intensity_colour",
+    "cell_coordinates",
+    "metric_points",
+    "corner_errors",
+    "evaluate_frame",
+    "evaluate",
+    "eval_frame",
+    "eval_frames",
+    "board_points_from_scan",
+    "transform_points",
+]
+
+#: The paper's gray-zone width for evaluation (Section 6.3): the middle half between the peaks.
+EPSILON_G = 4.0
+
+
+# --------------------------------------------------------------------------------- data
+@dataclass(frozen=True)
+class EvalFrame:
+    """What the metric needs from one frame.
+
+    name: frame stem.
+    points_lidar: (M, 3) the board segment's points, LiDAR frame, metres.
+    intensity: (M,) their reflectance intensities.
+    uv: (K, 2) detected image corners, pixels, board index order (up to the half turn).
+    corners_lidar: (K, 3) the LiDAR corners (for the corner re-projection error) or None.
+    T_lidar_board: (4, 4) the LiDAR board fit (for the attendance rate) or None.
+    """
+
+    name: str
+    points_lidar: np.ndarray
+    intensity: np.ndarray
+    uv: np.ndarray
+    corners_lidar: np.ndarray | None = None
+    T_lidar_board: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class MetricPoints:
+    """Per-point workings of the intensity metric for one frame (for overlays and tests).
+
+    uv: (M, 2) projected pixels (NaN when not imaged). inside: (M,) within a detected cell.
+    ab: (M, 2) image-pattern coordinates in squares (NaN outside). colour: (M,) intensity colour,
+    0 black, 1 white, -1 gray. pattern: (M,) pattern colour at ``ab`` (NaN outside).
+    mismatch: (M,) inside, not gray, colours differ. f_d: (M,) metres (0 unless mismatch).
+    range_m: (M,) distance from the LiDAR. expected: (M,) the LiDAR fit puts it inside the
+    inner-corner rectangle (all False when the fit is unknown). gray: (tau_l, tau_h).
+    """
+
+    uv: np.ndarray
+    inside: np.ndarray
+    ab: np.ndarray
+    colour: np.ndarray
+    pattern: np.ndarray
+    mismatch: np.ndarray
+    f_d: np.ndarray
+    range_m: np.ndarray
+    expected: np.ndarray
+    gray: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class FrameEvaluation:
+    """Numbers for one frame under one extrinsic.
+
+    intensity_mrad: the paper's re-projection error (module docstring), mrad; inf when no board
+        point lands inside the detected corners although some should; NaN when not computable.
+    n_points, n_inside, n_mismatch: board points, those inside the detected cells, those whose
+        colours disagree. attendance: N_in / N_expected (<= 1; NaN when unknown).
+    corner_rms_px, corner_max_px: LiDAR corners re-projected vs detected corners, pixels.
+    corner_rms_mrad: the same as angles between bearings.
+    half_turn: the corner errors used the board's half-turned order (better match).
+    range_m: median range of the board points.
+    """
+
+    name: str
+    intensity_mrad: float
+    n_points: int
+    n_inside: int
+    n_mismatch: int
+    attendance: float
+    corner_rms_px: float = float("nan")
+    corner_max_px: float = float("nan")
+    corner_rms_mrad: float = float("nan")
+    half_turn: bool = False
+    range_m: float = float("nan")
+
+
+def _mean_3sigma(x: np.ndarray) -> tuple[float, float]:
+    x = np.asarray(x, dtype=np.float64)
+    x = x[~np.isnan(x)]
+    if x.size == 0:
+        return float("nan"), float("nan")
+    if not np.all(np.isfinite(x)):
+        return float("inf"), float("nan")
+    return float(np.mean(x)), float(3.0 * np.std(x))
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """Per-frame and overall numbers of one extrinsic on a set of frames.
+
+    frames: one :class:`FrameEvaluation` per frame, input order. The overall numbers are the mean
+    over frames and three standard deviations of the per-frame values (population std).
+    """
+
+    frames: tuple[FrameEvaluation, ...]
+    T_cam_lidar: np.ndarray = field(default_factory=lambda: np.eye(4))
+
+    def _stat(self, key: str) -> tuple[float, float]:
+        return _mean_3sigma(np.array([getattr(f, key) for f in self.frames], dtype=np.float64))
+
+    @property
+    def intensity_mrad(self) -> tuple[float, float]:
+        """(mean, 3 sigma) over frames of the paper's metric, mrad."""
+        return self._stat("intensity_mrad")
+
+    @property
+    def corner_px(self) -> tuple[float, float]:
+        """(mean, 3 sigma) over frames of the RMS corner error, pixels."""
+        return self._stat("corner_rms_px")
+
+    @property
+    def corner_mrad(self) -> tuple[float, float]:
+        """(mean, 3 sigma) over frames of the RMS corner bearing error, mrad."""
+        return self._stat("corner_rms_mrad")
+
+    def by_name(self) -> dict[str, FrameEvaluation]:
+        return {f.name: f for f in self.frames}
+
+    def summary(self) -> dict[str, float]:
+        """Flat numbers for tables and YAML."""
+        (im, i3), (pm, p3), (bm, b3) = self.intensity_mrad, self.corner_px, self.corner_mrad
+        return {
+            "frames": float(len(self.frames)),
+            "intensity_mrad_mean": im,
+            "intensity_mrad_3sigma": i3,
+            "corner_px_mean": pm,
+            "corner_px_3sigma": p3,
+            "corner_mrad_mean": bm,
+            "corner_mrad_3sigma": b3,
+        }
+
+
+# ---------------------------------------------------------------------------- helpers
+def transform_points(T: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """(N, 3) points ``p`` mapped by the 4x4 transform ``T``."""
+    T = np.asarray(T, dtype=np.float64)
+    return np.asarray(p, dtype=np.float64).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
+
+
+def gray_zone(intensity: np.ndarray, epsilon: float = EPSILON_G, bins: int = 100) -> tuple[float, float]:
+    """(tau_l, tau_h) of the paper's gray zone.
+
+    The intensities are split by Otsu's threshold on a ``bins`` histogram; ``R_L`` and ``R_H`` are
+    the centres of the fullest bin on each side; ``tau_l = ((eps-1) R_L + R_H) / eps`` and
+    ``tau_h = (R_L + (eps-1) R_H) / eps``. Constant intensities give (nan, nan).
+    """
+    r = np.asarray(intensity, dtype=np.float64)
+    r = r[np.isfinite(r)]
+    if r.size < 2 or np.ptp(r) <= 0:
+        return float("nan"), float("nan")
+    hist, edges = np.histogram(r, bins=bins)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    n_low = np.cumsum(hist)[:-1].astype(np.float64)
+    n_high = r.size - n_low
+    s_low = np.cumsum(hist * centres)[:-1]
+    m_low = s_low / np.maximum(n_low, 1.0)
+    m_high = (np.sum(hist * centres) - s_low) / np.maximum(n_high, 1.0)
+    k = int(np.argmax(n_low * n_high * (m_high - m_low) ** 2))
+    r_low = float(centres[: k + 1][np.argmax(hist[: k + 1])])
+    r_high = float(centres[k + 1 :][np.argmax(hist[k + 1 :])])
+    return ((epsilon - 1) * r_low + r_high) / epsilon, (r_low + (epsilon - 1) * r_high) / epsilon
+
+
+def intensity_colour(intensity: np.ndarray, tau: tuple[float, float]) -> np.ndarray:
+    """(M,) int8 colour from intensity: 0 black (r <= tau_l), 1 white (r >= tau_h), -1 gray."""
+    r = np.asarray(intensity, dtype=np.float64)
+    lo, hi = tau
+    out = np.full(r.shape, -1, dtype=np.int8)
+    if np.isfinite(lo) and np.isfinite(hi):
+        out[r <= lo] = 0
+        out[r >= hi] = 1
+    return out
+
+
+def _unit_square_homographies(quads: np.ndarray) -> np.ndarray:
+    """(C, 3, 3) homographies taking each quad (C, 4, 2) corners to (0,0), (1,0), (1,1), (0,1)."""
+    dst = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    C = quads.shape[0]
+    A = np.zeros((C, 8, 8))
+    b = np.zeros((C, 8))
+    for n in range(4):
+        x, y = quads[:, n, 0], quads[:, n, 1]
+        X, Y = dst[n]
+        A[:, 2 * n, 0:3] = np.stack([x, y, np.ones(C)], axis=1)
+        A[:, 2 * n, 6:8] = np.stack([-X * x, -X * y], axis=1)
+        A[:, 2 * n + 1, 3:6] = np.stack([x, y, np.ones(C)], axis=1)
+        A[:, 2 * n + 1, 6:8] = np.stack([-Y * x, -Y * y], axis=1)
+        b[:, 2 * n], b[:, 2 * n + 1] = X, Y
+    H = np.full((C, 9), np.nan)
+    ok = np.abs(np.linalg.det(A)) > 1e-12
+    if np.any(ok):
+        H[ok, :8] = np.linalg.solve(A[ok], b[ok][..., None])[..., 0]
+        H[ok, 8] = 1.0
+    return H.reshape(C, 3, 3)
+
+
+def _unwrap(uv: np.ndarray, u_ref: float, camera: CameraModel) -> np.ndarray:
+    """Panorama columns brought next to ``u_ref`` across the seam (other cameras: unchanged)."""
+    if not isinstance(camera, Equirectangular):
+        return uv
+    out = np.array(uv, dtype=np.float64, copy=True)
+    out[:, 0] = u_ref + camera.wrap_du(out[:, 0] - u_ref)
+    return out
+
+
+def cell_coordinates(uv: np.ndarray, corners_uv: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray]:
+    """Which points lie in a cell of the detected corner grid, and where in the pattern.
+
+    Parameters
+    ----------
+    uv : (M, 2) pixels (already unwrapped next to the corners for panoramas).
+    corners_uv : (K, 2) detected inner corners, board index order.
+    board : the chessboard (for the grid shape).
+
+    Returns
+    -------
+    inside : (M,) bool.
+    ab : (M, 2) pattern coordinates in squares (board frame / square size), NaN outside.
+    """
+    ni, nj = board.inner_shape
+    G = np.asarray(corners_uv, dtype=np.float64).reshape(ni, nj, 2)
+    quads = np.stack([G[:-1, :-1], G[:-1, 1:], G[1:, 1:], G[1:, :-1]], axis=2).reshape(-1, 4, 2)
+    ci, cj = np.divmod(np.arange(quads.shape[0]), nj - 1)
+    H = _unit_square_homographies(quads)
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    M = uv.shape[0]
+    inside = np.zeros(M, dtype=bool)
+    ab = np.full((M, 2), np.nan)
+    finite = np.all(np.isfinite(uv), axis=1)
+    if M == 0 or not np.any(finite):
+        return inside, ab
+    q = np.concatenate([uv[finite], np.ones((int(finite.sum()), 1))], axis=1)  # (F, 3)
+    w = np.einsum("cij,fj->cfi", H, q)  # (C, F, 3)
+    centre = np.concatenate([quads.mean(axis=1), np.ones((quads.shape[0], 1))], axis=1)
+    w_centre = np.einsum("cij,cj->ci", H, centre)[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xy = w[..., :2] / w[..., 2:3]
+        hit = (np.sign(w[..., 2]) == np.sign(w_centre)[:, None]) & np.all((xy >= 0) & (xy <= 1), axis=2)
+    hit &= np.isfinite(xy[..., 0])
+    any_hit = hit.any(axis=0)
+    cell = np.argmax(hit, axis=0)
+    idx = np.flatnonzero(finite)[any_hit]
+    f = np.flatnonzero(any_hit)
+    c = cell[any_hit]
+    inside[idx] = True
+    ab[idx, 0] = cj[c] + 1 + xy[c, f, 0]
+    ab[idx, 1] = ci[c] + 1 + xy[c, f, 1]
+    return inside, ab
+
+
+# ------------------------------------------------------------------------ the metric
+def metric_points(
+    frame: EvalFrame,
+    camera: CameraModel,
+    board: Board,
+    T_cam_lidar: np.ndarray,
+    epsilon: float = EPSILON_G,
+) -> MetricPoints:
+    """Per-point workings of the intensity metric (module docstring) for one frame."""
+    p = np.asarray(frame.points_lidar, dtype=np.float64).reshape(-1, 3)
+    corners_uv = np.asarray(frame.uv, dtype=np.float64).reshape(-1, 2)
+    if corners_uv.shape[0] != board.n_corners:
+        raise ValueError(
+            f"metric_points: frame {frame.name!r} has {corners_uv.shape[0]} image corners, "
+            f"the board has {board.n_corners}"
+        )
+    uv = camera.project(transform_points(T_cam_lidar, p)) if len(p) else np.zeros((0, 2))
+    u_ref = float(np.nanmedian(corners_uv[:, 0]))
+    inside, ab = cell_coordinates(_unwrap(uv, u_ref, camera), _unwrap(corners_uv, u_ref, camera), board)
+    tau = gray_zone(frame.intensity, epsilon)
+    colour = intensity_colour(frame.intensity, tau)
+    s = board.square_size
+    pattern = np.full(len(p), np.nan)
+    if np.any(inside):
+        pattern[inside] = board.colour_at(ab[inside] * s)
+    with np.errstate(invalid="ignore"):
+        mismatch = inside & (colour >= 0) & (colour != pattern)
+    f_d = np.zeros(len(p))
+    a = ab[mismatch]
+    f_d[mismatch] = s * np.sum(np.abs(a - np.round(a)), axis=1)
+    expected = np.zeros(len(p), dtype=bool)
+    if frame.T_lidar_board is not None and len(p):
+        xy = transform_points(np.linalg.inv(np.asarray(frame.T_lidar_board, dtype=np.float64)), p)[:, :2]
+        ni, nj = board.inner_shape
+        expected = (xy[:, 0] >= s) & (xy[:, 0] <= nj * s) & (xy[:, 1] >= s) & (xy[:, 1] <= ni * s)
+    return MetricPoints(
+        uv=uv,
+        inside=inside,
+        ab=ab,
+        colour=colour,
+        pattern=pattern,
+        mismatch=mismatch,
+        f_d=f_d,
+        range_m=np.linalg.norm(p, axis=1),
+        expected=expected,
+        gray=tau,
+    )
+
+
+def corner_errors(
+    corners_lidar: np.ndarray,
+    uv: np.ndarray,
+    camera: CameraModel,
+    T_cam_lidar: np.ndarray,
+    board: Board | None = None,
+) -> tuple[float, float, float, bool]:
+    """(rms px, max px, rms mrad, half_turn) of LiDAR corners re-projected against image corners.
+
+    Panorama columns are compared across the seam. With a half-turn symmetric ``board`` the better
+    of the two corner orders is used (a frame whose order was never fixed, e.g. one held out of a
+    fit, is still compared fairly); ``half_turn`` says the turned order won.
+    """
+    p_cam = transform_points(T_cam_lidar, corners_lidar)
+    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    orders = [np.arange(len(uv))]
+    if board is not None and board.half_turn_symmetric:
+        orders.append(board.half_turn_permutation())
+    pred = camera.project(p_cam)
+    b_pred = p_cam / np.linalg.norm(p_cam, axis=1, keepdims=True)
+    b_meas = camera.bearing(uv)
+    best: tuple[float, float, float, bool] | None = None
+    for n, perm in enumerate(orders):
+        d = pred - uv[perm]
+        if isinstance(camera, Equirectangular):
+            d[:, 0] = camera.wrap_du(d[:, 0])
+        e = np.linalg.norm(d, axis=1)
+        bm = b_meas[perm]
+        ang = np.arctan2(np.linalg.norm(np.cross(b_pred, bm), axis=1), np.sum(b_pred * bm, axis=1))
+        cand = (
+            float(np.sqrt(np.mean(e**2))),
+            float(np.max(e)),
+            float(1e3 * np.sqrt(np.mean(ang**2))),
+            n == 1,
+        )
+        if best is None or (np.isfinite(cand[2]) and not cand[2] >= best[2]):
+            best = cand
+    assert best is not None
+    return best
+
+
+def evaluate_frame(
+    frame: EvalFrame,
+    camera: CameraModel,
+    board: Board,
+    T_cam_lidar: np.ndarray,
+    epsilon: float = EPSILON_G,
+) -> FrameEvaluation:
+    """The paper's metric and the corner errors for one frame (see the module docstring)."""
+    mp = metric_points(frame, camera, board, T_cam_lidar, epsilon)
+    n_in = int(mp.inside.sum())
+    n_exp = int(mp.expected.sum())
+    attendance = min(1.0, n_in / n_exp) if n_exp > 0 else float("nan")
+    if n_in > 0:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mean = float(np.sum(mp.f_d[mp.inside] / mp.range_m[mp.inside]) / n_in)
+        value = 1e3 * mean / (attendance if np.isfinite(attendance) else 1.0)
+    else:
+        value = float("inf") if n_exp > 0 else float("nan")
+    rms_px = max_px = rms_mrad = float("nan")
+    half = False
+    if frame.corners_lidar is not None and len(frame.corners_lidar) == len(frame.uv):
+        rms_px, max_px, rms_mrad, half = corner_errors(frame.corners_lidar, frame.uv, camera, T_cam_lidar, board)
+    return FrameEvaluation(
+        name=frame.name,
+        intensity_mrad=value,
+        n_points=int(len(mp.inside)),
+        n_inside=n_in,
+        n_mismatch=int(mp.mismatch.sum()),
+        attendance=attendance,
+        corner_rms_px=rms_px,
+        corner_max_px=max_px,
+        corner_rms_mrad=rms_mrad,
+        half_turn=half,
+        range_m=float(np.median(mp.range_m)) if len(mp.range_m) else float("nan"),
+    )
+
+
+def evaluate(
+    frames: Sequence[EvalFrame],
+    camera: CameraModel,
+    board: Board,
+    T_cam_lidar: np.ndarray,
+    epsilon: float = EPSILON_G,
+) -> Evaluation:
+    """Per-frame and overall numbers of ``T_cam_lidar`` (4x4, p_cam = T p_lidar) on ``frames``."""
+    T = np.asarray(T_cam_lidar, dtype=np.float64)
+    if T.shape != (4, 4):
+        raise ValueError(f"evaluate: T_cam_lidar must be 4x4, got {T.shape}")
+    return Evaluation(tuple(evaluate_frame(f, camera, board, T, epsilon) for f in frames), T.copy())
+
+
+# ------------------------------------------------------------------- from our types
+def eval_frame(result: FrameResult) -> EvalFrame | None:
+    """The :class:`EvalFrame` of a pipeline frame, or None when it lacks the board or the corners."""
+    b, c = result.board, result.corners
+    if b is None or c is None or c.uv is None or len(c.uv) == 0:
+        return None
+    return EvalFrame(
+        name=result.name,
+        points_lidar=np.asarray(b.points_lidar, dtype=np.float64).reshape(-1, 3),
+        intensity=np.asarray(b.intensity, dtype=np.float64).ravel(),
+        uv=np.asarray(c.uv, dtype=np.float64),
+        corners_lidar=None if b.corners_lidar is None else np.asarray(b.corners_lidar, dtype=np.float64),
+        T_lidar_board=None if b.T_lidar_board is None else np.asarray(b.T_lidar_board, dtype=np.float64),
+    )
+
+
+def eval_frames(frames: Calibration | Sequence[FrameResult], used_only: bool = False) -> list[EvalFrame]:
+    """EvalFrames of every frame that has both the board fit and the image corners."""
+    seq = frames.frames if isinstance(frames, Calibration) else frames
+    out = []
+    for r in seq:
+        if used_only and not r.used:
+            continue
+        e = eval_frame(r)
+        if e is not None:
+            out.append(e)
+    return out
+
+
+def board_points_from_scan(
+    scan: Scan, T_lidar_board: np.ndarray, board: Board, max_distance_m: float = 0.05, pad_m: float = 0.02
+) -> tuple[np.ndarray, np.ndarray]:
+    """The scan's points on the fitted board: within ``max_distance_m`` of its plane and inside its
+    outline grown by ``pad_m``. Returns (points (M, 3) LiDAR frame, intensity (M,)).
+
+    For evaluating a calibration file (which stores the board poses but not the segments).
+    """
+    q = transform_points(np.linalg.inv(np.asarray(T_lidar_board, dtype=np.float64)), scan.points)
+    x0, x1, y0, y1 = board.extent()
+    keep = (np.abs(q[:, 2]) <= max_distance_m) & (q[:, 0] >= x0 - pad_m) & (q[:, 0] <= x1 + pad_m)
+    keep &= (q[:, 1] >= y0 - pad_m) & (q[:, 1] <= y1 + pad_m)
+    return np.asarray(scan.points, dtype=np.float64)[keep], np.asarray(scan.intensity, dtype=np.float64)[keep]
