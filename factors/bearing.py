@@ -128,8 +128,10 @@ def bearing_factor(
 ) -> gtsam.CustomFactor:
     """One corner; keys (``T_cam_lidar``, ``T_lidar_board``); error (2,) of ``board_bearing_error``.
 
-    ``noise``: a 2-dim model in the basis ``Unit3(b_meas).basis()`` (e.g. ``Gaussian.Covariance``,
-    optionally wrapped in ``Robust``); None means unit.
+    ``noise``: a 2-dim model in the basis ``Unit3(b_meas).basis()``, optionally wrapped in
+    ``Robust``; None means unit. Build it with ``Gaussian.Covariance(cov, False)``: GTSAM's default
+    ``smart=True`` zeroes off-diagonals below 1e-9, i.e. the real correlations of a bearing
+    covariance in rad^2.
     """
     b = b_meas if isinstance(b_meas, gtsam.Unit3) else gtsam.Unit3(np.asarray(b_meas, dtype=np.float64))
     p = np.array(p_board, dtype=np.float64).reshape(3)

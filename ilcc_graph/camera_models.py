@@ -99,6 +99,9 @@ class CameraModel(ABC):
     """
 
     kind: ClassVar[str] = ""
+    #: Rotation from this camera's frame to a forward-left-up frame (x forward, y left, z up):
+    #: identity for the panorama, OpenCV's z-forward/x-right/y-down axes otherwise.
+    R_flu_cam: ClassVar[np.ndarray] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
     width: int
     height: int
 
@@ -204,6 +207,7 @@ class Equirectangular(CameraModel):
     """
 
     kind: ClassVar[str] = "equirectangular"
+    R_flu_cam: ClassVar[np.ndarray] = np.eye(3)
 
     def __post_init__(self) -> None:
         w, h = _check_size(self.width, self.height)

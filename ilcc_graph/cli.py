@@ -12,7 +12,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcc_graph.errors import EXIT_IMPOSSIBLE, EXIT_INPUT, CalibrationImpossible, InputError
+from ilcc_graph.errors import (
+    EXIT_IMPOSSIBLE,
+    EXIT_INPUT,
+    CalibrationImpossible,
+    IndeterminateSystem,
+    InputError,
+)
 
 log = logging.getLogger("ilcc_graph")
 
@@ -413,7 +419,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InputError as err:
         print(f"error: {err}", file=sys.stderr)
         return EXIT_INPUT
-    except CalibrationImpossible as err:
+    except (CalibrationImpossible, IndeterminateSystem) as err:
         print(f"calibration impossible: {err}", file=sys.stderr)
         return EXIT_IMPOSSIBLE
     except KeyboardInterrupt:

@@ -183,12 +183,16 @@ class _Frame:
     prior: gtsam.Pose3
     prior_cov: np.ndarray
     bearing: FrameBearingFactor
-    T_board0: gtsam.Pose3
 
 
 def _prepare(
     frames: Sequence[GraphFrame], camera: CameraModel, robust: gtsam.noiseModel.mEstimator.Base | None
 ) -> tuple[list[_Frame], list[tuple[str, str]]]:
+    names = [f.name for f in frames]
+    if len(set(names)) != len(names):
+        raise ValueError(
+            f"GraphFrame names must be unique, got {sorted(n for n in set(names) if names.count(n) > 1)}"
+        )
     ready: list[_Frame] = []
     dropped: list[tuple[str, str]] = []
     for i, f in enumerate(frames):
@@ -229,7 +233,7 @@ def _prepare(
                 K,
             )
         factor = FrameBearingFactor(X(0), B(i), p[ok], b[ok], cov_t[ok], robust)
-        ready.append(_Frame(f.name, i, prior, prior_cov, factor, prior))
+        ready.append(_Frame(f.name, i, prior, prior_cov, factor))
     return ready, dropped
 
 
@@ -239,7 +243,11 @@ def _build(ready: Sequence[_Frame], plain: bool = False) -> gtsam.NonlinearFacto
     graph = gtsam.NonlinearFactorGraph()
     for fr in ready:
         graph.add(
-            gtsam.PriorFactorPose3(B(fr.index), fr.prior, gtsam.noiseModel.Gaussian.Covariance(fr.prior_cov))
+            # smart=False: GTSAM's default treats off-diagonals below 1e-9 (absolute) as zero,
+            # which drops real correlations of covariances in rad^2 and m^2
+            gtsam.PriorFactorPose3(
+                B(fr.index), fr.prior, gtsam.noiseModel.Gaussian.Covariance(fr.prior_cov, False)
+            )
         )
         graph.add((fr.bearing.with_robust(None) if plain else fr.bearing).factor())
     return graph
@@ -249,7 +257,7 @@ def _initial(ready: Sequence[_Frame], T_cam_lidar: gtsam.Pose3) -> gtsam.Values:
     values = gtsam.Values()
     values.insert(X(0), T_cam_lidar)
     for fr in ready:
-        values.insert(B(fr.index), fr.T_board0)
+        values.insert(B(fr.index), fr.prior)
     return values
 
 

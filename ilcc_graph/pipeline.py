@@ -209,7 +209,7 @@ def solve_extrinsic(
         for r in kept
     ]
     if options.refine == "paper":
-        T = refine_paper(graph_frames, T_init)
+        T = refine_paper(graph_frames, T_init, R_pano_cam=config.camera.R_flu_cam)
         cov = np.full((6, 6), np.nan)
         rms = {f.name: _rms_bearing_mrad(T, f) for f in graph_frames}
         dropped: list[tuple[str, str]] = []
@@ -222,7 +222,7 @@ def solve_extrinsic(
     for name, reason in dropped:
         _drop(results, name, reason)
     n_used = sum(1 for r in results.values() if r.used)
-    if n_used < options.min_frames_warning:
+    if options.refine == "paper" and n_used < options.min_frames_warning:  # the graph warns itself
         log.warning("only %d usable frame(s); at least %d are advised", n_used, options.min_frames_warning)
     frames = tuple(
         dataclasses.replace(r, rms_bearing_error_mrad=rms.get(r.name)) if r.used else r

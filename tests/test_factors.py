@@ -269,3 +269,25 @@ def test_board_factor_agrees_with_spherical_camera_on_fixed_corners() -> None:
     cov_ours = gtsam.Marginals(ours, r_ours).marginalCovariance(X(0))
     assert np.all(np.abs(r_ours.atPose3(X(0)).localCoordinates(T_theirs)) < 1e-3 * np.sqrt(np.diag(cov_ours)))
     assert np.isclose(ours.error(r_ours), theirs.error(r_theirs), rtol=1e-4)
+
+
+def test_tiny_covariances_keep_their_correlations() -> None:
+    """Bearing covariances are ~1e-7 rad^2: GTSAM's smart Gaussian model would drop their
+    off-diagonals (absolute tolerance 1e-9); the grouped factor and smart=False keep them."""
+    rng = np.random.default_rng(9)
+    T_cl, T_lb, p_board, b = _scene(rng, 4)
+    cov = np.tile(np.array([[1.0e-7, 8e-10], [8e-10, 4.0e-8]]), (4, 1, 1))
+    values = gtsam.Values()
+    values.insert(X(0), T_cl)
+    values.insert(B(0), T_lb)
+    group = FrameBearingFactor(X(0), B(0), p_board, b, cov).factor()
+
+    def chi2(smart: bool) -> float:
+        noise = gtsam.noiseModel.Gaussian.Covariance(cov[0], smart)
+        return sum(2 * bearing_factor(X(0), B(0), p_board[k], b[k], noise).error(values) for k in range(4))
+
+    e = np.array([board_bearing_error(T_cl, T_lb, p_board[k], gtsam.Unit3(b[k])) for k in range(4)])
+    exact = float(np.einsum("ki,kij,kj->", e, np.linalg.inv(cov), e))
+    assert np.isclose(2 * group.error(values), exact, rtol=1e-10)
+    assert np.isclose(chi2(False), exact, rtol=1e-10)
+    assert not np.isclose(chi2(True), exact, rtol=1e-3)  # the trap this guards against

@@ -186,6 +186,8 @@ def test_bad_input_is_named() -> None:
         solve([replace(frames[0], cov_px=frames[0].cov_px[:, :1])], CAMERA, T_TRUE.matrix())
     with pytest.raises(ValueError, match="robust"):
         solve(frames, CAMERA, T_TRUE.matrix(), GraphOptions(robust="nope"))
+    with pytest.raises(ValueError, match="unique"):
+        solve(frames + frames, CAMERA, T_TRUE.matrix())
 
 
 def test_robust_kernel_keeps_frame_with_one_bad_corner() -> None:

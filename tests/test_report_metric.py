@@ -52,7 +52,7 @@ def synthetic_frame(
     n_points: int = 1500,
     px_noise: float = 0.3,
 ) -> EvalFrame:
-    """Board points (uniform over the board, intensity by colour, 1 cm range noise) and noisy image corners."""
+    """Board points (uniform over the board, intensity by colour, 1 cm range noise), noisy corners."""
     x0, x1, y0, y1 = BOARD.extent()
     q = np.column_stack([rng.uniform(x0, x1, n_points), rng.uniform(y0, y1, n_points), np.zeros(n_points)])
     colour = BOARD.colour_at(q)
@@ -60,14 +60,21 @@ def synthetic_frame(
     p_lidar = transform_points(T_lidar_board, q)
     p_lidar *= 1.0 + rng.normal(0.0, 0.01, (n_points, 1)) / np.linalg.norm(p_lidar, axis=1, keepdims=True)
     corners_lidar = transform_points(T_lidar_board, BOARD.corners_board())
-    uv = camera.project(transform_points(T_cam_lidar, corners_lidar)) + rng.normal(0, px_noise, (BOARD.n_corners, 2))
+    uv = camera.project(transform_points(T_cam_lidar, corners_lidar)) + rng.normal(
+        0, px_noise, (BOARD.n_corners, 2)
+    )
     return EvalFrame(name, p_lidar, intensity, uv, corners_lidar, T_lidar_board)
 
 
 def frames_for(camera, T_cam_lidar, rng, centres, px_noise: float = 0.1):
     return [
         synthetic_frame(
-            f"{k:04d}", board_pose_facing(np.asarray(c, float), 10.0 * k), T_cam_lidar, camera, rng, px_noise=px_noise
+            f"{k:04d}",
+            board_pose_facing(np.asarray(c, float), 10.0 * k),
+            T_cam_lidar,
+            camera,
+            rng,
+            px_noise=px_noise,
         )
         for k, c in enumerate(centres)
     ]
@@ -91,9 +98,11 @@ def test_cell_coordinates_recover_pattern_coordinates_under_a_homography() -> No
     rng = np.random.default_rng(1)
     H = np.array([[80.0, 10.0, 200.0], [-5.0, 90.0, 100.0], [0.02, 0.01, 1.0]])
     ni, nj = BOARD.inner_shape
+
     def to_px(ab):
         h = np.column_stack([ab, np.ones(len(ab))]) @ H.T
         return h[:, :2] / h[:, 2:]
+
     corners = to_px(BOARD.corners_board()[:, :2] / BOARD.square_size)
     ab = np.column_stack([rng.uniform(0, BOARD.cols, 400), rng.uniform(0, BOARD.rows, 400)])
     inside, got = cell_coordinates(to_px(ab), corners, BOARD)
@@ -139,7 +148,10 @@ def test_pinhole_camera_and_the_metric_grows_with_the_error() -> None:
     T[:3, :3] = Rotation.from_rotvec(np.radians([1.0, 2.0, -1.0])).as_matrix() @ R_OPENCV_LIDAR
     T[:3, 3] = [0.1, -0.2, 0.05]
     frames = frames_for(cam, T, rng, [(3.0, 0.3, 0.2), (4.0, -0.5, -0.2), (2.5, 0.0, 0.4)])
-    values = [evaluate(frames, cam, BOARD, pose([0, 0, a], [0, 0, 0]) @ T).intensity_mrad[0] for a in (0.0, 0.3, 1.0)]
+    values = [
+        evaluate(frames, cam, BOARD, pose([0, 0, a], [0, 0, 0]) @ T).intensity_mrad[0]
+        for a in (0.0, 0.3, 1.0)
+    ]
     assert values[0] < 0.3 and values[0] < values[1] < values[2], values
 
 

@@ -222,13 +222,18 @@ def test_systematic_switches_change_what_they_should():
     drop = off.with_(systematics=Systematics(0, 0, 0.0, 0.5, 0))
     s, _ = _scan(drop, 2)
     qs = _board_frame(s, T)
-    def count(qq, colour):  # noqa: E306
+
+    def count(qq, colour):
         ok = (np.abs(qq[:, 2]) < 0.05) & (qq[:, 0] > 0) & (qq[:, 0] < w) & (qq[:, 1] > 0) & (qq[:, 1] < h)
         ok &= _dist_to_colour_edge(off.board, qq[:, :2]) > 0.015
         return int((off.board.colour_at(qq[ok, :2]) == colour).sum())
+
     assert count(qs, 1) == count(q, 1)
     assert 0.35 < count(qs, 0) / count(q, 0) < 0.65
-    assert len(s) - (count(q, 0) - count(qs, 0)) >= len(ref) - 40  # only black print (and edges) lose points
+    kept = {tuple(p) for p in s.points.tolist()}
+    lost = np.array([tuple(p) not in kept for p in ref.points.tolist()])
+    assert lost.sum() == len(ref) - len(s) and np.all(inside[lost])  # only the print loses points
+    assert not np.any(lost & clear & (c == 1))  # ... and never clear white print
 
 
 # --------------------------------------------------------------------- placements and truth
@@ -260,7 +265,9 @@ def test_ground_truth_and_frames_agree():
     np.testing.assert_allclose(gt["T_cam_lidar"], spec.T_cam_lidar)
     for f in frames:
         np.testing.assert_allclose(gt["T_lidar_board"][f.name], f.T_lidar_board)
-        np.testing.assert_allclose(gt["corners_lidar"][f.name], _apply(f.T_lidar_board, spec.board.corners_board()))
+        np.testing.assert_allclose(
+            gt["corners_lidar"][f.name], _apply(f.T_lidar_board, spec.board.corners_board())
+        )
     assert gt == ground_truth(spec)  # from the placements alone
     # a frame alone equals the same frame generated in sequence (independent streams)
     alone = simulate_frame(spec, 2)
@@ -322,3 +329,19 @@ def test_written_dataset_reads_back(tmp_path):
         return
     cfg = load_config(out / "config.yaml")
     assert cfg.board == spec.board and cfg.camera == spec.camera and cfg.lidar == spec.lidar_model
+
+
+def test_open_scene_and_camera_switch():
+    from ilcc_graph.simulate import SceneOptions
+
+    spec = standard_spec(width=400, frames=20, scene=SceneOptions(room=None, clutter=False))
+    scan, T = _scan(spec, 0)
+    q = _board_frame(scan, T)
+    x0, x1, y0, y1 = spec.board.extent()
+    e = 0.01  # in-plane noise may carry an edge point a few mm past the board
+    on_board = (np.abs(q[:, 2]) < 0.05) & (q[:, 0] > x0 - e) & (q[:, 0] < x1 + e)
+    on_board &= (q[:, 1] > y0 - e) & (q[:, 1] < y1 + e)
+    upward = scan.ring >= np.searchsorted(spec.lidar_model.vertical_angles_deg, 0.5)
+    assert upward.any() and np.all(on_board[upward])  # no walls or ceiling: only the board returns above
+    pin = spec.with_(camera=standard_spec(camera="pinhole", width=320).camera)
+    np.testing.assert_allclose(pin.T_cam_lidar[2, :3] @ [1.0, 0.0, 0.0], 1.0, atol=0.01)  # z_cam ~ x_lidar

@@ -18,9 +18,11 @@ from ..board import Board
 from ..errors import BoardNotFound, InputError
 from ..lidar_models import LidarModel
 from ..types import BoardFit, Scan
-from .covariance import assemble_covariance, plane_covariance, soft_edge_refine
+from .covariance import (
+    assemble_covariance, plane_fit, ray_coupling, sampling_covariance, soft_edge_refine, soft_intensity,
+)  # fmt: skip
 from .detection import find_board
-from .fit import fit_in_plane, plane_frame, pose_from_in_plane, project_on_plane
+from .fit import fit_in_plane, intensity_classes, plane_frame, pose_from_in_plane, project_on_plane
 from .options import LidarOptions
 
 __all__ = ["estimate_board", "LidarOptions", "check_intensity", "fit_board_points"]
@@ -61,6 +63,13 @@ def _align_to_plane(T: np.ndarray, normal: np.ndarray, offset: float) -> np.ndar
     return out
 
 
+def project(points: np.ndarray, normal: np.ndarray, offset: float, how: str) -> np.ndarray:
+    """(N, 3) points onto the plane: along their rays (``"ray"``) or orthogonally (``"normal"``)."""
+    if how == "ray":
+        return project_on_plane(points, normal, offset)
+    return points - (points @ normal - offset)[:, None] * normal
+
+
 def _plane_lsq(p: np.ndarray) -> tuple[np.ndarray, float]:
     mu = p.mean(axis=0)
     _, _, vt = np.linalg.svd(p - mu, full_matrices=False)
@@ -77,19 +86,21 @@ def fit_board_points(
     lidar_model: LidarModel,
     options: LidarOptions = LidarOptions(),
     rng: np.random.Generator | None = None,
-    pool: tuple[np.ndarray, np.ndarray] | None = None,
+    pool: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    ring: np.ndarray | None = None,
 ) -> BoardFit:
     """Pose, corners and covariance from the board's points (M, 3) LiDAR frame and intensities (M,).
 
     normal/offset: the plane ``normal @ p = offset`` with the normal towards the sensor.
-    pool: optional (points (L, 3), intensities (L,)) near the plane from which the points on the
-    fitted board are taken after the first fit (detection may have trimmed the board's corners).
+    ring: (M,) beam index of the points (None: from their elevation).
+    pool: optional (points (L, 3), intensities (L,), rings (L,)) near the plane from which the points
+    on the fitted board are taken after the first fit (detection may have trimmed the board's corners).
     """
     t0 = time.perf_counter()
     rng = np.random.default_rng(0) if rng is None else rng
     P = np.asarray(points, dtype=np.float64)
     inten = np.asarray(intensity, dtype=np.float64)
-    Pp = project_on_plane(P, normal, offset)
+    Pp = project(P, normal, offset, options.projection)
     frame = plane_frame(Pp, normal, offset)
     q = (Pp - frame.origin) @ frame.axes[:2].T
     try:
@@ -100,27 +111,38 @@ def fit_board_points(
     t_powell = time.perf_counter() - t0
 
     # keep the points on the fitted board, refit the plane on them (drops a hand, the stand)
+    ring = lidar_model.ring_from_points(P) if ring is None else np.asarray(ring)
     if pool is not None:
-        P, inten = np.asarray(pool[0], np.float64), np.asarray(pool[1], np.float64)
-        Pp = project_on_plane(P, normal, offset)
-    Tinv = np.linalg.inv(T0)
-    b = Pp @ Tinv[:3, :3].T + Tinv[:3, 3]
+        P, inten, ring = np.asarray(pool[0], np.float64), np.asarray(pool[1], np.float64), np.asarray(pool[2])
     x0, x1, y0, y1 = board.extent()
-    on = (b[:, 0] >= x0) & (b[:, 0] <= x1) & (b[:, 1] >= y0) & (b[:, 1] <= y1)
-    if on.sum() < 30:
-        raise BoardNotFound(f"only {int(on.sum())} points fall on the fitted board; the fit is not trustworthy")
-    n2, d2 = _plane_lsq(P[on])
-    T0 = _align_to_plane(T0, n2, d2)
-    Pp = project_on_plane(P, n2, d2)
-    Tinv = np.linalg.inv(T0)
+    n_cur, d_cur = normal, offset
+    T = T0
+    for _ in range(2):
+        Pp = project(P, n_cur, d_cur, options.projection)
+        Tinv = np.linalg.inv(T)
+        b = Pp @ Tinv[:3, :3].T + Tinv[:3, 3]
+        on = (b[:, 0] >= x0) & (b[:, 0] <= x1) & (b[:, 1] >= y0) & (b[:, 1] <= y1)
+        if on.sum() < 30:
+            raise BoardNotFound(f"only {int(on.sum())} points fall on the fitted board; the fit is not trustworthy")
+        # the white print's plane (returns from black print may read long), in the current board frame
+        b_raw = P[on] @ Tinv[:3, :3].T + Tinv[:3, 3]
+        black = intensity_classes(inten[on], *fit.tau) == 0
+        pf = plane_fit(b_raw, black, ring[on])
+        rx, ry, tz = pf.coef[:3]
+        n_b = np.array([ry, -rx, 1.0]) / np.sqrt(1 + rx * rx + ry * ry)  # plane normal, board frame
+        n_cur = T[:3, :3] @ n_b
+        d_cur = float(n_cur @ (T[:3, :3] @ np.array([0.0, 0.0, tz]) + T[:3, 3]))
+        T = _align_to_plane(T, n_cur, d_cur)
+    Pp = project(P, n_cur, d_cur, options.projection)
+    Tinv = np.linalg.inv(T)
     b = Pp @ Tinv[:3, :3].T + Tinv[:3, 3]
     on = (b[:, 0] >= x0) & (b[:, 0] <= x1) & (b[:, 1] >= y0) & (b[:, 1] <= y1)
+    T0 = T
 
     dist = float(np.linalg.norm(P[on].mean(axis=0)))
     step = np.deg2rad(lidar_model.horizontal_resolution_deg)
     blur0 = 0.5 * dist * max(lidar_model.beam_divergence_rad, step)
     soft = soft_edge_refine(b[on, :2], inten[on], board, fit.levels, blur0)
-    T = T0
     if options.refine and soft.converged:
         w, tx, ty = soft.xi
         E = np.eye(4)
@@ -128,15 +150,26 @@ def fit_board_points(
         V = np.eye(2) if abs(w) < 1e-9 else np.array([[np.sin(w), -(1 - np.cos(w))], [1 - np.cos(w), np.sin(w)]]) / w
         E[:2, 3] = V @ np.array([tx, ty])
         T = T0 @ E
-    cov_in = soft.cov
+    # in-plane: intensity noise (soft model) plus the quantisation of the edges by the sampling
+    Tinv = np.linalg.inv(T)
+    b_fin = Pp[on] @ Tinv[:3, :3].T + Tinv[:3, 3]
+    cls = intensity_classes(inten[on], *fit.tau)
+    cov_q = sampling_covariance(b_fin[:, :2], cls, ring[on], board, soft.blur)
+    cov_in = soft.cov + cov_q
     if not np.all(np.isfinite(cov_in)):
         s = board.square_size
         cov_in = np.diag([np.deg2rad(2.0) ** 2, (s / 4) ** 2, (s / 4) ** 2])
 
-    Tinv = np.linalg.inv(T)
+    # out-of-plane: the plane fit at the final pose
     b_raw = P[on] @ Tinv[:3, :3].T + Tinv[:3, 3]
-    cov_out, s_z = plane_covariance(b_raw)
-    cov = options.covariance_inflation * assemble_covariance(cov_out, cov_in)
+    pf = plane_fit(b_raw, cls == 0, ring[on])
+    K = None
+    if options.projection == "ray":
+        _, grad = soft_intensity(b_fin[:, :2], board, soft.a, soft.c, soft.blur)
+        u_b = P[on] @ Tinv[:3, :3].T / np.linalg.norm(P[on], axis=1)[:, None]  # rays, board frame
+        K = ray_coupling(b_fin[:, :2], u_b, (grad**2).sum(axis=1))
+    cov = options.covariance_inflation * assemble_covariance(pf.cov, cov_in, K)
+    s_z = pf.sigma
     corners = board.corners_board() @ T[:3, :3].T + T[:3, 3]
     diag: dict[str, float] = {
         "n_points": float(on.sum()),
@@ -150,7 +183,11 @@ def fit_board_points(
         "soft_blur_m": soft.blur,
         "soft_scale": soft.scale,
         "plane_sigma_m": s_z,
+        "dark_offset_mm": -1e3 * float(pf.coef[3]),
+        "plane_cov_clustered": float(pf.clustered),
         "refine_shift_mm": 1e3 * float(np.linalg.norm(soft.xi[1:])),
+        "sigma_soft_txy_mm": 1e3 * float(np.sqrt(np.trace(soft.cov[1:, 1:]))),
+        "sigma_sampling_txy_mm": 1e3 * float(np.sqrt(np.trace(cov_q[1:, 1:]))),
         "time_fit_s": time.perf_counter() - t0,
         "time_powell_s": t_powell,
     }
@@ -187,7 +224,8 @@ def estimate_board(
         raise InputError(f"{scan.source or 'scan'}: points must be (N, 3), got {pts.shape}")
     ring = scan.ring if scan.ring is not None else lidar_model.ring_from_points(pts)
     rng = np.random.default_rng(0)
-    cand = find_board(pts, np.asarray(ring), scan.intensity, board, lidar_model, roi, options, rng)
+    ring = np.asarray(ring)
+    cand = find_board(pts, ring, scan.intensity, board, lidar_model, roi, options, rng)
     t_detect = time.perf_counter() - t0
     inten = np.asarray(scan.intensity, np.float64)
     # the pool: every point near the board's plane and not farther from its centre than the board's size
@@ -196,9 +234,10 @@ def estimate_board(
     near = (np.abs(pts @ cand.normal - cand.offset) < max(options.ransac_threshold_m, 3 * cand.noise_sigma)) & (
         np.linalg.norm(pts - centre, axis=1) < 0.75 * np.hypot(x1 - x0, y1 - y0)
     )
+    ring = np.asarray(ring)
     fit = fit_board_points(
         pts[cand.indices], inten[cand.indices], cand.normal, cand.offset,
-        board, lidar_model, options, rng, pool=(pts[near], inten[near]),
+        board, lidar_model, options, rng, pool=(pts[near], inten[near], ring[near]), ring=ring[cand.indices],
     )  # fmt: skip
     fit.diagnostics.update(
         {"time_detect_s": t_detect, "uniformity": cand.uniformity, "range_noise_m": cand.noise_sigma,

@@ -7,16 +7,19 @@ Hessian, so the fit is refined with a *soft-edged* model of the intensities,
 
 where ``Sx(x) = (-1)^j erf(u / (sqrt(2) sigma_b))`` is a square wave blurred by a Gaussian beam
 footprint (``j`` the nearest grid line, ``u`` the signed distance to it), ``M`` the blurred
-pattern box (outside it the margin is white) and ``ph = -1`` for a black lower-left square.
+pattern box (outside it the margin is white; no box along a side without margin) and ``ph = -1`` for a black lower-left square.
 Levenberg-Marquardt on a Huber loss fits (rz, tx, ty, a, c, log sigma_b); the pose covariance is the
 (rz, tx, ty) block of ``s^2 (J^T W J)^-1`` with ``s`` the residuals' robust scale.
 
 Out-of-plane (rx, ry, tz): the board-frame heights of the points, ``z = tz + rx y - ry x`` to first
-order, fitted by least squares: covariance ``s_z^2 (A^T A)^-1`` mapped to (rx, ry, tz).
+order (plus an offset of the returns from black print), fitted by least squares; covariance the
+larger of the iid and the ring-clustered sandwich estimate (per-beam range biases).
 
 Both in GTSAM's Pose3 tangent at the estimate, ``T_true = T_est * Expmap(xi)``,
-``xi = (rx, ry, rz, tx, ty, tz)``; the two blocks come from independent data (intensity vs range)
-and are taken as uncorrelated.
+``xi = (rx, ry, rz, tx, ty, tz)``. The two come from independent data (intensity vs range), but the
+returns are put on the fitted plane along their rays, so a plane error displaces the pattern the
+intensity fit sees: that coupling is propagated (:func:`ray_coupling`). The in-plane block also
+gets the quantisation of the edges by the scan's sampling (:func:`sampling_covariance`).
 """
 
 from __future__ import annotations
@@ -28,15 +31,22 @@ from scipy.special import erf
 
 from ..board import Board
 
-__all__ = ["SoftFit", "soft_edge_refine", "soft_intensity", "plane_covariance", "assemble_covariance"]
+__all__ = [
+    "SoftFit", "PlaneFit", "soft_edge_refine", "soft_intensity", "sampling_covariance", "plane_fit",
+    "assemble_covariance", "ray_coupling",
+]  # fmt: skip
 
 _SQRT2 = np.sqrt(2.0)
 _C = 2.0 / np.sqrt(np.pi)
 
 
 def _wave(v: np.ndarray, s: float, n_lines: int, sig: float) -> tuple[np.ndarray, np.ndarray]:
-    """Blurred square wave and its derivative along one axis (lines at 0..n_lines * s)."""
-    j = np.clip(np.round(v / s), 0, n_lines)
+    """Blurred square wave and its derivative along one axis (inner lines at 1..n_lines-1 times s).
+
+    The pattern's outer lines are not blurred here: beyond them is the margin (handled by the
+    pattern box) or nothing at all.
+    """
+    j = np.clip(np.round(v / s), 1, n_lines - 1)
     u = v - j * s
     sign = np.where(j % 2 == 0, 1.0, -1.0)
     z = u / (_SQRT2 * sig)
@@ -55,10 +65,13 @@ def soft_intensity(b: np.ndarray, board: Board, a: float, c: float, sig: float) 
     """Soft-edged model intensity at board coordinates b (N, 2) and its gradient (N, 2)."""
     s = board.square_size
     w_, h_ = board.pattern_size_m
-    sx, dsx = _wave(b[:, 0], s, board.cols, sig)
+    sx, dsx = _wave(b[:, 0], s, board.cols, sig)  # +1 on square 0, alternating
     sy, dsy = _wave(b[:, 1], s, board.rows, sig)
-    mx, dmx = _box(b[:, 0], w_, sig)
-    my, dmy = _box(b[:, 1], h_, sig)
+    # the white margin is blurred into the pattern; where the board ends at the pattern (no
+    # margin) there is nothing beyond it and no blending
+    one, zero = np.ones(len(b)), np.zeros(len(b))
+    mx, dmx = _box(b[:, 0], w_, sig) if board.margin_long > 0 else (one, zero)
+    my, dmy = _box(b[:, 1], h_, sig) if board.margin_short > 0 else (one, zero)
     ph = -1.0 if board.lower_left == "black" else 1.0
     chk = 0.5 * (1 + ph * sx * sy)
     m = mx * my
@@ -177,10 +190,12 @@ def soft_edge_refine(
                 break
     scale = max(1.4826 * float(np.median(np.abs(res - np.median(res)))), 1e-6)
     try:
-        # sandwich (Huber-White) covariance: A^-1 B A^-1 with A = J^T W J and B = sum (w_i r_i)^2 J_i J_i^T;
-        # it holds when the residuals' spread varies from point to point (edges vs flat squares)
-        JW = J * W[:, None]
-        Ainv = np.linalg.inv(JW.T @ J)
+        # sandwich (Huber-White) covariance A^-1 B A^-1: it holds when the residuals' spread varies
+        # from point to point (returns near edges, whose positions are noisy, vs flat squares)
+        # M-estimator sandwich: A = sum psi'(r) J J^T (psi' = 1 inside the Huber threshold, 0 beyond),
+        # B = sum psi(r)^2 J J^T with psi(r) = w r
+        inside = (np.abs(res) <= k).astype(np.float64)
+        Ainv = np.linalg.inv((J * inside[:, None]).T @ J)
         G = J * (W * res)[:, None]
         cov = (Ainv @ (G.T @ G) @ Ainv)[:3, :3]
     except np.linalg.LinAlgError:
@@ -201,24 +216,182 @@ def soft_edge_refine(
     return SoftFit(xi, cov, a, c, float(np.exp(lsig)), scale, converged, it)
 
 
-def plane_covariance(b_xyz: np.ndarray) -> tuple[np.ndarray, float]:
-    """Covariance of (rx, ry, tz) from the board-frame heights of the points.
+def sampling_covariance(
+    b: np.ndarray, cls: np.ndarray, ring: np.ndarray, board: Board, blur: float
+) -> np.ndarray:
+    """Covariance of (rz, tx, ty) from where the scan samples the pattern's edges (quantisation).
 
-    b_xyz: (N, 3) points in the board frame. Fits ``z = tz + rx y - ry x`` by least squares and
-    returns ((3, 3) covariance ordered (rx, ry, tz), robust residual sigma in metres).
+    An edge between two neighbouring returns of different colour is only known to lie between
+    them: a uniform error over the gap ``delta`` along the edge's normal, less the part the two
+    footprints resolve, variance ``max(delta^2 - (2 blur)^2, (delta/10)^2) / 12``. Pairs crossing
+    the same grid line between the same two rings share that error and count once (mean gap,
+    mean position). For a board whose edges run along the scanlines this is what bounds the
+    position across them; the soft model's Hessian cannot see it.
+
+    b: (N, 2) board coordinates of the returns, cls: (N,) intensity class (0/1, -1 gray),
+    ring: (N,) beam index, blur: footprint sigma (m). Returns (3, 3), or an all-inf matrix when no
+    edge is crossed at all.
+    """
+    from scipy.spatial import cKDTree
+
+    n = b.shape[0]
+    if n < 3:
+        return np.full((3, 3), np.inf)
+    s = board.square_size
+    # neighbours along each ring and in the next ring up (rings are far apart compared with the
+    # spacing along them, so plain nearest neighbours would never pair returns across rings)
+    pi, pj = [], []
+    by_ring = {int(g): np.flatnonzero(ring == g) for g in np.unique(ring)}
+    trees = {g: cKDTree(b[ix]) for g, ix in by_ring.items()}
+    for g, ix in by_ring.items():
+        for h, kk in ((g, 3), (g + 1, 2)):
+            if h not in trees or by_ring[h].size < 2:
+                continue
+            kk = min(kk, by_ring[h].size)
+            _, nb = trees[h].query(b[ix], k=kk)
+            pi.append(np.repeat(ix, kk))
+            pj.append(by_ring[h][nb.reshape(-1)])
+    if not pi:
+        return np.full((3, 3), np.inf)
+    i, j = np.concatenate(pi), np.concatenate(pj)
+    keep = (i != j) & (cls[i] >= 0) & (cls[j] >= 0) & (cls[i] != cls[j])
+    i, j = i[keep], j[keep]
+    rows = []
+    for axis, n_lines in ((0, board.cols), (1, board.rows)):
+        ki, kj = np.floor(b[i, axis] / s), np.floor(b[j, axis] / s)
+        other = 1 - axis
+        lim_o = board.rows * s if axis == 0 else board.cols * s
+        mid = 0.5 * (b[i] + b[j])
+        line = np.maximum(ki, kj)
+        ok = (np.abs(ki - kj) == 1) & (line >= 1) & (line <= n_lines - 1)
+        ok &= (mid[:, other] >= 0) & (mid[:, other] <= lim_o)
+        if not np.any(ok):
+            continue
+        gap = np.abs(b[i, axis] - b[j, axis])[ok]
+        ra, rb = np.minimum(ring[i], ring[j])[ok], np.maximum(ring[i], ring[j])[ok]
+        key = (line[ok].astype(np.int64) * 4096 + ra) * 4096 + rb
+        _, grp = np.unique(key, return_inverse=True)
+        cnt = np.bincount(grp)
+        g_gap = np.sqrt(np.bincount(grp, gap**2) / cnt)
+        g_mid = np.stack([np.bincount(grp, mid[ok, 0]) / cnt, np.bincount(grp, mid[ok, 1]) / cnt], axis=1)
+        var = np.maximum(g_gap**2 - (2 * blur) ** 2, (0.1 * g_gap) ** 2) / 12.0
+        # d(point coordinate along the line's normal)/d(rz, tx, ty) for b' = Exp(-xi) b
+        J = np.zeros((len(cnt), 3))
+        if axis == 0:
+            J[:, 0], J[:, 1] = g_mid[:, 1], -1.0
+        else:
+            J[:, 0], J[:, 2] = -g_mid[:, 0], -1.0
+        rows.append((J, var))
+    if not rows:
+        return np.full((3, 3), np.inf)
+    J = np.concatenate([r[0] for r in rows])
+    var = np.concatenate([r[1] for r in rows])
+    info = (J / var[:, None]).T @ J
+    try:
+        return np.linalg.inv(info + 1e-12 * np.eye(3))
+    except np.linalg.LinAlgError:
+        return np.full((3, 3), np.inf)
+
+
+@dataclass(frozen=True)
+class PlaneFit:
+    """Least-squares plane of the board's returns in a board frame.
+
+    coef: (rx, ry, tz, delta): the board frame's correction ``z = tz + rx y - ry x`` (first order)
+    and ``delta`` the extra height of returns from black print (negative: they read long).
+    cov: (3, 3) covariance of (rx, ry, tz); sigma: robust residual sigma (m);
+    clustered: True when the ring-clustered covariance was the larger one.
+    """
+
+    coef: np.ndarray
+    cov: np.ndarray
+    sigma: float
+    clustered: bool
+
+
+def plane_fit(b_xyz: np.ndarray, black: np.ndarray | None = None, ring: np.ndarray | None = None) -> PlaneFit:
+    """Fit the white print's plane to board-frame points, with a dark-print offset, and its covariance.
+
+    b_xyz: (N, 3) returns in the current board frame. black: (N,) bool, returns on black print
+    (their range may differ: LiDARs read dark targets long), or None. ring: (N,) beam index, or None.
+
+    The covariance of (rx, ry, tz) is the larger (by trace) of the iid one, ``s^2 (A^T A)^-1``, and
+    the ring-clustered sandwich ``(A^T A)^-1 (sum_g A_g^T r_g r_g^T A_g) (A^T A)^-1 G/(G-1)``: a
+    range bias shared by one beam's returns (every beam has its own) tilts the plane the same way
+    for all of them, which independent errors cannot describe.
     """
     x, y, z = b_xyz[:, 0], b_xyz[:, 1], b_xyz[:, 2]
-    A = np.column_stack([y, -x, np.ones_like(x)])
+    cols = [y, -x, np.ones_like(x)]
+    use_dark = black is not None and 0.1 < float(np.mean(black)) < 0.9
+    if use_dark:
+        cols.append(black.astype(np.float64))
+    A = np.column_stack(cols)
     sol, *_ = np.linalg.lstsq(A, z, rcond=None)
     res = z - A @ sol
     s = max(1.4826 * float(np.median(np.abs(res - np.median(res)))), 1e-5)
-    return s**2 * np.linalg.inv(A.T @ A), s
+    # Huber reweighting once, against stray returns (edge mixtures, a hand)
+    w = np.minimum(1.0, 2.5 * s / np.maximum(np.abs(res), 1e-12))
+    Aw = A * w[:, None]
+    sol = np.linalg.solve(Aw.T @ A, Aw.T @ z)
+    res = z - A @ sol
+    Ninv = np.linalg.inv(Aw.T @ A)
+    cov = s**2 * Ninv @ (Aw.T @ Aw) @ Ninv
+    clustered = False
+    if ring is not None:
+        groups = np.unique(ring, return_inverse=True)[1]
+        g = int(groups.max()) + 1
+        if g >= 4:
+            S = np.zeros((g, A.shape[1]))
+            np.add.at(S, groups, Aw * res[:, None])
+            cov_c = Ninv @ (S.T @ S) @ Ninv * g / (g - 1)
+            if np.trace(cov_c[:3, :3]) > np.trace(cov[:3, :3]):
+                cov, clustered = cov_c, True
+    coef = np.append(sol, 0.0) if not use_dark else sol
+    return PlaneFit(coef, cov[:3, :3], s, clustered)
 
 
-def assemble_covariance(cov_out: np.ndarray, cov_in: np.ndarray) -> np.ndarray:
-    """(6, 6) Pose3 covariance (rx, ry, rz, tx, ty, tz) from (rx, ry, tz) and (rz, tx, ty) blocks."""
+def ray_coupling(b_xy: np.ndarray, u_board: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """K (3, 3): in-plane error (rz, tx, ty) caused by a plane error (rx, ry, tz), ray projection.
+
+    A true board point sits at height ``h = tz + rx y - ry x`` above the fitted plane (board frame,
+    first order). Moved along its ray ``u`` onto the plane it lands ``v = -h u_xy / u_z`` away, so
+    the pattern the intensity fit sees is displaced by the field v; the fit follows the rigid part
+    of it (weighted by where the fit takes its information from, ``weight``), and the in-plane
+    error is minus that rigid motion: ``e_in = e_intensity + K e_plane``.
+
+    b_xy: (N, 2) board coordinates, u_board: (N, 3) unit ray directions in the board frame,
+    weight: (N,) non-negative.
+    """
+    x, y = b_xy[:, 0], b_xy[:, 1]
+    uz = np.where(np.abs(u_board[:, 2]) > 0.1, u_board[:, 2], np.sign(u_board[:, 2] + 1e-12) * 0.1)
+    sx, sy = u_board[:, 0] / uz, u_board[:, 1] / uz
+    # rigid in-plane motion of a point: (-rz y + tx, rz x + ty)
+    D = np.zeros((2 * len(x), 3))
+    D[0::2, 0], D[0::2, 1] = -y, 1.0
+    D[1::2, 0], D[1::2, 2] = x, 1.0
+    w2 = np.repeat(np.maximum(weight, 0.0), 2) + 1e-12
+    N = (D * w2[:, None]).T @ D
+    K = np.zeros((3, 3))
+    for k, h in enumerate((y, -x, np.ones_like(x))):  # d h / d (rx, ry, tz)
+        v = np.empty(2 * len(x))
+        v[0::2], v[1::2] = -h * sx, -h * sy
+        K[:, k] = -np.linalg.solve(N, (D * w2[:, None]).T @ v)
+    return K
+
+
+def assemble_covariance(cov_out: np.ndarray, cov_in: np.ndarray, K: np.ndarray | None = None) -> np.ndarray:
+    """(6, 6) Pose3 covariance (rx, ry, rz, tx, ty, tz) from (rx, ry, tz) and (rz, tx, ty) blocks.
+
+    With the coupling K (see :func:`ray_coupling`) the in-plane error is ``e_in + K e_out``:
+    in-plane block ``cov_in + K cov_out K^T`` and cross block ``K cov_out``.
+    """
     C = np.zeros((6, 6))
     io, ii = [0, 1, 5], [2, 3, 4]
     C[np.ix_(io, io)] = cov_out
-    C[np.ix_(ii, ii)] = cov_in
+    if K is None:
+        C[np.ix_(ii, ii)] = cov_in
+    else:
+        C[np.ix_(ii, ii)] = cov_in + K @ cov_out @ K.T
+        C[np.ix_(ii, io)] = K @ cov_out
+        C[np.ix_(io, ii)] = (K @ cov_out).T
     return 0.5 * (C + C.T)

@@ -47,6 +47,9 @@ class LidarOptions:
         square) that seeds Powell.
     n_starts: Powell starts taken from the best coarse cells.
     powell_xtol: Powell's tolerance on (theta_z [rad], t_x [m], t_y [m]).
+    projection: how returns are put on the board's plane: ``"ray"`` along each return's own ray
+        (removes range noise and range biases from the in-plane positions; right for a real
+        LiDAR) or ``"normal"`` orthogonally (right when the noise is along the board's normal).
     refine: run the soft-edged Gauss-Newton refinement (gives the in-plane covariance and the
         final pose); when False the Powell pose is returned with the refinement's covariance.
     covariance_inflation: multiplies the final covariance (1 = the derivation as documented).
@@ -69,5 +72,6 @@ class LidarOptions:
     shift_step: float = 0.25
     n_starts: int = 2
     powell_xtol: float = 1e-4
+    projection: str = "ray"
     refine: bool = True
     covariance_inflation: float = 1.0

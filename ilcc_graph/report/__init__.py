@@ -1,0 +1,66 @@
+"""Is the result right? The paper's re-projection metric, studies, overlays, coloured clouds, report.
+
+- :mod:`.metric`: ``evaluate(frames, camera, board, T_cam_lidar) -> Evaluation`` (the paper's
+  intensity-based re-projection error, Eq. 14, and corner errors in px and mrad).
+- :mod:`.studies`: ``cross_validate`` and ``frames_vs_accuracy`` (take the observations and a
+  solver callable ``solve(frames) -> (T, cov)``).
+- :mod:`.overlays`: corners, LiDAR points on images with occlusion, coloured points.
+- :mod:`.plots`: charts as PNG bytes.
+- :mod:`.html`: ``build_report(...) -> {relative path: bytes}`` (``index.html`` and ``figures/``).
+
+Pure: nothing here reads or writes files; the command line writes what these return.
+"""
+
+from __future__ import annotations
+
+from .html import FrameFigures, build_report, frame_figures
+from .metric import (
+    EPSILON_G,
+    EvalFrame,
+    Evaluation,
+    FrameEvaluation,
+    board_points_from_scan,
+    eval_frame,
+    eval_frames,
+    evaluate,
+    metric_points,
+)
+from .overlays import (
+    OCCLUDED_RGB,
+    OUTSIDE_RGB,
+    ColouredPoints,
+    Visibility,
+    colour_points,
+    crop_box,
+    draw_corners,
+    visible_points,
+)
+from .studies import CrossValidation, FramesCurve, cross_validate, frames_vs_accuracy, pose_difference
+
+__all__ = [
+    "EPSILON_G",
+    "OCCLUDED_RGB",
+    "OUTSIDE_RGB",
+    "ColouredPoints",
+    "CrossValidation",
+    "EvalFrame",
+    "Evaluation",
+    "FrameEvaluation",
+    "FrameFigures",
+    "FramesCurve",
+    "Visibility",
+    "board_points_from_scan",
+    "build_report",
+    "colour_points",
+    "crop_box",
+    "cross_validate",
+    "draw_corners",
+    "eval_frame",
+    "eval_frames",
+    "evaluate",
+    "frame_figures",
+    "frames_vs_accuracy",
+    "metric_points",
+    "pose_difference",
+    "visible_points",
+]

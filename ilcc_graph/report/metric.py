@@ -412,7 +412,9 @@ def evaluate_frame(
     rms_px = max_px = rms_mrad = float("nan")
     half = False
     if frame.corners_lidar is not None and len(frame.corners_lidar) == len(frame.uv):
-        rms_px, max_px, rms_mrad, half = corner_errors(frame.corners_lidar, frame.uv, camera, T_cam_lidar, board)
+        rms_px, max_px, rms_mrad, half = corner_errors(
+            frame.corners_lidar, frame.uv, camera, T_cam_lidar, board
+        )
     return FrameEvaluation(
         name=frame.name,
         intensity_mrad=value,

@@ -24,7 +24,7 @@ from .spec import (
 )
 
 
-def simulate_dataset(*args, **kwargs):  # noqa: ANN002, ANN003 - thin lazy wrapper, see export.simulate_dataset
+def simulate_dataset(*args, **kwargs):  # lazy: keeps io out of `import ilcc_graph.simulate`
     """Write a data set; see :func:`ilcc_graph.simulate.export.simulate_dataset`."""
     from .export import simulate_dataset as _write
 

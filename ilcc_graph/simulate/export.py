@@ -22,7 +22,11 @@ __all__ = ["simulate_dataset", "config_dict"]
 
 def config_dict(spec: SimulationSpec) -> dict:
     """config.yaml content (our schema) for the spec's board, LiDAR and camera."""
-    return {"board": spec.board.to_dict(), "lidar": spec.lidar_model.to_dict(), "camera": spec.camera.to_dict()}
+    return {
+        "board": spec.board.to_dict(),
+        "lidar": spec.lidar_model.to_dict(),
+        "camera": spec.camera.to_dict(),
+    }
 
 
 def simulate_dataset(

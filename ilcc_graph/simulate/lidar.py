@@ -32,8 +32,17 @@ import numpy as np
 from ..lidar_models import LidarModel
 from ..types import Scan
 from .placements import PURPOSE_FRAME, PURPOSE_UNIT, frame_rng
-from .scene import SURF_BOARD, SURF_BOARD_BACK, SURF_CEILING, SURF_GROUND, SURF_PERSON, SURF_POLE, SURF_WALL
-from .scene import Scene, cast_rays
+from .scene import (
+    SURF_BOARD,
+    SURF_BOARD_BACK,
+    SURF_CEILING,
+    SURF_GROUND,
+    SURF_PERSON,
+    SURF_POLE,
+    SURF_WALL,
+    Scene,
+    cast_rays,
+)
 from .spec import SimulationSpec
 
 __all__ = ["simulate_scan", "beam_biases", "MIN_RANGE_M", "MAX_RANGE_M"]
@@ -72,7 +81,9 @@ def _beam_directions(model: LidarModel, phase: float) -> tuple[np.ndarray, np.nd
     return d.reshape(-1, 3), ring
 
 
-def _footprint_colour(scene: Scene, d: np.ndarray, t: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarray:
+def _footprint_colour(
+    scene: Scene, d: np.ndarray, t: np.ndarray, xy: np.ndarray, radius: np.ndarray
+) -> np.ndarray:
     """Mean printed colour over each beam's footprint on the board (NaN-free where ``xy`` is on it)."""
     R = scene.T_lidar_board[:3, :3]
     db = d @ R  # beam direction in the board frame
@@ -137,9 +148,13 @@ def simulate_scan(spec: SimulationSpec, scene: Scene, frame: int, biases: np.nda
     for surf, refl in _REFLECTIVITY.items():
         level[hits.surface == surf] = refl
     level[board] = spec.intensity_black + colour[board] * (spec.intensity_white - spec.intensity_black)
-    sig[board] = spec.intensity_sigma_black + colour[board] * (spec.intensity_sigma_white - spec.intensity_sigma_black)
+    sig[board] = spec.intensity_sigma_black + colour[board] * (
+        spec.intensity_sigma_white - spec.intensity_sigma_black
+    )
     intensity = np.clip(np.rint(level * (0.85 + 0.15 * cos_inc) + sig * z_int), 0, 255)
 
     p_drop = np.where(board, sy.dropout + (sy.dropout_black - sy.dropout) * (1.0 - colour), sy.dropout)
     keep = np.isfinite(t) & (t >= MIN_RANGE_M) & (t <= MAX_RANGE_M) & (u_drop >= p_drop)
-    return Scan(points=p[keep], intensity=intensity[keep], ring=ring[keep].astype(np.int32), source="simulated")
+    return Scan(
+        points=p[keep], intensity=intensity[keep], ring=ring[keep].astype(np.int32), source="simulated"
+    )

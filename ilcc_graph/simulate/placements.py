@@ -148,7 +148,9 @@ def board_placements(spec: SimulationSpec) -> list[np.ndarray]:
             if _acceptable(spec, T):
                 break
         else:
-            raise ValueError(f"frame {i + 1}: no board placement fits the LiDAR's and camera's fields of view")
+            raise ValueError(
+                f"frame {i + 1}: no board placement fits the LiDAR's and camera's fields of view"
+            )
         out.append(T)
     return out
 
@@ -195,7 +197,9 @@ def frame_scene(spec: SimulationSpec, T_lidar_board: np.ndarray, frame: int) -> 
         targets = np.vstack([outline, centre])
         for _ in range(20):
             d = d_board + rng.uniform(-0.2, 1.2)
-            az = az_board + rng.choice([-1.0, 1.0]) * (a_board + np.arctan(0.35 / d) + np.deg2rad(rng.uniform(5, 25)))
+            az = az_board + rng.choice([-1.0, 1.0]) * (
+                a_board + np.arctan(0.35 / d) + np.deg2rad(rng.uniform(5, 25))
+            )
             T = np.eye(4)
             T[:3, :3] = _rot_z(rng.uniform(-np.pi, np.pi))
             T[:3, 3] = [d * np.cos(az), d * np.sin(az), base.ground_z + PERSON_HALF[2]]

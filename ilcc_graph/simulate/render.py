@@ -21,8 +21,19 @@ from scipy.special import ndtri
 
 from ..camera_models import Equirectangular
 from .placements import PURPOSE_FRAME, PURPOSE_UNIT, camera_centre_lidar, frame_rng, static_scene
-from .scene import SURF_BOARD, SURF_BOARD_BACK, SURF_CEILING, SURF_GROUND, SURF_NONE, SURF_PERSON
-from .scene import SURF_POLE, SURF_WALL, Hits, Scene, cast_rays
+from .scene import (
+    SURF_BOARD,
+    SURF_BOARD_BACK,
+    SURF_CEILING,
+    SURF_GROUND,
+    SURF_NONE,
+    SURF_PERSON,
+    SURF_POLE,
+    SURF_WALL,
+    Hits,
+    Scene,
+    cast_rays,
+)
 from .spec import SimulationSpec
 
 __all__ = ["ImageRenderer", "BOARD_BLACK", "BOARD_WHITE"]
@@ -47,21 +58,20 @@ for _s, _c in _BGR.items():
 class _Texture:
     """Smooth periodic value noise on surface coordinates (metres), values about [-1, 1].
 
-    Three octaves (lattice 0.40 m, 0.07 m, 0.015 m; amplitudes 0.55, 0.30, 0.15) summed once into a
-    2048 x 2048 float32 tile of 1 cm texels (period 20.48 m) and looked up with bilinear
-    interpolation (``cv2.remap``, wrapping).
+    Three octaves (random lattices of spacing 0.32 m, 0.08 m, 0.02 m; amplitudes 0.55, 0.30, 0.15)
+    interpolated bicubically and summed once into a 2048 x 2048 float32 tile of 1 cm texels
+    (period 20.48 m), then looked up bilinearly (``cv2.remap``, wrapping).
     """
 
     TEXEL_M, SIZE = 0.01, 2048
 
     def __init__(self, rng: np.random.Generator) -> None:
         tile = np.zeros((self.SIZE, self.SIZE), np.float32)
-        for step, amp in ((0.40, 0.55), (0.07, 0.30), (0.015, 0.15)):
-            n = max(2, int(round(self.SIZE * self.TEXEL_M / step)))
-            g = rng.uniform(-1.0, 1.0, (n, n)).astype(np.float32)
-            big = np.tile(g, (3, 3))  # periodic: interpolate the middle copy
-            big = cv2.resize(big, (3 * self.SIZE, 3 * self.SIZE), interpolation=cv2.INTER_CUBIC)
-            tile += amp * big[self.SIZE : 2 * self.SIZE, self.SIZE : 2 * self.SIZE]
+        for n, amp in ((64, 0.55), (256, 0.30), (1024, 0.15)):
+            k = self.SIZE // n  # texels per lattice cell
+            g = np.pad(rng.uniform(-1.0, 1.0, (n, n)).astype(np.float32), 2, mode="wrap")
+            big = cv2.resize(g, ((n + 4) * k, (n + 4) * k), interpolation=cv2.INTER_CUBIC)
+            tile += amp * big[2 * k : 2 * k + self.SIZE, 2 * k : 2 * k + self.SIZE]
         self.tile = tile
 
     def __call__(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -85,7 +95,9 @@ class ImageRenderer:
         self.camera = spec.camera
         self.R_lidar_cam = spec.T_cam_lidar[:3, :3].T
         self.centre = camera_centre_lidar(spec.T_cam_lidar)
-        self.texture = _Texture(frame_rng(spec.seed, PURPOSE_UNIT, 1)) if spec.image.textured_background else None
+        self.texture = (
+            _Texture(frame_rng(spec.seed, PURPOSE_UNIT, 1)) if spec.image.textured_background else None
+        )
         self._background: np.ndarray | None = None
 
     # ------------------------------------------------------------------ shading
@@ -98,7 +110,9 @@ class ImageRenderer:
             col[board] = (BOARD_BLACK + np.nan_to_num(c, nan=1.0) * (BOARD_WHITE - BOARD_BLACK))[:, None]
         light = 0.75 + 0.25 * np.clip(hits.normal @ _LIGHT, 0.0, 1.0)
         if self.texture is not None:
-            room = (hits.surface == SURF_GROUND) | (hits.surface == SURF_CEILING) | (hits.surface == SURF_WALL)
+            room = (
+                (hits.surface == SURF_GROUND) | (hits.surface == SURF_CEILING) | (hits.surface == SURF_WALL)
+            )
             if room.any():
                 p = self.centre + d[room] * hits.t[room, None]
                 nrm = np.abs(hits.normal[room])
@@ -149,7 +163,8 @@ class ImageRenderer:
             for r0 in range(0, h, rows):
                 v = np.arange(r0, min(h, r0 + rows), dtype=np.float64) * f + 0.5 * (f - 1)
                 uv = np.column_stack([np.tile(u, len(v)), np.repeat(v, w)])
-                img[r0 : r0 + len(v)] = np.clip(np.rint(self._trace(scene, uv)[0]), 0, 255).reshape(len(v), w, 3)
+                col = self._trace(scene, uv)[0]
+                img[r0 : r0 + len(v)] = np.clip(np.rint(col), 0, 255).reshape(len(v), w, 3)
             if f > 1:
                 img = cv2.resize(img, (w * f, h * f), interpolation=cv2.INTER_LINEAR)[:H, :W].copy()
             self._background = img
@@ -173,7 +188,10 @@ class ImageRenderer:
         elif not finite.all():  # partly not imageable: be safe, take everything
             return np.arange(H), np.arange(W)
         else:
-            lo, hi = max(0, int(np.floor(uv[:, 0].min())) - pad), min(W - 1, int(np.ceil(uv[:, 0].max())) + pad)
+            lo, hi = (
+                max(0, int(np.floor(uv[:, 0].min())) - pad),
+                min(W - 1, int(np.ceil(uv[:, 0].max())) + pad),
+            )
             if lo > hi:
                 return None
             cols = np.arange(lo, hi + 1)
@@ -183,7 +201,9 @@ class ImageRenderer:
             return None
         return np.arange(r0, r1 + 1), cols
 
-    def _render_region(self, img: np.ndarray, moving: Scene, rows: np.ndarray, cols: np.ndarray, s: int) -> None:
+    def _render_region(
+        self, img: np.ndarray, moving: Scene, rows: np.ndarray, cols: np.ndarray, s: int
+    ) -> None:
         """Re-render pixels (rows x cols) with the moving objects over the cached room, in place.
 
         One ray per pixel centre; pixels whose 3 x 3 neighbourhood changes label (object outline,

@@ -166,7 +166,11 @@ class SimulationSpec:
     def __post_init__(self) -> None:
         model = self.lidar if isinstance(self.lidar, LidarModel) else lidar_model(self.lidar)
         object.__setattr__(self, "_lidar_model", model)
-        T = default_T_cam_lidar(self.camera.kind) if self.T_cam_lidar is None else _check_pose(self.T_cam_lidar)
+        T = (
+            default_T_cam_lidar(self.camera.kind)
+            if self.T_cam_lidar is None
+            else _check_pose(self.T_cam_lidar)
+        )
         T.setflags(write=False)
         object.__setattr__(self, "T_cam_lidar", T)
         if self.placements is not None:
@@ -192,7 +196,19 @@ class SimulationSpec:
         return self._lidar_model  # type: ignore[attr-defined]
 
     def with_(self, **changes: Any) -> SimulationSpec:
-        """A copy with some fields changed (``dataclasses.replace``)."""
+        """A copy with some fields changed (``dataclasses.replace``).
+
+        A new ``camera`` of another kind also gets that kind's default ``T_cam_lidar`` when the
+        current one is the old kind's default and no ``T_cam_lidar`` is given.
+        """
+        cam = changes.get("camera")
+        if (
+            cam is not None
+            and "T_cam_lidar" not in changes
+            and cam.kind != self.camera.kind
+            and np.array_equal(self.T_cam_lidar, default_T_cam_lidar(self.camera.kind))
+        ):
+            changes["T_cam_lidar"] = None
         return replace(self, **changes)
 
     def summary(self) -> dict[str, Any]:

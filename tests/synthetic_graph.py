@@ -1,0 +1,158 @@
+"""Graph-level synthetic frames for the joint, incremental and range-offset tests and benchmarks.
+
+Boards are placed at random around (or in front of) the sensors; each camera's bearings carry noise
+drawn from the pixel covariance mapped through the camera model; each board prior is the pose a
+LiDAR with a range offset ``b`` would report (an exact rigid fit to the board's face points pushed
+by ``b`` along their rays, *not* the first-order model of ``factors.range_offset``) times
+``Expmap(xi)``, ``xi ~ N(0, board_cov)``. Seeded by the caller's ``np.random.Generator``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import gtsam
+import numpy as np
+
+from factors.testing import sample_bearing
+from ilcc_graph.board import Board
+from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.graph import GraphFrame
+from ilcc_graph.joint import RigFrame, RigView, board_face_samples
+
+BOARD_SIGMAS = (2e-3, 2e-3, 1e-3, 3e-3, 3e-3, 2e-3)
+
+
+def random_spd(rng: np.random.Generator, sigmas: np.ndarray) -> np.ndarray:
+    """SPD matrix with a random orientation and the given standard deviations."""
+    Q, _ = np.linalg.qr(rng.standard_normal((len(sigmas), len(sigmas))))
+    return Q @ np.diag(np.asarray(sigmas) ** 2) @ Q.T
+
+
+def random_board_pose(
+    rng: np.random.Generator,
+    board: Board,
+    towards: np.ndarray | None = None,
+    spread: float = 0.35,
+    distance: tuple[float, float] = (1.5, 5.0),
+) -> gtsam.Pose3:
+    """A board 1.5-5 m from the LiDAR facing it (tilted ~0.4 rad); all around, or near ``towards`` (3,)."""
+    if towards is None:
+        az, el = rng.uniform(-np.pi, np.pi), rng.uniform(-0.35, 0.35)
+    else:
+        t = np.asarray(towards, dtype=np.float64)
+        az0, el0 = np.arctan2(t[1], t[0]), np.arctan2(t[2], np.hypot(t[0], t[1]))
+        az, el = az0 + rng.uniform(-spread, spread), el0 + rng.uniform(-0.6 * spread, 0.6 * spread)
+    d = rng.uniform(*distance)
+    c = d * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    z = gtsam.Rot3.Expmap(rng.normal(0, 0.4, 3)).rotate(-c / d)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    x /= np.linalg.norm(x)
+    R = np.column_stack([x, np.cross(z, x), z])
+    return gtsam.Pose3(gtsam.Rot3(R), c - R @ board.corners_board().mean(axis=0))
+
+
+def _kabsch(P: np.ndarray, Q: np.ndarray) -> gtsam.Pose3:
+    """Rigid T minimising sum |T P_k - Q_k|^2."""
+    cp, cq = P.mean(axis=0), Q.mean(axis=0)
+    U, _, Vt = np.linalg.svd((P - cp).T @ (Q - cq))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return gtsam.Pose3(gtsam.Rot3(R), cq - R @ cp)
+
+
+def lidar_board_pose(T_lidar_board: gtsam.Pose3, board: Board, range_offset_m: float) -> gtsam.Pose3:
+    """The board pose a LiDAR reading ``range_offset_m`` long fits (exact rigid fit, no noise)."""
+    if range_offset_m == 0.0:
+        return T_lidar_board
+    S = board_face_samples(board)
+    p = np.asarray(T_lidar_board.transformFrom(S.T)).T
+    q = p + range_offset_m * p / np.linalg.norm(p, axis=1, keepdims=True)
+    return _kabsch(S, q)
+
+
+def observe(
+    rng: np.random.Generator,
+    camera: CameraModel,
+    T_cam_lidar: gtsam.Pose3,
+    T_lidar_board: gtsam.Pose3,
+    points_board: np.ndarray,
+    sigma_px: float = 0.5,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Noisy bearings (K, 3) and pixel covariances (K, 2, 2); None unless every corner is in the image."""
+    p_cam = np.asarray(T_cam_lidar.compose(T_lidar_board).transformFrom(points_board.T)).T
+    uv = camera.project(p_cam)
+    if not np.all(np.isfinite(uv)) or not np.all(camera.in_image(uv)):
+        return None
+    b_true = p_cam / np.linalg.norm(p_cam, axis=1, keepdims=True)
+    cov_px = np.stack([random_spd(rng, sigma_px * rng.uniform(0.6, 1.4, 2)) for _ in points_board])
+    bases = np.stack([gtsam.Unit3(b).basis() for b in b_true])
+    cov_t = camera.bearing_tangent_cov(b_true, cov_px, bases)
+    return sample_bearing(rng, b_true, cov_t), cov_px
+
+
+def board_prior(
+    rng: np.random.Generator,
+    T_lidar_board: gtsam.Pose3,
+    board: Board,
+    range_offset_m: float = 0.0,
+    board_sigmas: tuple[float, ...] = BOARD_SIGMAS,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The LiDAR stage's answer: (T_measured (4, 4), covariance (6, 6)) drawn from the covariance."""
+    cov = random_spd(rng, np.asarray(board_sigmas) * rng.uniform(0.7, 1.3, 6))
+    xi = rng.multivariate_normal(np.zeros(6), cov)
+    T = lidar_board_pose(T_lidar_board, board, range_offset_m)
+    return np.asarray(T.compose(gtsam.Pose3.Expmap(xi)).matrix()), cov
+
+
+def session_frames(
+    rng: np.random.Generator,
+    n_frames: int,
+    camera: CameraModel,
+    T_cam_lidar: gtsam.Pose3,
+    board: Board,
+    range_offset_m: float = 0.0,
+    sigma_px: float = 0.5,
+    towards: np.ndarray | None = None,
+    prefix: str = "",
+) -> tuple[list[GraphFrame], dict[str, gtsam.Pose3]]:
+    """``n_frames`` frames of one camera (boards redrawn until fully in its image) and true board poses."""
+    p_board = board.corners_board()
+    frames, truth = [], {}
+    while len(frames) < n_frames:
+        T_lb = random_board_pose(rng, board, towards)
+        obs = observe(rng, camera, T_cam_lidar, T_lb, p_board, sigma_px)
+        if obs is None:
+            continue
+        T_meas, cov = board_prior(rng, T_lb, board, range_offset_m)
+        name = f"{prefix}{len(frames):04d}"
+        frames.append(GraphFrame(name, T_meas, cov, p_board, obs[0], obs[1]))
+        truth[name] = T_lb
+    return frames, truth
+
+
+def rig_frames(
+    rng: np.random.Generator,
+    n_frames: int,
+    cameras: Mapping[str, CameraModel],
+    T_cam_lidar: Mapping[str, gtsam.Pose3],
+    board: Board,
+    range_offset_m: float = 0.0,
+    sigma_px: float = 0.5,
+    min_views: int = 1,
+) -> list[RigFrame]:
+    """Boards all around the LiDAR; each camera that sees the whole board gives a view."""
+    p_board = board.corners_board()
+    out: list[RigFrame] = []
+    while len(out) < n_frames:
+        T_lb = random_board_pose(rng, board, distance=(1.5, 4.0))
+        views = []
+        for name, cam in cameras.items():
+            obs = observe(rng, cam, T_cam_lidar[name], T_lb, p_board, sigma_px)
+            if obs is not None:
+                views.append(RigView(name, obs[0], obs[1]))
+        if len(views) < min_views:
+            continue
+        T_meas, cov = board_prior(rng, T_lb, board, range_offset_m)
+        out.append(RigFrame(f"{len(out):04d}", T_meas, cov, p_board, tuple(views)))
+    return out
