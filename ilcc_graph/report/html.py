@@ -184,8 +184,18 @@ tr.drop td{color:#999} .ok{color:#070;font-weight:bold} .bad{color:#b00;font-wei
 figure{display:inline-block;margin:.4em;vertical-align:top;max-width:100%} figure img{max-width:100%;
  border:1px solid #ddd} figcaption{font-size:.8em;color:#555;max-width:560px}
 .gallery figure{width:380px} .gallery img{width:380px} code{background:#f5f5f5;padding:0 .2em}
-.note{font-size:.85em;color:#555}
+.note{font-size:.85em;color:#555} summary{font-weight:bold;cursor:pointer;margin:.5em 0}
 """
+
+
+_GALLERY_NOTE = " ".join(
+    [
+        '<p class="note">Click a frame to open or close it, a picture for full size.',
+        "Points the camera cannot see (hidden behind the board or a nearer surface, as the LiDAR",
+        "sees from elsewhere) are left out. On a right result the range colours change where the",
+        "image's edges are and the corners' cyan crosses sit on their circles.</p>",
+    ]
+)
 
 
 def _e(s: object) -> str:
@@ -311,25 +321,59 @@ def _frame_rows(cal: Calibration, ev: Evaluation) -> tuple[list[list[str]], list
     return rows, classes
 
 
-def _summary_verdict(cal: Calibration, ev: Evaluation) -> str:
+def _standing_out(ev: Evaluation, names: set[str]) -> list[str]:
+    """Frames among ``names`` whose corner or intensity error is far above the others' (robust:
+    above twice the median and the median + 3 x 1.4826 x MAD), or infinite."""
+    out: set[str] = set()
+    frames = [e for e in ev.frames if e.name in names]
+    for key in ("corner_rms_mrad", "intensity_mrad"):
+        v = np.array([getattr(e, key) for e in frames], dtype=np.float64)
+        fin = np.isfinite(v)
+        if fin.sum() >= 3:
+            med = float(np.median(v[fin]))
+            mad = 1.4826 * float(np.median(np.abs(v[fin] - med)))
+            limit = max(2.0 * med, med + 3.0 * mad)
+            out.update(e.name for e, x in zip(frames, v) if np.isfinite(x) and x > limit)
+        out.update(e.name for e, x in zip(frames, v) if np.isinf(x))
+    return [e.name for e in frames if e.name in out]
+
+
+def _expected_corner_px(cal: Calibration) -> float:
+    """RMS pixel error the image corners' own stated noise would give (sqrt of mean trace of cov_px)."""
+    tr = [
+        np.trace(np.asarray(f.corners.cov_px, dtype=np.float64), axis1=1, axis2=2)
+        for f in cal.frames
+        if f.used and f.corners is not None and f.corners.cov_px is not None and len(f.corners.cov_px)
+    ]
+    if not tr:
+        return float("nan")
+    v = np.concatenate(tr)
+    v = v[np.isfinite(v)]
+    return float(np.sqrt(np.mean(v))) if v.size else float("nan")
+
+
+def _summary_verdict(cal: Calibration, ev: Evaluation, odd: list[str]) -> str:
     n_used = sum(f.used for f in cal.frames)
     im, i3 = ev.intensity_mrad
     cm, c3 = ev.corner_mrad
     pm, _ = ev.corner_px
-    used = [e for e in ev.frames if e.name in {f.name for f in cal.frames if f.used}]
-    worst = max(used, key=lambda e: e.corner_rms_mrad if np.isfinite(e.corner_rms_mrad) else -1, default=None)
     msg = (
         f"{n_used} of {len(cal.frames)} frames used. Corner re-projection error {_num(pm)} px "
-        f"({_num(cm)} mrad) on average over frames (3 sigma {_num(c3)} mrad); the paper's intensity "
-        f"re-projection error {_num(im)} mrad (3 sigma {_num(i3)})."
+        f"({_num(cm)} mrad) on average over frames (3 sigma {_num(c3)} mrad)"
     )
-    if worst is not None and np.isfinite(worst.corner_rms_mrad) and np.isfinite(cm) and np.isfinite(c3):
-        if worst.corner_rms_mrad > cm + max(c3, 1e-9):
-            msg += (
-                f" Frame {_e(worst.name)} stands out ({_num(worst.corner_rms_mrad)} mrad): "
-                "look at its pictures."
-            )
-    return f'<div class="verdict ok">{msg}</div>' if n_used else f'<div class="verdict bad">{msg}</div>'
+    exp_px = _expected_corner_px(cal)
+    if np.isfinite(exp_px):
+        msg += f"; the image corners' own noise alone would give about {_num(exp_px)} px"
+    msg += f". The paper's intensity re-projection error: {_num(im)} mrad (3 sigma {_num(i3)})."
+    if odd:
+        msg += (
+            f" Frame(s) {', '.join(_e(n) for n in odd)} stand out from the others: see their pictures below."
+        )
+    dropped = [f for f in cal.frames if not f.used]
+    if dropped:
+        msg += "<br>Dropped: " + "; ".join(f"{_e(f.name)} ({_e(f.reason or 'not used')})" for f in dropped)
+    good = n_used > 0 and not odd
+    return f'<div class="verdict {"ok" if good else "bad"}">{msg}</div>'
 
 
 def build_report(
@@ -381,7 +425,9 @@ def build_report(
     meta.update(dict(info or {}))
     body.append("<p>" + " · ".join(f"<b>{_e(k)}</b>: {_e(v)}" for k, v in meta.items()) + "</p>")
     transform_html, gt_verdict = _transform_section(calibration, T_ground_truth)
-    body.append(_summary_verdict(calibration, ev))
+    used_names = {f.name for f in calibration.frames if f.used}
+    odd = _standing_out(ev, used_names)
+    body.append(_summary_verdict(calibration, ev, odd))
     if gt_verdict:
         body.append(gt_verdict)
     body.append("<h2>The result</h2>")
@@ -471,27 +517,25 @@ def build_report(
             body.append("<p class=note>Failed folds: " + "; ".join(_e(f.failure) for f in fails) + "</p>")
 
     gallery: list[str] = []
-    for name, scan, image in sources:
+    for k, (name, scan, image) in enumerate(sources):
         ff = frame_figures(name, scan, image, camera, board, T, results.get(name), max_width)
         files.update(ff.files)
         if on_frame is not None:
             on_frame(ff, scan)
         res = results.get(name)
         status = "used" if res is not None and res.used else f"not used: {res.reason if res else 'unknown'}"
+        if name in odd:
+            status += "; stands out"
         figs = "".join(_img(p, ff.captions[p]) for p in ff.files)
+        is_open = " open" if k < 2 or name in odd or name not in used_names else ""
         gallery.append(
-            f'<h3 id="f{_e(name)}">Frame {_e(name)} <small>({_e(status)})</small></h3>'
-            f'<div class="gallery">{figs}</div>'
+            f'<details id="f{_e(name)}"{is_open}><summary>Frame {_e(name)} ({_e(status)})</summary>'
+            f'<div class="gallery">{figs}</div></details>'
         )
         del ff
     if gallery:
         body.append("<h2>Pictures per frame</h2>")
-        body.append(
-            '<p class="note">Click a picture for full size. Points the camera cannot see (hidden behind '
-            "the board or a nearer surface, as the LiDAR sees from elsewhere) are left out. On a right "
-            "result the range colours change where the image's edges are and the corners' cyan crosses "
-            "sit on their circles.</p>"
-        )
+        body.append(_GALLERY_NOTE)
         body.extend(gallery)
 
     page = (

@@ -12,12 +12,12 @@ from .studies import CrossValidation, FramesCurve
 __all__ = ["plot_per_frame", "plot_frames_vs_accuracy", "plot_error_vs_frames", "plot_cross_validation"]
 
 _LABELS = (
-    "rotation about x (deg)",
-    "rotation about y (deg)",
-    "rotation about z (deg)",
-    "translation x (mm)",
-    "translation y (mm)",
-    "translation z (mm)",
+    "rotation about LiDAR x (deg)",
+    "rotation about LiDAR y (deg)",
+    "rotation about LiDAR z (deg)",
+    "translation along LiDAR x (mm)",
+    "translation along LiDAR y (mm)",
+    "translation along LiDAR z (mm)",
 )
 _UNITS = np.array([np.degrees(1.0)] * 3 + [1000.0] * 3)
 
@@ -94,6 +94,8 @@ def plot_frames_vs_accuracy(curve: FramesCurve) -> bytes:
     Each panel shows the estimate minus the reference (ground truth or the all-frames estimate) as
     a tangent vector at the reference, and the band +-3 sigma of that estimate's covariance.
     """
+    from matplotlib.ticker import MaxNLocator
+
     fig, ax = _figure(11.0, 6.0, 2, 3)
     n = curve.n_frames
     for k in range(6):
@@ -106,6 +108,7 @@ def plot_frames_vs_accuracy(curve: FramesCurve) -> bytes:
         a.axhline(0.0, color="k", lw=1, label=curve.reference)
         a.set_title(_LABELS[k], fontsize=10)
         a.set_xlabel("frames used")
+        a.xaxis.set_major_locator(MaxNLocator(integer=True))
         a.grid(alpha=0.3)
         if len(n):
             half = max(1, len(y) // 2)
@@ -126,20 +129,23 @@ def plot_frames_vs_accuracy(curve: FramesCurve) -> bytes:
 
 def plot_error_vs_frames(curve: FramesCurve) -> bytes:
     """The intensity re-projection error of each estimate against the number of frames (paper
-    Fig. 14c): mean over all frames with its 3 sigma, and the mean over the frames not used."""
+    Fig. 14c): mean over all frames and mean + 3 sigma, and the mean over the frames not used
+    for that estimate. Log scale: early estimates may be off by orders of magnitude."""
+    from matplotlib.ticker import MaxNLocator
+
     fig, ax = _figure(7.0, 4.0)
     a = ax[0, 0]
     n = curve.n_frames
     m, s3 = _finite(curve.error_mean), _finite(curve.error_3sigma)
-    a.errorbar(n, m, yerr=s3, fmt="o-", ms=3, capsize=3, label="all frames: mean, bar 3 sigma")
+    a.plot(n, m, "o-", ms=3, label="all frames: mean")
+    a.plot(n, m + np.nan_to_num(s3), ":", color="tab:blue", label="all frames: mean + 3 sigma")
     a.plot(n, _finite(curve.heldout_mean), "s--", ms=3, label="frames not used for the fit: mean")
     a.set_xlabel("frames used")
     a.set_ylabel("intensity re-projection error (mrad)")
-    a.set_ylim(bottom=0)
-    top = np.nanmax(m[len(m) // 2 :] + np.nan_to_num(s3[len(m) // 2 :])) if len(m) else np.nan
-    if np.isfinite(top) and top > 0:
-        a.set_ylim(0, 3 * top)
-    a.grid(alpha=0.3)
+    if np.any(m > 0):
+        a.set_yscale("log")
+    a.xaxis.set_major_locator(MaxNLocator(integer=True))
+    a.grid(alpha=0.3, which="both")
     a.legend(fontsize=8)
     return _png(fig)
 

@@ -1,0 +1,110 @@
+"""Tests of ilcc_graph/incremental.py (iSAM2) against the batch graph."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import gtsam
+import numpy as np
+import pytest
+from synthetic_graph import session_frames
+
+from ilcc_graph.board import Board
+from ilcc_graph.camera_models import Equirectangular
+from ilcc_graph.graph import GraphOptions, solve
+from ilcc_graph.incremental import IncrementalCalibrator, calibrate_incrementally, format_update
+from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
+
+CAMERA = Equirectangular(8000, 4000)
+BOARD = Board(6, 8, 0.075)  # half-turn symmetric
+BOARD_ODD = Board(5, 8, 0.075)  # not symmetric
+T_TRUE = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.03, -0.05, 0.07), np.array([0.05, -0.03, -0.25]))
+
+
+def batch(frames, T0):
+    return solve(frames, CAMERA, T0, GraphOptions(chi2_gate_prob=None))
+
+
+def test_last_estimate_equals_batch_and_sigmas_shrink() -> None:
+    rng = np.random.default_rng(1)
+    frames, _ = session_frames(rng, 25, CAMERA, T_TRUE, BOARD_ODD)
+    cal = IncrementalCalibrator(CAMERA, BOARD_ODD)
+    updates = [cal.add_frame(f) for f in frames]
+    assert [u.T_cam_lidar is None for u in updates[:3]] == [True, True, False]
+    assert np.all(np.isinf(updates[0].sigmas)) and "waiting" in updates[0].reason
+    sig = np.array([u.sigmas for u in updates[2:]])
+    assert np.all(sig[-1] < 0.5 * sig[0])
+    assert np.all(np.diff(sig, axis=0) < 1e-12)  # information only grows
+    ref = batch(frames, updates[-1].T_cam_lidar)
+    s = np.sqrt(np.diag(ref.covariance))
+    last = gtsam.Pose3(updates[-1].T_cam_lidar)
+    assert np.all(np.abs(gtsam.Pose3(ref.T_cam_lidar).localCoordinates(last)) < 1e-2 * s)
+    fin = cal.finish()
+    xi = gtsam.Pose3(ref.T_cam_lidar).localCoordinates(gtsam.Pose3(fin.T_cam_lidar))
+    assert np.all(np.abs(xi) < 1e-3 * s)
+    assert np.abs(fin.covariance - ref.covariance).max() < 1e-3 * s.max() ** 2
+    T_est, sigmas, reached = fin
+    assert np.array_equal(T_est, fin.T_cam_lidar) and reached is False
+
+
+def test_target_sigma_and_reporting() -> None:
+    rng = np.random.default_rng(2)
+    frames, _ = session_frames(rng, 12, CAMERA, T_TRUE, BOARD_ODD)
+    lines: list[str] = []
+    cal, final = calibrate_incrementally(
+        frames, CAMERA, BOARD_ODD, target_sigma=(0.02, 1.0), report=lambda u: lines.append(format_update(u, (0.02, 1.0)))
+    )
+    assert len(lines) == 13 and "(final)" in lines[-1]
+    assert "target reached" in lines[-1]
+    reached = [("target reached" in line) for line in lines[2:-1]]
+    first = reached.index(True)
+    assert not any(reached[:first]) and all(reached[first:])
+    cal2, stopped = calibrate_incrementally(frames, CAMERA, BOARD_ODD, target_sigma=(0.02, 1.0), stop_at_target=True)
+    assert len(cal2.frames) == first + 3 and stopped.reached_target
+    with pytest.raises(ValueError, match="target_sigma"):
+        IncrementalCalibrator(CAMERA, BOARD, target_sigma=(0.1, -1.0))
+
+
+def test_half_turned_corners_are_put_back() -> None:
+    rng = np.random.default_rng(3)
+    frames, _ = session_frames(rng, 12, CAMERA, T_TRUE, BOARD)
+    perm = BOARD.half_turn_permutation()
+    turned = [
+        replace(f, bearings=f.bearings[perm], cov_px=f.cov_px[perm]) if k % 3 == 1 else f
+        for k, f in enumerate(frames)
+    ]
+    cal = IncrementalCalibrator(CAMERA, BOARD)
+    for f in turned:
+        u = cal.add_frame(f)
+        assert u.accepted
+    fin = cal.finish()
+    for f, used in zip(frames, cal.frames):
+        assert np.array_equal(f.bearings, used.bearings)
+    ref = batch(frames, fin.T_cam_lidar)
+    xi = gtsam.Pose3(ref.T_cam_lidar).localCoordinates(gtsam.Pose3(fin.T_cam_lidar))
+    assert np.all(np.abs(xi) < 1e-3 * np.sqrt(np.diag(ref.covariance)))
+
+
+def test_gate_rejects_a_wrong_frame_and_accepts_frame_results() -> None:
+    rng = np.random.default_rng(4)
+    frames, _ = session_frames(rng, 8, CAMERA, T_TRUE, BOARD_ODD)
+    T_start = T_TRUE.compose(gtsam.Pose3.Expmap(rng.normal(0, 0.01, 6))).matrix()
+    cal = IncrementalCalibrator(CAMERA, BOARD_ODD, T_init=T_start)
+    bad = frames[4]
+    shifted = gtsam.Pose3(bad.T_lidar_board).compose(gtsam.Pose3(gtsam.Rot3(), np.array([0.05, 0.0, 0.0])))
+    frames[4] = replace(bad, T_lidar_board=shifted.matrix())
+    results = []
+    for f in frames:
+        fr = FrameResult(
+            name=f.name,
+            used=True,
+            board=BoardFit(f.T_lidar_board, f.board_cov, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), False),
+            corners=ImageCorners(np.zeros((len(f.bearings), 2)), f.bearings, f.cov_px, False),
+        )
+        results.append(cal.add_frame(fr))
+    assert results[0].T_cam_lidar is not None  # a given start needs no buffering
+    assert [r.accepted for r in results] == [True] * 4 + [False] + [True] * 3
+    assert "chi-square" in results[4].reason and results[4].n_frames == 4
+    assert len(cal.frames) == 7
+    with pytest.raises(ValueError, match="twice"):
+        cal.add_frame(frames[0])

@@ -1,0 +1,223 @@
+"""Tests of ilcc_graph/joint.py: sessions (rigid, drift, moved mount) and camera rigs."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+from synthetic_graph import rig_frames, session_frames
+
+from ilcc_graph.board import Board
+from ilcc_graph.camera_models import Equirectangular, Pinhole
+from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.graph import GraphOptions, solve
+from ilcc_graph.joint import (
+    Estimate,
+    JointOptions,
+    RigOptions,
+    Session,
+    compare_estimates,
+    relative_pose,
+    solve_rig,
+    solve_sessions,
+)
+
+PANO = Equirectangular(8000, 4000)
+PANO_SMALL = Equirectangular(4000, 2000)
+BOARD = Board(6, 8, 0.075)
+BOARD_B = Board(5, 7, 0.1, margin_long=0.05, margin_short=0.03)
+T_TRUE = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.03, -0.05, 0.07), np.array([0.05, -0.03, -0.25]))
+
+
+def nees(est: Estimate, T: gtsam.Pose3) -> float:
+    xi = est.pose.localCoordinates(T)
+    return float(xi @ np.linalg.solve(est.covariance, xi))
+
+
+def moved(T: gtsam.Pose3, deg: float, mm: float, rng: np.random.Generator) -> gtsam.Pose3:
+    """``T`` turned by ``deg`` about a random axis and shifted ``mm`` in a random direction."""
+    a, t = rng.normal(size=3), rng.normal(size=3)
+    xi = np.concatenate([np.radians(deg) * a / np.linalg.norm(a), 1e-3 * mm * t / np.linalg.norm(t)])
+    return T.compose(gtsam.Pose3.Expmap(xi))
+
+
+def three_sessions(rng: np.random.Generator, T_by_session=(T_TRUE, T_TRUE, T_TRUE), n: int = 10) -> list[Session]:
+    """Three sessions with different boards and intrinsics (panoramas of two sizes)."""
+    setups = [("A", PANO, BOARD), ("B", PANO_SMALL, BOARD_B), ("C", PANO, BOARD_B)]
+    out = []
+    for (name, cam, board), T in zip(setups, T_by_session):
+        frames, _ = session_frames(rng, n, cam, T, board, prefix=f"{name}_", sigma_px=0.5 if cam is PANO else 0.3)
+        out.append(Session(name, frames, cam, board=board))
+    return out
+
+
+def test_alone_equals_graph_solve() -> None:
+    rng = np.random.default_rng(1)
+    sessions = three_sessions(rng)
+    sol = solve_sessions(sessions)
+    for s in sessions:
+        ref = solve(s.frames, s.camera, sol.alone[s.name].T)
+        assert np.abs(ref.T_cam_lidar - sol.alone[s.name].T).max() < 1e-9
+        d = np.sqrt(np.diag(ref.covariance))
+        assert np.abs(ref.covariance - sol.alone[s.name].covariance).max() < 1e-6 * d.max() ** 2
+
+
+def test_rigid_sessions_with_different_boards_agree_and_shrink() -> None:
+    rng = np.random.default_rng(2)
+    sol = solve_sessions(three_sessions(rng))
+    assert sol.mode == "rigid" and sol.moved is None
+    assert not sol.global_test.moved and sol.global_test.dof == 12
+    assert all(not t.moved for t in sol.session_tests + sol.pair_tests)
+    assert nees(sol.joint, T_TRUE) < 16.8  # chi2(6) 99 %
+    for name, alone in sol.alone.items():
+        assert np.array_equal(sol.sessions[name].T, sol.joint.T)
+        assert np.all(sol.joint.sigmas < alone.sigmas)
+    # information adds: the joint information is about the sum of the three
+    info_sum = sum(np.linalg.inv(a.covariance) for a in sol.alone.values())
+    ratio = np.sqrt(np.diag(np.linalg.inv(info_sum))) / sol.joint.sigmas
+    assert np.all(np.abs(ratio - 1) < 0.1)
+
+
+def test_moved_mount_is_detected_and_located() -> None:
+    rng = np.random.default_rng(3)
+    T_moved = moved(T_TRUE, 0.5, 10.0, rng)
+    sessions = three_sessions(rng, (T_TRUE, T_moved, T_moved))
+    sol = solve_sessions(sessions)
+    assert sol.global_test.moved and sol.global_test.p_value < 1e-6
+    by_pair = {t.label: t for t in sol.pair_tests}
+    assert by_pair["A -> B"].moved and not by_pair["B -> C"].moved
+    jump = by_pair["A -> B"]
+    assert jump.rotation_deg == pytest.approx(0.5, abs=0.1)
+    assert jump.translation_mm == pytest.approx(10.0, abs=4.0)
+    assert sol.moved == "A"  # the odd one out of A | B, C
+    worst = max(sol.session_tests, key=lambda t: t.mahalanobis)
+    assert worst.session == "A" and worst.p_value < 1e-6
+
+
+def test_drift_mode_follows_each_session() -> None:
+    rng = np.random.default_rng(4)
+    T_b = moved(T_TRUE, 0.5, 10.0, rng)
+    sessions = three_sessions(rng, (T_TRUE, T_b, T_TRUE))
+    loose = solve_sessions(sessions, JointOptions(mode="drift", drift_sigma_deg=2.0, drift_sigma_mm=50.0))
+    truth = {"A": T_TRUE, "B": T_b, "C": T_TRUE}
+    for name, est in loose.sessions.items():
+        assert nees(est, truth[name]) < 22.5  # chi2(6) 99.9 %
+    assert loose.moved == "B"
+    tight = solve_sessions(sessions, JointOptions(mode="drift", drift_sigma_deg=1e-4, drift_sigma_mm=1e-3))
+    rigid = solve_sessions(sessions, JointOptions(mode="rigid"))
+    xi = rigid.joint.pose.localCoordinates(tight.joint.pose)
+    assert np.all(np.abs(xi) < 0.05 * rigid.joint.sigmas)
+    chain = solve_sessions(sessions, JointOptions(mode="drift", drift_tie="chain", drift_sigma_deg=2.0))
+    assert np.array_equal(chain.joint.T, chain.sessions["C"].T)
+
+
+def test_shared_range_offset_across_sessions() -> None:
+    rng = np.random.default_rng(5)
+    sessions = []
+    for name, cam, board in (("A", PANO, BOARD), ("B", PANO_SMALL, BOARD_B)):
+        frames, _ = session_frames(rng, 10, cam, T_TRUE, board, range_offset_m=0.03, prefix=name)
+        sessions.append(Session(name, frames, cam, board=board, lidar="vlp16"))
+    sol = solve_sessions(sessions, JointOptions(range_offset=True))
+    ro = sol.range_offsets["vlp16"]
+    assert abs(ro.value_m - 0.03) < 3 * ro.sigma_m and ro.sigma_m < 2e-3
+    assert nees(sol.joint, T_TRUE) < 16.8
+
+
+def test_bad_input() -> None:
+    rng = np.random.default_rng(6)
+    s = three_sessions(rng, n=4)
+    with pytest.raises(ValueError, match="mode"):
+        solve_sessions(s, JointOptions(mode="loose"))
+    with pytest.raises(ValueError, match="unique"):
+        solve_sessions([s[0], s[0]])
+    with pytest.raises(CalibrationImpossible):
+        solve_sessions([Session("E", [], PANO)])
+    single = solve_sessions(s[:1], JointOptions(graph=GraphOptions(chi2_gate_prob=None)))
+    assert single.global_test is None and single.session_tests == [] and single.pair_tests == []
+
+
+# ------------------------------------------------------------------------------------- rigs
+def pinhole(width: int = 1280, height: int = 960, hfov_deg: float = 110.0) -> Pinhole:
+    f = 0.5 * width / np.tan(np.radians(hfov_deg) / 2)
+    K = np.array([[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]])
+    return Pinhole(width, height, K, np.array([-0.02, 0.004, 0.0, 0.0, 0.0]))
+
+
+def rig(n_cameras: int = 4) -> tuple[dict[str, Pinhole], dict[str, gtsam.Pose3]]:
+    """Pinhole cameras looking out every 360/n degrees, 10 cm from the LiDAR axis, 20 cm up."""
+    R_cv = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # OpenCV axes from LiDAR's
+    cams, poses = {}, {}
+    for k in range(n_cameras):
+        yaw = 2 * np.pi * k / n_cameras
+        Rz = gtsam.Rot3.Rz(yaw).matrix()
+        R_cam_lidar = R_cv @ Rz.T @ gtsam.Rot3.Expmap(np.radians([1.0, -2.0, 1.5 * k])).matrix()
+        c_lidar = np.array([0.1 * np.cos(yaw), 0.1 * np.sin(yaw), 0.2])
+        name = f"cam{k}"
+        cams[name] = pinhole()
+        poses[name] = gtsam.Pose3(gtsam.Rot3(R_cam_lidar), -R_cam_lidar @ c_lidar)
+    return cams, poses
+
+
+def test_relative_pose_jacobians() -> None:
+    rng = np.random.default_rng(7)
+    Ta = gtsam.Pose3.Expmap(rng.normal(0, 1, 6))
+    Tb = gtsam.Pose3.Expmap(rng.normal(0, 1, 6))
+    H1 = np.zeros((6, 6), order="F")
+    H2 = np.zeros((6, 6), order="F")
+    Hi = np.zeros((6, 6), order="F")
+    Tb_inv = Tb.inverse(Hi)
+    Ta.compose(Tb_inv, H1, H2)
+    J_gtsam = np.hstack([H1, H2 @ Hi])
+    C = np.cov(rng.normal(size=(12, 40)))
+    est = relative_pose(Ta.matrix(), Tb.matrix(), C)
+    assert np.allclose(est.T, (Ta * Tb.inverse()).matrix())
+    assert np.allclose(est.covariance, J_gtsam @ C @ J_gtsam.T, atol=1e-10)
+
+
+def test_rig_cameras_and_camera_to_camera() -> None:
+    rng = np.random.default_rng(8)
+    cams, truth = rig(4)
+    frames = rig_frames(rng, 40, cams, truth, BOARD)
+    shared = sum(len(f.views) > 1 for f in frames)
+    assert shared > 0
+    sol = solve_rig(frames, cams)
+    assert sol.cameras == ("cam0", "cam1", "cam2", "cam3") and sol.joint_covariance.shape == (24, 24)
+    for name, est in sol.extrinsics.items():
+        assert nees(est, truth[name]) < 22.5
+    for (a, b), est in sol.relative.items():
+        T_ab = truth[a] * truth[b].inverse()
+        assert nees(est, T_ab) < 22.5
+    # boards seen twice correlate neighbouring cameras: the relative covariance is not the sum
+    C01 = sol.joint_covariance[:6, 6:12]
+    assert np.abs(C01).max() > 0
+    assert len(sol.T_lidar_board) == 40
+
+
+def test_rig_with_given_start_and_range_offset() -> None:
+    rng = np.random.default_rng(9)
+    cams, truth = rig(2)
+    cams = {"front": cams["cam0"], "back": cams["cam1"], "pano": PANO}
+    truth = {"front": truth["cam0"], "back": truth["cam1"], "pano": T_TRUE}
+    frames = rig_frames(rng, 20, cams, truth, BOARD, range_offset_m=0.03, min_views=2)
+    start = {n: T.compose(gtsam.Pose3.Expmap(rng.normal(0, 0.02, 6))).matrix() for n, T in truth.items()}
+    sol = solve_rig(frames, cams, start, RigOptions(range_offset=True))
+    assert abs(sol.range_offset.value_m - 0.03) < 3 * sol.range_offset.sigma_m
+    for name, est in sol.extrinsics.items():
+        assert nees(est, truth[name]) < 22.5
+    with pytest.raises(CalibrationImpossible, match="no usable view"):
+        solve_rig(frames, {**cams, "unused": PANO})
+
+
+def test_compare_estimates_is_consistent_for_independent_draws() -> None:
+    """Mahalanobis distance of two independent draws around one pose: mean ~ 6 (chi2 with 6 dof)."""
+    rng = np.random.default_rng(10)
+    T = gtsam.Pose3.Expmap(rng.normal(0, 1, 6))
+    Pa = np.diag([1e-4, 2e-4, 1e-4, 4e-4, 1e-4, 2e-4])
+    Pb = np.diag([3e-4, 1e-4, 2e-4, 1e-4, 5e-4, 1e-4])
+    m = []
+    for _ in range(400):
+        Ta = T.compose(gtsam.Pose3.Expmap(rng.multivariate_normal(np.zeros(6), Pa)))
+        Tb = T.compose(gtsam.Pose3.Expmap(rng.multivariate_normal(np.zeros(6), Pb)))
+        d, C = compare_estimates(Estimate(Ta.matrix(), Pa), Estimate(Tb.matrix(), Pb))
+        m.append(d @ np.linalg.solve(C, d))
+    assert 5.4 < np.mean(m) < 6.6
