@@ -178,7 +178,9 @@ def solve_extrinsic(
         [r.name for r in usable],
     )
     if order.ambiguous:
-        raise CalibrationImpossible(f"the corner order between image and scan cannot be decided: {order.ambiguous}")
+        raise CalibrationImpossible(
+            f"the corner order between image and scan cannot be decided: {order.ambiguous}"
+        )
     for name, reason in order.dropped:
         _drop(results, name, reason)
     kept: list[FrameResult] = []

@@ -56,7 +56,8 @@ def _frames(n: int, seed: int = 0, flip_every: int = 2):
         if flip_every and i % flip_every == 1:
             uv = uv[perm]
         cov_px = np.tile(np.eye(2) * SIGMA_PX**2, (board.n_corners, 1, 1))
-        fit = BoardFit(noisy.matrix(), cov_board, corners_lidar, corners_lidar, np.ones(len(corners_lidar)), True)
+        ones = np.ones(len(corners_lidar))
+        fit = BoardFit(noisy.matrix(), cov_board, corners_lidar, corners_lidar, ones, True)
         corners = ImageCorners(uv, camera.bearing(uv), cov_px, True)
         frames.append(FrameResult(name=f"{i:04d}", used=True, board=fit, corners=corners))
     return cfg, frames
