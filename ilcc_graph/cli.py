@@ -153,7 +153,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         seed=args.seed,
         noise_scale=args.noise_scale,
     )
-    out = simulate_dataset(Path(args.out), spec, progress=_Progress("simulate"))
+    try:
+        out = simulate_dataset(Path(args.out), spec, progress=_Progress("simulate"))
+    except FileExistsError as err:
+        raise InputError(f"{err}; choose a new folder") from err
     print(f"wrote {spec.n_frames} frames to {out}")
     return 0
 

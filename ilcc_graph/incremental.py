@@ -18,6 +18,7 @@ exceeds the ``gate_prob`` quantile is rejected with the reason and changes nothi
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import time
@@ -29,6 +30,7 @@ import numpy as np
 from gtsam.symbol_shorthand import B, X
 from scipy.stats import chi2 as chi2_dist
 
+from factors import FrameBearingFactor
 from ilcc_graph.board import Board
 from ilcc_graph.camera_models import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
@@ -148,7 +150,9 @@ class IncrementalCalibrator:
 
     def _flipped(self, f: GraphFrame) -> GraphFrame:
         perm = self.board.half_turn_permutation()
-        return GraphFrame(f.name, f.T_lidar_board, f.board_cov, f.points_board, f.bearings[perm], f.cov_px[perm])
+        return GraphFrame(
+            f.name, f.T_lidar_board, f.board_cov, f.points_board, f.bearings[perm], f.cov_px[perm]
+        )
 
     def add_frame(self, frame: GraphFrame | FrameResult) -> FrameUpdate:
         """Add one frame (a ``GraphFrame``, or the pipeline's ``FrameResult`` with board and corners).
@@ -165,96 +169,142 @@ class IncrementalCalibrator:
             if self.T_init is None and len(self._pending) < self.init_frames:
                 return self._update(gf.name, t0, True, f"waiting for {self.init_frames} frames to initialise")
             return self._initialise(gf.name, t0)
-        if flippable:
-            gf = self._better_order(gf)
-        ok, reason = self._gate(gf)
+        ready = self._better_order(gf) if flippable else (gf, self._factor(gf))
+        ok, reason = self._gate(*ready)
         if not ok:
             return self._update(gf.name, t0, False, reason)
-        self._insert([gf], first=False)
+        self._insert([ready], first=False)
         return self._update(gf.name, t0, True, None)
 
     def _initialise(self, name: str, t0: float) -> FrameUpdate:
+        """First estimate from the buffered frames; frames the ordering could not place are retried."""
         frames = [p.frame for p in self._pending]
         flips = [p.flippable for p in self._pending]
         self._pending = []
-        lidar = [f.points_board @ f.T_lidar_board[:3, :3].T + f.T_lidar_board[:3, 3] for f in frames]
-        perm = self.board.half_turn_permutation() if self.board.half_turn_symmetric else None
-        if self.T_init is None:
-            order = resolve_half_turns(lidar, [f.bearings for f in frames], perm, [f.name for f in frames],
-                                       flippable=flips)
-            kept = [
-                self._flipped(f) if order.flip.get(f.name, False) else f
-                for f in frames
-                if f.name in order.flip
-            ]
-            for n, why in order.dropped:
-                log.info("frame %s dropped at initialisation: %s", n, why)
-            if not kept:
-                raise CalibrationImpossible("no frame left to initialise the extrinsic")
-            P = np.vstack([f.points_board @ f.T_lidar_board[:3, :3].T + f.T_lidar_board[:3, 3] for f in kept])
-            F = np.vstack([f.bearings / np.linalg.norm(f.bearings, axis=1, keepdims=True) for f in kept])
-            T0 = gtsam.Pose3(upnp(P, F, prefer_front=True)[0].T_cam_points)
-        else:
-            T0 = gtsam.Pose3(np.asarray(self.T_init, dtype=np.float64))
-            kept = frames
-        self._T = T0
+        retry: list[GraphFrame] = []
         if self.T_init is not None:
-            kept = [self._better_order(f) if fl else f for f, fl in zip(frames, flips)]
+            self._T = gtsam.Pose3(np.asarray(self.T_init, dtype=np.float64))
+            kept = [self._better_order(f) if fl else (f, self._factor(f)) for f, fl in zip(frames, flips)]
+        else:
+            chosen = frames
+            if self.board.half_turn_symmetric and len(frames) > 1:
+                lidar = [f.points_board @ f.T_lidar_board[:3, :3].T + f.T_lidar_board[:3, 3] for f in frames]
+                order = resolve_half_turns(
+                    lidar,
+                    [f.bearings for f in frames],
+                    self.board.half_turn_permutation(),
+                    [f.name for f in frames],
+                    flippable=flips,
+                )
+                chosen = [
+                    self._flipped(f) if order.flip[f.name] else f for f in frames if f.name in order.flip
+                ]
+                retry = [f for f in frames if f.name not in order.flip]
+                if not chosen:
+                    raise CalibrationImpossible("no frame left to initialise the extrinsic")
+            P = np.vstack(
+                [f.points_board @ f.T_lidar_board[:3, :3].T + f.T_lidar_board[:3, 3] for f in chosen]
+            )
+            F = np.vstack([f.bearings / np.linalg.norm(f.bearings, axis=1, keepdims=True) for f in chosen])
+            self._T = gtsam.Pose3(upnp(P, F, prefer_front=True)[0].T_cam_points)
+            kept = [(f, self._factor(f)) for f in chosen]
         self._insert(kept, first=True)
+        if retry:
+            self._update(name, t0, True, None)  # the covariance the gate needs
+            for f in retry:
+                ready = self._better_order(f)
+                ok, reason = self._gate(*ready)
+                if ok:
+                    self._insert([ready], first=False)
+                    self._update(name, t0, True, None)
+                else:
+                    log.info("frame %s rejected at initialisation: %s", f.name, reason)
         return self._update(name, t0, True, None)
 
-    def _better_order(self, f: GraphFrame) -> GraphFrame:
-        """The corner order (as given or half-turned) with the smaller bearing chi-square at the estimate."""
+    def _factor(self, f: GraphFrame) -> FrameBearingFactor | None:
+        """The frame's grouped bearing factor on (X(0), B(0)); ``_insert`` gives it the board's key."""
+        return view_factor(X(0), B(0), f.points_board, f.bearings, f.cov_px, self.camera)
+
+    def _better_order(self, f: GraphFrame) -> tuple[GraphFrame, FrameBearingFactor | None]:
+        """The corner order (as given or half-turned) with the smaller bearing chi-square at the current
+        extrinsic and the board's prior pose (a wrong order is off by up to the board's size)."""
+        fac = self._factor(f)
         if not self.board.half_turn_symmetric or self._T is None:
-            return f
+            return f, fac
         g = self._flipped(f)
-        return g if self._frame_chi2(g)[0] < self._frame_chi2(f)[0] else f
-
-    def _frame_chi2(self, f: GraphFrame) -> tuple[float, int]:
-        """Chi-square of a frame with its board re-fitted (Gauss-Newton) and the extrinsic held fixed."""
-        fac = view_factor(X(0), B(0), f.points_board, f.bearings, f.cov_px, self.camera)
-        if fac is None:
-            return math.inf, 0
+        gfac = self._factor(g)
         prior = gtsam.Pose3(np.asarray(f.T_lidar_board, dtype=np.float64))
-        L = np.linalg.cholesky(np.linalg.inv(np.asarray(f.board_cov, dtype=np.float64)))
-        T_lb = prior
-        for _ in range(5):
-            r, _, A = fac.evaluate(self._T, T_lb, True)
-            xi = np.asarray(prior.localCoordinates(T_lb))
-            # prior residual L^T xi; its Jacobian ~ L^T (right-invariant error, first order)
-            Aall = np.vstack([A, L.T])
-            rall = np.concatenate([r, L.T @ xi])
-            step = np.linalg.lstsq(Aall, -rall, rcond=None)[0]
-            T_lb = T_lb.retract(step)
-            if np.linalg.norm(step) < 1e-10:
-                break
-        r = fac.evaluate(self._T, T_lb, False)[0]
-        xi = np.asarray(prior.localCoordinates(T_lb))
-        return float(r @ r + xi @ np.linalg.solve(f.board_cov, xi)), fac.dim
 
-    def _gate(self, f: GraphFrame) -> tuple[bool, str | None]:
+        def cost(fc: FrameBearingFactor | None) -> float:
+            return math.inf if fc is None else float(np.sum(fc.evaluate(self._T, prior, False)[0] ** 2))
+
+        return (g, gfac) if cost(gfac) < cost(fac) else (f, fac)
+
+    def _innovation_chi2(self, f: GraphFrame, fac: FrameBearingFactor) -> float:
+        """The frame's chi-square against the current state (2K dof when the frame is right).
+
+        Gauss-Newton over the frame's board and the extrinsic, the extrinsic held by a prior with its
+        current marginal covariance (none before the first covariance: then held fixed).
+        """
+        prior = gtsam.Pose3(np.asarray(f.T_lidar_board, dtype=np.float64))
+        Lb = np.linalg.cholesky(np.linalg.inv(np.asarray(f.board_cov, dtype=np.float64))).T
+        Lx = None if self._cov is None else np.linalg.cholesky(np.linalg.inv(self._cov)).T
+        T_cl, T_lb = self._T, prior
+
+        def residuals(T_cl: gtsam.Pose3, T_lb: gtsam.Pose3) -> np.ndarray:
+            parts = [fac.evaluate(T_cl, T_lb, False)[0], Lb @ np.asarray(prior.localCoordinates(T_lb))]
+            if Lx is not None:
+                parts.append(Lx @ np.asarray(self._T.localCoordinates(T_cl)))
+            return np.concatenate(parts)
+
+        for _ in range(6):
+            r, A_cam, A_board = fac.evaluate(T_cl, T_lb, True)
+            xb = Lb @ np.asarray(prior.localCoordinates(T_lb))
+            # normal equations; the priors' Jacobians to first order (identity in the tangent)
+            Hbb = A_board.T @ A_board + Lb.T @ Lb
+            gb = A_board.T @ r + Lb.T @ xb
+            if Lx is None:
+                step_b = -np.linalg.solve(Hbb, gb)
+                T_lb = T_lb.retract(step_b)
+                step = step_b
+            else:
+                xx = Lx @ np.asarray(self._T.localCoordinates(T_cl))
+                H = np.zeros((12, 12))
+                H[:6, :6] = A_cam.T @ A_cam + Lx.T @ Lx
+                H[:6, 6:] = A_cam.T @ A_board
+                H[6:, :6] = H[:6, 6:].T
+                H[6:, 6:] = Hbb
+                step = -np.linalg.solve(H, np.concatenate([A_cam.T @ r + Lx.T @ xx, gb]))
+                T_cl, T_lb = T_cl.retract(step[:6]), T_lb.retract(step[6:])
+            if np.abs(step).max() < 1e-9:
+                break
+        r = residuals(T_cl, T_lb)
+        return float(r @ r)
+
+    def _gate(self, f: GraphFrame, fac: FrameBearingFactor | None) -> tuple[bool, str | None]:
+        if fac is None:
+            return False, "fewer than 3 corners with a usable bearing covariance"
         if self.gate_prob is None:
             return True, None
-        c2, dof = self._frame_chi2(f)
-        if dof == 0:
-            return False, "fewer than 3 corners with a usable bearing covariance"
+        c2, dof = self._innovation_chi2(f, fac), fac.dim
         bound = float(chi2_dist.ppf(self.gate_prob, dof))
         if c2 > bound:
             return False, f"chi-square gate: {c2:.1f} > {bound:.1f} ({dof} dof, p={self.gate_prob})"
         return True, None
 
-    def _insert(self, frames: Iterable[GraphFrame], first: bool) -> None:
+    def _insert(self, frames: Iterable[tuple[GraphFrame, FrameBearingFactor | None]], first: bool) -> None:
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         if first:
             values.insert(X(0), self._T)
         n = 0
-        for f in frames:
-            i = len(self._frames)
-            fac = view_factor(X(0), B(i), f.points_board, f.bearings, f.cov_px, self.camera)
+        for f, fac in frames:
             if fac is None:
                 log.info("frame %s skipped: fewer than 3 usable corners", f.name)
                 continue
+            i = len(self._frames)
+            fac = copy.copy(fac)
+            fac.keys = (X(0), B(i))
             prior = gtsam.Pose3(np.asarray(f.T_lidar_board, dtype=np.float64))
             graph.add(gtsam.PriorFactorPose3(B(i), prior, gtsam.noiseModel.Gaussian.Covariance(f.board_cov)))
             graph.add(fac.factor())
@@ -272,31 +322,45 @@ class IncrementalCalibrator:
                 if np.abs(before.localCoordinates(after)).max() < 1e-9:
                     break
         self._T = self._isam.calculateEstimatePose3(X(0))
-        self._cov = None
 
-    def finish(self, max_iterations: int = 20, tol: float = 1e-10) -> FrameUpdate:
-        """Relinearise every variable and iterate until ``T_cam_lidar`` stops moving: the batch optimum."""
+    def finish(self, max_iterations: int = 100) -> FrameUpdate:
+        """Converge the whole graph (Levenberg-Marquardt from the current estimate, every factor
+        relinearised) and restart iSAM2 there: the answer is the batch optimum (``graph.solve`` on the
+        same frames, without its gate). Frames may still be added afterwards."""
         t0 = time.perf_counter()
         if self._T is None:
             if not self._pending:
                 raise CalibrationImpossible("no frame was added")
             return self._initialise(self._pending[-1].frame.name, t0)
-        params = gtsam.ISAM2UpdateParams()
-        params.force_relinearize = True
-        for _ in range(max_iterations):
-            before = self._isam.calculateEstimatePose3(X(0))
-            self._isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), params)
-            after = self._isam.calculateEstimatePose3(X(0))
-            if np.abs(before.localCoordinates(after)).max() < tol:
-                break
+        graph = gtsam.NonlinearFactorGraph()
+        factors = self._isam.getFactorsUnsafe()
+        for k in range(factors.size()):
+            if factors.at(k) is not None:
+                graph.push_back(factors.at(k))
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(max_iterations)
+        params.setRelativeErrorTol(1e-10)
+        params.setAbsoluteErrorTol(1e-12)
+        result = gtsam.LevenbergMarquardtOptimizer(graph, self._isam.calculateEstimate(), params).optimize()
+        self._isam = gtsam.ISAM2(self._isam.params())
+        self._isam.update(graph, result)
         self._T = self._isam.calculateEstimatePose3(X(0))
         return self._update("", t0, True, None)
 
     # -------------------------------------------------------------------------------- results
     def _update(self, name: str, t0: float, accepted: bool, reason: str | None) -> FrameUpdate:
         if self._T is None:
-            return FrameUpdate(None, np.full(6, np.inf), False, np.full((6, 6), np.nan), name, accepted, reason,
-                               0, time.perf_counter() - t0)
+            return FrameUpdate(
+                None,
+                np.full(6, np.inf),
+                False,
+                np.full((6, 6), np.nan),
+                name,
+                accepted,
+                reason,
+                0,
+                time.perf_counter() - t0,
+            )
         cov = np.asarray(self._isam.marginalCovariance(X(0)), dtype=np.float64)
         cov = 0.5 * (cov + cov.T)
         self._cov = cov
@@ -305,8 +369,17 @@ class IncrementalCalibrator:
         if self.target_sigma is not None:
             rot_deg, trans_mm = self.target_sigma
             reached = bool(np.degrees(sig[:3]).max() <= rot_deg and 1e3 * sig[3:].max() <= trans_mm)
-        return FrameUpdate(np.asarray(self._T.matrix()), sig, reached, cov, name, accepted, reason,
-                           len(self._frames), time.perf_counter() - t0)
+        return FrameUpdate(
+            np.asarray(self._T.matrix()),
+            sig,
+            reached,
+            cov,
+            name,
+            accepted,
+            reason,
+            len(self._frames),
+            time.perf_counter() - t0,
+        )
 
 
 def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = None) -> str:

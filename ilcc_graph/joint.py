@@ -19,7 +19,7 @@ ties between the session extrinsics.
 
 from __future__ import annotations
 
-import logging
+import copy
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -37,7 +37,6 @@ from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.graph import GraphFrame, GraphOptions, solve
 from ilcc_graph.init import upnp
 
-logger = logging.getLogger(__name__)
 
 MODES = ("rigid", "drift")
 DRIFT_TIES = ("star", "chain")
@@ -140,9 +139,7 @@ def _samples_from_corners(points_board: np.ndarray, n: int = 13) -> np.ndarray:
     xs, ys = np.unique(np.round(p[:, 0], 9)), np.unique(np.round(p[:, 1], 9))
     sx = float(np.median(np.diff(xs))) if len(xs) > 1 else 0.0
     sy = float(np.median(np.diff(ys))) if len(ys) > 1 else sx
-    gx, gy = np.meshgrid(
-        np.linspace(xs[0] - sx, xs[-1] + sx, n), np.linspace(ys[0] - sy, ys[-1] + sy, n)
-    )
+    gx, gy = np.meshgrid(np.linspace(xs[0] - sx, xs[-1] + sx, n), np.linspace(ys[0] - sy, ys[-1] + sy, n))
     return np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
 
 
@@ -166,7 +163,8 @@ def view_factor(
     K = len(p)
     if p.shape != (K, 3) or b.shape != (K, 3) or c.shape != (K, 2, 2):
         raise ValueError(
-            f"view: need points_board (K,3), bearings (K,3), cov_px (K,2,2), got {p.shape}, {b.shape}, {c.shape}"
+            "view: need points_board (K,3), bearings (K,3), cov_px (K,2,2), "
+            f"got {p.shape}, {b.shape}, {c.shape}"
         )
     with np.errstate(invalid="ignore", divide="ignore"):
         b = b / np.linalg.norm(b, axis=1, keepdims=True)
@@ -230,7 +228,9 @@ def compare_estimates(ref: Estimate, other: Estimate) -> tuple[np.ndarray, np.nd
     return delta, 0.5 * (C + C.T)
 
 
-def _test(label: str, session: str | None, delta: np.ndarray, m: float, dof: int, alpha: float) -> ConsistencyTest:
+def _test(
+    label: str, session: str | None, delta: np.ndarray, m: float, dof: int, alpha: float
+) -> ConsistencyTest:
     p = float(chi2_dist.sf(m, dof))
     return ConsistencyTest(
         label=label,
@@ -288,7 +288,9 @@ class _Problem:
     offset_prior_sigma: float = 0.1
 
 
-def _build(problem: _Problem, exts: set[int] | None = None) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+def _build(
+    problem: _Problem, exts: set[int] | None = None
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
     """Graph and initial values; ``exts`` keeps only the views of those extrinsics (and their boards)."""
     views = [v for v in problem.views if exts is None or v.ext in exts]
     used_boards = {v.board for v in views}
@@ -304,7 +306,9 @@ def _build(problem: _Problem, exts: set[int] | None = None) -> tuple[gtsam.Nonli
             f = RangeOffsetBoardFactor(B(bd.index), O(bd.lidar), bd.prior, bd.cov, bd.samples)
             graph.add(f.factor())
         else:
-            graph.add(gtsam.PriorFactorPose3(B(bd.index), bd.prior, gtsam.noiseModel.Gaussian.Covariance(bd.cov)))
+            graph.add(
+                gtsam.PriorFactorPose3(B(bd.index), bd.prior, gtsam.noiseModel.Gaussian.Covariance(bd.cov))
+            )
     for v in views:
         graph.add(v.factor.factor())
     ext_used = {v.ext for v in views}
@@ -317,12 +321,16 @@ def _build(problem: _Problem, exts: set[int] | None = None) -> tuple[gtsam.Nonli
     for lid in sorted(lidars):
         values.insert(O(lid), np.zeros(1))
         graph.add(
-            gtsam.PriorFactorVector(O(lid), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, problem.offset_prior_sigma))
+            gtsam.PriorFactorVector(
+                O(lid), np.zeros(1), gtsam.noiseModel.Isotropic.Sigma(1, problem.offset_prior_sigma)
+            )
         )
     return graph, values
 
 
-def _lm(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int = 100) -> tuple[gtsam.Values, int]:
+def _lm(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, max_iterations: int = 100
+) -> tuple[gtsam.Values, int]:
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(max_iterations)
     params.setRelativeErrorTol(1e-10)
@@ -343,7 +351,9 @@ class _Solved:
 
     def estimate(self, e: int) -> Estimate:
         C = np.asarray(self.marginals.marginalCovariance(X(e)), dtype=np.float64)
-        return Estimate(np.asarray(self.values.atPose3(X(e)).matrix()), _checked_cov(0.5 * (C + C.T), f"X({e})"))
+        return Estimate(
+            np.asarray(self.values.atPose3(X(e)).matrix()), _checked_cov(0.5 * (C + C.T), f"X({e})")
+        )
 
     def joint_cov(self, keys: Sequence[int]) -> np.ndarray:
         jm = self.marginals.jointMarginalCovariance(gtsam.KeyVector(list(keys)))
@@ -363,7 +373,9 @@ class _Solved:
 def _checked_cov(C: np.ndarray, what: str) -> np.ndarray:
     eig = np.linalg.eigvalsh(C)
     if not np.all(np.isfinite(C)) or eig.min() <= 0 or math.sqrt(eig.max()) > 10.0:
-        raise IndeterminateSystem(f"the data do not determine {what} (covariance eigenvalues {eig.min():.3g} .. {eig.max():.3g})")
+        raise IndeterminateSystem(
+            f"the data do not determine {what} (covariance eigenvalues {eig.min():.3g} .. {eig.max():.3g})"
+        )
     return C
 
 
@@ -488,7 +500,9 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         if not frames:
             raise CalibrationImpossible(f"session {sess.name!r} has no frame")
         if sess.T_init is None:
-            pts = np.vstack([f.points_board @ f.T_lidar_board[:3, :3].T + f.T_lidar_board[:3, 3] for f in frames])
+            pts = np.vstack(
+                [f.points_board @ f.T_lidar_board[:3, :3].T + f.T_lidar_board[:3, 3] for f in frames]
+            )
             T0 = _upnp_init(pts, np.vstack([f.bearings for f in frames]))
         else:
             T0 = np.asarray(sess.T_init, dtype=np.float64)
@@ -503,14 +517,29 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
             if f.name in gone:
                 continue
             idx = len(boards)
-            samples = samples_default if samples_default is not None else _samples_from_corners(f.points_board)
-            boards.append(_Board(idx, f"{sess.name}/{f.name}", _pose(f.T_lidar_board), np.asarray(f.board_cov), samples,
-                                 lidar_ids[sess.lidar]))
+            samples = (
+                samples_default if samples_default is not None else _samples_from_corners(f.points_board)
+            )
+            boards.append(
+                _Board(
+                    idx,
+                    f"{sess.name}/{f.name}",
+                    _pose(f.T_lidar_board),
+                    np.asarray(f.board_cov),
+                    samples,
+                    lidar_ids[sess.lidar],
+                )
+            )
             fac = view_factor(X(si), B(idx), f.points_board, f.bearings, f.cov_px, sess.camera)
             if fac is not None:
                 views.append(_View(si, idx, fac))
-    problem = _Problem(boards, views, T_init, range_offset=options.range_offset,
-                       offset_prior_sigma=options.range_offset_prior_sigma_m)
+    problem = _Problem(
+        boards,
+        views,
+        T_init,
+        range_offset=options.range_offset,
+        offset_prior_sigma=options.range_offset_prior_sigma_m,
+    )
     iterations = 0
 
     alone: dict[str, Estimate] = {}
@@ -525,7 +554,9 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         remapped = [
             _View(e0, v.board, _rekey(v.factor, X(e0))) if v.ext in members else v for v in problem.views
         ]
-        sub = _Problem(problem.boards, remapped, problem.T_init, [], problem.range_offset, problem.offset_prior_sigma)
+        sub = _Problem(
+            problem.boards, remapped, problem.T_init, [], problem.range_offset, problem.offset_prior_sigma
+        )
         sol = _solve(sub, {e0})
         return sol.estimate(e0), sol
 
@@ -538,7 +569,9 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
             iterations += sol.iterations
             delta, C = compare_estimates(est, alone[sess.name])
             m = float(delta @ np.linalg.solve(C, delta))
-            session_tests.append(_test(f"{sess.name} vs others", sess.name, delta, m, POSE3_DOF, options.alpha))
+            session_tests.append(
+                _test(f"{sess.name} vs others", sess.name, delta, m, POSE3_DOF, options.alpha)
+            )
     pair_tests = []
     for a, b in zip(sessions[:-1], sessions[1:]):
         delta, C = compare_estimates(alone[a.name], alone[b.name])
@@ -552,7 +585,9 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         for sess in sessions:
             d = rigid_est.pose.localCoordinates(alone[sess.name].pose)
             total += float(d @ np.linalg.solve(alone[sess.name].covariance, d))
-        global_test = _test("all sessions", None, np.zeros(POSE3_DOF), total, POSE3_DOF * (S - 1), options.alpha)
+        global_test = _test(
+            "all sessions", None, np.zeros(POSE3_DOF), total, POSE3_DOF * (S - 1), options.alpha
+        )
 
     range_offsets: dict[str, RangeOffset] = {}
     if options.mode == "rigid":
@@ -570,7 +605,9 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         else:
             hub = S - 1
             ties = [(si, si + 1, noise) for si in range(S - 1)]
-        sub = _Problem(problem.boards, problem.views, init, ties, problem.range_offset, problem.offset_prior_sigma)
+        sub = _Problem(
+            problem.boards, problem.views, init, ties, problem.range_offset, problem.offset_prior_sigma
+        )
         final = _solve(sub)
         iterations += final.iterations
         joint = final.estimate(hub)
@@ -599,8 +636,6 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
 
 def _rekey(f: FrameBearingFactor, key_cam_lidar: int) -> FrameBearingFactor:
     """The same grouped factor on another extrinsic key (shares the arrays)."""
-    import copy
-
     g = copy.copy(f)
     g.keys = (int(key_cam_lidar), f.keys[1])
     return g
@@ -690,12 +725,18 @@ def solve_rig(
     brs: dict[int, list[np.ndarray]] = {i: [] for i in range(len(names))}
     for f in frames:
         idx = len(boards)
-        samples = options.samples_board if options.samples_board is not None else _samples_from_corners(f.points_board)
+        samples = (
+            options.samples_board
+            if options.samples_board is not None
+            else _samples_from_corners(f.points_board)
+        )
         T_lb = _pose(f.T_lidar_board)
         boards.append(_Board(idx, f.name, T_lb, np.asarray(f.board_cov), samples, 0))
         for v in f.views:
             if v.camera not in cam_index:
-                raise ValueError(f"frame {f.name!r}: view of unknown camera {v.camera!r}; cameras: {list(names)}")
+                raise ValueError(
+                    f"frame {f.name!r}: view of unknown camera {v.camera!r}; cameras: {list(names)}"
+                )
             ci = cam_index[v.camera]
             p = f.points_board if v.corners is None else f.points_board[np.asarray(v.corners)]
             fac = view_factor(X(ci), B(idx), p, v.bearings, v.cov_px, cameras[v.camera], robust)
@@ -711,8 +752,13 @@ def solve_rig(
             init[ci] = _pose(T_init[n])
         else:
             init[ci] = _pose(_upnp_init(np.vstack(pts[ci]), np.vstack(brs[ci])))
-    problem = _Problem(boards, views, init, range_offset=options.range_offset,
-                       offset_prior_sigma=options.range_offset_prior_sigma_m)
+    problem = _Problem(
+        boards,
+        views,
+        init,
+        range_offset=options.range_offset,
+        offset_prior_sigma=options.range_offset_prior_sigma_m,
+    )
     sol = _solve(problem, max_iterations=options.max_iterations)
     ext = {n: sol.estimate(ci) for n, ci in cam_index.items()}
     keys = [X(cam_index[n]) for n in names]
@@ -721,7 +767,10 @@ def solve_rig(
     for a in range(len(names)):
         for b in range(a + 1, len(names)):
             Cab = np.zeros((12, 12))
-            Cab[:6, :6], Cab[6:, 6:] = J[6 * a : 6 * a + 6, 6 * a : 6 * a + 6], J[6 * b : 6 * b + 6, 6 * b : 6 * b + 6]
+            Cab[:6, :6], Cab[6:, 6:] = (
+                J[6 * a : 6 * a + 6, 6 * a : 6 * a + 6],
+                J[6 * b : 6 * b + 6, 6 * b : 6 * b + 6],
+            )
             Cab[:6, 6:] = J[6 * a : 6 * a + 6, 6 * b : 6 * b + 6]
             Cab[6:, :6] = Cab[:6, 6:].T
             rel[(names[a], names[b])] = relative_pose(ext[names[a]].T, ext[names[b]].T, Cab)
@@ -732,6 +781,8 @@ def solve_rig(
         relative=rel,
         joint_covariance=J,
         range_offset=sol.offset(0, "lidar") if options.range_offset else None,
-        T_lidar_board={bd.name: np.asarray(sol.values.atPose3(B(bd.index)).matrix()) for bd in boards if bd.index in used},
+        T_lidar_board={
+            bd.name: np.asarray(sol.values.atPose3(B(bd.index)).matrix()) for bd in boards if bd.index in used
+        },
         iterations=sol.iterations,
     )

@@ -75,6 +75,22 @@ def scipy_minima(P: np.ndarray, F: np.ndarray, rng: np.random.Generator, starts:
         X = Pc @ R.T + x[3:]
         return np.einsum("nab,nb->na", V, X).ravel()
 
+    def jac(x, R0):
+        # X = Exp(w) R0 p + t: dX/dw = -[Exp(w) R0 p]x J_l(w), dX/dt = I
+        w = x[:3]
+        th = np.linalg.norm(w)
+        K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+        if th < 1e-8:
+            Jl = np.eye(3) + 0.5 * K
+        else:
+            Jl = np.eye(3) + (1 - np.cos(th)) / th**2 * K + (th - np.sin(th)) / th**3 * K @ K
+        Y = Pc @ (Rotation.from_rotvec(w).as_matrix() @ R0).T
+        S = np.zeros((len(Y), 3, 3))
+        S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -Y[:, 2], Y[:, 1], -Y[:, 0]
+        S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = Y[:, 2], -Y[:, 1], Y[:, 0]
+        J = np.concatenate([-(V @ S) @ Jl, V], axis=2)
+        return J.reshape(-1, 6)
+
     out = []
     for _ in range(starts):
         R0 = Rotation.random(random_state=rng.integers(2**31)).as_matrix()
@@ -84,6 +100,7 @@ def scipy_minima(P: np.ndarray, F: np.ndarray, rng: np.random.Generator, starts:
         sol = least_squares(
             res,
             np.r_[np.zeros(3), t0],
+            jac=jac,
             args=(R0,),
             method="lm",
             xtol=1e-15,

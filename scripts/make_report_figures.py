@@ -80,7 +80,7 @@ def sensitivity(frames, config, T_true: np.ndarray) -> str:
     ]
     cases = [("none (ground truth)", (0, 0, 0), (0, 0, 0))]
     for a in (0.05, 0.1, 0.25, 0.5, 1.0, 2.0):
-        cases.append((f"{a} deg about the camera's vertical", (0, 0, a), (0, 0, 0)))
+        cases.append((f"{a} deg about the camera's z axis", (0, 0, a), (0, 0, 0)))
     cases.append(("1 deg about each axis in turn (mean)", None, None))
     for d in (0.005, 0.01, 0.02, 0.05):
         cases.append((f"{1000 * d:.0f} mm along the camera's x", (0, 0, 0), (d, 0, 0)))
@@ -104,7 +104,9 @@ def sensitivity(frames, config, T_true: np.ndarray) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="out/report_figures", help="output folder (data/, report/, coloured/)")
-    ap.add_argument("--width", type=int, default=2000, help="panorama width in pixels (standard set: 8000)")
+    ap.add_argument("--width", type=int, default=2000, help="image width in pixels (standard panorama: 8000)")
+    ap.add_argument("--camera", choices=("equirectangular", "pinhole", "fisheye"), default="equirectangular")
+    ap.add_argument("--lidar", default="hdl32", help="hdl32 | hdl64 | vlp16 | vlp32c | os1-64")
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--corners", choices=("detect", "truth"), default="detect")
@@ -119,7 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     data = out / "data"
     if not (data / "ground_truth.yaml").is_file():
         print(f"simulating {args.frames} frames at {args.width} px into {data}")
-        simulate_dataset(data, standard_spec(width=args.width, frames=args.frames, seed=args.seed))
+        spec = standard_spec(args.lidar, args.camera, width=args.width, frames=args.frames, seed=args.seed)
+        simulate_dataset(data, spec)
     config = load_config(data / "config.yaml")
     gt = read_ground_truth(data)
     t0 = time.time()
@@ -167,13 +170,13 @@ def main(argv: list[str] | None = None) -> int:
     print(table)
     head = (
         "# Sensitivity of the report's metrics to a known error of the extrinsic\n\n"
-        f"Simulated standard set: HDL-32E, equirectangular {args.width} x {args.width // 2}, "
+        f"Simulated set: {args.lidar}, {args.camera} {config.camera.width} x {config.camera.height}, "
         f"{len(ev_frames)} frames used, seed {args.seed}, image corners "
         f"{'detected' if args.corners == 'detect' else 'from ground truth + 0.2 px'}. Board points and "
         "corners from the pipeline; the extrinsic is the ground truth with the error shown (rotations "
         "about, and shifts along, the camera frame's axes). Regenerate: "
         "`python3 scripts/make_report_figures.py "
-        f"--width {args.width}`.\n\n"
+        f"--width {args.width} --camera {args.camera} --lidar {args.lidar} --corners {args.corners}`.\n\n"
     )
     atomic_write(args.docs, head + table + "\n")
     print(f"wrote {args.docs}")

@@ -14,7 +14,9 @@ from ilcc_graph.graph import GraphOptions, solve
 from ilcc_graph.joint import (
     Estimate,
     JointOptions,
+    RigFrame,
     RigOptions,
+    RigView,
     Session,
     compare_estimates,
     relative_pose,
@@ -41,12 +43,16 @@ def moved(T: gtsam.Pose3, deg: float, mm: float, rng: np.random.Generator) -> gt
     return T.compose(gtsam.Pose3.Expmap(xi))
 
 
-def three_sessions(rng: np.random.Generator, T_by_session=(T_TRUE, T_TRUE, T_TRUE), n: int = 10) -> list[Session]:
+def three_sessions(
+    rng: np.random.Generator, T_by_session=(T_TRUE, T_TRUE, T_TRUE), n: int = 10
+) -> list[Session]:
     """Three sessions with different boards and intrinsics (panoramas of two sizes)."""
     setups = [("A", PANO, BOARD), ("B", PANO_SMALL, BOARD_B), ("C", PANO, BOARD_B)]
     out = []
     for (name, cam, board), T in zip(setups, T_by_session):
-        frames, _ = session_frames(rng, n, cam, T, board, prefix=f"{name}_", sigma_px=0.5 if cam is PANO else 0.3)
+        frames, _ = session_frames(
+            rng, n, cam, T, board, prefix=f"{name}_", sigma_px=0.5 if cam is PANO else 0.3
+        )
         out.append(Session(name, frames, cam, board=board))
     return out
 
@@ -97,7 +103,7 @@ def test_moved_mount_is_detected_and_located() -> None:
 def test_drift_mode_follows_each_session() -> None:
     rng = np.random.default_rng(4)
     T_b = moved(T_TRUE, 0.5, 10.0, rng)
-    sessions = three_sessions(rng, (T_TRUE, T_b, T_TRUE))
+    sessions = three_sessions(rng, (T_TRUE, T_b, T_TRUE), n=6)
     loose = solve_sessions(sessions, JointOptions(mode="drift", drift_sigma_deg=2.0, drift_sigma_mm=50.0))
     truth = {"A": T_TRUE, "B": T_b, "C": T_TRUE}
     for name, est in loose.sessions.items():
@@ -221,3 +227,117 @@ def test_compare_estimates_is_consistent_for_independent_draws() -> None:
         d, C = compare_estimates(Estimate(Ta.matrix(), Pa), Estimate(Tb.matrix(), Pb))
         m.append(d @ np.linalg.solve(C, d))
     assert 5.4 < np.mean(m) < 6.6
+
+
+def test_summary_and_terminal_report_of_a_moved_mount() -> None:
+    import yaml
+
+    from ilcc_graph.sessions import format_joint, joint_summary, session_from_calibration
+    from ilcc_graph.types import BoardFit, Calibration, FrameResult, ImageCorners
+
+    rng = np.random.default_rng(11)
+    sessions = three_sessions(rng, (T_TRUE, T_TRUE, moved(T_TRUE, 0.5, 10.0, rng)), n=6)
+    sol = solve_sessions(sessions, JointOptions(mode="drift"))
+    summary = yaml.safe_load(yaml.safe_dump(joint_summary(sol)))
+    assert summary["consistency"]["moved"] == "C" and summary["mode"] == "drift"
+    assert np.allclose(summary["joint"]["T_cam_lidar"], sol.joint.T)
+    assert set(summary["sessions"]) == {"A", "B", "C"}
+    text = format_joint(sol)
+    assert "MOVED" in text and "session C" in text and "rx ry rz" in text
+    # a pipeline Calibration becomes a Session with its used frames only
+    f = sessions[0].frames[0]
+    board = BoardFit(f.T_lidar_board, f.board_cov, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), False)
+    corners = ImageCorners(np.zeros((len(f.bearings), 2)), f.bearings, f.cov_px, False)
+    cal = Calibration(
+        T_TRUE.matrix(),
+        np.eye(6),
+        (FrameResult(f.name, True, None, board, corners), FrameResult("x", False, "no board")),
+    )
+
+    class Cfg:  # the three fields session_from_calibration reads
+        camera, board = PANO, BOARD
+
+        class lidar:  # noqa: N801
+            name = "vlp16"
+
+    s = session_from_calibration("A", Cfg, cal)
+    assert [g.name for g in s.frames] == [f.name] and s.lidar == "vlp16" and s.board is BOARD
+
+
+def test_rig_robust_kernel_limits_bad_corners() -> None:
+    """Nine corners 20 mrad off (three in each of three views): Cauchy stays near the clean answer."""
+    rng = np.random.default_rng(12)
+    cams, truth = rig(2)
+    clean = rig_frames(rng, 12, cams, truth, BOARD)
+    frames = list(clean)
+    turn = gtsam.Rot3.Expmap(np.array([0.0, 0.02, 0.0]))
+    for i in range(3):
+        f, v = frames[i], frames[i].views[0]
+        b = v.bearings.copy()
+        b[[3, 10, 20]] = [turn.rotate(x) for x in b[[3, 10, 20]]]
+        views = (RigView(v.camera, b, v.cov_px), *f.views[1:])
+        frames[i] = RigFrame(f.name, f.T_lidar_board, f.board_cov, f.points_board, views)
+    ref = solve_rig(clean, cams)
+    plain = solve_rig(frames, cams)
+    robust = solve_rig(frames, cams, options=RigOptions(robust="cauchy"))
+    for name in cams:
+        d_plain = nees(ref.extrinsics[name], gtsam.Pose3(plain.extrinsics[name].T))
+        d_robust = nees(ref.extrinsics[name], gtsam.Pose3(robust.extrinsics[name].T))
+        assert d_plain > 5.0 and d_robust < 0.1 * d_plain, (name, d_plain, d_robust)
+    with pytest.raises(ValueError, match="unknown kernel"):
+        solve_rig(frames, cams, options=RigOptions(robust="nope"))
+
+
+def test_calibrate_sessions_from_data_sets(tmp_path, monkeypatch) -> None:
+    """The pipeline-level wrapper on two data sets with different boards; the stages are stubbed
+    with synthetic observations (the rest of the pipeline, ordering, UPnP and graph, is real)."""
+    pipeline = pytest.importorskip("ilcc_graph.pipeline")
+    import yaml
+
+    from ilcc_graph import sessions as sessions_mod
+    from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
+
+    rng = np.random.default_rng(13)
+    T_b = moved(T_TRUE, 0.5, 10.0, rng)
+    observed: dict[str, list[FrameResult]] = {}
+    dirs = []
+    for name, board, T in (("mon", BOARD, T_TRUE), ("fri", BOARD_B, T_b)):
+        d = tmp_path / name
+        (d / "pcd").mkdir(parents=True)
+        (d / "img").mkdir()
+        frames, _ = session_frames(rng, 8, PANO_SMALL, T, board, prefix="f")
+        for f in frames:
+            (d / "pcd" / f"{f.name}.pcd").write_text("")
+            (d / "img" / f"{f.name}.png").write_text("")
+        config = {
+            "board": {
+                "squares": [board.rows, board.cols],
+                "square_size": board.square_size,
+            },
+            "lidar": {"model": "vlp16"},
+            "camera": {"model": "equirectangular", "width": 4000, "height": 2000},
+        }
+        config["board"]["margin"] = [board.margin_long, board.margin_short]
+        (d / "config.yaml").write_text(yaml.safe_dump(config))
+        observed[str(d)] = [
+            FrameResult(
+                f.name, True, None,
+                BoardFit(f.T_lidar_board, f.board_cov, f.points_board @ f.T_lidar_board[:3, :3].T
+                         + f.T_lidar_board[:3, 3], np.zeros((0, 3)), np.zeros(0), False),
+                ImageCorners(np.zeros((len(f.bearings), 2)), f.bearings, f.cov_px, False),
+            )
+            for f in frames
+        ]  # fmt: skip
+        dirs.append(d)
+
+    def fake_observe(frames, config, jobs=1, progress=None):
+        return list(observed[str(frames[0].scan.parent.parent)])
+
+    monkeypatch.setattr(pipeline, "observe_frames", fake_observe)
+    res = sessions_mod.calibrate_sessions(
+        dirs, JointOptions(mode="drift", drift_sigma_deg=2.0, drift_sigma_mm=50)
+    )
+    assert res.names == ("mon", "fri") and set(res.alone) == {"mon", "fri"}
+    assert res.joint.global_test.moved and res.joint.pair_tests[0].moved
+    assert nees(res.joint.sessions["fri"], T_b) < 22.5 and nees(res.joint.sessions["mon"], T_TRUE) < 22.5
+    assert res.configs["fri"].board.square_size == pytest.approx(0.1)

@@ -86,7 +86,7 @@ def test_cross_validation_evaluates_each_frame_on_a_fit_that_did_not_see_it() ->
     assert held["0003"].corner_rms_mrad > 25.0  # ~2 degrees = 35 mrad
     fold_without_bad = next(f for f in cv.folds if "0003" in f.test)
     assert np.degrees(np.linalg.norm(pose_difference(T_TRUE, fold_without_bad.T_cam_lidar)[:3])) < 0.05
-    assert held["0003"].intensity_mrad > 3 * ins["0001"].intensity_mrad
+    assert held["0003"].intensity_mrad > 2 * ins["0003"].intensity_mrad
 
 
 def test_cross_validation_on_consistent_frames_matches_in_sample() -> None:
@@ -193,11 +193,14 @@ def test_report_is_self_contained_and_has_the_table() -> None:
     )
     assert written == [f.name for f in frames]
     page = files["index.html"].decode("utf-8")
-    refs = set(re.findall(r'(?:src|href)="([^"]+)"', page))
+    refs = set(re.findall(r'(?:src|href)="([^"#][^"]*)"', page))
     assert refs and refs <= set(files), refs - set(files)
+    anchors = set(re.findall(r'href="#([^"]+)"', page))
+    assert anchors and all(f'id="{a}"' in page for a in anchors)
     assert not re.search(r"(?:src|href)=\"(?:https?:|//)", page)  # offline
-    for name in ("0001", "0002", "0003", "0009"):
-        assert f'<td class="l">{name}</td>' in page
+    for name in ("0001", "0002", "0003"):
+        assert f'<td class="l"><a href="#f{name}">{name}</a></td>' in page
+    assert '<td class="l">0009</td>' in page  # no pictures for it: no link
     assert "no segment passes the chessboard tests" in page and "Against the ground truth" in page
     assert "<table>" in page and "T_cam_lidar" in page
     for path, data in files.items():
@@ -211,4 +214,124 @@ def test_report_is_self_contained_and_has_the_table() -> None:
         "figures/0001_metric.png",
         "figures/0001_whole.png",
         "figures/per_frame.png",
+        "figures/valley.png",
     } <= set(files)
+
+
+def test_report_of_a_calibration_file_rebuilds_the_board_points_from_the_scans(tmp_path) -> None:
+    from ilcc_graph.io import read_calibration, write_calibration
+
+    rng = np.random.default_rng(15)
+    frames = frame_results(rng)[:3]
+    T_est, cov = bearing_solver(frames)
+    write_calibration(tmp_path / "calibration.yaml", Calibration(T_est, cov, tuple(frames)))
+    cal = read_calibration(tmp_path / "calibration.yaml")
+    assert all(len(f.board.points_lidar) == 0 for f in cal.frames)  # the file keeps no segments
+    srcs = []
+    for f in frames:
+        image, scan = scene_image_and_scan(rng, f.board.T_lidar_board)
+        srcs.append((f.name, scan, image))
+    files = build_report(cal, CAM, BOARD, iter(srcs), show_valley=False)
+    assert "figures/0001_metric.png" in files
+    page = files["index.html"].decode("utf-8")
+    m = re.search(r"intensity error \(mrad\)</td><td>([0-9.]+)</td>", page)
+    assert m is not None and float(m.group(1)) < 0.5, page[:2000]
+
+
+def test_evaluate_calibration_judges_another_extrinsic_on_the_same_frames(tmp_path) -> None:
+    from ilcc_graph.io import read_calibration, write_calibration
+    from ilcc_graph.report import evaluate_calibration, evaluation_rows, evaluation_to_dict
+
+    rng = np.random.default_rng(16)
+    frames = frame_results(rng)[:3]
+    write_calibration(tmp_path / "c.yaml", Calibration(T_TRUE, np.eye(6) * 1e-8, tuple(frames)))
+    cal = read_calibration(tmp_path / "c.yaml")
+    scans = [(f.name, scene_image_and_scan(rng, f.board.T_lidar_board)[1]) for f in frames]
+    good = evaluate_calibration(cal, CAM, BOARD, iter(scans))
+    bad = evaluate_calibration(
+        cal, CAM, BOARD, iter(scans), T_cam_lidar=pose([0, 1.0, 0], [0, 0, 0]) @ T_TRUE
+    )
+    assert [e.name for e in good.frames] == [f.name for f in frames]
+    assert good.intensity_mrad[0] < 0.5 and bad.intensity_mrad[0] > 5 * good.intensity_mrad[0]
+    header, rows = evaluation_rows(good)
+    assert len(rows) == len(frames) + 2 and rows[-2][0] == "mean" and len(header) == len(rows[0])
+    d = evaluation_to_dict(good)
+    assert d["overall"]["frames"] == 3.0 and d["frames"][0]["name"] == "0001"
+
+
+def test_panorama_crop_wraps_across_the_seam() -> None:
+    from ilcc_graph.camera_models import Equirectangular
+    from ilcc_graph.report.overlays import crop_around
+
+    cam = Equirectangular(400, 200)
+    img = np.zeros((200, 400, 3), np.uint8)
+    img[:, :200] = (0, 0, 255)  # left half red, right half blue
+    img[:, 200:] = (255, 0, 0)
+    uv = np.array([[390.0, 100.0], [395.0, 110.0], [5.0, 100.0], [10.0, 90.0]])  # straddles u = 0
+    crop = crop_around(img, uv, cam, pad=0.5, min_size=10)
+    w = crop.image.shape[1]
+    assert w < 100  # not the whole width
+    inside = crop.to_crop(uv)
+    assert np.all((inside[:, 0] >= 0) & (inside[:, 0] < w))
+    assert crop.image[0, 0, 0] == 255 and crop.image[0, -1, 2] == 255  # blue on the left, red on the right
+
+
+def test_depth_map_hides_points_behind_nearer_ones() -> None:
+    from ilcc_graph.camera_models import Equirectangular
+
+    cam = Equirectangular(720, 360)
+    az = np.radians(np.linspace(-20, 20, 81))
+    near = np.column_stack([np.cos(az), np.sin(az), np.zeros_like(az)]) * 2.0
+    far = near * 5.0  # the same directions, 10 m away
+    vis = visible_points(np.vstack([near, far]), cam, np.eye(4))
+    assert not vis.occluded[: len(near)].any() and vis.occluded[len(near) :].all()
+    lone = visible_points(far, cam, np.eye(4))
+    assert not lone.occluded.any()
+
+
+def test_a_frame_with_shifted_corners_is_called_out() -> None:
+    import dataclasses
+
+    rng = np.random.default_rng(17)
+    frames = frame_results(rng)
+    shifted = dataclasses.replace(frames[3].corners, uv=frames[3].corners.uv + [6.0, 0.0])
+    frames[3] = dataclasses.replace(frames[3], corners=shifted)
+    cal = Calibration(T_TRUE, np.eye(6) * 1e-8, tuple(frames))
+    page = build_report(cal, CAM, BOARD, show_valley=False)["index.html"].decode("utf-8")
+    verdict = page[page.index('<div class="verdict') : page.index("</div>")]
+    assert "verdict bad" in verdict and "0004 stand out" in verdict, verdict
+    cal_ok = Calibration(T_TRUE, np.eye(6) * 1e-8, tuple(frame_results(rng)))
+    page_ok = build_report(cal_ok, CAM, BOARD, show_valley=False)
+    assert "stand out" not in page_ok["index.html"].decode("utf-8")
+
+
+def test_the_valley_bottoms_out_at_the_right_extrinsic() -> None:
+    from ilcc_graph.report import eval_frames
+    from ilcc_graph.report.studies import valley
+
+    rng = np.random.default_rng(18)
+    efs = eval_frames(frame_results(rng)[:3])
+    v = valley(efs, CAM, BOARD, T_TRUE, rotation_deg=1.0, translation_m=0.05, n=2)
+    mid = v.steps.size // 2
+    assert v.steps[mid] == 0.0 and v.intensity.shape == (6, 5)
+    for k in range(6):
+        assert np.argmin(v.corner[k]) == mid
+        assert v.intensity[k, mid] <= v.intensity[k].min() + 0.05
+        assert max(v.intensity[k, 0], v.intensity[k, -1]) > 5 * v.intensity[k, mid]
+
+
+def test_lidar_corners_a_square_off_are_told_apart_from_a_wrong_extrinsic() -> None:
+    import dataclasses
+
+    rng = np.random.default_rng(19)
+    frames = frame_results(rng)
+    b = frames[1].board
+    s = BOARD.square_size
+    slid = transform_points(b.T_lidar_board, BOARD.corners_board() + [s, s, 0.0])  # fit slid by a square
+    frames[1] = dataclasses.replace(frames[1], board=dataclasses.replace(b, corners_lidar=slid))
+    cal = Calibration(T_TRUE, np.eye(6) * 1e-8, tuple(frames))
+    page = build_report(cal, CAM, BOARD, show_valley=False)["index.html"].decode("utf-8")
+    row = page[page.index('<td class="l">0002</td>') :].split("</tr>")[0]
+    assert "LiDAR board fit is likely off" in row, row
+    others = page[page.index('<td class="l">0003</td>') :].split("</table>")[0]
+    assert "likely off" not in others and "neither corners nor points" not in others

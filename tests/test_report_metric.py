@@ -170,7 +170,7 @@ def test_points_pushed_off_the_pattern_count_through_the_attendance_rate() -> No
 def test_board_across_the_panorama_seam() -> None:
     rng = np.random.default_rng(6)
     T = pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.2])
-    frames = frames_for(PANO, T, rng, [(-4.0, 0.05, 0.0)])  # straight behind: az = +-pi
+    frames = frames_for(PANO, T, rng, [(-4.0, 0.0, 0.0)])  # straight behind: az = +-pi
     uv = frames[0].uv
     assert uv[:, 0].min() < 100 and uv[:, 0].max() > 1900  # the corners straddle the seam
     ev = evaluate(frames, PANO, BOARD, T).frames[0]
@@ -185,3 +185,32 @@ def test_half_turned_image_corners_still_compare_fairly() -> None:
     assert not a.half_turn and b.half_turn
     assert b.corner_rms_px == pytest.approx(a.corner_rms_px)
     assert b.intensity_mrad == pytest.approx(a.intensity_mrad, abs=0.05)
+
+
+def test_expected_corner_error_matches_a_monte_carlo_of_the_stated_uncertainties() -> None:
+    from ilcc_graph.report.metric import corner_errors, expected_corner_px
+    from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
+
+    rng = np.random.default_rng(8)
+    T_lb = board_pose_facing(np.array([3.0, 1.0, 0.3]), 20.0)
+    A = rng.normal(size=(6, 6))
+    cov_b = A @ A.T * 1e-6 + np.diag([1e-6, 1e-6, 4e-6, 4e-6, 4e-6, 1e-6])
+    K = BOARD.n_corners
+    cov_px = np.tile(np.diag([0.3**2, 0.2**2]), (K, 1, 1))
+    uv_true = PANO.project(transform_points(T_PANO @ T_lb, BOARD.corners_board()))
+    corners_lidar = transform_points(T_lb, BOARD.corners_board())
+    bf = BoardFit(T_lb, cov_b, corners_lidar, np.zeros((0, 3)), np.zeros(0), True)
+    fr = FrameResult("x", True, None, bf, ImageCorners(uv_true, PANO.bearing(uv_true), cov_px, True))
+    want = expected_corner_px(fr, PANO, BOARD, T_PANO)
+    L = np.linalg.cholesky(cov_b)
+    sq = []
+    for _ in range(400):
+        xi = L @ rng.normal(size=6)
+        D = np.eye(4)
+        D[:3, :3] = Rotation.from_rotvec(xi[:3]).as_matrix()
+        D[:3, 3] = xi[3:]
+        corners = transform_points(T_lb @ D, BOARD.corners_board())
+        uv = uv_true + rng.normal(size=(K, 2)) * [0.3, 0.2]
+        sq.append(corner_errors(corners, uv, PANO, T_PANO)[0] ** 2)
+    assert np.sqrt(np.mean(sq)) == pytest.approx(want, rel=0.08)
+    assert want > np.sqrt(0.3**2 + 0.2**2) * 1.2  # the LiDAR pose's share is not negligible here

@@ -125,14 +125,89 @@ def _rot_angle(R: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
 
 
-def _score_hypothesis(a: int, d: np.ndarray, rot_gate: float):
-    """d (n, 2): rotation distance of each frame's order to the hypothesis from frame a."""
+@dataclass(frozen=True)
+class _Hypothesis:
+    """A single-frame pose as seen by every frame: which frames support it and in which order."""
+
+    score: tuple[int, float]
+    anchor: int
+    support: np.ndarray  # (n,) bool: rotation within the gate under some order
+    undecided: np.ndarray  # (n,) bool: within the gate under both orders
+    orders: np.ndarray  # (n,) int: the order closest in rotation
+    distance: np.ndarray  # (n,) rad: that rotation distance
+
+
+def _score_hypothesis(a: int, d: np.ndarray, rot_gate: float) -> _Hypothesis:
+    """d (n, 2): rotation distance of each frame's orders to the hypothesis from frame a."""
     orders = np.argmin(d, axis=1)
     dmin = d[np.arange(len(d)), orders]
     sup = dmin < rot_gate
     undecided = sup & np.all(d < rot_gate, axis=1)
     score = (int(sup.sum()), -float(np.sum(np.where(sup, dmin / rot_gate, 1.0))))
-    return score, a, sup, undecided, orders
+    return _Hypothesis(score, a, sup, undecided, orders, dmin)
+
+
+@dataclass(frozen=True)
+class _Consensus:
+    T: np.ndarray  # (4, 4) T_cam_lidar
+    E: np.ndarray  # (n, 2) RMS bearing error per frame and order, rad
+    inliers: np.ndarray  # (n,) bool
+    orders: np.ndarray  # (n,) int
+    score: tuple[int, float]  # (frames agreeing, -sum of their errors / noise)
+
+    @property
+    def key(self) -> np.ndarray:
+        return np.where(self.inliers, self.orders, -1)
+
+
+class _Frames:
+    """The frames that have a pose of their own, and the consensus machinery over them."""
+
+    def __init__(self, L, F, perm, flip_ok, gate, noise, options: OrderOptions) -> None:
+        self.L, self.F, self.perm, self.flip_ok = L, F, perm, flip_ok
+        self.g = gate
+        self.noise = noise
+        self.gk = np.minimum(gate, max(options.min_gate_mrad * 1e-3, options.robust_factor * noise))
+        self.options = options
+
+    def oriented(self, a: int, o: int) -> np.ndarray:
+        return self.F[a][self.perm] if o else self.F[a]
+
+    def errors(self, T: np.ndarray) -> np.ndarray:
+        """(n, 2) RMS bearing error (rad) of each frame per order; inf where it cannot flip."""
+        E = np.full((len(self.L), 2), np.inf)
+        for a in range(len(self.L)):
+            for o in (0, 1) if self.flip_ok[a] else (0,):
+                E[a, o] = _rms(bearing_errors(T, self.L[a], self.oriented(a, o)))
+        return E
+
+    def fit(self, idx: np.ndarray, orders: np.ndarray) -> np.ndarray:
+        """T_cam_lidar by UPnP on the frames idx in the given orders."""
+        P = np.vstack([self.L[a] for a in idx])
+        B = np.vstack([self.oriented(a, int(orders[a])) for a in idx])
+        return upnp(P, B, prefer_front=True, tie_rtol=np.inf)[0].T_cam_points
+
+    def evaluate(self, T: np.ndarray) -> _Consensus:
+        E = self.errors(T)
+        orders = np.argmin(E, axis=1)
+        best = E[np.arange(len(E)), orders]
+        inl = best < self.gk
+        return _Consensus(T, E, inl, orders, (int(inl.sum()), -float(np.sum(best[inl])) / self.noise))
+
+    def consensus(self, T: np.ndarray) -> _Consensus:
+        """Refit on the frames that agree with T, re-assign their orders, until stable."""
+        c = self.evaluate(T)
+        for _ in range(self.options.rounds):
+            if c.inliers.sum() < 2:
+                break
+            c2 = self.evaluate(self.fit(np.flatnonzero(c.inliers), c.orders))
+            if c2.score < c.score:
+                break
+            stable = np.array_equal(c2.key, c.key)
+            c = c2
+            if stable:
+                break
+        return c
 
 
 def _check_inputs(lidar_corners, bearings, perm, names, flippable):
@@ -222,7 +297,6 @@ def resolve_half_turns(
             )
     if not alive:
         return OrderResult({}, dropped, {})
-    gate = {j: options.gate_rel * _half_turn_size(F[j], perm) for j in alive}
 
     if len(alive) == 1:
         j = alive[0]
@@ -235,25 +309,10 @@ def resolve_half_turns(
             log.warning(amb)
         return OrderResult({names[j]: False}, dropped, {names[j]: own[(j, 0)][0]}, own[(j, 0)][0], amb)
 
-    def errors(T: np.ndarray) -> np.ndarray:
-        """(n_alive, 2) RMS bearing error (rad) of each alive frame per order; inf where no flip."""
-        E = np.full((len(alive), 2), np.inf)
-        for a, j in enumerate(alive):
-            for o in (0, 1) if flip_ok[j] else (0,):
-                E[a, o] = _rms(bearing_errors(T, L[j], oriented(j, o)))
-        return E
-
-    def fit(idx: np.ndarray, orders: np.ndarray) -> np.ndarray:
-        P = np.vstack([L[alive[a]] for a in idx])
-        B = np.vstack([oriented(alive[a], int(orders[a])) for a in idx])
-        return upnp(P, B, prefer_front=True, tie_rtol=np.inf)[0].T_cam_points
-
-    g = np.array([gate[j] for j in alive])
-    rot_gate = np.radians(options.rot_gate_deg)
-
     # 2. hypotheses: every frame's own pose in each order; a frame supports one when its own
     # rotation under one of its orders is within rot_gate (cheap, and blind to the big lever-arm
     # errors of one-board translations)
+    rot_gate = np.radians(options.rot_gate_deg)
     n_c = max(len(v) for v in own.values())
     Rown = np.full((len(alive), 2, n_c, 3, 3), np.nan)
     for a, j in enumerate(alive):
@@ -261,7 +320,7 @@ def resolve_half_turns(
             for c, Tc in enumerate(own.get((j, o), [])):
                 Rown[a, o, c] = Tc[:3, :3]
     step = max(1, int(np.ceil(len(alive) / options.max_hypotheses_frames)))
-    scored = []
+    hyps: list[_Hypothesis] = []
     for a in range(0, len(alive), step):
         for o in (0, 1):
             for c in range(len(own.get((alive[a], o), []))):
@@ -269,87 +328,68 @@ def resolve_half_turns(
                 d = np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
                 d = np.where(np.isnan(d), np.inf, d).min(axis=2)
                 d[a, 1 - o] = np.inf  # the anchor's order is the hypothesis
-                scored.append(_score_hypothesis(a, d, rot_gate))
-    scored.sort(key=lambda s: s[0], reverse=True)
+                hyps.append(_score_hypothesis(a, d, rot_gate))
+    hyps.sort(key=lambda h: h.score, reverse=True)
 
     # noise scale: each frame's RMS bearing error under its own pose (an outlier frame fits itself)
     noise = max(float(np.median([own_rms[j] for j in alive])), 1e-6)
-    robust = max(options.min_gate_mrad * 1e-3, options.robust_factor * noise)
-    gk = np.minimum(g, robust)
+    fr = _Frames(
+        [L[j] for j in alive],
+        [F[j] for j in alive],
+        perm,
+        [flip_ok[j] for j in alive],
+        np.array([options.gate_rel * _half_turn_size(F[j], perm) for j in alive]),
+        noise,
+        options,
+    )
 
-    def evaluate(T: np.ndarray):
-        E = errors(T)
-        best_o = np.argmin(E, axis=1)
-        best_e = E[np.arange(len(E)), best_o]
-        inl = best_e < gk
-        return E, inl, best_o, (int(inl.sum()), -float(np.sum(np.where(inl, best_e, 0.0))) / noise)
-
-    def consensus(T: np.ndarray):
-        """Refit on the frames that agree with T, re-assign their orders, until stable."""
-        E, inl, best_o, score = evaluate(T)
-        for _ in range(options.rounds):
-            if inl.sum() < 2:
-                break
-            T2 = fit(np.flatnonzero(inl), best_o)
-            E2, inl2, bo2, score2 = evaluate(T2)
-            if score2 < score:
-                break
-            stable = np.array_equal(inl2, inl) and np.array_equal(bo2, best_o)
-            T, E, inl, best_o, score = T2, E2, inl2, bo2, score2
-            if stable:
-                break
-        return T, E, inl, best_o, score
-
-    # 3. pair hypotheses: the best-supported single-frame poses, each with a few of its supporters,
-    # fitted jointly (a pair fixes the extrinsic far better than one board); each grown to a
-    # consensus; the most frames win, then the smaller bearing errors
+    # 3. pair hypotheses: the best-supported single-frame poses, each with the frames whose rotation
+    # agrees best, fitted jointly (a pair fixes the extrinsic far better than one board); each grown
+    # to a consensus; the most frames win, then the smaller bearing errors
     pairs: list[tuple[int, int, int, int]] = []
-    for _score, a, sup, undecided, orders in scored:
+    for h in hyps:
         if len(pairs) >= options.max_pair_fits:
             break
-        if _score[0] < 2:
-            continue
-        partners = [b for b in np.flatnonzero(sup) if b != a]
+        partners = [b for b in np.flatnonzero(h.support) if b != h.anchor]
+        partners.sort(key=lambda b: h.distance[b])
         for b in partners[: options.partners_per_hypothesis]:
-            for ob in (0, 1) if undecided[b] else (int(orders[b]),):
-                key = (a, int(orders[a]), int(b), ob)
+            for ob in (0, 1) if h.undecided[b] else (int(h.orders[b]),):
+                key = (h.anchor, int(h.orders[h.anchor]), int(b), ob)
                 if key not in pairs and (key[2], key[3], key[0], key[1]) not in pairs:
                     pairs.append(key)
-    results = []
+    starts = []
     for a, oa, b, ob in pairs[: options.max_pair_fits]:
         orders = np.zeros(len(alive), dtype=int)
         orders[a], orders[b] = oa, ob
-        T0 = fit(np.array([a, b]), orders)
-        results.append((evaluate(T0)[3], T0))
-    results.sort(key=lambda r: r[0], reverse=True)
-    finals = []
-    seen: list[np.ndarray] = []
-    for _sc, T0 in results:
+        starts.append(fr.evaluate(fr.fit(np.array([a, b]), orders)))
+    starts.sort(key=lambda c: c.score, reverse=True)
+    finals: list[_Consensus] = []
+    for c0 in starts:
         if len(finals) >= options.consensus_tries:
             break
-        res = consensus(T0)
-        key = np.where(res[2], res[3], -1)
-        if any(np.array_equal(key, k) for k in seen):
-            continue
-        seen.append(key)
-        finals.append(res)
-    finals.sort(key=lambda r: r[4], reverse=True)
-    if not finals or finals[0][4][0] < 2:
+        c = fr.consensus(c0.T)
+        if not any(np.array_equal(c.key, f.key) for f in finals):
+            finals.append(c)
+    finals.sort(key=lambda c: c.score, reverse=True)
+    if not finals or finals[0].score[0] < 2:
         why = "no two frames agree on one extrinsic under either corner order"
         if len(alive) == 2:
             why = "the two frames disagree under either corner order; cannot tell which one is wrong"
         dropped += [(names[j], f"corner order inconsistent with the other frames: {why}") for j in alive]
         return OrderResult({}, dropped, {}, None, why)
-    T, E, inl, best_o, final_score = finals[0]
+    best = finals[0]
 
     # a rival consensus with as many frames, other orders or frames, and errors of the same size:
     # the data cannot decide
     ambiguous = None
-    for _T2, _E2, inl2, _bo2, score2 in finals[1:]:
-        if score2[0] == final_score[0] and -score2[1] <= options.ambiguity_ratio * max(-final_score[1], 1e-9):
+    for rival in finals[1:]:
+        if rival.score[0] == best.score[0] and -rival.score[1] <= options.ambiguity_ratio * max(
+            -best.score[1], 1e-9
+        ):
+            both = ", ".join(names[alive[a]] for a in np.flatnonzero(best.inliers | rival.inliers))
             ambiguous = (
-                f"two extrinsics fit {final_score[0]} frames each, with different corner orders or frames "
-                f"(frames {', '.join(names[alive[a]] for a in np.flatnonzero(inl | inl2))}); "
+                f"two extrinsics fit {best.score[0]} frames each, with different corner orders or frames "
+                f"(frames {both}); "
                 "the one with the smaller bearing errors is used"
             )
             log.warning(ambiguous)
@@ -359,6 +399,7 @@ def resolve_half_turns(
     flip: dict[str, bool] = {}
     per_frame: dict[str, np.ndarray] = {}
     errs: dict[str, tuple[float, float]] = {}
+    T, E, inl, best_o, g = best.T, best.E, best.inliers, best.orders, fr.g
     for a, j in enumerate(alive):
         e0, e1 = 1e3 * E[a, 0], (1e3 * E[a, 1] if np.isfinite(E[a, 1]) else float("nan"))
         errs[names[j]] = (float(e0), float(e1))
@@ -366,7 +407,7 @@ def resolve_half_turns(
         e_list = f"RMS bearing error {e0:.1f} mrad as listed" + (
             f", {e1:.1f} mrad half-turned" if flip_ok[j] else ""
         )
-        limit = 1e3 * gk[a]
+        limit = 1e3 * fr.gk[a]
         if not inl[a]:
             dropped.append(
                 (

@@ -25,7 +25,14 @@ from functools import lru_cache
 
 import numpy as np
 
-__all__ = ["UpnpSolution", "upnp", "quaternion_starts", "refine_angular", "object_space_cost"]
+__all__ = [
+    "UpnpSolution",
+    "object_space_cost",
+    "quat_to_rotation",
+    "quaternion_starts",
+    "refine_angular",
+    "upnp",
+]
 
 
 @dataclass(frozen=True)
@@ -347,16 +354,18 @@ def upnp(
     weights : (N,) non-negative weights, default ones.
     origins : (N, 3) centre of the camera that saw each bearing, in the camera (body) frame;
         None for a central camera (the non-central case is the general UPnP).
-    prefer_front : put first the candidates with most points in front (``f_i . (R p_i + t - c_i) > 0``)
-        whose cost is within ``tie_rtol`` (relative) of the best. The cost cannot tell a ray from a
-        line: a planar target has a twin minimum with every point behind the camera, of equal cost
-        for exact data and of a slightly different cost with noise (off-plane noise). Use
-        ``tie_rtol=np.inf`` to put every front-majority candidate first whatever its cost.
+    prefer_front : put first the candidates with a majority of points in front
+        (``f_i . (R p_i + t - c_i) > 0``) whose cost is within ``tie_rtol`` (relative) of the
+        best. The cost cannot tell a ray from a line: a planar target has a twin minimum with
+        every point behind the camera, of equal cost for exact data and of a slightly different
+        cost with noise (off-plane noise). Use ``tie_rtol=np.inf`` to put every front-majority
+        candidate first whatever its cost.
     start_copies : 1 gives the 600-cell's 60 starts; more adds turned copies (slower, even safer).
 
     Returns
     -------
-    list of UpnpSolution, sorted by cost (with ``prefer_front``: front-majority ones within the tie first).
+    list of UpnpSolution, sorted by cost (with ``prefer_front``: front-majority ones within the
+    tie first).
     """
     P, F, W, C = _check(points, bearings, weights, origins)
     red = _reduce(P, F, W, C)
@@ -381,9 +390,11 @@ def upnp(
     sols.sort(key=lambda s: s.cost)
     if prefer_front and sols:
         # cost within tie_rtol of the best and a majority of points in front: these come first
-        limit = sols[0].cost * (1.0 + tie_rtol) + 1e-12 * float(
-            np.sum(W * np.sum((P - red.mean) ** 2, axis=1))
-        )
+        limit = np.inf
+        if np.isfinite(tie_rtol):
+            limit = sols[0].cost * (1.0 + tie_rtol) + 1e-12 * float(
+                np.sum(W * np.sum((P - red.mean) ** 2, axis=1))
+            )
         sols.sort(key=lambda s: (not (s.front_fraction > 0.5 and s.cost <= limit), s.cost))
     return sols
 

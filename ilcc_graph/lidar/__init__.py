@@ -19,7 +19,12 @@ from ..errors import BoardNotFound, InputError
 from ..lidar_models import LidarModel
 from ..types import BoardFit, Scan
 from .covariance import (
-    assemble_covariance, plane_fit, ray_coupling, sampling_covariance, soft_edge_refine, soft_intensity,
+    assemble_covariance,
+    plane_fit,
+    ray_coupling,
+    sampling_covariance,
+    soft_edge_refine,
+    soft_intensity,
 )  # fmt: skip
 from .detection import find_board
 from .fit import fit_in_plane, intensity_classes, plane_frame, pose_from_in_plane, project_on_plane
@@ -33,7 +38,9 @@ def check_intensity(scan: Scan) -> None:
     src = scan.source or "scan"
     inten = scan.intensity
     if inten is None:
-        raise InputError(f"{src}: the scan has no intensity field; the chessboard is found by its reflectance")
+        raise InputError(
+            f"{src}: the scan has no intensity field; the chessboard is found by its reflectance"
+        )
     inten = np.asarray(inten)
     if inten.shape != (len(scan),):
         raise InputError(f"{src}: intensity has shape {inten.shape}, expected ({len(scan)},)")
@@ -47,7 +54,7 @@ def check_intensity(scan: Scan) -> None:
 
 
 def _align_to_plane(T: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
-    """T_lidar_board turned by the smallest rotation so that its z is ``normal`` and its origin on the plane."""
+    """T_lidar_board turned by the smallest rotation to make its z ``normal``; its origin put on the plane."""
     z = T[:3, 2]
     v = np.cross(z, normal)
     sn, cs = np.linalg.norm(v), float(z @ normal)
@@ -68,6 +75,25 @@ def project(points: np.ndarray, normal: np.ndarray, offset: float, how: str) -> 
     if how == "ray":
         return project_on_plane(points, normal, offset)
     return points - (points @ normal - offset)[:, None] * normal
+
+
+def _core(b: np.ndarray, P: np.ndarray, T: np.ndarray, board: Board, s_z: float) -> np.ndarray:
+    """(N,) bool: projected board coordinates b (N, 3) at least ``3 s_z tan(incidence)`` inside the board.
+
+    A return's in-plane position moves with its noise (along the ray); selecting returns by it
+    at the board's edge would keep those whose noise points one way on one side and the other way
+    on the other side, and tilt the plane fitted to them.
+    """
+    u = P / np.linalg.norm(P, axis=1)[:, None]
+    cos_i = np.clip(np.abs(u @ T[:3, 2]), 0.2, 1.0)
+    x0, x1, y0, y1 = board.extent()
+    inset = np.minimum(3.0 * s_z * np.sqrt(1 - cos_i**2) / cos_i + 0.005, 0.25 * (y1 - y0))
+    core = (
+        (b[:, 0] >= x0 + inset) & (b[:, 0] <= x1 - inset) & (b[:, 1] >= y0 + inset) & (b[:, 1] <= y1 - inset)
+    )
+    if core.sum() < 30:
+        core = (b[:, 0] >= x0) & (b[:, 0] <= x1) & (b[:, 1] >= y0) & (b[:, 1] <= y1)
+    return core
 
 
 def _plane_lsq(p: np.ndarray) -> tuple[np.ndarray, float]:
@@ -96,7 +122,7 @@ def fit_board_points(
     pool: optional (points (L, 3), intensities (L,), rings (L,)) near the plane from which the points
     on the fitted board are taken after the first fit (detection may have trimmed the board's corners).
     """
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     rng = np.random.default_rng(0) if rng is None else rng
     P = np.asarray(points, dtype=np.float64)
     inten = np.asarray(intensity, dtype=np.float64)
@@ -117,17 +143,23 @@ def fit_board_points(
     x0, x1, y0, y1 = board.extent()
     n_cur, d_cur = normal, offset
     T = T0
+    s_z = 0.02
     for _ in range(2):
         Pp = project(P, n_cur, d_cur, options.projection)
         Tinv = np.linalg.inv(T)
         b = Pp @ Tinv[:3, :3].T + Tinv[:3, 3]
         on = (b[:, 0] >= x0) & (b[:, 0] <= x1) & (b[:, 1] >= y0) & (b[:, 1] <= y1)
         if on.sum() < 30:
-            raise BoardNotFound(f"only {int(on.sum())} points fall on the fitted board; the fit is not trustworthy")
-        # the white print's plane (returns from black print may read long), in the current board frame
-        b_raw = P[on] @ Tinv[:3, :3].T + Tinv[:3, 3]
-        black = intensity_classes(inten[on], *fit.tau) == 0
-        pf = plane_fit(b_raw, black, ring[on])
+            raise BoardNotFound(
+                f"only {int(on.sum())} points fall on the fitted board; the fit is not trustworthy"
+            )
+        # the white print's plane (returns from black print may read long), in the current board frame,
+        # from returns well inside the board (a selection at its edge would depend on the noise)
+        core = _core(b, P, T, board, s_z)
+        b_raw = P[core] @ Tinv[:3, :3].T + Tinv[:3, 3]
+        black = intensity_classes(inten[core], *fit.tau) == 0
+        pf = plane_fit(b_raw, black, ring[core])
+        s_z = pf.sigma
         rx, ry, tz = pf.coef[:3]
         n_b = np.array([ry, -rx, 1.0]) / np.sqrt(1 + rx * rx + ry * ry)  # plane normal, board frame
         n_cur = T[:3, :3] @ n_b
@@ -147,13 +179,29 @@ def fit_board_points(
         w, tx, ty = soft.xi
         E = np.eye(4)
         E[:3, :3] = [[np.cos(w), -np.sin(w), 0], [np.sin(w), np.cos(w), 0], [0, 0, 1]]
-        V = np.eye(2) if abs(w) < 1e-9 else np.array([[np.sin(w), -(1 - np.cos(w))], [1 - np.cos(w), np.sin(w)]]) / w
+        V = (
+            np.eye(2)
+            if abs(w) < 1e-9
+            else np.array([[np.sin(w), -(1 - np.cos(w))], [1 - np.cos(w), np.sin(w)]]) / w
+        )
         E[:2, 3] = V @ np.array([tx, ty])
         T = T0 @ E
     # in-plane: intensity noise (soft model) plus the quantisation of the edges by the sampling
     Tinv = np.linalg.inv(T)
     b_fin = Pp[on] @ Tinv[:3, :3].T + Tinv[:3, 3]
     cls = intensity_classes(inten[on], *fit.tau)
+    # the fitted pattern must explain the intensities: black returns on black squares, white on white
+    # (away from the edges, where footprints straddle both)
+    colour = board.colour_at(b_fin[:, :2])
+    s_sq = board.square_size
+    u = b_fin[:, :2] / s_sq
+    inner = (np.abs(u - np.round(u)) > 0.15).all(axis=1) & (cls >= 0) & np.isfinite(colour)
+    agree = float(np.mean(cls[inner] == colour[inner])) if inner.sum() >= 20 else 0.0
+    if agree < options.min_agreement:
+        raise BoardNotFound(
+            f"a board-shaped object at {float(np.linalg.norm(P[on].mean(axis=0))):.2f} m, but the fitted "
+            f"chessboard explains only {agree:.0%} of its black/white returns (need {options.min_agreement:.0%})"
+        )
     cov_q = sampling_covariance(b_fin[:, :2], cls, ring[on], board, soft.blur)
     cov_in = soft.cov + cov_q
     if not np.all(np.isfinite(cov_in)):
@@ -161,8 +209,9 @@ def fit_board_points(
         cov_in = np.diag([np.deg2rad(2.0) ** 2, (s / 4) ** 2, (s / 4) ** 2])
 
     # out-of-plane: the plane fit at the final pose
-    b_raw = P[on] @ Tinv[:3, :3].T + Tinv[:3, 3]
-    pf = plane_fit(b_raw, cls == 0, ring[on])
+    core = _core(Pp @ Tinv[:3, :3].T + Tinv[:3, 3], P, T, board, s_z)
+    b_raw = P[core] @ Tinv[:3, :3].T + Tinv[:3, 3]
+    pf = plane_fit(b_raw, intensity_classes(inten[core], *fit.tau) == 0, ring[core])
     K = None
     if options.projection == "ray":
         _, grad = soft_intensity(b_fin[:, :2], board, soft.a, soft.c, soft.blur)
@@ -184,11 +233,14 @@ def fit_board_points(
         "soft_scale": soft.scale,
         "plane_sigma_m": s_z,
         "dark_offset_mm": -1e3 * float(pf.coef[3]),
+        "plane_residual_coef_mm": 1e3 * float(np.abs(pf.coef[:3]).max()),
         "plane_cov_clustered": float(pf.clustered),
         "refine_shift_mm": 1e3 * float(np.linalg.norm(soft.xi[1:])),
-        "sigma_soft_txy_mm": 1e3 * float(np.sqrt(np.trace(soft.cov[1:, 1:]))),
-        "sigma_sampling_txy_mm": 1e3 * float(np.sqrt(np.trace(cov_q[1:, 1:]))),
+        "colour_agreement": agree,
+        "sigma_soft_txy_mm": 1e3 * float(np.sqrt(max(np.trace(soft.cov[1:, 1:]), 0.0))),
+        "sigma_sampling_txy_mm": 1e3 * float(np.sqrt(max(np.trace(cov_q[1:, 1:]), 0.0))),
         "time_fit_s": time.perf_counter() - t0,
+        "cpu_fit_s": time.process_time() - c0,
         "time_powell_s": t_powell,
     }
     return BoardFit(
@@ -217,7 +269,7 @@ def estimate_board(
     Raises InputError when the scan has no usable intensity, BoardNotFound (with the reason) when
     no segment passes the chessboard tests or the fit fails.
     """
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     check_intensity(scan)
     pts = np.asarray(scan.points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
@@ -226,21 +278,24 @@ def estimate_board(
     rng = np.random.default_rng(0)
     ring = np.asarray(ring)
     cand = find_board(pts, ring, scan.intensity, board, lidar_model, roi, options, rng)
-    t_detect = time.perf_counter() - t0
+    t_detect, c_detect = time.perf_counter() - t0, time.process_time() - c0
     inten = np.asarray(scan.intensity, np.float64)
     # the pool: every point near the board's plane and not farther from its centre than the board's size
     x0, x1, y0, y1 = board.extent()
     centre = pts[cand.indices].mean(axis=0)
-    near = (np.abs(pts @ cand.normal - cand.offset) < max(options.ransac_threshold_m, 3 * cand.noise_sigma)) & (
-        np.linalg.norm(pts - centre, axis=1) < 0.75 * np.hypot(x1 - x0, y1 - y0)
-    )
+    near = (
+        np.abs(pts @ cand.normal - cand.offset) < max(options.ransac_threshold_m, 3 * cand.noise_sigma)
+    ) & (np.linalg.norm(pts - centre, axis=1) < 0.75 * np.hypot(x1 - x0, y1 - y0))
     ring = np.asarray(ring)
+    # the fit sees the whole pool: detection may have kept only part of the board (a piece cut off by
+    # a person or the stand); off-board returns in the pool cost their distance, as in the paper
+    near[cand.indices] = True
     fit = fit_board_points(
-        pts[cand.indices], inten[cand.indices], cand.normal, cand.offset,
-        board, lidar_model, options, rng, pool=(pts[near], inten[near], ring[near]), ring=ring[cand.indices],
+        pts[near], inten[near], cand.normal, cand.offset, board, lidar_model, options, rng, ring=ring[near],
     )  # fmt: skip
     fit.diagnostics.update(
-        {"time_detect_s": t_detect, "uniformity": cand.uniformity, "range_noise_m": cand.noise_sigma,
+        {"time_detect_s": t_detect, "cpu_detect_s": c_detect, "uniformity": cand.uniformity,
+         "range_noise_m": cand.noise_sigma,
          "candidates_tested": float(cand.tested)}
     )  # fmt: skip
     return fit

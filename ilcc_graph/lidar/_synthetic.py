@@ -66,7 +66,9 @@ def board_pose(board: Board, sc: SynthScene) -> np.ndarray:
     return T
 
 
-def _hit_rect(u: np.ndarray, T: np.ndarray, ext: tuple[float, float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+def _hit_rect(
+    u: np.ndarray, T: np.ndarray, ext: tuple[float, float, float, float]
+) -> tuple[np.ndarray, np.ndarray]:
     R, o = T[:3, :3], T[:3, 3]
     n = R[:, 2]
     den = u @ n
@@ -74,7 +76,13 @@ def _hit_rect(u: np.ndarray, T: np.ndarray, ext: tuple[float, float, float, floa
         t = (o @ n) / den
     hit = t[:, None] * u
     local = (hit - o) @ R
-    inside = (t > 0) & (local[:, 0] >= ext[0]) & (local[:, 0] <= ext[1]) & (local[:, 1] >= ext[2]) & (local[:, 1] <= ext[3])
+    inside = (
+        (t > 0)
+        & (local[:, 0] >= ext[0])
+        & (local[:, 0] <= ext[1])
+        & (local[:, 1] >= ext[2])
+        & (local[:, 1] <= ext[3])
+    )
     return np.where(inside, t, np.inf), local
 
 
@@ -86,7 +94,9 @@ def _hit_box(u: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.where((tmax >= tmin) & (tmin > 0), tmin, np.inf)
 
 
-def synth_scan(board: Board, model: LidarModel, sc: SynthScene, rng: np.random.Generator) -> tuple[Scan, np.ndarray]:
+def synth_scan(
+    board: Board, model: LidarModel, sc: SynthScene, rng: np.random.Generator
+) -> tuple[Scan, np.ndarray]:
     """Ray-cast one scan. Returns (Scan with ring, (4,4) true T_lidar_board)."""
     T = board_pose(board, sc)
     el = model.vertical_angles_rad

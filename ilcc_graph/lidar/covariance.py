@@ -7,7 +7,8 @@ Hessian, so the fit is refined with a *soft-edged* model of the intensities,
 
 where ``Sx(x) = (-1)^j erf(u / (sqrt(2) sigma_b))`` is a square wave blurred by a Gaussian beam
 footprint (``j`` the nearest grid line, ``u`` the signed distance to it), ``M`` the blurred
-pattern box (outside it the margin is white; no box along a side without margin) and ``ph = -1`` for a black lower-left square.
+pattern box (outside it the margin is white; no box along a side without margin) and
+``ph = -1`` for a black lower-left square.
 Levenberg-Marquardt on a Huber loss fits (rz, tx, ty, a, c, log sigma_b); the pose covariance is the
 (rz, tx, ty) block of ``s^2 (J^T W J)^-1`` with ``s`` the residuals' robust scale.
 
@@ -40,8 +41,8 @@ _SQRT2 = np.sqrt(2.0)
 _C = 2.0 / np.sqrt(np.pi)
 
 
-def _wave(v: np.ndarray, s: float, n_lines: int, sig: float) -> tuple[np.ndarray, np.ndarray]:
-    """Blurred square wave and its derivative along one axis (inner lines at 1..n_lines-1 times s).
+def _wave(v: np.ndarray, s: float, n_lines: int, sig: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Blurred square wave along one axis (inner lines at 1..n_lines-1 times s): value, d/dv, d/dsigma.
 
     The pattern's outer lines are not blurred here: beyond them is the margin (handled by the
     pattern box) or nothing at all.
@@ -50,35 +51,40 @@ def _wave(v: np.ndarray, s: float, n_lines: int, sig: float) -> tuple[np.ndarray
     u = v - j * s
     sign = np.where(j % 2 == 0, 1.0, -1.0)
     z = u / (_SQRT2 * sig)
-    return sign * erf(z), sign * _C * np.exp(-z * z) / (_SQRT2 * sig)
+    g = sign * _C * np.exp(-z * z)
+    return sign * erf(z), g / (_SQRT2 * sig), -g * z / sig
 
 
-def _box(v: np.ndarray, width: float, sig: float) -> tuple[np.ndarray, np.ndarray]:
-    """Blurred indicator of [0, width] and its derivative."""
+def _box(v: np.ndarray, width: float, sig: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Blurred indicator of [0, width]: value, d/dv, d/dsigma."""
     z0, z1 = v / (_SQRT2 * sig), (v - width) / (_SQRT2 * sig)
-    val = 0.5 * (erf(z0) - erf(z1))
-    der = 0.5 * _C * (np.exp(-z0 * z0) - np.exp(-z1 * z1)) / (_SQRT2 * sig)
-    return val, der
+    g0, g1 = _C * np.exp(-z0 * z0), _C * np.exp(-z1 * z1)
+    return 0.5 * (erf(z0) - erf(z1)), 0.5 * (g0 - g1) / (_SQRT2 * sig), -0.5 * (g0 * z0 - g1 * z1) / sig
 
 
-def soft_intensity(b: np.ndarray, board: Board, a: float, c: float, sig: float) -> tuple[np.ndarray, np.ndarray]:
-    """Soft-edged model intensity at board coordinates b (N, 2) and its gradient (N, 2)."""
+def soft_intensity(
+    b: np.ndarray, board: Board, a: float, c: float, sig: float, with_sigma: bool = False
+) -> tuple[np.ndarray, ...]:
+    """Soft-edged model intensity at board coordinates b (N, 2), its gradient (N, 2)[, and d/dsigma (N,)]."""
     s = board.square_size
     w_, h_ = board.pattern_size_m
-    sx, dsx = _wave(b[:, 0], s, board.cols, sig)  # +1 on square 0, alternating
-    sy, dsy = _wave(b[:, 1], s, board.rows, sig)
+    sx, dsx, ssx = _wave(b[:, 0], s, board.cols, sig)  # +1 on square 0, alternating
+    sy, dsy, ssy = _wave(b[:, 1], s, board.rows, sig)
     # the white margin is blurred into the pattern; where the board ends at the pattern (no
     # margin) there is nothing beyond it and no blending
     one, zero = np.ones(len(b)), np.zeros(len(b))
-    mx, dmx = _box(b[:, 0], w_, sig) if board.margin_long > 0 else (one, zero)
-    my, dmy = _box(b[:, 1], h_, sig) if board.margin_short > 0 else (one, zero)
+    mx, dmx, smx = _box(b[:, 0], w_, sig) if board.margin_long > 0 else (one, zero, zero)
+    my, dmy, smy = _box(b[:, 1], h_, sig) if board.margin_short > 0 else (one, zero, zero)
     ph = -1.0 if board.lower_left == "black" else 1.0
     chk = 0.5 * (1 + ph * sx * sy)
     m = mx * my
     w = m * chk + (1 - m)
     dw_dx = m * 0.5 * ph * dsx * sy + dmx * my * (chk - 1)
     dw_dy = m * 0.5 * ph * sx * dsy + mx * dmy * (chk - 1)
-    return a + c * w, c * np.stack([dw_dx, dw_dy], axis=1)
+    if not with_sigma:
+        return a + c * w, c * np.stack([dw_dx, dw_dy], axis=1)
+    dw_ds = m * 0.5 * ph * (ssx * sy + sx * ssy) + (smx * my + mx * smy) * (chk - 1)
+    return a + c * w, c * np.stack([dw_dx, dw_dy], axis=1), c * dw_ds
 
 
 @dataclass(frozen=True)
@@ -122,10 +128,14 @@ def _huber(res: np.ndarray, k: float) -> tuple[float, np.ndarray]:
 
 
 def soft_edge_refine(
-    b0: np.ndarray, intensity: np.ndarray, board: Board, levels: tuple[float, float], blur0: float,
+    b0: np.ndarray,
+    intensity: np.ndarray,
+    board: Board,
+    levels: tuple[float, float],
+    blur0: float,
     max_iter: int = 40,
 ) -> SoftFit:
-    """Levenberg-Marquardt (Huber loss) fit of the soft-edged model to intensities at board coordinates b0 (N, 2).
+    """Levenberg-Marquardt (Huber loss) fit of the soft-edged model to intensities at b0 (N, 2).
 
     b0: points in the start pose's board frame (on the board). levels: (R_L, R_H) start values.
     Parameters: in-plane pose correction (rz, tx, ty) in the Pose3 tangent, black level a,
@@ -137,10 +147,10 @@ def soft_edge_refine(
 
     def residual(H: np.ndarray, a: float, c: float, lsig: float, jac: bool):
         b = (b0h @ H.T)[:, :2]
-        pred, grad = soft_intensity(b, board, a, c, np.exp(lsig))
-        res = r - pred
         if not jac:
-            return res, None
+            return r - soft_intensity(b, board, a, c, np.exp(lsig))[0], None
+        pred, grad, dsig = soft_intensity(b, board, a, c, np.exp(lsig), with_sigma=True)
+        res = r - pred
         J = np.empty((len(r), 6))
         # d b / d xi for b' = Exp(-xi) b: [[y, -1, 0], [-x, 0, -1]]
         J[:, 0] = -(grad[:, 0] * b[:, 1] - grad[:, 1] * b[:, 0])
@@ -148,10 +158,7 @@ def soft_edge_refine(
         J[:, 2] = grad[:, 1]
         J[:, 3] = -1.0
         J[:, 4] = -(pred - a) / c if c != 0 else 0.0
-        eps = 1e-4
-        p2, _ = soft_intensity(b, board, a, c, np.exp(lsig + eps))
-        p1, _ = soft_intensity(b, board, a, c, np.exp(lsig - eps))
-        J[:, 5] = -(p2 - p1) / (2 * eps)
+        J[:, 5] = -dsig * np.exp(lsig)  # d/d log(sigma)
         return res, J
 
     H = np.eye(3)
@@ -175,7 +182,7 @@ def soft_edge_refine(
         res_n, _ = residual(Hn, an, cn, ln, False)
         fn, _ = _huber(res_n, k)
         if fn < f:
-            small = abs(step[0]) < 1e-7 and np.linalg.norm(step[1:3]) < 1e-7 or (f - fn) < 1e-10 * f
+            small = abs(step[0]) < 1e-6 and np.linalg.norm(step[1:3]) < 1e-6 or (f - fn) < 1e-8 * f
             H, a, c, lsig = Hn, an, cn, ln
             res, J = residual(H, a, c, lsig, True)
             f, W = _huber(res, k)
@@ -300,7 +307,7 @@ class PlaneFit:
     coef: (rx, ry, tz, delta): the board frame's correction ``z = tz + rx y - ry x`` (first order)
     and ``delta`` the extra height of returns from black print (negative: they read long).
     cov: (3, 3) covariance of (rx, ry, tz); sigma: robust residual sigma (m);
-    clustered: True when the ring-clustered covariance was the larger one.
+    clustered: True when the ring jackknife was the larger in some direction.
     """
 
     coef: np.ndarray
@@ -315,10 +322,11 @@ def plane_fit(b_xyz: np.ndarray, black: np.ndarray | None = None, ring: np.ndarr
     b_xyz: (N, 3) returns in the current board frame. black: (N,) bool, returns on black print
     (their range may differ: LiDARs read dark targets long), or None. ring: (N,) beam index, or None.
 
-    The covariance of (rx, ry, tz) is the larger (by trace) of the iid one, ``s^2 (A^T A)^-1``, and
-    the ring-clustered sandwich ``(A^T A)^-1 (sum_g A_g^T r_g r_g^T A_g) (A^T A)^-1 G/(G-1)``: a
-    range bias shared by one beam's returns (every beam has its own) tilts the plane the same way
-    for all of them, which independent errors cannot describe.
+    The covariance of (rx, ry, tz) is the larger, in every direction, of the iid one
+    ``s^2 (A^T A)^-1`` and the delete-one-ring jackknife
+    ``(G-1)/G sum_g (beta_-g - mean)(beta_-g - mean)^T``: a range
+    bias shared by one beam's returns (every beam has its own) tilts the plane the same way for all
+    of them, which independent errors cannot describe.
     """
     x, y, z = b_xyz[:, 0], b_xyz[:, 1], b_xyz[:, 2]
     cols = [y, -x, np.ones_like(x)]
@@ -341,11 +349,27 @@ def plane_fit(b_xyz: np.ndarray, black: np.ndarray | None = None, ring: np.ndarr
         groups = np.unique(ring, return_inverse=True)[1]
         g = int(groups.max()) + 1
         if g >= 4:
-            S = np.zeros((g, A.shape[1]))
-            np.add.at(S, groups, Aw * res[:, None])
-            cov_c = Ninv @ (S.T @ S) @ Ninv * g / (g - 1)
-            if np.trace(cov_c[:3, :3]) > np.trace(cov[:3, :3]):
-                cov, clustered = cov_c, True
+            # delete-one-ring jackknife (less biased than the plain clustered sandwich with few rings)
+            p = A.shape[1]
+            Ng = np.zeros((g, p, p))
+            np.add.at(Ng, groups, Aw[:, :, None] * A[:, None, :])
+            bg = np.zeros((g, p))
+            np.add.at(bg, groups, Aw * z[:, None])
+            Nt, bt = Ng.sum(axis=0), bg.sum(axis=0)
+            try:
+                beta = np.linalg.solve(Nt[None] - Ng, (bt[None] - bg)[..., None])[..., 0]
+                dev = beta - beta.mean(axis=0)
+                cov_c = dev.T @ dev * (g - 1) / g
+                # the larger of the two in every direction (a few rings make the jackknife alone
+                # nearly singular in some direction): C_iid^1/2 V max(L, 1) V^T C_iid^1/2
+                w, V = np.linalg.eigh(cov)
+                half = V @ np.diag(np.sqrt(np.maximum(w, 1e-30))) @ V.T
+                ihalf = V @ np.diag(1.0 / np.sqrt(np.maximum(w, 1e-30))) @ V.T
+                lam, U = np.linalg.eigh(ihalf @ cov_c @ ihalf)
+                clustered = bool(lam.max() > 1.0)
+                cov = half @ U @ np.diag(np.maximum(lam, 1.0)) @ U.T @ half
+            except np.linalg.LinAlgError:
+                pass
     coef = np.append(sol, 0.0) if not use_dark else sol
     return PlaneFit(coef, cov[:3, :3], s, clustered)
 

@@ -6,7 +6,8 @@ A candidate passes the paper's tests, with the board's physical size (margin inc
 2. PCA planarity: smallest variance / total below ``planarity_ratio`` (after taking out the
    range noise's own share, estimated from the scan);
 3. a RANSAC plane holds (nearly) all of it;
-4. extent along the two PCA axes within ``size_ratio`` of the board's sides;
+4. extent along the two PCA axes within ``size_ratio`` of the board's sides (the lower limit less
+   one ring spacing: a board turned diamond-wise loses its tips between rings);
 5. uniformity ``1 - (n_max - n_min) / n_all >= uniformity_min`` over the four quadrants of the
    extent, each return weighted by the board area it stands for (range^2 / cos(incidence));
 6. (ours) the intensities split into two levels (black and white print).
@@ -79,7 +80,7 @@ def roi_mask(points: np.ndarray, roi: Any | None) -> np.ndarray:
 
 
 def ransac_plane(
-    p: np.ndarray, threshold: float, rng: np.random.Generator, n_hyp: int = 128, max_score: int = 3000
+    p: np.ndarray, threshold: float, rng: np.random.Generator, n_hyp: int = 96, max_score: int = 1500
 ) -> tuple[np.ndarray, float, np.ndarray]:
     """Vectorised RANSAC plane, refined by least squares on the inliers.
 
@@ -111,20 +112,25 @@ def ransac_plane(
     return n, float(dd), inl
 
 
-def _local_elevation_step(model: LidarModel, elevation: float) -> float:
+def _local_elevation_step(model: LidarModel, elevation):  # noqa: ANN001, ANN202 - float or array
+    """Ring spacing (rad) of the model's beam table at an elevation (rad), scalar or array."""
     el = model.vertical_angles_rad
     if el.size < 2:
-        return np.deg2rad(2.0)
+        return np.deg2rad(2.0) + 0.0 * np.asarray(elevation)
     mids = 0.5 * (el[1:] + el[:-1])
     gaps = np.diff(el)
-    return float(np.interp(elevation, mids, gaps))
+    out = np.interp(elevation, mids, gaps)
+    return float(out) if np.ndim(out) == 0 else out
 
 
-def intensity_contrast(intensity: np.ndarray) -> tuple[float, float]:
+def intensity_contrast(intensity: np.ndarray, scale: float | None = None) -> tuple[float, float]:
     """Two-level contrast of intensities (M,): (separation d', smaller class fraction).
 
     Otsu's split into two classes; d' = (mean_high - mean_low) / pooled within-class sigma.
-    A printed chessboard gives d' >> 4 with both classes near half; a plain surface gives d' < 3.
+    A printed chessboard gives d' > 4 with both classes near half; a plain surface gives d' < 3.
+    scale: the scan's intensity scale (e.g. its 99th percentile); a step between the two means
+    smaller than 15 % of it counts as no contrast (d' = 0), whatever the spread, and so does a dark
+    level above half the bright one (black print returns far less than white on any LiDAR we know).
     """
     r = np.sort(np.asarray(intensity, dtype=np.float64))
     m = r.size
@@ -137,12 +143,19 @@ def intensity_contrast(intensity: np.ndarray) -> tuple[float, float]:
     j = int(np.argmax(between))
     lo, hi = r[: j + 1], r[j + 1 :]
     pooled = np.sqrt((lo.var() * lo.size + hi.var() * hi.size) / m)
+    if (scale is not None and hi.mean() - lo.mean() < 0.15 * scale) or lo.mean() > 0.5 * hi.mean():
+        return 0.0, float(min(lo.size, hi.size) / m)
     return float((hi.mean() - lo.mean()) / max(pooled, 1e-9)), float(min(lo.size, hi.size) / m)
 
 
 def board_tests(
-    p: np.ndarray, board: Board, model: LidarModel, sigma: float, options: LidarOptions,
+    p: np.ndarray,
+    board: Board,
+    model: LidarModel,
+    sigma: float,
+    options: LidarOptions,
     intensity: np.ndarray | None = None,
+    intensity_scale: float | None = None,
 ) -> tuple[bool, float, str, str]:
     """The paper's tests on one candidate's points p (M, 3) (and intensities (M,), when given).
 
@@ -153,81 +166,99 @@ def board_tests(
     m = p.shape[0]
     mu = p.mean(axis=0)
     dist = float(np.linalg.norm(mu))
-    elev = float(np.arctan2(mu[2], np.hypot(mu[0], mu[1])))
     step_az = np.deg2rad(model.horizontal_resolution_deg)
-    step_el = _local_elevation_step(model, elev)
+    # local ring spacing at each return: beam tables need not be uniform (vlp32c, hdl64)
+    r_i = np.linalg.norm(p, axis=1)
+    el_i = np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
+    step_el_i = _local_elevation_step(model, el_i)
+    step_el = float(np.mean(step_el_i))
     area = long_side * short_side
     n_theory = area / (dist**2 * step_az * step_el)
     hi = options.count_ratio[1] * (1 + dist * step_el / short_side) * (1 + dist * step_az / short_side)
     ratio = m / n_theory
     if not (options.count_ratio[0] <= ratio <= hi):
         return False, 0.0, "count", f"{m} points, {ratio:.2f} x the {n_theory:.0f} expected at {dist:.2f} m"
-    q = p - mu
-    cov = q.T @ q / m
+    # every return stands for the board area r^2 d_az d_el / cos(incidence); weighing by it makes
+    # the PCA and the quadrant counts follow the board, not where the beams are dense (a board
+    # tilted at close range, a table denser near the horizon)
+    w0 = r_i**2 * step_el_i
+    mu_w = (w0[:, None] * p).sum(axis=0) / w0.sum()
+    q = p - mu_w
+    cov = (w0[:, None] * q).T @ q / w0.sum()
     w, v = np.linalg.eigh(cov)
+    cos_i = np.abs(p @ v[:, 0]) / np.maximum(r_i, 1e-9)
+    w_i = w0 / np.maximum(cos_i, 0.2)
     noise_share = (0.5 * options.noise_sigmas * sigma) ** 2
     planar = (w[0] - noise_share) / w.sum()
     if planar > options.planarity_ratio:
         return False, 0.0, "planarity", f"not flat (PCA ratio {w[0] / w.sum():.3f}) at {dist:.2f} m"
     uv = q @ v[:, [2, 1]]
-    lo, hi_ = np.quantile(uv, 0.005, axis=0), np.quantile(uv, 0.995, axis=0)
+    lo, hi_ = np.quantile(uv, 0.01, axis=0), np.quantile(uv, 0.99, axis=0)
     ext = (hi_ - lo) * m / max(m - 1, 1)
     smin, smax = options.size_ratio
-    if not (smin * long_side <= ext[0] <= smax * long_side and smin * short_side <= ext[1] <= smax * short_side):
+    slack = dist * step_el  # a ring spacing: the scan can miss a corner's tip between two rings
+    if not (
+        smin * long_side - slack <= ext[0] <= smax * long_side
+        and smin * short_side - slack <= ext[1] <= smax * short_side
+    ):
         return (
             False, 0.0, "size",
             f"{ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m, board {long_side:.2f} x {short_side:.2f} m",
         )  # fmt: skip
     mid = 0.5 * (lo + hi_)
     quad = (uv[:, 0] >= mid[0]).astype(int) * 2 + (uv[:, 1] >= mid[1]).astype(int)
-    # each return stands for the board area r^2 d_az d_el / cos(incidence): weigh by it so that a
-    # board tilted at close range (denser on its near side) still counts as evenly covered
-    r_i = np.linalg.norm(p, axis=1)
-    cos_i = np.abs(p @ v[:, 0]) / np.maximum(r_i, 1e-9)
-    w_i = r_i**2 / np.maximum(cos_i, 0.2)
     nq = np.bincount(quad, weights=w_i, minlength=4)
     uniformity = 1.0 - (nq.max() - nq.min()) / nq.sum()
     if uniformity < options.uniformity_min:
-        return False, uniformity, "uniformity", f"uneven ({uniformity:.2f}) {ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m"
+        return (
+            False,
+            uniformity,
+            "uniformity",
+            f"uneven ({uniformity:.2f}) {ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m",
+        )
     if intensity is not None:
-        sep, frac = intensity_contrast(intensity)
+        sep, frac = intensity_contrast(intensity, intensity_scale)
         if sep < options.contrast_min or frac < 0.1:
             return (
                 False, uniformity, "contrast",
-                f"board-shaped at {dist:.2f} m but no black/white intensity contrast (d'={sep:.1f}, {frac:.0%})",
+                f"board-shaped at {dist:.2f} m but no black/white contrast (d'={sep:.1f}, {frac:.0%})",
             )  # fmt: skip
     return True, float(uniformity), "", f"{m} points at {dist:.2f} m"
 
 
-def trim_attachments(p: np.ndarray, cell: float, short_side: float) -> np.ndarray:
+def trim_attachments(
+    p: np.ndarray, ring: np.ndarray, step_az: float, short_side: float, strength: float = 1.0
+) -> np.ndarray:
     """Indices of the largest compact blob of a planar piece p (M, 3): drops thin attachments.
 
-    The points go into a 2-D occupancy grid in their plane (cells of ``cell`` metres, a little more
-    than the ring spacing so that rings leave no holes); a morphological opening with a disc of about a quarter of the board's
-    short side removes arms, poles and edges of other objects that lie in the board's plane; the
-    largest remaining blob, grown back, is kept.
+    The returns go into their range image (ring x azimuth step), where a board is a block several
+    rings tall and many columns wide whatever the beam table. A morphological opening by a box
+    ``3 rings x strength * (short side / 3)`` wide removes poles (a few columns), arms and
+    edges of other objects (one ring), and the largest remaining block, grown back, is kept.
+    ring: (M,) beam index; step_az: azimuth step (rad).
     """
     from scipy import ndimage
 
-    mu = p.mean(axis=0)
-    _, _, vt = np.linalg.svd(p - mu, full_matrices=False)
-    uv = (p - mu) @ vt[:2].T
-    ij = np.floor((uv - uv.min(axis=0)) / cell).astype(np.int64) + 2
-    shape = ij.max(axis=0) + 3
-    if shape[0] * shape[1] > 4_000_000:
+    az = np.arctan2(p[:, 1], p[:, 0])
+    az = np.angle(np.exp(1j * (az - np.angle(np.exp(1j * az).mean()))))  # unwrapped about the mean
+    col = np.round((az - az.min()) / step_az).astype(np.int64)
+    ring_u, row = np.unique(ring, return_inverse=True)
+    dist = float(np.median(np.linalg.norm(p, axis=1)))
+    width = max(3, int(np.floor(strength * short_side / (3.0 * dist * step_az))))
+    if col.max() + 1 > 20_000 or row.max() + 1 < 3:
         return np.arange(p.shape[0])
-    occ = np.zeros(shape, bool)
-    occ[ij[:, 0], ij[:, 1]] = True
-    rad = max(1, int(np.floor(0.25 * short_side / cell)))
-    yy, xx = np.mgrid[-rad : rad + 1, -rad : rad + 1]
-    disc = xx**2 + yy**2 <= rad**2 + 0.5
-    core = ndimage.binary_erosion(occ, structure=disc)
+    occ = np.zeros((row.max() + 3, col.max() + 1 + 2 * width), bool)
+    occ[row + 1, col + width] = True
+    # returns lost between columns (dropouts, dark print) must not break the board apart
+    occ = ndimage.binary_closing(occ, structure=np.ones((1, 3), bool))
+    box = np.ones((3, width), bool)
+    core = ndimage.binary_erosion(occ, structure=box)
     lab, n = ndimage.label(core)
     if n == 0:
-        return np.zeros(0, np.int64)
+        return np.arange(p.shape[0])  # nothing survives: too small to judge, keep it whole
     big = np.argmax(np.bincount(lab.ravel())[1:]) + 1
-    keep = ndimage.binary_dilation(lab == big, structure=disc, iterations=1)
-    return np.flatnonzero(keep[ij[:, 0], ij[:, 1]])
+    keep = ndimage.binary_dilation(lab == big, structure=box)
+    return np.flatnonzero(keep[row + 1, col + width])
 
 
 def find_board(
@@ -247,6 +278,9 @@ def find_board(
     rng = np.random.default_rng(0) if rng is None else rng
     p = np.asarray(points, dtype=np.float64)
     inten = np.asarray(intensity, dtype=np.float64)
+    ring_a = np.asarray(ring)
+    fin = inten[np.isfinite(inten)]
+    inten_scale = float(np.percentile(fin, 99) - np.percentile(fin, 1)) if fin.size else None
     inside = roi_mask(p, roi)
     if not inside.any():
         raise BoardNotFound("no point of the scan lies inside the region of interest (board.roi)")
@@ -265,12 +299,16 @@ def find_board(
 
     passed: list[tuple[float, np.ndarray]] = []
     misses: list[tuple[int, str, str]] = []  # (size, test, detail)
+    to_split: list[np.ndarray] = []
     tested = 0
 
     def min_count(idx: np.ndarray) -> float:
-        d = float(np.linalg.norm(p[idx].mean(axis=0)))
-        el = float(np.arctan2(p[idx, 2].mean(), np.hypot(p[idx, 0].mean(), p[idx, 1].mean())))
-        n_th = (x1 - x0) * short_side / (d**2 * step_az * _local_elevation_step(model, el))
+        q = p[idx]
+        d = float(np.linalg.norm(q.mean(axis=0)))
+        step_el = float(
+            np.mean(_local_elevation_step(model, np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1]))))
+        )
+        n_th = (x1 - x0) * short_side / (d**2 * step_az * step_el)
         return options.count_ratio[0] * n_th
 
     def test(idx: np.ndarray, depth: int) -> None:
@@ -279,10 +317,13 @@ def find_board(
         span = np.ptp(q, axis=0)
         if np.linalg.norm(span) < options.size_ratio[0] * short_side or idx.size < 12:
             return
-        if idx.size < min_count(idx):
+        if (
+            idx.size < max(min_count(idx), options.min_points)
+            or np.unique(ring_a[idx]).size < options.min_rings
+        ):
             return
         tested += 1
-        ok, uni, name, detail = board_tests(q, board, model, sigma, options, inten[idx])
+        ok, uni, name, detail = board_tests(q, board, model, sigma, options, inten[idx], inten_scale)
         if ok:
             n, d, inl = ransac_plane(q, thr, rng)
             if inl.mean() >= 0.9:
@@ -290,44 +331,86 @@ def find_board(
                 return
             name, detail = "plane", f"only {inl.mean():.0%} of its points on one plane; {detail}"
         if depth == 1 and name in ("size", "uniformity", "count", "plane", "contrast"):
-            d = float(np.linalg.norm(q.mean(axis=0)))
-            el = float(np.arctan2(q[:, 2].mean(), np.hypot(q[:, 0].mean(), q[:, 1].mean())))
-            cell = 1.2 * d * max(_local_elevation_step(model, el), step_az)
-            kept = trim_attachments(q, cell, short_side)
-            if 12 <= kept.size < idx.size:
-                test(idx[kept], 2)
-                return
+            # an opening of about a third of the board's short side, then a stronger one
+            for strength in (1.0, 1.6):
+                kept = trim_attachments(q, ring_a[idx], step_az, short_side, strength)
+                if 12 <= kept.size < idx.size:
+                    n_pass = len(passed)
+                    test(idx[kept], 2)
+                    if len(passed) > n_pass:
+                        return
         misses.append((idx.size, name, detail))
         if depth > 0 or float(np.linalg.norm(span)) < options.size_ratio[0] * diag:
             return
-        split(idx)
+        to_split.append(idx)
+
+    member = np.zeros(p.shape[0], bool)
+    e_all = seg.edges
+    e_obj = seg.labels[e_all[:, 0]]  # both ends of a link share the object
+
+    def pieces(sub: np.ndarray, edges: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """Connected pieces of the point subset ``sub`` under the links ``edges`` (a superset of its own),
+        and each piece's own links."""
+        member[sub] = True
+        e = edges[member[edges[:, 0]] & member[edges[:, 1]]]
+        member[sub] = False
+        local = np.searchsorted(sub, e) if e.size else e
+        _, comp = components_of(sub.size, local)
+        order_c = np.argsort(comp, kind="stable")
+        cuts = np.flatnonzero(np.diff(comp[order_c])) + 1
+        groups = [sub[g] for g in np.split(order_c, cuts)]
+        if e.size == 0:
+            return groups, [e for _ in groups]
+        ec = comp[local[:, 0]]
+        eo = np.argsort(ec, kind="stable")
+        ecuts = np.searchsorted(ec[eo], np.arange(len(groups) + 1))
+        return groups, [e[eo[ecuts[i] : ecuts[i + 1]]] for i in range(len(groups))]
+
+    budget = [options.max_planes * 6]  # RANSAC planes for the whole scan
 
     def split(idx: np.ndarray) -> None:
-        # peel planes off an over-merged object; cut each plane's inliers into connected pieces
-        remaining = idx
-        local_of = np.full(p.shape[0], -1, np.int64)
-        for _ in range(options.max_planes):
-            if remaining.size < 12:
-                break
-            n, d, inl = ransac_plane(p[remaining], thr, rng)
+        # peel planes off an over-merged object: each plane's inliers are cut into connected pieces
+        # and tested; what is left is cut into connected pieces again (the ground gone, a board on a
+        # pole comes apart from it) and those are tested or split in turn
+        idx = np.sort(idx)
+        queue = [(idx, e_all[e_obj == seg.labels[idx[0]]])]
+        own = options.max_planes
+        while queue and budget[0] > 0 and own > 0 and not passed:
+            own -= 1
+            queue.sort(key=lambda t: len(t[0]))
+            cur, cur_e = queue.pop()
+            if cur.size < 12:
+                continue
+            budget[0] -= 1
+            n, d, inl = ransac_plane(p[cur], thr, rng)
             if inl.sum() < 12:
-                break
-            plane_idx = remaining[inl]
-            local_of[:] = -1
-            local_of[plane_idx] = np.arange(plane_idx.size)
-            e = seg.edges
-            ea, eb = local_of[e[:, 0]], local_of[e[:, 1]]
-            keep = (ea >= 0) & (eb >= 0)
-            _, comp = components_of(plane_idx.size, np.stack([ea[keep], eb[keep]], axis=1))
-            for c in np.unique(comp):
-                piece = plane_idx[comp == c]
+                continue
+            groups, _ = pieces(cur[inl], cur_e)
+            for piece in groups:
                 if piece.size >= 12:
                     test(piece, 1)
-            remaining = remaining[~inl]
+            rest = cur[~inl]
+            if rest.size < 12:
+                continue
+            groups, edges = pieces(rest, cur_e)
+            for piece, pe in zip(groups, edges, strict=True):
+                if piece.size < 12:
+                    continue
+                size = float(np.linalg.norm(np.ptp(p[piece], axis=0)))
+                if size < 2.0 * diag:
+                    test(piece, 1)  # small enough to be judged (and trimmed) directly
+                if size >= options.size_ratio[0] * diag:
+                    queue.append((piece, pe))
 
     for k in range(seg.n_objects):
         idx = order[first[k] : last[k]]
         test(idx, 0)
+    # only when no object passed as it is: split the over-merged ones, largest first
+    # smallest first: a board merged with a hand or its stand is cheap to split; the room comes last
+    for idx in sorted(to_split, key=len):
+        if passed:
+            break
+        split(idx)
 
     if not passed:
         if not misses:

@@ -77,7 +77,9 @@ def plane_frame(points: np.ndarray, normal: np.ndarray, offset: float) -> PlaneF
     return PlaneFrame(mu, np.stack([x_p, y_p, normal]), float(offset))
 
 
-def gray_zone(intensity: np.ndarray, epsilon: float = 2.0, bins: int = 100) -> tuple[float, float, float, float]:
+def gray_zone(
+    intensity: np.ndarray, epsilon: float = 2.0, bins: int = 100
+) -> tuple[float, float, float, float]:
     """The paper's gray zone from the two histogram peaks.
 
     The intensities are split in two by Otsu's threshold; R_L and R_H are the centres of the
@@ -206,13 +208,19 @@ def _cost(params: np.ndarray, q: np.ndarray, cls: np.ndarray, board: Board) -> n
 
 
 def powell_batched(
-    fun, x0: np.ndarray, scales: np.ndarray, xtol: float = 1e-4, max_iter: int = 12, n_line: int = 13,
+    fun,
+    x0: np.ndarray,
+    scales: np.ndarray,
+    xtol: float = 1e-3,
+    max_iter: int = 12,
+    n_line: int = 13,
 ) -> tuple[np.ndarray, float, int]:
     """Powell's direction-set method (1964) with batched line minimisations.
 
     fun: (M, 3) -> (M,) costs. Each line minimisation evaluates ``n_line`` points of the line at
-    once and narrows the bracket around the best three times (robust on a piecewise cost, where
-    Brent's parabolic steps are not). After each sweep the direction of largest decrease is
+    once and narrows the bracket around the best (by ``(n_line - 1) / 2`` each round, until its
+    half-width is below ``xtol`` of the direction's scale; robust on a piecewise cost, where Brent's
+    parabolic steps are not). After each sweep the direction of largest decrease is
     replaced by the sweep's net displacement (Powell's rule). scales: initial half-widths of the
     line searches per coordinate. Returns (x, f(x), number of evaluations).
     """
@@ -225,7 +233,7 @@ def powell_batched(
     def line_min(x: np.ndarray, fx: float, d: np.ndarray) -> tuple[np.ndarray, float, int]:
         half, centre, ev = 1.0, 0.0, 0
         best_a, best_f = 0.0, fx
-        for _ in range(3):
+        while half > xtol:
             a = centre + half * grid
             f = fun(x[None] + a[:, None] * d[None])
             ev += a.size
@@ -244,12 +252,16 @@ def powell_batched(
             drops.append(fx - f_new)
             x, fx = x_new, f_new
         disp = x - x_start
-        if np.all(np.abs(disp) <= xtol * np.maximum(scales / scales.min(), 1.0)):
+        if np.all(np.abs(disp) <= xtol * scales):
             break
+        # Powell's rule: the net displacement replaces the direction of largest decrease (scaled so
+        # that its bracket spans the same normalised length as the others)
+        u = disp / scales
+        d_new = disp * (1.0 / max(float(np.linalg.norm(u)), 1e-12))
         big = int(np.argmax(drops))
         dirs.pop(big)
-        dirs.append(disp)
-        x_new, f_new, ev = line_min(x, fx, disp)
+        dirs.append(d_new)
+        x_new, f_new, ev = line_min(x, fx, d_new)
         n_ev += ev
         if f_new < fx:
             x, fx = x_new, f_new
@@ -274,26 +286,34 @@ def _angle_wrap(a: np.ndarray) -> np.ndarray:
 
 
 def fit_in_plane(
-    q: np.ndarray, intensity: np.ndarray, board: Board, options: LidarOptions = LidarOptions(),
+    q: np.ndarray,
+    intensity: np.ndarray,
+    board: Board,
+    options: LidarOptions = LidarOptions(),
     rng: np.random.Generator | None = None,
 ) -> InPlaneFit:
     """Fit the board model to plane coordinates q (N, 2) with intensities (N,).
 
     Coarse search of C_m on a subsample over every in-plane angle and a translation grid that
-    covers both colour phases, then Powell from the ``n_starts`` best distinct cells.
+    covers both colour phases, then Powell from the ``n_starts`` best distinct cells (on at most
+    ``options.powell_max_points`` returns drawn at random; the returned cost is over all of them).
     """
     rng = np.random.default_rng(0) if rng is None else rng
     tau_l, tau_h, r_l, r_h = gray_zone(intensity, options.gray_epsilon)
     cls = intensity_classes(intensity, tau_l, tau_h)
     s = board.square_size
     centre = board.pattern_centre[:2]
-    sub = rng.choice(q.shape[0], min(q.shape[0], 160), replace=False)
+    sub = rng.choice(q.shape[0], min(q.shape[0], 120), replace=False)
     qs, cs = q[sub], cls[sub]
+    q_all, cls_all = q, cls
+    if options.powell_max_points and q.shape[0] > options.powell_max_points:
+        keep = rng.choice(q.shape[0], options.powell_max_points, replace=False)
+        q, cls = q[keep], cls[keep]
 
-    # coarse: every angle (step), translations over +-1.5 squares around the centre
+    # coarse: every angle (step), translations over +-1 square around the centre (both colour phases)
     step = np.deg2rad(options.angle_step_deg * 2)
     angles = np.arange(-np.pi, np.pi, step)
-    shifts = np.arange(-1.5, 1.5 + 1e-9, 2 * options.shift_step) * s
+    shifts = np.arange(-1.0, 1.0 + 1e-9, 2 * options.shift_step) * s
     A, X, Y = np.meshgrid(angles, shifts, shifts, indexing="ij")
     grid = np.stack([A.ravel(), centre[0] + X.ravel(), centre[1] + Y.ravel()], axis=1)
     costs = paper_cost(grid, qs, cs, board)
@@ -310,11 +330,16 @@ def fit_in_plane(
     starts: list[np.ndarray] = []
     for k in np.argsort(fcost):
         cand = fine[k]
-        if all(abs(_angle_wrap(cand[0] - o[0])) > np.deg2rad(10) or np.linalg.norm(cand[1:] - o[1:]) > 0.5 * s
-               for o in starts):
+        if all(
+            abs(_angle_wrap(cand[0] - o[0])) > np.deg2rad(10) or np.linalg.norm(cand[1:] - o[1:]) > 0.5 * s
+            for o in starts
+        ):
             starts.append(cand)
         if len(starts) >= options.n_starts:
             break
+    # a second start only when its cell is nearly as good as the best (an ambiguous pattern)
+    f0 = float(np.min(fcost))
+    starts = [starts[0]] + [x for x in starts[1:] if float(paper_cost(x, q, cls, board)) <= 1.5 * f0 + 1e-12]
 
     scales = np.array([np.deg2rad(options.angle_step_deg), options.shift_step * s, options.shift_step * s])
     best_x, best_f = starts[0], np.inf
@@ -324,6 +349,7 @@ def fit_in_plane(
         if f < best_f:
             best_x, best_f = x, f
     best_x[0] = _angle_wrap(best_x[0])
+    best_f = float(paper_cost(best_x, q_all, cls_all, board))  # C_m over every point
     return InPlaneFit(best_x, best_f, n_evals, (tau_l, tau_h), (r_l, r_h))
 
 

@@ -37,8 +37,11 @@ class LidarOptions:
     uniformity_min: ``1 - (n_max - n_min) / n_all`` over the four quadrants must reach this.
     contrast_min: the board's intensities must split in two levels at least this many pooled
         sigmas apart (our addition: a plain board-sized surface is not the chessboard).
+    min_points, min_rings: fewest returns and scanlines a candidate may have (a few returns at long
+        range pass the paper's tests by chance and cannot give corners anyway).
     ransac_threshold_m: plane inlier distance floor (grown with the noise estimate).
-    max_planes: planes tried per over-merged object when splitting it (wall behind, person).
+    max_planes: planes tried per over-merged object when splitting it (wall behind, person);
+        six times as many for the whole scan.
 
     Corner fit (paper, Section 4.2)
     -------------------------------
@@ -46,12 +49,16 @@ class LidarOptions:
     angle_step_deg, shift_step: coarse search grid of in-plane angle and translation (fraction of a
         square) that seeds Powell.
     n_starts: Powell starts taken from the best coarse cells.
-    powell_xtol: Powell's tolerance on (theta_z [rad], t_x [m], t_y [m]).
+    powell_xtol: Powell's tolerance, a fraction of the coarse grid's steps (angle, shift).
     projection: how returns are put on the board's plane: ``"ray"`` along each return's own ray
         (removes range noise and range biases from the in-plane positions; right for a real
         LiDAR) or ``"normal"`` orthogonally (right when the noise is along the board's normal).
+    powell_max_points: Powell runs on at most this many of the board's returns, drawn at random
+        (None: all); the soft-edged refinement that follows uses all of them.
     refine: run the soft-edged Gauss-Newton refinement (gives the in-plane covariance and the
         final pose); when False the Powell pose is returned with the refinement's covariance.
+    min_agreement: after the fit, the share of black/white returns (away from the edges) whose
+        colour matches the fitted pattern must reach this, else BoardNotFound.
     covariance_inflation: multiplies the final covariance (1 = the derivation as documented).
     """
 
@@ -64,14 +71,18 @@ class LidarOptions:
     planarity_ratio: float = 0.01
     size_ratio: tuple[float, float] = (0.8, 1.6)
     uniformity_min: float = 0.85
-    contrast_min: float = 4.0
+    contrast_min: float = 3.0
+    min_points: int = 30
+    min_rings: int = 4
     ransac_threshold_m: float = 0.03
     max_planes: int = 6
     gray_epsilon: float = 2.0
     angle_step_deg: float = 3.0
     shift_step: float = 0.25
     n_starts: int = 2
-    powell_xtol: float = 1e-4
+    powell_xtol: float = 5e-3
+    powell_max_points: int | None = 600
     projection: str = "ray"
     refine: bool = True
+    min_agreement: float = 0.8
     covariance_inflation: float = 1.0

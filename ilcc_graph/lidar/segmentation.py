@@ -63,7 +63,11 @@ def estimate_range_noise(ranges: np.ndarray, ring: np.ndarray, azimuth: np.ndarr
     """
     if ranges.size < 5:
         return 0.01
-    same = (ring[2:] == ring[:-2]) & (np.diff(azimuth)[1:] < 1.5 * step_rad) & (np.diff(azimuth)[:-1] < 1.5 * step_rad)
+    same = (
+        (ring[2:] == ring[:-2])
+        & (np.diff(azimuth)[1:] < 1.5 * step_rad)
+        & (np.diff(azimuth)[:-1] < 1.5 * step_rad)
+    )
     d2 = ranges[2:] - 2.0 * ranges[1:-1] + ranges[:-2]
     d2 = d2[same]
     if d2.size < 20:

@@ -19,11 +19,13 @@ from ..board import Board
 from ..camera_models import CameraModel
 from ..types import Calibration, FrameResult, Scan
 from .metric import (
+    EvalFrame,
     Evaluation,
     FrameEvaluation,
     eval_frame,
-    eval_frames,
+    eval_frame_with_scan,
     evaluate,
+    expected_corner_px,
     metric_points,
     transform_points,
 )
@@ -40,8 +42,14 @@ from .overlays import (
     edge_image,
     encode_png,
 )
-from .plots import plot_cross_validation, plot_error_vs_frames, plot_frames_vs_accuracy, plot_per_frame
-from .studies import CrossValidation, FramesCurve, pose_difference
+from .plots import (
+    plot_cross_validation,
+    plot_error_vs_frames,
+    plot_frames_vs_accuracy,
+    plot_per_frame,
+    plot_valley,
+)
+from .studies import CrossValidation, FramesCurve, pose_difference, valley
 
 __all__ = ["FrameFigures", "frame_figures", "build_report", "FIGURES_DIR"]
 
@@ -52,13 +60,15 @@ CHI2_6DOF_3SIGMA = 20.06
 
 @dataclass(frozen=True)
 class FrameFigures:
-    """One frame's pictures ({relative path: PNG bytes}, in display order with captions) and its
-    coloured points (for a PLY the caller writes)."""
+    """One frame's pictures ({relative path: PNG bytes}, in display order with captions), its
+    coloured points (for a PLY the caller writes) and what the metric needs (board points rebuilt
+    from the scan when the result lacks them)."""
 
     name: str
     files: dict[str, bytes]
     captions: dict[str, str]
     coloured: ColouredPoints
+    eval_frame: EvalFrame | None = None
 
 
 def _frame_crop(
@@ -101,7 +111,7 @@ def frame_figures(
     T = np.asarray(T_cam_lidar, dtype=np.float64)
     bf = result.board if result is not None else None
     cr = result.corners if result is not None else None
-    T_lb = None if bf is None else bf.T_lidar_board
+    T_lb = None if bf is None or not np.all(np.isfinite(bf.T_lidar_board)) else bf.T_lidar_board
     coloured = colour_points(scan, image, camera, T, T_lb, board if T_lb is not None else None)
     vis = coloured.visibility
     rng_lidar = np.linalg.norm(scan.points, axis=1)
@@ -117,9 +127,10 @@ def frame_figures(
     uv_rep = None
     if bf is not None and bf.corners_lidar is not None and len(bf.corners_lidar):
         uv_rep = camera.project(transform_points(T, bf.corners_lidar))
+    ef = eval_frame_with_scan(result, scan, board) if result is not None else None
     uv_board = None
-    if bf is not None and len(bf.points_lidar):
-        uv_board = camera.project(transform_points(T, bf.points_lidar))
+    if ef is not None and len(ef.points_lidar):
+        uv_board = camera.project(transform_points(T, ef.points_lidar))
     where = (uv_corners, uv_board, uv_rep)
     tight = _frame_crop(image, camera, where, pad=0.2, min_size=40, zoom_to=720, max_zoom=8)
     crop = _frame_crop(image, camera, where, pad=0.9, min_size=120, zoom_to=720, max_zoom=4)
@@ -132,7 +143,6 @@ def frame_figures(
             "Detected corners (0 green, last blue, joined in index order) and the LiDAR corners "
             "re-projected with the result (cyan crosses).",
         )
-    ef = eval_frame(result) if result is not None else None
     if tight is not None and ef is not None and len(ef.points_lidar):
         mp = metric_points(ef, camera, board, T)
         put(
@@ -163,12 +173,14 @@ def frame_figures(
             )
     small, f = downscale(image, max_width)
     uv_small = (vis.uv[far_first] + 0.5) * f - 0.5
+    # 3x3 dots where points are sparse on the picture, single pixels where they would cover it
+    sparse = small.shape[0] * small.shape[1] > 40 * max(len(far_first), 1)
     put(
         "whole",
-        draw_points(small, uv_small, colour_map(rng_lidar[far_first], name="turbo"), radius=0),
+        draw_points(small, uv_small, colour_map(rng_lidar[far_first], name="turbo"), radius=int(sparse)),
         f"The whole picture (scaled by {f:.2f}) with every visible LiDAR point, coloured by range.",
     )
-    return FrameFigures(name, files, captions, coloured)
+    return FrameFigures(name, files, captions, coloured, ef)
 
 
 # --------------------------------------------------------------------------------- HTML
@@ -213,13 +225,25 @@ def _num(x: float | None, fmt: str = ".3g") -> str:
 
 
 def _table(
-    header: list[str], rows: list[list[str]], left: int = 1, row_class: list[str] | None = None
+    header: list[str],
+    rows: list[list[str]],
+    left: int = 1,
+    row_class: list[str] | None = None,
+    left_last: int = 0,
 ) -> str:
-    th = "".join(f'<th class="l">{h}</th>' if i < left else f"<th>{h}</th>" for i, h in enumerate(header))
+    """An HTML table; the first ``left`` and the last ``left_last`` columns are left-aligned."""
+    n = len(header)
+
+    def is_left(i: int) -> bool:
+        return i < left or i >= n - left_last
+
+    th = "".join(f'<th class="l">{h}</th>' if is_left(i) else f"<th>{h}</th>" for i, h in enumerate(header))
     body = []
     for r, cells in enumerate(rows):
         cls = f' class="{row_class[r]}"' if row_class and row_class[r] else ""
-        tds = "".join(f'<td class="l">{c}</td>' if i < left else f"<td>{c}</td>" for i, c in enumerate(cells))
+        tds = "".join(
+            f'<td class="l">{c}</td>' if is_left(i) else f"<td>{c}</td>" for i, c in enumerate(cells)
+        )
         body.append(f"<tr{cls}>{tds}</tr>")
     return f"<table><tr>{th}</tr>{''.join(body)}</table>"
 
@@ -297,24 +321,65 @@ def _transform_section(cal: Calibration, T_gt: np.ndarray | None) -> tuple[str, 
     return "\n".join(parts), verdict
 
 
-def _frame_rows(cal: Calibration, ev: Evaluation) -> tuple[list[list[str]], list[str]]:
+def _hints(ev: Evaluation, names: set[str]) -> dict[str, str]:
+    """What a frame's pair of errors suggests, for frames far off the typical (median over
+    ``names``, the used frames) corner or intensity error."""
+    frames = [e for e in ev.frames if e.name in names] or list(ev.frames)
+    c = np.array([e.corner_rms_mrad for e in frames], dtype=np.float64)
+    i = np.array([e.intensity_mrad for e in frames], dtype=np.float64)
+    med_c = float(np.median(c[np.isfinite(c)])) if np.isfinite(c).any() else float("nan")
+    med_i = float(np.median(i[np.isfinite(i)])) if np.isfinite(i).any() else float("nan")
+    out: dict[str, str] = {}
+    for e in ev.frames:
+        if np.isinf(e.intensity_mrad):
+            out[e.name] = (
+                "no board point lands on the detected pattern: wrong extrinsic, wrong corners or a scan "
+                "and image that do not belong together"
+            )
+            continue
+        corner_bad = np.isfinite(med_c) and e.corner_rms_mrad > max(3.0 * med_c, med_c + 2.0)
+        inten_bad = np.isfinite(med_i) and e.intensity_mrad > max(3.0 * med_i, 1.0)
+        if corner_bad and not inten_bad:
+            out[e.name] = (
+                "the LiDAR points match the image but the LiDAR corners do not: the LiDAR board fit is "
+                "likely off (by a square?)"
+            )
+        elif corner_bad and inten_bad:
+            out[e.name] = (
+                "neither corners nor points match: image corners wrong (order?) or the extrinsic does "
+                "not hold for this frame"
+            )
+        elif inten_bad:
+            out[e.name] = (
+                "corners match but the points' colours do not: intensities unreliable here or the board "
+                "segment holds other points"
+            )
+    return out
+
+
+def _frame_rows(
+    cal: Calibration, ev: Evaluation, expected: dict[str, float], pictured: set[str]
+) -> tuple[list[list[str]], list[str]]:
     by = ev.by_name()
+    hints = _hints(ev, {f.name for f in cal.frames if f.used})
     rows, classes = [], []
     for f in cal.frames:
         e: FrameEvaluation | None = by.get(f.name)
+        notes = [x for x in (f.reason, hints.get(f.name)) if x]
         rows.append(
             [
-                _e(f.name),
+                f'<a href="#f{_e(f.name)}">{_e(f.name)}</a>' if f.name in pictured else _e(f.name),
                 '<span class="ok">yes</span>' if f.used else '<span class="bad">no</span>',
                 _num(f.rms_bearing_error_mrad),
                 _num(e.corner_rms_px if e else None),
+                _num(expected.get(f.name)),
                 _num(e.corner_rms_mrad if e else None),
                 _num(e.intensity_mrad if e else None),
                 _num(e.attendance if e else None, ".2f"),
                 f"{e.n_inside}/{e.n_points}" if e else "–",
                 str(e.n_mismatch) if e else "–",
                 _num(e.range_m if e else None, ".1f"),
-                f'<span style="text-align:left">{_e(f.reason or "")}</span>',
+                "<br>".join(_e(n) for n in notes),
             ]
         )
         classes.append("" if f.used else "drop")
@@ -322,48 +387,49 @@ def _frame_rows(cal: Calibration, ev: Evaluation) -> tuple[list[list[str]], list
 
 
 def _standing_out(ev: Evaluation, names: set[str]) -> list[str]:
-    """Frames among ``names`` whose corner or intensity error is far above the others' (robust:
-    above twice the median and the median + 3 x 1.4826 x MAD), or infinite."""
+    """Frames among ``names`` whose corner or intensity error is far above the others', or infinite.
+
+    Robust: above ``factor`` x the median, the median + 5 x 1.4826 x MAD and an absolute floor
+    (the intensity error of a single frame rests on few points: 1 mrad, about 0.06 degree).
+    """
     out: set[str] = set()
     frames = [e for e in ev.frames if e.name in names]
-    for key in ("corner_rms_mrad", "intensity_mrad"):
+    for key, factor, floor in (("corner_rms_mrad", 2.0, 0.0), ("intensity_mrad", 3.0, 1.0)):
         v = np.array([getattr(e, key) for e in frames], dtype=np.float64)
         fin = np.isfinite(v)
         if fin.sum() >= 3:
             med = float(np.median(v[fin]))
             mad = 1.4826 * float(np.median(np.abs(v[fin] - med)))
-            limit = max(2.0 * med, med + 3.0 * mad)
+            limit = max(factor * med, med + 5.0 * mad, floor)
             out.update(e.name for e, x in zip(frames, v) if np.isfinite(x) and x > limit)
         out.update(e.name for e, x in zip(frames, v) if np.isinf(x))
     return [e.name for e in frames if e.name in out]
 
 
-def _expected_corner_px(cal: Calibration) -> float:
-    """RMS pixel error the image corners' own stated noise would give (sqrt of mean trace of cov_px)."""
-    tr = [
-        np.trace(np.asarray(f.corners.cov_px, dtype=np.float64), axis1=1, axis2=2)
-        for f in cal.frames
-        if f.used and f.corners is not None and f.corners.cov_px is not None and len(f.corners.cov_px)
-    ]
-    if not tr:
-        return float("nan")
-    v = np.concatenate(tr)
-    v = v[np.isfinite(v)]
-    return float(np.sqrt(np.mean(v))) if v.size else float("nan")
-
-
-def _summary_verdict(cal: Calibration, ev: Evaluation, odd: list[str]) -> str:
+def _summary_verdict(cal: Calibration, ev: Evaluation, odd: list[str], expected: dict[str, float]) -> str:
     n_used = sum(f.used for f in cal.frames)
     im, i3 = ev.intensity_mrad
     cm, c3 = ev.corner_mrad
     pm, _ = ev.corner_px
     msg = (
         f"{n_used} of {len(cal.frames)} frames used. Corner re-projection error {_num(pm)} px "
-        f"({_num(cm)} mrad) on average over frames (3 sigma {_num(c3)} mrad)"
+        f"({_num(cm)} mrad) on average over the used frames (3 sigma {_num(c3)} mrad)"
     )
-    exp_px = _expected_corner_px(cal)
-    if np.isfinite(exp_px):
-        msg += f"; the image corners' own noise alone would give about {_num(exp_px)} px"
+    used = {f.name for f in cal.frames if f.used}
+    exp = np.array([v for n, v in expected.items() if n in used and np.isfinite(v)])
+    too_big = False
+    if exp.size:
+        exp_px = float(np.mean(exp))
+        too_big = bool(np.isfinite(pm) and pm > 3.0 * exp_px)
+        msg += (
+            f"; the stated uncertainties of the image corners and LiDAR board poses explain about "
+            f"{_num(exp_px)} px"
+            + (
+                " &mdash; <b>the error is several times larger: something they do not cover is off</b>"
+                if too_big
+                else ""
+            )
+        )
     msg += f". The paper's intensity re-projection error: {_num(im)} mrad (3 sigma {_num(i3)})."
     if odd:
         msg += (
@@ -372,7 +438,7 @@ def _summary_verdict(cal: Calibration, ev: Evaluation, odd: list[str]) -> str:
     dropped = [f for f in cal.frames if not f.used]
     if dropped:
         msg += "<br>Dropped: " + "; ".join(f"{_e(f.name)} ({_e(f.reason or 'not used')})" for f in dropped)
-    good = n_used > 0 and not odd
+    good = n_used > 0 and not odd and not too_big
     return f'<div class="verdict {"ok" if good else "bad"}">{msg}</div>'
 
 
@@ -390,6 +456,7 @@ def build_report(
     info: Mapping[str, str] | None = None,
     on_frame: Callable[[FrameFigures, Scan], None] | None = None,
     max_width: int = 1600,
+    show_valley: bool = True,
 ) -> dict[str, bytes]:
     """All files of the report: ``{"index.html": ..., "figures/<...>.png": ...}``.
 
@@ -404,11 +471,23 @@ def build_report(
     T_ground_truth : (4, 4) for simulated data: the result is compared with it.
     info : extra key/value lines for the header (data folder, command, version...).
     on_frame : called with each frame's :class:`FrameFigures` and scan (e.g. to write the coloured PLY).
+    show_valley : draw the metrics with each parameter moved alone (:func:`.studies.valley`).
     """
     T = np.asarray(calibration.T_cam_lidar, dtype=np.float64)
-    ev = evaluation if evaluation is not None else evaluate(eval_frames(calibration), camera, board, T)
     files: dict[str, bytes] = {}
     results = {f.name: f for f in calibration.frames}
+    pictures: list[tuple[str, dict[str, str]]] = []
+    from_scans: dict[str, EvalFrame | None] = {}
+    for name, scan, image in sources:
+        ff = frame_figures(name, scan, image, camera, board, T, results.get(name), max_width)
+        files.update(ff.files)
+        if on_frame is not None:
+            on_frame(ff, scan)
+        pictures.append((name, ff.captions))
+        from_scans[name] = ff.eval_frame
+        del ff
+    efs = [e for e in (from_scans.get(f.name) or eval_frame(f) for f in calibration.frames) if e is not None]
+    ev = evaluation if evaluation is not None else evaluate(efs, camera, board, T)
 
     def add(name: str, data: bytes) -> str:
         path = f"{FIGURES_DIR}/{name}"
@@ -427,14 +506,16 @@ def build_report(
     transform_html, gt_verdict = _transform_section(calibration, T_ground_truth)
     used_names = {f.name for f in calibration.frames if f.used}
     odd = _standing_out(ev, used_names)
-    body.append(_summary_verdict(calibration, ev, odd))
+    expected = {f.name: expected_corner_px(f, camera, board, T) for f in calibration.frames}
+    ev_used = Evaluation(tuple(e for e in ev.frames if e.name in used_names), ev.T_cam_lidar)
+    body.append(_summary_verdict(calibration, ev_used, odd, expected))
     if gt_verdict:
         body.append(gt_verdict)
     body.append("<h2>The result</h2>")
     body.append(transform_html)
 
     body.append("<h2>Frames</h2>")
-    rows, classes = _frame_rows(calibration, ev)
+    rows, classes = _frame_rows(calibration, ev, expected, {n for n, _ in pictures})
     body.append(
         _table(
             [
@@ -442,17 +523,19 @@ def build_report(
                 "used",
                 "fit RMS (mrad)",
                 "corner RMS (px)",
+                "explained (px)",
                 "corner RMS (mrad)",
                 "intensity error (mrad)",
                 "attendance",
                 "points inside",
                 "mismatched",
                 "range (m)",
-                "why dropped",
+                "why dropped; what the errors suggest",
             ],
             rows,
             left=1,
             row_class=classes,
+            left_last=1,
         )
     )
     body.append(
@@ -464,18 +547,39 @@ def build_report(
         "divided by the attendance rate (points inside over points the LiDAR fit puts inside). Near zero "
         "when right; a 1 degree error gives several mrad.</p>"
     )
-    (im, i3), (cm, c3), (pm, p3) = ev.intensity_mrad, ev.corner_mrad, ev.corner_px
+    stats = [(e.intensity_mrad, e.corner_mrad, e.corner_px) for e in (ev_used, ev)]
+    labels = ("intensity error (mrad)", "corner RMS (mrad)", "corner RMS (px)")
+    stat_rows = [
+        [label, _num(stats[0][k][0]), _num(stats[0][k][1]), _num(stats[1][k][0]), _num(stats[1][k][1])]
+        for k, label in enumerate(labels)
+    ]
+    header = [
+        "over frames",
+        f"used ({len(ev_used.frames)}): mean",
+        "3 sigma",
+        f"all with board and corners ({len(ev.frames)}): mean",
+        "3 sigma",
+    ]
+    body.append(_table(header, stat_rows))
     body.append(
-        _table(
-            ["over frames", "mean", "3 sigma"],
-            [
-                ["intensity error (mrad)", _num(im), _num(i3)],
-                ["corner RMS (mrad)", _num(cm), _num(c3)],
-                ["corner RMS (px)", _num(pm), _num(p3)],
-            ],
+        _img(
+            add("per_frame.png", plot_per_frame(ev, used=used_names)),
+            "Per-frame errors under the result.",
         )
     )
-    body.append(_img(add("per_frame.png", plot_per_frame(ev)), "Per-frame errors under the result."))
+    used_efs = [e for e in efs if e.name in used_names and len(e.points_lidar)]
+    if show_valley and used_efs:
+        body.append(
+            _img(
+                add(
+                    "valley.png",
+                    plot_valley(valley(used_efs, camera, board, T, np.asarray(calibration.covariance))),
+                ),
+                "Each of the six parameters moved alone away from the result (about / along the LiDAR "
+                "axes, the covariance's convention): on a right result both metrics bottom out at zero, "
+                "inside the gray 3-sigma band.",
+            )
+        )
 
     if curve is not None or cross_validation is not None:
         body.append("<h2>Stability</h2>")
@@ -517,22 +621,17 @@ def build_report(
             body.append("<p class=note>Failed folds: " + "; ".join(_e(f.failure) for f in fails) + "</p>")
 
     gallery: list[str] = []
-    for k, (name, scan, image) in enumerate(sources):
-        ff = frame_figures(name, scan, image, camera, board, T, results.get(name), max_width)
-        files.update(ff.files)
-        if on_frame is not None:
-            on_frame(ff, scan)
+    for k, (name, captions) in enumerate(pictures):
         res = results.get(name)
         status = "used" if res is not None and res.used else f"not used: {res.reason if res else 'unknown'}"
         if name in odd:
             status += "; stands out"
-        figs = "".join(_img(p, ff.captions[p]) for p in ff.files)
+        figs = "".join(_img(p, c) for p, c in captions.items())
         is_open = " open" if k < 2 or name in odd or name not in used_names else ""
         gallery.append(
             f'<details id="f{_e(name)}"{is_open}><summary>Frame {_e(name)} ({_e(status)})</summary>'
             f'<div class="gallery">{figs}</div></details>'
         )
-        del ff
     if gallery:
         body.append("<h2>Pictures per frame</h2>")
         body.append(_GALLERY_NOTE)

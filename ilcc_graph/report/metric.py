@@ -23,8 +23,8 @@ All functions are pure: numpy and the project's camera/board models in, dataclas
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -48,6 +48,11 @@ __all__ = [
     "eval_frame",
     "eval_frames",
     "board_points_from_scan",
+    "eval_frame_with_scan",
+    "evaluate_calibration",
+    "expected_corner_px",
+    "evaluation_rows",
+    "evaluation_to_dict",
     "transform_points",
 ]
 
@@ -247,6 +252,16 @@ def _unit_square_homographies(quads: np.ndarray) -> np.ndarray:
     return H.reshape(C, 3, 3)
 
 
+def circular_mean_u(u: np.ndarray, width: int) -> float:
+    """Mean panorama column of ``u`` on the circle of period ``width`` (right across the seam)."""
+    a = 2.0 * np.pi * (np.asarray(u, dtype=np.float64) + 0.5) / width
+    a = a[np.isfinite(a)]
+    if a.size == 0:
+        return float("nan")
+    m = np.arctan2(np.mean(np.sin(a)), np.mean(np.cos(a)))
+    return float(np.mod(m, 2.0 * np.pi) * width / (2.0 * np.pi) - 0.5)
+
+
 def _unwrap(uv: np.ndarray, u_ref: float, camera: CameraModel) -> np.ndarray:
     """Panorama columns brought next to ``u_ref`` across the seam (other cameras: unchanged)."""
     if not isinstance(camera, Equirectangular):
@@ -283,21 +298,20 @@ def cell_coordinates(uv: np.ndarray, corners_uv: np.ndarray, board: Board) -> tu
     if M == 0 or not np.any(finite):
         return inside, ab
     q = np.concatenate([uv[finite], np.ones((int(finite.sum()), 1))], axis=1)  # (F, 3)
-    w = np.einsum("cij,fj->cfi", H, q)  # (C, F, 3)
+    w = np.tensordot(H, q, axes=([2], [1]))  # (C, 3, F)
     centre = np.concatenate([quads.mean(axis=1), np.ones((quads.shape[0], 1))], axis=1)
-    w_centre = np.einsum("cij,cj->ci", H, centre)[:, 2]
+    w_centre = np.sum(H[:, 2, :] * centre, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        xy = w[..., :2] / w[..., 2:3]
-        hit = (np.sign(w[..., 2]) == np.sign(w_centre)[:, None]) & np.all((xy >= 0) & (xy <= 1), axis=2)
-    hit &= np.isfinite(xy[..., 0])
+        x, y = w[:, 0] / w[:, 2], w[:, 1] / w[:, 2]  # (C, F)
+        hit = (x >= 0) & (x <= 1) & (y >= 0) & (y <= 1) & (np.sign(w[:, 2]) == np.sign(w_centre)[:, None])
     any_hit = hit.any(axis=0)
     cell = np.argmax(hit, axis=0)
     idx = np.flatnonzero(finite)[any_hit]
     f = np.flatnonzero(any_hit)
     c = cell[any_hit]
     inside[idx] = True
-    ab[idx, 0] = cj[c] + 1 + xy[c, f, 0]
-    ab[idx, 1] = ci[c] + 1 + xy[c, f, 1]
+    ab[idx, 0] = cj[c] + 1 + x[c, f]
+    ab[idx, 1] = ci[c] + 1 + y[c, f]
     return inside, ab
 
 
@@ -318,7 +332,11 @@ def metric_points(
             f"the board has {board.n_corners}"
         )
     uv = camera.project(transform_points(T_cam_lidar, p)) if len(p) else np.zeros((0, 2))
-    u_ref = float(np.nanmedian(corners_uv[:, 0]))
+    u_ref = (
+        circular_mean_u(corners_uv[:, 0], camera.width)
+        if isinstance(camera, Equirectangular)
+        else float(np.nanmedian(corners_uv[:, 0]))
+    )
     inside, ab = cell_coordinates(_unwrap(uv, u_ref, camera), _unwrap(corners_uv, u_ref, camera), board)
     tau = gray_zone(frame.intensity, epsilon)
     colour = intensity_colour(frame.intensity, tau)
@@ -486,3 +504,129 @@ def board_points_from_scan(
     keep = (np.abs(q[:, 2]) <= max_distance_m) & (q[:, 0] >= x0 - pad_m) & (q[:, 0] <= x1 + pad_m)
     keep &= (q[:, 1] >= y0 - pad_m) & (q[:, 1] <= y1 + pad_m)
     return np.asarray(scan.points, dtype=np.float64)[keep], np.asarray(scan.intensity, dtype=np.float64)[keep]
+
+
+def eval_frame_with_scan(
+    result: FrameResult, scan: Scan, board: Board, max_distance_m: float = 0.05
+) -> EvalFrame | None:
+    """:func:`eval_frame`, with the board points rebuilt from ``scan`` when the result lacks them.
+
+    A calibration read back from ``calibration.yaml`` keeps each frame's corners and board pose but
+    not its board segment; the segment is then the scan's points on the fitted board
+    (:func:`board_points_from_scan`). None when the frame has no corners or no board pose.
+    """
+    e = eval_frame(result)
+    if e is None:
+        return None
+    if len(e.points_lidar) == 0:
+        T = e.T_lidar_board
+        if T is None or not np.all(np.isfinite(T)):
+            return None
+        pts, inten = board_points_from_scan(scan, T, board, max_distance_m)
+        e = replace(e, points_lidar=pts, intensity=inten)
+    return e
+
+
+def evaluate_calibration(
+    calibration: Calibration,
+    camera: CameraModel,
+    board: Board,
+    scans: Iterable[tuple[str, Scan]] = (),
+    T_cam_lidar: np.ndarray | None = None,
+    used_only: bool = False,
+) -> Evaluation:
+    """Evaluate a calibration (e.g. read from ``calibration.yaml``) on its own frames.
+
+    scans: (name, scan) pairs, consumed one at a time, to rebuild board segments a calibration file
+    does not keep. T_cam_lidar: another extrinsic to judge on these frames (default: the
+    calibration's own).
+    """
+    results = {f.name: f for f in calibration.frames if f.used or not used_only}
+    frames: dict[str, EvalFrame | None] = {}
+    for name, scan in scans:
+        if name in results:
+            frames[name] = eval_frame_with_scan(results[name], scan, board)
+    out = [frames[n] if n in frames else eval_frame(r) for n, r in results.items()]
+    T = calibration.T_cam_lidar if T_cam_lidar is None else T_cam_lidar
+    return evaluate([e for e in out if e is not None], camera, board, T)
+
+
+def evaluation_rows(ev: Evaluation) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
+    """(header, rows) of a plain-text table: one row per frame, then mean and 3 sigma."""
+    header = ("frame", "intensity mrad", "corner px", "corner mrad", "attendance", "inside/points")
+
+    def f(x: float, fmt: str = ".3f") -> str:
+        return "inf" if np.isinf(x) else "-" if np.isnan(x) else format(x, fmt)
+
+    rows = [
+        (e.name, f(e.intensity_mrad), f(e.corner_rms_px), f(e.corner_rms_mrad), f(e.attendance, ".2f"),
+         f"{e.n_inside}/{e.n_points}")
+        for e in ev.frames
+    ]  # fmt: skip
+    (im, i3), (pm, p3), (cm, c3) = ev.intensity_mrad, ev.corner_px, ev.corner_mrad
+    rows.append(("mean", f(im), f(pm), f(cm), "", ""))
+    rows.append(("3 sigma", f(i3), f(p3), f(c3), "", ""))
+    return header, rows
+
+
+def evaluation_to_dict(ev: Evaluation) -> dict:
+    """Plain numbers (per frame and overall) for YAML."""
+    return {
+        "metric": "Wang et al. 2017 Eq. 14 (gray zone epsilon_g = 4), mrad; corner errors px and mrad",
+        "overall": ev.summary(),
+        "frames": [
+            {
+                "name": e.name,
+                "intensity_mrad": e.intensity_mrad,
+                "corner_rms_px": e.corner_rms_px,
+                "corner_max_px": e.corner_max_px,
+                "corner_rms_mrad": e.corner_rms_mrad,
+                "attendance": e.attendance,
+                "n_points": e.n_points,
+                "n_inside": e.n_inside,
+                "n_mismatch": e.n_mismatch,
+                "range_m": e.range_m,
+                "half_turn": e.half_turn,
+            }
+            for e in ev.frames
+        ],
+    }
+
+
+def _skew(p: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) cross-product matrices of p (N, 3)."""
+    z = np.zeros(len(p))
+    x, y, w = p[:, 0], p[:, 1], p[:, 2]
+    return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], axis=1)
+
+
+def expected_corner_px(
+    result: FrameResult, camera: CameraModel, board: Board, T_cam_lidar: np.ndarray
+) -> float:
+    """RMS pixel error of a frame's re-projected corners that its stated uncertainties explain.
+
+    Sums, per corner, the image corner's covariance (``ImageCorners.cov_px``) and the LiDAR
+    board pose's covariance (``BoardFit.covariance``, tangent ``T_lidar_board * Exp(xi)``) carried
+    to pixels through ``T_cam_lidar`` and the camera's Jacobian; returns sqrt of the mean trace.
+    A corner error well above it means something the uncertainties do not cover. NaN when the
+    frame lacks either covariance.
+    """
+    b, c = result.board, result.corners
+    if b is None or c is None or c.cov_px is None:
+        return float("nan")
+    cov_b = np.asarray(b.covariance, dtype=np.float64)
+    cov_px = np.asarray(c.cov_px, dtype=np.float64)
+    if cov_b.shape != (6, 6) or not np.all(np.isfinite(cov_b)) or cov_px.shape != (board.n_corners, 2, 2):
+        return float("nan")
+    T_lb = np.asarray(b.T_lidar_board, dtype=np.float64)
+    T_cl = np.asarray(T_cam_lidar, dtype=np.float64)
+    p_b = board.corners_board()
+    J_xi = np.concatenate(
+        [-T_lb[:3, :3] @ _skew(p_b), np.broadcast_to(T_lb[:3, :3], (len(p_b), 3, 3))], axis=2
+    )
+    p_cam = transform_points(T_cl @ T_lb, p_b)
+    J = camera.d_uv_d_point(p_cam) @ T_cl[:3, :3] @ J_xi  # (K, 2, 6)
+    cov_uv = J @ cov_b @ np.swapaxes(J, 1, 2) + cov_px
+    tr = np.trace(cov_uv, axis1=1, axis2=2)
+    tr = tr[np.isfinite(tr)]
+    return float(np.sqrt(np.mean(tr))) if tr.size else float("nan")

@@ -14,7 +14,7 @@ import numpy as np
 from ..board import Board
 from ..camera_models import CameraModel, Equirectangular
 from ..types import Scan
-from .metric import MetricPoints, transform_points
+from .metric import MetricPoints, circular_mean_u, transform_points
 
 __all__ = [
     "crop_box",
@@ -88,16 +88,10 @@ def _draw_numbered(out: np.ndarray, p: np.ndarray, colour=(0, 0, 255), line=(0, 
             continue
         c = (0, 200, 0) if k == 0 else (255, 80, 0) if k == len(pts) - 1 else colour
         cv2.circle(out, (int(x), int(y)), r * (2 if k in (0, len(pts) - 1) else 1), c, th, cv2.LINE_AA)
-        cv2.putText(
-            out,
-            str(k),
-            (int(x) + r + 1, int(y) - r - 1),
-            cv2.FONT_HERSHEY_SIMPLEX,
-            0.4 * scale,
-            c,
-            th,
-            cv2.LINE_AA,
-        )
+        org = (int(x) + r + 1, int(y) - r - 1)
+        font, size = cv2.FONT_HERSHEY_SIMPLEX, 0.4 * scale
+        cv2.putText(out, str(k), org, font, size, (255, 255, 255), th + 2, cv2.LINE_AA)  # halo
+        cv2.putText(out, str(k), org, font, size, c, th, cv2.LINE_AA)
 
 
 # ------------------------------------------------------------------------------ crops
@@ -152,7 +146,7 @@ def crop_around(
     if uv.size == 0:
         return Crop(np.ascontiguousarray(image[:0, :0]), 0, 0, W, wrap)
     if wrap:
-        ref = float(np.median(uv[:, 0]))
+        ref = circular_mean_u(uv[:, 0], W)
         u = ref + (np.mod(uv[:, 0] - ref + W / 2, W) - W / 2)
         uv = np.column_stack([u, uv[:, 1]])
     lo, hi = uv.min(axis=0), uv.max(axis=0)
@@ -192,11 +186,16 @@ def encode_png(image: np.ndarray) -> bytes:
 
 # ------------------------------------------------------------------------------ colours
 def colour_map(
-    values: np.ndarray, lo: float | None = None, hi: float | None = None, name: str = "jet"
+    values: np.ndarray,
+    lo: float | None = None,
+    hi: float | None = None,
+    name: str = "jet",
+    span: tuple[float, float] = (0.1, 0.92),
 ) -> np.ndarray:
     """(N, 3) uint8 BGR colours of ``values`` on matplotlib's colormap ``name`` over [lo, hi].
 
-    lo/hi default to the 2nd and 98th percentiles; NaN maps to gray.
+    lo/hi default to the 2nd and 98th percentiles; ``span`` is the part of the colormap used
+    (its darkest ends vanish on black print); NaN maps to gray.
     """
     from matplotlib import colormaps
 
@@ -207,6 +206,7 @@ def colour_map(
         lo = float(q[0]) if lo is None else lo
         hi = float(q[1]) if hi is None else hi
     t = np.clip((v - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
+    t = span[0] + (span[1] - span[0]) * t
     rgba = colormaps[name](np.where(fin, t, 0.0))
     bgr = (255 * rgba[:, [2, 1, 0]]).astype(np.uint8)
     bgr[~fin] = 128

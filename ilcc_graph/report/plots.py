@@ -7,9 +7,15 @@ import io
 import numpy as np
 
 from .metric import Evaluation
-from .studies import CrossValidation, FramesCurve
+from .studies import CrossValidation, FramesCurve, Valley
 
-__all__ = ["plot_per_frame", "plot_frames_vs_accuracy", "plot_error_vs_frames", "plot_cross_validation"]
+__all__ = [
+    "plot_per_frame",
+    "plot_frames_vs_accuracy",
+    "plot_error_vs_frames",
+    "plot_cross_validation",
+    "plot_valley",
+]
 
 _LABELS = (
     "rotation about LiDAR x (deg)",
@@ -44,32 +50,27 @@ def _finite(x: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(x), x, np.nan)
 
 
-def plot_per_frame(evaluation: Evaluation, title: str = "") -> bytes:
+def plot_per_frame(evaluation: Evaluation, title: str = "", used: set[str] | None = None) -> bytes:
     """Bars per frame: the paper's intensity re-projection error and the RMS corner error.
 
     Dashed line: the mean over frames; dotted: mean + 3 sigma. Frames where no board point fell
-    inside the detected corners are marked with an x at the top.
+    inside the detected corners are marked with an x at the top; frames not in ``used`` (when
+    given) are drawn gray.
     """
     names = [f.name for f in evaluation.frames]
     x = np.arange(len(names))
     fig, ax = _figure(max(6.0, 0.35 * len(names) + 2), 5.2, 2, 1)
+    stats = evaluation if used is None else Evaluation(tuple(f for f in evaluation.frames if f.name in used))
     series = (
-        (
-            np.array([f.intensity_mrad for f in evaluation.frames]),
-            evaluation.intensity_mrad,
-            "intensity re-projection\nerror (mrad)",
-            "tab:blue",
-        ),
-        (
-            np.array([f.corner_rms_mrad for f in evaluation.frames]),
-            evaluation.corner_mrad,
-            "RMS corner error (mrad)",
-            "tab:orange",
-        ),
-    )
+        (np.array([f.intensity_mrad for f in evaluation.frames]), stats.intensity_mrad,
+         "intensity re-projection\nerror (mrad)", "tab:blue"),
+        (np.array([f.corner_rms_mrad for f in evaluation.frames]), stats.corner_mrad,
+         "RMS corner error (mrad)", "tab:orange"),
+    )  # fmt: skip
     for a, (vals, (mean, s3), label, colour) in zip(ax[:, 0], series):
         v = _finite(vals)
-        a.bar(x, np.nan_to_num(v, nan=0.0), color=colour)
+        colours = [colour if used is None or n in used else "0.7" for n in names]
+        a.bar(x, np.nan_to_num(v, nan=0.0), color=colours)
         top = np.nanmax(v) if np.isfinite(v).any() else 1.0
         inf = np.isinf(vals)
         if inf.any():
@@ -79,7 +80,8 @@ def plot_per_frame(evaluation: Evaluation, title: str = "") -> bytes:
             a.axhline(mean, ls="--", color="k", lw=1)
             if np.isfinite(s3):
                 a.axhline(mean + s3, ls=":", color="k", lw=1)
-            a.set_title(f"mean {mean:.3g}, 3 sigma {s3:.3g}", fontsize=9, loc="right")
+            what = "" if used is None else " over the used frames (gray: not used)"
+            a.set_title(f"mean {mean:.3g}, 3 sigma {s3:.3g}{what}", fontsize=9, loc="right")
         a.set_ylabel(label)
         a.set_xticks(x, names, rotation=90, fontsize=8)
         a.grid(axis="y", alpha=0.3)
@@ -143,7 +145,11 @@ def plot_error_vs_frames(curve: FramesCurve) -> bytes:
     a.set_xlabel("frames used")
     a.set_ylabel("intensity re-projection error (mrad)")
     if np.any(m > 0):
+        from matplotlib.ticker import FormatStrFormatter
+
         a.set_yscale("log")
+        a.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+        a.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
     a.xaxis.set_major_locator(MaxNLocator(integer=True))
     a.grid(alpha=0.3, which="both")
     a.legend(fontsize=8)
@@ -183,4 +189,34 @@ def plot_cross_validation(cv: CrossValidation) -> bytes:
     ax[0, 1].set_title("fold estimate minus all-frames estimate (bar: 3 sigma)", fontsize=10, loc="left")
     if ok and len(ok) <= 10:
         ax[0, 2].legend(fontsize=7, ncol=2)
+    return _png(fig)
+
+
+def plot_valley(v: Valley) -> bytes:
+    """Each parameter moved alone around the estimate: both metrics should bottom out at zero.
+
+    Left axis (blue): the paper's intensity error; right axis (orange): the RMS corner error;
+    gray band: +-3 sigma of the estimate.
+    """
+    fig, ax = _figure(11.0, 5.6, 2, 3)
+    for k in range(6):
+        a = ax[k // 3, k % 3]
+        x = v.offsets[k] * _UNITS[k]
+        if np.isfinite(v.sigma[k]):
+            a.axvspan(-3 * v.sigma[k] * _UNITS[k], 3 * v.sigma[k] * _UNITS[k], color="0.85", lw=0)
+        a.plot(x, _finite(v.intensity[k]), "o-", ms=3, color="tab:blue")
+        a.set_ylim(bottom=0)
+        a.tick_params(axis="y", colors="tab:blue")
+        b = a.twinx()
+        b.plot(x, _finite(v.corner[k]), "s--", ms=3, color="tab:orange")
+        b.set_ylim(bottom=0)
+        b.tick_params(axis="y", colors="tab:orange")
+        a.axvline(0.0, color="k", lw=1)
+        a.set_title("moved: " + _LABELS[k], fontsize=10)
+        a.grid(alpha=0.3)
+        if k % 3 == 0:
+            a.set_ylabel("intensity error (mrad)", color="tab:blue")
+        if k % 3 == 2:
+            b.set_ylabel("RMS corner error (mrad)", color="tab:orange")
+    fig.suptitle("The metrics with one parameter moved away from the result (gray: 3 sigma)")
     return _png(fig)

@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 from ..board import Board
 from ..camera_models import CameraModel
 from ..types import FrameResult
-from .metric import Evaluation, FrameEvaluation, eval_frame, evaluate
+from .metric import EvalFrame, Evaluation, FrameEvaluation, eval_frame, evaluate
 
 __all__ = [
     "Solver",
@@ -32,6 +32,8 @@ __all__ = [
     "FramesCurve",
     "frames_vs_accuracy",
     "usable_frames",
+    "Valley",
+    "valley",
 ]
 
 Solver = Callable[[Sequence[FrameResult]], tuple[np.ndarray, np.ndarray]]
@@ -252,3 +254,58 @@ def frames_vs_accuracy(
         failures=tuple(failures),
         order=tuple(r.name for r in frames),
     )
+
+
+# --------------------------------------------------------------------------- the valley
+@dataclass(frozen=True)
+class Valley:
+    """The metrics around an estimate, one parameter at a time (is the estimate at the bottom?).
+
+    steps: (S,) multiples of the step; offsets (6, S): the tangent offsets applied
+    (``T * Exp(xi)``, rad and m, the covariance convention). intensity, corner: (6, S) mean over
+    frames of the intensity error and of the RMS corner error (mrad). sigma: (6,) of the
+    estimate (NaN when unknown).
+    """
+
+    steps: np.ndarray
+    offsets: np.ndarray
+    intensity: np.ndarray
+    corner: np.ndarray
+    sigma: np.ndarray
+
+
+def _exp_right(T: np.ndarray, xi: np.ndarray) -> np.ndarray:
+    """``T * Exp(xi)`` to first order in the translation (rotation exact): xi = (rotvec, t)."""
+    D = np.eye(4)
+    D[:3, :3] = Rotation.from_rotvec(xi[:3]).as_matrix()
+    D[:3, 3] = xi[3:]
+    return np.asarray(T, dtype=np.float64) @ D
+
+
+def valley(
+    frames: Sequence[EvalFrame],
+    camera: CameraModel,
+    board: Board,
+    T_cam_lidar: np.ndarray,
+    covariance: np.ndarray | None = None,
+    rotation_deg: float = 0.5,
+    translation_m: float = 0.03,
+    n: int = 5,
+) -> Valley:
+    """Evaluate ``T_cam_lidar * Exp(xi)`` with xi along each of the six parameters in turn, over
+    ``[-1, 1]`` x (``rotation_deg``, ``translation_m``) in ``2 n + 1`` steps."""
+    steps = np.linspace(-1.0, 1.0, 2 * n + 1)
+    scale = np.array([np.radians(rotation_deg)] * 3 + [translation_m] * 3)
+    offsets = scale[:, None] * steps[None, :]
+    inten = np.full((6, steps.size), np.nan)
+    corner = np.full((6, steps.size), np.nan)
+    for k in range(6):
+        for j, a in enumerate(offsets[k]):
+            xi = np.zeros(6)
+            xi[k] = a
+            ev = evaluate(frames, camera, board, _exp_right(T_cam_lidar, xi))
+            inten[k, j] = ev.intensity_mrad[0]
+            corner[k, j] = ev.corner_mrad[0]
+    cov = np.full((6, 6), np.nan) if covariance is None else np.asarray(covariance, dtype=np.float64)
+    sigma = np.sqrt(np.clip(np.diag(cov), 0.0, None)) if cov.shape == (6, 6) else np.full(6, np.nan)
+    return Valley(steps, offsets, inten, corner, sigma)

@@ -8,7 +8,7 @@ writes files) writes the data-set layout of interface.md.
 from __future__ import annotations
 
 from .frames import SimFrame, frame_name, ground_truth, simulate_frame, simulate_frames
-from .lidar import beam_biases, simulate_scan
+from .lidar import beam_biases, beam_gains, simulate_scan
 from .placements import board_placements, frame_scene
 from .render import ImageRenderer
 from .scene import Box, Scene, cast_rays
@@ -33,7 +33,7 @@ def simulate_dataset(*args, **kwargs):  # lazy: keeps io out of `import ilcc_gra
 
 __all__ = [
     "Box", "ImageOptions", "ImageRenderer", "Scene", "SceneOptions", "SimFrame", "SimulationSpec",
-    "Systematics", "beam_biases", "board_placements", "cast_rays", "default_T_cam_lidar", "default_camera",
-    "frame_name", "frame_scene", "ground_truth", "paper_board", "simulate_dataset", "simulate_frame",
-    "simulate_frames", "simulate_scan", "standard_spec",
+    "Systematics", "beam_biases", "beam_gains", "board_placements", "cast_rays", "default_T_cam_lidar",
+    "default_camera", "frame_name", "frame_scene", "ground_truth", "paper_board", "simulate_dataset",
+    "simulate_frame", "simulate_frames", "simulate_scan", "standard_spec",
 ]  # fmt: skip

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..types import Scan
-from .lidar import beam_biases, simulate_scan
+from .lidar import beam_biases, beam_gains, simulate_scan
 from .placements import board_placements, frame_scene
 from .render import ImageRenderer
 from .spec import SimulationSpec
@@ -69,8 +69,9 @@ def ground_truth(spec: SimulationSpec, frames: Iterable[SimFrame] | None = None)
 
     Keys: ``T_cam_lidar`` (4x4); ``T_lidar_board`` {stem: 4x4}; ``corners_lidar`` {stem: (K, 3)
     inner corners in the LiDAR frame, index k as interface.md}; ``board`` (config schema);
-    ``lidar_beam_bias_m`` (per ring); ``simulation`` (the settings). ``frames``: the frames written
-    (their names and poses); None -> every frame of the spec, from the placements alone.
+    ``lidar_beam_bias_m`` and ``lidar_beam_intensity_gain`` (per ring); ``simulation`` (the
+    settings). ``frames``: the frames written (their names and poses); None -> every frame of the
+    spec, from the placements alone.
     """
     if frames is None:
         poses = {frame_name(i): T for i, T in enumerate(board_placements(spec))}
@@ -84,5 +85,6 @@ def ground_truth(spec: SimulationSpec, frames: Iterable[SimFrame] | None = None)
         "corners_lidar": corners,
         "board": spec.board.to_dict(),
         "lidar_beam_bias_m": beam_biases(spec).tolist(),
+        "lidar_beam_intensity_gain": beam_gains(spec).tolist(),
         "simulation": spec.summary(),
     }

@@ -19,7 +19,11 @@ Measurement model (all geometric sigmas times ``spec.noise_scale``):
   board back 15) with the same incidence factor and the white-level noise;
 - systematics (:class:`~ilcc_graph.simulate.spec.Systematics`), each along the beam: a constant
   bias per beam, an extra range on black print ``dark_range_offset_m * (1 - colour)``, a global
-  ``range_offset_m``; dropped returns with probability ``dropout`` (``dropout_black`` on black print).
+  ``range_offset_m``; dropped returns with probability ``dropout`` (``dropout_black`` on black print);
+  a relative intensity gain per beam (``beam_intensity_gain_sigma``).
+
+Not modelled: mixed returns where a footprint straddles the board's outline (the return is the
+board's), multiple returns, the board's thickness, motion during the sweep.
 
 Every random draw has its own stream and is drawn for every beam whatever the switches, so
 turning one effect on or off leaves the others' numbers unchanged.
@@ -45,7 +49,7 @@ from .scene import (
 )
 from .spec import SimulationSpec
 
-__all__ = ["simulate_scan", "beam_biases", "MIN_RANGE_M", "MAX_RANGE_M"]
+__all__ = ["simulate_scan", "beam_biases", "beam_gains", "MIN_RANGE_M", "MAX_RANGE_M"]
 
 MIN_RANGE_M, MAX_RANGE_M = 0.4, 100.0
 _REFLECTIVITY = {
@@ -65,6 +69,12 @@ def beam_biases(spec: SimulationSpec) -> np.ndarray:
     """(n_beams,) constant range bias of each beam, metres (one draw per data set)."""
     z = frame_rng(spec.seed, PURPOSE_UNIT, 0).standard_normal(spec.lidar_model.n_beams)
     return spec.systematics.beam_bias_sigma_m * z
+
+
+def beam_gains(spec: SimulationSpec) -> np.ndarray:
+    """(n_beams,) relative intensity gain of each beam, around 1 (one draw per data set)."""
+    z = frame_rng(spec.seed, PURPOSE_UNIT, 2).standard_normal(spec.lidar_model.n_beams)
+    return np.maximum(1.0 + spec.systematics.beam_intensity_gain_sigma * z, 0.1)
 
 
 def _beam_directions(model: LidarModel, phase: float) -> tuple[np.ndarray, np.ndarray]:
@@ -111,7 +121,7 @@ def simulate_scan(spec: SimulationSpec, scene: Scene, frame: int, biases: np.nda
     Returns a :class:`Scan` with points (N, 3) LiDAR frame, intensity (N,), ring (N,) int32.
     """
     model, sy = spec.lidar_model, spec.systematics
-    streams = [frame_rng(spec.seed, PURPOSE_FRAME, frame, 1, k) for k in range(5)]
+    streams = [frame_rng(spec.seed, PURPOSE_FRAME, frame, 1, k) for k in range(4)]
     phase = streams[0].uniform(0.0, 2 * np.pi)
     d, ring = _beam_directions(model, phase)
     n = len(d)
@@ -143,7 +153,7 @@ def simulate_scan(spec: SimulationSpec, scene: Scene, frame: int, biases: np.nda
     p += d * extra[:, None]
 
     # intensity
-    level = np.empty(n)
+    level = np.zeros(n)
     sig = np.full(n, spec.intensity_sigma_white)
     for surf, refl in _REFLECTIVITY.items():
         level[hits.surface == surf] = refl
@@ -151,7 +161,8 @@ def simulate_scan(spec: SimulationSpec, scene: Scene, frame: int, biases: np.nda
     sig[board] = spec.intensity_sigma_black + colour[board] * (
         spec.intensity_sigma_white - spec.intensity_sigma_black
     )
-    intensity = np.clip(np.rint(level * (0.85 + 0.15 * cos_inc) + sig * z_int), 0, 255)
+    gain = beam_gains(spec)[ring]
+    intensity = np.clip(np.rint(gain * level * (0.85 + 0.15 * cos_inc) + sig * z_int), 0, 255)
 
     p_drop = np.where(board, sy.dropout + (sy.dropout_black - sy.dropout) * (1.0 - colour), sy.dropout)
     keep = np.isfinite(t) & (t >= MIN_RANGE_M) & (t <= MAX_RANGE_M) & (u_drop >= p_drop)

@@ -8,7 +8,9 @@ board inside the LiDAR's vertical field of view; it faces the sensors (board z t
 between LiDAR and camera), is turned 45 deg in its plane (a diamond; plus a random quarter turn and
 up to 8 deg jitter, so every corner of the pattern may end up lowest) and tilted by up to 15 deg
 (pitch) and 25 deg (yaw). A placement is redrawn until the board is fully inside the LiDAR's vertical
-field and (pinhole/fisheye) the image with a 3 % border.
+field, inside the room and (pinhole/fisheye) inside the image with a 3 % border; after repeated
+failures the draws move farther out (up to 1.5 m beyond 2.6 m) and, for pinhole/fisheye, towards
+the middle of the view (e.g. a VLP-16's +-15 deg field cannot hold a 0.75 m board at 1.2 m).
 
 Per frame: a thin pole (3 x 3 cm) from the ground up to just below and behind the board's lowest
 point, and, with ``SceneOptions.person_probability``, a person-sized box (0.44 x 0.28 x 1.7 m)
@@ -99,6 +101,13 @@ def _acceptable(spec: SimulationSpec, T: np.ndarray) -> bool:
     va = spec.lidar_model.vertical_angles_deg
     if el.min() < va[0] + 0.3 or el.max() > va[-1] - 0.3 or pts[:, 2].min() < scene.ground_z + 0.3:
         return False
+    room = spec.scene.room
+    if room is not None:
+        xmin, xmax, ymin, ymax = room
+        if pts[:, 0].min() < xmin + 0.3 or pts[:, 0].max() > xmax - 0.3:
+            return False
+        if pts[:, 1].min() < ymin + 0.3 or pts[:, 1].max() > ymax - 0.3:
+            return False
     cam = spec.camera
     if cam.kind != "equirectangular":
         uv = cam.project(pts @ spec.T_cam_lidar[:3, :3].T + spec.T_cam_lidar[:3, 3])
@@ -137,7 +146,10 @@ def board_placements(spec: SimulationSpec) -> list[np.ndarray]:
         for attempt in range(400):
             relax = attempt / 400.0
             d = lo + (j + rng.random()) * (hi - lo) / m + 1.5 * relax  # move out when nothing fits
-            az = centres[direction[i]] * (1.0 - relax) + rng.uniform(-1, 1) * jitter * (1.0 - relax)
+            # pinhole/fisheye: drift towards the middle of the view when nothing fits
+            az = centres[direction[i]] + rng.uniform(-1, 1) * jitter * (1.0 - relax)
+            if az_range is not None:
+                az = (1.0 - relax) * az + relax * 0.5 * (az_range[0] + az_range[1])
             a = np.arcsin(min(1.0, radius / d))
             el_lo, el_hi = va[0] + a + np.deg2rad(1.0), va[-1] - a - np.deg2rad(1.0)
             el = 0.5 * (el_lo + el_hi) + (0.0 if el_hi < el_lo else rng.uniform(-0.4, 0.4) * (el_hi - el_lo))

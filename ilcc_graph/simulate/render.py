@@ -1,16 +1,20 @@
-"""Camera images by casting one ray per pixel (more near the board), uint8 BGR.
+"""Camera images by casting one ray per pixel (more at edges), uint8 BGR.
 
 The room seen from the camera does not change between frames, so it is rendered once per data set
-(one ray through each pixel centre, in chunks of rows to bound memory) and cached. Each frame then
-re-renders only the pixels whose projected bounding box covers a moving object (board, its stand,
-the person): those pixels get a full ray cast of the whole scene, the board's box with S x S
-samples per pixel (``ImageOptions.supersample``) and the others with 2 x 2, averaged (anti-aliased
-edges). Then a Gaussian blur (``blur_sigma_px``) and Gaussian pixel noise (``noise_sigma``).
+and cached: one ray through each pixel centre, in chunks of rows to bound memory; images over 4 Mpx
+are traced at half resolution and scaled up bilinearly (the room is smooth). Each frame then
+re-renders the pixels inside the projected bounding box of each moving object (board, its stand,
+the person) with rays against the moving objects only (a ray that misses them shows the cached
+room pixel): one ray per pixel centre, then S x S rays (``ImageOptions.supersample``) averaged on
+every pixel whose 3 x 3 neighbourhood changes label (an object's outline or a colour edge of the
+print), which anti-aliases all edges that matter. Then a Gaussian blur (``blur_sigma_px``) and
+Gaussian pixel noise (``noise_sigma``, luminance noise, see :func:`_add_noise`).
 
 Pixels follow the camera model's convention (pixel centres at integers); a sample at (u, v) looks
 along ``camera.bearing((u, v))`` from the camera centre. Shading: flat colours times a little
 Lambertian light from above; procedural value-noise texture on walls, floor and ceiling (smooth,
-so it makes no chessboard-like corners). The board prints grey 22 (black) and 225 (white).
+so it makes no chessboard-like corners). The board prints grey 22 (black) and 225 (white) before
+the light factor (about 0.8 on a board facing the sensors).
 """
 
 from __future__ import annotations
@@ -135,13 +139,18 @@ class ImageRenderer:
         for k in range(0, len(uv), _CHUNK_RAYS):
             b = self.camera.bearing(uv[k : k + _CHUNK_RAYS])
             ok = np.all(np.isfinite(b), axis=1)
-            d = b[ok] @ self.R_lidar_cam.T
+            every = bool(ok.all())
+            d = (b if every else b[ok]) @ self.R_lidar_cam.T
             hits = cast_rays(scene, self.centre, d)
-            out[k : k + _CHUNK_RAYS][ok] = self._shade(hits, d)
             cls = np.full(len(d), 2, np.uint8)
             board = hits.surface == SURF_BOARD
             cls[board] = self.spec.board.colour_at(hits.board_xy[board]) > 0.5
-            lab[k : k + _CHUNK_RAYS][ok] = np.where(hits.surface == SURF_NONE, 0, 3 * hits.surface + cls)
+            label = np.where(hits.surface == SURF_NONE, 0, 3 * hits.surface + cls)
+            sl = slice(k, k + len(b))
+            if every:
+                out[sl], lab[sl] = self._shade(hits, d), label
+            else:
+                out[sl][ok], lab[sl][ok] = self._shade(hits, d), label
         return out, lab
 
     # --------------------------------------------------------------- background
@@ -171,8 +180,15 @@ class ImageRenderer:
         return self._background
 
     # ------------------------------------------------------------------ regions
-    def _region(self, pts_lidar: np.ndarray, pad: int = 3) -> tuple[np.ndarray, np.ndarray] | None:
-        """Rows and columns (wrapped for panoramas) covering the image of LiDAR-frame points."""
+    def _region(
+        self, pts_lidar: np.ndarray, pad: int = 3
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
+        """Pixels that may show an object, from LiDAR-frame points along its edges.
+
+        Returns rows (h,), columns (w,) (wrapped modulo W for panoramas) of a bounding box, and a
+        (h, w) bool mask of the convex hull of the points' images grown by ``pad`` pixels (None:
+        the whole box); None when the object cannot be seen.
+        """
         cam = self.camera
         W, H = cam.width, cam.height
         T = self.spec.T_cam_lidar
@@ -180,31 +196,43 @@ class ImageRenderer:
         finite = np.all(np.isfinite(uv), axis=1)
         if not finite.any():
             return None
+        if not isinstance(cam, Equirectangular) and not finite.all():
+            return np.arange(H), np.arange(W), None  # partly not imageable: be safe, take everything
+        u, v = uv[finite, 0], uv[finite, 1]
         if isinstance(cam, Equirectangular):
-            u = uv[finite, 0]
             u = u[0] + cam.wrap_du(u - u[0])
             lo, hi = int(np.floor(u.min())) - pad, int(np.ceil(u.max())) + pad
-            cols = np.arange(W) if hi - lo + 1 >= W // 2 else np.mod(np.arange(lo, hi + 1), W)
-        elif not finite.all():  # partly not imageable: be safe, take everything
-            return np.arange(H), np.arange(W)
+            if hi - lo + 1 >= W // 2:
+                return (
+                    np.arange(max(0, int(v.min()) - pad), min(H, int(v.max()) + pad + 1)),
+                    np.arange(W),
+                    None,
+                )
+            cols = np.mod(np.arange(lo, hi + 1), W)
         else:
-            lo, hi = (
-                max(0, int(np.floor(uv[:, 0].min())) - pad),
-                min(W - 1, int(np.ceil(uv[:, 0].max())) + pad),
-            )
+            lo, hi = max(0, int(np.floor(u.min())) - pad), min(W - 1, int(np.ceil(u.max())) + pad)
             if lo > hi:
                 return None
             cols = np.arange(lo, hi + 1)
-        v = uv[finite, 1]
         r0, r1 = max(0, int(np.floor(v.min())) - pad), min(H - 1, int(np.ceil(v.max())) + pad)
         if r0 > r1:
             return None
-        return np.arange(r0, r1 + 1), cols
+        mask = np.zeros((r1 - r0 + 1, len(cols)), np.uint8)
+        hull = cv2.convexHull(np.rint(np.column_stack([u - lo, v - r0])).astype(np.int32))
+        cv2.fillConvexPoly(mask, hull, 1)
+        mask = cv2.dilate(mask, np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)).astype(bool)
+        return np.arange(r0, r1 + 1), cols, mask
 
     def _render_region(
-        self, img: np.ndarray, moving: Scene, rows: np.ndarray, cols: np.ndarray, s: int
+        self,
+        img: np.ndarray,
+        moving: Scene,
+        rows: np.ndarray,
+        cols: np.ndarray,
+        mask: np.ndarray | None,
+        s: int,
     ) -> None:
-        """Re-render pixels (rows x cols) with the moving objects over the cached room, in place.
+        """Re-render pixels (rows x cols, where ``mask``) with the moving objects over the room, in place.
 
         One ray per pixel centre; pixels whose 3 x 3 neighbourhood changes label (object outline,
         colour edge of the print) get S x S rays. Rays that miss every moving object show the room
@@ -213,13 +241,19 @@ class ImageRenderer:
         h, w = len(rows), len(cols)
         uu, vv = np.meshgrid(cols.astype(np.float64), rows.astype(np.float64), indexing="xy")
         px = np.column_stack([uu.ravel(), vv.ravel()])
-        col, lab = self._trace(moving, px)
         room = self.background()[np.ix_(rows, cols)].reshape(-1, 3).astype(np.float32)
-        miss = lab == 0
-        col[miss] = room[miss]
+        col = room.copy()
+        lab = np.zeros(h * w, np.uint8)
+        sel = np.arange(h * w) if mask is None else np.flatnonzero(mask.ravel())
+        c1, l1 = self._trace(moving, px[sel])
+        hit = l1 != 0
+        col[sel[hit]], lab[sel] = c1[hit], l1
         L = lab.reshape(h, w)
         k3 = np.ones((3, 3), np.uint8)
-        edge = np.flatnonzero(cv2.dilate(L, k3) != cv2.erode(L, k3))
+        edge = cv2.dilate(L, k3) != cv2.erode(L, k3)
+        if mask is not None:
+            edge &= mask
+        edge = np.flatnonzero(edge)
         if s > 1 and edge.size:
             off = (np.arange(s) + 0.5) / s - 0.5
             sub = np.stack(np.meshgrid(off, off, indexing="xy"), axis=-1).reshape(-1, 2)  # (s*s, 2)
@@ -230,7 +264,8 @@ class ImageRenderer:
                 c2 = c2.reshape(len(e), s * s, 3)
                 c2 = np.where((l2 == 0).reshape(len(e), s * s, 1), room[e][:, None, :], c2)
                 col[e] = c2.mean(axis=1)
-        img[np.ix_(rows, cols)] = np.clip(np.rint(col), 0, 255).astype(np.uint8).reshape(h, w, 3)
+        out = np.clip(np.rint(col[sel]), 0, 255).astype(np.uint8)
+        img[rows[sel // w], cols[sel % w]] = out  # only the traced pixels: others may show other objects
 
     # -------------------------------------------------------------------- frame
     def render(self, scene: Scene, frame: int) -> np.ndarray:

@@ -133,41 +133,53 @@ def _room_exit(origin: np.ndarray, d: np.ndarray, scene: Scene) -> tuple[np.ndar
 
 
 def _box_entry(origin: np.ndarray, d: np.ndarray, box: Box) -> tuple[np.ndarray, np.ndarray]:
-    """Distance to where rays enter a box (inf for a miss) and the entry face's normal (LiDAR frame)."""
+    """Distance to where rays enter a box (inf for a miss) and the entry face's normal (LiDAR frame).
+
+    Slab test; a zero direction component gives +-inf bounds, which is right inside and outside
+    the slab (a ray starting exactly on a face and parallel to it counts as a miss).
+    """
     R, c = box.T_lidar_box[:3, :3], box.T_lidar_box[:3, 3]
     o = R.T @ (origin - c)
-    db = d @ R  # rows: R^T d
+    db = R.T @ d.T  # (3, N): directions in the box frame, one row per axis
     with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (-box.half - o) / db
-        t2 = (box.half - o) / db
-    tlo, thi = np.fmin(t1, t2), np.fmax(t1, t2)
-    # a zero direction component: inside the slab -> (-inf, inf), outside -> miss
-    par = db == 0
-    inside = np.abs(o) <= box.half
-    tlo = np.where(par, np.where(inside, -np.inf, np.inf), tlo)
-    thi = np.where(par, np.where(inside, np.inf, -np.inf), thi)
-    axis = np.argmax(tlo, axis=1)
-    t_in = np.take_along_axis(tlo, axis[:, None], 1)[:, 0]
-    t_out = thi.min(axis=1)
+        inv = 1.0 / db
+        t1 = (-box.half - o)[:, None] * inv
+        t2 = (box.half - o)[:, None] * inv
+    tlo = np.minimum(t1, t2)
+    thi = np.maximum(t1, t2, out=t1)
+    t_in = np.maximum(np.maximum(tlo[0], tlo[1]), tlo[2])
+    t_out = np.minimum(np.minimum(thi[0], thi[1]), thi[2])
     hit = (t_in <= t_out) & (t_in > 0)
-    n_box = np.zeros_like(d)
-    rows = np.arange(d.shape[0])
-    n_box[rows, axis] = -np.sign(db[rows, axis])
-    return np.where(hit, t_in, np.inf), n_box @ R.T
+    normal = np.zeros_like(d)
+    rows = np.flatnonzero(hit)
+    if rows.size:
+        axis = np.argmax(tlo[:, rows], axis=0)
+        n_box = np.zeros((rows.size, 3))
+        n_box[np.arange(rows.size), axis] = -np.sign(db[axis, rows])
+        normal[rows] = n_box @ R.T
+    return np.where(hit, t_in, np.inf), normal
 
 
 def _board_hit(origin: np.ndarray, d: np.ndarray, board: Board, T: np.ndarray):
-    """Distance to the board rectangle (inf for a miss), front flag and board-frame xy."""
+    """Distance to the board rectangle (inf for a miss), front flag and board-frame xy (N, 2)."""
     R, c = T[:3, :3], T[:3, 3]
     o = R.T @ (origin - c)
-    db = d @ R
+    dz = d @ R[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = -o[2] / db[:, 2]
-    xy = o[:2] + t[:, None] * db[:, :2]
+        t = -o[2] / dz
+    x = o[0] + t * (d @ R[:, 0])
+    y = o[1] + t * (d @ R[:, 1])
     x0, x1, y0, y1 = board.extent()
-    hit = (t > 0) & (xy[:, 0] >= x0) & (xy[:, 0] <= x1) & (xy[:, 1] >= y0) & (xy[:, 1] <= y1)
-    front = db[:, 2] < 0
-    return np.where(hit, t, np.inf), front, xy
+    hit = (t > 0) & (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
+    return np.where(hit, t, np.inf), dz < 0, np.column_stack([x, y])
+
+
+def _near_sphere(origin: np.ndarray, d: np.ndarray, centre: np.ndarray, radius: float) -> np.ndarray:
+    """Indices of the rays that pass within ``radius`` of ``centre`` ahead of the origin (a cheap cull)."""
+    oc = centre - origin
+    along = d @ oc
+    miss2 = oc @ oc - along * along
+    return np.flatnonzero((miss2 < radius * radius) & (along > -radius))
 
 
 def cast_rays(scene: Scene, origin: np.ndarray, d: np.ndarray) -> Hits:
@@ -179,9 +191,13 @@ def cast_rays(scene: Scene, origin: np.ndarray, d: np.ndarray) -> Hits:
     d = np.asarray(d, dtype=np.float64).reshape(-1, 3)
     t, surf, normal = _room_exit(origin, d, scene)
     for box in scene.boxes:
-        tb, nb = _box_entry(origin, d, box)
-        closer = tb < t
-        t[closer], surf[closer], normal[closer] = tb[closer], box.surface, nb[closer]
+        idx = _near_sphere(origin, d, box.T_lidar_box[:3, 3], float(np.linalg.norm(box.half)))
+        if idx.size == 0:
+            continue
+        tb, nb = _box_entry(origin, d[idx], box)
+        closer = tb < t[idx]
+        sel = idx[closer]
+        t[sel], surf[sel], normal[sel] = tb[closer], box.surface, nb[closer]
     board_xy = np.full((d.shape[0], 2), np.nan)
     if scene.board is not None and scene.T_lidar_board is not None:
         tb, front, xy = _board_hit(origin, d, scene.board, scene.T_lidar_board)

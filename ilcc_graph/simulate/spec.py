@@ -12,7 +12,9 @@ Default magnitudes and why:
 - :class:`Systematics` (all switchable, ``Systematics.off()`` gives the paper's white-noise
   baseline): per-beam range bias sigma 3 mm (residual of a factory beam calibration), dark
   surfaces reading 4 mm farther (range walk of a weak return), 0.2 % dropped returns overall and
-  up to 2 % on black print, and a global ``range_offset_m`` (0 by default).
+  up to 2 % on black print, and a global ``range_offset_m`` (0 by default). An extra switch,
+  off by default: ``beam_intensity_gain_sigma``, a relative intensity gain per beam (uneven
+  per-laser intensity calibration; 0.05 is a plausible value).
 """
 
 from __future__ import annotations
@@ -59,6 +61,8 @@ class Systematics:
     dropout: probability that a return is lost anywhere.
     dropout_black: probability on black print (linear in 1 - colour between white and black).
     range_offset_m: constant added to every range (a global offset, e.g. a LiDAR zero error).
+    beam_intensity_gain_sigma: sigma of a relative intensity gain per beam (uneven per-laser
+        intensity calibration; drawn once per data set).
     """
 
     beam_bias_sigma_m: float = 0.003
@@ -66,9 +70,10 @@ class Systematics:
     dropout: float = 0.002
     dropout_black: float = 0.02
     range_offset_m: float = 0.0
+    beam_intensity_gain_sigma: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("beam_bias_sigma_m", "dark_range_offset_m"):
+        for name in ("beam_bias_sigma_m", "dark_range_offset_m", "beam_intensity_gain_sigma"):
             if not np.isfinite(getattr(self, name)) or getattr(self, name) < 0:
                 raise ValueError(f"Systematics: {name} must be finite and >= 0, got {getattr(self, name)!r}")
         for name in ("dropout", "dropout_black"):
@@ -80,14 +85,14 @@ class Systematics:
     @classmethod
     def off(cls) -> Systematics:
         """No systematic error at all: the paper's white-noise baseline."""
-        return cls(0.0, 0.0, 0.0, 0.0, 0.0)
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
 class ImageOptions:
     """How images are rendered.
 
-    supersample: S, the board's region is sampled S x S per pixel (other objects 2 x 2).
+    supersample: S; pixels on the edges of moving objects and of the print get S x S rays.
     blur_sigma_px: Gaussian blur of the whole image (0 = none).
     noise_sigma: Gaussian pixel noise, grey levels (0 = none).
     textured_background: procedural texture on walls, floor and ceiling (else flat colours).
@@ -228,6 +233,7 @@ class SimulationSpec:
                 "dropout": s.dropout,
                 "dropout_black": s.dropout_black,
                 "range_offset_m": s.range_offset_m,
+                "beam_intensity_gain_sigma": s.beam_intensity_gain_sigma,
             },
             "image": {
                 "supersample": int(self.image.supersample),

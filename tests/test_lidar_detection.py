@@ -1,0 +1,120 @@
+"""Finding the chessboard among the segments (ilcc_graph.lidar.detection) and the stage's input checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ilcc_graph.board import Board
+from ilcc_graph.config import Roi
+from ilcc_graph.errors import BoardNotFound, InputError
+from ilcc_graph.lidar import estimate_board
+from ilcc_graph.lidar._synthetic import SynthScene, synth_scan
+from ilcc_graph.lidar.detection import find_board, intensity_contrast, roi_mask
+from ilcc_graph.lidar_models import lidar_model
+from ilcc_graph.types import Scan
+
+BOARD = Board(6, 8, 0.075)
+HDL32 = lidar_model("hdl32")
+
+
+def _board_mask(scan: Scan, T: np.ndarray, board: Board) -> np.ndarray:
+    Tinv = np.linalg.inv(T)
+    b = scan.points @ Tinv[:3, :3].T + Tinv[:3, 3]
+    x0, x1, y0, y1 = board.extent()
+    return (np.abs(b[:, 2]) < 0.05) & (b[:, 0] >= x0) & (b[:, 0] <= x1) & (b[:, 1] >= y0) & (b[:, 1] <= y1)
+
+
+@pytest.mark.parametrize(
+    "scene",
+    [
+        SynthScene(distance=4.0, person=True, stand=True, wall_gap=0.2),  # all three at once
+        SynthScene(distance=2.0, in_plane_deg=45, person=True, wall_gap=0.15),
+        SynthScene(distance=1.2, tilt_deg=(30.0, 10.0), stand=True),
+    ],
+)
+def test_board_found_despite_person_stand_and_close_wall(scene: SynthScene) -> None:
+    scan, T = synth_scan(BOARD, HDL32, scene, np.random.default_rng(5))
+    cand = find_board(scan.points, scan.ring, scan.intensity, BOARD, HDL32)
+    on = _board_mask(scan, T, BOARD)
+    picked = np.zeros(len(scan), bool)
+    picked[cand.indices] = True
+    assert (picked & on).sum() >= 0.6 * on.sum()  # recall (trimming attachments costs corners)
+    assert (picked & ~on).sum() <= 0.05 * picked.sum()  # precision: no person, wall or pole
+    assert cand.normal @ scan.points[cand.indices].mean(axis=0) < 0  # normal towards the sensor
+    # the stage takes the board's returns back from the plane around it: nearly all, nothing else
+    fit = estimate_board(scan, BOARD, HDL32)
+    Tinv = np.linalg.inv(T)
+    b = fit.points_lidar @ Tinv[:3, :3].T + Tinv[:3, 3]
+    x0, x1, y0, y1 = BOARD.extent()
+    good = (np.abs(b[:, 2]) < 0.05) & (b[:, 0] >= x0 - 0.01) & (b[:, 0] <= x1 + 0.01)
+    good &= (b[:, 1] >= y0 - 0.01) & (b[:, 1] <= y1 + 0.01)
+    assert good.mean() > 0.98 and len(b) >= 0.95 * on.sum()
+    truth = BOARD.corners_board() @ T[:3, :3].T + T[:3, 3]
+    err = min(
+        np.sqrt(((fit.corners_lidar - truth) ** 2).sum(axis=1).mean()),
+        np.sqrt(((fit.corners_lidar[BOARD.half_turn_permutation()] - truth) ** 2).sum(axis=1).mean()),
+    )
+    assert err < 0.005
+
+
+def test_margin_counts_in_the_physical_size() -> None:
+    board = Board(6, 8, 0.095, margin_long=0.045, margin_short=0.02)
+    model = lidar_model("vlp16")
+    scan, T = synth_scan(board, model, SynthScene(distance=2.0, in_plane_deg=45), np.random.default_rng(1))
+    cand = find_board(scan.points, scan.ring, scan.intensity, board, model)
+    on = _board_mask(scan, T, board)
+    assert np.isin(np.flatnonzero(on), cand.indices).mean() > 0.8
+
+
+def test_frame_without_board_raises_with_a_reason() -> None:
+    sc = SynthScene(distance=2.0, azimuth_deg=0.0, azimuth_window_deg=60.0)
+    scan, _ = synth_scan(BOARD, HDL32, sc, np.random.default_rng(0))
+    far = np.abs(np.degrees(np.arctan2(scan.points[:, 1], scan.points[:, 0]))) > 20  # drop the board
+    empty = Scan(scan.points[far], scan.intensity[far], scan.ring[far])
+    with pytest.raises(BoardNotFound, match="chessboard tests|board size"):
+        estimate_board(empty, BOARD, HDL32)
+
+
+def test_plain_board_sized_plate_is_not_the_chessboard() -> None:
+    scan, T = synth_scan(BOARD, HDL32, SynthScene(distance=2.0, wall_gap=None), np.random.default_rng(0))
+    on = _board_mask(scan, T, BOARD)
+    inten = scan.intensity.copy()
+    inten[on] = 40.0 + np.random.default_rng(1).normal(0, 2.0, on.sum())  # no print
+    with pytest.raises(BoardNotFound, match="contrast"):
+        estimate_board(Scan(scan.points, inten, scan.ring), BOARD, HDL32)
+
+
+def test_region_of_interest_narrows_the_search() -> None:
+    sc = SynthScene(distance=2.5, azimuth_deg=170.0)  # the board straddles +-180 deg... nearly
+    scan, T = synth_scan(BOARD, HDL32, sc, np.random.default_rng(2))
+    fit = estimate_board(scan, BOARD, HDL32, roi=Roi(azimuth_deg=(150.0, -170.0), range_m=(1.0, 4.0)))
+    assert np.linalg.norm(fit.T_lidar_board[:3, 3] - T[:3, 3]) < 0.05
+    with pytest.raises(BoardNotFound, match="region of interest"):
+        estimate_board(scan, BOARD, HDL32, roi=Roi(azimuth_deg=(-10.0, 10.0)))
+
+
+def test_roi_mask_wraps_and_limits() -> None:
+    p = np.array([[1.0, 0.0, 0.0], [-1.0, 0.01, 0.0], [-1.0, -0.01, 0.0], [0.0, 1.0, 0.0], [5.0, 0.0, 0.0]])
+    roi = Roi(azimuth_deg=(170.0, -170.0))
+    assert roi_mask(p, roi).tolist() == [False, True, True, False, False]
+    assert roi_mask(p, Roi(range_m=(0.5, 2.0))).tolist() == [True, True, True, True, False]
+    assert roi_mask(p, None).all()
+
+
+def test_scan_without_usable_intensity_is_an_input_error() -> None:
+    scan, _ = synth_scan(BOARD, HDL32, SynthScene(distance=2.0), np.random.default_rng(0))
+    with pytest.raises(InputError, match="intensity"):
+        estimate_board(Scan(scan.points, np.zeros(len(scan)), scan.ring, source="x.pcd"), BOARD, HDL32)
+    with pytest.raises(InputError, match="intensity"):
+        estimate_board(Scan(scan.points, None, scan.ring), BOARD, HDL32)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="shape"):
+        estimate_board(Scan(scan.points, scan.intensity[:10], scan.ring), BOARD, HDL32)
+
+
+def test_intensity_contrast_separates_print_from_plain() -> None:
+    rng = np.random.default_rng(0)
+    printed = np.r_[rng.normal(10, 2, 300), rng.normal(70, 4, 300)]
+    plain = rng.normal(40, 3, 600)
+    assert intensity_contrast(printed)[0] > 8 and intensity_contrast(printed)[1] > 0.4
+    assert intensity_contrast(plain)[0] < 3
