@@ -115,9 +115,20 @@ def summarise(T: np.ndarray, cov: np.ndarray, truth: np.ndarray | None = None) -
     lines += ["  [" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in T]
     names = ("roll", "pitch", "yaw")
     lines.append("rotation (deg, Rz(yaw) Ry(pitch) Rx(roll)); 1-sigma about the body axes rx, ry, rz:")
-    lines += [f"  {n:5s} {v:+10.4f}   sigma {s:.4f}" for n, v, s in zip(names, rpy, sig[:3])]
+    has_cov = bool(np.all(np.isfinite(sig)))
+    if not has_cov:
+        lines[-1] = (
+            "rotation (deg, Rz(yaw) Ry(pitch) Rx(roll)); no covariance (the paper's refinement gives none):"
+        )
+    lines += [
+        f"  {n:5s} {v:+10.4f}" + (f"   sigma {s:.4f}" if has_cov else "")
+        for n, v, s in zip(names, rpy, sig[:3])
+    ]
     lines.append("translation (mm):")
-    lines += [f"  {n:5s} {1e3 * v:+10.2f}   sigma {s:.2f}" for n, v, s in zip("xyz", T[:3, 3], sig[3:])]
+    lines += [
+        f"  {n:5s} {1e3 * v:+10.2f}" + (f"   sigma {s:.2f}" if has_cov else "")
+        for n, v, s in zip("xyz", T[:3, 3], sig[3:])
+    ]
     if truth is not None:
         err = gtsam.Pose3(truth).between(pose)  # T_true^-1 T_est
         rot = np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(err.rotation())))

@@ -37,7 +37,6 @@ from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.graph import GraphFrame, GraphOptions, solve
 from ilcc_graph.init import upnp
 
-
 MODES = ("rigid", "drift")
 DRIFT_TIES = ("star", "chain")
 MIN_CORNERS = 3
@@ -112,6 +111,7 @@ class ConsistencyTest:
     dof: degrees of freedom of the chi-square law of ``mahalanobis`` when nothing moved.
     p_value: chance of a value at least this large when nothing moved.
     moved: ``p_value < alpha``.
+    kind: ``"global"``, ``"session"`` (one session against the others) or ``"pair"`` (consecutive).
     """
 
     label: str
@@ -123,6 +123,7 @@ class ConsistencyTest:
     dof: int
     p_value: float
     moved: bool
+    kind: str = "pair"
 
 
 # ------------------------------------------------------------------------------ small helpers
@@ -229,7 +230,7 @@ def compare_estimates(ref: Estimate, other: Estimate) -> tuple[np.ndarray, np.nd
 
 
 def _test(
-    label: str, session: str | None, delta: np.ndarray, m: float, dof: int, alpha: float
+    label: str, session: str | None, delta: np.ndarray, m: float, dof: int, alpha: float, kind: str
 ) -> ConsistencyTest:
     p = float(chi2_dist.sf(m, dof))
     return ConsistencyTest(
@@ -242,6 +243,7 @@ def _test(
         dof=dof,
         p_value=p,
         moved=p < alpha,
+        kind=kind,
     )
 
 
@@ -418,6 +420,9 @@ class JointOptions:
     drift_tie: ``"star"`` (each session tied to a common mount, the joint extrinsic) or ``"chain"``
         (session k to session k+1 in the given order; the joint extrinsic is the last session's).
     alpha: significance of the consistency tests (false-alarm probability of the global test).
+    repeatability_deg, repeatability_mm: per-axis sigma of a session-to-session scatter that the
+        frames' covariances do not describe (e.g. stage biases that change with the board placements);
+        added to each session's covariance in the consistency tests only (0: trust the covariances).
     range_offset: estimate a range offset per LiDAR label. range_offset_prior_sigma_m: its weak prior.
     graph: options of the per-session pre-solve (``graph.solve``: chi-square gate, robust kernel).
     """
@@ -427,6 +432,8 @@ class JointOptions:
     drift_sigma_mm: float = 2.0
     drift_tie: str = "star"
     alpha: float = 0.01
+    repeatability_deg: float = 0.0
+    repeatability_mm: float = 0.0
     range_offset: bool = False
     range_offset_prior_sigma_m: float = 0.1
     graph: GraphOptions = GraphOptions()
@@ -465,6 +472,8 @@ def _check_options(options: JointOptions) -> None:
         raise ValueError(f"JointOptions.drift_tie must be one of {DRIFT_TIES}, got {options.drift_tie!r}")
     if not (options.drift_sigma_deg > 0 and options.drift_sigma_mm > 0):
         raise ValueError("JointOptions.drift_sigma_deg and drift_sigma_mm must be > 0")
+    if options.repeatability_deg < 0 or options.repeatability_mm < 0:
+        raise ValueError("JointOptions.repeatability_deg and repeatability_mm must be >= 0")
     if not 0 < options.alpha < 1:
         raise ValueError(f"JointOptions.alpha must be in (0, 1), got {options.alpha!r}")
     if not options.range_offset_prior_sigma_m > 0:
@@ -560,6 +569,11 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         sol = _solve(sub, {e0})
         return sol.estimate(e0), sol
 
+    # session-to-session scatter beyond the covariances (JointOptions.repeatability_*); the joint of
+    # n others carries about Q / n of it
+    Q = np.diag(
+        [math.radians(options.repeatability_deg) ** 2] * 3 + [(1e-3 * options.repeatability_mm) ** 2] * 3
+    )
     session_tests: list[ConsistencyTest] = []
     global_test = None
     if S >= 2:
@@ -568,15 +582,17 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
             est, sol = rigid_of(others)
             iterations += sol.iterations
             delta, C = compare_estimates(est, alone[sess.name])
+            C = C + Q * (1.0 + 1.0 / len(others))
             m = float(delta @ np.linalg.solve(C, delta))
             session_tests.append(
-                _test(f"{sess.name} vs others", sess.name, delta, m, POSE3_DOF, options.alpha)
+                _test(f"{sess.name} vs others", sess.name, delta, m, POSE3_DOF, options.alpha, "session")
             )
     pair_tests = []
     for a, b in zip(sessions[:-1], sessions[1:]):
         delta, C = compare_estimates(alone[a.name], alone[b.name])
+        C = C + 2.0 * Q
         m = float(delta @ np.linalg.solve(C, delta))
-        pair_tests.append(_test(f"{a.name} -> {b.name}", b.name, delta, m, POSE3_DOF, options.alpha))
+        pair_tests.append(_test(f"{a.name} -> {b.name}", b.name, delta, m, POSE3_DOF, options.alpha, "pair"))
 
     rigid_est, rigid_sol = rigid_of(list(range(S)))
     iterations += rigid_sol.iterations
@@ -584,9 +600,9 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         total = 0.0
         for sess in sessions:
             d = rigid_est.pose.localCoordinates(alone[sess.name].pose)
-            total += float(d @ np.linalg.solve(alone[sess.name].covariance, d))
+            total += float(d @ np.linalg.solve(alone[sess.name].covariance + Q, d))
         global_test = _test(
-            "all sessions", None, np.zeros(POSE3_DOF), total, POSE3_DOF * (S - 1), options.alpha
+            "all sessions", None, np.zeros(POSE3_DOF), total, POSE3_DOF * (S - 1), options.alpha, "global"
         )
 
     range_offsets: dict[str, RangeOffset] = {}

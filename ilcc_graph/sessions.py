@@ -137,6 +137,7 @@ def _estimate_dict(e: Estimate) -> dict[str, Any]:
 def _test_dict(t: ConsistencyTest) -> dict[str, Any]:
     return {
         "label": t.label,
+        "kind": t.kind,
         "session": t.session,
         "rotation_deg": t.rotation_deg,
         "translation_mm": t.translation_mm,
@@ -190,7 +191,7 @@ def format_joint(sol: JointSolution) -> str:
         lines.append("consistency (chi-square):")
         for t in tests:
             size = "" if t.session is None else f"  {t.rotation_deg:.3f} deg, {t.translation_mm:.1f} mm"
-            flag = "MOVED" if t.moved else "ok"
+            flag = ("differs" if t.kind == "session" else "MOVED") if t.moved else "ok"
             lines.append(
                 f"  {t.label:<24s} chi2 {t.mahalanobis:8.1f} ({t.dof} dof)  p={t.p_value:.2g}{size}  {flag}"
             )

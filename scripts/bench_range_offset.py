@@ -48,9 +48,10 @@ def simulator_check(n_frames: int, offset: float = 0.03) -> str:
     from ilcc_graph.simulate import Systematics, board_placements, frame_scene, simulate_scan, standard_spec
 
     rows = [
-        f"Range offset {1e3 * offset:.0f} mm; noise-free scans of the simulator's scenes (boards 1.4-2.5 m, "
-        "tilted); columns: the board pose change the LiDAR stage reports, and its part the model does "
-        "not explain (rotation mrad, translation mm; rx ry rz / tx ty tz in the board frame, z the normal).",
+        f"Range offset {1e3 * offset:.0f} mm; noise-free scans of the simulator's default board placements "
+        "(standard_spec, seed 4); columns: the board pose change the LiDAR stage reports, and its part "
+        "the model does not explain (rotation mrad, translation mm; rx ry rz / tx ty tz in the board frame, "
+        "z the normal).",
         "",
         "| LiDAR | frame | fitted change rot (mrad) | fitted change trans (mm) | model error rot (mrad) "
         "| model error trans (mm) | stage sigma rot (mrad) | stage sigma trans (mm) |",
@@ -124,8 +125,9 @@ def monte_carlo(runs: int, n_frames: int) -> str:
             n_without.append(xi @ np.linalg.solve(plain.joint.covariance, xi))
         z = np.array(z)
         rows.append(
-            f"| {label} | {1e3 * b:.0f} | {1e3 * np.mean(est):.2f} | {1e3 * np.mean(sig):.2f} | {z.mean():+.2f} "
-            f"| {z.std():.2f} | {100 * np.mean(np.abs(z) < 3):.0f} % | {np.mean(n_with):.1f} | {np.mean(n_without):.1f} |"
+            f"| {label} | {1e3 * b:.0f} | {1e3 * np.mean(est):.2f} | {1e3 * np.mean(sig):.2f} "
+            f"| {z.mean():+.2f} | {z.std():.2f} | {100 * np.mean(np.abs(z) < 3):.0f} % "
+            f"| {np.mean(n_with):.1f} | {np.mean(n_without):.1f} |"
         )
         print(rows[-1], flush=True)
     return "\n".join(rows)

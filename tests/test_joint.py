@@ -244,6 +244,8 @@ def test_summary_and_terminal_report_of_a_moved_mount() -> None:
     assert set(summary["sessions"]) == {"A", "B", "C"}
     text = format_joint(sol)
     assert "MOVED" in text and "session C" in text and "rx ry rz" in text
+    assert summary["consistency"]["global"]["kind"] == "global"
+    assert [t.kind for t in sol.session_tests] == ["session"] * 3 and sol.pair_tests[0].kind == "pair"
     # a pipeline Calibration becomes a Session with its used frames only
     f = sessions[0].frames[0]
     board = BoardFit(f.T_lidar_board, f.board_cov, np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), False)
@@ -341,3 +343,17 @@ def test_calibrate_sessions_from_data_sets(tmp_path, monkeypatch) -> None:
     assert res.joint.global_test.moved and res.joint.pair_tests[0].moved
     assert nees(res.joint.sessions["fri"], T_b) < 22.5 and nees(res.joint.sessions["mon"], T_TRUE) < 22.5
     assert res.configs["fri"].board.square_size == pytest.approx(0.1)
+
+
+def test_repeatability_widens_the_tests() -> None:
+    rng = np.random.default_rng(14)
+    sessions = three_sessions(rng, (T_TRUE, moved(T_TRUE, 0.05, 1.0, rng), T_TRUE), n=6)
+    strict = solve_sessions(sessions)
+    loose = solve_sessions(sessions, JointOptions(repeatability_deg=0.1, repeatability_mm=3.0))
+    assert np.array_equal(strict.joint.T, loose.joint.T)
+    for a, b in zip(strict.session_tests + strict.pair_tests, loose.session_tests + loose.pair_tests):
+        assert b.mahalanobis < a.mahalanobis and np.allclose(a.delta, b.delta)
+    assert loose.global_test.mahalanobis < strict.global_test.mahalanobis
+    assert strict.global_test.moved and not loose.global_test.moved
+    with pytest.raises(ValueError, match="repeatability"):
+        solve_sessions(sessions, JointOptions(repeatability_mm=-1.0))

@@ -118,3 +118,18 @@ def test_intensity_contrast_separates_print_from_plain() -> None:
     plain = rng.normal(40, 3, 600)
     assert intensity_contrast(printed)[0] > 8 and intensity_contrast(printed)[1] > 0.4
     assert intensity_contrast(plain)[0] < 3
+
+
+@pytest.mark.parametrize("name", ["vlp16", "vlp32c", "hdl64", "os1-64"])
+def test_board_found_with_every_beam_table(name: str) -> None:
+    # vlp32c's table is dense near the horizon and sparse away from it
+    model = lidar_model(name)
+    sc = SynthScene(distance=2.5, elevation_deg=-4.0, in_plane_deg=45, stand=True, tilt_deg=(20.0, 10.0))
+    scan, T = synth_scan(BOARD, model, sc, np.random.default_rng(11))
+    fit = estimate_board(scan, BOARD, model)
+    truth = BOARD.corners_board() @ T[:3, :3].T + T[:3, 3]
+    err = min(
+        np.sqrt(((fit.corners_lidar - truth) ** 2).sum(axis=1).mean()),
+        np.sqrt(((fit.corners_lidar[BOARD.half_turn_permutation()] - truth) ** 2).sum(axis=1).mean()),
+    )
+    assert err < 0.008, (name, err)

@@ -96,13 +96,6 @@ def _core(b: np.ndarray, P: np.ndarray, T: np.ndarray, board: Board, s_z: float)
     return core
 
 
-def _plane_lsq(p: np.ndarray) -> tuple[np.ndarray, float]:
-    mu = p.mean(axis=0)
-    _, _, vt = np.linalg.svd(p - mu, full_matrices=False)
-    n = vt[2] if vt[2] @ mu < 0 else -vt[2]
-    return n, float(n @ mu)
-
-
 def fit_board_points(
     points: np.ndarray,
     intensity: np.ndarray,
@@ -200,7 +193,8 @@ def fit_board_points(
     if agree < options.min_agreement:
         raise BoardNotFound(
             f"a board-shaped object at {float(np.linalg.norm(P[on].mean(axis=0))):.2f} m, but the fitted "
-            f"chessboard explains only {agree:.0%} of its black/white returns (need {options.min_agreement:.0%})"
+            f"chessboard explains only {agree:.0%} of its black/white returns "
+            f"(need {options.min_agreement:.0%})"
         )
     cov_q = sampling_covariance(b_fin[:, :2], cls, ring[on], board, soft.blur)
     cov_in = soft.cov + cov_q

@@ -374,10 +374,11 @@ def find_board(
         # pole comes apart from it) and those are tested or split in turn
         idx = np.sort(idx)
         queue = [(idx, e_all[e_obj == seg.labels[idx[0]]])]
-        own = options.max_planes
+        own = options.max_planes * 3
         while queue and budget[0] > 0 and own > 0 and not passed:
             own -= 1
-            queue.sort(key=lambda t: len(t[0]))
+            # smallest first: the floor and walls are big, a board with a pole or an arm is not
+            queue.sort(key=lambda t: -len(t[0]))
             cur, cur_e = queue.pop()
             if cur.size < 12:
                 continue
@@ -399,8 +400,10 @@ def find_board(
                 size = float(np.linalg.norm(np.ptp(p[piece], axis=0)))
                 if size < 2.0 * diag:
                     test(piece, 1)  # small enough to be judged (and trimmed) directly
-                if size >= options.size_ratio[0] * diag:
-                    queue.append((piece, pe))
+                if size >= options.size_ratio[0] * diag and piece.size >= max(
+                    min_count(piece), options.min_points
+                ):
+                    queue.append((piece, pe))  # big enough, and with returns enough, to hold a board
 
     for k in range(seg.n_objects):
         idx = order[first[k] : last[k]]

@@ -40,8 +40,8 @@ class LidarOptions:
     min_points, min_rings: fewest returns and scanlines a candidate may have (a few returns at long
         range pass the paper's tests by chance and cannot give corners anyway).
     ransac_threshold_m: plane inlier distance floor (grown with the noise estimate).
-    max_planes: planes tried per over-merged object when splitting it (wall behind, person);
-        six times as many for the whole scan.
+    max_planes: sets the RANSAC planes tried when splitting over-merged objects (wall behind,
+        person): three times as many per object, six times as many for the whole scan.
 
     Corner fit (paper, Section 4.2)
     -------------------------------

@@ -200,6 +200,19 @@ figure{display:inline-block;margin:.4em;vertical-align:top;max-width:100%} figur
 """
 
 
+_TABLE_NOTE = " ".join(
+    [
+        '<p class="note"><b>fit RMS</b>: the solver\'s bearing residual (after it moves each board pose',
+        "within its uncertainty). <b>corner RMS</b>: LiDAR corners re-projected with the result against",
+        "the detected image corners; <b>explained</b>: what the stated uncertainties of both account for.",
+        "<b>intensity error</b>: the paper's re-projection error (Eq. 14, gray zone epsilon_g = 4): board",
+        "points that land inside the detected corners' cells and whose intensity colour disagrees with the",
+        "printed colour cost their L1 distance to the nearest grid lines, divided by range, averaged and",
+        "divided by the attendance rate (points inside over points the LiDAR fit puts inside). Near zero",
+        "when right; a 1 degree error gives several mrad.</p>",
+    ]
+)
+
 _GALLERY_NOTE = " ".join(
     [
         '<p class="note">Click a frame to open or close it, a picture for full size.',
@@ -538,15 +551,7 @@ def build_report(
             left_last=1,
         )
     )
-    body.append(
-        '<p class="note"><b>fit RMS</b>: the solver\'s bearing residual. <b>corner RMS</b>: LiDAR '
-        "corners re-projected with the result against the detected image corners. <b>intensity "
-        "error</b>: the paper's re-projection error (Eq. 14, gray zone epsilon_g = 4): board points "
-        "that land inside the detected corners' cells and whose intensity colour disagrees with the "
-        "printed colour cost their L1 distance to the nearest grid lines, divided by range, averaged and "
-        "divided by the attendance rate (points inside over points the LiDAR fit puts inside). Near zero "
-        "when right; a 1 degree error gives several mrad.</p>"
-    )
+    body.append(_TABLE_NOTE)
     stats = [(e.intensity_mrad, e.corner_mrad, e.corner_px) for e in (ev_used, ev)]
     labels = ("intensity error (mrad)", "corner RMS (mrad)", "corner RMS (px)")
     stat_rows = [

@@ -1,0 +1,230 @@
+"""Image stage: corners on simulated panoramas, pinhole and fisheye images, against the true projection."""
+
+from __future__ import annotations
+
+import dataclasses
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from ilcc_graph.board import Board
+from ilcc_graph.errors import CornersNotFound
+from ilcc_graph.image import ImageOptions, detect_corners
+from ilcc_graph.simulate import simulate_frames, standard_spec
+from ilcc_graph.simulate.spec import default_T_cam_lidar
+
+ODD_BOARD = Board(7, 8, 0.1, lower_left="white")  # 7 + 8 odd: no half-turn symmetry, order is exact
+MARGIN_BOARD = Board(5, 8, 0.09, margin_long=0.05, margin_short=0.03)  # odd too, with a white margin
+
+
+def _rot(axis: int, a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    R = np.eye(3)
+    R[i, i] = R[j, j] = c
+    R[i, j], R[j, i] = -s, s
+    return R
+
+
+def facing_pose(board: Board, centre_lidar, camera_lidar, roll: float = 0.0, tilt: float = 0.0) -> np.ndarray:
+    """T_lidar_board: pattern centre at ``centre_lidar``, z towards ``camera_lidar``, rolled about z."""
+    c = np.asarray(centre_lidar, dtype=float)
+    z = np.asarray(camera_lidar, dtype=float) - c
+    z /= np.linalg.norm(z)
+    x = np.cross([0.0, 0.0, 1.0], z)
+    x /= np.linalg.norm(x)
+    R = np.column_stack([x, np.cross(z, x), z]) @ _rot(0, tilt) @ _rot(2, roll)
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = c - R @ board.pattern_centre
+    return T
+
+
+def camera_centre(T_cam_lidar: np.ndarray) -> np.ndarray:
+    return -T_cam_lidar[:3, :3].T @ T_cam_lidar[:3, 3]
+
+
+def truth_uv(spec, T_lidar_board: np.ndarray) -> np.ndarray:
+    b = spec.board
+    P = (spec.T_cam_lidar @ T_lidar_board @ np.c_[b.corners_board(), np.ones(b.n_corners)].T)[:3].T
+    return spec.camera.project(P)
+
+
+def pixel_error(camera, uv: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    d = uv - ref
+    if hasattr(camera, "wrap_du"):
+        d[:, 0] = camera.wrap_du(d[:, 0])
+    return np.linalg.norm(d, axis=1)
+
+
+def check(spec, frame, exact: bool, med_px: float = 0.15, max_px: float = 0.6):
+    """Detect, compare with the truth (exact order, or up to the half turn), check the covariance."""
+    res = detect_corners(frame.image, spec.camera, spec.board)
+    ref = truth_uv(spec, frame.T_lidar_board)
+    e = pixel_error(spec.camera, res.uv, ref)
+    if not exact:
+        assert res.half_turn_ambiguous
+        e_turn = pixel_error(spec.camera, res.uv, ref[spec.board.half_turn_permutation()])
+        e = e if e.max() < e_turn.max() else e_turn
+    else:
+        assert not res.half_turn_ambiguous
+    assert np.median(e) < med_px and e.max() < max_px, (np.median(e), e.max())
+    K = spec.board.n_corners
+    assert res.uv.shape == (K, 2) and res.bearings.shape == (K, 3) and res.cov_px.shape == (K, 2, 2)
+    np.testing.assert_allclose(np.linalg.norm(res.bearings, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(res.bearings, spec.camera.bearing(res.uv), atol=1e-12)
+    np.testing.assert_allclose(res.cov_px, np.swapaxes(res.cov_px, 1, 2), atol=1e-15)
+    assert np.all(np.linalg.eigvalsh(res.cov_px) >= 0.05**2 * (1 - 1e-9))
+    assert np.all(spec.camera.in_image(res.uv))
+    return res, e
+
+
+# ----------------------------------------------------------------------------- panoramas
+@pytest.fixture(scope="module")
+def pano():
+    """2000x1000 panorama, odd board: across the seam, high, low; a margin board; a rolled board."""
+    T_cl = default_T_cam_lidar("equirectangular")
+    cam_c = camera_centre(T_cl)
+    R_lc = T_cl[:3, :3].T
+
+    def at(az_deg, el_deg, dist):
+        a, e = np.deg2rad(az_deg), np.deg2rad(el_deg)
+        d_cam = np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+        return cam_c + dist * (R_lc @ d_cam)
+
+    poses = [
+        facing_pose(ODD_BOARD, at(180.0, 0.0, 2.2), cam_c, roll=0.3),  # straddles the seam
+        facing_pose(ODD_BOARD, at(60.0, 42.0, 1.7), cam_c, roll=-0.5, tilt=0.3),  # high
+        facing_pose(ODD_BOARD, at(-100.0, -35.0, 2.0), cam_c, roll=2.0),  # low, turned
+    ]
+    spec = standard_spec(camera="equirectangular", width=2000, board=ODD_BOARD, placements=tuple(poses))
+    return spec, list(simulate_frames(spec))
+
+
+def test_panorama_board_across_the_seam(pano):
+    spec, frames = pano
+    ref = truth_uv(spec, frames[0].T_lidar_board)
+    assert ref[:, 0].min() < 100 and ref[:, 0].max() > spec.camera.width - 100  # it really straddles
+    check(spec, frames[0], exact=True)
+
+
+def test_panorama_high_and_low_boards(pano):
+    spec, frames = pano
+    for f in frames[1:]:
+        check(spec, f, exact=True)
+
+
+def test_upside_down_panorama(pano):
+    spec, frames = pano
+    T_flip = np.eye(4)
+    T_flip[:3, :3] = _rot(0, np.pi)  # camera rolled half a turn about its forward axis
+    spec_ud = dataclasses.replace(spec, T_cam_lidar=T_flip @ spec.T_cam_lidar)
+    # (az, el) -> (-az, -el) maps pixel (u, v) to (W-1-u, H-1-v) exactly: the flipped camera's image
+    for f in frames:
+        flipped = SimpleNamespace(
+            image=np.ascontiguousarray(f.image[::-1, ::-1]), T_lidar_board=f.T_lidar_board
+        )
+        check(spec_ud, flipped, exact=True)
+
+
+# ------------------------------------------------------------------------ pinhole, fisheye
+@pytest.fixture(scope="module")
+def pinhole():
+    spec = standard_spec(camera="pinhole", width=960, frames=2, seed=3)  # 6x8: half-turn symmetric
+    return spec, list(simulate_frames(spec))
+
+
+def test_pinhole_symmetric_board(pinhole):
+    spec, frames = pinhole
+    assert spec.board.half_turn_symmetric
+    for f in frames:
+        check(spec, f, exact=False)
+
+
+@pytest.fixture(scope="module")
+def fisheye():
+    spec = standard_spec(camera="fisheye", width=1280, frames=2, seed=5, board=MARGIN_BOARD)
+    return spec, list(simulate_frames(spec))
+
+
+def test_fisheye_margin_board(fisheye):
+    spec, frames = fisheye
+    for f in frames:
+        check(spec, f, exact=True)
+
+
+@pytest.fixture(scope="module")
+def upside_down_pinhole():
+    T = default_T_cam_lidar("pinhole").copy()
+    T[:3] = np.diag([-1.0, -1.0, 1.0]) @ T[:3]  # rolled by pi about the optical axis
+    spec = standard_spec(camera="pinhole", width=960, frames=2, seed=7, board=ODD_BOARD, T_cam_lidar=T)
+    return spec, list(simulate_frames(spec))
+
+
+def test_upside_down_pinhole_exact_order(upside_down_pinhole):
+    spec, frames = upside_down_pinhole
+    for f in frames:
+        check(spec, f, exact=True)
+
+
+def test_half_turned_board_exact_order(pinhole):
+    """The same physical board held half turned: the odd board's colours give the order back."""
+    spec0, _ = pinhole
+    cam_c = camera_centre(spec0.T_cam_lidar)
+    T0 = facing_pose(ODD_BOARD, [2.0, 0.3, 0.0], cam_c, roll=0.2)
+    spec = dataclasses.replace(spec0, board=ODD_BOARD, placements=(T0, T0 @ ODD_BOARD.T_half_turn()))
+    frames = list(simulate_frames(spec))
+    uv = [check(spec, f, exact=True)[0].uv for f in frames]
+    np.testing.assert_allclose(uv[1], uv[0][ODD_BOARD.half_turn_permutation()], atol=0.5)
+
+
+# ------------------------------------------------------------------------------- failures
+def test_no_board_raises(pinhole):
+    spec, _ = pinhole
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 256, size=(spec.camera.height // 8, spec.camera.width // 8, 3), dtype=np.uint8)
+    img = np.kron(img, np.ones((8, 8, 1), dtype=np.uint8))[: spec.camera.height, : spec.camera.width]
+    with pytest.raises(CornersNotFound, match="no 6x8-square chessboard"):
+        detect_corners(img, spec.camera, spec.board, ImageOptions(tile_views=False))
+
+
+def test_wrong_board_size_raises(pinhole):
+    spec, frames = pinhole
+    with pytest.raises(CornersNotFound):
+        detect_corners(frames[0].image, spec.camera, Board(5, 9, 0.075), ImageOptions(tile_views=False))
+
+
+def test_lower_left_contradicting_the_print(pinhole):
+    """6x8 board configured white-origin on a black-origin print: clear error, or geometry only."""
+    spec, frames = pinhole
+    wrong = dataclasses.replace(spec.board, lower_left="white")
+    with pytest.raises(CornersNotFound, match="lower_left: white"):
+        detect_corners(frames[0].image, spec.camera, wrong)
+    res = detect_corners(frames[0].image, spec.camera, wrong, ImageOptions(strict_colour=False))
+    assert res.half_turn_ambiguous and res.diagnostics["colour_score"] < -0.5
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        [[0, 1], [2, 3]],  # not an array
+        np.zeros((600, 960, 2), dtype=np.uint8),  # two channels
+        np.zeros((601, 960, 3), dtype=np.uint8),  # not the camera's size
+        np.full((600, 960), "a"),  # strings
+        np.full((600, 960), np.nan),  # NaN
+        np.zeros(5),  # 1-D
+    ],
+)
+def test_not_an_image_raises_value_error(pinhole, bad):
+    spec, _ = pinhole
+    assert (spec.camera.width, spec.camera.height) == (960, 600)
+    with pytest.raises(ValueError):
+        detect_corners(bad, spec.camera, spec.board)
+
+
+def test_options_are_checked():
+    with pytest.raises(ValueError):
+        ImageOptions(coarse_width=10)
+    with pytest.raises(ValueError):
+        ImageOptions(floor_px=-1.0)
