@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import sys
@@ -28,6 +29,9 @@ examples:
   ilcc-graph simulate sim/ --lidar hdl32 --camera equirectangular --frames 20 --seed 0
   ilcc-graph calibrate DATA --out out/run1          scans in DATA/pcd, images in DATA/img, DATA/config.yaml
   ilcc-graph calibrate DATA --refine paper          the paper's refinement (no covariance), for comparison
+  ilcc-graph calibrate MON/ TUE/ WED/ --mode rigid  three sessions jointly; tells if the mount moved
+  ilcc-graph calibrate DATA --range-offset          also estimate the LiDAR's range offset
+  ilcc-graph calibrate DATA --target-sigma 0.05,1   frame by frame (iSAM2) until 0.05 deg / 1 mm
   ilcc-graph lidar-corners DATA --out out/lidar     the LiDAR stage alone: board points, pose, corners
   ilcc-graph image-corners DATA --out out/image     the image stage alone: corners drawn and numbered
   ilcc-graph export out/latest/calibration.yaml --format ros-tf
@@ -197,11 +201,89 @@ def _calibrate(data: Path, out: Path, args: argparse.Namespace, truth: np.ndarra
     return 0
 
 
+def _pair(text: str | None, what: str) -> tuple[float, float] | None:
+    """'DEG,MM' -> (deg, mm)."""
+    if text is None:
+        return None
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"{what} expects DEG,MM (e.g. 0.05,1.0), got {text!r}") from None
+    return a, b
+
+
+def _joint_options(args: argparse.Namespace):
+    from ilcc_graph.joint import JointOptions
+
+    kw: dict = {"mode": args.mode, "range_offset": args.range_offset, "alpha": args.alpha}
+    if (drift := _pair(args.drift_sigma, "--drift-sigma")) is not None:
+        kw["drift_sigma_deg"], kw["drift_sigma_mm"] = drift
+    if (rep := _pair(args.repeatability, "--repeatability")) is not None:
+        kw["repeatability_deg"], kw["repeatability_mm"] = rep
+    return JointOptions(**kw)
+
+
+def _calibrate_sessions(dirs: list[Path], out: Path, args: argparse.Namespace) -> int:
+    """Several sessions (or one with --range-offset): the joint graph of ilcc_graph.joint."""
+    from ilcc_graph.io import write_calibration, write_yaml
+    from ilcc_graph.pipeline import CalibrateOptions
+    from ilcc_graph.sessions import calibrate_sessions, format_joint, joint_summary
+    from ilcc_graph.types import Calibration
+
+    options = CalibrateOptions(refine="graph", robust=args.robust, jobs=args.jobs)
+    bars: dict[str, _Progress] = {}
+
+    def progress(name: str, done: int, total: int) -> None:
+        bars.setdefault(name, _Progress(name))(done, total)
+
+    res = calibrate_sessions(dirs, _joint_options(args), options, progress=progress)
+    for name in res.names:
+        write_calibration(out / "sessions" / name / "calibration.yaml", res.alone[name])
+    joint = res.joint.joint
+    prefix = len(res.names) > 1
+    frames = tuple(
+        dataclasses.replace(f, name=f"{name}/{f.name}") if prefix else f
+        for name in res.names
+        for f in res.alone[name].frames
+    )
+    cal = Calibration(joint.T, joint.covariance, frames, method=f"joint-{args.mode}")
+    write_calibration(out / "calibration.yaml", cal)
+    write_yaml(out / "joint.yaml", joint_summary(res.joint))
+    print(format_joint(res.joint))
+    print()
+    print(summarise(joint.T, joint.covariance))
+    print(
+        f"\nwrote {out / 'calibration.yaml'} (joint), {out / 'joint.yaml'} and each session alone under "
+        f"{out / 'sessions'}"
+    )
+    return 0
+
+
+def _calibrate_incrementally(data: Path, args: argparse.Namespace) -> int:
+    from ilcc_graph.incremental import format_update
+    from ilcc_graph.sessions import calibrate_dataset_incrementally
+
+    target = _pair(args.target_sigma, "--target-sigma")
+    calibrate_dataset_incrementally(
+        data,
+        target,
+        report=lambda u: print(format_update(u, target), flush=True),
+        stop_at_target=args.stop_at_target,
+    )
+    return 0
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    data = _need_dir(args.data[0])
-    if len(args.data) > 1:
-        raise InputError("several sessions at once are not supported yet; give one data set")
-    return _calibrate(data, _run_dir(args.out), args)
+    dirs = [_need_dir(d) for d in args.data]
+    if args.target_sigma is not None or args.stop_at_target:
+        if len(dirs) > 1:
+            raise InputError("--target-sigma (incremental calibration) takes one data set")
+        return _calibrate_incrementally(dirs[0], args)
+    if len(dirs) > 1 or args.range_offset:
+        if args.refine != "graph":
+            raise InputError("--refine paper calibrates one session without a range offset")
+        return _calibrate_sessions(dirs, _run_dir(args.out), args)
+    return _calibrate(dirs[0], _run_dir(args.out), args)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -376,9 +458,43 @@ def build_parser() -> argparse.ArgumentParser:
         )
         sp.add_argument("--jobs", type=int, default=jobs, help=f"processes for the per-frame stages ({jobs})")
 
-    sp = add("calibrate", cmd_calibrate, "calibrate from a data set (DATA/config.yaml, DATA/pcd, DATA/img)")
-    sp.add_argument("data", nargs="+", metavar="DATA")
+    sp = add(
+        "calibrate",
+        cmd_calibrate,
+        "calibrate from one or more data sets (DATA/config.yaml, DATA/pcd, DATA/img)",
+    )
+    sp.add_argument("data", nargs="+", metavar="DATA", help="one data set, or several sessions of one rig")
     solve_args(sp)
+    g = sp.add_argument_group("several sessions (joint calibration)")
+    g.add_argument(
+        "--mode",
+        choices=("rigid", "drift"),
+        default="rigid",
+        help="rigid: one extrinsic for all sessions; drift: one per session, tied by --drift-sigma",
+    )
+    g.add_argument("--drift-sigma", metavar="DEG,MM", help="drift mode: how far the mount may move (0.1,2)")
+    g.add_argument(
+        "--alpha", type=float, default=0.01, help="false-alarm rate of the mount-moved test (0.01)"
+    )
+    g.add_argument(
+        "--repeatability",
+        metavar="DEG,MM",
+        help="extra per-session spread the moved test tolerates (default 0,0)",
+    )
+    g.add_argument(
+        "--range-offset",
+        action="store_true",
+        help="estimate a LiDAR range offset (metres read long) with its sigma",
+    )
+    g = sp.add_argument_group("incremental (iSAM2)")
+    g.add_argument(
+        "--target-sigma",
+        metavar="DEG,MM",
+        help="print the estimate after each frame and say when these 1-sigma values are reached",
+    )
+    g.add_argument(
+        "--stop-at-target", action="store_true", help="stop reading frames once the target is reached"
+    )
 
     sp = add(
         "demo", cmd_demo, "simulate the standard panoramic set (or reuse it), calibrate, compare to truth"
