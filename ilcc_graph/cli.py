@@ -311,12 +311,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_lidar_corners(args: argparse.Namespace) -> int:
     from ilcc_graph.config import load_config
     from ilcc_graph.io import list_frames, write_pcd, write_yaml
-    from ilcc_graph.pipeline import run_lidar_stage
+    from ilcc_graph.pipeline import check_board_colour, run_lidar_stage
     from ilcc_graph.types import Scan
 
     data = _need_dir(args.data)
     config = load_config(data / "config.yaml")
     frames, unpaired = list_frames(data, require_image=False)
+    config = check_board_colour(frames, config)  # uses the images where there are any
     out = _run_dir(args.out)
     results = run_lidar_stage(frames, config, args.jobs, _Progress("lidar"))
     rows = []
@@ -357,12 +358,13 @@ def cmd_lidar_corners(args: argparse.Namespace) -> int:
 def cmd_image_corners(args: argparse.Namespace) -> int:
     from ilcc_graph.config import load_config
     from ilcc_graph.io import list_frames, read_image, write_image, write_yaml
-    from ilcc_graph.pipeline import run_image_stage
+    from ilcc_graph.pipeline import check_board_colour, run_image_stage
     from ilcc_graph.report.overlays import draw_corners
 
     data = _need_dir(args.data)
     config = load_config(data / "config.yaml")
     frames, unpaired = list_frames(data, require_scan=False)
+    config = check_board_colour(frames, config)
     out = _run_dir(args.out)
     results = run_image_stage(frames, config, args.jobs, _Progress("images"))
     rows = []

@@ -29,6 +29,14 @@ class CornersNotFound(FrameError):
     """The chessboard's inner corners were not found in the image."""
 
 
+class BoardColourMismatch(CornersNotFound):
+    """The print's origin square (z towards the viewer) has the other colour than ``lower_left``.
+
+    Only possible for a board that looks the same after a half turn, where that colour is a
+    property of the print, not of how the board is held.
+    """
+
+
 class CorrespondenceError(FrameError):
     """Image and LiDAR corners of a frame cannot be ordered consistently."""
 

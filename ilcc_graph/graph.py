@@ -83,6 +83,11 @@ class GraphOptions:
         not cost its frame while a frame wrong as a whole still fails.
     max_dropped_fraction: the gate drops at most this fraction of the usable frames (a noise model
         that is wrong for every frame should not empty the graph); the rest are kept with a warning.
+    variance_factor: when True, the stated noise is checked against the residuals. The gate
+        compares each frame's chi-square divided by the median of chi2/dof over the frames (when
+        that exceeds 1), so a noise model that is too optimistic for every frame does not drop
+        good frames; and the covariance is multiplied by the a-posteriori variance factor
+        ``sum chi2 / (sum dof - 6)`` of the kept frames when it exceeds 1 (never shrunk).
     max_iterations, relative_error_tol, absolute_error_tol: Levenberg-Marquardt stopping rules.
     """
 
@@ -90,6 +95,7 @@ class GraphOptions:
     robust_k: float | None = None
     chi2_gate_prob: float | None = 0.999
     max_dropped_fraction: float = 0.5
+    variance_factor: bool = True
     max_iterations: int = 100
     relative_error_tol: float = 1e-10
     absolute_error_tol: float = 1e-12
@@ -128,6 +134,7 @@ class GraphSolution:
     dropped: list[tuple[str, str]]
     iterations: int
     timings: dict[str, float] = field(default_factory=dict)
+    variance_factor: float = 1.0
 
     @property
     def pose(self) -> gtsam.Pose3:
@@ -312,22 +319,40 @@ def _marginal_covariance(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     return cov
 
 
+def _gate_scale(stats: dict[str, FrameStats]) -> float:
+    """Robust noise scale for the gate: the median chi2/dof over frames, at least 1."""
+    ratios = [(s.chi2 if s.chi2_robust is None else s.chi2_robust) / s.dof for s in stats.values()]
+    return max(1.0, float(np.median(ratios))) if ratios else 1.0
+
+
 def _gate_failures(
-    ready: Sequence[_Frame], stats: dict[str, FrameStats], prob: float
+    ready: Sequence[_Frame], stats: dict[str, FrameStats], prob: float, scale: float = 1.0
 ) -> list[tuple[float, _Frame, str]]:
-    """Frames failing the gate as (log survival probability, frame, reason), worst first."""
+    """Frames failing the gate as (log survival probability, frame, reason), worst first.
+
+    scale: the chi-square values are divided by it (the noise model's robust variance factor).
+    """
     failing = []
     for fr in ready:
         s = stats[fr.name]
         value, what = (s.chi2, "chi2") if s.chi2_robust is None else (s.chi2_robust, "robust chi2")
+        value /= scale
         bound = float(chi2_dist.ppf(prob, s.dof))
         if value > bound:
+            scaled = f" (divided by the frames' median chi2/dof {scale:.2f})" if scale > 1.0 else ""
             reason = (
-                f"chi-square gate: residual {what} {value:.1f} > {bound:.1f} ({s.dof} dof, p={prob}); "
-                f"rms bearing error {s.rms_bearing_error_mrad:.3f} mrad"
+                f"chi-square gate: residual {what}{scaled} {value:.1f} > {bound:.1f} ({s.dof} dof, "
+                f"p={prob}); rms bearing error {s.rms_bearing_error_mrad:.3f} mrad"
             )
             failing.append((float(chi2_dist.logsf(value, s.dof)), fr, reason))
     return sorted(failing, key=lambda item: item[0])
+
+
+def _variance_factor(stats: dict[str, FrameStats]) -> float:
+    """A-posteriori variance factor: sum chi2 / (sum dof - 6), at least 1."""
+    chi2 = sum(s.chi2 for s in stats.values())
+    dof = sum(s.dof for s in stats.values()) - POSE3_DOF
+    return max(1.0, chi2 / dof) if dof > 0 else 1.0
 
 
 def solve(
@@ -397,7 +422,8 @@ def solve(
         stats = {fr.name: _frame_stats(fr, result) for fr in ready}
         if options.chi2_gate_prob is None:
             break
-        failing = _gate_failures(ready, stats, options.chi2_gate_prob)
+        scale = _gate_scale(stats) if options.variance_factor else 1.0
+        failing = _gate_failures(ready, stats, options.chi2_gate_prob, scale)
         if not failing:
             break
         if n_gate_drops >= allowed_drops or len(ready) == 1:
@@ -421,6 +447,10 @@ def solve(
         )
     t3 = time.perf_counter()
     covariance = _marginal_covariance(graph, result)
+    factor = _variance_factor(stats) if options.variance_factor else 1.0
+    if factor > 1.0:
+        logger.info("the residuals are %.2f times the stated noise variance; covariance scaled by it", factor)
+        covariance = covariance * factor
     timings["marginals"] = time.perf_counter() - t3
     timings["total"] = time.perf_counter() - t_start
     return GraphSolution(
@@ -431,4 +461,5 @@ def solve(
         dropped=dropped,
         iterations=iterations,
         timings=timings,
+        variance_factor=factor,
     )

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ilcc_graph.config import Config, load_config
-from ilcc_graph.errors import CalibrationImpossible, FrameError
+from ilcc_graph.errors import BoardColourMismatch, CalibrationImpossible, FrameError
 from ilcc_graph.graph import GraphFrame, GraphOptions, solve
 from ilcc_graph.image import detect_corners
 from ilcc_graph.init import resolve_half_turns, upnp
@@ -101,6 +101,48 @@ def _map_frames(
             if progress:
                 progress(i + 1, len(frames))
     return results
+
+
+def check_board_colour(
+    frames: Sequence[FramePaths], config: Config, needed: int = 2, look: int = 6
+) -> Config:
+    """The config with ``board.lower_left`` as the images show it, warning when that differs.
+
+    For a board that looks the same after a half turn (even squares on both sides), the colour of
+    the lower-left square seen from the front is a property of the print, which the user may have
+    mistyped. The image stage tells it with certainty; this looks at up to ``look`` frames until
+    ``needed`` agree, and turns the setting when the images contradict it. Other boards: unchanged.
+    """
+    board = config.board
+    if not board.half_turn_symmetric:
+        return config
+    agree = disagree = 0
+    for paths in frames[:look]:
+        if paths.image is None:
+            continue
+        try:
+            observe_image(paths, config)
+            agree += 1
+        except BoardColourMismatch:
+            disagree += 1
+        except FrameError:
+            continue
+        if max(agree, disagree) >= needed:
+            break
+    if disagree <= agree:
+        return config
+    other = "white" if board.lower_left == "black" else "black"
+    log.warning(
+        "%s: board.lower_left is %s, but the print's lower-left square (seen from the front, long side "
+        "horizontal) is %s in %d of %d images checked; using %s",
+        config.source,
+        board.lower_left,
+        other,
+        disagree,
+        agree + disagree,
+        other,
+    )
+    return dataclasses.replace(config, board=dataclasses.replace(board, lower_left=other))
 
 
 def observe_frames(
@@ -222,7 +264,7 @@ def solve_extrinsic(
         sol = solve(graph_frames, config.camera, T_init, GraphOptions(robust=options.robust))
         T, cov, dropped = sol.T_cam_lidar, sol.covariance, list(sol.dropped)
         rms = {name: s.rms_bearing_error_mrad for name, s in sol.per_frame.items()}
-        diagnostics = {"iterations": float(sol.iterations)}
+        diagnostics = {"iterations": float(sol.iterations), "variance_factor": sol.variance_factor}
     for name, reason in dropped:
         _drop(results, name, reason)
     n_used = sum(1 for r in results.values() if r.used)
@@ -264,6 +306,7 @@ def calibrate_dataset(
     data_dir = Path(data_dir)
     config = load_config(data_dir / "config.yaml")
     frames, unpaired = list_frames(data_dir)
+    config = check_board_colour(frames, config)
     observed = observe_frames(frames, config, options.jobs, progress)
     observed += [FrameResult(name=stem, used=False, reason=why) for stem, why in unpaired]
     return config, solve_extrinsic(observed, config, options)

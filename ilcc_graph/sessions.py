@@ -105,7 +105,12 @@ def calibrate_sessions(
     ``progress(session, done, total)`` reports observation.
     Raises ``InputError`` for a bad data set, ``CalibrationImpossible`` when one yields no extrinsic.
     """
-    from ilcc_graph.pipeline import CalibrateOptions, observe_frames, solve_extrinsic  # heavy stage imports
+    from ilcc_graph.pipeline import (  # heavy stage imports
+        CalibrateOptions,
+        check_board_colour,
+        observe_frames,
+        solve_extrinsic,
+    )
 
     calibrate_options = CalibrateOptions() if calibrate_options is None else calibrate_options
     dirs = [Path(d) for d in data_dirs]
@@ -118,6 +123,7 @@ def calibrate_sessions(
     for k, (name, d) in enumerate(zip(names, dirs)):
         config = load_config(d / "config.yaml")
         frames, unpaired = list_frames(d)
+        config = check_board_colour(frames, config)
         cb = None if progress is None else (lambda i, n, name=name: progress(name, i, n))
         observed = observe_frames(frames, config, calibrate_options.jobs, cb)
         observed += [FrameResult(name=stem, used=False, reason=why) for stem, why in unpaired]
@@ -221,11 +227,12 @@ def calibrate_dataset_incrementally(
     relinearisation (e.g. ``lambda u: print(format_update(u, target_sigma))``). ``target_sigma`` is
     (rotation deg, translation mm); with ``stop_at_target`` the remaining frames are not read.
     """
-    from ilcc_graph.pipeline import observe_frame  # the stages' heavy imports
+    from ilcc_graph.pipeline import check_board_colour, observe_frame  # the stages' heavy imports
 
     d = Path(data_dir)
     config = load_config(d / "config.yaml")
     frames, _ = list_frames(d)
+    config = check_board_colour(frames, config)
     cal = IncrementalCalibrator(config.camera, config.board, T_init, target_sigma)
     for paths in frames:
         r = observe_frame(paths, config)

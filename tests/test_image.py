@@ -11,7 +11,7 @@ import pytest
 from ilcc_graph.board import Board
 from ilcc_graph.errors import CornersNotFound
 from ilcc_graph.image import ImageOptions, detect_corners
-from ilcc_graph.simulate import simulate_frames, standard_spec
+from ilcc_graph.simulate import SceneOptions, simulate_frames, standard_spec
 from ilcc_graph.simulate.spec import default_T_cam_lidar
 
 ODD_BOARD = Board(7, 8, 0.1, lower_left="white")  # 7 + 8 odd: no half-turn symmetry, order is exact
@@ -58,9 +58,9 @@ def pixel_error(camera, uv: np.ndarray, ref: np.ndarray) -> np.ndarray:
     return np.linalg.norm(d, axis=1)
 
 
-def check(spec, frame, exact: bool, med_px: float = 0.15, max_px: float = 0.6):
+def check(spec, frame, exact: bool, med_px: float = 0.15, max_px: float = 0.6, options=None):
     """Detect, compare with the truth (exact order, or up to the half turn), check the covariance."""
-    res = detect_corners(frame.image, spec.camera, spec.board)
+    res = detect_corners(frame.image, spec.camera, spec.board, options)
     ref = truth_uv(spec, frame.T_lidar_board)
     e = pixel_error(spec.camera, res.uv, ref)
     if not exact:
@@ -115,6 +115,29 @@ def test_panorama_high_and_low_boards(pano):
         check(spec, f, exact=True)
 
 
+@pytest.fixture(scope="module")
+def pole():
+    """A board 68 deg up in a 2000x1000 panorama, open scene: the raw image bends it too much."""
+    T_cl = default_T_cam_lidar("equirectangular")
+    cam_c = camera_centre(T_cl)
+    a, e = np.deg2rad(30.0), np.deg2rad(68.0)
+    centre = cam_c + 2.0 * (
+        T_cl[:3, :3].T @ np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+    )
+    pose = facing_pose(ODD_BOARD, centre, cam_c, roll=0.4)
+    scene = SceneOptions(room=None, clutter=False)
+    spec = standard_spec(
+        camera="equirectangular", width=2000, board=ODD_BOARD, placements=(pose,), scene=scene
+    )
+    return spec, list(simulate_frames(spec))
+
+
+def test_panorama_board_near_the_pole(pole):
+    spec, frames = pole
+    res, _ = check(spec, frames[0], exact=True)
+    assert res.diagnostics["coarse_stage"] == 1.0  # found by the ring of virtual views
+
+
 def test_upside_down_panorama(pano):
     spec, frames = pano
     T_flip = np.eye(4)
@@ -152,6 +175,12 @@ def test_fisheye_margin_board(fisheye):
     spec, frames = fisheye
     for f in frames:
         check(spec, f, exact=True)
+
+
+def test_geiger_back_end(fisheye):
+    spec, frames = fisheye
+    res, _ = check(spec, frames[0], exact=True, options=ImageOptions(backend="cbdetect"))
+    assert res.diagnostics["backend"] == 1.0
 
 
 @pytest.fixture(scope="module")

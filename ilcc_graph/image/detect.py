@@ -30,6 +30,7 @@ from .views import (
     VirtualView,
     look_rotation,
     render_view,
+    tangent_basis,
     view_around,
     view_jacobian,
     view_to_image,
@@ -37,8 +38,10 @@ from .views import (
 )
 
 _SB_COARSE = cv2.CALIB_CB_NORMALIZE_IMAGE
+_SB_TILES = (0, cv2.CALIB_CB_NORMALIZE_IMAGE)  # histogram equalisation hurts on a near-uniform view
 _SB_FINE = (  # tried in turn (success varies with these on real images); cornerSubPix refines after
     cv2.CALIB_CB_NORMALIZE_IMAGE,
+    0,
     cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_ACCURACY,
     cv2.CALIB_CB_ACCURACY,
     cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_ACCURACY | cv2.CALIB_CB_EXHAUSTIVE,
@@ -58,6 +61,8 @@ class ImageOptions:
     floor_px: lower bound of the corner sigma in image pixels (covariance eigenvalue floor^2).
     subpix: refine the fine view's corners with ``cv2.cornerSubPix`` (removes the detector's
         outward bias at the outer corners).
+    backend: detector in the fine view: ``"sb"`` (OpenCV's findChessboardCornersSB), ``"cbdetect"``
+        (Geiger's detector, libcbdetect) or ``"auto"`` (SB, then cbdetect when SB fails).
     strict_colour: raise ``CornersNotFound`` when the print's corner colour contradicts
         ``board.lower_left`` (a misconfigured even x even board); False keeps the geometric
         order (z towards the camera), flags it half-turn ambiguous and reports ``colour_score`` < 0.
@@ -72,6 +77,7 @@ class ImageOptions:
     floor_px: float = 0.05
     strict_colour: bool = True
     subpix: bool = True
+    backend: str = "auto"
 
     def __post_init__(self) -> None:
         if int(self.coarse_width) < 200:
@@ -82,6 +88,10 @@ class ImageOptions:
             raise ValueError("ImageOptions: max_view_px and tile_size_px must be >= 200 px")
         if not (20.0 <= float(self.tile_fov_deg) < 170.0):
             raise ValueError(f"ImageOptions: tile_fov_deg must be in [20, 170), got {self.tile_fov_deg!r}")
+        if self.backend not in ("auto", "sb", "cbdetect"):
+            raise ValueError(
+                f"ImageOptions: backend must be 'auto', 'sb' or 'cbdetect', got {self.backend!r}"
+            )
         if not (np.isfinite(self.floor_px) and self.floor_px >= 0):
             raise ValueError(f"ImageOptions: floor_px must be finite and >= 0, got {self.floor_px!r}")
 
@@ -124,6 +134,35 @@ def to_gray(image: np.ndarray, camera: CameraModel) -> np.ndarray:
     return np.ascontiguousarray(img)
 
 
+def _cbdetect(gray: np.ndarray, board: Board) -> np.ndarray | None:
+    """(K, 2) corners from Geiger's detector (libcbdetect), row-major with cols-1 per row, or None.
+
+    Accepted only when it returns exactly the board's (rows-1) x (cols-1) grid (either way round).
+    """
+    try:
+        from libCBDetect import Checkerboard
+    except ImportError:  # optional back end
+        return None
+    det = Checkerboard()
+    det.norm = True
+    det.show_processing = False
+    det.show_debug_image = False
+    det.array_norm_to_image(gray.astype(np.float64) / 255.0, gray.shape[0], gray.shape[1])
+    det.find_corners()
+    det.find_board_from_corners()
+    r, c = int(det.rows), int(det.cols)
+    n_i, n_j = board.inner_shape
+    if r * c != n_i * n_j or {r, c} != {n_i, n_j}:
+        return None
+    u, v = np.zeros(r * c), np.zeros(r * c)
+    det.get_board_corners(u, v)
+    g = np.stack([u, v], axis=1).reshape(r, c, 2)
+    if (r, c) != (n_i, n_j):
+        g = g.transpose(1, 0, 2)
+    g = g.reshape(-1, 2)
+    return g if np.all(np.isfinite(g)) else None
+
+
 # -------------------------------------------------------------------------- coarse
 def _sb(gray: np.ndarray, board: Board, flags: int) -> np.ndarray | None:
     """(K, 2) corners from findChessboardCornersSB (row-major, cols-1 per row), or None."""
@@ -148,14 +187,24 @@ def _coarse_downscaled(gray: np.ndarray, camera: CameraModel, board: Board, widt
 
 
 def _tile_directions(camera: CameraModel) -> np.ndarray:
-    """(N, 3) camera-frame view directions: rings at elevations 0, +-45, +-75 deg, inside the picture."""
+    """(N, 3) camera-frame view directions inside the picture, the most distorted first.
+
+    Rings at elevations 0, +-40 and +-72 deg (forward-left-up frame). The downscaled search already
+    covers the mildly distorted part of the image, so directions are sorted by the anisotropy of
+    the image there (ratio of the singular values of d uv / d angle): panorama poles, fisheye rim.
+    """
     dirs = []
     for el_deg, n_az in ((0.0, 8), (40.0, 6), (-40.0, 6), (72.0, 3), (-72.0, 3)):
         el = np.deg2rad(el_deg)
         for az in np.arange(n_az) * (2 * np.pi / n_az):
             dirs.append([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     d_cam = np.asarray(dirs) @ camera.R_flu_cam  # rows: R_flu_cam.T @ d_flu
-    return d_cam[camera.fov_contains(d_cam)]
+    d_cam = d_cam[camera.fov_contains(d_cam)]
+    stretch = []
+    for d in d_cam:
+        sv = np.linalg.svd(camera.d_uv_d_point(d[None])[0] @ tangent_basis(d), compute_uv=False)
+        stretch.append(sv[0] / max(sv[1], 1e-12))
+    return d_cam[np.argsort(-np.asarray(stretch), kind="stable")]
 
 
 def _coarse_tiles(
@@ -166,9 +215,11 @@ def _coarse_tiles(
     f = 0.5 * n / np.tan(np.deg2rad(0.5 * opts.tile_fov_deg))
     for d in _tile_directions(camera):
         view = VirtualView(look_rotation(camera, d), f, (n - 1) / 2, (n - 1) / 2, n, n)
-        c = _sb(render_view(view, camera, gray), board, _SB_COARSE)
-        if c is not None:
-            return view_to_image(view, camera, c)
+        tile = render_view(view, camera, gray)
+        for flags in _SB_TILES:
+            c = _sb(tile, board, flags)
+            if c is not None:
+                return view_to_image(view, camera, c)
     return None
 
 
@@ -211,11 +262,14 @@ def _fine(
         max_size=int(opts.max_view_px),
     )
     vgray = render_view(view, camera, gray)
-    xy = None
-    for flags in _SB_FINE:
-        xy = _sb(vgray, board, flags)
-        if xy is not None:
-            break
+    xy, backend = None, 0.0
+    if opts.backend in ("auto", "sb"):
+        for flags in _SB_FINE:
+            xy = _sb(vgray, board, flags)
+            if xy is not None:
+                break
+    if xy is None and opts.backend in ("auto", "cbdetect"):
+        xy, backend = _cbdetect(vgray, board), 1.0
     if xy is None:
         raise CornersNotFound(
             "board seen in the coarse search but its corners were not found in the fine view "
@@ -236,6 +290,7 @@ def _fine(
         "view_width_px": float(view.width),
         "view_height_px": float(view.height),
         "square_px": sq,
+        "backend": backend,
     }
     corners = ImageCorners(
         uv=uv,
@@ -272,6 +327,8 @@ def detect_corners(
     CornersNotFound : no chessboard of this size in the image.
     """
     opts = ImageOptions() if options is None else options
+    if min(board.inner_shape) < 2 or board.n_corners < 6:
+        raise ValueError(f"detect_corners: a {board.rows}x{board.cols}-square board is too small to detect")
     t0 = time.perf_counter()
     gray = to_gray(image, camera)
     uv0 = _coarse_downscaled(gray, camera, board, int(opts.coarse_width))

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from ..board import Board
-from ..errors import CornersNotFound
+from ..errors import BoardColourMismatch, CornersNotFound
 
 
 @dataclass(frozen=True)
@@ -126,7 +126,7 @@ def order_grid(
         if best < -0.5 and board.half_turn_symmetric and board.rows % 2 == 0:
             if not strict_colour:
                 return Ordering(g.reshape(-1, 2), True, best)
-            raise CornersNotFound(
+            raise BoardColourMismatch(
                 f"the printed pattern's origin square (z towards the camera) is {other}, but the board "
                 f"configuration says lower_left: {board.lower_left} (square colour correlation {best:.2f}); "
                 f"set board.lower_left: {other}"

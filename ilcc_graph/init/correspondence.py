@@ -55,6 +55,8 @@ class OrderOptions:
     max_hypotheses_frames: frames whose own poses are tried as hypotheses (evenly spread).
     max_pair_fits, partners_per_hypothesis: joint fits of a frame with frames whose rotation agrees.
     consensus_tries: distinct pair fits grown to a full consensus.
+    exhaustive_frames: with at most this many frames and no two rotations agreeing, every pair of
+        frames in every order is fitted jointly instead.
     ambiguity_ratio: a rival consensus with as many frames and a bearing-error sum within this ratio
         of the best makes the result ambiguous.
     """
@@ -70,6 +72,7 @@ class OrderOptions:
     partners_per_hypothesis: int = 4
     consensus_tries: int = 6
     ambiguity_ratio: float = 2.0
+    exhaustive_frames: int = 6
     max_hypotheses_frames: int = 60
 
 
@@ -357,8 +360,19 @@ def resolve_half_turns(
                 key = (h.anchor, int(h.orders[h.anchor]), int(b), ob)
                 if key not in pairs and (key[2], key[3], key[0], key[1]) not in pairs:
                     pairs.append(key)
+    pairs = pairs[: options.max_pair_fits]
+    if not pairs and len(alive) <= options.exhaustive_frames:
+        # no two single-frame rotations agree (far boards: a single board's tilt can be off by
+        # more than the gate): with few frames, try every pair in every order
+        pairs = [
+            (a, oa, b, ob)
+            for a in range(len(alive))
+            for b in range(a + 1, len(alive))
+            for oa in ((0, 1) if fr.flip_ok[a] else (0,))
+            for ob in ((0, 1) if fr.flip_ok[b] else (0,))
+        ]
     starts = []
-    for a, oa, b, ob in pairs[: options.max_pair_fits]:
+    for a, oa, b, ob in pairs:
         orders = np.zeros(len(alive), dtype=int)
         orders[a], orders[b] = oa, ob
         starts.append(fr.evaluate(fr.fit(np.array([a, b]), orders)))

@@ -303,7 +303,7 @@ def fit_in_plane(
     cls = intensity_classes(intensity, tau_l, tau_h)
     s = board.square_size
     centre = board.pattern_centre[:2]
-    sub = rng.choice(q.shape[0], min(q.shape[0], 120), replace=False)
+    sub = rng.choice(q.shape[0], min(q.shape[0], 160), replace=False)
     qs, cs = q[sub], cls[sub]
     q_all, cls_all = q, cls
     if options.powell_max_points and q.shape[0] > options.powell_max_points:
@@ -349,7 +349,26 @@ def fit_in_plane(
         if f < best_f:
             best_x, best_f = x, f
     best_x[0] = _angle_wrap(best_x[0])
+    # the pattern repeats: a model moved by a whole square diagonally (or two along a side) matches
+    # the same colours and differs only at the board's edges, where few returns tell them apart;
+    # try those lattice neighbours on every return and keep the cheapest
+    lattice = s * np.array([[1, 1], [1, -1], [-1, 1], [-1, -1], [2, 0], [-2, 0], [0, 2], [0, -2]], float)
     best_f = float(paper_cost(best_x, q_all, cls_all, board))  # C_m over every point
+    for _ in range(3):
+        cand = np.repeat(best_x[None], len(lattice), axis=0)
+        cand[:, 1:] -= lattice
+        f = paper_cost(cand, q_all, cls_all, board)
+        n_evals += len(cand)
+        k = int(np.argmin(f))
+        if f[k] >= best_f:
+            break
+        x, f_new, ev = powell_batched(
+            lambda X: paper_cost(X, q, cls, board), cand[k], scales, options.powell_xtol
+        )
+        n_evals += ev
+        f_new = float(paper_cost(x, q_all, cls_all, board))
+        best_x, best_f = (x, f_new) if f_new < f[k] else (cand[k], float(f[k]))
+        best_x[0] = _angle_wrap(best_x[0])
     return InPlaneFit(best_x, best_f, n_evals, (tau_l, tau_h), (r_l, r_h))
 
 
