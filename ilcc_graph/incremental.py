@@ -80,6 +80,9 @@ class _Pending:
 class IncrementalCalibrator:
     """Frames in, ``T_cam_lidar`` and sigmas out, one frame at a time (iSAM2).
 
+    The sigmas come from the stated noise alone: unlike the batch ``graph.solve``, the covariance
+    is not multiplied by the a-posteriori variance factor (a batch run reports that factor).
+
     Parameters
     ----------
     camera : the camera model (pixel covariances -> bearing covariances).

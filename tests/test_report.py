@@ -335,3 +335,19 @@ def test_lidar_corners_a_square_off_are_told_apart_from_a_wrong_extrinsic() -> N
     assert "LiDAR board fit is likely off" in row, row
     others = page[page.index('<td class="l">0003</td>') :].split("</table>")[0]
     assert "likely off" not in others and "neither corners nor points" not in others
+
+
+def test_crops_grow_small_boards_and_shrink_large_ones_consistently() -> None:
+    from ilcc_graph.report.overlays import crop_around
+
+    img = np.zeros((3000, 4000, 3), np.uint8)
+    for uv, want in ((np.array([[1000.0, 1000.0], [1060.0, 1040.0]]), "grow"),
+                     (np.array([[500.0, 500.0], [3500.0, 2500.0]]), "shrink")):  # fmt: skip
+        base = crop_around(img, uv, pad=0.2, min_size=10)
+        z = base.zoomed(600, 8, 1000)
+        side = max(z.image.shape[:2])
+        assert (z.zoom > 1 and side >= 600) if want == "grow" else (z.zoom < 1 and side <= 1000)
+        # the same full-image pixel lands on the same content in both
+        p = base.to_crop(uv[:1])[0]
+        q = z.to_crop(uv[:1])[0]
+        np.testing.assert_allclose((q + 0.5) / z.zoom, p + 0.5, atol=1.0)

@@ -352,11 +352,21 @@ def fit_in_plane(
     # the pattern repeats: a model moved by a whole square diagonally (or two along a side) matches
     # the same colours and differs only at the board's edges, where few returns tell them apart;
     # try those lattice neighbours on every return and keep the cheapest
-    lattice = s * np.array([[1, 1], [1, -1], [-1, 1], [-1, -1], [2, 0], [-2, 0], [0, 2], [0, -2]], float)
+    # (and the quarter turns about the pattern's centre, when sparse rings leave the outline unclear)
+    lattice = s * np.array(
+        [[0, 0], [1, 1], [1, -1], [-1, 1], [-1, -1], [2, 0], [-2, 0], [0, 2], [0, -2]], float
+    )
     best_f = float(paper_cost(best_x, q_all, cls_all, board))  # C_m over every point
     for _ in range(3):
-        cand = np.repeat(best_x[None], len(lattice), axis=0)
-        cand[:, 1:] -= lattice
+        cand = []
+        for phi in (0.0, 0.5 * np.pi, np.pi, 1.5 * np.pi):
+            c_, s_ = np.cos(phi), np.sin(phi)
+            t_rot = np.array([[c_, -s_], [s_, c_]]) @ (best_x[1:] - centre) + centre
+            for L in lattice:
+                if phi == 0.0 and not L.any():
+                    continue
+                cand.append([best_x[0] + phi, *(t_rot - L)])
+        cand = np.asarray(cand)
         f = paper_cost(cand, q_all, cls_all, board)
         n_evals += len(cand)
         k = int(np.argmin(f))

@@ -79,12 +79,13 @@ def _frame_crop(
     min_size: int,
     zoom_to: int,
     max_zoom: int,
+    max_size: int = 1000,
 ) -> Crop | None:
     """A crop around the first usable pixel set of ``candidates``, enlarged to ``zoom_to`` pixels."""
     for uv in candidates:
         if uv is not None and len(uv) and np.isfinite(uv).all(axis=1).any():
             crop = crop_around(image, uv, camera, pad=pad, min_size=min_size)
-            return crop.zoomed(zoom_to, max_zoom) if crop.image.size else None
+            return crop.zoomed(zoom_to, max_zoom, max_size) if crop.image.size else None
     return None
 
 
@@ -120,7 +121,7 @@ def frame_figures(
 
     def put(suffix: str, img: np.ndarray, caption: str) -> None:
         key = f"{FIGURES_DIR}/{name}_{suffix}.png"
-        files[key] = encode_png(img)
+        files[key] = encode_png(img, bits=6)
         captions[key] = caption
 
     uv_corners = None if cr is None else np.asarray(cr.uv, dtype=np.float64)
