@@ -10,6 +10,7 @@ Equirectangular panoramas are sampled with ``BORDER_WRAP`` so a view may straddl
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
@@ -144,14 +145,40 @@ def view_around(
     return VirtualView(R, float(f), float(-lo[0]), float(-lo[1]), int(size[0]), int(size[1]))
 
 
-def render_view(view: VirtualView, camera: CameraModel, image: np.ndarray) -> np.ndarray:
-    """Resample ``image`` (H, W[, C]) of ``camera`` into ``view`` (bilinear); black outside the picture."""
+def _view_maps(view: VirtualView, camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """cv2.remap's float32 maps (view pixel -> image pixel) of ``view``; outside the picture -> -10."""
     ys, xs = np.mgrid[0 : view.height, 0 : view.width]
     uv = camera.project(view.rays(np.stack([xs, ys], axis=-1).astype(np.float64)))
-    bad = ~np.isfinite(uv).all(axis=-1)
-    uv[bad] = -10.0
+    uv[~np.isfinite(uv).all(axis=-1)] = -10.0
+    return uv[..., 0].astype(np.float32), uv[..., 1].astype(np.float32)
+
+
+@functools.lru_cache(maxsize=64)
+def _cached_maps(camera: CameraModel, key: tuple) -> tuple[np.ndarray, np.ndarray]:
+    R, f, cx, cy, w, h = key
+    return _view_maps(VirtualView(np.frombuffer(R).reshape(3, 3), f, cx, cy, w, h), camera)
+
+
+def render_view(view: VirtualView, camera: CameraModel, image: np.ndarray) -> np.ndarray:
+    """Resample ``image`` (H, W[, C]) of ``camera`` into ``view`` (bilinear); black outside the picture.
+
+    The maps of small views (the search tiles, the same for every image of a camera) are cached.
+    """
+    if view.width * view.height <= _CACHE_MAX_PX:
+        key = (
+            np.ascontiguousarray(view.R_cam_view, dtype=np.float64).tobytes(),
+            float(view.f),
+            float(view.cx),
+            float(view.cy),
+            int(view.width),
+            int(view.height),
+        )
+        map_x, map_y = _cached_maps(camera, key)
+    else:
+        map_x, map_y = _view_maps(view, camera)
     seam = getattr(camera, "wrap_u", None) is not None
-    map_x = uv[..., 0].astype(np.float32)
-    map_y = uv[..., 1].astype(np.float32)
     border = cv2.BORDER_WRAP if seam else cv2.BORDER_CONSTANT
     return cv2.remap(image, map_x, map_y, _INTERP, borderMode=border)
+
+
+_CACHE_MAX_PX = 1024 * 1024

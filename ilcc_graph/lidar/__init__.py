@@ -279,7 +279,7 @@ def estimate_board(
     centre = pts[cand.indices].mean(axis=0)
     near = (
         np.abs(pts @ cand.normal - cand.offset) < max(options.ransac_threshold_m, 3 * cand.noise_sigma)
-    ) & (np.linalg.norm(pts - centre, axis=1) < np.hypot(x1 - x0, y1 - y0))
+    ) & (np.linalg.norm(pts - centre, axis=1) < 0.75 * np.hypot(x1 - x0, y1 - y0))
     ring = np.asarray(ring)
     # the fit sees the whole pool: detection may have kept only part of the board (a piece cut off by
     # a person or the stand); off-board returns in the pool cost their distance, as in the paper
