@@ -30,6 +30,7 @@ import dataclasses
 import json
 import os
 import pickle
+import resource
 import subprocess
 import sys
 import tempfile
@@ -503,12 +504,16 @@ def time_cli(width: int, seed: int, jobs: int, keep: Path | None = None) -> dict
     if jobs > 1:
         cmd += ["--jobs", str(jobs)]
     load_before = os.getloadavg()
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
     wall = time.perf_counter() - t
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
     return {
         "cmd": " ".join(cmd[1:]),
         "wall": wall,
+        "cpu": cpu,
         "rc": proc.returncode,
         "load_before": load_before,
         "load_after": os.getloadavg(),
@@ -535,8 +540,9 @@ def write_section(tag: str, text: str, path: Path = DOC) -> None:
 
 def _stamp(argv: Sequence[str], seconds: float) -> str:
     la = os.getloadavg()
+    nice = "nice " if os.nice(0) > 0 else ""
     return (
-        f"Command: `nice python3 scripts/{Path(__file__).name} {' '.join(argv)}`; "
+        f"Command: `{nice}python3 scripts/{Path(__file__).name} {' '.join(argv)}`; "
         f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC; {seconds / 60:.1f} min; "
         f"load average at the end {la[0]:.1f} / {la[1]:.1f} / {la[2]:.1f} (2 cores)."
     )
@@ -605,7 +611,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         r = time_cli(8000, 0, 1, args.cli_data)
         dump["cli"] = r
         ctab = (
-            f"`{r['cmd']}` (standard set, seed 0, 8000x4000, 20 frames): wall {r['wall']:.1f} s, exit code "
+            f"`{r['cmd']}` (standard set, seed 0, 8000x4000, 20 frames): wall {r['wall']:.1f} s "
+            f"(CPU user+sys of it and its workers {r['cpu']:.1f} s), exit code "
             f"{r['rc']}; load average before {r['load_before'][0]:.1f}, after {r['load_after'][0]:.1f}; "
             "aim <= 60 s: "
             f"{_met(r['wall'] <= 60 and r['rc'] == 0)}.\n\n```\n{r['stdout_tail'].strip()}\n```"

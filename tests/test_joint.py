@@ -336,6 +336,7 @@ def test_calibrate_sessions_from_data_sets(tmp_path, monkeypatch) -> None:
         return list(observed[str(frames[0].scan.parent.parent)])
 
     monkeypatch.setattr(pipeline, "observe_frames", fake_observe)
+    monkeypatch.setattr(pipeline, "check_board_colour", lambda frames, config: config)  # reads images
     res = sessions_mod.calibrate_sessions(
         dirs, JointOptions(mode="drift", drift_sigma_deg=2.0, drift_sigma_mm=50)
     )
