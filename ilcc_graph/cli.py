@@ -34,6 +34,7 @@ examples:
   ilcc-graph calibrate DATA --target-sigma 0.05,1   frame by frame (iSAM2) until 0.05 deg / 1 mm
   ilcc-graph lidar-corners DATA --out out/lidar     the LiDAR stage alone: board points, pose, corners
   ilcc-graph image-corners DATA --out out/image     the image stage alone: corners drawn and numbered
+  ilcc-graph evaluate DATA2 out/run1/calibration.yaml  the paper's metric on frames not used to calibrate
   ilcc-graph export out/latest/calibration.yaml --format ros-tf
 
 exit codes: 0 success, 2 bad usage or bad input, 3 calibration impossible from the data given
@@ -184,20 +185,108 @@ def _write_outputs(out: Path, config, cal) -> None:
     write_calibration(out / "calibration.yaml", cal)
 
 
+def _write_report(out: Path, data: Path, config, cal, observed, frames, options, args, truth) -> None:
+    """OUT/report/index.html with its figures, and OUT/coloured/<frame>.ply (coloured clouds)."""
+    from ilcc_graph.io import atomic_write, read_image, read_scan, write_ply
+    from ilcc_graph.pipeline import solve_extrinsic
+    from ilcc_graph.report import build_report, cross_validate, frames_vs_accuracy
+
+    def solve(subset):
+        c = solve_extrinsic(subset, config, options)
+        return c.T_cam_lidar, c.covariance
+
+    curve = cv = None
+    if args.studies and options.refine == "graph":
+        log.info("studies: accuracy against the number of frames, and cross-validation")
+        quiet = logging.getLogger("ilcc_graph")
+        level = quiet.level
+        quiet.setLevel(logging.ERROR)  # subsets of few frames warn by design
+        try:
+            curve = frames_vs_accuracy(
+                observed, solve, config.camera, config.board, truth, progress=_Progress("frames vs accuracy")
+            )
+            cv = cross_validate(observed, solve, config.camera, config.board, folds=5, T_all=cal.T_cam_lidar)
+        finally:
+            quiet.setLevel(level)
+    sources = ((p.name, read_scan(p.scan, config.intensity_column), read_image(p.image)) for p in frames)
+
+    def coloured(ff, scan) -> None:
+        write_ply(out / "coloured" / f"{ff.name}.ply", scan, rgb=ff.coloured.rgb)
+
+    files = build_report(
+        cal,
+        config.camera,
+        config.board,
+        sources,
+        curve=curve,
+        cross_validation=cv,
+        T_ground_truth=truth,
+        info={"data": str(data), "command": " ".join(sys.argv[1:]) or "ilcc-graph", "refine": options.refine},
+        on_frame=coloured,
+    )
+    for rel, blob in files.items():
+        atomic_write(out / "report" / rel, blob)
+
+
 def _calibrate(data: Path, out: Path, args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
-    from ilcc_graph.pipeline import CalibrateOptions, calibrate_dataset
+    from ilcc_graph.config import load_config
+    from ilcc_graph.io import list_frames
+    from ilcc_graph.pipeline import CalibrateOptions, check_board_colour, observe_frames, solve_extrinsic
+    from ilcc_graph.types import FrameResult
 
     options = CalibrateOptions(refine=args.refine, robust=args.robust, jobs=args.jobs)
     t0 = time.perf_counter()
-    config, cal = calibrate_dataset(data, options, progress=_Progress("frames"))
+    config = load_config(data / "config.yaml")
+    frames, unpaired = list_frames(data)
+    config = check_board_colour(frames, config)
+    observed = observe_frames(frames, config, options.jobs, _Progress("frames"))
+    observed += [FrameResult(name=stem, used=False, reason=why) for stem, why in unpaired]
+    cal = solve_extrinsic(observed, config, options)
     _write_outputs(out, config, cal)
+    t_cal = time.perf_counter() - t0
     _frames_table(cal)
     print()
     print(summarise(cal.T_cam_lidar, cal.covariance, truth))
+    if (vf := cal.diagnostics.get("variance_factor", 1.0)) > 1.0:
+        print(
+            f"  (the residuals are {vf:.2f} x the stated noise variance: "
+            f"sigmas scaled up by {np.sqrt(vf):.2f})"
+        )
+    n_used = sum(f.used for f in cal.frames)
     print(
-        f"\n{sum(f.used for f in cal.frames)} of {len(cal.frames)} frames used; "
-        f"{time.perf_counter() - t0:.1f} s; wrote {out / 'calibration.yaml'}"
+        f"\n{n_used} of {len(cal.frames)} frames used; calibrated in {t_cal:.1f} s; "
+        f"wrote {out / 'calibration.yaml'}"
     )
+    if args.report:
+        t1 = time.perf_counter()
+        _write_report(out, data, config, cal, observed, frames, options, args, truth)
+        print(f"report: {out / 'report' / 'index.html'} ({time.perf_counter() - t1:.1f} s)")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """The paper's metric and corner errors of a calibration on a data set's frames."""
+    from ilcc_graph.config import load_config
+    from ilcc_graph.io import list_frames, read_calibration, write_yaml
+    from ilcc_graph.pipeline import check_board_colour, observe_frames
+    from ilcc_graph.report import eval_frames, evaluate, evaluation_rows, evaluation_to_dict
+
+    data = _need_dir(args.data)
+    cal = read_calibration(Path(args.calibration))
+    config = load_config(data / "config.yaml")
+    frames, unpaired = list_frames(data)
+    config = check_board_colour(frames, config)
+    observed = observe_frames(frames, config, args.jobs, _Progress("frames"))
+    for r in observed:
+        if r.board is None or r.corners is None:
+            print(f"{r.name}: not evaluated ({r.reason})")
+    ev = evaluate(eval_frames(observed), config.camera, config.board, cal.T_cam_lidar)
+    header, rows = evaluation_rows(ev)
+    _print_table(rows, header)
+    if args.out:
+        out = _run_dir(args.out)
+        write_yaml(out / "evaluation.yaml", evaluation_to_dict(ev))
+        print(f"wrote {out / 'evaluation.yaml'}")
     return 0
 
 
@@ -459,6 +548,18 @@ def build_parser() -> argparse.ArgumentParser:
             "--robust", choices=("huber", "cauchy"), default=None, help="robust kernel on the bearing factors"
         )
         sp.add_argument("--jobs", type=int, default=jobs, help=f"processes for the per-frame stages ({jobs})")
+        sp.add_argument(
+            "--no-report",
+            dest="report",
+            action="store_false",
+            help="skip OUT/report/index.html and the coloured clouds",
+        )
+        sp.add_argument(
+            "--no-studies",
+            dest="studies",
+            action="store_false",
+            help="leave the frames-vs-accuracy and cross-validation studies out of the report",
+        )
 
     sp = add(
         "calibrate",
@@ -528,6 +629,12 @@ def build_parser() -> argparse.ArgumentParser:
     sp = add("image-corners", cmd_image_corners, "the image stage alone: corners, uncertainty, drawings")
     sp.add_argument("data", metavar="DATA")
     sp.add_argument("--out", help="output folder (default: out/<timestamp>)")
+    sp.add_argument("--jobs", type=int, default=jobs)
+
+    sp = add("evaluate", cmd_evaluate, "the paper's re-projection metric and corner errors of a calibration")
+    sp.add_argument("data", metavar="DATA", help="a data set (may hold frames the calibration did not use)")
+    sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")
+    sp.add_argument("--out", help="folder for evaluation.yaml (default: print only)")
     sp.add_argument("--jobs", type=int, default=jobs)
 
     sp = add("export", cmd_export, "write a calibration in another tool's format")
