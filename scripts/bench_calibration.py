@@ -445,6 +445,74 @@ def accuracy_table(summ: dict[str, dict], width: int) -> str:
 
 
 # ----------------------------------------------------------------------------------------------
+# Which input covariance is wrong: oracle re-solves
+
+
+def _true_variant(T_est: np.ndarray, T_true: np.ndarray, T_half: np.ndarray | None) -> np.ndarray:
+    """The true board pose with the same origin corner as the estimate (the half turn resolved)."""
+    if T_half is None:
+        return T_true
+    alt = T_true @ T_half
+    return min((T_true, alt), key=lambda T: np.linalg.norm(pose_error(T_est, T)[:3]))
+
+
+def oracle_split(results: Sequence[SetResult], width: int) -> dict[str, dict[str, float]]:
+    """Re-solve each set's graph with one sensor made perfect, to see which covariance is off.
+
+    "LiDAR exact": every board prior at the true board pose (its covariance kept), so the extrinsic
+    error comes from the image corners only; "image exact": every bearing replaced by the true one,
+    so the error comes from the LiDAR board poses only. Each NEES should average 6 (less when the
+    other sensor's covariance, now noise-free, still inflates the stated covariance -- it does, so
+    a mean NEES above 6 convicts the covariance of the sensor that kept its noise).
+    Returns per variant: mean NEES, coverage and RMS of xi_i / sigma_i.
+    """
+    out: dict[str, list] = {"as observed": [], "LiDAR exact (image noise only)": [], "image exact (LiDAR noise only)": []}
+    for r in results:
+        if r.failure is not None or not r.graph_frames:
+            continue
+        spec = standard_spec(width=width, seed=r.seed)
+        board, camera = spec.board, spec.camera
+        T_true = np.asarray(spec.T_cam_lidar)
+        T_half = board.T_half_turn() if board.half_turn_symmetric else None
+        truth = board_placements(spec)
+        lidar_exact, image_exact = [], []
+        for f in r.graph_frames:
+            Tb = _true_variant(f.T_lidar_board, truth[int(f.name.split("_")[-1]) - 1], T_half)
+            lidar_exact.append(dataclasses.replace(f, T_lidar_board=Tb))
+            Tc = T_true @ Tb
+            p = f.points_board @ Tc[:3, :3].T + Tc[:3, 3]
+            image_exact.append(dataclasses.replace(f, bearings=p / np.linalg.norm(p, axis=1, keepdims=True)))
+        for key, frames in zip(out, (r.graph_frames, lidar_exact, image_exact)):
+            sol = solve(frames, camera, T_true, GraphOptions())
+            xi = pose_error(sol.T_cam_lidar, T_true)
+            out[key].append((nees(xi, sol.covariance), xi / np.sqrt(np.diag(sol.covariance))))
+    summ = {}
+    for key, v in out.items():
+        n = np.array([a for a, _ in v])
+        z = np.array([b for _, b in v])
+        summ[key] = {
+            "sets": len(n),
+            "nees_mean": float(n.mean()) if len(n) else float("nan"),
+            "coverage": float(np.mean(n <= CHI2_6_95)) if len(n) else float("nan"),
+            "z_rms": np.sqrt(np.mean(z**2, axis=0)).tolist() if len(z) else [float("nan")] * 6,
+        }
+    return summ
+
+
+def oracle_table(summ: dict[str, dict[str, float]], mode: str) -> str:
+    lines = [
+        "| systematics | graph inputs | sets | mean NEES | coverage (<= 12.59) | RMS xi_i/sigma_i (rx ry rz tx ty tz) |",
+        "|---|---|---:|---:|---:|---|",
+    ]
+    for key, s in summ.items():
+        z = " ".join(f"{v:.2f}" for v in s["z_rms"])
+        lines.append(
+            f"| {mode} | {key} | {s['sets']} | {s['nees_mean']:.2f} | {100 * s['coverage']:.0f} % | {z} |"
+        )
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------------------------
 # Timing
 
 
@@ -563,6 +631,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--cli", action="store_true", help="time `ilcc-graph calibrate` on the standard 8000x4000 set"
     )
     ap.add_argument("--cli-data", type=Path, default=None, help="reuse/keep the simulated set here")
+    ap.add_argument("--oracle", action="store_true", help="re-solve with one sensor exact (which cov is off)")
     ap.add_argument("--tag", default=None, help="doc section name (default mc-<width>)")
     ap.add_argument("--json", type=Path, default=None, help="dump the summaries here")
     ap.add_argument("--write", action="store_true", help="write the tables into docs/bench_calibration.md")
@@ -592,6 +661,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         table = accuracy_table(summ, args.width)
         print(table)
         sections.append((args.tag or f"mc-{args.width}", table))
+        if args.oracle:
+            otabs = []
+            for m in modes:
+                osum = oracle_split(res[m], args.width)
+                dump.setdefault("oracle", {})[m] = osum
+                otabs.append(oracle_table(osum, m))
+            otab = "\n".join([otabs[0]] + [t.split("\n", 2)[2] for t in otabs[1:]])
+            print(otab)
+            sections.append((f"oracle-{args.width}", otab))
         if args.timing:
             base = standard_spec(width=args.width)
             T_true = np.asarray(base.T_cam_lidar)
