@@ -466,7 +466,11 @@ def oracle_split(results: Sequence[SetResult], width: int) -> dict[str, dict[str
     a mean NEES above 6 convicts the covariance of the sensor that kept its noise).
     Returns per variant: mean NEES, coverage and RMS of xi_i / sigma_i.
     """
-    out: dict[str, list] = {"as observed": [], "LiDAR exact (image noise only)": [], "image exact (LiDAR noise only)": []}
+    out: dict[str, list] = {
+        "as observed": [],
+        "LiDAR exact (image noise only)": [],
+        "image exact (LiDAR noise only)": [],
+    }
     for r in results:
         if r.failure is not None or not r.graph_frames:
             continue
@@ -501,7 +505,8 @@ def oracle_split(results: Sequence[SetResult], width: int) -> dict[str, dict[str
 
 def oracle_table(summ: dict[str, dict[str, float]], mode: str) -> str:
     lines = [
-        "| systematics | graph inputs | sets | mean NEES | coverage (<= 12.59) | RMS xi_i/sigma_i (rx ry rz tx ty tz) |",
+        "| systematics | graph inputs | sets | mean NEES | coverage (<= 12.59) "
+        "| RMS xi_i/sigma_i (rx ry rz tx ty tz) |",
         "|---|---|---:|---:|---:|---|",
     ]
     for key, s in summ.items():

@@ -8,7 +8,10 @@ cd "$(dirname "$0")/.."
 say() { printf '[setup] %s\n' "$*"; }
 
 # 1. libusb-1.0-0: Open3D's wheel links against it.
-if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+have_libusb() {  # grep without -q: reading all of ldconfig's output avoids SIGPIPE under pipefail
+  ldconfig -p 2>/dev/null | grep 'libusb-1.0.so.0' >/dev/null
+}
+if ! have_libusb; then
   if [ "$(id -u)" = 0 ]; then
     say "installing the system library libusb-1.0-0 (Open3D needs it): apt-get install -y libusb-1.0-0"
     apt-get update -qq >/dev/null
