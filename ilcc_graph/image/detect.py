@@ -63,6 +63,9 @@ class ImageOptions:
         outward bias at the outer corners).
     backend: detector in the fine view: ``"sb"`` (OpenCV's findChessboardCornersSB), ``"cbdetect"``
         (Geiger's detector, libcbdetect) or ``"auto"`` (SB, then cbdetect when SB fails).
+    reuse_coarse: in the fine view, first refine the coarse corners by cornerSubPix and keep them
+        when a board-plane homography fits them (sigma <= 0.15 view px); the detector runs again
+        only otherwise (saves ~0.2-0.5 s per image).
     strict_colour: raise ``CornersNotFound`` when the print's corner colour contradicts
         ``board.lower_left`` (a misconfigured even x even board); False keeps the geometric
         order (z towards the camera), flags it half-turn ambiguous and reports ``colour_score`` < 0.
@@ -78,6 +81,7 @@ class ImageOptions:
     strict_colour: bool = True
     subpix: bool = True
     backend: str = "auto"
+    reuse_coarse: bool = True
 
     def __post_init__(self) -> None:
         if int(self.coarse_width) < 200:
@@ -226,6 +230,29 @@ def _coarse_tiles(
 
 
 # ---------------------------------------------------------------------------- fine
+def _refine_coarse(vgray: np.ndarray, xy0: np.ndarray, board: Board, max_sigma: float = 0.15) -> np.ndarray | None:
+    """The coarse corners (K, 2), moved into the fine view, refined there by cornerSubPix; or None.
+
+    Saves the second detector run. Accepted only when every corner converged (cornerSubPix run
+    twice agrees within 0.02 px) and the refined grid fits a board-plane homography with
+    sigma <= ``max_sigma`` view px and no residual above 4 sigma_max; else the caller detects anew.
+    """
+    if not np.all(np.isfinite(xy0)):
+        return None
+    sq = _spacing(xy0, board)
+    h, w = vgray.shape
+    if np.any(xy0 < 2) or np.any(xy0[:, 0] > w - 3) or np.any(xy0[:, 1] > h - 3):
+        return None
+    xy1 = _subpix(vgray, xy0, sq)
+    xy2 = _subpix(vgray, xy1, sq)
+    if np.max(np.linalg.norm(xy2 - xy1, axis=1)) > 0.02:
+        return None
+    sigma, r = homography_sigma(board.corners_board()[:, :2], xy2)
+    if sigma > max_sigma or np.max(np.abs(r)) > 4 * max_sigma:
+        return None
+    return xy2
+
+
 def _subpix(gray: np.ndarray, xy: np.ndarray, square_px: float) -> np.ndarray:
     """Saddle-point refinement (cv2.cornerSubPix) in a window of ~0.35 square; no-op when square_px is 0."""
     if square_px <= 0:
@@ -265,7 +292,9 @@ def _fine(
     )
     vgray = render_view(view, camera, gray)
     xy, backend = None, 0.0
-    if opts.backend in ("auto", "sb"):
+    if opts.reuse_coarse and opts.subpix:
+        xy, backend = _refine_coarse(vgray, view.to_view(b0), board), 2.0
+    if xy is None and opts.backend in ("auto", "sb"):
         for flags in _SB_FINE:
             xy = _sb(vgray, board, flags)
             if xy is not None:
@@ -277,7 +306,8 @@ def _fine(
             "board seen in the coarse search but its corners were not found in the fine view "
             "(blurred, occluded or cut by the image border?)"
         )
-    xy = _subpix(vgray, xy, _spacing(xy, board) if opts.subpix else 0.0)
+    if backend != 2.0:
+        xy = _subpix(vgray, xy, _spacing(xy, board) if opts.subpix else 0.0)
     order = order_grid(xy, board, vgray, view.f, view.cx, view.cy, opts.strict_colour)
     xy = order.corners
     sigma, _ = homography_sigma(board.corners_board()[:, :2], xy)
