@@ -470,7 +470,10 @@ def oracle_split(results: Sequence[SetResult], width: int) -> dict[str, dict[str
         "as observed": [],
         "LiDAR exact (image noise only)": [],
         "image exact (LiDAR noise only)": [],
+        "image exact, each board's error with a random sign": [],
+        "image exact, board errors drawn from their covariances": [],
     }
+    rng = np.random.default_rng(11)
     for r in results:
         if r.failure is not None or not r.graph_frames:
             continue
@@ -479,14 +482,22 @@ def oracle_split(results: Sequence[SetResult], width: int) -> dict[str, dict[str
         T_true = np.asarray(spec.T_cam_lidar)
         T_half = board.T_half_turn() if board.half_turn_symmetric else None
         truth = board_placements(spec)
-        lidar_exact, image_exact = [], []
+        lidar_exact, image_exact, flipped, drawn = [], [], [], []
         for f in r.graph_frames:
             Tb = _true_variant(f.T_lidar_board, truth[int(f.name.split("_")[-1]) - 1], T_half)
             lidar_exact.append(dataclasses.replace(f, T_lidar_board=Tb))
             Tc = T_true @ Tb
             p = f.points_board @ Tc[:3, :3].T + Tc[:3, 3]
-            image_exact.append(dataclasses.replace(f, bearings=p / np.linalg.norm(p, axis=1, keepdims=True)))
-        for key, frames in zip(out, (r.graph_frames, lidar_exact, image_exact)):
+            g = dataclasses.replace(f, bearings=p / np.linalg.norm(p, axis=1, keepdims=True))
+            image_exact.append(g)
+            # T_est = T_true * Expmap(-xi): keep each board's error, break any correlation between boards
+            xi_b = pose_error(f.T_lidar_board, Tb)
+            sign = rng.choice((-1.0, 1.0))
+            T_flip = gtsam.Pose3(Tb) * gtsam.Pose3.Expmap(-sign * xi_b)
+            flipped.append(dataclasses.replace(g, T_lidar_board=np.asarray(T_flip.matrix())))
+            T_draw = gtsam.Pose3(Tb) * gtsam.Pose3.Expmap(rng.multivariate_normal(np.zeros(6), f.board_cov))
+            drawn.append(dataclasses.replace(g, T_lidar_board=np.asarray(T_draw.matrix())))
+        for key, frames in zip(out, (r.graph_frames, lidar_exact, image_exact, flipped, drawn)):
             sol = solve(frames, camera, T_true, GraphOptions())
             xi = pose_error(sol.T_cam_lidar, T_true)
             out[key].append((nees(xi, sol.covariance), xi / np.sqrt(np.diag(sol.covariance))))

@@ -183,6 +183,15 @@ def test_geiger_back_end(fisheye):
     assert res.diagnostics["backend"] == 1.0
 
 
+def test_fine_detector_agrees_with_refined_coarse_corners(fisheye):
+    spec, frames = fisheye
+    fast, e_fast = check(spec, frames[1], exact=True)
+    assert fast.diagnostics["backend"] == 2.0  # default: coarse corners refined in the fine view
+    sb, e_sb = check(spec, frames[1], exact=True, options=ImageOptions(backend="sb"))
+    assert sb.diagnostics["backend"] == 0.0
+    assert np.max(np.abs(fast.uv - sb.uv)) < 0.05 and abs(np.median(e_fast) - np.median(e_sb)) < 0.01
+
+
 @pytest.fixture(scope="module")
 def upside_down_pinhole():
     T = default_T_cam_lidar("pinhole").copy()

@@ -62,10 +62,11 @@ class ImageOptions:
     subpix: refine the fine view's corners with ``cv2.cornerSubPix`` (removes the detector's
         outward bias at the outer corners).
     backend: detector in the fine view: ``"sb"`` (OpenCV's findChessboardCornersSB), ``"cbdetect"``
-        (Geiger's detector, libcbdetect) or ``"auto"`` (SB, then cbdetect when SB fails).
-    reuse_coarse: in the fine view, first refine the coarse corners by cornerSubPix and keep them
-        when a board-plane homography fits them (sigma <= 0.15 view px); the detector runs again
-        only otherwise (saves ~0.2-0.5 s per image).
+        (Geiger's detector, libcbdetect) or ``"auto"`` (the refined coarse corners, then SB, then
+        cbdetect). ``diagnostics["backend"]``: 0 SB, 1 cbdetect, 2 refined coarse corners.
+    reuse_coarse: with ``backend="auto"``, first move the coarse corners into the fine view, refine
+        them there by cornerSubPix and keep them when a board-plane homography fits them (sigma <=
+        0.15 view px); the detectors run again only otherwise (saves ~0.1-0.5 s per image).
     strict_colour: raise ``CornersNotFound`` when the print's corner colour contradicts
         ``board.lower_left`` (a misconfigured even x even board); False keeps the geometric
         order (z towards the camera), flags it half-turn ambiguous and reports ``colour_score`` < 0.
@@ -230,7 +231,9 @@ def _coarse_tiles(
 
 
 # ---------------------------------------------------------------------------- fine
-def _refine_coarse(vgray: np.ndarray, xy0: np.ndarray, board: Board, max_sigma: float = 0.15) -> np.ndarray | None:
+def _refine_coarse(
+    vgray: np.ndarray, xy0: np.ndarray, board: Board, max_sigma: float = 0.15
+) -> np.ndarray | None:
     """The coarse corners (K, 2), moved into the fine view, refined there by cornerSubPix; or None.
 
     Saves the second detector run. Accepted only when every corner converged (cornerSubPix run
@@ -292,8 +295,9 @@ def _fine(
     )
     vgray = render_view(view, camera, gray)
     xy, backend = None, 0.0
-    if opts.reuse_coarse and opts.subpix:
-        xy, backend = _refine_coarse(vgray, view.to_view(b0), board), 2.0
+    if opts.reuse_coarse and opts.subpix and opts.backend == "auto":
+        xy = _refine_coarse(vgray, view.to_view(b0), board)
+        backend = 0.0 if xy is None else 2.0
     if xy is None and opts.backend in ("auto", "sb"):
         for flags in _SB_FINE:
             xy = _sb(vgray, board, flags)
