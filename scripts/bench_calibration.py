@@ -456,6 +456,13 @@ def _true_variant(T_est: np.ndarray, T_true: np.ndarray, T_half: np.ndarray | No
     return min((T_true, alt), key=lambda T: np.linalg.norm(pose_error(T_est, T)[:3]))
 
 
+def _scale_block(cov: np.ndarray, idx: tuple[int, ...], factor: float) -> np.ndarray:
+    """``cov`` with the variances of components ``idx`` times ``factor`` (correlations kept)."""
+    d = np.ones(len(cov))
+    d[list(idx)] = np.sqrt(factor)
+    return cov * np.outer(d, d)
+
+
 def oracle_split(results: Sequence[SetResult], width: int) -> dict[str, dict[str, float]]:
     """Re-solve each set's graph with one sensor made perfect, to see which covariance is off.
 
@@ -472,6 +479,8 @@ def oracle_split(results: Sequence[SetResult], width: int) -> dict[str, dict[str
         "image exact (LiDAR noise only)": [],
         "image exact, each board's error with a random sign": [],
         "image exact, board errors drawn from their covariances": [],
+        "image exact, out-of-plane (rx, ry, tz) board variances x2": [],
+        "image exact, in-plane (rz, tx, ty) board variances x2": [],
     }
     rng = np.random.default_rng(11)
     for r in results:
@@ -497,7 +506,14 @@ def oracle_split(results: Sequence[SetResult], width: int) -> dict[str, dict[str
             flipped.append(dataclasses.replace(g, T_lidar_board=np.asarray(T_flip.matrix())))
             T_draw = gtsam.Pose3(Tb) * gtsam.Pose3.Expmap(rng.multivariate_normal(np.zeros(6), f.board_cov))
             drawn.append(dataclasses.replace(g, T_lidar_board=np.asarray(T_draw.matrix())))
-        for key, frames in zip(out, (r.graph_frames, lidar_exact, image_exact, flipped, drawn)):
+        out_of_plane = [
+            dataclasses.replace(g, board_cov=_scale_block(g.board_cov, (0, 1, 5), 2.0)) for g in image_exact
+        ]
+        in_plane = [
+            dataclasses.replace(g, board_cov=_scale_block(g.board_cov, (2, 3, 4), 2.0)) for g in image_exact
+        ]
+        variants = (r.graph_frames, lidar_exact, image_exact, flipped, drawn, out_of_plane, in_plane)
+        for key, frames in zip(out, variants):
             sol = solve(frames, camera, T_true, GraphOptions())
             xi = pose_error(sol.T_cam_lidar, T_true)
             out[key].append((nees(xi, sol.covariance), xi / np.sqrt(np.diag(sol.covariance))))

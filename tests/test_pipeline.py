@@ -119,3 +119,38 @@ def test_few_frames_warn_and_none_is_impossible(caplog):
     assert any("frame" in r.message for r in caplog.records if r.levelno >= logging.WARNING)
     with pytest.raises(CalibrationImpossible):
         solve_extrinsic([FrameResult(name="0001", used=False, reason="image: no board")], cfg)
+
+
+def test_print_colour_is_taken_from_the_images(tmp_path, caplog):
+    """A half-turn symmetric board whose config names the wrong lower-left colour is corrected."""
+    import yaml
+
+    from ilcc_graph.config import load_config
+    from ilcc_graph.io import list_frames
+    from ilcc_graph.pipeline import check_board_colour
+    from ilcc_graph.simulate import simulate_dataset, standard_spec
+
+    data = simulate_dataset(tmp_path / "sim", standard_spec(camera="pinhole", width=960, frames=3, seed=2))
+    cfg = yaml.safe_load((data / "config.yaml").read_text())
+    assert cfg["board"]["lower_left"] == "black"
+    right = load_config(data / "config.yaml")
+    frames, _ = list_frames(data)
+    assert check_board_colour(frames, right) == right
+    cfg["board"]["lower_left"] = "white"
+    (data / "config.yaml").write_text(yaml.safe_dump(cfg))
+    wrong = load_config(data / "config.yaml")
+    with caplog.at_level(logging.WARNING):
+        fixed = check_board_colour(frames, wrong)
+    assert fixed.board.lower_left == "black"
+    assert "lower_left is white" in caplog.text
+
+
+def test_recorded_board_print_is_white_at_lower_left(acfr_data):
+    from ilcc_graph.config import load_config
+    from ilcc_graph.io import list_frames
+    from ilcc_graph.pipeline import check_board_colour
+
+    config = load_config(acfr_data / "config.yaml")
+    frames, _ = list_frames(acfr_data)
+    assert config.board.lower_left == "black"  # as shipped
+    assert check_board_colour(frames[:4], config).board.lower_left == "white"
