@@ -241,7 +241,7 @@ def solve_extrinsic(
 
     points = np.vstack([r.board.corners_lidar for r in kept])  # type: ignore[union-attr]
     bearings = np.vstack([r.corners.bearings for r in kept])  # type: ignore[union-attr]
-    T_init = upnp(points, bearings)[0].T_cam_points
+    T_init = upnp(points, bearings, prefer_front=True)[0].T_cam_points  # corners lie ahead along their rays
 
     graph_frames = [
         GraphFrame(

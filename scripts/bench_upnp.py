@@ -17,6 +17,7 @@ Usage: nice python3 scripts/bench_upnp.py [--problems 1000] [--trials 300] [--ou
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -284,7 +285,8 @@ def main() -> None:
         "",
         f"Produced by `scripts/bench_upnp.py --problems {args.problems} "
         f"--starts {args.starts} --trials {args.trials} --seed {args.seed}` "
-        f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}).",
+        f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, load average at the end "
+        f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores: times are wall clock).",
         "",
         "## 1. Is the answer the global minimum?",
         "",

@@ -15,11 +15,15 @@ SIGMA_KEYS = {"rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm"}
 
 def _config(path: Path, **camera) -> None:
     cam = camera or {"model": "equirectangular", "width": 2000, "height": 1000}
-    path.write_text(yaml.safe_dump({
-        "board": {"squares": [6, 8], "square_size": 0.075, "margin": 0.0, "lower_left": "black"},
-        "lidar": {"model": "hdl32"},
-        "camera": cam,
-    }))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "board": {"squares": [6, 8], "square_size": 0.075, "margin": 0.0, "lower_left": "black"},
+                "lidar": {"model": "hdl32"},
+                "camera": cam,
+            }
+        )
+    )
 
 
 def test_help_lists_examples(capsys):
@@ -45,8 +49,10 @@ def test_truncated_pcd_is_exit_2_naming_the_file(tmp_path, capsys):
     (data / "pcd").mkdir(parents=True)
     (data / "img").mkdir()
     _config(data / "config.yaml")
-    header = ("# .PCD v0.7\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
-              "WIDTH 100\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 100\nDATA binary\n")
+    header = (
+        "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z intensity\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\n"
+        "WIDTH 100\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 100\nDATA binary\n"
+    )
     (data / "pcd" / "0001.pcd").write_bytes(header.encode() + np.zeros(10 * 4, np.float32).tobytes())
     import cv2
 
@@ -61,8 +67,10 @@ def test_bad_config_is_exit_2_naming_the_key(tmp_path, capsys):
     data = tmp_path / "data"
     (data / "pcd").mkdir(parents=True)
     (data / "img").mkdir()
-    (data / "config.yaml").write_text("board:\n  squares: [6]\n  square_size: 0.075\nlidar: {model: hdl32}\n"
-                                      "camera: {model: equirectangular, width: 2000, height: 1000}\n")
+    (data / "config.yaml").write_text(
+        "board:\n  squares: [6]\n  square_size: 0.075\nlidar: {model: hdl32}\n"
+        "camera: {model: equirectangular, width: 2000, height: 1000}\n"
+    )
     assert main(["calibrate", str(data), "--out", str(tmp_path / "out")]) == 2
     assert "board.squares" in capsys.readouterr().err
 
@@ -70,14 +78,35 @@ def test_bad_config_is_exit_2_naming_the_key(tmp_path, capsys):
 @pytest.fixture(scope="module")
 def small_panoramic_set(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("sim") / "data"
-    assert main(["simulate", str(out), "--lidar", "hdl32", "--camera", "equirectangular", "--frames", "6",
-                 "--seed", "3", "--width", "3000"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                str(out),
+                "--lidar",
+                "hdl32",
+                "--camera",
+                "equirectangular",
+                "--frames",
+                "6",
+                "--seed",
+                "3",
+                "--width",
+                "3000",
+            ]
+        )
+        == 0
+    )
     return out
 
 
 def test_calibrate_writes_interface_schema(small_panoramic_set, tmp_path):
     out = tmp_path / "out"
-    assert main(["calibrate", str(small_panoramic_set), "--out", str(out), "--jobs", "1"]) == 0
+    assert (
+        main(["calibrate", str(small_panoramic_set), "--out", str(out), "--jobs", "1", "--no-studies"]) == 0
+    )
+    assert (out / "report" / "index.html").is_file()
+    assert len(list((out / "coloured").glob("*.ply"))) >= 1
     cal = yaml.safe_load((out / "calibration.yaml").read_text())
     T = np.array(cal["T_cam_lidar"], float)
     assert T.shape == (4, 4) and np.allclose(T[3], [0, 0, 0, 1])
@@ -116,3 +145,31 @@ def test_no_board_anywhere_is_exit_3(small_panoramic_set, tmp_path, capsys):
         cv2.imwrite(str(data / "img" / f"{pcd.stem}.png"), blank)
     assert main(["calibrate", str(data), "--out", str(tmp_path / "out"), "--jobs", "1"]) == 3
     assert "impossible" in capsys.readouterr().err
+
+
+def test_evaluate_and_export_a_calibration(small_panoramic_set, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["calibrate", str(small_panoramic_set), "--out", str(out), "--jobs", "1", "--no-report"]) == 0
+    capsys.readouterr()
+    assert (
+        main(
+            [
+                "evaluate",
+                str(small_panoramic_set),
+                str(out / "calibration.yaml"),
+                "--out",
+                str(out),
+                "--jobs",
+                "1",
+            ]
+        )
+        == 0
+    )
+    ev = yaml.safe_load((out / "evaluation.yaml").read_text())
+    assert ev["frames"] and all(f["corner_rms_px"] < 1.0 for f in ev["frames"])
+    assert (
+        main(["export", str(out / "calibration.yaml"), "--format", "kitti", "--out", str(out / "k.txt")]) == 0
+    )
+    lines = dict(line.split(":", 1) for line in (out / "k.txt").read_text().splitlines() if ":" in line)
+    R = np.array(lines["R"].split(), float).reshape(3, 3)
+    assert np.allclose(R @ R.T, np.eye(3), atol=1e-6)
