@@ -110,36 +110,46 @@ def _sigmas(cov: np.ndarray) -> np.ndarray:
 
 
 def summarise(T: np.ndarray, cov: np.ndarray, truth: np.ndarray | None = None) -> str:
-    """A short human summary of an extrinsic (and its error against a truth, if given)."""
+    """A short human summary of an extrinsic: matrix, roll/pitch/yaw, translation, 1-sigma values,
+    and, when a truth is given, the truth beside each value and the error."""
     import gtsam
 
     pose = gtsam.Pose3(T)
     rpy = np.degrees(pose.rotation().rpy())
     sig = _sigmas(cov)
-    lines = ["T_cam_lidar (p_cam = R p_lidar + t):"]
-    lines += ["  [" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in T]
-    names = ("roll", "pitch", "yaw")
-    lines.append("rotation (deg, Rz(yaw) Ry(pitch) Rx(roll)); 1-sigma about the body axes rx, ry, rz:")
     has_cov = bool(np.all(np.isfinite(sig)))
-    if not has_cov:
-        lines[-1] = (
+    true_rpy = true_t = None
+    if truth is not None:
+        true_rpy = np.degrees(gtsam.Pose3(truth).rotation().rpy())
+        true_t = 1e3 * np.asarray(truth)[:3, 3]
+
+    def row(name: str, value: float, s: float, true: float | None, fmt: str) -> str:
+        text = f"  {name:5s} {value:{fmt}}"
+        if has_cov:
+            text += f"   sigma {s:.4f}" if fmt.endswith("4f") else f"   sigma {s:.2f}"
+        if true is not None:
+            text += f"   truth {true:{fmt}}"
+        return text
+
+    lines = ["T_cam_lidar (p_cam = R p_lidar + t):"]
+    lines += ["  [" + "  ".join(f"{v:+.6f}" for v in row_) + "]" for row_ in T]
+    if has_cov:
+        lines.append("rotation (deg, Rz(yaw) Ry(pitch) Rx(roll)); 1-sigma about the body axes rx, ry, rz:")
+    else:
+        lines.append(
             "rotation (deg, Rz(yaw) Ry(pitch) Rx(roll)); no covariance (the paper's refinement gives none):"
         )
-    lines += [
-        f"  {n:5s} {v:+10.4f}" + (f"   sigma {s:.4f}" if has_cov else "")
-        for n, v, s in zip(names, rpy, sig[:3])
-    ]
+    for i, name in enumerate(("roll", "pitch", "yaw")):
+        lines.append(row(name, rpy[i], sig[i], None if true_rpy is None else true_rpy[i], "+10.4f"))
     lines.append("translation (mm):")
-    lines += [
-        f"  {n:5s} {1e3 * v:+10.2f}" + (f"   sigma {s:.2f}" if has_cov else "")
-        for n, v, s in zip("xyz", T[:3, 3], sig[3:])
-    ]
+    for i, name in enumerate("xyz"):
+        lines.append(row(name, 1e3 * T[i, 3], sig[3 + i], None if true_t is None else true_t[i], "+10.2f"))
     if truth is not None:
         err = gtsam.Pose3(truth).between(pose)  # T_true^-1 T_est
         rot = np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(err.rotation())))
         trans = 1e3 * np.linalg.norm(T[:3, 3] - truth[:3, 3])
         lines.append(f"against the truth: rotation error {rot:.4f} deg, translation error {trans:.2f} mm")
-        if np.all(np.isfinite(cov)):
+        if has_cov:
             xi = gtsam.Pose3.Logmap(pose.between(gtsam.Pose3(truth)))  # T_true = T_est Exp(xi)
             nees = float(xi @ np.linalg.solve(cov, xi))
             lines.append(f"  NEES {nees:.2f} (chi-square, 6 dof: 95 % of runs below 12.6)")
