@@ -268,6 +268,14 @@ class FrameBearingFactor:
         other.robust = robust
         return other
 
+    def scaled(self, variance_scale: float) -> FrameBearingFactor:
+        """The same measurements with every covariance multiplied by ``variance_scale`` (> 0)."""
+        if not variance_scale > 0:
+            raise ValueError(f"FrameBearingFactor.scaled: variance_scale must be > 0, got {variance_scale!r}")
+        other = copy.copy(self)
+        other.sqrt_info = self.sqrt_info / np.sqrt(variance_scale)
+        return other
+
     @property
     def dim(self) -> int:
         """Error dimension 2K."""

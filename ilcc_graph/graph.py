@@ -12,6 +12,7 @@ is dropped and the graph re-solved.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -86,8 +87,11 @@ class GraphOptions:
     variance_factor: when True, the stated noise is checked against the residuals. The gate
         compares each frame's chi-square divided by the median of chi2/dof over the frames (when
         that exceeds 1), so a noise model that is too optimistic for every frame does not drop
-        good frames; and the covariance is multiplied by the a-posteriori variance factor
-        ``sum chi2 / (sum dof - 6)`` of the kept frames when it exceeds 1 (never shrunk).
+        good frames. On the kept frames (without a robust kernel), two variance components are
+        then estimated (Foerstner's method: each group's chi-square over its redundancy), one for
+        the board priors and one for the bearings, and each group's covariances are multiplied by
+        its factor when above 1 (never shrunk); last, the covariance is multiplied by the remaining
+        a-posteriori variance factor ``sum chi2 / (sum dof - 6)`` when it exceeds 1.
     max_iterations, relative_error_tol, absolute_error_tol: Levenberg-Marquardt stopping rules.
     """
 
@@ -135,6 +139,7 @@ class GraphSolution:
     iterations: int
     timings: dict[str, float] = field(default_factory=dict)
     variance_factor: float = 1.0
+    variance_components: tuple[float, float] = (1.0, 1.0)
 
     @property
     def pose(self) -> gtsam.Pose3:
@@ -348,6 +353,34 @@ def _gate_failures(
     return sorted(failing, key=lambda item: item[0])
 
 
+def _scaled(ready: Sequence[_Frame], s_prior: float, s_bearing: float) -> list[_Frame]:
+    """The frames with board-prior covariances times ``s_prior`` and bearing ones times ``s_bearing``."""
+    return [
+        dataclasses.replace(fr, prior_cov=fr.prior_cov * s_prior, bearing=fr.bearing.scaled(s_bearing))
+        for fr in ready
+    ]
+
+
+def _component_ratios(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[float, float]:
+    """Foerstner's variance-component estimates (board priors, bearings) at a solution of ``graph``.
+
+    Each group's whitened chi-square divided by its redundancy ``sum (1 - h_i)`` over its rows,
+    with ``h_i`` the leverage of row i in the whitened linear system (graph as built by ``_build``:
+    prior then bearings, per frame).
+    """
+    A, b = graph.linearize(values).jacobian()
+    N = A.T @ A
+    h = np.einsum("ij,ij->i", A @ np.linalg.pinv(N), A)
+    dims = [graph.at(i).dim() for i in range(graph.size())]
+    group = np.concatenate([np.full(d, i % 2) for i, d in enumerate(dims)])
+    ratios = []
+    for g in (0, 1):
+        rows = group == g
+        r = float(np.sum(1.0 - h[rows]))
+        ratios.append(float(np.sum(b[rows] ** 2)) / r if r > 0.5 else 1.0)
+    return ratios[0], ratios[1]
+
+
 def _variance_factor(stats: dict[str, FrameStats]) -> float:
     """A-posteriori variance factor: sum chi2 / (sum dof - 6), at least 1."""
     chi2 = sum(s.chi2 for s in stats.values())
@@ -403,27 +436,52 @@ def solve(
         iterations += n_it
         T_cam_lidar = result.atPose3(X(0))
         board_estimates = {fr.index: result.atPose3(B(fr.index)) for fr in ready}
-    n_gate_drops = 0
-    while True:
+    use_components = options.variance_factor and robust is None
+    components = (1.0, 1.0)
+
+    def fit(frames_: list[_Frame], comps: tuple[float, float]):
+        """Optimise the graph of ``frames_`` with covariances scaled by ``comps``."""
+        nonlocal iterations, T_cam_lidar, board_estimates
         t0 = time.perf_counter()
-        graph = _build(ready)
-        values = _initial(ready, T_cam_lidar)
-        for fr in ready:
+        scaled = _scaled(frames_, *comps) if comps != (1.0, 1.0) else list(frames_)
+        g = _build(scaled)
+        values = _initial(scaled, T_cam_lidar)
+        for fr in scaled:
             if fr.index in board_estimates:
                 values.update(B(fr.index), board_estimates[fr.index])
         t1 = time.perf_counter()
-        result, n_it = _optimize(graph, values, options)
-        t2 = time.perf_counter()
+        res, n_it = _optimize(g, values, options)
         timings["build"] += t1 - t0
-        timings["optimize"] += t2 - t1
+        timings["optimize"] += time.perf_counter() - t1
         iterations += n_it
-        T_cam_lidar = result.atPose3(X(0))
-        board_estimates = {fr.index: result.atPose3(B(fr.index)) for fr in ready}
-        stats = {fr.name: _frame_stats(fr, result) for fr in ready}
+        T_cam_lidar = res.atPose3(X(0))
+        board_estimates = {fr.index: res.atPose3(B(fr.index)) for fr in scaled}
+        return scaled, g, res
+
+    def fit_components(frames_: list[_Frame], comps: tuple[float, float]):
+        """``fit`` with the two variance components re-estimated until they settle (>= 1 each)."""
+        scaled, g, res = fit(frames_, comps)
+        for _ in range(8):
+            s_prior, s_bearing = _component_ratios(g, res)
+            new = (max(1.0, comps[0] * s_prior), max(1.0, comps[1] * s_bearing))
+            if all(abs(n / c - 1.0) < 0.02 for n, c in zip(new, comps)):
+                break
+            comps = new
+            scaled, g, res = fit(frames_, comps)
+        return scaled, g, res, comps
+
+    n_gate_drops = 0
+    while True:
+        if use_components:
+            # each frame is judged against the noise the residuals show, group by group
+            scaled, graph, result, components = fit_components(ready, components)
+        else:
+            scaled, graph, result = fit(ready, components)
+        stats = {fr.name: _frame_stats(fr, result) for fr in scaled}
         if options.chi2_gate_prob is None:
             break
-        scale = _gate_scale(stats) if options.variance_factor else 1.0
-        failing = _gate_failures(ready, stats, options.chi2_gate_prob, scale)
+        scale = _gate_scale(stats) if options.variance_factor and not use_components else 1.0
+        failing = _gate_failures(scaled, stats, options.chi2_gate_prob, scale)
         if not failing:
             break
         if n_gate_drops >= allowed_drops or len(ready) == 1:
@@ -437,13 +495,19 @@ def solve(
         _, worst, reason = failing[0]
         logger.info("dropping frame %s: %s", worst.name, reason)
         dropped.append((worst.name, reason))
-        ready = [fr for fr in ready if fr is not worst]
+        ready = [fr for fr in ready if fr.name != worst.name]
         n_gate_drops += 1
+    ready = scaled
     if len(ready) < MIN_FRAMES_ADVISED:
         logger.warning(
             "only %d usable frame(s) in the graph; at least %d are advised for a reliable extrinsic",
             len(ready),
             MIN_FRAMES_ADVISED,
+        )
+    if components != (1.0, 1.0):
+        logger.info(
+            "variance components: board priors x %.2f, bearings x %.2f (residuals against the stated noise)",
+            *components,
         )
     t3 = time.perf_counter()
     covariance = _marginal_covariance(graph, result)
@@ -462,4 +526,5 @@ def solve(
         iterations=iterations,
         timings=timings,
         variance_factor=factor,
+        variance_components=components,
     )

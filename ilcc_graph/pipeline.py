@@ -264,7 +264,12 @@ def solve_extrinsic(
         sol = solve(graph_frames, config.camera, T_init, GraphOptions(robust=options.robust))
         T, cov, dropped = sol.T_cam_lidar, sol.covariance, list(sol.dropped)
         rms = {name: s.rms_bearing_error_mrad for name, s in sol.per_frame.items()}
-        diagnostics = {"iterations": float(sol.iterations), "variance_factor": sol.variance_factor}
+        diagnostics = {
+            "iterations": float(sol.iterations),
+            "variance_factor": sol.variance_factor,
+            "variance_component_board": sol.variance_components[0],
+            "variance_component_bearing": sol.variance_components[1],
+        }
     for name, reason in dropped:
         _drop(results, name, reason)
     n_used = sum(1 for r in results.values() if r.used)
