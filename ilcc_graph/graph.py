@@ -364,15 +364,14 @@ def _scaled(ready: Sequence[_Frame], s_prior: float, s_bearing: float) -> list[_
 def _component_ratios(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[float, float]:
     """Foerstner's variance-component estimates (board priors, bearings) at a solution of ``graph``.
 
-    Each group's whitened chi-square divided by its redundancy ``sum (1 - h_i)`` over its rows,
-    with ``h_i`` the leverage of row i in the whitened linear system (graph as built by ``_build``:
-    prior then bearings, per frame).
+    A group's ratio is its whitened chi-square over its redundancy ``sum (1 - h_i)``, with ``h_i``
+    the leverage of row i in the whitened linear system (graph as built by ``_build``: prior then
+    bearings, per frame).
     """
     A, b = graph.linearize(values).jacobian()
-    N = A.T @ A
-    h = np.einsum("ij,ij->i", A @ np.linalg.pinv(N), A)
+    h = np.einsum("ij,ij->i", A @ np.linalg.pinv(A.T @ A), A)
     dims = [graph.at(i).dim() for i in range(graph.size())]
-    group = np.concatenate([np.full(d, i % 2) for i, d in enumerate(dims)])
+    group = np.concatenate([np.full(d, i % 2) for i, d in enumerate(dims)])  # 2i prior, 2i+1 bearings
     ratios = []
     for g in (0, 1):
         rows = group == g
@@ -472,15 +471,11 @@ def solve(
 
     n_gate_drops = 0
     while True:
-        if use_components:
-            # each frame is judged against the noise the residuals show, group by group
-            scaled, graph, result, components = fit_components(ready, components)
-        else:
-            scaled, graph, result = fit(ready, components)
+        scaled, graph, result = fit(ready, components)
         stats = {fr.name: _frame_stats(fr, result) for fr in scaled}
         if options.chi2_gate_prob is None:
             break
-        scale = _gate_scale(stats) if options.variance_factor and not use_components else 1.0
+        scale = _gate_scale(stats) if options.variance_factor else 1.0
         failing = _gate_failures(scaled, stats, options.chi2_gate_prob, scale)
         if not failing:
             break
@@ -497,6 +492,10 @@ def solve(
         dropped.append((worst.name, reason))
         ready = [fr for fr in ready if fr.name != worst.name]
         n_gate_drops += 1
+    if use_components:
+        # on the kept frames only: an outlying frame would inflate the components that judge it
+        scaled, graph, result, components = fit_components(ready, components)
+        stats = {fr.name: _frame_stats(fr, result) for fr in scaled}
     ready = scaled
     if len(ready) < MIN_FRAMES_ADVISED:
         logger.warning(

@@ -544,6 +544,29 @@ def oracle_table(summ: dict[str, dict[str, float]], mode: str) -> str:
     return "\n".join(lines)
 
 
+def paired_table(a: dict[str, list[SetResult]], b: dict[str, list[SetResult]]) -> str:
+    """Per seed present in both runs (e.g. two widths): graph errors and NEES side by side."""
+    lines = [
+        "| systematics | seed | width | graph rot. (deg) | graph trans. (mm) | graph NEES "
+        "| corner RMS error (px) | width | graph rot. (deg) | graph trans. (mm) | graph NEES "
+        "| corner RMS error (px) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for mode in a:
+        other = {r.seed: r for r in b.get(mode, [])}
+        for r in a[mode]:
+            q = other.get(r.seed)
+            if q is None or r.failure or q.failure:
+                continue
+            cells = []
+            for x in (r, q):
+                ce = float(np.sqrt(np.mean(np.square(x.corner_err_px)) / 2))
+                g = x.errors["graph"]
+                cells.append(f"{x.width} | {g[0]:.4f} | {g[1]:.2f} | {x.graph_nees:.2f} | {ce:.3f}")
+            lines.append(f"| {mode} | {r.seed} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 # ----------------------------------------------------------------------------------------------
 # Timing
 
@@ -666,6 +689,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     ap.add_argument("--cli-data", type=Path, default=None, help="reuse/keep the simulated set here")
     ap.add_argument("--oracle", action="store_true", help="re-solve with one sensor exact (which cov is off)")
+    ap.add_argument("--pair-with", type=Path, default=None, help="another --sink: per-seed comparison")
     ap.add_argument("--tag", default=None, help="doc section name (default mc-<width>)")
     ap.add_argument("--json", type=Path, default=None, help="dump the summaries here")
     ap.add_argument("--write", action="store_true", help="write the tables into docs/bench_calibration.md")
@@ -695,6 +719,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         table = accuracy_table(summ, args.width)
         print(table)
         sections.append((args.tag or f"mc-{args.width}", table))
+        if args.pair_with is not None:
+            ptab = paired_table(res, load_sink(args.pair_with))
+            print(ptab)
+            sections.append((f"pair-{args.width}", ptab))
         if args.oracle:
             otabs = []
             for m in modes:

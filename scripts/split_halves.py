@@ -57,7 +57,8 @@ def main() -> None:
             + " | ".join(f"{v:.4f}" for v in np.degrees(s[:3]))
             + " | "
             + " | ".join(f"{v:.2f}" for v in 1e3 * s[3:])
-            + f" | {cal.diagnostics.get('variance_factor', 1.0):.2f} |"
+            + f" | {cal.diagnostics.get('variance_component_board', 1.0):.2f} / "
+            f"{cal.diagnostics.get('variance_component_bearing', 1.0):.2f} |"
         )
     a, b = est.values()
     d, m2 = agreement(a.T_cam_lidar, a.covariance, b.T_cam_lidar, b.covariance)
@@ -68,7 +69,7 @@ def main() -> None:
         f"`python scripts/split_halves.py {args.data}` "
         f"({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, {time.perf_counter() - t0:.0f} s).",
         "",
-        "| half | frames used | sigma rx deg | ry | rz | sigma tx mm | ty | tz | variance factor |",
+        "| half | frames used | sigma rx deg | ry | rz | sigma tx mm | ty | tz | var. comp. board/bearing |",
         "|---|---|---|---|---|---|---|---|---|",
         *rows,
         "",
