@@ -469,33 +469,41 @@ def solve(
             scaled, g, res = fit(frames_, comps)
         return scaled, g, res, comps
 
-    n_gate_drops = 0
-    while True:
-        scaled, graph, result = fit(ready, components)
-        stats = {fr.name: _frame_stats(fr, result) for fr in scaled}
-        if options.chi2_gate_prob is None:
-            break
-        scale = _gate_scale(stats) if options.variance_factor else 1.0
-        failing = _gate_failures(scaled, stats, options.chi2_gate_prob, scale)
-        if not failing:
-            break
-        if n_gate_drops >= allowed_drops or len(ready) == 1:
-            logger.warning(
-                "chi-square gate fails for %d frame(s) (%s) but at most %d frames may be dropped; kept",
-                len(failing),
-                ", ".join(fr.name for _, fr, _ in failing),
-                allowed_drops,
-            )
-            break
-        _, worst, reason = failing[0]
-        logger.info("dropping frame %s: %s", worst.name, reason)
-        dropped.append((worst.name, reason))
-        ready = [fr for fr in ready if fr.name != worst.name]
-        n_gate_drops += 1
+    def gate(frames_: list[_Frame], comps: tuple[float, float]):
+        """Drop the worst frame failing the chi-square gate until none fails (or the cap is hit)."""
+        kept, gone = list(frames_), []
+        while True:
+            scaled, g, res = fit(kept, comps)
+            st = {fr.name: _frame_stats(fr, res) for fr in scaled}
+            if options.chi2_gate_prob is None:
+                break
+            scale = _gate_scale(st) if options.variance_factor else 1.0
+            failing = _gate_failures(scaled, st, options.chi2_gate_prob, scale)
+            if not failing:
+                break
+            if len(gone) >= allowed_drops or len(kept) == 1:
+                logger.warning(
+                    "chi-square gate fails for %d frame(s) (%s) but at most %d frames may be dropped; kept",
+                    len(failing),
+                    ", ".join(fr.name for _, fr, _ in failing),
+                    allowed_drops,
+                )
+                break
+            _, worst, reason = failing[0]
+            logger.info("dropping frame %s: %s", worst.name, reason)
+            gone.append((worst.name, reason))
+            kept = [fr for fr in kept if fr.name != worst.name]
+        return kept, gone, scaled, g, res, st
+
+    kept, gone, scaled, graph, result, stats = gate(ready, components)
     if use_components:
-        # on the kept frames only: an outlying frame would inflate the components that judge it
-        scaled, graph, result, components = fit_components(ready, components)
+        # Variance components on the kept frames only (an outlier would inflate what judges it);
+        # then every frame is gated again under that noise, and the components re-estimated.
+        *_, components = fit_components(kept, components)
+        kept, gone, scaled, graph, result, stats = gate(ready, components)
+        scaled, graph, result, components = fit_components(kept, components)
         stats = {fr.name: _frame_stats(fr, result) for fr in scaled}
+    dropped.extend(gone)
     ready = scaled
     if len(ready) < MIN_FRAMES_ADVISED:
         logger.warning(
