@@ -519,9 +519,16 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         pre_options = replace(options.graph, chi2_gate_prob=None) if options.range_offset else options.graph
         pre = solve(frames, sess.camera, T0, pre_options)
         dropped[sess.name] = list(pre.dropped)
-        # the session's noise, rescaled by its own a-posteriori variance factor (as graph.solve
-        # reports it); not with a range offset, whose absence from the pre-solve inflates the factor
-        k = 1.0 if options.range_offset else pre.variance_factor
+        # the session's noise, rescaled by its own variance components and factor (as graph.solve
+        # reports them); not with a range offset, whose absence from the pre-solve inflates them
+        k_board, k_bearing = (
+            (1.0, 1.0)
+            if options.range_offset
+            else (
+                pre.variance_components[0] * pre.variance_factor,
+                pre.variance_components[1] * pre.variance_factor,
+            )
+        )
         T_init[si] = _pose(pre.T_cam_lidar)
         gone = {n for n, _ in pre.dropped}
         samples_default = None if sess.board is None else board_face_samples(sess.board)
@@ -537,13 +544,13 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
                     idx,
                     f"{sess.name}/{f.name}",
                     _pose(f.T_lidar_board),
-                    k * np.asarray(f.board_cov),
+                    k_board * np.asarray(f.board_cov),
                     samples,
                     lidar_ids[sess.lidar],
                 )
             )
             fac = view_factor(
-                X(si), B(idx), f.points_board, f.bearings, k * np.asarray(f.cov_px), sess.camera
+                X(si), B(idx), f.points_board, f.bearings, k_bearing * np.asarray(f.cov_px), sess.camera
             )
             if fac is not None:
                 views.append(_View(si, idx, fac))
