@@ -26,17 +26,11 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
+from factors.bearing import _skew
+
 POSE3_DOF = 6
 
 __all__ = ["RangeOffsetBoardFactor", "range_offset_direction", "range_offset_error", "shifted_board_pose"]
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    S = np.zeros((len(v), 3, 3))
-    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
-    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
-    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
-    return S
 
 
 class _Samples:

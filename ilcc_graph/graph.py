@@ -197,6 +197,48 @@ class _Frame:
     bearing: FrameBearingFactor
 
 
+def frame_bearing_factor(
+    key_cam_lidar: int,
+    key_lidar_board: int,
+    points_board: np.ndarray,
+    bearings: np.ndarray,
+    cov_px: np.ndarray,
+    camera: CameraModel,
+    robust: gtsam.noiseModel.mEstimator.Base | None = None,
+    what: str = "frame",
+) -> tuple[FrameBearingFactor | None, int]:
+    """One board seen by one camera as a grouped bearing factor, and its number of usable corners.
+
+    Pixel covariances (K, 2, 2) go to the bearing tangent plane through
+    ``camera.bearing_tangent_cov``; corners with a non-finite bearing or covariance, or a
+    covariance that is not positive definite there, are left out. The factor is None with fewer
+    than ``MIN_CORNERS`` usable corners. Raises ValueError (naming ``what``) for malformed arrays.
+    """
+    p = np.asarray(points_board, dtype=np.float64)
+    b = np.asarray(bearings, dtype=np.float64)
+    c = np.asarray(cov_px, dtype=np.float64)
+    K = len(p)
+    if p.shape != (K, 3) or b.shape != (K, 3) or c.shape != (K, 2, 2):
+        raise ValueError(
+            f"{what}: need points_board (K,3), bearings (K,3), cov_px (K,2,2), "
+            f"got {p.shape}, {b.shape}, {c.shape}"
+        )
+    with np.errstate(invalid="ignore", divide="ignore"):
+        b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    ok = np.all(np.isfinite(b), axis=1) & np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(c), axis=(1, 2))
+    cov_t = np.full((K, 2, 2), np.nan)
+    if ok.any():
+        cov_t[ok] = camera.bearing_tangent_cov(b[ok], c[ok], tangent_bases(b[ok]))
+    ok &= np.all(np.isfinite(cov_t), axis=(1, 2))
+    good = np.flatnonzero(ok)
+    if good.size:
+        ok[good] = np.linalg.eigvalsh(cov_t[good]).min(axis=1) > 0
+    n_ok = int(ok.sum())
+    if n_ok < MIN_CORNERS:
+        return None, n_ok
+    return FrameBearingFactor(key_cam_lidar, key_lidar_board, p[ok], b[ok], cov_t[ok], robust), n_ok
+
+
 def _prepare(
     frames: Sequence[GraphFrame], camera: CameraModel, robust: gtsam.noiseModel.mEstimator.Base | None
 ) -> tuple[list[_Frame], list[tuple[str, str]]]:
@@ -211,40 +253,19 @@ def _prepare(
         what = f"GraphFrame {f.name!r}"
         prior = _check_pose(f.T_lidar_board, f"{what}.T_lidar_board")
         prior_cov = _check_cov(f.board_cov, POSE3_DOF, f"{what}.board_cov")
-        p = np.asarray(f.points_board, dtype=np.float64)
-        b = np.asarray(f.bearings, dtype=np.float64)
-        c = np.asarray(f.cov_px, dtype=np.float64)
-        K = len(p)
-        if p.shape != (K, 3) or b.shape != (K, 3) or c.shape != (K, 2, 2):
-            raise ValueError(
-                f"{what}: need points_board (K,3), bearings (K,3), cov_px (K,2,2), "
-                f"got {p.shape}, {b.shape}, {c.shape}"
-            )
-        with np.errstate(invalid="ignore", divide="ignore"):
-            b = b / np.linalg.norm(b, axis=1, keepdims=True)
-        ok = (
-            np.all(np.isfinite(b), axis=1)
-            & np.all(np.isfinite(p), axis=1)
-            & np.all(np.isfinite(c), axis=(1, 2))
+        factor, n_ok = frame_bearing_factor(
+            X(0), B(i), f.points_board, f.bearings, f.cov_px, camera, robust, what
         )
-        cov_t = np.full((K, 2, 2), np.nan)
-        if ok.any():
-            cov_t[ok] = camera.bearing_tangent_cov(b[ok], c[ok], tangent_bases(b[ok]))
-        ok &= np.all(np.isfinite(cov_t), axis=(1, 2))
-        good = np.flatnonzero(ok)
-        if good.size:
-            ok[good] = np.linalg.eigvalsh(cov_t[good]).min(axis=1) > 0
-        if ok.sum() < MIN_CORNERS:
-            dropped.append((f.name, f"only {int(ok.sum())} corners with a usable bearing and covariance"))
+        if factor is None:
+            dropped.append((f.name, f"only {n_ok} corners with a usable bearing and covariance"))
             continue
-        if not ok.all():
+        if n_ok < len(f.points_board):
             logger.info(
                 "frame %s: %d of %d corners without a usable bearing covariance skipped",
                 f.name,
-                K - ok.sum(),
-                K,
+                len(f.points_board) - n_ok,
+                len(f.points_board),
             )
-        factor = FrameBearingFactor(X(0), B(i), p[ok], b[ok], cov_t[ok], robust)
         ready.append(_Frame(f.name, i, prior, prior_cov, factor))
     return ready, dropped
 

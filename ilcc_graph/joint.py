@@ -29,12 +29,12 @@ import numpy as np
 from gtsam.symbol_shorthand import B, O, X
 from scipy.stats import chi2 as chi2_dist
 
-from factors import POSE3_DOF, FrameBearingFactor, tangent_bases
+from factors import POSE3_DOF, FrameBearingFactor
 from factors.range_offset import RangeOffsetBoardFactor
 from ilcc_graph.board import Board
 from ilcc_graph.camera_models import CameraModel
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
-from ilcc_graph.graph import GraphFrame, GraphOptions, solve
+from ilcc_graph.graph import GraphFrame, GraphOptions, frame_bearing_factor, solve
 from ilcc_graph.init import upnp
 
 MODES = ("rigid", "drift")
@@ -153,33 +153,11 @@ def view_factor(
     camera: CameraModel,
     robust: gtsam.noiseModel.mEstimator.Base | None = None,
 ) -> FrameBearingFactor | None:
-    """One board seen by one camera as a grouped bearing factor; None with fewer than 3 usable corners.
-
-    Pixel covariances go to the bearing tangent plane through ``camera.bearing_tangent_cov``;
-    corners with a non-finite bearing or covariance are left out (as ``graph.solve`` does).
-    """
-    p = np.asarray(points_board, dtype=np.float64)
-    b = np.asarray(bearings, dtype=np.float64)
-    c = np.asarray(cov_px, dtype=np.float64)
-    K = len(p)
-    if p.shape != (K, 3) or b.shape != (K, 3) or c.shape != (K, 2, 2):
-        raise ValueError(
-            "view: need points_board (K,3), bearings (K,3), cov_px (K,2,2), "
-            f"got {p.shape}, {b.shape}, {c.shape}"
-        )
-    with np.errstate(invalid="ignore", divide="ignore"):
-        b = b / np.linalg.norm(b, axis=1, keepdims=True)
-    ok = np.all(np.isfinite(b), axis=1) & np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(c), axis=(1, 2))
-    cov_t = np.full((K, 2, 2), np.nan)
-    if ok.any():
-        cov_t[ok] = camera.bearing_tangent_cov(b[ok], c[ok], tangent_bases(b[ok]))
-    ok &= np.all(np.isfinite(cov_t), axis=(1, 2))
-    good = np.flatnonzero(ok)
-    if good.size:
-        ok[good] = np.linalg.eigvalsh(cov_t[good]).min(axis=1) > 0
-    if ok.sum() < MIN_CORNERS:
-        return None
-    return FrameBearingFactor(key_cam_lidar, key_lidar_board, p[ok], b[ok], cov_t[ok], robust)
+    """One board seen by one camera as a grouped bearing factor; None with too few usable corners
+    (``graph.frame_bearing_factor``, as ``graph.solve`` builds it)."""
+    return frame_bearing_factor(
+        key_cam_lidar, key_lidar_board, points_board, bearings, cov_px, camera, robust, "view"
+    )[0]
 
 
 _KERNELS = {
