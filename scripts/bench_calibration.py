@@ -18,9 +18,16 @@ Timing: ``graph.solve`` (solve + marginals) on 20 frames and on 400 frames (20 s
 with distinct names; the sets share the true extrinsic), and ``ilcc-graph calibrate`` on the
 standard 20-frame 8000x4000 set (``--cli``).
 
-Run (nice, 2 workers): ``nice python3 scripts/bench_calibration.py --sets 50 --width 4000 --jobs 2
---systematics both --write``; ``--cli`` adds the command-line timing; ``--write`` puts the tables
-into docs/bench_calibration.md between markers named by ``--tag``.
+Oracle re-solves (``--oracle``): each set's graph again with the board priors at the true board poses
+or with the true bearings, and with scaled board covariance blocks, to tell which input covariance
+misstates its noise.
+
+Run (nice, 2 workers): ``nice python3 scripts/bench_calibration.py --sets 50 --width 3000 --jobs 2
+--systematics both --sink SETS.pkl`` (every finished set is appended to SETS.pkl at once), then
+``--from-sink SETS.pkl --oracle --timing --write`` for the tables (``--write`` puts them into
+docs/bench_calibration.md between markers, and a figure next to it); ``--sets 0 --cli [--cli-extra
+--no-report]`` times the command line; ``--from-sink A.pkl --pair-with B.pkl`` compares the same
+seeds of two runs (e.g. two widths).
 """
 
 from __future__ import annotations
@@ -622,7 +629,7 @@ def timing_table(rows: Sequence[dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
-def time_cli(width: int, seed: int, jobs: int, keep: Path | None = None) -> dict:
+def time_cli(width: int, seed: int, jobs: int, keep: Path | None = None, extra: Sequence[str] = ()) -> dict:
     """Simulate the standard set and time ``python -m ilcc_graph.cli calibrate DATA --out OUT``."""
     from ilcc_graph.simulate import simulate_dataset
 
@@ -634,6 +641,7 @@ def time_cli(width: int, seed: int, jobs: int, keep: Path | None = None) -> dict
     cmd = [sys.executable, "-m", "ilcc_graph.cli", "calibrate", str(data), "--out", str(out)]
     if jobs > 1:
         cmd += ["--jobs", str(jobs)]
+    cmd += list(extra)
     load_before = os.getloadavg()
     ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
@@ -651,6 +659,32 @@ def time_cli(width: int, seed: int, jobs: int, keep: Path | None = None) -> dict
         "stdout_tail": proc.stdout[-1500:],
         "stderr_tail": proc.stderr[-1500:],
     }
+
+
+def plot_runs(res: dict[str, list[SetResult]], path: Path) -> None:
+    """Graph NEES histogram against chi2(6), and per-set errors of the three methods."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 3, figsize=(13, 3.8))
+    x = np.linspace(0, 30, 300)
+    for mode, rs in res.items():
+        n = [r.graph_nees for r in rs if r.failure is None]
+        ax[0].hist(n, bins=np.arange(0, 31, 1.5), density=True, histtype="step", label=f"systematics {mode}")
+    ax[0].plot(x, chi2.pdf(x, 6), "k--", label="chi2(6)")
+    ax[0].axvline(CHI2_6_95, color="grey", lw=0.8)
+    ax[0].set(xlabel="graph NEES", ylabel="density", title="NEES of the reported covariance")
+    ax[0].legend(fontsize=8)
+    rs = [r for r in res.get("on", next(iter(res.values()))) if r.failure is None]
+    for k, (unit, title) in enumerate((("deg", "rotation error"), ("mm", "translation error"))):
+        data = [[r.errors[m][k] for r in rs] for m in ("UPnP", "paper", "graph")]
+        ax[k + 1].boxplot(data, tick_labels=["UPnP", "paper", "graph"])
+        ax[k + 1].set(ylabel=unit, title=f"{title} ({len(rs)} sets, systematics {rs[0].mode})")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -696,6 +730,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--cli-data", type=Path, default=None, help="reuse/keep the simulated set here")
     ap.add_argument("--oracle", action="store_true", help="re-solve with one sensor exact (which cov is off)")
     ap.add_argument("--pair-with", type=Path, default=None, help="another --sink: per-seed comparison")
+    ap.add_argument("--cli-extra", default="", help="extra calibrate arguments, e.g. '--no-report'")
     ap.add_argument("--tag", default=None, help="doc section name (default mc-<width>)")
     ap.add_argument("--json", type=Path, default=None, help="dump the summaries here")
     ap.add_argument("--write", action="store_true", help="write the tables into docs/bench_calibration.md")
@@ -725,6 +760,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         table = accuracy_table(summ, args.width)
         print(table)
         sections.append((args.tag or f"mc-{args.width}", table))
+        if args.write and len(res) and sum(len(v) for v in res.values()) >= 10:
+            plot_runs(res, DOC.parent / f"bench_calibration_{args.tag or args.width}.png")
         if args.pair_with is not None:
             ptab = paired_table(res, load_sink(args.pair_with))
             print(ptab)
@@ -737,7 +774,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 otabs.append(oracle_table(osum, m))
             otab = "\n".join([otabs[0]] + [t.split("\n", 2)[2] for t in otabs[1:]])
             print(otab)
-            sections.append((f"oracle-{args.width}", otab))
+            sections.append((f"oracle-{args.tag or args.width}", otab))
         if args.timing:
             base = standard_spec(width=args.width)
             T_true = np.asarray(base.T_cam_lidar)
@@ -758,7 +795,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             dump["timing"] = rows
             sections.append((f"timing-{args.width}", ttab))
     if args.cli:
-        r = time_cli(8000, 0, 1, args.cli_data)
+        r = time_cli(8000, 0, 1, args.cli_data, args.cli_extra.split())
         dump["cli"] = r
         ctab = (
             f"`{r['cmd']}` (standard set, seed 0, 8000x4000, 20 frames): wall {r['wall']:.1f} s "
@@ -769,7 +806,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         print(ctab)
         print(r["stderr_tail"])
-        sections.append(("cli", ctab))
+        sections.append(("cli" + "".join(a.lstrip("-") for a in args.cli_extra.split()), ctab))
     stamp = _stamp(argv, time.perf_counter() - t_start)
     print(stamp)
     if args.json:
