@@ -385,20 +385,38 @@ def _scaled(ready: Sequence[_Frame], s_prior: float, s_bearing: float) -> list[_
 def _component_ratios(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> tuple[float, float]:
     """Foerstner's variance-component estimates (board priors, bearings) at a solution of ``graph``.
 
-    A group's ratio is its whitened chi-square over its redundancy ``sum (1 - h_i)``, with ``h_i``
-    the leverage of row i in the whitened linear system (graph as built by ``_build``: prior then
-    bearings, per frame).
+    A group's ratio is its whitened chi-square over its redundancy: its number of residuals less
+    ``trace(N^-1 N_g)``, N the information matrix of the whitened linear system and N_g the group's
+    share. The graph is as ``_build`` makes it (per frame: the board prior on B(i), then the bearing
+    factor on X(0), B(i)), so N is an arrow matrix and the trace costs O(frames) by the Schur
+    complement on the extrinsic, with no dense (6n x 6n) algebra.
     """
-    A, b = graph.linearize(values).jacobian()
-    h = np.einsum("ij,ij->i", A @ np.linalg.pinv(A.T @ A), A)
-    dims = [graph.at(i).dim() for i in range(graph.size())]
-    group = np.concatenate([np.full(d, i % 2) for i, d in enumerate(dims)])  # 2i prior, 2i+1 bearings
-    ratios = []
-    for g in (0, 1):
-        rows = group == g
-        r = float(np.sum(1.0 - h[rows]))
-        ratios.append(float(np.sum(b[rows] ** 2)) / r if r > 0.5 else 1.0)
-    return ratios[0], ratios[1]
+    n_frames = graph.size() // 2
+    chi2 = [0.0, 0.0]
+    m = [0, 0]
+    Np, D, C = [], [], []  # per frame: prior information, board block, board-extrinsic coupling
+    E = np.zeros((POSE3_DOF, POSE3_DOF))
+    for i in range(n_frames):
+        Ap, bp = graph.at(2 * i).linearize(values).jacobian()
+        Ab, bb = graph.at(2 * i + 1).linearize(values).jacobian()  # columns: X(0), then B(i)
+        Ax, Ab = Ab[:, :POSE3_DOF], Ab[:, POSE3_DOF:]
+        chi2[0] += float(bp @ bp)
+        chi2[1] += float(bb @ bb)
+        m[0] += len(bp)
+        m[1] += len(bb)
+        Np.append(Ap.T @ Ap)
+        D.append(Np[-1] + Ab.T @ Ab)
+        C.append(Ab.T @ Ax)
+        E += Ax.T @ Ax
+    Dinv = [np.linalg.inv(d) for d in D]
+    S_inv = np.linalg.inv(E - sum(c.T @ di @ c for c, di in zip(C, Dinv)))
+    trace_prior = 0.0
+    for npr, di, c in zip(Np, Dinv, C):
+        cov_bb = di + di @ c @ S_inv @ c.T @ di  # marginal covariance of the board (whitened units)
+        trace_prior += float(np.sum(cov_bb * npr))  # trace(cov_bb @ npr), npr symmetric
+    n_params = POSE3_DOF * (n_frames + 1)
+    redundancy = (m[0] - trace_prior, m[1] - (n_params - trace_prior))
+    return tuple(c / r if r > 0.5 else 1.0 for c, r in zip(chi2, redundancy))  # type: ignore[return-value]
 
 
 def _variance_factor(stats: dict[str, FrameStats]) -> float:
