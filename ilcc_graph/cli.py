@@ -546,7 +546,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     jobs = max(1, min(2, os.cpu_count() or 1))
 
-    def solve_args(sp: argparse.ArgumentParser) -> None:
+    def solve_args(sp: argparse.ArgumentParser, studies: bool = False) -> None:
         sp.add_argument("--out", help="output folder (default: out/<timestamp>, linked as out/latest)")
         sp.add_argument(
             "--refine",
@@ -565,10 +565,11 @@ def build_parser() -> argparse.ArgumentParser:
             help="skip OUT/report/index.html and the coloured clouds",
         )
         sp.add_argument(
-            "--no-studies",
-            dest="studies",
-            action="store_false",
-            help="leave the frames-vs-accuracy and cross-validation studies out of the report",
+            "--studies",
+            action=argparse.BooleanOptionalAction,
+            default=studies,
+            help="add the frames-vs-accuracy and cross-validation studies to the report (re-solve many "
+            f"times; default {'on' if studies else 'off'})",
         )
 
     sp = add(
@@ -620,7 +621,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=os.path.join(os.path.expanduser("~"), ".cache", "ilcc_graph"),
         help="folder for simulated data sets (default ~/.cache/ilcc_graph)",
     )
-    solve_args(sp)
+    solve_args(sp, studies=True)
 
     sp = add("simulate", cmd_simulate, "write a simulated data set with ground truth")
     sp.add_argument("out", metavar="OUT")

@@ -102,9 +102,7 @@ def small_panoramic_set(tmp_path_factory) -> Path:
 
 def test_calibrate_writes_interface_schema(small_panoramic_set, tmp_path):
     out = tmp_path / "out"
-    assert (
-        main(["calibrate", str(small_panoramic_set), "--out", str(out), "--jobs", "1", "--no-studies"]) == 0
-    )
+    assert main(["calibrate", str(small_panoramic_set), "--out", str(out), "--jobs", "1"]) == 0
     assert (out / "report" / "index.html").is_file()
     assert len(list((out / "coloured").glob("*.ply"))) >= 1
     cal = yaml.safe_load((out / "calibration.yaml").read_text())
