@@ -239,18 +239,11 @@ def _write_report(out: Path, data: Path, config, cal, observed, frames, options,
 
 
 def _calibrate(data: Path, out: Path, args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
-    from ilcc_graph.config import load_config
-    from ilcc_graph.io import list_frames
-    from ilcc_graph.pipeline import CalibrateOptions, check_board_colour, observe_frames, solve_extrinsic
-    from ilcc_graph.types import FrameResult
+    from ilcc_graph.pipeline import CalibrateOptions, observe_dataset, solve_extrinsic
 
     options = CalibrateOptions(refine=args.refine, robust=args.robust, jobs=args.jobs)
     t0 = time.perf_counter()
-    config = load_config(data / "config.yaml")
-    frames, unpaired = list_frames(data)
-    config = check_board_colour(frames, config)
-    observed = observe_frames(frames, config, options.jobs, _Progress("frames"))
-    observed += [FrameResult(name=stem, used=False, reason=why) for stem, why in unpaired]
+    config, frames, observed = observe_dataset(data, options.jobs, _Progress("frames"))
     cal = solve_extrinsic(observed, config, options)
     _write_outputs(out, config, cal)
     t_cal = time.perf_counter() - t0
@@ -276,17 +269,13 @@ def _calibrate(data: Path, out: Path, args: argparse.Namespace, truth: np.ndarra
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """The paper's metric and corner errors of a calibration on a data set's frames."""
-    from ilcc_graph.config import load_config
-    from ilcc_graph.io import list_frames, read_calibration, write_yaml
-    from ilcc_graph.pipeline import check_board_colour, observe_frames
+    from ilcc_graph.io import read_calibration, write_yaml
+    from ilcc_graph.pipeline import observe_dataset
     from ilcc_graph.report import eval_frames, evaluate, evaluation_rows, evaluation_to_dict
 
     data = _need_dir(args.data)
     cal = read_calibration(Path(args.calibration))
-    config = load_config(data / "config.yaml")
-    frames, unpaired = list_frames(data)
-    config = check_board_colour(frames, config)
-    observed = observe_frames(frames, config, args.jobs, _Progress("frames"))
+    config, _, observed = observe_dataset(data, args.jobs, _Progress("frames"))
     for r in observed:
         if r.board is None or r.corners is None:
             print(f"{r.name}: not evaluated ({r.reason})")
@@ -407,6 +396,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return _calibrate(data, _run_dir(args.out), args, truth)
 
 
+def _stage_summary(rows: list, header: tuple[str, ...], unpaired: list[tuple[str, str]], out: Path) -> int:
+    """The stage commands' closing table and lines."""
+    _print_table(rows, header)
+    for stem, why in unpaired:
+        print(f"{stem}: skipped ({why})")
+    print(f"wrote {out}")
+    return 0
+
+
 def cmd_lidar_corners(args: argparse.Namespace) -> int:
     from ilcc_graph.config import load_config
     from ilcc_graph.io import list_frames, write_pcd, write_yaml
@@ -447,11 +445,7 @@ def cmd_lidar_corners(args: argparse.Namespace) -> int:
         )
         write_pcd(out / f"{paths.name}_board.pcd", Scan(res.points_lidar, res.intensity))
         rows.append((paths.name, "yes", len(res.points_lidar), ""))
-    _print_table(rows, ("frame", "found", "points", "reason"))
-    for stem, why in unpaired:
-        print(f"{stem}: skipped ({why})")
-    print(f"wrote {out}")
-    return 0
+    return _stage_summary(rows, ("frame", "found", "points", "reason"), unpaired, out)
 
 
 def cmd_image_corners(args: argparse.Namespace) -> int:
@@ -487,11 +481,7 @@ def cmd_image_corners(args: argparse.Namespace) -> int:
         )
         write_image(out / f"{paths.name}_corners.png", draw_corners(read_image(paths.image), res.uv))
         rows.append((paths.name, "yes", f"{sig:.3f}", ""))
-    _print_table(rows, ("frame", "found", "sigma px", "reason"))
-    for stem, why in unpaired:
-        print(f"{stem}: skipped ({why})")
-    print(f"wrote {out}")
-    return 0
+    return _stage_summary(rows, ("frame", "found", "sigma px", "reason"), unpaired, out)
 
 
 def cmd_export(args: argparse.Namespace) -> int:

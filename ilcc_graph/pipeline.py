@@ -302,18 +302,30 @@ def _rms_bearing_mrad(T_cam_lidar: np.ndarray, f: GraphFrame) -> float:
 # The public API
 
 
+def observe_dataset(
+    data_dir: Path | str, jobs: int = 1, progress: Progress | None = None
+) -> tuple[Config, list[FramePaths], list[FrameResult]]:
+    """Read a data set's config, pair its frames, check the print's colour, run both stages.
+
+    Returns the config used, the paired frames, and every frame's observation (stems without a
+    partner come last, unused, with the reason).
+    """
+    data_dir = Path(data_dir)
+    config = load_config(data_dir / "config.yaml")
+    frames, unpaired = list_frames(data_dir)
+    config = check_board_colour(frames, config)
+    observed = observe_frames(frames, config, jobs, progress)
+    observed += [FrameResult(name=stem, used=False, reason=why) for stem, why in unpaired]
+    return config, frames, observed
+
+
 def calibrate_dataset(
     data_dir: Path | str,
     options: CalibrateOptions = CalibrateOptions(),
     progress: Progress | None = None,
 ) -> tuple[Config, Calibration]:
     """Calibrate one data set (interface.md layout). Returns the config used and the result."""
-    data_dir = Path(data_dir)
-    config = load_config(data_dir / "config.yaml")
-    frames, unpaired = list_frames(data_dir)
-    config = check_board_colour(frames, config)
-    observed = observe_frames(frames, config, options.jobs, progress)
-    observed += [FrameResult(name=stem, used=False, reason=why) for stem, why in unpaired]
+    config, _, observed = observe_dataset(data_dir, options.jobs, progress)
     return config, solve_extrinsic(observed, config, options)
 
 

@@ -18,9 +18,8 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2
 
-from ilcc_graph.config import load_config
-from ilcc_graph.io import atomic_write, list_frames
-from ilcc_graph.pipeline import CalibrateOptions, check_board_colour, observe_frames, solve_extrinsic
+from ilcc_graph.io import atomic_write
+from ilcc_graph.pipeline import CalibrateOptions, observe_dataset, solve_extrinsic
 
 
 def agreement(T_a: np.ndarray, C_a: np.ndarray, T_b: np.ndarray, C_b: np.ndarray) -> tuple[np.ndarray, float]:
@@ -41,10 +40,7 @@ def main() -> None:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
     data = Path(args.data)
     t0 = time.perf_counter()
-    config = load_config(data / "config.yaml")
-    frames, _ = list_frames(data)
-    config = check_board_colour(frames, config)
-    observed = observe_frames(frames, config, args.jobs)
+    config, _, observed = observe_dataset(data, args.jobs)
     halves = {"odd positions": observed[0::2], "even positions": observed[1::2]}
     rows, est = [], {}
     for name, part in halves.items():
