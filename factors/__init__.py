@@ -15,11 +15,13 @@ from factors.bearing import (
     sqrt_information,
     tangent_bases,
 )
+from factors.range_offset import RangeOffsetBoardFactor
 
 __all__ = [
     "BEARING_DOF",
     "POSE3_DOF",
     "FrameBearingFactor",
+    "RangeOffsetBoardFactor",
     "bearing_error",
     "bearing_factor",
     "bearing_point_factor",
