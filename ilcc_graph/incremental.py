@@ -30,7 +30,7 @@ import numpy as np
 from gtsam.symbol_shorthand import B, X
 from scipy.stats import chi2 as chi2_dist
 
-from factors import FrameBearingFactor
+from factors import POSE3_DOF, FrameBearingFactor
 from ilcc_graph.board import Board
 from ilcc_graph.camera_models import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
@@ -413,12 +413,28 @@ def calibrate_incrementally(
 ) -> tuple[IncrementalCalibrator, FrameUpdate]:
     """Feed ``frames`` one by one, calling ``report(update)`` after each (e.g. ``print(format_update(u))``).
 
-    Frames without a board in both sensors are skipped. With ``stop_at_target`` it stops at the first
-    frame that reaches ``target_sigma``. Returns the calibrator and the final update (after ``finish()``).
+    Frames without a board in both sensors are skipped (reported as not accepted, with their reason).
+    With ``stop_at_target`` it stops at the first frame that reaches ``target_sigma`` (``frames`` may be
+    a lazy iterator, so the rest are then never produced). Returns the calibrator and the final
+    update (after ``finish()``).
     """
     cal = IncrementalCalibrator(camera, board, T_init, target_sigma)
     for f in frames:
         if isinstance(f, FrameResult) and (not f.used or f.board is None or f.corners is None):
+            if report is not None:
+                nan6 = np.full(POSE3_DOF, np.nan)
+                report(
+                    FrameUpdate(
+                        cal.estimate,
+                        nan6,
+                        False,
+                        np.full((POSE3_DOF, POSE3_DOF), np.nan),
+                        f.name,
+                        False,
+                        f.reason,
+                        len(cal.frames),
+                    )
+                )
             continue
         u = cal.add_frame(f)
         if report is not None:

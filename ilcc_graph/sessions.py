@@ -18,7 +18,7 @@ import numpy as np
 
 from ilcc_graph.config import Config, load_config
 from ilcc_graph.graph import GraphFrame
-from ilcc_graph.incremental import FrameUpdate, IncrementalCalibrator, format_update
+from ilcc_graph.incremental import FrameUpdate, IncrementalCalibrator, calibrate_incrementally, format_update
 from ilcc_graph.io import list_frames
 from ilcc_graph.joint import ConsistencyTest, Estimate, JointOptions, JointSolution, Session, solve_sessions
 from ilcc_graph.types import Calibration, FrameResult
@@ -233,30 +233,7 @@ def calibrate_dataset_incrementally(
     config = load_config(d / "config.yaml")
     frames, _ = list_frames(d)
     config = check_board_colour(frames, config)
-    cal = IncrementalCalibrator(config.camera, config.board, T_init, target_sigma)
-    for paths in frames:
-        r = observe_frame(paths, config)
-        if not r.used or r.board is None or r.corners is None:
-            if report is not None:
-                report(
-                    FrameUpdate(
-                        cal.estimate,
-                        np.full(6, np.nan),
-                        False,
-                        np.full((6, 6), np.nan),
-                        r.name,
-                        False,
-                        r.reason,
-                        len(cal.frames),
-                    )
-                )
-            continue
-        u = cal.add_frame(r)
-        if report is not None:
-            report(u)
-        if stop_at_target and u.reached_target:
-            break
-    final = cal.finish()
-    if report is not None:
-        report(final)
-    return cal, final
+    observed = (observe_frame(paths, config) for paths in frames)  # lazy: stop_at_target reads no more
+    return calibrate_incrementally(
+        observed, config.camera, config.board, T_init, target_sigma, report, stop_at_target
+    )
