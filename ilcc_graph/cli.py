@@ -396,9 +396,35 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return _calibrate(data, _run_dir(args.out), args, truth)
 
 
-def _stage_summary(rows: list, header: tuple[str, ...], unpaired: list[tuple[str, str]], out: Path) -> int:
-    """The stage commands' closing table and lines."""
-    _print_table(rows, header)
+def _run_stage(args: argparse.Namespace, run: Callable, label: str, **require: bool):
+    """A stage command's common part: config (print colour checked), frames, output folder, the
+    stage over all frames, and a YAML with the reason for each frame it failed on.
+
+    Returns (frames, unpaired, out, results, rows); rows (frame name -> table row) hold the failed frames.
+    """
+    from ilcc_graph.config import load_config
+    from ilcc_graph.io import list_frames, write_yaml
+    from ilcc_graph.pipeline import check_board_colour
+
+    data = _need_dir(args.data)
+    config = load_config(data / "config.yaml")
+    frames, unpaired = list_frames(data, **require)
+    config = check_board_colour(frames, config)  # uses the images where there are any
+    out = _run_dir(args.out)
+    results = run(frames, config, args.jobs, _Progress(label))
+    rows: dict[str, tuple] = {}
+    for paths, res in zip(frames, results):
+        if isinstance(res, Exception):
+            write_yaml(out / f"{paths.name}.yaml", {"name": paths.name, "found": False, "reason": str(res)})
+            rows[paths.name] = (paths.name, "no", "", str(res))
+    return frames, unpaired, out, results, rows
+
+
+def _stage_summary(
+    frames: list, rows: dict[str, tuple], header: tuple[str, ...], unpaired: list[tuple[str, str]], out: Path
+) -> int:
+    """The stage commands' closing table (in frame order) and lines."""
+    _print_table([rows[p.name] for p in frames], header)
     for stem, why in unpaired:
         print(f"{stem}: skipped ({why})")
     print(f"wrote {out}")
@@ -406,22 +432,13 @@ def _stage_summary(rows: list, header: tuple[str, ...], unpaired: list[tuple[str
 
 
 def cmd_lidar_corners(args: argparse.Namespace) -> int:
-    from ilcc_graph.config import load_config
-    from ilcc_graph.io import list_frames, write_pcd, write_yaml
-    from ilcc_graph.pipeline import check_board_colour, run_lidar_stage
+    from ilcc_graph.io import write_pcd, write_yaml
+    from ilcc_graph.pipeline import run_lidar_stage
     from ilcc_graph.types import Scan
 
-    data = _need_dir(args.data)
-    config = load_config(data / "config.yaml")
-    frames, unpaired = list_frames(data, require_image=False)
-    config = check_board_colour(frames, config)  # uses the images where there are any
-    out = _run_dir(args.out)
-    results = run_lidar_stage(frames, config, args.jobs, _Progress("lidar"))
-    rows = []
+    frames, unpaired, out, results, rows = _run_stage(args, run_lidar_stage, "lidar", require_image=False)
     for paths, res in zip(frames, results):
         if isinstance(res, Exception):
-            write_yaml(out / f"{paths.name}.yaml", {"name": paths.name, "found": False, "reason": str(res)})
-            rows.append((paths.name, "no", "", str(res)))
             continue
         write_yaml(
             out / f"{paths.name}.yaml",
@@ -444,27 +461,18 @@ def cmd_lidar_corners(args: argparse.Namespace) -> int:
             },
         )
         write_pcd(out / f"{paths.name}_board.pcd", Scan(res.points_lidar, res.intensity))
-        rows.append((paths.name, "yes", len(res.points_lidar), ""))
-    return _stage_summary(rows, ("frame", "found", "points", "reason"), unpaired, out)
+        rows[paths.name] = (paths.name, "yes", len(res.points_lidar), "")
+    return _stage_summary(frames, rows, ("frame", "found", "points", "reason"), unpaired, out)
 
 
 def cmd_image_corners(args: argparse.Namespace) -> int:
-    from ilcc_graph.config import load_config
-    from ilcc_graph.io import list_frames, read_image, write_image, write_yaml
-    from ilcc_graph.pipeline import check_board_colour, run_image_stage
+    from ilcc_graph.io import read_image, write_image, write_yaml
+    from ilcc_graph.pipeline import run_image_stage
     from ilcc_graph.report.overlays import draw_corners
 
-    data = _need_dir(args.data)
-    config = load_config(data / "config.yaml")
-    frames, unpaired = list_frames(data, require_scan=False)
-    config = check_board_colour(frames, config)
-    out = _run_dir(args.out)
-    results = run_image_stage(frames, config, args.jobs, _Progress("images"))
-    rows = []
+    frames, unpaired, out, results, rows = _run_stage(args, run_image_stage, "images", require_scan=False)
     for paths, res in zip(frames, results):
         if isinstance(res, Exception):
-            write_yaml(out / f"{paths.name}.yaml", {"name": paths.name, "found": False, "reason": str(res)})
-            rows.append((paths.name, "no", "", str(res)))
             continue
         sig = np.sqrt(np.mean(np.trace(res.cov_px, axis1=1, axis2=2) / 2))
         write_yaml(
@@ -480,8 +488,8 @@ def cmd_image_corners(args: argparse.Namespace) -> int:
             },
         )
         write_image(out / f"{paths.name}_corners.png", draw_corners(read_image(paths.image), res.uv))
-        rows.append((paths.name, "yes", f"{sig:.3f}", ""))
-    return _stage_summary(rows, ("frame", "found", "sigma px", "reason"), unpaired, out)
+        rows[paths.name] = (paths.name, "yes", f"{sig:.3f}", "")
+    return _stage_summary(frames, rows, ("frame", "found", "sigma px", "reason"), unpaired, out)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
