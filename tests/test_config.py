@@ -117,7 +117,7 @@ def test_ilcc_without_lidar_type_uses_beam_count(tmp_path: Path) -> None:
 
 def test_recorded_config_loads(acfr_data: Path) -> None:
     cfg = load_config(acfr_data / "config.yaml")
-    assert cfg.board == Board(6, 8, 0.095, 0.045, 0.020, "black")
+    assert cfg.board == Board(6, 8, 0.095, 0.045, 0.020, "white")
     assert cfg.lidar.name == "vlp16" and cfg.lidar.n_beams == 16
     assert cfg.camera.kind == "fisheye" and (cfg.camera.width, cfg.camera.height) == (1920, 1208)
     assert cfg.roi is None

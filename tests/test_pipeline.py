@@ -152,5 +152,7 @@ def test_recorded_board_print_is_white_at_lower_left(acfr_data):
 
     config = load_config(acfr_data / "config.yaml")
     frames, _ = list_frames(acfr_data)
-    assert config.board.lower_left == "black"  # as shipped
-    assert check_board_colour(frames[:4], config).board.lower_left == "white"
+    assert config.board.lower_left == "white"  # as shipped
+    assert check_board_colour(frames[:4], config) == config
+    wrong = dataclasses.replace(config, board=dataclasses.replace(config.board, lower_left="black"))
+    assert check_board_colour(frames[:4], wrong).board.lower_left == "white"
