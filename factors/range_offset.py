@@ -165,6 +165,7 @@ class RangeOffsetBoardFactor:
         return e
 
     def factor(self) -> gtsam.CustomFactor:
-        """The GTSAM factor with ``noiseModel.Gaussian.Covariance(covariance)``."""
-        noise = gtsam.noiseModel.Gaussian.Covariance(self.covariance)
+        """The GTSAM factor with ``noiseModel.Gaussian.Covariance(covariance, smart=False)`` (GTSAM's
+        default ``smart=True`` zeroes off-diagonals below 1e-9: real correlations in rad^2 and m^2)."""
+        noise = gtsam.noiseModel.Gaussian.Covariance(self.covariance, False)
         return gtsam.CustomFactor(noise, list(self.keys), self._error)

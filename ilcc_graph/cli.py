@@ -1,9 +1,12 @@
-"""The ``ilcc-graph`` command line: the only place that decides output folders."""
+"""The ``ilcc-graph`` command line: arguments -> options -> run -> outputs.
+
+The only place that decides output folders. Everything else is in ``pipeline`` (the run),
+``outputs`` (what is written) and ``report.text`` (what is printed).
+"""
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import logging
 import os
 import sys
@@ -41,16 +44,11 @@ exit codes: 0 success, 2 bad usage or bad input, 3 calibration impossible from t
 """
 
 
-# ----------------------------------------------------------------------------------------------
-# Small helpers
-
-
 class _Progress:
     """One progress-bar helper: a callback (done, total) drawing a tqdm bar on stderr."""
 
     def __init__(self, desc: str) -> None:
-        self.desc = desc
-        self.bar = None
+        self.desc, self.bar = desc, None
 
     def __call__(self, done: int, total: int) -> None:
         if self.bar is None:
@@ -66,13 +64,13 @@ class _Progress:
 
 
 def _run_dir(out: str | None, root: str = "out") -> Path:
-    """``out`` as given, else ``out/<timestamp>`` with an ``out/latest`` link to it."""
-    if out:
-        path = Path(out)
-        path.mkdir(parents=True, exist_ok=True)
-        return path
-    path = Path(root) / time.strftime("%Y%m%d-%H%M%S")
-    path.mkdir(parents=True, exist_ok=True)
+    """``out`` as given, else ``out/<timestamp>`` (``_link_latest`` points ``out/latest`` at it)."""
+    return Path(out) if out else Path(root) / time.strftime("%Y%m%d-%H%M%S")
+
+
+def _link_latest(path: Path, given: str | None, root: str = "out") -> None:
+    if given:
+        return
     latest = Path(root) / "latest"
     try:
         if latest.is_symlink() or latest.exists():
@@ -80,92 +78,116 @@ def _run_dir(out: str | None, root: str = "out") -> Path:
         latest.symlink_to(path.name)
     except OSError:
         pass
-    return path
 
 
-def _need_dir(path: str) -> Path:
-    p = Path(path)
-    if not p.is_dir():
-        raise InputError(f"{p}: not a directory (expected a data set with config.yaml, pcd/ and img/)")
-    return p
+def _pair(text: str | None, what: str) -> tuple[float, float] | None:
+    """'DEG,MM' -> (deg, mm)."""
+    if text is None:
+        return None
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"{what} expects DEG,MM (e.g. 0.05,1.0), got {text!r}") from None
+    return a, b
 
 
-def _print_table(rows: Sequence[Sequence[object]], header: Sequence[str]) -> None:
-    cells = [[str(c) for c in header]] + [[str(c) for c in r] for r in rows]
-    widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
-    for j, r in enumerate(cells):
-        print("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
-        if j == 0:
-            print("  ".join("-" * w for w in widths))
+def _run_options(args: argparse.Namespace):  # noqa: ANN202 - pipeline.RunOptions
+    """The run's options from the arguments (the only mapping from flags to options)."""
+    from ilcc_graph.estimation import NoiseOptions
+    from ilcc_graph.estimation.sessions import JointOptions
+    from ilcc_graph.observe import StageOptions
+    from ilcc_graph.pipeline import RunOptions
 
-
-# ----------------------------------------------------------------------------------------------
-# Summaries
-
-
-def _sigmas(cov: np.ndarray) -> np.ndarray:
-    """1-sigma (deg, deg, deg, mm, mm, mm) from a Pose3-tangent covariance (NaN when none)."""
-    s = np.sqrt(np.clip(np.diag(cov), 0.0, None)) if np.all(np.isfinite(cov)) else np.full(6, np.nan)
-    return np.concatenate([np.degrees(s[:3]), 1e3 * s[3:]])
-
-
-def summarise(T: np.ndarray, cov: np.ndarray, truth: np.ndarray | None = None) -> str:
-    """A short human summary of an extrinsic: matrix, roll/pitch/yaw, translation, 1-sigma values,
-    and, when a truth is given, the truth beside each value and the error."""
-    import gtsam
-
-    pose = gtsam.Pose3(T)
-    rpy = np.degrees(pose.rotation().rpy())
-    sig = _sigmas(cov)
-    has_cov = bool(np.all(np.isfinite(sig)))
-    true_rpy = true_t = None
-    if truth is not None:
-        true_rpy = np.degrees(gtsam.Pose3(truth).rotation().rpy())
-        true_t = 1e3 * np.asarray(truth)[:3, 3]
-
-    def row(name: str, value: float, s: float, true: float | None, fmt: str) -> str:
-        text = f"  {name:5s} {value:{fmt}}"
-        if has_cov:
-            text += f"   sigma {s:.4f}" if fmt.endswith("4f") else f"   sigma {s:.2f}"
-        if true is not None:
-            text += f"   truth {true:{fmt}}"
-        return text
-
-    lines = ["T_cam_lidar (p_cam = R p_lidar + t):"]
-    lines += ["  [" + "  ".join(f"{v:+.6f}" for v in row_) + "]" for row_ in T]
-    if has_cov:
-        lines.append("rotation (deg, Rz(yaw) Ry(pitch) Rx(roll)); 1-sigma about the body axes rx, ry, rz:")
-    else:
-        lines.append(
-            "rotation (deg, Rz(yaw) Ry(pitch) Rx(roll)); no covariance (the paper's refinement gives none):"
-        )
-    for i, name in enumerate(("roll", "pitch", "yaw")):
-        lines.append(row(name, rpy[i], sig[i], None if true_rpy is None else true_rpy[i], "+10.4f"))
-    lines.append("translation (mm):")
-    for i, name in enumerate("xyz"):
-        lines.append(row(name, 1e3 * T[i, 3], sig[3 + i], None if true_t is None else true_t[i], "+10.2f"))
-    if truth is not None:
-        err = gtsam.Pose3(truth).between(pose)  # T_true^-1 T_est
-        rot = np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(err.rotation())))
-        trans = 1e3 * np.linalg.norm(T[:3, 3] - truth[:3, 3])
-        lines.append(f"against the truth: rotation error {rot:.4f} deg, translation error {trans:.2f} mm")
-        if has_cov:
-            xi = gtsam.Pose3.Logmap(pose.between(gtsam.Pose3(truth)))  # T_true = T_est Exp(xi)
-            nees = float(xi @ np.linalg.solve(cov, xi))
-            lines.append(f"  NEES {nees:.2f} (chi-square, 6 dof: 95 % of runs below 12.6)")
-    return "\n".join(lines)
-
-
-def _frames_table(cal) -> None:
-    rows = []
-    for f in cal.frames:
-        rms = "" if f.rms_bearing_error_mrad is None else f"{f.rms_bearing_error_mrad:.3f}"
-        rows.append((f.name, "yes" if f.used else "no", rms, f.reason or ""))
-    _print_table(rows, ("frame", "used", "rms mrad", "reason"))
+    joint: dict = {
+        "mode": getattr(args, "mode", "rigid"),
+        "alpha": getattr(args, "alpha", 0.01),
+        "range_offset": getattr(args, "range_offset", False),
+    }
+    if (drift := _pair(getattr(args, "drift_sigma", None), "--drift-sigma")) is not None:
+        joint["drift_sigma_deg"], joint["drift_sigma_mm"] = drift
+    if (rep := _pair(getattr(args, "repeatability", None), "--repeatability")) is not None:
+        joint["repeatability_deg"], joint["repeatability_mm"] = rep
+    target = _pair(getattr(args, "target_sigma", None), "--target-sigma")
+    stop = bool(getattr(args, "stop_at_target", False))
+    mode = "incremental" if target is not None or stop else getattr(args, "refine", "graph")
+    if mode != "graph" and (len(getattr(args, "data", [None])) > 1 or joint["range_offset"]):
+        raise InputError("--refine paper and --target-sigma calibrate one data set without a range offset")
+    return RunOptions(
+        mode=mode,
+        noise=NoiseOptions(robust=getattr(args, "robust", None)),
+        stages=StageOptions(jobs=args.jobs),
+        joint=JointOptions(**joint),
+        target_sigma=target,
+        stop_at_target=stop,
+    )
 
 
 # ----------------------------------------------------------------------------------------------
 # Commands
+
+
+def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.outputs import write_run
+    from ilcc_graph.pipeline import run
+    from ilcc_graph.report.text import format_joint, format_update, frames_table, summarise
+
+    options = _run_options(args)
+    sources = [open_source(d) for d in data]
+    bars: dict[str, _Progress] = {}
+    t0 = time.perf_counter()
+    result = run(
+        sources,
+        options,
+        progress=lambda name, i, n: bars.setdefault(name, _Progress(name))(i, n),
+        report=lambda u: print(format_update(u, options.target_sigma), flush=True),
+    )
+    t_cal = time.perf_counter() - t0
+    out = _run_dir(args.out)
+    t1 = time.perf_counter()
+    write_run(
+        out, result, report=args.report, studies=args.studies, truth=truth, command=" ".join(sys.argv[1:])
+    )
+    _link_latest(out, args.out)
+    cal = result.calibration
+    print(frames_table(cal), "", sep="\n")
+    if result.joint is not None:
+        print(format_joint(result.joint), "", sep="\n")
+    print(summarise(cal.T_cam_lidar, cal.covariance, truth))
+    if (vf := cal.diagnostics.get("variance_factor", 1.0)) > 1.0:
+        print(f"  (the residuals are {vf:.2f} x the stated noise variance: sigmas x {np.sqrt(vf):.2f})")
+    n_used = sum(f.used for f in cal.frames)
+    what = "calibration.yaml and the report" if args.report else "calibration.yaml"
+    print(
+        f"\n{n_used} of {len(cal.frames)} frames used; calibrated in {t_cal:.1f} s; "
+        f"wrote {what} to {out} ({time.perf_counter() - t1:.1f} s)"
+    )
+    return 0
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    return _calibrate(args.data, args)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from ilcc_graph.io import read_ground_truth
+    from ilcc_graph.simulate import simulate_dataset, standard_spec
+
+    data = (
+        Path(args.data)
+        if args.data
+        else Path(args.cache) / f"demo-hdl32-equirect{args.width}-seed{args.seed}"
+    )
+    if (data / "ground_truth.yaml").is_file():
+        print(f"re-using the simulated data set in {data}")
+    else:
+        size = f"{args.width}x{args.width // 2}"
+        print(f"simulating the standard panoramic set (HDL-32E, {size}, 20 frames) into {data}")
+        spec = standard_spec(
+            lidar="hdl32", camera="equirectangular", width=args.width, frames=20, seed=args.seed
+        )
+        simulate_dataset(data, spec, progress=_Progress("simulate"))
+    return _calibrate([str(data)], args, read_ground_truth(data).T_cam_lidar)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -187,309 +209,56 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_outputs(out: Path, config, cal) -> None:
-    from ilcc_graph.config import config_to_dict
-    from ilcc_graph.io import write_calibration, write_yaml
+def _stage_command(args: argparse.Namespace, stage: str, header: tuple[str, ...]) -> int:
+    """A stage alone over a data set: one YAML (and a drawing) per frame, and a table."""
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.observe import StageOptions, check_board_colour, run_image_stage, run_lidar_stage
+    from ilcc_graph.outputs import write_stage
+    from ilcc_graph.report.text import format_table
 
-    write_yaml(out / "config.resolved.yaml", config_to_dict(config))
-    write_calibration(out / "calibration.yaml", cal)
-
-
-def _write_report(out: Path, data: Path, config, cal, observed, frames, options, args, truth) -> None:
-    """OUT/report/index.html with its figures, and OUT/coloured/<frame>.ply (coloured clouds)."""
-    from ilcc_graph.io import atomic_write, read_image, read_scan, write_ply
-    from ilcc_graph.pipeline import solve_extrinsic
-    from ilcc_graph.report import build_report, cross_validate, frames_vs_accuracy
-
-    def solve(subset):
-        c = solve_extrinsic(subset, config, options)
-        return c.T_cam_lidar, c.covariance
-
-    curve = cv = None
-    if args.studies and options.refine == "graph":
-        log.info("studies: accuracy against the number of frames, and cross-validation")
-        quiet = logging.getLogger("ilcc_graph")
-        level = quiet.level
-        quiet.setLevel(logging.ERROR)  # subsets of few frames warn by design
-        try:
-            curve = frames_vs_accuracy(
-                observed, solve, config.camera, config.board, truth, progress=_Progress("frames vs accuracy")
-            )
-            cv = cross_validate(observed, solve, config.camera, config.board, folds=5, T_all=cal.T_cam_lidar)
-        finally:
-            quiet.setLevel(level)
-    sources = ((p.name, read_scan(p.scan, config.intensity_column), read_image(p.image)) for p in frames)
-
-    def coloured(ff, scan) -> None:
-        write_ply(out / "coloured" / f"{ff.name}.ply", scan, rgb=ff.coloured.rgb)
-
-    files = build_report(
-        cal,
-        config.camera,
-        config.board,
-        sources,
-        curve=curve,
-        cross_validation=cv,
-        T_ground_truth=truth,
-        info={"data": str(data), "command": " ".join(sys.argv[1:]) or "ilcc-graph", "refine": options.refine},
-        on_frame=coloured,
-    )
-    for rel, blob in files.items():
-        atomic_write(out / "report" / rel, blob)
-
-
-def _calibrate(data: Path, out: Path, args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
-    from ilcc_graph.pipeline import CalibrateOptions, observe_dataset, solve_extrinsic
-
-    options = CalibrateOptions(refine=args.refine, robust=args.robust, jobs=args.jobs)
-    t0 = time.perf_counter()
-    config, frames, observed = observe_dataset(data, options.jobs, _Progress("frames"))
-    cal = solve_extrinsic(observed, config, options)
-    _write_outputs(out, config, cal)
-    t_cal = time.perf_counter() - t0
-    _frames_table(cal)
-    print()
-    print(summarise(cal.T_cam_lidar, cal.covariance, truth))
-    if (vf := cal.diagnostics.get("variance_factor", 1.0)) > 1.0:
-        print(
-            f"  (the residuals are {vf:.2f} x the stated noise variance: "
-            f"sigmas scaled up by {np.sqrt(vf):.2f})"
-        )
-    n_used = sum(f.used for f in cal.frames)
-    print(
-        f"\n{n_used} of {len(cal.frames)} frames used; calibrated in {t_cal:.1f} s; "
-        f"wrote {out / 'calibration.yaml'}"
-    )
-    if args.report:
-        t1 = time.perf_counter()
-        _write_report(out, data, config, cal, observed, frames, options, args, truth)
-        print(f"report: {out / 'report' / 'index.html'} ({time.perf_counter() - t1:.1f} s)")
-    return 0
-
-
-def cmd_evaluate(args: argparse.Namespace) -> int:
-    """The paper's metric and corner errors of a calibration on a data set's frames."""
-    from ilcc_graph.io import read_calibration, write_yaml
-    from ilcc_graph.pipeline import observe_dataset
-    from ilcc_graph.report import eval_frames, evaluate, evaluation_rows, evaluation_to_dict
-
-    data = _need_dir(args.data)
-    cal = read_calibration(Path(args.calibration))
-    config, _, observed = observe_dataset(data, args.jobs, _Progress("frames"))
-    for r in observed:
-        if r.board is None or r.corners is None:
-            print(f"{r.name}: not evaluated ({r.reason})")
-    ev = evaluate(eval_frames(observed), config.camera, config.board, cal.T_cam_lidar)
-    header, rows = evaluation_rows(ev)
-    _print_table(rows, header)
-    if args.out:
-        out = _run_dir(args.out)
-        write_yaml(out / "evaluation.yaml", evaluation_to_dict(ev))
-        print(f"wrote {out / 'evaluation.yaml'}")
-    return 0
-
-
-def _pair(text: str | None, what: str) -> tuple[float, float] | None:
-    """'DEG,MM' -> (deg, mm)."""
-    if text is None:
-        return None
-    try:
-        a, b = (float(v) for v in text.split(","))
-    except ValueError:
-        raise InputError(f"{what} expects DEG,MM (e.g. 0.05,1.0), got {text!r}") from None
-    return a, b
-
-
-def _joint_options(args: argparse.Namespace):
-    from ilcc_graph.joint import JointOptions
-
-    kw: dict = {"mode": args.mode, "range_offset": args.range_offset, "alpha": args.alpha}
-    if (drift := _pair(args.drift_sigma, "--drift-sigma")) is not None:
-        kw["drift_sigma_deg"], kw["drift_sigma_mm"] = drift
-    if (rep := _pair(args.repeatability, "--repeatability")) is not None:
-        kw["repeatability_deg"], kw["repeatability_mm"] = rep
-    return JointOptions(**kw)
-
-
-def _calibrate_sessions(dirs: list[Path], out: Path, args: argparse.Namespace) -> int:
-    """Several sessions (or one with --range-offset): the joint graph of ilcc_graph.joint."""
-    from ilcc_graph.io import write_calibration, write_yaml
-    from ilcc_graph.pipeline import CalibrateOptions
-    from ilcc_graph.sessions import calibrate_sessions, format_joint, joint_summary
-    from ilcc_graph.types import Calibration
-
-    options = CalibrateOptions(refine="graph", robust=args.robust, jobs=args.jobs)
-    bars: dict[str, _Progress] = {}
-
-    def progress(name: str, done: int, total: int) -> None:
-        bars.setdefault(name, _Progress(name))(done, total)
-
-    res = calibrate_sessions(dirs, _joint_options(args), options, progress=progress)
-    for name in res.names:
-        write_calibration(out / "sessions" / name / "calibration.yaml", res.alone[name])
-    joint = res.joint.joint
-    prefix = len(res.names) > 1
-    frames = tuple(
-        dataclasses.replace(f, name=f"{name}/{f.name}") if prefix else f
-        for name in res.names
-        for f in res.alone[name].frames
-    )
-    cal = Calibration(joint.T, joint.covariance, frames, method=f"joint-{args.mode}")
-    write_calibration(out / "calibration.yaml", cal)
-    write_yaml(out / "joint.yaml", joint_summary(res.joint))
-    print(format_joint(res.joint))
-    print()
-    print(summarise(joint.T, joint.covariance))
-    print(
-        f"\nwrote {out / 'calibration.yaml'} (joint), {out / 'joint.yaml'} and each session alone under "
-        f"{out / 'sessions'}"
-    )
-    return 0
-
-
-def _calibrate_incrementally(data: Path, args: argparse.Namespace) -> int:
-    from ilcc_graph.incremental import format_update
-    from ilcc_graph.sessions import calibrate_dataset_incrementally
-
-    target = _pair(args.target_sigma, "--target-sigma")
-    calibrate_dataset_incrementally(
-        data,
-        target,
-        report=lambda u: print(format_update(u, target), flush=True),
-        stop_at_target=args.stop_at_target,
-    )
-    return 0
-
-
-def cmd_calibrate(args: argparse.Namespace) -> int:
-    dirs = [_need_dir(d) for d in args.data]
-    if args.target_sigma is not None or args.stop_at_target:
-        if len(dirs) > 1:
-            raise InputError("--target-sigma (incremental calibration) takes one data set")
-        return _calibrate_incrementally(dirs[0], args)
-    if len(dirs) > 1 or args.range_offset:
-        if args.refine != "graph":
-            raise InputError("--refine paper calibrates one session without a range offset")
-        return _calibrate_sessions(dirs, _run_dir(args.out), args)
-    return _calibrate(dirs[0], _run_dir(args.out), args)
-
-
-def cmd_demo(args: argparse.Namespace) -> int:
-    from ilcc_graph.io import read_ground_truth
-    from ilcc_graph.simulate import simulate_dataset, standard_spec
-
-    spec = standard_spec(lidar="hdl32", camera="equirectangular", width=args.width, frames=20, seed=args.seed)
-    data = (
-        Path(args.data)
-        if args.data
-        else Path(args.cache) / f"demo-hdl32-equirect{args.width}-seed{args.seed}"
-    )
-    if (data / "ground_truth.yaml").is_file():
-        print(f"re-using the simulated data set in {data}")
-    else:
-        print(
-            f"simulating the standard panoramic set (HDL-32E, {args.width}x{args.width // 2}, 20 frames) "
-            f"into {data}"
-        )
-        simulate_dataset(data, spec, progress=_Progress("simulate"))
-    truth = read_ground_truth(data).T_cam_lidar
-    return _calibrate(data, _run_dir(args.out), args, truth)
-
-
-def _run_stage(args: argparse.Namespace, run: Callable, label: str, **require: bool):
-    """A stage command's common part: config (print colour checked), frames, output folder, the
-    stage over all frames, and a YAML with the reason for each frame it failed on.
-
-    Returns (frames, unpaired, out, results, rows); rows (frame name -> table row) hold the failed frames.
-    """
-    from ilcc_graph.config import load_config
-    from ilcc_graph.io import list_frames, write_yaml
-    from ilcc_graph.pipeline import check_board_colour
-
-    data = _need_dir(args.data)
-    config = load_config(data / "config.yaml")
-    frames, unpaired = list_frames(data, **require)
-    config = check_board_colour(frames, config)  # uses the images where there are any
+    source = open_source(args.data)
+    refs = source.frames(require_image=stage == "image", require_scan=stage == "lidar")
+    config, _ = check_board_colour(source, refs, source.config())  # uses the images where there are any
+    fn = run_lidar_stage if stage == "lidar" else run_image_stage
+    results = fn(source, refs, config, StageOptions(jobs=args.jobs), _Progress(stage))
     out = _run_dir(args.out)
-    results = run(frames, config, args.jobs, _Progress(label))
-    rows: dict[str, tuple] = {}
-    for paths, res in zip(frames, results):
-        if isinstance(res, Exception):
-            write_yaml(out / f"{paths.name}.yaml", {"name": paths.name, "found": False, "reason": str(res)})
-            rows[paths.name] = (paths.name, "no", "", str(res))
-    return frames, unpaired, out, results, rows
-
-
-def _stage_summary(
-    frames: list, rows: dict[str, tuple], header: tuple[str, ...], unpaired: list[tuple[str, str]], out: Path
-) -> int:
-    """The stage commands' closing table (in frame order) and lines."""
-    _print_table([rows[p.name] for p in frames], header)
-    for stem, why in unpaired:
-        print(f"{stem}: skipped ({why})")
+    rows = write_stage(out, stage, source, refs, results)
+    _link_latest(out, args.out)
+    print(format_table(rows, header))
+    for name, why in source.skipped():
+        print(f"{name}: skipped ({why})")
     print(f"wrote {out}")
     return 0
 
 
 def cmd_lidar_corners(args: argparse.Namespace) -> int:
-    from ilcc_graph.io import write_pcd, write_yaml
-    from ilcc_graph.pipeline import run_lidar_stage
-    from ilcc_graph.types import Scan
-
-    frames, unpaired, out, results, rows = _run_stage(args, run_lidar_stage, "lidar", require_image=False)
-    for paths, res in zip(frames, results):
-        if isinstance(res, Exception):
-            continue
-        write_yaml(
-            out / f"{paths.name}.yaml",
-            {
-                "name": paths.name,
-                "found": True,
-                "T_lidar_board": res.T_lidar_board,
-                "covariance": res.covariance,
-                "sigma": dict(
-                    zip(
-                        ("rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm"),
-                        _sigmas(res.covariance).round(4).tolist(),
-                    )
-                ),
-                "half_turn_ambiguous": res.half_turn_ambiguous,
-                "corners_lidar": res.corners_lidar,
-                "n_points": int(len(res.points_lidar)),
-                "cost": res.cost,
-                "diagnostics": res.diagnostics,
-            },
-        )
-        write_pcd(out / f"{paths.name}_board.pcd", Scan(res.points_lidar, res.intensity))
-        rows[paths.name] = (paths.name, "yes", len(res.points_lidar), "")
-    return _stage_summary(frames, rows, ("frame", "found", "points", "reason"), unpaired, out)
+    return _stage_command(args, "lidar", ("frame", "found", "points", "reason"))
 
 
 def cmd_image_corners(args: argparse.Namespace) -> int:
-    from ilcc_graph.io import read_image, write_image, write_yaml
-    from ilcc_graph.pipeline import run_image_stage
-    from ilcc_graph.report.overlays import draw_corners
+    return _stage_command(args, "image", ("frame", "found", "sigma px", "reason"))
 
-    frames, unpaired, out, results, rows = _run_stage(args, run_image_stage, "images", require_scan=False)
-    for paths, res in zip(frames, results):
-        if isinstance(res, Exception):
-            continue
-        sig = np.sqrt(np.mean(np.trace(res.cov_px, axis1=1, axis2=2) / 2))
-        write_yaml(
-            out / f"{paths.name}.yaml",
-            {
-                "name": paths.name,
-                "found": True,
-                "half_turn_ambiguous": res.half_turn_ambiguous,
-                "image_corners": res.uv,
-                "bearings": res.bearings,
-                "cov_px": res.cov_px,
-                "diagnostics": res.diagnostics,
-            },
-        )
-        write_image(out / f"{paths.name}_corners.png", draw_corners(read_image(paths.image), res.uv))
-        rows[paths.name] = (paths.name, "yes", f"{sig:.3f}", "")
-    return _stage_summary(frames, rows, ("frame", "found", "sigma px", "reason"), unpaired, out)
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """The paper's metric and corner errors of a calibration on a data set's frames."""
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.io import read_calibration, write_yaml
+    from ilcc_graph.observe import StageOptions, observe
+    from ilcc_graph.report import eval_frames, evaluate, evaluation_rows, evaluation_to_dict
+    from ilcc_graph.report.text import format_table
+
+    cal = read_calibration(Path(args.calibration))
+    obs = observe(open_source(args.data), StageOptions(jobs=args.jobs), _Progress("frames"))
+    for r in obs.frames:
+        if r.board is None or r.corners is None:
+            print(f"{r.name}: not evaluated ({r.reason})")
+    ev = evaluate(eval_frames(obs.frames), obs.config.camera, obs.config.board, cal.T_cam_lidar)
+    header, rows = evaluation_rows(ev)
+    print(format_table(rows, header))
+    if args.out:
+        write_yaml(Path(args.out) / "evaluation.yaml", evaluation_to_dict(ev))
+        print(f"wrote {Path(args.out) / 'evaluation.yaml'}")
+    return 0
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -497,21 +266,15 @@ def cmd_export(args: argparse.Namespace) -> int:
     from ilcc_graph.io import atomic_write, read_calibration, read_yaml
 
     path = Path(args.calibration)
-    camera = None
-    resolved = path.parent / "config.resolved.yaml"  # written by `calibrate` beside its result
-    if resolved.is_file():
+    cal = read_calibration(path)
+    camera = cal.camera
+    resolved = path.parent / "config.resolved.yaml"  # calibration.yaml of older versions had no camera
+    if camera is None and resolved.is_file():
         camera = read_yaml(resolved).get("camera")
-    options = {}
-    if args.format == "ros-tf":
-        options = {
-            "parent": args.parent,
-            "lidar_frame": args.lidar_frame,
-            "camera_frame": args.camera_frame,
-            "ros": args.ros,
-        }
-    options = {k: v for k, v in options.items() if v is not None}
+    names = ("parent", "lidar_frame", "camera_frame", "ros") if args.format == "ros-tf" else ()
+    options = {k: getattr(args, k) for k in names if getattr(args, k) is not None}
     try:
-        text = export_calibration(read_calibration(path), args.format, camera=camera, **options)
+        text = export_calibration(cal, args.format, camera=camera, **options)
     except ValueError as err:
         raise InputError(f"{path}: {err}") from err
     if args.out:
@@ -524,6 +287,21 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 # ----------------------------------------------------------------------------------------------
 # Parser and entry point
+
+
+def _solve_args(sp: argparse.ArgumentParser, jobs: int, studies: bool = False) -> None:
+    sp.add_argument("--out", help="output folder (default: out/<timestamp>, linked as out/latest)")
+    sp.add_argument(
+        "--refine",
+        choices=("graph", "paper"),
+        default="graph",
+        help="graph: our factor graph with covariance (default); paper: the paper's refinement",
+    )
+    sp.add_argument("--robust", choices=("huber", "cauchy"), help="robust kernel on the bearing factors")
+    sp.add_argument("--jobs", type=int, default=jobs, help=f"processes for the per-frame stages ({jobs})")
+    sp.add_argument("--no-report", dest="report", action="store_false", help="skip the report and clouds")
+    help = "add frames-vs-accuracy and cross-validation to the report"
+    sp.add_argument("--studies", action=argparse.BooleanOptionalAction, default=studies, help=help)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -543,83 +321,29 @@ def build_parser() -> argparse.ArgumentParser:
         return sp
 
     jobs = max(1, min(2, os.cpu_count() or 1))
-
-    def solve_args(sp: argparse.ArgumentParser, studies: bool = False) -> None:
-        sp.add_argument("--out", help="output folder (default: out/<timestamp>, linked as out/latest)")
-        sp.add_argument(
-            "--refine",
-            choices=("graph", "paper"),
-            default="graph",
-            help="graph: our factor graph with covariance (default); paper: the paper's refinement",
-        )
-        sp.add_argument(
-            "--robust", choices=("huber", "cauchy"), default=None, help="robust kernel on the bearing factors"
-        )
-        sp.add_argument("--jobs", type=int, default=jobs, help=f"processes for the per-frame stages ({jobs})")
-        sp.add_argument(
-            "--no-report",
-            dest="report",
-            action="store_false",
-            help="skip OUT/report/index.html and the coloured clouds",
-        )
-        sp.add_argument(
-            "--studies",
-            action=argparse.BooleanOptionalAction,
-            default=studies,
-            help="add the frames-vs-accuracy and cross-validation studies to the report (re-solve many "
-            f"times; default {'on' if studies else 'off'})",
-        )
-
     sp = add(
-        "calibrate",
-        cmd_calibrate,
-        "calibrate from one or more data sets (DATA/config.yaml, DATA/pcd, DATA/img)",
+        "calibrate", cmd_calibrate, "calibrate from one or more data sets (DATA/config.yaml, pcd/, img/)"
     )
     sp.add_argument("data", nargs="+", metavar="DATA", help="one data set, or several sessions of one rig")
-    solve_args(sp)
+    _solve_args(sp, jobs)
     g = sp.add_argument_group("several sessions (joint calibration)")
-    g.add_argument(
-        "--mode",
-        choices=("rigid", "drift"),
-        default="rigid",
-        help="rigid: one extrinsic for all sessions; drift: one per session, tied by --drift-sigma",
-    )
+    help = "rigid: one extrinsic for all sessions; drift: one per session, tied by --drift-sigma"
+    g.add_argument("--mode", choices=("rigid", "drift"), default="rigid", help=help)
     g.add_argument("--drift-sigma", metavar="DEG,MM", help="drift mode: how far the mount may move (0.1,2)")
-    g.add_argument(
-        "--alpha", type=float, default=0.01, help="false-alarm rate of the mount-moved test (0.01)"
-    )
-    g.add_argument(
-        "--repeatability",
-        metavar="DEG,MM",
-        help="extra per-session spread the moved test tolerates (default 0,0)",
-    )
-    g.add_argument(
-        "--range-offset",
-        action="store_true",
-        help="estimate a LiDAR range offset (metres read long) with its sigma",
-    )
+    g.add_argument("--alpha", type=float, default=0.01, help="false-alarm rate of the moved-mount test")
+    g.add_argument("--repeatability", metavar="DEG,MM", help="extra per-session spread the test tolerates")
+    g.add_argument("--range-offset", action="store_true", help="estimate the LiDAR's range offset")
     g = sp.add_argument_group("incremental (iSAM2)")
-    g.add_argument(
-        "--target-sigma",
-        metavar="DEG,MM",
-        help="print the estimate after each frame and say when these 1-sigma values are reached",
-    )
-    g.add_argument(
-        "--stop-at-target", action="store_true", help="stop reading frames once the target is reached"
-    )
+    g.add_argument("--target-sigma", metavar="DEG,MM", help="frame by frame until these 1-sigma values")
+    g.add_argument("--stop-at-target", action="store_true", help="read no frame after the target is reached")
 
-    sp = add(
-        "demo", cmd_demo, "simulate the standard panoramic set (or reuse it), calibrate, compare to truth"
-    )
+    sp = add("demo", cmd_demo, "simulate the standard panoramic set (or reuse it), calibrate, compare")
     sp.add_argument("--width", type=int, default=8000, help="panorama width in pixels (default 8000)")
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--data", help="where the simulated set lives (default: under --cache)")
-    sp.add_argument(
-        "--cache",
-        default=os.path.join(os.path.expanduser("~"), ".cache", "ilcc_graph"),
-        help="folder for simulated data sets (default ~/.cache/ilcc_graph)",
-    )
-    solve_args(sp, studies=True)
+    cache = os.path.join(os.path.expanduser("~"), ".cache", "ilcc_graph")
+    sp.add_argument("--cache", default=cache, help="folder for simulated data sets (~/.cache/ilcc_graph)")
+    _solve_args(sp, jobs, studies=True)
 
     sp = add("simulate", cmd_simulate, "write a simulated data set with ground truth")
     sp.add_argument("out", metavar="OUT")
@@ -630,15 +354,14 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--noise-scale", type=float, default=1.0, help="multiplier on the baseline LiDAR noise")
     sp.add_argument("--width", type=int, default=None, help="image width (default 8000 for panoramas)")
 
-    sp = add("lidar-corners", cmd_lidar_corners, "the LiDAR stage alone: board, pose, covariance, corners")
-    sp.add_argument("data", metavar="DATA")
-    sp.add_argument("--out", help="output folder (default: out/<timestamp>)")
-    sp.add_argument("--jobs", type=int, default=jobs)
-
-    sp = add("image-corners", cmd_image_corners, "the image stage alone: corners, uncertainty, drawings")
-    sp.add_argument("data", metavar="DATA")
-    sp.add_argument("--out", help="output folder (default: out/<timestamp>)")
-    sp.add_argument("--jobs", type=int, default=jobs)
+    for name, fn, help in (
+        ("lidar-corners", cmd_lidar_corners, "the LiDAR stage alone: board, pose, covariance, corners"),
+        ("image-corners", cmd_image_corners, "the image stage alone: corners, uncertainty, drawings"),
+    ):
+        sp = add(name, fn, help)
+        sp.add_argument("data", metavar="DATA")
+        sp.add_argument("--out", help="output folder (default: out/<timestamp>)")
+        sp.add_argument("--jobs", type=int, default=jobs)
 
     sp = add("evaluate", cmd_evaluate, "the paper's re-projection metric and corner errors of a calibration")
     sp.add_argument("data", metavar="DATA", help="a data set (may hold frames the calibration did not use)")
@@ -659,9 +382,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO, format="%(levelname)s: %(message)s"
-    )
+    level = logging.DEBUG if args.verbose else logging.INFO
+    logging.basicConfig(level=level, format="%(levelname)s: %(message)s")
     try:
         return args.fn(args)
     except InputError as err:

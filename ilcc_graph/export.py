@@ -23,8 +23,7 @@ from ilcc_graph.handoff import (
     invert_with_covariance,
     load_calibration,
 )
-from ilcc_graph.io import sigma_from_covariance
-from ilcc_graph.types import Calibration
+from ilcc_graph.types import Calibration, sigma_dict
 
 CONVENTION = (
     "T_cam_lidar maps LiDAR-frame points to camera-frame points: p_cam = R @ p_lidar + t "
@@ -42,8 +41,9 @@ R_CV_EQ = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
 CalibrationLike = Calibration | tuple[gtsam.Pose3 | np.ndarray, np.ndarray] | str | Path
 
 
-def _as_T_cov(cal: CalibrationLike) -> tuple[np.ndarray, np.ndarray]:
-    """(4, 4) ``T_cam_lidar`` and (6, 6) covariance from any accepted input, checked."""
+def _as_T_cov(cal: CalibrationLike) -> tuple[np.ndarray, np.ndarray | None]:
+    """(4, 4) ``T_cam_lidar`` and (6, 6) covariance from any accepted input, checked; the covariance
+    is None for a calibration that has none (the paper's refinement writes NaN)."""
     if isinstance(cal, (str, Path)):
         pose, cov = load_calibration(cal)
         return pose.matrix(), cov
@@ -52,6 +52,8 @@ def _as_T_cov(cal: CalibrationLike) -> tuple[np.ndarray, np.ndarray]:
     else:
         T, cov = cal
     T = T.matrix() if isinstance(T, gtsam.Pose3) else T
+    if cov is None or np.all(np.isnan(np.asarray(cov, dtype=np.float64))):
+        return check_rigid(T, "T_cam_lidar"), None
     return check_rigid(T, "T_cam_lidar"), check_covariance(cov, "covariance")
 
 
@@ -102,15 +104,15 @@ def _jsonable(o: Any) -> Any:
     raise TypeError(f"cannot write {type(o).__name__} to JSON")
 
 
-def _export_json(T: np.ndarray, cov: np.ndarray, camera: dict | None) -> str:
-    T_inv, cov_inv = invert_with_covariance(T, cov)
+def _export_json(T: np.ndarray, cov: np.ndarray | None, camera: dict | None) -> str:
+    T_inv, cov_inv = invert_with_covariance(T, np.eye(6) if cov is None else cov)
     doc = {
         "T_cam_lidar": T.tolist(),
         "T_lidar_cam": T_inv.matrix().tolist(),
-        "covariance": cov.tolist(),
-        "covariance_T_lidar_cam": cov_inv.tolist(),
-        "sigma": sigma_from_covariance(cov),
-        "sigma_T_lidar_cam": sigma_from_covariance(cov_inv),
+        "covariance": None if cov is None else cov.tolist(),
+        "covariance_T_lidar_cam": None if cov is None else cov_inv.tolist(),
+        "sigma": None if cov is None else sigma_dict(cov),
+        "sigma_T_lidar_cam": None if cov is None else sigma_dict(cov_inv),
         "quaternion_xyzw_cam_lidar": _quat_xyzw(T[:3, :3]).tolist(),
         "camera": camera,
         "convention": CONVENTION,
@@ -121,7 +123,7 @@ def _export_json(T: np.ndarray, cov: np.ndarray, camera: dict | None) -> str:
 # ------------------------------------------------------------------------------------- ros-tf
 def _export_ros_tf(
     T: np.ndarray,
-    cov: np.ndarray,
+    cov: np.ndarray | None,
     camera: dict | None,
     *,
     parent: str = "lidar",
@@ -177,7 +179,7 @@ def _export_ros_tf(
 # -------------------------------------------------------------------------------------- kitti
 def _export_kitti(
     T: np.ndarray,
-    cov: np.ndarray,
+    cov: np.ndarray | None,
     camera: dict | None,
     *,
     calib_time: _dt.datetime | str | None = None,
@@ -215,7 +217,7 @@ def _yaml_row(v: np.ndarray) -> str:
 
 def _export_kalibr(
     T: np.ndarray,
-    cov: np.ndarray,
+    cov: np.ndarray | None,
     camera: dict | None,
     *,
     rostopic: str = "/camera/image_raw",
@@ -228,8 +230,11 @@ def _export_kalibr(
     notes: list[str] = []
     body = ["cam0:", "  T_cam_lidar:"]
     body += [f"  - {_yaml_row(r)}" for r in T]
-    body += ["  T_cam_lidar_covariance:"]
-    body += [f"  - {_yaml_row(r)}" for r in cov]
+    if cov is not None:
+        body += ["  T_cam_lidar_covariance:"]
+        body += [f"  - {_yaml_row(r)}" for r in cov]
+    else:
+        notes.append("no covariance: the calibration method gives none.")
     if camera is not None:
         model = camera["model"]
         if model == "equirectangular":

@@ -16,11 +16,12 @@ import gtsam
 import numpy as np
 
 from ilcc_graph.errors import InputError
-from ilcc_graph.io import read_calibration, sigma_from_covariance
+from ilcc_graph.io import read_calibration
+from ilcc_graph.types import sigma_dict
 
 __all__ = [
     "load_calibration", "extrinsic_prior", "invert_with_covariance", "check_rigid", "check_covariance",
-    "to_pose3", "sigma_from_covariance",
+    "to_pose3", "sigma_dict",
 ]  # fmt: skip
 
 POSE3_DOF = 6
@@ -144,7 +145,8 @@ def extrinsic_prior(
         if covariance is None:
             raise ValueError("extrinsic_prior: a covariance is required when the mean is given as a pose")
         pose, cov = to_pose3(path_or_pose), check_covariance(covariance)
-    noise = gtsam.noiseModel.Gaussian.Covariance(cov * float(inflate) ** 2)
+    # smart=False keeps correlations below 1e-9 (rad^2, m^2), which GTSAM's default would drop
+    noise = gtsam.noiseModel.Gaussian.Covariance(cov * float(inflate) ** 2, False)
     return gtsam.PriorFactorPose3(key, pose, noise)
 
 

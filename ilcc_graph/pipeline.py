@@ -1,188 +1,113 @@
-"""Runs the stages on a data set and solves for the extrinsic.
+"""The run: frame sources -> the stages per frame -> corner order and start -> an estimation strategy.
 
-The only module besides ``cli`` that touches the disk: it reads the frames, runs the LiDAR and
-image stages per frame (a ``FrameError`` skips the frame with its reason; an ``InputError``
-propagates), orders corners consistently across frames, initialises with UPnP and refines with
-the factor graph (or the paper's refinement).
+``observe.observe`` runs the per-frame stages on a source; ``_prepare`` orders the corners across
+frames (half turns) and takes the start from that consensus; one strategy of the estimation core
+then solves: batch (``graph``), the paper's refinement (``paper``), incremental (iSAM2 with a
+target), or sessions (several sources, or a range offset). Every mode returns one ``RunResult``;
+``outputs`` writes it. Only sources read files.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
-from pathlib import Path
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ilcc_graph.config import Config, load_config
-from ilcc_graph.errors import BoardColourMismatch, CalibrationImpossible, FrameError
-from ilcc_graph.graph import GraphFrame, GraphOptions, solve
-from ilcc_graph.image import detect_corners
+from ilcc_graph.config import Config
+from ilcc_graph.datasets import FrameSource
+from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.estimation import NoiseOptions
+from ilcc_graph.estimation.batch import BatchSolution
+from ilcc_graph.estimation.batch import solve as solve_batch
+from ilcc_graph.estimation.incremental import FrameUpdate, IncrementalCalibrator
+from ilcc_graph.estimation.noise import BoardStats
+from ilcc_graph.estimation.paper import refine_paper
+from ilcc_graph.estimation.sessions import JointOptions, JointSolution, Session, solve_sessions
 from ilcc_graph.init import resolve_half_turns, upnp
-from ilcc_graph.io import FramePaths, list_frames, read_image, read_scan
-from ilcc_graph.lidar import estimate_board
-from ilcc_graph.paper_refine import refine_paper
-from ilcc_graph.types import BoardFit, Calibration, FrameResult, ImageCorners
+from ilcc_graph.observe import Observation, StageOptions, check_board_colour, observe, observe_frame
+from ilcc_graph.types import Calibration, FrameResult, GraphFrame, ImageCorners, rotation_angle_deg
 
 log = logging.getLogger(__name__)
 
-Progress = Callable[[int, int], None]
-REFINE_METHODS = ("graph", "paper")
+__all__ = [
+    "MODES",
+    "RunOptions",
+    "RunResult",
+    "SessionResult",
+    "calibrate",
+    "run",
+    "solve_observations",
+    "solve_observed",
+]
+
+MODES = ("graph", "paper", "incremental", "sessions")
 
 
 @dataclass(frozen=True)
-class CalibrateOptions:
-    """How to solve: ``refine`` is "graph" (ours, with covariance) or "paper" (baseline)."""
+class RunOptions:
+    """Everything a run uses (written to config.resolved.yaml).
 
-    refine: str = "graph"
-    robust: str | None = None
-    jobs: int = 1
-    min_frames_warning: int = 4
-
-
-# ----------------------------------------------------------------------------------------------
-# Per-frame observation
-
-
-def observe_lidar(paths: FramePaths, config: Config) -> BoardFit:
-    """The LiDAR stage on one frame's scan; raises FrameError with the reason."""
-    scan = read_scan(paths.scan, config.intensity_column)
-    return estimate_board(scan, config.board, config.lidar, config.roi)
-
-
-def observe_image(paths: FramePaths, config: Config) -> ImageCorners:
-    """The image stage on one frame's image; raises FrameError with the reason."""
-    return detect_corners(read_image(paths.image), config.camera, config.board)
-
-
-def observe_frame(paths: FramePaths, config: Config) -> FrameResult:
-    """Both stages on one frame. A stage that fails leaves its field None and says why."""
-    reasons: list[str] = []
-    board = corners = None
-    try:
-        board = observe_lidar(paths, config)
-    except FrameError as err:
-        reasons.append(f"LiDAR: {err}")
-    try:
-        corners = observe_image(paths, config)
-    except FrameError as err:
-        reasons.append(f"image: {err}")
-    return FrameResult(
-        name=paths.name,
-        used=not reasons,
-        reason="; ".join(reasons) or None,
-        board=board,
-        corners=corners,
-    )
-
-
-def _map_frames(
-    fn: Callable[[FramePaths, Config], object],
-    frames: Sequence[FramePaths],
-    config: Config,
-    jobs: int,
-    progress: Progress | None,
-) -> list:
-    """``fn`` over the frames, in order, on ``jobs`` processes."""
-    results: list = []
-    if jobs <= 1 or len(frames) <= 1:
-        for i, paths in enumerate(frames):
-            results.append(fn(paths, config))
-            if progress:
-                progress(i + 1, len(frames))
-        return results
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = [pool.submit(fn, paths, config) for paths in frames]
-        for i, fut in enumerate(futures):
-            results.append(fut.result())
-            if progress:
-                progress(i + 1, len(frames))
-    return results
-
-
-def check_board_colour(
-    frames: Sequence[FramePaths], config: Config, needed: int = 2, look: int = 6
-) -> Config:
-    """The config with ``board.lower_left`` as the images show it, warning when that differs.
-
-    For a board that looks the same after a half turn (even squares on both sides), the colour of
-    the lower-left square seen from the front is a property of the print, which the user may have
-    mistyped. The image stage tells it with certainty; this looks at up to ``look`` frames until
-    ``needed`` agree, and turns the setting when the images contradict it. Other boards: unchanged.
+    mode: ``graph`` (batch, default), ``paper`` (the paper's refinement, no covariance),
+        ``incremental`` (iSAM2, frame by frame) or ``sessions`` (joint; chosen for several sources).
+    noise: the estimation core's noise policy. stages: the per-frame stages' options and processes.
+    joint: sessions mode (rigid / drift, range offset, tests).
+    target_sigma: incremental mode's (deg, mm) target; stop_at_target: read no frame after it.
     """
-    board = config.board
-    if not board.half_turn_symmetric:
-        return config
-    agree = disagree = 0
-    for paths in frames[:look]:
-        if paths.image is None:
-            continue
-        try:
-            observe_image(paths, config)
-            agree += 1
-        except BoardColourMismatch:
-            disagree += 1
-        except FrameError:
-            continue
-        if max(agree, disagree) >= needed:
-            break
-    if disagree <= agree:
-        return config
-    other = "white" if board.lower_left == "black" else "black"
-    log.warning(
-        "%s: board.lower_left is %s, but the print's lower-left square (seen from the front, long side "
-        "horizontal) is %s in %d of %d images checked; using %s",
-        config.source,
-        board.lower_left,
-        other,
-        disagree,
-        agree + disagree,
-        other,
-    )
-    return dataclasses.replace(config, board=dataclasses.replace(board, lower_left=other))
+
+    mode: str = "graph"
+    noise: NoiseOptions = NoiseOptions()
+    stages: StageOptions = StageOptions()
+    joint: JointOptions = JointOptions()
+    target_sigma: tuple[float, float] | None = None
+    stop_at_target: bool = False
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"RunOptions.mode must be one of {MODES}, got {self.mode!r}")
 
 
-def observe_frames(
-    frames: Sequence[FramePaths], config: Config, jobs: int = 1, progress: Progress | None = None
-) -> list[FrameResult]:
-    """``observe_frame`` over all frames, in input order."""
-    return _map_frames(observe_frame, frames, config, jobs, progress)
+@dataclass(frozen=True)
+class SessionResult:
+    """One source's part of a run: its observation and its calibration (its own frames)."""
+
+    name: str
+    observation: Observation
+    calibration: Calibration
 
 
-def _try(fn: Callable[[FramePaths, Config], object], paths: FramePaths, config: Config) -> object:
-    try:
-        return fn(paths, config)
-    except FrameError as err:
-        return err
+@dataclass(frozen=True)
+class RunResult:
+    """What a run gives, in every mode.
 
+    calibration: the result (frames named ``session/frame`` when there are several sessions).
+    sessions: per source its config, observations and calibration. joint: the sessions strategy's
+    answer (tests, offsets). updates: incremental mode's per-frame states.
+    """
 
-def _try_lidar(paths: FramePaths, config: Config) -> BoardFit | FrameError:
-    return _try(observe_lidar, paths, config)  # type: ignore[return-value]
-
-
-def _try_image(paths: FramePaths, config: Config) -> ImageCorners | FrameError:
-    return _try(observe_image, paths, config)  # type: ignore[return-value]
-
-
-def run_lidar_stage(
-    frames: Sequence[FramePaths], config: Config, jobs: int = 1, progress: Progress | None = None
-) -> list[BoardFit | FrameError]:
-    """The LiDAR stage alone: a BoardFit or the FrameError per frame."""
-    return _map_frames(_try_lidar, frames, config, jobs, progress)
-
-
-def run_image_stage(
-    frames: Sequence[FramePaths], config: Config, jobs: int = 1, progress: Progress | None = None
-) -> list[ImageCorners | FrameError]:
-    """The image stage alone: ImageCorners or the FrameError per frame."""
-    return _map_frames(_try_image, frames, config, jobs, progress)
+    mode: str
+    calibration: Calibration
+    sessions: tuple[SessionResult, ...]
+    options: RunOptions
+    joint: JointSolution | None = None
+    updates: tuple[FrameUpdate, ...] = ()
+    timings: dict[str, float] = field(default_factory=dict)
 
 
 # ----------------------------------------------------------------------------------------------
 # From observations to the extrinsic
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    """Frames in a consistent corner order with the start from their consensus."""
+
+    frames: list[GraphFrame]
+    T_init: np.ndarray
+    results: dict[str, FrameResult]  # every frame, with the ordering's drops and re-indexed corners
 
 
 def _permute_corners(corners: ImageCorners, perm: np.ndarray) -> ImageCorners:
@@ -196,21 +121,16 @@ def _drop(results: dict[str, FrameResult], name: str, reason: str) -> None:
     results[name] = dataclasses.replace(results[name], used=False, reason=reason)
 
 
-def solve_extrinsic(
-    observed: Sequence[FrameResult], config: Config, options: CalibrateOptions = CalibrateOptions()
-) -> Calibration:
-    """Order corners across frames, initialise with UPnP, refine; returns every frame's fate.
+def _prepare(observed: Sequence[FrameResult], config: Config) -> _Prepared:
+    """Order corners across frames (half turns) and take the start from the consensus.
 
-    Raises CalibrationImpossible when no frame has the board in both sensors.
+    Raises CalibrationImpossible when no frame has the board in both sensors or the order is ambiguous.
     """
-    if options.refine not in REFINE_METHODS:
-        raise ValueError(f"refine must be one of {REFINE_METHODS}, got {options.refine!r}")
     results = {r.name: r for r in observed}
     usable = [r for r in observed if r.used and r.board is not None and r.corners is not None]
     if not usable:
         reasons = "; ".join(f"{r.name}: {r.reason}" for r in observed) or "no frames"
         raise CalibrationImpossible(f"no frame has the board in both the scan and the image ({reasons})")
-
     board = config.board
     perm = board.half_turn_permutation() if board.half_turn_symmetric else None
     order = resolve_half_turns(
@@ -238,55 +158,51 @@ def solve_extrinsic(
             "no frame left after ordering the corners: "
             + "; ".join(f"{n}: {why}" for n, why in order.dropped)
         )
-
-    points = np.vstack([r.board.corners_lidar for r in kept])  # type: ignore[union-attr]
-    bearings = np.vstack([r.corners.bearings for r in kept])  # type: ignore[union-attr]
-    T_init = upnp(points, bearings, prefer_front=True)[0].T_cam_points  # corners lie ahead along their rays
-
-    graph_frames = [
+    frames = [
         GraphFrame(
-            name=r.name,
-            T_lidar_board=r.board.T_lidar_board,  # type: ignore[union-attr]
-            board_cov=r.board.covariance,  # type: ignore[union-attr]
-            points_board=board.corners_board(),
-            bearings=r.corners.bearings,  # type: ignore[union-attr]
-            cov_px=r.corners.cov_px,  # type: ignore[union-attr]
-        )
+            r.name,
+            r.board.T_lidar_board,
+            r.board.covariance,
+            board.corners_board(),  # type: ignore[union-attr]
+            r.corners.bearings,
+            r.corners.cov_px,
+        )  # type: ignore[union-attr]
         for r in kept
     ]
-    if options.refine == "paper":
-        T = refine_paper(graph_frames, T_init, R_pano_cam=config.camera.R_flu_cam)
-        cov = np.full((6, 6), np.nan)
-        rms = {f.name: _rms_bearing_mrad(T, f) for f in graph_frames}
-        dropped: list[tuple[str, str]] = []
-        diagnostics: dict[str, float] = {}
-    else:
-        sol = solve(graph_frames, config.camera, T_init, GraphOptions(robust=options.robust))
-        T, cov, dropped = sol.T_cam_lidar, sol.covariance, list(sol.dropped)
-        rms = {name: s.rms_bearing_error_mrad for name, s in sol.per_frame.items()}
-        diagnostics = {
-            "iterations": float(sol.iterations),
-            "variance_factor": sol.variance_factor,
-            "variance_component_board": sol.variance_components[0],
-            "variance_component_bearing": sol.variance_components[1],
-        }
-    for name, reason in dropped:
+    T_init = order.T_cam_lidar
+    if T_init is None:
+        P = np.vstack([r.board.corners_lidar for r in kept])  # type: ignore[union-attr]
+        F = np.vstack([r.corners.bearings for r in kept])  # type: ignore[union-attr]
+        T_init = upnp(P, F, prefer_front=True)[0].T_cam_points  # corners lie ahead along their rays
+    return _Prepared(frames, np.asarray(T_init, dtype=np.float64), results)
+
+
+def _finish(
+    prep: _Prepared, observed: Sequence[FrameResult], config: Config, method: str, sol: BatchSolution
+) -> Calibration:
+    """The Calibration of one source from a strategy's answer: every frame in input order with its fate."""
+    results = dict(prep.results)
+    for name, reason in sol.dropped:
         _drop(results, name, reason)
-    n_used = sum(1 for r in results.values() if r.used)
-    if options.refine == "paper" and n_used < options.min_frames_warning:  # the graph warns itself
-        log.warning("only %d usable frame(s); at least %d are advised", n_used, options.min_frames_warning)
-    frames = tuple(
-        dataclasses.replace(r, rms_bearing_error_mrad=rms.get(r.name)) if r.used else r
-        for r in (results[o.name] for o in observed)
-    )
-    diagnostics["upnp_rotation_deg"] = _rotation_angle_deg(T_init[:3, :3].T @ T[:3, :3])
+    frames = []
+    for r in (results[o.name] for o in observed):
+        if r.used:
+            stats = sol.per_frame.get(r.name)
+            rms = None if stats is None else stats.rms_bearing_error_mrad
+            r = dataclasses.replace(
+                r, rms_bearing_error_mrad=rms, T_lidar_board_refined=sol.T_lidar_board.get(r.name)
+            )
+        frames.append(r)
+    diagnostics = {
+        "iterations": float(sol.iterations),
+        "variance_factor": sol.variance_factor,
+        "variance_component_board": sol.variance_components[0],
+        "variance_component_bearing": sol.variance_components[1],
+        "upnp_rotation_deg": rotation_angle_deg(prep.T_init[:3, :3].T @ sol.T_cam_lidar[:3, :3]),
+    }
     return Calibration(
-        T_cam_lidar=T, covariance=cov, frames=frames, method=options.refine, diagnostics=diagnostics
+        sol.T_cam_lidar, sol.covariance, tuple(frames), method, diagnostics, config.camera.to_dict()
     )
-
-
-def _rotation_angle_deg(R: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def _rms_bearing_mrad(T_cam_lidar: np.ndarray, f: GraphFrame) -> float:
@@ -298,40 +214,187 @@ def _rms_bearing_mrad(T_cam_lidar: np.ndarray, f: GraphFrame) -> float:
     return float(1e3 * np.sqrt(np.mean(ang**2)))
 
 
-# ----------------------------------------------------------------------------------------------
-# The public API
+def solve_observed(
+    observed: Sequence[FrameResult], config: Config, options: RunOptions = RunOptions()
+) -> Calibration:
+    """Batch (``graph``) or the paper's refinement on observed frames: order, start, solve.
 
-
-def observe_dataset(
-    data_dir: Path | str, jobs: int = 1, progress: Progress | None = None
-) -> tuple[Config, list[FramePaths], list[FrameResult]]:
-    """Read a data set's config, pair its frames, check the print's colour, run both stages.
-
-    Returns the config used, the paired frames, and every frame's observation (stems without a
-    partner come last, unused, with the reason).
+    Raises CalibrationImpossible when no frame has the board in both sensors.
     """
-    data_dir = Path(data_dir)
-    config = load_config(data_dir / "config.yaml")
-    frames, unpaired = list_frames(data_dir)
-    config = check_board_colour(frames, config)
-    observed = observe_frames(frames, config, jobs, progress)
-    observed += [FrameResult(name=stem, used=False, reason=why) for stem, why in unpaired]
-    return config, frames, observed
+    prep = _prepare(observed, config)
+    if options.mode == "paper":
+        T = refine_paper(prep.frames, prep.T_init, R_pano_cam=config.camera.R_flu_cam)
+        if len(prep.frames) < 4:
+            log.warning("only %d usable frame(s); at least 4 are advised", len(prep.frames))
+        stats = {
+            f.name: BoardStats(math.nan, 2 * len(f.bearings), _rms_bearing_mrad(T, f)) for f in prep.frames
+        }
+        sol = BatchSolution(T, np.full((6, 6), np.nan), {}, stats, [], 0)
+        return _finish(prep, observed, config, "paper", sol)
+    sol = solve_batch(prep.frames, config.camera, prep.T_init, options.noise)
+    return _finish(prep, observed, config, "graph", sol)
 
 
-def calibrate_dataset(
-    data_dir: Path | str,
-    options: CalibrateOptions = CalibrateOptions(),
-    progress: Progress | None = None,
-) -> tuple[Config, Calibration]:
-    """Calibrate one data set (interface.md layout). Returns the config used and the result."""
-    config, _, observed = observe_dataset(data_dir, options.jobs, progress)
-    return config, solve_extrinsic(observed, config, options)
+# ----------------------------------------------------------------------------------------------
+# The modes
 
 
-def calibrate(data_dir: Path | str, options: CalibrateOptions = CalibrateOptions()):  # -> (Pose3, cov)
-    """Python API: the extrinsic as ``gtsam.Pose3`` (T_cam_lidar) and its 6x6 covariance."""
-    import gtsam
+def _incremental(
+    source: FrameSource, options: RunOptions, report: Callable[[FrameUpdate], None] | None
+) -> RunResult:
+    """Frames observed one at a time and fed to iSAM2; the last update is the batch answer."""
+    config = source.config()
+    refs = source.frames()
+    config, known = check_board_colour(source, refs, config, options.stages.image)
+    cal = IncrementalCalibrator(
+        config.camera, config.board, target_sigma=options.target_sigma, noise=options.noise
+    )
+    observed: list[FrameResult] = []
+    updates: list[FrameUpdate] = []
 
-    _, cal = calibrate_dataset(data_dir, options)
-    return gtsam.Pose3(cal.T_cam_lidar), cal.covariance
+    stream = (observe_frame(source, r, config, options.stages, known.get(r.name)) for r in refs)
+    for fr in stream:
+        observed.append(fr)
+        if not fr.used or fr.board is None or fr.corners is None:
+            continue
+        u = cal.add_frame(fr)
+        updates.append(u)
+        if report is not None:
+            report(u)
+        if options.stop_at_target and u.reached_target:
+            break
+    read = {f.name for f in observed}
+    observed += [
+        FrameResult(r.name, False, "not read: the target sigma was reached")
+        for r in refs
+        if r.name not in read
+    ]
+    observed += [FrameResult(name=n, used=False, reason=why) for n, why in source.skipped()]
+    if not updates:
+        _prepare(observed, config)  # no frame reached the calibrator: raises with every frame's reason
+    final = cal.finish()
+    updates.append(final)
+    if report is not None:
+        report(final)
+    results = {f.name: f for f in observed}
+    for name in cal.flipped:  # the corner order the calibrator chose
+        f = results[name]
+        results[name] = dataclasses.replace(
+            f, corners=_permute_corners(f.corners, config.board.half_turn_permutation())
+        )  # type: ignore[arg-type]
+    offered = {f.name for f in cal.offered}
+    prep = _Prepared(cal.offered, np.asarray(final.T_cam_lidar), results)
+    sol = final.solution
+    assert sol is not None
+    not_offered = [(f.name, "not offered") for f in observed if f.used and f.name not in offered]
+    calib = _finish(
+        prep, observed, config, "incremental", dataclasses.replace(sol, dropped=sol.dropped + not_offered)
+    )
+    obs = Observation(source, config, observed)
+    return RunResult(
+        "incremental", calib, (SessionResult(source.label, obs, calib),), options, updates=tuple(updates)
+    )
+
+
+def _sessions(observations: Sequence[Observation], names: Sequence[str], options: RunOptions) -> RunResult:
+    """Sources as sessions of one mount, through the sessions strategy."""
+    preps = [_prepare(o.frames, o.config) for o in observations]
+    sessions = [
+        Session(n, p.frames, o.config.camera, p.T_init, o.config.lidar.name, o.config.board)
+        for n, p, o in zip(names, preps, observations, strict=True)
+    ]
+    joint_opts = dataclasses.replace(options.joint, noise=options.noise)
+    sol = solve_sessions(sessions, joint_opts)
+    method = f"joint-{joint_opts.mode}"
+    results = []
+    for n, p, o in zip(names, preps, observations, strict=True):
+        est = sol.sessions[n]
+        part = BatchSolution(
+            est.T,
+            est.covariance,
+            sol.T_lidar_board[n],
+            sol.per_frame[n],
+            sol.dropped[n],
+            sol.iterations,
+            {},
+            sol.variance_factor,
+            sol.components[n],
+        )
+        results.append(SessionResult(n, o, _finish(p, o.frames, o.config, method, part)))
+    prefix = len(names) > 1
+    frames = tuple(
+        dataclasses.replace(f, name=f"{r.name}/{f.name}") if prefix else f
+        for r in results
+        for f in r.calibration.frames
+    )
+    diag = {"variance_factor": sol.variance_factor}
+    for lab, ro in sol.range_offsets.items():
+        diag[f"range_offset_mm/{lab}"] = 1e3 * ro.value_m
+        diag[f"range_offset_sigma_mm/{lab}"] = 1e3 * ro.sigma_m
+    cal = Calibration(
+        sol.joint.T,
+        sol.joint.covariance,
+        frames,
+        method=method,
+        diagnostics=diag,
+        camera=observations[0].config.camera.to_dict(),
+    )
+    return RunResult("sessions", cal, tuple(results), options, joint=sol)
+
+
+def session_names(sources: Sequence[FrameSource]) -> list[str]:
+    """Source labels made unique (with an index where two share one)."""
+    labels = [s.label or f"session{i + 1}" for i, s in enumerate(sources)]
+    return [f"{n}#{i + 1}" if labels.count(n) > 1 else n for i, n in enumerate(labels)]
+
+
+def run(
+    sources: Sequence[FrameSource],
+    options: RunOptions = RunOptions(),
+    progress: Callable[[str, int, int], None] | None = None,
+    report: Callable[[FrameUpdate], None] | None = None,
+) -> RunResult:
+    """Calibrate from one or more sources in the mode of ``options`` (several sources: sessions).
+
+    progress(source label, done, total) reports the per-frame stages; report(update) each
+    incremental update. Raises InputError (bad input), CalibrationImpossible, IndeterminateSystem.
+    """
+    if not sources:
+        raise ValueError("run: no source given")
+    mode = "sessions" if len(sources) > 1 or options.joint.range_offset else options.mode
+    if len(sources) > 1 and options.mode in ("paper", "incremental"):
+        raise ValueError(f"mode {options.mode!r} calibrates one data set; {len(sources)} were given")
+    if mode == "incremental":
+        return _incremental(sources[0], options, report)
+    names = session_names(sources)
+    observations = []
+    for name, src in zip(names, sources, strict=True):
+        cb = None if progress is None else (lambda i, n, name=name: progress(name, i, n))
+        observations.append(observe(src, options.stages, cb))
+    return solve_observations(observations, dataclasses.replace(options, mode=mode), names)
+
+
+def solve_observations(
+    observations: Sequence[Observation],
+    options: RunOptions = RunOptions(),
+    names: Sequence[str] | None = None,
+) -> RunResult:
+    """The estimation strategy of ``options.mode`` on observed sources (``sessions`` for several,
+    or with a range offset); ``names`` label the sessions (default: the sources' labels)."""
+    names = list(names) if names is not None else session_names([o.source for o in observations])
+    if len(observations) > 1 or options.joint.range_offset or options.mode == "sessions":
+        return _sessions(observations, names, options)
+    if options.mode == "incremental":
+        raise ValueError("incremental mode observes frame by frame: use run()")
+    obs = observations[0]
+    cal = solve_observed(obs.frames, obs.config, options)
+    return RunResult(options.mode, cal, (SessionResult(names[0], obs, cal),), options)
+
+
+def calibrate(data: str, options: RunOptions = RunOptions()):  # noqa: ANN201 - (gtsam.Pose3, (6, 6))
+    """Python API: the extrinsic of the data set at ``data`` as ``gtsam.Pose3`` (T_cam_lidar) and its
+    6x6 covariance (interface.md convention)."""
+    from ilcc_graph.datasets import open_source
+
+    cal = run([open_source(data)], options).calibration
+    return cal.extrinsic.pose, cal.covariance

@@ -8,9 +8,64 @@ Covariances of poses are 6x6 in GTSAM's Pose3 tangent convention
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+
+#: Names of the six 1-sigma values of a Pose3-tangent covariance, in calibration.yaml's units.
+SIGMA_NAMES = ("rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm")
+
+
+def sigmas_deg_mm(cov: np.ndarray) -> np.ndarray:
+    """(6,) 1-sigma values (deg, deg, deg, mm, mm, mm) of a (6, 6) Pose3-tangent covariance.
+
+    NaN everywhere when the covariance is absent or not finite (the paper's refinement gives none).
+    """
+    c = np.asarray(cov, dtype=np.float64)
+    if c.shape != (6, 6) or not np.all(np.isfinite(c)):
+        return np.full(6, np.nan)
+    s = np.sqrt(np.clip(np.diag(c), 0.0, None))
+    return np.concatenate([np.degrees(s[:3]), 1e3 * s[3:]])
+
+
+def sigma_dict(cov: np.ndarray) -> dict[str, float]:
+    """``{rx_deg, ry_deg, rz_deg, tx_mm, ty_mm, tz_mm}`` of a (6, 6) Pose3-tangent covariance."""
+    return {k: float(v) for k, v in zip(SIGMA_NAMES, sigmas_deg_mm(cov), strict=True)}
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """A pose with its covariance (the one shape of a pose-with-covariance in the toolkit).
+
+    T: (4, 4) the pose (``T_cam_lidar`` unless a name says otherwise).
+    covariance: (6, 6) right-tangent covariance ``T_true = T * Expmap(xi)``, rotation first, rad and m.
+    """
+
+    T: np.ndarray
+    covariance: np.ndarray
+
+    @property
+    def sigmas(self) -> np.ndarray:
+        """(6,) standard deviations (rad, rad, rad, m, m, m)."""
+        return np.sqrt(np.clip(np.diag(self.covariance), 0.0, None))
+
+    def sigma_dict(self) -> dict[str, float]:
+        """Sigmas as calibration.yaml writes them: rx_deg .. tz_mm."""
+        return sigma_dict(self.covariance)
+
+    @property
+    def pose(self) -> Any:
+        """``T`` as a ``gtsam.Pose3``."""
+        import gtsam
+
+        return gtsam.Pose3(np.asarray(self.T, dtype=np.float64))
+
+
+def rotation_angle_deg(R: np.ndarray) -> float:
+    """Angle (deg) of a (3, 3) rotation matrix."""
+    return math.degrees(math.acos(float(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 @dataclass(frozen=True)
@@ -76,8 +131,31 @@ class ImageCorners:
 
 
 @dataclass(frozen=True)
+class GraphFrame:
+    """One frame's input to the estimation core (corners already in the order used).
+
+    name: frame name (file stem).
+    T_lidar_board: (4, 4) board pose from the LiDAR stage, ``p_lidar = T_lidar_board @ p_board``.
+    board_cov: (6, 6) its Pose3-tangent covariance (rotation first, rad and m).
+    points_board: (K, 3) corners in the board frame, metres (``Board.corners_board()`` order).
+    bearings: (K, 3) measured bearings of the same corners, camera frame (normalised by the core).
+    cov_px: (K, 2, 2) pixel covariance of each image corner, px^2.
+    """
+
+    name: str
+    T_lidar_board: np.ndarray
+    board_cov: np.ndarray
+    points_board: np.ndarray
+    bearings: np.ndarray
+    cov_px: np.ndarray
+
+
+@dataclass(frozen=True)
 class FrameResult:
-    """What happened to one frame in a calibration."""
+    """What happened to one frame in a calibration.
+
+    T_lidar_board_refined: (4, 4) the board pose the estimation core settled on (used frames).
+    """
 
     name: str
     used: bool
@@ -85,6 +163,7 @@ class FrameResult:
     board: BoardFit | None = None
     corners: ImageCorners | None = None
     rms_bearing_error_mrad: float | None = None
+    T_lidar_board_refined: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -92,8 +171,11 @@ class Calibration:
     """The extrinsic with its uncertainty.
 
     T_cam_lidar: (4, 4), ``p_cam = T_cam_lidar @ p_lidar``.
-    covariance: (6, 6) Pose3-tangent covariance of ``T_cam_lidar`` (rotation first).
+    covariance: (6, 6) Pose3-tangent covariance of ``T_cam_lidar`` (rotation first); NaN when the
+        method gives none.
     frames: every frame, used or not, in input order.
+    method: how it was estimated (``graph``, ``paper``, ``incremental``, ``joint-rigid``, ...).
+    camera: the camera model's config section (our schema), so that exports need nothing else.
     """
 
     T_cam_lidar: np.ndarray
@@ -101,3 +183,9 @@ class Calibration:
     frames: tuple[FrameResult, ...]
     method: str = "graph"
     diagnostics: dict[str, float] = field(default_factory=dict)
+    camera: dict[str, Any] | None = None
+
+    @property
+    def extrinsic(self) -> Estimate:
+        """``T_cam_lidar`` with its covariance."""
+        return Estimate(self.T_cam_lidar, self.covariance)

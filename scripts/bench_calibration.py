@@ -2,7 +2,7 @@
 
 Monte Carlo: simulated standard panoramic sets (HDL-32E, equirectangular camera, 20 frames,
 baseline noise). Each set is observed once in memory (``estimate_board`` on the scans,
-``detect_corners`` on the images; a ``FrameError`` drops the frame as in ``pipeline.observe_frame``)
+``detect_corners`` on the images; a ``FrameError`` drops the frame as in ``pipeline.observe``)
 and solved three ways from the same observations: UPnP alone, the paper's refinement, the graph.
 The image does not depend on the LiDAR systematics, so with ``--systematics both`` every set is
 rendered and detected once and its scans are simulated and fitted twice (systematics on and off).
@@ -54,11 +54,11 @@ from scipy.stats import chi2
 
 from ilcc_graph.config import Config
 from ilcc_graph.errors import FrameError
-from ilcc_graph.graph import GraphFrame, GraphOptions, solve
+from ilcc_graph.estimation import NoiseOptions, solve
 from ilcc_graph.image import detect_corners
 from ilcc_graph.init import upnp
 from ilcc_graph.lidar import estimate_board
-from ilcc_graph.pipeline import CalibrateOptions, solve_extrinsic
+from ilcc_graph.pipeline import RunOptions, solve_observed
 from ilcc_graph.simulate import (
     ImageRenderer,
     Systematics,
@@ -68,7 +68,7 @@ from ilcc_graph.simulate import (
     simulate_scan,
     standard_spec,
 )
-from ilcc_graph.types import FrameResult
+from ilcc_graph.types import FrameResult, GraphFrame
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "bench_calibration.md"
@@ -168,12 +168,12 @@ def solve_three_ways(
     observed: Sequence[FrameResult], config: Config, T_true: np.ndarray, res: SetResult
 ) -> None:
     """UPnP, the paper's refinement and the graph from the same observations; fills ``res``."""
-    cal_paper = solve_extrinsic(observed, config, CalibrateOptions(refine="paper"))
+    cal_paper = solve_observed(observed, config, RunOptions(mode="paper"))
     ordered = [f for f in cal_paper.frames if f.used]
     points = np.vstack([f.board.corners_lidar for f in ordered])
     bearings = np.vstack([f.corners.bearings for f in ordered])
     T_upnp = upnp(points, bearings)[0].T_cam_points  # the pipeline's T_init (same frames, same order)
-    cal = solve_extrinsic(observed, config, CalibrateOptions(refine="graph"))
+    cal = solve_observed(observed, config, RunOptions(mode="graph"))
     res.errors = {
         "UPnP": rot_trans_error(T_upnp, T_true),
         "paper": rot_trans_error(cal_paper.T_cam_lidar, T_true),
@@ -527,7 +527,7 @@ def oracle_split(results: Sequence[SetResult], width: int) -> dict[str, dict[str
         ]
         variants = (r.graph_frames, lidar_exact, image_exact, flipped, drawn, out_of_plane, in_plane)
         for key, frames in zip(out, variants):
-            sol = solve(frames, camera, T_true, GraphOptions())
+            sol = solve(frames, camera, T_true, NoiseOptions())
             xi = pose_error(sol.T_cam_lidar, T_true)
             out[key].append((nees(xi, sol.covariance), xi / np.sqrt(np.diag(sol.covariance))))
     summ = {}
@@ -596,7 +596,7 @@ def time_graph(
     runs = []
     for _ in range(repeats):
         t, c = time.perf_counter(), time.process_time()
-        sol = solve(frames, camera, T0, GraphOptions())
+        sol = solve(frames, camera, T0, NoiseOptions())
         runs.append((time.perf_counter() - t, time.process_time() - c, sol))
     runs.sort(key=lambda x: x[0])
     wall, cpu, sol = runs[len(runs) // 2]

@@ -28,8 +28,8 @@ from bench_customfactor import write_section  # noqa: E402
 from test_graph import CAMERA, T_TRUE, perturbed, synthetic_problem  # noqa: E402
 
 from factors import bearing_factor, tangent_bases  # noqa: E402
-from ilcc_graph.graph import GraphOptions, solve  # noqa: E402
-from ilcc_graph.paper_refine import refine_paper  # noqa: E402
+from ilcc_graph.estimation import NoiseOptions, solve  # noqa: E402
+from ilcc_graph.estimation.paper import refine_paper  # noqa: E402
 
 
 def _errors(T_est: np.ndarray, T_true: gtsam.Pose3 = T_TRUE) -> tuple[float, float]:
@@ -102,7 +102,7 @@ def design_table(sizes: tuple[int, ...]) -> str:
         frames, _ = synthetic_problem(rng, n)
         T0 = perturbed(T_TRUE, rng)
         t0 = time.perf_counter()
-        sol = solve(frames, CAMERA, T0, GraphOptions(chi2_gate_prob=None))
+        sol = solve(frames, CAMERA, T0, NoiseOptions(chi2_gate_prob=None))
         t_grouped = time.perf_counter() - t0
         t_single, cov = _per_corner_solve(frames, T0)
         diff = np.abs(cov - sol.covariance).max() / np.abs(sol.covariance).max()
@@ -123,7 +123,7 @@ def monte_carlo_table(runs: int, n_frames: int) -> str:
         T_paper = refine_paper(frames, T0)
         times["paper"].append(time.perf_counter() - t0)
         err["paper"].append(_errors(T_paper))
-        for name, opts in (("graph", GraphOptions()), ("graph, huber", GraphOptions(robust="huber"))):
+        for name, opts in (("graph", NoiseOptions()), ("graph, huber", NoiseOptions(robust="huber"))):
             t0 = time.perf_counter()
             sol = solve(frames, CAMERA, T0, opts)
             times[name].append(time.perf_counter() - t0)

@@ -28,8 +28,8 @@ from synthetic_graph import session_frames  # noqa: E402
 
 from ilcc_graph.board import Board  # noqa: E402
 from ilcc_graph.camera_models import Equirectangular  # noqa: E402
-from ilcc_graph.graph import GraphOptions, solve  # noqa: E402
-from ilcc_graph.incremental import IncrementalCalibrator  # noqa: E402
+from ilcc_graph.estimation import NoiseOptions, solve  # noqa: E402
+from ilcc_graph.estimation.incremental import IncrementalCalibrator  # noqa: E402
 
 CAMERA = Equirectangular(8000, 4000)
 BOARD = Board(6, 8, 0.075)
@@ -40,7 +40,7 @@ CHECKPOINTS = (20, 100, 400)
 
 def compare(cal: IncrementalCalibrator, T_inc: np.ndarray, cov_inc: np.ndarray) -> tuple[float, float]:
     """Largest |batch - incremental| per axis in batch sigmas, and of the covariance in sigma_i sigma_j."""
-    ref = solve(cal.frames, CAMERA, T_inc, GraphOptions(chi2_gate_prob=None))
+    ref = solve(cal.frames, CAMERA, T_inc, NoiseOptions(chi2_gate_prob=None))
     s = np.sqrt(np.diag(ref.covariance))
     xi = gtsam.Pose3(ref.T_cam_lidar).localCoordinates(gtsam.Pose3(T_inc))
     return float(np.max(np.abs(xi) / s)), float(np.max(np.abs(cov_inc - ref.covariance) / np.outer(s, s)))

@@ -33,8 +33,9 @@ from factors.range_offset import shifted_board_pose  # noqa: E402
 from ilcc_graph.board import Board  # noqa: E402
 from ilcc_graph.camera_models import Equirectangular  # noqa: E402
 from ilcc_graph.errors import CalibrationError  # noqa: E402
-from ilcc_graph.graph import GraphOptions  # noqa: E402
-from ilcc_graph.joint import JointOptions, Session, board_face_samples, solve_sessions  # noqa: E402
+from ilcc_graph.estimation import NoiseOptions  # noqa: E402
+from ilcc_graph.estimation.graphs import board_face_samples  # noqa: E402
+from ilcc_graph.estimation.sessions import JointOptions, Session, solve_sessions  # noqa: E402
 
 BOARD = Board(6, 8, 0.075)
 DOC = ROOT / "docs" / "bench_joint.md"
@@ -120,7 +121,7 @@ def monte_carlo(runs: int, n_frames: int) -> str:
             sig.append(ro.sigma_m)
             xi = sol.joint.pose.localCoordinates(T)
             n_with.append(xi @ np.linalg.solve(sol.joint.covariance, xi))
-            plain = solve_sessions(sess, JointOptions(graph=GraphOptions(chi2_gate_prob=None)))
+            plain = solve_sessions(sess, JointOptions(noise=NoiseOptions(chi2_gate_prob=None)))
             xi = plain.joint.pose.localCoordinates(T)
             n_without.append(xi @ np.linalg.solve(plain.joint.covariance, xi))
         z = np.array(z)

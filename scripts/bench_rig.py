@@ -1,4 +1,4 @@
-"""Benchmark of ilcc_graph.joint.solve_rig: four pinhole cameras around a LiDAR (Monte Carlo).
+"""Benchmark of ilcc_graph.estimation.rig.solve_rig: four pinhole cameras around a LiDAR (Monte Carlo).
 
 Graph-level synthetic frames (tests/synthetic_graph.py): four 1280x960 pinhole cameras with a
 110 deg horizontal field, looking out every 90 deg, 10 cm off the LiDAR axis and 20 cm up (the rig of
@@ -30,7 +30,7 @@ from synthetic_graph import rig_frames  # noqa: E402
 from test_joint import rig  # noqa: E402
 
 from ilcc_graph.board import Board  # noqa: E402
-from ilcc_graph.joint import relative_pose, solve_rig  # noqa: E402
+from ilcc_graph.estimation.rig import relative_pose, solve_rig  # noqa: E402
 
 BOARD = Board(6, 8, 0.075)
 DOC = ROOT / "docs" / "bench_joint.md"

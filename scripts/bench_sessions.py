@@ -8,7 +8,7 @@ The three sessions of a run share the rig, not the board placements.
 Run: ``nice python3 scripts/bench_sessions.py [--runs 100] [--write]`` (``--write``: tables into
 docs/bench_joint.md between markers). ``--pipeline DIR`` instead runs one end-to-end example: three
 simulated data sets (``ilcc_graph.simulate``, pinhole camera, C with a moved mount) written to DIR and
-calibrated from disk with ``sessions.calibrate_sessions`` (real LiDAR and image stages).
+calibrated from disk with ``pipeline.observe`` and ``pipeline.solve_observations`` (real stages).
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ from synthetic_graph import session_frames  # noqa: E402
 
 from ilcc_graph.board import Board  # noqa: E402
 from ilcc_graph.camera_models import Equirectangular  # noqa: E402
-from ilcc_graph.graph import GraphOptions  # noqa: E402
-from ilcc_graph.joint import JointOptions, Session, solve_sessions  # noqa: E402
+from ilcc_graph.estimation import NoiseOptions  # noqa: E402
+from ilcc_graph.estimation.sessions import JointOptions, Session, solve_sessions  # noqa: E402
 
 CAMERA = Equirectangular(8000, 4000)
 BOARD = Board(6, 8, 0.075)
@@ -63,7 +63,7 @@ def joint_vs_alone(runs: int, n_frames: int) -> str:
     ratio, nees_joint, nees_alone, inside_joint = [], [], [], []
     rot_err, tr_err, sig_j, sig_a = [], [], [], []
     for _ in range(runs):
-        sol = solve_sessions(sessions(rng, n_frames, (T_TRUE,) * 3), JointOptions(graph=GraphOptions()))
+        sol = solve_sessions(sessions(rng, n_frames, (T_TRUE,) * 3), JointOptions(noise=NoiseOptions()))
         j = sol.joint
         ratio.append(np.mean([a.sigmas / j.sigmas for a in sol.alone.values()], axis=0))
         nees_joint.append(nees(j.pose, j.covariance, T_TRUE))
@@ -146,8 +146,10 @@ def pipeline_example(out_dir: Path, n_frames: int) -> str:
     """Three simulated data sets through the whole pipeline; one run, not a Monte Carlo."""
     from scipy.spatial.transform import Rotation
 
-    from ilcc_graph.joint import solve_sessions
-    from ilcc_graph.sessions import calibrate_sessions, format_joint, session_from_calibration
+    from ilcc_graph.datasets import FolderSource
+    from ilcc_graph.observe import observe
+    from ilcc_graph.pipeline import RunOptions, solve_observations
+    from ilcc_graph.report.text import format_joint
     from ilcc_graph.simulate import simulate_dataset, standard_spec
     from ilcc_graph.simulate.spec import default_T_cam_lidar
 
@@ -163,7 +165,8 @@ def pipeline_example(out_dir: Path, n_frames: int) -> str:
             simulate_dataset(d, standard_spec(camera="pinhole", frames=n_frames, seed=seed, T_cam_lidar=T))
         dirs.append(d)
     t0 = time.perf_counter()
-    res = calibrate_sessions(dirs)
+    observations = [observe(FolderSource(d)) for d in dirs]
+    res = solve_observations(observations, names=list(truth))
     seconds = time.perf_counter() - t0
     jump = gtsam.Pose3(T0).localCoordinates(gtsam.Pose3(truth["C"]))
     lines = [
@@ -174,21 +177,22 @@ def pipeline_example(out_dir: Path, n_frames: int) -> str:
         "| session | frames used | error (deg) | error (mm) | NEES of its own estimate (6 expected) |",
         "|---|---:|---:|---:|---:|",
     ]
-    for name in res.names:
+    for s in res.sessions:
+        name = s.name
         e = res.joint.alone[name]
         xi = e.pose.localCoordinates(gtsam.Pose3(truth[name]))
-        used = sum(f.used for f in res.alone[name].frames)
+        used = sum(f.used for f in s.calibration.frames)
         lines.append(
             f"| {name} | {used} | {np.degrees(np.linalg.norm(xi[:3])):.3f} "
             f"| {1e3 * np.linalg.norm(xi[3:]):.2f} "
             f"| {xi @ np.linalg.solve(e.covariance, xi):.1f} |"
         )
-    sessions_ = [session_from_calibration(n, res.configs[n], res.alone[n]) for n in res.names]
     for rep in ((0.0, 0.0), (0.02, 1.0)):
+        joint = JointOptions(repeatability_deg=rep[0], repeatability_mm=rep[1])
         sol = (
             res.joint
             if rep == (0.0, 0.0)
-            else solve_sessions(sessions_, JointOptions(repeatability_deg=rep[0], repeatability_mm=rep[1]))
+            else solve_observations(observations, RunOptions(joint=joint), list(truth)).joint
         )
         lines += [
             "",

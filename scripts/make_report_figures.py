@@ -42,16 +42,18 @@ from ilcc_graph.types import FrameResult, ImageCorners  # noqa: E402
 
 def observe(data: Path, config, corners: str, jobs: int, seed: int) -> list[FrameResult]:
     """Per-frame observations: the pipeline's, or LiDAR stage + ground-truth corners with noise."""
-    from ilcc_graph import pipeline
+    from ilcc_graph.datasets import FolderSource
+    from ilcc_graph.observe import StageOptions, observe, run_lidar_stage
 
-    frames, unpaired = list_frames(data)
-    extra = [FrameResult(name=s, used=False, reason=why) for s, why in unpaired]
+    source = FolderSource(data)
+    options = StageOptions(jobs=jobs)
     if corners == "detect":
-        return pipeline.observe_frames(frames, config, jobs) + extra
+        return observe(source, options).frames
+    frames = source.frames()
     gt = read_ground_truth(data)
     rng = np.random.default_rng(seed)
-    out = []
-    for paths, res in zip(frames, pipeline.run_lidar_stage(frames, config, jobs)):
+    out = [FrameResult(name=s, used=False, reason=why) for s, why in source.skipped()]
+    for paths, res in zip(frames, run_lidar_stage(source, frames, config, options)):
         if isinstance(res, Exception):
             out.append(FrameResult(paths.name, False, f"LiDAR: {res}"))
             continue
@@ -61,7 +63,7 @@ def observe(data: Path, config, corners: str, jobs: int, seed: int) -> list[Fram
         out.append(
             FrameResult(paths.name, True, None, res, ImageCorners(uv, config.camera.bearing(uv), cov, True))
         )
-    return out + extra
+    return out
 
 
 def perturbed(T: np.ndarray, rotvec_deg=(0.0, 0.0, 0.0), t_m=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -115,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--docs", default=str(ROOT / "docs" / "report_metric.md"), help="where the table goes")
     args = ap.parse_args(argv)
 
-    from ilcc_graph.pipeline import solve_extrinsic
+    from ilcc_graph.pipeline import solve_observed
 
     out = Path(args.out)
     data = out / "data"
@@ -130,10 +132,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"observed {len(observed)} frames in {time.time() - t0:.1f} s")
 
     def solve(frames):
-        c = solve_extrinsic(frames, config)
+        c = solve_observed(frames, config)
         return c.T_cam_lidar, c.covariance
 
-    cal = solve_extrinsic(observed, config)
+    cal = solve_observed(observed, config)
     t0 = time.time()
     curve = frames_vs_accuracy(observed, solve, config.camera, config.board, T_ground_truth=gt.T_cam_lidar)
     cv = cross_validate(observed, solve, config.camera, config.board, folds=args.folds, T_all=cal.T_cam_lidar)

@@ -18,8 +18,10 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2
 
+from ilcc_graph.datasets import open_source
 from ilcc_graph.io import atomic_write
-from ilcc_graph.pipeline import CalibrateOptions, observe_dataset, solve_extrinsic
+from ilcc_graph.observe import StageOptions, observe
+from ilcc_graph.pipeline import solve_observed
 
 
 def agreement(T_a: np.ndarray, C_a: np.ndarray, T_b: np.ndarray, C_b: np.ndarray) -> tuple[np.ndarray, float]:
@@ -40,11 +42,12 @@ def main() -> None:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
     data = Path(args.data)
     t0 = time.perf_counter()
-    config, _, observed = observe_dataset(data, args.jobs)
+    obs = observe(open_source(data), StageOptions(jobs=args.jobs))
+    config, observed = obs.config, obs.frames
     halves = {"odd positions": observed[0::2], "even positions": observed[1::2]}
     rows, est = [], {}
     for name, part in halves.items():
-        cal = solve_extrinsic(part, config, CalibrateOptions())
+        cal = solve_observed(part, config)
         est[name] = cal
         s = np.sqrt(np.diag(cal.covariance))
         used = [f.name for f in cal.frames if f.used]

@@ -17,8 +17,9 @@ import numpy as np
 from factors.testing import sample_bearing
 from ilcc_graph.board import Board
 from ilcc_graph.camera_models import CameraModel
-from ilcc_graph.graph import GraphFrame
-from ilcc_graph.joint import RigFrame, RigView, board_face_samples
+from ilcc_graph.estimation.graphs import board_face_samples
+from ilcc_graph.estimation.rig import RigFrame, RigView
+from ilcc_graph.types import GraphFrame
 
 BOARD_SIGMAS = (2e-3, 2e-3, 1e-3, 3e-3, 3e-3, 2e-3)
 

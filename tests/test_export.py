@@ -14,8 +14,7 @@ import yaml
 
 from ilcc_graph.export import FORMATS, export_calibration
 from ilcc_graph.handoff import invert_with_covariance
-from ilcc_graph.io import sigma_from_covariance
-from ilcc_graph.types import Calibration
+from ilcc_graph.types import Calibration, sigma_dict
 
 PINHOLE = {
     "model": "pinhole",
@@ -202,7 +201,7 @@ def test_inputs_calibration_pose_and_file(tmp_path: Path):
     from_cal = export_calibration(Calibration(T_cam_lidar=T, covariance=cov, frames=()), "json")
     assert from_pair == from_cal
     path = tmp_path / "calibration.yaml"
-    doc = {"T_cam_lidar": T.tolist(), "covariance": cov.tolist(), "sigma": sigma_from_covariance(cov)}
+    doc = {"T_cam_lidar": T.tolist(), "covariance": cov.tolist(), "sigma": sigma_dict(cov)}
     path.write_text(yaml.safe_dump({**doc, "frames": []}))
     np.testing.assert_allclose(json.loads(export_calibration(path, "json"))["T_cam_lidar"], T, atol=1e-15)
 

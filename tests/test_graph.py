@@ -1,4 +1,4 @@
-"""Tests of ilcc_graph.graph on synthetic frames drawn from the stated covariances."""
+"""Tests of the estimation core's batch strategy on synthetic frames drawn from the stated covariances."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from factors.testing import sample_bearing
 from ilcc_graph.board import Board
 from ilcc_graph.camera_models import Equirectangular
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
-from ilcc_graph.graph import GraphFrame, GraphOptions, solve
+from ilcc_graph.estimation import NoiseOptions, solve
+from ilcc_graph.types import GraphFrame
 
 CAMERA = Equirectangular(8000, 4000)
 BOARD = Board(6, 8, 0.075)
@@ -136,7 +137,7 @@ def test_outlier_frame_is_dropped(robust: str | None) -> None:
     shifted = gtsam.Pose3(bad.T_lidar_board) * gtsam.Pose3(gtsam.Rot3(), np.array([0.04, 0.0, 0.0]))
     b_bad = np.array([T_TRUE.transformFrom(shifted.transformFrom(p)) for p in bad.points_board])
     frames[3] = replace(bad, bearings=b_bad / np.linalg.norm(b_bad, axis=1, keepdims=True))
-    sol = solve(frames, CAMERA, perturbed(T_TRUE, rng), GraphOptions(robust=robust))
+    sol = solve(frames, CAMERA, perturbed(T_TRUE, rng), NoiseOptions(robust=robust))
     assert [name for name, _ in sol.dropped] == [bad.name]
     assert "chi-square" in sol.dropped[0][1]
     assert bad.name not in sol.per_frame and len(sol.per_frame) == 6
@@ -147,7 +148,7 @@ def test_outlier_frame_is_dropped(robust: str | None) -> None:
 def test_few_frames_warn_and_none_is_impossible(caplog: pytest.LogCaptureFixture) -> None:
     rng = np.random.default_rng(5)
     frames, _ = synthetic_problem(rng, 2)
-    with caplog.at_level(logging.WARNING, logger="ilcc_graph.graph"):
+    with caplog.at_level(logging.WARNING, logger="ilcc_graph.estimation"):
         sol = solve(frames, CAMERA, perturbed(T_TRUE, rng))
     assert any("only 2 usable frame" in r.getMessage() for r in caplog.records)
     assert np.all(np.isfinite(sol.covariance))
@@ -174,7 +175,7 @@ def test_indeterminate_system_is_reported() -> None:
         "line", f.T_lidar_board, np.eye(6) * 1e4, line, b, np.tile(np.eye(2) * 0.25, (3, 1, 1))
     )
     with pytest.raises(IndeterminateSystem):
-        solve([frame], CAMERA, T_TRUE.matrix(), GraphOptions(chi2_gate_prob=None))
+        solve([frame], CAMERA, T_TRUE.matrix(), NoiseOptions(chi2_gate_prob=None))
 
 
 def test_bad_input_is_named() -> None:
@@ -185,7 +186,7 @@ def test_bad_input_is_named() -> None:
     with pytest.raises(ValueError, match="0000"):
         solve([replace(frames[0], cov_px=frames[0].cov_px[:, :1])], CAMERA, T_TRUE.matrix())
     with pytest.raises(ValueError, match="robust"):
-        solve(frames, CAMERA, T_TRUE.matrix(), GraphOptions(robust="nope"))
+        solve(frames, CAMERA, T_TRUE.matrix(), NoiseOptions(robust="nope"))
     with pytest.raises(ValueError, match="unique"):
         solve(frames + frames, CAMERA, T_TRUE.matrix())
 
@@ -201,7 +202,7 @@ def test_robust_kernel_keeps_frame_with_one_bad_corner() -> None:
     T0 = perturbed(T_TRUE, rng)
     plain = solve(frames, CAMERA, T0)
     assert [name for name, _ in plain.dropped] == [f.name]
-    robust = solve(frames, CAMERA, T0, GraphOptions(robust="tukey"))
+    robust = solve(frames, CAMERA, T0, NoiseOptions(robust="tukey"))
     assert robust.dropped == []
     s = robust.per_frame[f.name]
     assert s.chi2 > 1000 and s.chi2_robust is not None and s.chi2_robust < s.chi2

@@ -18,8 +18,8 @@ from ilcc_graph.handoff import (
     invert_with_covariance,
     load_calibration,
 )
-from ilcc_graph.io import sigma_from_covariance, write_calibration
-from ilcc_graph.types import Calibration
+from ilcc_graph.io import write_calibration
+from ilcc_graph.types import Calibration, sigma_dict
 
 
 def random_pose(rng: np.random.Generator, t_scale: float = 1.0) -> gtsam.Pose3:
@@ -38,7 +38,7 @@ def write_calibration_file(path: Path, T: np.ndarray, cov: np.ndarray, **overrid
     doc = {
         "T_cam_lidar": np.asarray(T).tolist(),
         "covariance": np.asarray(cov).tolist(),
-        "sigma": sigma_from_covariance(cov),
+        "sigma": sigma_dict(cov),
         "frames": [
             {
                 "name": "0001",

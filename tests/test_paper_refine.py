@@ -6,14 +6,14 @@ import gtsam
 import numpy as np
 
 from factors.testing import sample_bearing
-from ilcc_graph.graph import GraphFrame
-from ilcc_graph.paper_refine import (
+from ilcc_graph.estimation.paper import (
     R_PANO_OPENCV,
     inclination_azimuth,
     paper_residuals,
     refine_paper,
     wrap_angle,
 )
+from ilcc_graph.types import GraphFrame
 
 T_TRUE = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.05, -0.02, 0.3), np.array([0.06, -0.1, -0.2]))
 GRID = np.array([[(j + 1) * 0.075, (i + 1) * 0.075, 0.0] for i in range(5) for j in range(7)])

@@ -1,4 +1,4 @@
-"""solve_extrinsic on synthetic observations: ordering, outliers, too few frames, both refinements."""
+"""pipeline.solve_observed on synthetic observations: ordering, outliers, too few frames, both refinements."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 
 from ilcc_graph.config import parse_config
 from ilcc_graph.errors import CalibrationImpossible
-from ilcc_graph.pipeline import CalibrateOptions, solve_extrinsic
+from ilcc_graph.pipeline import RunOptions, solve_observed
 from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
 
 CONFIG = {
@@ -71,7 +71,7 @@ def _errors(T: np.ndarray) -> tuple[float, float]:
 
 def test_recovers_truth_with_half_turned_frames():
     cfg, frames = _frames(10)
-    cal = solve_extrinsic(frames, cfg)
+    cal = solve_observed(frames, cfg)
     rot, trans = _errors(cal.T_cam_lidar)
     assert rot < 0.05 and trans < 5
     assert all(f.used for f in cal.frames)
@@ -83,7 +83,7 @@ def test_recovers_truth_with_half_turned_frames():
 
 def test_paper_refinement_has_no_covariance():
     cfg, frames = _frames(8, seed=1)
-    cal = solve_extrinsic(frames, cfg, CalibrateOptions(refine="paper"))
+    cal = solve_observed(frames, cfg, RunOptions(mode="paper"))
     rot, trans = _errors(cal.T_cam_lidar)
     assert rot < 0.1 and trans < 10
     assert np.all(np.isnan(cal.covariance))
@@ -94,9 +94,10 @@ def test_outlier_frame_is_dropped_with_reason():
     cfg, frames = _frames(10, seed=2)
     bad = frames[3]
     shifted = bad.corners.uv + np.array([40.0, -25.0])  # ~2 deg off in the panorama
-    frames[3] = dataclasses.replace(bad, corners=dataclasses.replace(
-        bad.corners, uv=shifted, bearings=cfg.camera.bearing(shifted)))
-    cal = solve_extrinsic(frames, cfg)
+    frames[3] = dataclasses.replace(
+        bad, corners=dataclasses.replace(bad.corners, uv=shifted, bearings=cfg.camera.bearing(shifted))
+    )
+    cal = solve_observed(frames, cfg)
     dropped = {f.name: f.reason for f in cal.frames if not f.used}
     assert list(dropped) == ["0003"] and dropped["0003"]
     rot, trans = _errors(cal.T_cam_lidar)
@@ -106,7 +107,7 @@ def test_outlier_frame_is_dropped_with_reason():
 def test_frames_without_observations_are_reported_not_used():
     cfg, frames = _frames(6, seed=3)
     frames[0] = FrameResult(name=frames[0].name, used=False, reason="LiDAR: no board")
-    cal = solve_extrinsic(frames, cfg)
+    cal = solve_observed(frames, cfg)
     assert [f.used for f in cal.frames] == [False] + [True] * 5
     assert cal.frames[0].reason == "LiDAR: no board"
 
@@ -114,11 +115,11 @@ def test_frames_without_observations_are_reported_not_used():
 def test_few_frames_warn_and_none_is_impossible(caplog):
     cfg, frames = _frames(3, seed=4, flip_every=0)
     with caplog.at_level(logging.WARNING):
-        cal = solve_extrinsic(frames, cfg)
+        cal = solve_observed(frames, cfg)
     assert sum(f.used for f in cal.frames) == 3
     assert any("frame" in r.message for r in caplog.records if r.levelno >= logging.WARNING)
     with pytest.raises(CalibrationImpossible):
-        solve_extrinsic([FrameResult(name="0001", used=False, reason="image: no board")], cfg)
+        solve_observed([FrameResult(name="0001", used=False, reason="image: no board")], cfg)
 
 
 def test_print_colour_is_taken_from_the_images(tmp_path, caplog):
@@ -126,33 +127,37 @@ def test_print_colour_is_taken_from_the_images(tmp_path, caplog):
     import yaml
 
     from ilcc_graph.config import load_config
-    from ilcc_graph.io import list_frames
-    from ilcc_graph.pipeline import check_board_colour
+    from ilcc_graph.datasets import FolderSource
+    from ilcc_graph.observe import check_board_colour
     from ilcc_graph.simulate import simulate_dataset, standard_spec
 
     data = simulate_dataset(tmp_path / "sim", standard_spec(camera="pinhole", width=960, frames=3, seed=2))
     cfg = yaml.safe_load((data / "config.yaml").read_text())
     assert cfg["board"]["lower_left"] == "black"
     right = load_config(data / "config.yaml")
-    frames, _ = list_frames(data)
-    assert check_board_colour(frames, right) == right
+    source = FolderSource(data)
+    frames = source.frames()
+    assert check_board_colour(source, frames, right)[0] == right
     cfg["board"]["lower_left"] = "white"
     (data / "config.yaml").write_text(yaml.safe_dump(cfg))
     wrong = load_config(data / "config.yaml")
     with caplog.at_level(logging.WARNING):
-        fixed = check_board_colour(frames, wrong)
+        fixed, known = check_board_colour(source, frames, wrong)
+    assert known == {}  # the image results of the wrong colour are not kept
     assert fixed.board.lower_left == "black"
     assert "lower_left is white" in caplog.text
 
 
 def test_recorded_board_print_is_white_at_lower_left(acfr_data):
     from ilcc_graph.config import load_config
-    from ilcc_graph.io import list_frames
-    from ilcc_graph.pipeline import check_board_colour
+    from ilcc_graph.datasets import FolderSource
+    from ilcc_graph.observe import check_board_colour
 
     config = load_config(acfr_data / "config.yaml")
-    frames, _ = list_frames(acfr_data)
+    source = FolderSource(acfr_data)
+    frames = source.frames()
     assert config.board.lower_left == "white"  # as shipped
-    assert check_board_colour(frames[:4], config) == config
+    same, known = check_board_colour(source, frames[:4], config)
+    assert same == config and len(known) >= 2  # computed once, reused by the run
     wrong = dataclasses.replace(config, board=dataclasses.replace(config.board, lower_left="black"))
-    assert check_board_colour(frames[:4], wrong).board.lower_left == "white"
+    assert check_board_colour(source, frames[:4], wrong)[0].board.lower_left == "white"

@@ -1,4 +1,4 @@
-"""Tests of factors/range_offset.py and the range offset in the joint graph."""
+"""Tests of factors/range_offset.py and the range offset in the sessions strategy."""
 
 from __future__ import annotations
 
@@ -17,8 +17,9 @@ from factors.range_offset import (
 from factors.testing import factor_jacobian_error, numerical_jacobian, random_pose
 from ilcc_graph.board import Board
 from ilcc_graph.camera_models import Equirectangular
-from ilcc_graph.graph import GraphOptions
-from ilcc_graph.joint import JointOptions, Session, board_face_samples, solve_sessions
+from ilcc_graph.estimation import NoiseOptions
+from ilcc_graph.estimation.graphs import board_face_samples
+from ilcc_graph.estimation.sessions import JointOptions, Session, solve_sessions
 
 BOARD = Board(6, 8, 0.075)
 SAMPLES = board_face_samples(BOARD)
@@ -119,7 +120,7 @@ def test_graph_recovers_offset_and_extrinsic(offset: float, seed: int) -> None:
         # against the stated noise: the graph's variance components would otherwise widen the
         # covariance to cover part of the unmodelled offset (which is what they are for)
         plain = JointOptions(
-            range_offset=False, graph=GraphOptions(chi2_gate_prob=None, variance_factor=False)
+            range_offset=False, noise=NoiseOptions(chi2_gate_prob=None, variance_components=False)
         )
         without = solve_sessions(sess, plain)
         xi0 = T_TRUE.localCoordinates(without.joint.pose)

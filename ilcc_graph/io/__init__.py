@@ -16,7 +16,6 @@ from .results import (
     calibration_to_dict,
     read_calibration,
     read_ground_truth,
-    sigma_from_covariance,
     write_calibration,
     write_ground_truth,
 )
@@ -42,7 +41,6 @@ __all__ = [
     "read_scan",
     "read_yaml",
     "reader",
-    "sigma_from_covariance",
     "supported_scan_suffixes",
     "to_plain",
     "write_calibration",

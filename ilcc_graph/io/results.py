@@ -4,8 +4,10 @@ calibration.yaml keys, in order: ``T_cam_lidar`` (4x4), ``covariance`` (6x6, GTS
 of T_cam_lidar, rotation first), ``sigma`` (square roots of the covariance diagonal in degrees and
 millimetres), ``frames`` (per frame: ``name``, ``used``, ``reason`` when dropped,
 ``lidar_corners`` (K,3) LiDAR frame metres, ``image_corners`` (K,2) pixels,
-``rms_bearing_error_mrad``, then ``T_lidar_board`` (4x4) when known), then ``method`` and
-``diagnostics``.
+``rms_bearing_error_mrad``, then ``T_lidar_board`` (4x4, the LiDAR stage's) and
+``T_lidar_board_refined`` (4x4, the estimation core's) when known), then ``method``,
+``diagnostics`` and ``camera`` (the camera model in our config schema, so that exports need nothing
+else).
 
 Reading it back gives a ``Calibration`` whose frames carry minimal ``BoardFit`` /
 ``ImageCorners``: what the file stores (corners, T_lidar_board) is filled in; the rest (segment
@@ -14,7 +16,6 @@ points, bearings, covariances) is not stored and is empty or NaN.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,28 +23,19 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..types import BoardFit, Calibration, FrameResult, ImageCorners
+from ..types import BoardFit, Calibration, FrameResult, ImageCorners, sigma_dict
 from .files import read_yaml, write_yaml
 
 __all__ = [
     "write_calibration",
     "read_calibration",
     "calibration_to_dict",
-    "sigma_from_covariance",
     "GroundTruth",
     "write_ground_truth",
     "read_ground_truth",
 ]
 
 GROUND_TRUTH_FILE = "ground_truth.yaml"
-
-
-def sigma_from_covariance(cov: np.ndarray) -> dict[str, float]:
-    """{rx_deg, ry_deg, rz_deg, tx_mm, ty_mm, tz_mm}: square roots of the 6x6 covariance diagonal."""
-    d = np.sqrt(np.clip(np.diag(np.asarray(cov, dtype=np.float64)), 0.0, None))
-    keys = ("rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm")
-    vals = [math.degrees(v) for v in d[:3]] + [1000.0 * v for v in d[3:]]
-    return {k: float(v) for k, v in zip(keys, vals, strict=True)}
 
 
 def _frame_dict(f: FrameResult) -> dict[str, Any]:
@@ -59,6 +51,8 @@ def _frame_dict(f: FrameResult) -> dict[str, Any]:
     )
     if f.board is not None:
         d["T_lidar_board"] = np.asarray(f.board.T_lidar_board, dtype=np.float64)
+    if f.T_lidar_board_refined is not None:
+        d["T_lidar_board_refined"] = np.asarray(f.T_lidar_board_refined, dtype=np.float64)
     return d
 
 
@@ -67,10 +61,11 @@ def calibration_to_dict(cal: Calibration) -> dict[str, Any]:
     return {
         "T_cam_lidar": np.asarray(cal.T_cam_lidar, dtype=np.float64),
         "covariance": np.asarray(cal.covariance, dtype=np.float64),
-        "sigma": sigma_from_covariance(cal.covariance),
+        "sigma": sigma_dict(cal.covariance),
         "frames": [_frame_dict(f) for f in cal.frames],
         "method": cal.method,
         "diagnostics": {str(k): v for k, v in cal.diagnostics.items()},
+        **({"camera": cal.camera} if cal.camera is not None else {}),
     }
 
 
@@ -150,6 +145,11 @@ def read_calibration(path: str | Path) -> Calibration:
                 half_turn_ambiguous=False,
             )
         rms = fd.get("rms_bearing_error_mrad")
+        refined = (
+            None
+            if fd.get("T_lidar_board_refined") is None
+            else _matrix(src, fd["T_lidar_board_refined"], f"{key}.T_lidar_board_refined", (4, 4), pose=True)
+        )
         frames.append(
             FrameResult(
                 name=str(fd["name"]),
@@ -158,17 +158,22 @@ def read_calibration(path: str | Path) -> Calibration:
                 board=board,
                 corners=img,
                 rms_bearing_error_mrad=None if rms is None else float(rms),
+                T_lidar_board_refined=refined,
             )
         )
     diag = d.get("diagnostics") or {}
     if not isinstance(diag, dict):
         raise InputError(f"{src}: diagnostics must be a mapping")
+    camera = d.get("camera")
+    if camera is not None and not isinstance(camera, dict):
+        raise InputError(f"{src}: camera must be a mapping (the camera section of config.yaml)")
     return Calibration(
         T_cam_lidar=T,
         covariance=cov,
         frames=tuple(frames),
         method=str(d.get("method", "graph")),
         diagnostics=dict(diag),
+        camera=camera,
     )
 
 

@@ -1,11 +1,12 @@
 """Incremental calibration with iSAM2: frames one at a time, the estimate and its sigmas after each.
 
-The graph is the one of ``graph.solve`` (``X(0)`` = ``T_cam_lidar``, ``B(i)`` = ``T_lidar_board`` of
-frame i, a ``PriorFactorPose3`` and one grouped bearing factor per frame), grown by ``gtsam.ISAM2``.
-Each frame adds one variable and two factors; iSAM2 re-eliminates only the cliques they touch
-(``X(0)`` sits at the root) and relinearises only variables that moved more than
-``relinearize_threshold``. ``finish()`` relinearises everything and iterates to convergence, so its
-answer is the batch solution (``graph.solve`` without the gate) to solver precision.
+The graph is the batch strategy's (``X(0)`` = ``T_cam_lidar``, ``B(i)`` = ``T_lidar_board`` of
+frame i, the LiDAR prior and one grouped bearing factor per frame, built by ``graphs``), grown by
+``gtsam.ISAM2``. Each frame adds one variable and two factors; iSAM2 re-eliminates only the cliques
+they touch (``X(0)`` sits at the root) and relinearises only variables that moved more than
+``relinearize_threshold``. While frames arrive, the sigmas come from the stated noise. ``finish()``
+solves every frame offered with the batch strategy (the core's noise policy: gate, variance
+components, final factor) from the current estimate, so its answer is the batch answer.
 
 Half turns: with a symmetric board the image corner order is known only up to the half turn. The
 first ``init_frames`` frames are ordered together with ``init.resolve_half_turns`` (and give the
@@ -13,12 +14,12 @@ UPnP start unless ``T_init`` is given); every later frame takes the order whose 
 the current estimate is smaller.
 
 A frame whose chi-square (its board re-fitted with the extrinsic held at the current estimate)
-exceeds the ``gate_prob`` quantile is rejected with the reason and changes nothing.
+exceeds the ``gate_prob`` quantile is rejected with the reason and changes nothing while frames
+arrive; ``finish()`` judges every frame again, as the batch strategy does.
 """
 
 from __future__ import annotations
 
-import copy
 import logging
 import math
 import time
@@ -34,10 +35,12 @@ from factors import POSE3_DOF, FrameBearingFactor
 from ilcc_graph.board import Board
 from ilcc_graph.camera_models import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
-from ilcc_graph.graph import GraphFrame
-from ilcc_graph.init import resolve_half_turns, upnp
-from ilcc_graph.joint import view_factor
-from ilcc_graph.types import FrameResult
+from ilcc_graph.estimation.batch import BatchSolution, solve
+from ilcc_graph.estimation.graphs import frame_bearing_factor, upnp_start
+from ilcc_graph.estimation.noise import NoiseOptions
+from ilcc_graph.estimation.solver import gaussian
+from ilcc_graph.init import resolve_half_turns
+from ilcc_graph.types import FrameResult, GraphFrame
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +57,7 @@ class FrameUpdate:
     covariance: (6, 6) interface.md convention (NaN before the first estimate).
     name: the frame's name. accepted: False when the frame was rejected (``reason`` says why).
     n_frames: frames in the graph. seconds: wall time of this update (iSAM2 + marginal).
+    solution: after ``finish()``, the batch strategy's answer on every frame offered.
     """
 
     T_cam_lidar: np.ndarray | None
@@ -65,6 +69,7 @@ class FrameUpdate:
     reason: str | None = None
     n_frames: int = 0
     seconds: float = 0.0
+    solution: BatchSolution | None = None
 
     def __iter__(self):  # noqa: ANN204 - tuple-like unpacking of the three main fields
         return iter((self.T_cam_lidar, self.sigmas, self.reached_target))
@@ -80,8 +85,8 @@ class _Pending:
 class IncrementalCalibrator:
     """Frames in, ``T_cam_lidar`` and sigmas out, one frame at a time (iSAM2).
 
-    The sigmas come from the stated noise alone: unlike the batch ``graph.solve``, the covariance
-    is not multiplied by the a-posteriori variance factor (a batch run reports that factor).
+    While frames arrive the sigmas come from the stated noise alone; ``finish()`` gives the batch
+    strategy's answer (noise policy included) on every frame offered.
 
     Parameters
     ----------
@@ -92,6 +97,7 @@ class IncrementalCalibrator:
     init_frames : frames buffered before the first estimate when ``T_init`` is None (>= 1).
     relinearize_threshold : iSAM2's per-variable relinearisation threshold (rad / m).
     gate_prob : chi-square quantile above which a frame is rejected; None: never.
+    noise : the noise policy of ``finish()``'s batch solve.
     """
 
     camera: CameraModel
@@ -101,9 +107,12 @@ class IncrementalCalibrator:
     init_frames: int = 3
     relinearize_threshold: float = 1e-3
     gate_prob: float | None = 0.999
+    noise: NoiseOptions = NoiseOptions()
     _isam: gtsam.ISAM2 = field(init=False, repr=False)
     _pending: list[_Pending] = field(init=False, repr=False, default_factory=list)
     _frames: list[GraphFrame] = field(init=False, repr=False, default_factory=list)
+    _offered: list[GraphFrame] = field(init=False, repr=False, default_factory=list)
+    _flipped_names: set[str] = field(init=False, repr=False, default_factory=set)
     _names: set[str] = field(init=False, repr=False, default_factory=set)
     _T: gtsam.Pose3 | None = field(init=False, repr=False, default=None)
     _cov: np.ndarray | None = field(init=False, repr=False, default=None)
@@ -126,6 +135,16 @@ class IncrementalCalibrator:
     def frames(self) -> list[GraphFrame]:
         """The frames in the graph, in the order added (with the corner order used)."""
         return list(self._frames)
+
+    @property
+    def offered(self) -> list[GraphFrame]:
+        """Every frame offered, accepted or not, with the corner order chosen for it."""
+        return list(self._offered)
+
+    @property
+    def flipped(self) -> set[str]:
+        """Names of the offered frames whose image corners were half-turned (``bearings[perm]``)."""
+        return set(self._flipped_names)
 
     @property
     def estimate(self) -> np.ndarray | None:
@@ -173,10 +192,11 @@ class IncrementalCalibrator:
                 return self._update(gf.name, t0, True, f"waiting for {self.init_frames} frames to initialise")
             return self._initialise(gf.name, t0)
         ready = self._better_order(gf) if flippable else (gf, self._factor(gf))
+        self._offered.append(ready[0])
         ok, reason = self._gate(*ready)
         if not ok:
             return self._update(gf.name, t0, False, reason)
-        self._insert([ready], first=False)
+        self._insert([ready[0]], first=False)
         return self._update(gf.name, t0, True, None)
 
     def _initialise(self, name: str, t0: float) -> FrameUpdate:
@@ -187,7 +207,7 @@ class IncrementalCalibrator:
         retry: list[GraphFrame] = []
         if self.T_init is not None:
             self._T = gtsam.Pose3(np.asarray(self.T_init, dtype=np.float64))
-            kept = [self._better_order(f) if fl else (f, self._factor(f)) for f, fl in zip(frames, flips)]
+            kept = [self._better_order(f)[0] if fl else f for f, fl in zip(frames, flips)]
         else:
             chosen = frames
             if self.board.half_turn_symmetric and len(frames) > 1:
@@ -202,31 +222,30 @@ class IncrementalCalibrator:
                 chosen = [
                     self._flipped(f) if order.flip[f.name] else f for f in frames if f.name in order.flip
                 ]
+                self._flipped_names |= {n for n, fl in order.flip.items() if fl}
                 retry = [f for f in frames if f.name not in order.flip]
                 if not chosen:
                     raise CalibrationImpossible("no frame left to initialise the extrinsic")
-            P = np.vstack(
-                [f.points_board @ f.T_lidar_board[:3, :3].T + f.T_lidar_board[:3, 3] for f in chosen]
-            )
-            F = np.vstack([f.bearings / np.linalg.norm(f.bearings, axis=1, keepdims=True) for f in chosen])
-            self._T = gtsam.Pose3(upnp(P, F, prefer_front=True)[0].T_cam_points)
-            kept = [(f, self._factor(f)) for f in chosen]
+            self._T = gtsam.Pose3(upnp_start(chosen))
+            kept = chosen
+        self._offered.extend(kept)
         self._insert(kept, first=True)
         if retry:
             self._update(name, t0, True, None)  # the covariance the gate needs
             for f in retry:
                 ready = self._better_order(f)
+                self._offered.append(ready[0])
                 ok, reason = self._gate(*ready)
                 if ok:
-                    self._insert([ready], first=False)
+                    self._insert([ready[0]], first=False)
                     self._update(name, t0, True, None)
                 else:
                     log.info("frame %s rejected at initialisation: %s", f.name, reason)
         return self._update(name, t0, True, None)
 
-    def _factor(self, f: GraphFrame) -> FrameBearingFactor | None:
-        """The frame's grouped bearing factor on (X(0), B(0)); ``_insert`` gives it the board's key."""
-        return view_factor(X(0), B(0), f.points_board, f.bearings, f.cov_px, self.camera)
+    def _factor(self, f: GraphFrame, board: int = 0) -> FrameBearingFactor | None:
+        """The frame's grouped bearing factor on (X(0), B(board))."""
+        return frame_bearing_factor(X(0), B(board), f.points_board, f.bearings, f.cov_px, self.camera)[0]
 
     def _better_order(self, f: GraphFrame) -> tuple[GraphFrame, FrameBearingFactor | None]:
         """The corner order (as given or half-turned) with the smaller bearing chi-square at the current
@@ -241,7 +260,10 @@ class IncrementalCalibrator:
         def cost(fc: FrameBearingFactor | None) -> float:
             return math.inf if fc is None else float(np.sum(fc.evaluate(self._T, prior, False)[0] ** 2))
 
-        return (g, gfac) if cost(gfac) < cost(fac) else (f, fac)
+        if cost(gfac) < cost(fac):
+            self._flipped_names.add(f.name)
+            return g, gfac
+        return f, fac
 
     def _innovation_chi2(self, f: GraphFrame, fac: FrameBearingFactor) -> float:
         """The frame's chi-square against the current state (2K dof when the frame is right).
@@ -295,21 +317,20 @@ class IncrementalCalibrator:
             return False, f"chi-square gate: {c2:.1f} > {bound:.1f} ({dof} dof, p={self.gate_prob})"
         return True, None
 
-    def _insert(self, frames: Iterable[tuple[GraphFrame, FrameBearingFactor | None]], first: bool) -> None:
+    def _insert(self, frames: Iterable[GraphFrame], first: bool) -> None:
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         if first:
             values.insert(X(0), self._T)
         n = 0
-        for f, fac in frames:
+        for f in frames:
+            i = len(self._frames)
+            fac = self._factor(f, i)
             if fac is None:
                 log.info("frame %s skipped: fewer than 3 usable corners", f.name)
                 continue
-            i = len(self._frames)
-            fac = copy.copy(fac)
-            fac.keys = (X(0), B(i))
             prior = gtsam.Pose3(np.asarray(f.T_lidar_board, dtype=np.float64))
-            graph.add(gtsam.PriorFactorPose3(B(i), prior, gtsam.noiseModel.Gaussian.Covariance(f.board_cov)))
+            graph.add(gtsam.PriorFactorPose3(B(i), prior, gaussian(f.board_cov)))
             graph.add(fac.factor())
             values.insert(B(i), prior)
             self._frames.append(f)
@@ -326,31 +347,47 @@ class IncrementalCalibrator:
                     break
         self._T = self._isam.calculateEstimatePose3(X(0))
 
-    def finish(self, max_iterations: int = 100) -> FrameUpdate:
-        """Converge the whole graph (Levenberg-Marquardt from the current estimate, every factor
-        relinearised) and restart iSAM2 there: the answer is the batch optimum (``graph.solve`` on the
-        same frames, without its gate). Frames may still be added afterwards."""
+    def finish(self) -> FrameUpdate:
+        """The batch strategy on every frame offered, from the current estimate (its noise policy
+        judges every frame again); iSAM2 restarts from that answer with the frames it kept, so
+        frames may still be added afterwards."""
         t0 = time.perf_counter()
         if self._T is None:
             if not self._pending:
                 raise CalibrationImpossible("no frame was added")
-            return self._initialise(self._pending[-1].frame.name, t0)
-        graph = gtsam.NonlinearFactorGraph()
-        factors = self._isam.getFactorsUnsafe()
-        for k in range(factors.size()):
-            if factors.at(k) is not None:
-                graph.push_back(factors.at(k))
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(max_iterations)
-        params.setRelativeErrorTol(1e-10)
-        params.setAbsoluteErrorTol(1e-12)
-        result = gtsam.LevenbergMarquardtOptimizer(graph, self._isam.calculateEstimate(), params).optimize()
+            self._initialise(self._pending[-1].frame.name, t0)
+        sol = solve(self._offered, self.camera, np.asarray(self._T.matrix()), self.noise)
+        kept = [f for f in self._offered if f.name in sol.per_frame]
         self._isam = gtsam.ISAM2(self._isam.params())
-        self._isam.update(graph, result)
-        self._T = self._isam.calculateEstimatePose3(X(0))
-        return self._update("", t0, True, None)
+        self._frames = []
+        self._T = gtsam.Pose3(sol.T_cam_lidar)
+        self._insert(kept, first=True)
+        self._T = gtsam.Pose3(sol.T_cam_lidar)
+        self._cov = sol.covariance
+        return self._result("", t0, sol)
 
     # -------------------------------------------------------------------------------- results
+    def _result(self, name: str, t0: float, sol: BatchSolution) -> FrameUpdate:
+        sig = np.sqrt(np.diag(sol.covariance))
+        return FrameUpdate(
+            sol.T_cam_lidar,
+            sig,
+            self._reached(sig),
+            sol.covariance,
+            name,
+            True,
+            None,
+            len(sol.per_frame),
+            time.perf_counter() - t0,
+            sol,
+        )
+
+    def _reached(self, sig: np.ndarray) -> bool:
+        if self.target_sigma is None:
+            return False
+        rot_deg, trans_mm = self.target_sigma
+        return bool(np.degrees(sig[:3]).max() <= rot_deg and 1e3 * sig[3:].max() <= trans_mm)
+
     def _update(self, name: str, t0: float, accepted: bool, reason: str | None) -> FrameUpdate:
         if self._T is None:
             return FrameUpdate(
@@ -368,10 +405,7 @@ class IncrementalCalibrator:
         cov = 0.5 * (cov + cov.T)
         self._cov = cov
         sig = np.sqrt(np.diag(cov))
-        reached = False
-        if self.target_sigma is not None:
-            rot_deg, trans_mm = self.target_sigma
-            reached = bool(np.degrees(sig[:3]).max() <= rot_deg and 1e3 * sig[3:].max() <= trans_mm)
+        reached = self._reached(sig)
         return FrameUpdate(
             np.asarray(self._T.matrix()),
             sig,

@@ -11,14 +11,12 @@ azimuth difference is wrapped into (-pi, pi]. Unweighted, no covariance. scipy's
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
 from scipy.optimize import least_squares
 
-if TYPE_CHECKING:
-    from ilcc_graph.graph import GraphFrame
+from ilcc_graph.types import GraphFrame
 
 # Rotation from OpenCV's camera frame (z forward, x right, y down) to the paper's panoramic frame
 # (x forward, y left, z up): pass it as ``R_pano_cam`` for pinhole and fisheye cameras.

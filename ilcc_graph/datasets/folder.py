@@ -1,0 +1,57 @@
+"""The folder layout of interface.md as a frame source: ``DATA/config.yaml``, ``DATA/pcd``, ``DATA/img``.
+
+Frames pair by file stem (``io.list_frames``); scans are read by extension (``io.read_scan``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ilcc_graph.config import Config, load_config
+from ilcc_graph.datasets.base import FrameRef, FrameSource
+from ilcc_graph.errors import InputError
+from ilcc_graph.io import list_frames, read_ground_truth, read_image, read_scan
+from ilcc_graph.io.results import GROUND_TRUTH_FILE
+from ilcc_graph.types import Scan
+
+__all__ = ["FolderSource", "is_folder_source"]
+
+
+def is_folder_source(path: Path) -> bool:
+    """A folder holding ``config.yaml``."""
+    return path.is_dir() and (path / "config.yaml").is_file()
+
+
+class FolderSource(FrameSource):
+    """A data set on disk in the layout of interface.md."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not self.path.is_dir():
+            raise InputError(
+                f"{self.path}: not a directory (expected a data set with config.yaml, pcd/ and img/)"
+            )
+        self.label = self.path.resolve().name or str(self.path)
+        self.location = str(self.path)
+        self._skipped: list[tuple[str, str]] = []
+
+    def config(self) -> Config:
+        return load_config(self.path / "config.yaml")
+
+    def frames(self, require_scan: bool = True, require_image: bool = True) -> list[FrameRef]:
+        frames, self._skipped = list_frames(self.path, require_image=require_image, require_scan=require_scan)
+        return [FrameRef(f.name, f.scan, f.image) for f in frames]
+
+    def skipped(self) -> list[tuple[str, str]]:
+        return list(self._skipped)
+
+    def read_scan(self, ref: FrameRef, config: Config) -> Scan:
+        return read_scan(ref.scan, config.intensity_column)
+
+    def read_image(self, ref: FrameRef) -> np.ndarray:
+        return read_image(ref.image)
+
+    def ground_truth(self):  # noqa: ANN201 - io.GroundTruth | None
+        return read_ground_truth(self.path) if (self.path / GROUND_TRUTH_FILE).is_file() else None

@@ -1,0 +1,85 @@
+"""Batch strategy: one data set, one extrinsic, every frame at once.
+
+Variables ``X(0)`` = ``T_cam_lidar`` and ``B(i)`` = ``T_lidar_board`` of frame i; per frame the LiDAR
+stage's prior on ``B(i)`` and one grouped bearing factor. Solved by the core's noise policy
+(``noise.solve_problem``); the covariance is ``gtsam.Marginals``'s of ``X(0)`` times the final
+variance factor, in interface.md's convention.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.estimation.noise import BoardStats, NoiseOptions, Solution, solve_problem
+from ilcc_graph.estimation.problem import frames_problem
+from ilcc_graph.estimation.solver import check_pose
+from ilcc_graph.types import Estimate, GraphFrame
+
+__all__ = ["BatchSolution", "batch_solution", "solve"]
+
+
+@dataclass(frozen=True)
+class BatchSolution:
+    """The batch answer.
+
+    T_cam_lidar: (4, 4). covariance: (6, 6) of ``T_cam_lidar`` (interface.md convention).
+    T_lidar_board: refined board poses of the used frames. per_frame: their residual statistics.
+    dropped: ``(name, reason)`` in the order dropped. variance_components: (board priors, bearings).
+    """
+
+    T_cam_lidar: np.ndarray
+    covariance: np.ndarray
+    T_lidar_board: dict[str, np.ndarray]
+    per_frame: dict[str, BoardStats]
+    dropped: list[tuple[str, str]]
+    iterations: int
+    timings: dict[str, float] = field(default_factory=dict)
+    variance_factor: float = 1.0
+    variance_components: tuple[float, float] = (1.0, 1.0)
+
+    @property
+    def extrinsic(self) -> Estimate:
+        return Estimate(self.T_cam_lidar, self.covariance)
+
+    @property
+    def pose(self):  # noqa: ANN201 - gtsam.Pose3
+        """``T_cam_lidar`` as a ``gtsam.Pose3``."""
+        return self.extrinsic.pose
+
+
+def batch_solution(sol: Solution, e: int = 0, group: str = "") -> BatchSolution:
+    """The ``BatchSolution`` view of a solved problem (extrinsic ``e``, noise ``group``)."""
+    est = sol.extrinsic(e)
+    names = [b.name for b in sol.problem.boards]
+    return BatchSolution(
+        T_cam_lidar=est.T,
+        covariance=est.covariance,
+        T_lidar_board={names[i]: sol.board_pose(i) for i in sol.boards},
+        per_frame={names[i]: sol.stats[i] for i in sol.boards},
+        dropped=list(sol.dropped),
+        iterations=sol.iterations,
+        timings=sol.timings,
+        variance_factor=sol.variance_factor,
+        variance_components=sol.components(group),
+    )
+
+
+def solve(
+    frames: Sequence[GraphFrame],
+    camera: CameraModel,
+    T_init: np.ndarray,
+    options: NoiseOptions = NoiseOptions(),
+) -> BatchSolution:
+    """Refine ``T_cam_lidar`` over all frames and return it with its marginal covariance.
+
+    frames: the frames (``types.GraphFrame``), bearings in the camera frame of ``camera``.
+    T_init: (4, 4) start (e.g. UPnP's). Raises CalibrationImpossible (no usable frame),
+    IndeterminateSystem (the data do not determine ``T_cam_lidar``), ValueError (malformed input).
+    """
+    check_pose(T_init, "T_init")
+    sol = solve_problem(frames_problem(frames, camera, T_init), options)
+    return batch_solution(sol)

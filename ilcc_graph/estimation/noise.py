@@ -1,0 +1,437 @@
+"""The one noise policy of the estimation core: chi-square gate, variance components, final factor.
+
+``solve_problem`` solves any ``Problem`` (batch, sessions, rig) the same way:
+
+1. with a robust kernel, a least-squares pass first (from a start far off every residual is
+   "large" and a redescending kernel would weight them all to zero);
+2. **gate**: the board whose chi-square (its prior's term plus its views' whitened bearing errors;
+   dof = the views' residual count) most exceeds the ``chi2_gate_prob`` quantile is dropped and
+   the graph re-solved, until none fails or ``max_dropped_fraction`` of the boards are gone. With
+   ``variance_components`` the chi-squares are first divided by the median chi2/dof over the boards
+   (when above 1), so a noise model too optimistic for every board drops none of them;
+3. **variance components** (Foerstner): per noise group (session or camera) one factor for the
+   board priors and one for the bearings, each the group's chi-square over its redundancy (its
+   residual count less ``trace(N^-1 N_g)``), iterated until they settle, never below 1; computed on
+   the kept boards, then every board is gated again under that noise and the components re-estimated;
+4. **final factor**: covariances are multiplied by ``chi2 / (m - n)`` over the whole graph when it
+   exceeds 1 (m residuals, n parameters).
+
+The systems are arrow-shaped: each factor touches at most one board (``B(i)``), every other variable
+(extrinsics, range offsets) is global, so traces and marginals of boards cost O(boards) through the
+Schur complement on the globals. The covariances returned are ``gtsam.Marginals``'s.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from scipy.stats import chi2 as chi2_dist
+
+from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
+from ilcc_graph.estimation.graphs import Assembly, Scales, Term
+from ilcc_graph.estimation.keys import POSE3_DOF, B, O, X, is_board, key_dim
+from ilcc_graph.estimation.problem import Problem
+from ilcc_graph.estimation.solver import MarginalCovariances, SolverOptions, optimize, robust_kernel
+from ilcc_graph.types import Estimate
+
+log = logging.getLogger(__name__)
+
+__all__ = ["BoardStats", "NoiseOptions", "Solution", "redundancies", "replace_scales", "solve_problem"]
+
+MIN_BOARDS_ADVISED = 4
+
+
+@dataclass(frozen=True)
+class NoiseOptions:
+    """How the noise model is checked and the graph solved.
+
+    robust: None or an m-estimator per corner on its whitened bearing error (``solver.KERNELS``).
+    robust_k: its threshold in sigmas (None: the usual 95 %-efficiency value).
+    chi2_gate_prob: quantile of the per-board chi-square gate; None disables the gate. With a robust
+        kernel the gate tests the robust cost ``2 sum rho`` (never above the chi-square).
+    max_dropped_fraction: the gate drops at most this fraction of the usable boards.
+    variance_components: scale the gate by the median chi2/dof, estimate the variance components
+        (not with a robust kernel) and apply the final variance factor.
+    solver: Levenberg-Marquardt stopping rules.
+    """
+
+    robust: str | None = None
+    robust_k: float | None = None
+    chi2_gate_prob: float | None = 0.999
+    max_dropped_fraction: float = 0.5
+    variance_components: bool = True
+    solver: SolverOptions = SolverOptions()
+
+    def __post_init__(self) -> None:
+        if self.chi2_gate_prob is not None and not 0.0 < self.chi2_gate_prob < 1.0:
+            raise ValueError(f"chi2_gate_prob must be in (0, 1) or None, got {self.chi2_gate_prob!r}")
+        if not 0.0 <= self.max_dropped_fraction <= 1.0:
+            raise ValueError(f"max_dropped_fraction must be in [0, 1], got {self.max_dropped_fraction!r}")
+        robust_kernel(self.robust, self.robust_k)  # validates the name and threshold
+
+
+@dataclass(frozen=True)
+class BoardStats:
+    """Residual statistics of one board at the solution.
+
+    chi2: its prior's term plus its views' whitened squared bearing errors; dof: the views' residual
+    count (2 per corner); rms_bearing_error_mrad: RMS angle between predicted and measured bearings;
+    chi2_robust: with a robust kernel ``2 sum rho`` plus the prior's term (what the gate tests then).
+    """
+
+    chi2: float
+    dof: int
+    rms_bearing_error_mrad: float
+    chi2_robust: float | None = None
+
+
+@dataclass
+class Solution:
+    """A solved problem: the kept boards, the noise found, and covariances on demand.
+
+    boards: indices of the kept boards. dropped: ``(name, reason)`` of the others, in the order
+    dropped. scales: variance component per (kind, group). variance_factor: the final factor (every
+    covariance returned is multiplied by it).
+    """
+
+    problem: Problem
+    assembly: Assembly
+    boards: list[int]
+    graph: gtsam.NonlinearFactorGraph
+    values: gtsam.Values
+    stats: dict[int, BoardStats]
+    dropped: list[tuple[str, str]]
+    scales: dict[tuple[str, str], float]
+    variance_factor: float
+    iterations: int
+    timings: dict[str, float] = field(default_factory=dict)
+    _marginals: MarginalCovariances | None = None
+
+    @property
+    def marginals(self) -> MarginalCovariances:
+        if self._marginals is None:
+            t0 = time.perf_counter()
+            self._marginals = MarginalCovariances(self.graph, self.values, self.variance_factor)
+            self.timings["marginals"] = self.timings.get("marginals", 0.0) + time.perf_counter() - t0
+        return self._marginals
+
+    def extrinsic(self, e: int = 0) -> Estimate:
+        """``T_cam_lidar`` of extrinsic ``e`` with its marginal covariance."""
+        T = np.asarray(self.values.atPose3(X(e)).matrix(), dtype=np.float64)
+        return Estimate(T, self.marginals.covariance(X(e), f"T_cam_lidar (X({e}))"))
+
+    def joint_covariance(self, extrinsics: Sequence[int]) -> np.ndarray:
+        """(6n, 6n) joint marginal covariance of the extrinsics, in the order given."""
+        return self.marginals.joint([X(e) for e in extrinsics], [POSE3_DOF] * len(extrinsics))
+
+    def board_pose(self, i: int) -> np.ndarray:
+        """(4, 4) the solved ``T_lidar_board`` of board ``i``."""
+        return np.asarray(self.values.atPose3(B(i)).matrix(), dtype=np.float64)
+
+    def offset(self, lidar: int) -> tuple[float, float]:
+        """(value, sigma) of LiDAR ``lidar``'s range offset, metres."""
+        v = float(self.values.atVector(O(lidar))[0])
+        return v, float(np.sqrt(self.marginals.covariance(O(lidar), f"range offset O({lidar})")[0, 0]))
+
+    def components(self, group: str = "") -> tuple[float, float]:
+        """(board priors, bearings) variance components of ``group``."""
+        return self.scales.get(("board", group), 1.0), self.scales.get(("bearing", group), 1.0)
+
+
+# ------------------------------------------------------------------------------ statistics
+def _board_stats(
+    graph: gtsam.NonlinearFactorGraph, terms: Sequence[Term], facs: Mapping[int, list], values: gtsam.Values
+) -> dict[int, BoardStats]:
+    """Per kept board: chi-square of its prior and views, their dof, RMS bearing angle."""
+    prior: dict[int, float] = {}
+    for k, t in enumerate(terms):
+        if t.kind == "board":
+            prior[t.board] = 2.0 * graph.at(k).error(values)  # type: ignore[index]
+    out: dict[int, BoardStats] = {}
+    for i, fs in facs.items():
+        chi2 = prior[i]
+        robust = prior[i] if any(f.robust is not None for f in fs) else None
+        dof, angles = 0, []
+        for f in fs:
+            T_cl, T_lb = values.atPose3(f.keys[0]), values.atPose3(f.keys[1])
+            e = f.unwhitened(T_cl, T_lb)[0]
+            r = np.einsum("kij,kj->ki", f.sqrt_info, e)
+            chi2 += float(np.sum(r * r))
+            if robust is not None:
+                robust += float(np.sum(f.evaluate(T_cl, T_lb, False)[0] ** 2))
+            dof += f.dim
+            # |e| is the sine of the angle between the bearings (< 90 deg near a solution)
+            angles.append(np.arcsin(np.clip(np.linalg.norm(e, axis=1), 0.0, 1.0)))
+        a = np.concatenate(angles)
+        out[i] = BoardStats(chi2, dof, float(1e3 * np.sqrt(np.mean(a**2))), robust)
+    return out
+
+
+def _gate_scale(stats: Mapping[int, BoardStats]) -> float:
+    """Robust noise scale for the gate: the median chi2/dof over boards, at least 1."""
+    ratios = [(s.chi2 if s.chi2_robust is None else s.chi2_robust) / s.dof for s in stats.values()]
+    return max(1.0, float(np.median(ratios))) if ratios else 1.0
+
+
+def _gate_failures(
+    stats: Mapping[int, BoardStats], names: Sequence[str], prob: float, scale: float
+) -> list[tuple[float, int, str]]:
+    """Boards failing the gate as (log survival probability, board, reason), worst first."""
+    failing = []
+    for i, s in stats.items():
+        value, what = (s.chi2, "chi2") if s.chi2_robust is None else (s.chi2_robust, "robust chi2")
+        value /= scale
+        bound = float(chi2_dist.ppf(prob, s.dof))
+        if value > bound:
+            scaled = f" (divided by the frames' median chi2/dof {scale:.2f})" if scale > 1.0 else ""
+            reason = (
+                f"chi-square gate: residual {what}{scaled} {value:.1f} > {bound:.1f} ({s.dof} dof, "
+                f"p={prob}); rms bearing error {s.rms_bearing_error_mrad:.3f} mrad"
+            )
+            failing.append((float(chi2_dist.logsf(value, s.dof)), i, reason))
+    return sorted(failing)
+
+
+def _linear_blocks(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term]):
+    """Per factor: (board key or None, A_board, global keys, A_globals, b) of its whitened linearisation."""
+    out = []
+    for k in range(len(terms)):
+        A, b = graph.at(k).linearize(values).jacobian()
+        keys = list(graph.at(k).keys())
+        col, board_key, A_b, g_keys, g_cols = 0, None, None, [], []
+        for key in keys:
+            d = key_dim(key)
+            if is_board(key):
+                board_key, A_b = key, A[:, col : col + d]
+            else:
+                g_keys.append(key)
+                g_cols.append(A[:, col : col + d])
+            col += d
+        A_g = np.hstack(g_cols) if g_cols else np.zeros((A.shape[0], 0))
+        out.append((board_key, A_b, g_keys, A_g, b))
+    return out
+
+
+def redundancies(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term]
+) -> dict[tuple[str, str], tuple[float, float]]:
+    """Per (kind, group): (whitened chi-square, redundancy ``m_g - trace(N^-1 N_g)``) at ``values``.
+
+    N is the information matrix of the whitened linear system. Boards are eliminated first (each
+    factor touches at most one), so the cost is O(boards) plus a dense inverse over the globals.
+    """
+    blocks = _linear_blocks(graph, values, terms)
+    g_index: dict[int, int] = {}
+    for _, _, g_keys, _, _ in blocks:
+        for key in g_keys:
+            if key not in g_index:
+                g_index[key] = sum(key_dim(k) for k in g_index)
+    G = sum(key_dim(k) for k in g_index)
+
+    def cols(g_keys: Sequence[int]) -> np.ndarray:
+        return (
+            np.concatenate([np.arange(g_index[k], g_index[k] + key_dim(k)) for k in g_keys])
+            if g_keys
+            else np.zeros(0, int)
+        )
+
+    D: dict[int, np.ndarray] = {}
+    C: dict[int, np.ndarray] = {}
+    E = np.zeros((G, G))
+    for board_key, A_b, g_keys, A_g, _ in blocks:
+        c = cols(g_keys)
+        if board_key is not None:
+            D[board_key] = D.get(board_key, np.zeros((POSE3_DOF, POSE3_DOF))) + A_b.T @ A_b
+            Ci = C.setdefault(board_key, np.zeros((POSE3_DOF, G)))
+            Ci[:, c] += A_b.T @ A_g
+        E[np.ix_(c, c)] += A_g.T @ A_g
+    Dinv = {k: np.linalg.inv(d) for k, d in D.items()}
+    S = E - sum((C[k].T @ Dinv[k] @ C[k] for k in D), np.zeros((G, G)))
+    try:
+        S_inv = np.linalg.inv(S) if G else S
+    except np.linalg.LinAlgError:
+        raise IndeterminateSystem("the graph does not determine its global variables") from None
+    out: dict[tuple[str, str], list[float]] = {}
+    for (board_key, A_b, g_keys, A_g, b), t in zip(blocks, terms, strict=True):
+        c = cols(g_keys)
+        if board_key is not None:
+            di, ci = Dinv[board_key], C[board_key]
+            S_bg = -di @ ci @ S_inv  # (6, G)
+            S_bb = di - S_bg @ ci.T @ di
+            A = np.hstack([A_b, A_g])
+            Sig = np.block([[S_bb, S_bg[:, c]], [S_bg[:, c].T, S_inv[np.ix_(c, c)]]])
+        else:
+            A, Sig = A_g, S_inv[np.ix_(c, c)]
+        acc = out.setdefault((t.kind, t.group), [0.0, 0.0])
+        acc[0] += float(b @ b)
+        acc[1] += len(b) - float(np.sum(Sig * (A.T @ A)))
+    return {k: (v[0], v[1]) for k, v in out.items()}
+
+
+# ------------------------------------------------------------------------------- the solve
+def solve_problem(
+    problem: Problem,
+    options: NoiseOptions = NoiseOptions(),
+    *,
+    boards: Sequence[str] | None = None,
+    scales: Scales | None = None,
+    variance_factor: float | None = None,
+    gate: bool = True,
+    start: Mapping[int, gtsam.Pose3] | None = None,
+) -> Solution:
+    """Solve ``problem`` under the noise policy of this module.
+
+    boards: names of the boards to use (None: all). scales: fixed variance components per (kind,
+    group) (then none are estimated). variance_factor: a fixed final factor (None: estimated when
+    ``options.variance_components``). gate: apply the chi-square gate. start: extrinsic starts per
+    index (else ``problem.T_init``).
+
+    Raises CalibrationImpossible (no usable board), IndeterminateSystem (the data do not determine
+    the variables), ValueError (malformed input, the message names the board).
+    """
+    t_start = time.perf_counter()
+    robust = robust_kernel(options.robust, options.robust_k)
+    asm = Assembly(problem, robust)
+    wanted = range(len(problem.boards)) if boards is None else [problem.index(n) for n in boards]
+    names = [b.name for b in problem.boards]
+    dropped = [(names[i], asm.unusable[i]) for i in wanted if i in asm.unusable]
+    candidates = [i for i in wanted if i not in asm.unusable]
+    if not candidates:
+        detail = "; ".join(f"{n}: {r}" for n, r in dropped)
+        raise CalibrationImpossible(
+            f"no usable frame for the graph ({len(wanted)} given" + (f"; {detail})" if detail else ")")
+        )
+    allowed_drops = int(math.floor(options.max_dropped_fraction * len(candidates)))
+    ext = {e: (start or {}).get(e) for e in problem.T_init}
+    ext = {e: T for e, T in ext.items() if T is not None}
+    board_est: dict[int, gtsam.Pose3] = {}
+    offsets: dict[int, float] = {}
+    timings = {"build": 0.0, "optimize": 0.0}
+    iterations = 0
+
+    def fit(kept: Sequence[int], comps: Scales, plain: bool = False):
+        nonlocal iterations
+        t0 = time.perf_counter()
+        g, terms = asm.graph(kept, comps, plain)
+        values = asm.values(kept, ext, board_est, offsets)
+        t1 = time.perf_counter()
+        res, n_it = optimize(g, values, options.solver)
+        timings["build"] += t1 - t0
+        timings["optimize"] += time.perf_counter() - t1
+        iterations += n_it
+        for e in asm.extrinsics(kept):
+            ext[e] = res.atPose3(X(e))
+        for i in kept:
+            board_est[i] = res.atPose3(B(i))
+        if problem.range_offset_sigma_m is not None:
+            for lid in asm.lidars(kept):
+                offsets[lid] = float(res.atVector(O(lid))[0])
+        return g, terms, res
+
+    def stats_of(kept: Sequence[int], comps: Scales, g, terms, res) -> dict[int, BoardStats]:
+        facs: dict[int, list] = {i: [] for i in kept}
+        for j, fac in asm.views:
+            v = problem.views[j]
+            if v.board in facs:
+                s = comps.get(("bearing", v.group), 1.0)
+                facs[v.board].append(fac.scaled(s) if s != 1.0 else fac)
+        return _board_stats(g, terms, facs, res)
+
+    if robust is not None:
+        fit(candidates, scales or {}, plain=True)
+    fixed = scales is not None
+    use_components = options.variance_components and robust is None and not fixed
+
+    def gated(kept0: Sequence[int], comps: Scales):
+        kept, gone = list(kept0), []
+        while True:
+            g, terms, res = fit(kept, comps)
+            st = stats_of(kept, comps, g, terms, res)
+            if not gate or options.chi2_gate_prob is None:
+                break
+            scale = _gate_scale(st) if options.variance_components else 1.0
+            failing = _gate_failures(st, names, options.chi2_gate_prob, scale)
+            if not failing:
+                break
+            if len(gone) >= allowed_drops or len(kept) == 1:
+                log.warning(
+                    "chi-square gate fails for %d frame(s) (%s) but at most %d frames may be dropped; kept",
+                    len(failing),
+                    ", ".join(names[i] for _, i, _ in failing),
+                    allowed_drops,
+                )
+                break
+            _, worst, reason = failing[0]
+            log.info("dropping frame %s: %s", names[worst], reason)
+            gone.append((names[worst], reason))
+            kept = [i for i in kept if i != worst]
+        return kept, gone, g, terms, res, st
+
+    def with_components(kept: Sequence[int], comps: dict[tuple[str, str], float]):
+        g, terms, res = fit(kept, comps)
+        for _ in range(8):
+            ratios = redundancies(g, res, terms)
+            new = dict(comps)
+            for key, (c2, r) in ratios.items():
+                if key[0] in ("board", "bearing"):
+                    new[key] = max(1.0, comps.get(key, 1.0) * (c2 / r if r > 0.5 else 1.0))
+            if all(abs(new[k] / comps.get(k, 1.0) - 1.0) < 0.02 for k in new):
+                break
+            comps = new
+            g, terms, res = fit(kept, comps)
+        return g, terms, res, comps
+
+    comps: dict[tuple[str, str], float] = dict(scales or {})
+    kept, gone, g, terms, res, st = gated(candidates, comps)
+    if use_components:
+        # components on the kept boards only (an outlier would inflate what judges it); then every
+        # board is gated again under that noise, and the components re-estimated
+        *_, comps = with_components(kept, comps)
+        kept, gone, g, terms, res, st = gated(candidates, comps)
+        g, terms, res, comps = with_components(kept, comps)
+        st = stats_of(kept, comps, g, terms, res)
+    dropped.extend(gone)
+    if len(kept) < MIN_BOARDS_ADVISED:
+        log.warning(
+            "only %d usable frame(s) in the graph; at least %d are advised for a reliable extrinsic",
+            len(kept),
+            MIN_BOARDS_ADVISED,
+        )
+    if any(v != 1.0 for v in comps.values()) and not fixed:
+        log.info(
+            "variance components (residuals against the stated noise): %s",
+            ", ".join(f"{k}{'/' + grp if grp else ''} x {v:.2f}" for (k, grp), v in sorted(comps.items())),
+        )
+    if variance_factor is None:
+        variance_factor = _variance_factor(g, terms, res, asm, st) if options.variance_components else 1.0
+        if variance_factor > 1.0:
+            log.info(
+                "the residuals are %.2f times the stated noise variance; covariance scaled by it",
+                variance_factor,
+            )
+    timings["total"] = time.perf_counter() - t_start
+    return Solution(
+        problem, asm, kept, g, res, st, dropped, comps, float(variance_factor), iterations, timings
+    )
+
+
+def _variance_factor(g, terms: Sequence[Term], values, asm: Assembly, st: Mapping[int, BoardStats]) -> float:
+    """``chi2 / (m - n)`` over the whole graph, at least 1 (bearings without their robust kernel)."""
+    chi2 = sum(s.chi2 for s in st.values())
+    chi2 += sum(2.0 * g.at(k).error(values) for k, t in enumerate(terms) if t.kind in ("tie", "offset"))
+    m = sum(t.dim for t in terms)
+    n = sum(key_dim(k) for k in values.keys())
+    return max(1.0, chi2 / (m - n)) if m > n else 1.0
+
+
+def replace_scales(sol: Solution, factor: float) -> dict[tuple[str, str], float]:
+    """The solution's components with its final variance factor folded in (for sub-problem solves)."""
+    groups = {(k, b.group) for b in sol.problem.boards for k in ("board", "bearing")}
+    groups |= {("bearing", v.group) for v in sol.problem.views}
+    return {key: sol.scales.get(key, 1.0) * factor for key in groups}

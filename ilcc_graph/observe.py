@@ -1,0 +1,206 @@
+"""The per-frame stages over a frame source: the LiDAR and image stages, the print-colour check.
+
+``observe`` runs both stages on every frame of a source (a ``FrameError`` skips the frame with its
+reason; an ``InputError`` propagates), on ``StageOptions.jobs`` processes, after checking the
+print's colour on the first images (their image results are kept, not computed twice). The worker
+functions take plain, picklable arguments. Only the source reads files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+from ilcc_graph.config import Config
+from ilcc_graph.datasets import FrameRef, FrameSource
+from ilcc_graph.errors import BoardColourMismatch, FrameError
+from ilcc_graph.image import ImageOptions, detect_corners
+from ilcc_graph.lidar import LidarOptions, estimate_board
+from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "Observation",
+    "StageOptions",
+    "check_board_colour",
+    "observe",
+    "observe_frame",
+    "observe_image",
+    "observe_lidar",
+    "run_image_stage",
+    "run_lidar_stage",
+]
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class StageOptions:
+    """The per-frame stages' options and the number of processes they run on."""
+
+    lidar: LidarOptions = LidarOptions()
+    image: ImageOptions = ImageOptions()
+    jobs: int = 1
+
+
+@dataclass(frozen=True)
+class Observation:
+    """A source observed: the config used (print colour checked) and every frame's stage results
+    (frames without a partner come last, unused, with the reason)."""
+
+    source: FrameSource
+    config: Config
+    frames: list[FrameResult]
+
+
+def observe_lidar(source: FrameSource, ref: FrameRef, config: Config, options: LidarOptions) -> BoardFit:
+    """The LiDAR stage on one frame's scan; raises FrameError with the reason."""
+    return estimate_board(source.read_scan(ref, config), config.board, config.lidar, config.roi, options)
+
+
+def observe_image(source: FrameSource, ref: FrameRef, config: Config, options: ImageOptions) -> ImageCorners:
+    """The image stage on one frame's image; raises FrameError with the reason."""
+    return detect_corners(source.read_image(ref), config.camera, config.board, options)
+
+
+def _attempt(fn: Callable, *args: object) -> object:
+    try:
+        return fn(*args)
+    except FrameError as err:
+        return err
+
+
+def observe_frame(
+    source: FrameSource,
+    ref: FrameRef,
+    config: Config,
+    options: StageOptions = StageOptions(),
+    image: object = None,
+) -> FrameResult:
+    """Both stages on one frame (``image``: the image stage's result when already known)."""
+    board = _attempt(observe_lidar, source, ref, config, options.lidar)
+    corners = image if image is not None else _attempt(observe_image, source, ref, config, options.image)
+    reasons = [
+        f"{what}: {r}" for what, r in (("LiDAR", board), ("image", corners)) if isinstance(r, FrameError)
+    ]
+    return FrameResult(
+        name=ref.name,
+        used=not reasons,
+        reason="; ".join(reasons) or None,
+        board=None if isinstance(board, FrameError) else board,  # type: ignore[arg-type]
+        corners=None if isinstance(corners, FrameError) else corners,  # type: ignore[arg-type]
+    )
+
+
+def _map(fn: Callable, items: Sequence[tuple], jobs: int, progress: Progress | None) -> list:
+    """``fn(*item)`` over ``items``, in order, on ``jobs`` processes."""
+    out: list = []
+    if jobs <= 1 or len(items) <= 1:
+        for i, it in enumerate(items):
+            out.append(fn(*it))
+            if progress:
+                progress(i + 1, len(items))
+        return out
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(fn, *it) for it in items]
+        for i, fut in enumerate(futures):
+            out.append(fut.result())
+            if progress:
+                progress(i + 1, len(items))
+    return out
+
+
+def check_board_colour(
+    source: FrameSource,
+    refs: Sequence[FrameRef],
+    config: Config,
+    options: ImageOptions = ImageOptions(),
+    needed: int = 2,
+    look: int = 6,
+) -> tuple[Config, dict[str, object]]:
+    """The config with ``board.lower_left`` as the images show it, and the image results computed.
+
+    For a board that looks the same after a half turn (even squares on both sides) the colour of the
+    lower-left square seen from the front is a property of the print, which the user may have
+    mistyped. The image stage tells it with certainty; this looks at up to ``look`` frames until
+    ``needed`` agree and turns the setting (with a warning) when the images contradict it. Returns
+    the image stage's results (ImageCorners or FrameError) of the frames looked at when they hold
+    for the config returned, so that they need not be computed again.
+    """
+    board = config.board
+    if not board.half_turn_symmetric:
+        return config, {}
+    agree = disagree = 0
+    seen: dict[str, object] = {}
+    for ref in refs[:look]:
+        if ref.image is None:
+            continue
+        res = _attempt(observe_image, source, ref, config, options)
+        seen[ref.name] = res
+        if isinstance(res, BoardColourMismatch):
+            disagree += 1
+        elif not isinstance(res, FrameError):
+            agree += 1
+        if max(agree, disagree) >= needed:
+            break
+    if disagree <= agree:
+        return config, seen
+    other = "white" if board.lower_left == "black" else "black"
+    log.warning(
+        "%s: board.lower_left is %s, but the print's lower-left square (seen from the front, long side "
+        "horizontal) is %s in %d of %d images checked; using %s",
+        config.source,
+        board.lower_left,
+        other,
+        disagree,
+        agree + disagree,
+        other,
+    )
+    return dataclasses.replace(config, board=dataclasses.replace(board, lower_left=other)), {}
+
+
+def observe(
+    source: FrameSource, options: StageOptions = StageOptions(), progress: Progress | None = None
+) -> Observation:
+    """Read a source's config, list its frames, check the print's colour, run both stages per frame."""
+    config = source.config()
+    refs = source.frames()
+    config, known = check_board_colour(source, refs, config, options.image)
+    items = [(source, r, config, options, known.get(r.name)) for r in refs]
+    frames = _map(observe_frame, items, options.jobs, progress)
+    frames += [FrameResult(name=n, used=False, reason=why) for n, why in source.skipped()]
+    return Observation(source, config, frames)
+
+
+def _stage(fn: Callable, source: FrameSource, ref: FrameRef, config: Config, opts: object) -> object:
+    return _attempt(fn, source, ref, config, opts)
+
+
+def run_lidar_stage(
+    source: FrameSource,
+    refs: Sequence[FrameRef],
+    config: Config,
+    options: StageOptions,
+    progress: Progress | None = None,
+) -> list[BoardFit | FrameError]:
+    """The LiDAR stage alone: a BoardFit or the FrameError per frame."""
+    return _map(
+        _stage, [(observe_lidar, source, r, config, options.lidar) for r in refs], options.jobs, progress
+    )
+
+
+def run_image_stage(
+    source: FrameSource,
+    refs: Sequence[FrameRef],
+    config: Config,
+    options: StageOptions,
+    progress: Progress | None = None,
+) -> list[ImageCorners | FrameError]:
+    """The image stage alone: ImageCorners or the FrameError per frame."""
+    return _map(
+        _stage, [(observe_image, source, r, config, options.image) for r in refs], options.jobs, progress
+    )

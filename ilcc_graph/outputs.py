@@ -1,0 +1,286 @@
+"""The one writer of a run's results, for every mode.
+
+``write_run(out, result, ...)`` writes, into a staging folder that replaces ``out`` only when
+everything is written (so ``out`` is either the complete result or untouched):
+
+- ``calibration.yaml``: the extrinsic, its covariance, every frame's fate and the camera model
+  (interface.md; everything ``export`` needs);
+- ``config.resolved.yaml``: the configuration used (print colour as checked, LiDAR model as
+  resolved) in our schema, plus ``options``: every stage and solver option of the run;
+- sessions: ``joint.yaml`` (tests, offsets) and ``sessions/<name>/`` with each session's own
+  ``calibration.yaml`` and ``config.resolved.yaml``; incremental: ``incremental.yaml`` (the state
+  after each frame);
+- unless ``report=False``: ``report/index.html`` (one per session under ``report/<name>/`` when
+  there are several) and the coloured clouds ``coloured/<frame>.ply``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ilcc_graph.config import Config, config_to_dict
+from ilcc_graph.estimation.incremental import FrameUpdate
+from ilcc_graph.estimation.sessions import ConsistencyTest, JointSolution
+from ilcc_graph.io import atomic_write, write_calibration, write_ply, write_yaml
+from ilcc_graph.pipeline import RunOptions, RunResult, SessionResult, solve_observed
+from ilcc_graph.types import Estimate, sigma_dict
+
+log = logging.getLogger(__name__)
+
+__all__ = ["joint_summary", "options_dict", "resolved_config", "staged", "write_run", "write_stage"]
+
+
+def _plain(x: Any) -> Any:
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        return {f.name: _plain(getattr(x, f.name)) for f in dataclasses.fields(x)}
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def options_dict(options: RunOptions) -> dict[str, Any]:
+    """Every option of a run as plain data (stages, noise policy, joint settings, mode)."""
+    return _plain(options)
+
+
+def resolved_config(config: Config, options: RunOptions) -> dict[str, Any]:
+    """config.resolved.yaml: the config used, in our schema, with the run's ``options``."""
+    d = config_to_dict(config)
+    d["options"] = options_dict(options)
+    return d
+
+
+def _estimate_dict(e: Estimate) -> dict[str, Any]:
+    return {
+        "T_cam_lidar": np.asarray(e.T),
+        "covariance": np.asarray(e.covariance),
+        "sigma": sigma_dict(e.covariance),
+    }
+
+
+def _test_dict(t: ConsistencyTest) -> dict[str, Any]:
+    return {
+        "label": t.label,
+        "kind": t.kind,
+        "session": t.session,
+        "rotation_deg": t.rotation_deg,
+        "translation_mm": t.translation_mm,
+        "mahalanobis": t.mahalanobis,
+        "dof": t.dof,
+        "p_value": t.p_value,
+        "moved": bool(t.moved),
+    }
+
+
+def joint_summary(sol: JointSolution) -> dict[str, Any]:
+    """joint.yaml: joint and per-session extrinsics, the consistency tests, offsets, components."""
+    return {
+        "mode": sol.mode,
+        "joint": _estimate_dict(sol.joint),
+        "sessions": {n: _estimate_dict(e) for n, e in sol.sessions.items()},
+        "alone": {n: _estimate_dict(e) for n, e in sol.alone.items()},
+        "consistency": {
+            "global": None if sol.global_test is None else _test_dict(sol.global_test),
+            "per_session": [_test_dict(t) for t in sol.session_tests],
+            "consecutive": [_test_dict(t) for t in sol.pair_tests],
+            "moved": sol.moved,
+        },
+        "range_offsets": {
+            k: {"value_mm": 1e3 * r.value_m, "sigma_mm": 1e3 * r.sigma_m}
+            for k, r in sol.range_offsets.items()
+        },
+        "variance_components": {n: {"board": c[0], "bearing": c[1]} for n, c in sol.components.items()},
+        "variance_factor": sol.variance_factor,
+        "dropped": {n: [{"name": f, "reason": why} for f, why in d] for n, d in sol.dropped.items()},
+    }
+
+
+def _update_dict(u: FrameUpdate) -> dict[str, Any]:
+    d: dict[str, Any] = {
+        "frame": u.name or "(final)",
+        "accepted": bool(u.accepted),
+        "n_frames": int(u.n_frames),
+    }
+    if u.reason:
+        d["reason"] = u.reason
+    if u.T_cam_lidar is not None:
+        d["sigma"] = sigma_dict(u.covariance)
+        d["reached_target"] = bool(u.reached_target)
+    d["seconds"] = float(u.seconds)
+    return d
+
+
+@contextmanager
+def staged(out: Path) -> Iterator[Path]:
+    """A staging folder beside ``out`` that becomes ``out`` when the block ends without an error.
+
+    An existing ``out`` is replaced only then (renamed away, the staging folder renamed into its
+    place, the old one removed); on an error the staging folder is removed and ``out`` is untouched.
+    """
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    stage = out.parent / f".{out.name}.partial-{os.getpid()}"
+    shutil.rmtree(stage, ignore_errors=True)
+    stage.mkdir()
+    try:
+        yield stage
+    except BaseException:
+        shutil.rmtree(stage, ignore_errors=True)
+        raise
+    old = None
+    if out.exists():
+        old = out.parent / f".{out.name}.old-{os.getpid()}"
+        os.replace(out, old)
+    os.replace(stage, out)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def _write_report(
+    out: Path,
+    coloured_dir: Path,
+    session: SessionResult,
+    result: RunResult,
+    studies: bool,
+    truth: np.ndarray | None,
+    info: dict,
+) -> None:
+    """``out/index.html`` with its figures for one session, and ``coloured_dir/<frame>.ply``."""
+    from ilcc_graph.report import build_report, cross_validate, frames_vs_accuracy
+
+    obs, cal = session.observation, session.calibration
+    config, source = obs.config, obs.source
+    curve = cv = None
+    if studies and result.mode in ("graph", "incremental", "sessions"):
+        options = dataclasses.replace(result.options, mode="graph")
+
+        def solve(subset):  # noqa: ANN001, ANN202
+            c = solve_observed(subset, config, options)
+            return c.T_cam_lidar, c.covariance
+
+        quiet = logging.getLogger("ilcc_graph")
+        level = quiet.level
+        quiet.setLevel(logging.ERROR)  # subsets of few frames warn by design
+        try:
+            curve = frames_vs_accuracy(obs.frames, solve, config.camera, config.board, truth)
+            cv = cross_validate(
+                obs.frames, solve, config.camera, config.board, folds=5, T_all=cal.T_cam_lidar
+            )
+        finally:
+            quiet.setLevel(level)
+    refs = [r for r in source.frames() if r.scan is not None and r.image is not None]
+    frames = ((r.name, source.read_scan(r, config), source.read_image(r)) for r in refs)
+
+    def coloured(ff, scan) -> None:  # noqa: ANN001
+        write_ply(coloured_dir / f"{ff.name}.ply", scan, rgb=ff.coloured.rgb)
+
+    files = build_report(
+        cal,
+        config.camera,
+        config.board,
+        frames,
+        curve=curve,
+        cross_validation=cv,
+        T_ground_truth=truth,
+        info=info,
+        on_frame=coloured,
+    )
+    for rel, blob in files.items():
+        atomic_write(out / rel, blob)
+
+
+def write_run(
+    out: Path,
+    result: RunResult,
+    *,
+    report: bool = True,
+    studies: bool = False,
+    truth: np.ndarray | None = None,
+    command: str = "",
+) -> Path:
+    """Write every output of ``result`` to ``out`` (module docstring); returns ``out``."""
+    with staged(out) as d:
+        write_calibration(d / "calibration.yaml", result.calibration)
+        first = result.sessions[0].observation.config
+        write_yaml(d / "config.resolved.yaml", resolved_config(first, result.options))
+        if result.joint is not None:
+            write_yaml(d / "joint.yaml", joint_summary(result.joint))
+            for s in result.sessions:
+                write_calibration(d / "sessions" / s.name / "calibration.yaml", s.calibration)
+                write_yaml(
+                    d / "sessions" / s.name / "config.resolved.yaml",
+                    resolved_config(s.observation.config, result.options),
+                )
+        if result.updates:
+            write_yaml(d / "incremental.yaml", {"updates": [_update_dict(u) for u in result.updates]})
+        if report:
+            several = len(result.sessions) > 1
+            for s in result.sessions:
+                info = {
+                    "data": s.observation.source.location,
+                    "command": command or "ilcc-graph",
+                    "mode": result.mode,
+                }
+                sub = (s.name,) if several else ()
+                _write_report(
+                    d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, studies, truth, info
+                )
+    return out
+
+
+def write_stage(out: Path, stage: str, source, refs, results) -> list[tuple]:  # noqa: ANN001
+    """One stage alone (``lidar`` or ``image``) over a source's frames: per frame ``<name>.yaml`` and
+    ``<name>_board.pcd`` (LiDAR) or ``<name>_corners.png`` (image). Returns one table row per frame:
+    (name, found, points or sigma px, reason)."""
+    from ilcc_graph.io import write_image, write_pcd
+    from ilcc_graph.report.overlays import draw_corners
+    from ilcc_graph.types import Scan
+
+    rows = []
+    with staged(out) as d:
+        for ref, res in zip(refs, results, strict=True):
+            doc: dict[str, Any] = {"name": ref.name, "found": not isinstance(res, Exception)}
+            if isinstance(res, Exception):
+                doc["reason"] = str(res)
+                rows.append((ref.name, "no", "", str(res)))
+            elif stage == "lidar":
+                doc.update(
+                    T_lidar_board=res.T_lidar_board,
+                    covariance=res.covariance,
+                    sigma=sigma_dict(res.covariance),
+                    half_turn_ambiguous=res.half_turn_ambiguous,
+                    corners_lidar=res.corners_lidar,
+                    n_points=int(len(res.points_lidar)),
+                    cost=res.cost,
+                    diagnostics=res.diagnostics,
+                )
+                write_pcd(d / f"{ref.name}_board.pcd", Scan(res.points_lidar, res.intensity))
+                rows.append((ref.name, "yes", len(res.points_lidar), ""))
+            else:
+                doc.update(
+                    half_turn_ambiguous=res.half_turn_ambiguous,
+                    image_corners=res.uv,
+                    bearings=res.bearings,
+                    cov_px=res.cov_px,
+                    diagnostics=res.diagnostics,
+                )
+                write_image(d / f"{ref.name}_corners.png", draw_corners(source.read_image(ref), res.uv))
+                sigma = np.sqrt(np.mean(np.trace(res.cov_px, axis1=1, axis2=2) / 2))
+                rows.append((ref.name, "yes", f"{sigma:.3f}", ""))
+            write_yaml(d / f"{ref.name}.yaml", doc)
+    return rows

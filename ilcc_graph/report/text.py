@@ -1,0 +1,134 @@
+"""What the command line prints: tables and summaries as plain strings (no printing here)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ..estimation.incremental import FrameUpdate
+from ..estimation.sessions import JointSolution
+from ..types import Calibration, Estimate, sigmas_deg_mm
+
+__all__ = ["format_joint", "format_table", "format_update", "frames_table", "summarise"]
+
+
+def format_table(rows: Sequence[Sequence[object]], header: Sequence[str]) -> str:
+    """Left-aligned columns with a rule under the header."""
+    cells = [[str(c) for c in header]] + [[str(c) for c in r] for r in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
+    lines = []
+    for j, r in enumerate(cells):
+        lines.append("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
+        if j == 0:
+            lines.append("  ".join("-" * w for w in widths))
+    return "\n".join(lines)
+
+
+def frames_table(cal: Calibration) -> str:
+    """Per frame: used, RMS bearing error, and why it was dropped."""
+    rows = []
+    for f in cal.frames:
+        rms = "" if f.rms_bearing_error_mrad is None else f"{f.rms_bearing_error_mrad:.3f}"
+        rows.append((f.name, "yes" if f.used else "no", rms, f.reason or ""))
+    return format_table(rows, ("frame", "used", "rms mrad", "reason"))
+
+
+def summarise(T: np.ndarray, cov: np.ndarray, truth: np.ndarray | None = None) -> str:
+    """An extrinsic for a person: matrix, roll/pitch/yaw, translation, 1-sigma values, and, when a
+    truth is given, the truth beside each value and the error."""
+    import gtsam
+
+    pose = gtsam.Pose3(T)
+    rpy = np.degrees(pose.rotation().rpy())
+    sig = sigmas_deg_mm(cov)
+    has_cov = bool(np.all(np.isfinite(sig)))
+    true_rpy = true_t = None
+    if truth is not None:
+        true_rpy = np.degrees(gtsam.Pose3(truth).rotation().rpy())
+        true_t = 1e3 * np.asarray(truth)[:3, 3]
+
+    def row(name: str, value: float, s: float, true: float | None, fmt: str) -> str:
+        text = f"  {name:5s} {value:{fmt}}"
+        if has_cov:
+            text += f"   sigma {s:.4f}" if fmt.endswith("4f") else f"   sigma {s:.2f}"
+        if true is not None:
+            text += f"   truth {true:{fmt}}"
+        return text
+
+    lines = ["T_cam_lidar (p_cam = R p_lidar + t):"]
+    lines += ["  [" + "  ".join(f"{v:+.6f}" for v in row_) + "]" for row_ in T]
+    if has_cov:
+        lines.append("rotation (deg, Rz(yaw) Ry(pitch) Rx(roll)); 1-sigma about the body axes rx, ry, rz:")
+    else:
+        lines.append(
+            "rotation (deg, Rz(yaw) Ry(pitch) Rx(roll)); no covariance (the paper's refinement gives none):"
+        )
+    for i, name in enumerate(("roll", "pitch", "yaw")):
+        lines.append(row(name, rpy[i], sig[i], None if true_rpy is None else true_rpy[i], "+10.4f"))
+    lines.append("translation (mm):")
+    for i, name in enumerate("xyz"):
+        lines.append(row(name, 1e3 * T[i, 3], sig[3 + i], None if true_t is None else true_t[i], "+10.2f"))
+    if truth is not None:
+        err = gtsam.Pose3(truth).between(pose)  # T_true^-1 T_est
+        rot = np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(err.rotation())))
+        trans = 1e3 * np.linalg.norm(T[:3, 3] - truth[:3, 3])
+        lines.append(f"against the truth: rotation error {rot:.4f} deg, translation error {trans:.2f} mm")
+        if has_cov:
+            xi = gtsam.Pose3.Logmap(pose.between(gtsam.Pose3(truth)))  # T_true = T_est Exp(xi)
+            nees = float(xi @ np.linalg.solve(cov, xi))
+            lines.append(f"  NEES {nees:.2f} (chi-square, 6 dof: 95 % of runs below 12.6)")
+    return "\n".join(lines)
+
+
+def _sig(e: Estimate) -> str:
+    s = sigmas_deg_mm(e.covariance)
+    return " ".join(f"{v:.3f}" for v in s[:3]) + "  |  " + " ".join(f"{v:.2f}" for v in s[3:])
+
+
+def format_joint(sol: JointSolution) -> str:
+    """Sessions: sigmas (deg | mm) of each estimate, the consistency tests, the verdict."""
+    lines = [f"joint calibration ({sol.mode}), sigma rx ry rz [deg] | tx ty tz [mm]:"]
+    lines.append(f"  {'joint':<18s} {_sig(sol.joint)}")
+    for n in sol.alone:
+        lines.append(f"  {n + ' alone':<18s} {_sig(sol.alone[n])}")
+        if sol.mode == "drift":
+            lines.append(f"  {n + ' in joint':<18s} {_sig(sol.sessions[n])}")
+    for r in sol.range_offsets.values():
+        lines.append(f"  range offset {r.lidar}: {1e3 * r.value_m:+.1f} +- {1e3 * r.sigma_m:.1f} mm")
+    tests = ([sol.global_test] if sol.global_test else []) + sol.session_tests + sol.pair_tests
+    if tests:
+        lines.append("consistency (chi-square):")
+        for t in tests:
+            size = "" if t.session is None else f"  {t.rotation_deg:.3f} deg, {t.translation_mm:.1f} mm"
+            flag = ("differs" if t.kind == "session" else "MOVED") if t.moved else "ok"
+            lines.append(
+                f"  {t.label:<24s} chi2 {t.mahalanobis:8.1f} ({t.dof} dof)  p={t.p_value:.2g}{size}  {flag}"
+            )
+    if sol.global_test is not None:
+        if sol.moved:
+            t = next(t for t in sol.session_tests if t.session == sol.moved)
+            lines.append(
+                f"the mount moved: session {sol.moved} differs from the others by "
+                f"{t.rotation_deg:.3f} deg and {t.translation_mm:.1f} mm (p = {t.p_value:.2g})"
+            )
+        else:
+            lines.append(f"no evidence that the mount moved (p = {sol.global_test.p_value:.2g})")
+    return "\n".join(lines)
+
+
+def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = None) -> str:
+    """One line per incremental update: frame, count, sigmas in deg / mm, time, target status."""
+    head = f"{u.name or '(final)':>10s}  n={u.n_frames:<4d}"
+    if not u.accepted:
+        return f"{head}  rejected: {u.reason}"
+    if u.T_cam_lidar is None:
+        return f"{head}  {u.reason or 'waiting'}"
+    s = sigmas_deg_mm(u.covariance)
+    body = (
+        f"sigma rot [deg] {s[0]:.3f} {s[1]:.3f} {s[2]:.3f}  "
+        f"trans [mm] {s[3]:.2f} {s[4]:.2f} {s[5]:.2f}  ({1e3 * u.seconds:.0f} ms)"
+    )
+    if target_sigma is not None:
+        body += "  target reached" if u.reached_target else "  target not yet reached"
+    return f"{head}  {body}"

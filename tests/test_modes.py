@@ -1,0 +1,107 @@
+"""Every mode through the one estimation core and the one output writer, on one simulated data set.
+
+The same observations through batch, sessions (one session), sessions with the range offset held at
+zero, and incremental (all frames) give the same estimate and sigmas; every mode writes
+calibration.yaml, config.resolved.yaml and the report, and exports the same way.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gtsam
+import numpy as np
+import pytest
+import yaml
+
+from ilcc_graph.cli import main
+from ilcc_graph.datasets import FolderSource
+from ilcc_graph.estimation.sessions import JointOptions
+from ilcc_graph.observe import observe
+from ilcc_graph.outputs import write_run
+from ilcc_graph.pipeline import RunOptions, run, solve_observations
+from ilcc_graph.simulate import simulate_dataset, standard_spec
+
+
+@pytest.fixture(scope="module")
+def pinhole_set(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("modes") / "data"
+    return simulate_dataset(out, standard_spec(lidar="hdl32", camera="pinhole", width=800, frames=6, seed=5))
+
+
+@pytest.fixture(scope="module")
+def observed(pinhole_set):
+    return observe(FolderSource(pinhole_set))
+
+
+def _same(a, b, rel: float = 1e-6) -> None:
+    s = np.sqrt(np.diag(a.covariance))
+    xi = gtsam.Pose3(a.T_cam_lidar).localCoordinates(gtsam.Pose3(b.T_cam_lidar))
+    assert np.all(np.abs(xi) < rel * s), xi / s
+    assert np.all(np.abs(np.sqrt(np.diag(b.covariance)) / s - 1.0) < rel)
+
+
+def test_batch_sessions_range_offset_at_zero_and_incremental_agree(pinhole_set, observed) -> None:
+    batch = solve_observations([observed]).calibration
+    assert sum(f.used for f in batch.frames) >= 5
+    one = solve_observations([observed], RunOptions(mode="sessions"))
+    _same(batch, one.calibration)
+    held = RunOptions(joint=JointOptions(range_offset=True, range_offset_prior_sigma_m=1e-10))
+    offset = solve_observations([observed], held)
+    assert abs(offset.joint.range_offsets["hdl32"].value_m) < 1e-9
+    _same(batch, offset.calibration)
+    inc = run([FolderSource(pinhole_set)], RunOptions(mode="incremental"))
+    _same(batch, inc.calibration)
+    assert [f.used for f in inc.calibration.frames] == [f.used for f in batch.frames]
+
+
+def test_every_mode_writes_the_same_outputs_and_exports_alike(pinhole_set, observed, tmp_path) -> None:
+    results = {
+        "graph": solve_observations([observed]),
+        "paper": solve_observations([observed], RunOptions(mode="paper")),
+        "incremental": run([FolderSource(pinhole_set)], RunOptions(mode="incremental")),
+        "sessions": solve_observations([observed], RunOptions(mode="sessions")),
+        "two-sessions": solve_observations([observed, observed], names=["a", "b"]),
+    }
+    exports = {}
+    for mode, res in results.items():
+        out = write_run(tmp_path / mode, res, report=mode in ("sessions", "two-sessions"))
+        for name in ("calibration.yaml", "config.resolved.yaml"):
+            assert (out / name).is_file(), (mode, name)
+        cal = yaml.safe_load((out / "calibration.yaml").read_text())
+        assert cal["camera"]["model"] == "pinhole", mode
+        resolved = yaml.safe_load((out / "config.resolved.yaml").read_text())
+        assert resolved["options"]["mode"] == res.options.mode and "lidar" in resolved["options"]["stages"]
+        k = tmp_path / f"{mode}.kitti"
+        assert main(["export", str(out / "calibration.yaml"), "--format", "kitti", "--out", str(k)]) == 0
+        exports[mode] = dict(line.split(":", 1) for line in k.read_text().splitlines() if ":" in line)
+    assert (tmp_path / "sessions" / "report" / "index.html").is_file()
+    assert (tmp_path / "two-sessions" / "report" / "a" / "index.html").is_file()
+    assert (tmp_path / "two-sessions" / "joint.yaml").is_file()
+    assert (tmp_path / "two-sessions" / "sessions" / "b" / "calibration.yaml").is_file()
+    assert (tmp_path / "incremental" / "incremental.yaml").is_file()
+    ref = {key: np.array(v.split(), float) for key, v in exports["graph"].items() if key in ("R", "T")}
+    for mode in ("sessions", "incremental"):
+        for key in ("R", "T"):
+            assert np.allclose(np.array(exports[mode][key].split(), float), ref[key], atol=1e-6), (mode, key)
+
+
+def test_incremental_command_writes_its_outputs(pinhole_set, tmp_path) -> None:
+    out = tmp_path / "b"
+    args = ["calibrate", str(pinhole_set), "--target-sigma", "0.5,10", "--out", str(out), "--no-report"]
+    assert main([*args, "--jobs", "1"]) == 0
+    assert (out / "calibration.yaml").is_file() and (out / "config.resolved.yaml").is_file()
+    updates = yaml.safe_load((out / "incremental.yaml").read_text())["updates"]
+    assert updates[-1]["frame"] == "(final)" and "sigma" in updates[-1]
+
+
+def test_refined_board_poses_are_kept(observed) -> None:
+    cal = solve_observations([observed]).calibration
+    for f in cal.frames:
+        if f.used:
+            d = np.linalg.inv(f.board.T_lidar_board) @ f.T_lidar_board_refined
+            assert np.linalg.norm(d[:3, 3]) < 0.05 and f.T_lidar_board_refined is not None
+    moved = [
+        f for f in cal.frames if f.used and not np.allclose(f.T_lidar_board_refined, f.board.T_lidar_board)
+    ]
+    assert moved  # the graph refines the boards, and the output keeps that
