@@ -25,7 +25,7 @@ from gtsam.symbol_shorthand import B, X
 from scipy.stats import chi2 as chi2_dist
 
 from factors import POSE3_DOF, FrameBearingFactor, tangent_bases
-from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 
 logger = logging.getLogger(__name__)

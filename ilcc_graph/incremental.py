@@ -32,7 +32,7 @@ from scipy.stats import chi2 as chi2_dist
 
 from factors import POSE3_DOF, FrameBearingFactor
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.graph import GraphFrame
 from ilcc_graph.init import resolve_half_turns, upnp

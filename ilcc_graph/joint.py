@@ -32,7 +32,7 @@ from scipy.stats import chi2 as chi2_dist
 from factors import POSE3_DOF, FrameBearingFactor
 from factors.range_offset import RangeOffsetBoardFactor
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.graph import GraphFrame, GraphOptions, frame_bearing_factor, solve
 from ilcc_graph.init import upnp

@@ -31,7 +31,7 @@ from test_joint import pinhole  # noqa: E402
 
 from factors.range_offset import shifted_board_pose  # noqa: E402
 from ilcc_graph.board import Board  # noqa: E402
-from ilcc_graph.camera_models import Equirectangular  # noqa: E402
+from ilcc_graph.cameras import Equirectangular  # noqa: E402
 from ilcc_graph.errors import CalibrationError  # noqa: E402
 from ilcc_graph.graph import GraphOptions  # noqa: E402
 from ilcc_graph.joint import JointOptions, Session, board_face_samples, solve_sessions  # noqa: E402

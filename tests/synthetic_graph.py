@@ -16,7 +16,7 @@ import numpy as np
 
 from factors.testing import sample_bearing
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.graph import GraphFrame
 from ilcc_graph.joint import RigFrame, RigView, board_face_samples
 

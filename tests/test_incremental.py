@@ -10,7 +10,7 @@ import pytest
 from synthetic_graph import session_frames
 
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import Equirectangular
+from ilcc_graph.cameras import Equirectangular
 from ilcc_graph.graph import GraphOptions, solve
 from ilcc_graph.incremental import IncrementalCalibrator, calibrate_incrementally, format_update
 from ilcc_graph.types import BoardFit, FrameResult, ImageCorners

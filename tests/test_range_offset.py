@@ -16,7 +16,7 @@ from factors.range_offset import (
 )
 from factors.testing import factor_jacobian_error, numerical_jacobian, random_pose
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import Equirectangular
+from ilcc_graph.cameras import Equirectangular
 from ilcc_graph.graph import GraphOptions
 from ilcc_graph.joint import JointOptions, Session, board_face_samples, solve_sessions
 

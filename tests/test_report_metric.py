@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import Equirectangular, Pinhole
+from ilcc_graph.cameras import Equirectangular, Pinhole
 from ilcc_graph.report.metric import (
     EvalFrame,
     cell_coordinates,
