@@ -2,7 +2,8 @@
 
 For each camera, pixels uniformly over the whole image (plus its corners) are turned into bearings,
 projected back with the forward model, and the round-trip error in pixels is reported for our Newton
-inverse and for ``cv2.undistortPoints`` / ``cv2.fisheye.undistortPoints`` (default criteria).
+inverse and for ``cv2.undistortPoints`` / ``cv2.fisheye.undistortPoints`` (default criteria; OpenCV
+has no double sphere model, and its unified model lives in opencv-contrib's ``omnidir``).
 Also: time per 100k pixels and the largest relative error of the analytic Jacobian against central
 differences. Prints a markdown table and writes it to docs/camera_models_bench.md.
 
@@ -18,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from ilcc_graph.cameras import CameraModel, Equirectangular, Fisheye, Pinhole
+from ilcc_graph.cameras import CameraModel, DoubleSphere, Equirectangular, Fisheye, Pinhole, Unified
 
 ACFR_K = [[1176.93, 0.0, 962.275], [0.0, 1177.72, 612.725], [0.0, 0.0, 1.0]]
 PIN_K = [[1400.0, 0.0, 955.3], [0.0, 1404.0, 610.1], [0.0, 0.0, 1.0]]
@@ -30,6 +31,8 @@ CAMERAS: dict[str, CameraModel] = {
     ),
     "pinhole k1..k3, p1, p2": Pinhole(1920, 1208, PIN_K, [-0.28, 0.075, 0.0006, -0.0004, -0.009]),
     "pinhole rational (8)": Pinhole(1920, 1208, PIN_K, [0.6, -0.05, 7e-4, 5e-4, 2e-3, 0.95, 0.03, 4e-3]),
+    "double sphere (xi -0.2, alpha 0.59)": DoubleSphere.default(1280),
+    "unified + radtan (xi 0.9)": Unified.default(1280),
 }
 
 

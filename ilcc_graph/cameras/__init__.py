@@ -14,9 +14,11 @@ from .base import (
     make_camera,
     register,
 )
+from .double_sphere import DoubleSphere as DoubleSphere
 from .equirectangular import Equirectangular as Equirectangular
 from .fisheye import Fisheye as Fisheye
 from .pinhole import Pinhole as Pinhole
+from .unified import Unified as Unified
 
 __all__ = [
     "R_FLU_OPENCV",
