@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ilcc_graph.cameras import camera_kinds
 from ilcc_graph.errors import (
     EXIT_IMPOSSIBLE,
     EXIT_INPUT,
@@ -348,7 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp = add("simulate", cmd_simulate, "write a simulated data set with ground truth")
     sp.add_argument("out", metavar="OUT")
     sp.add_argument("--lidar", default="hdl32", choices=("hdl32", "hdl64", "vlp16", "vlp32c", "os1-64"))
-    sp.add_argument("--camera", default="equirectangular", choices=("equirectangular", "pinhole", "fisheye"))
+    sp.add_argument("--camera", default="equirectangular", choices=camera_kinds())
     sp.add_argument("--frames", type=int, default=20)
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--noise-scale", type=float, default=1.0, help="multiplier on the baseline LiDAR noise")

@@ -11,7 +11,8 @@ Our schema (see interface.md)::
     lidar:  model hdl32|hdl64|vlp16|vlp32c|os1-64|generic, vertical_angles_deg, horizontal_resolution_deg
             (generic: required; others: optional overrides), range_sigma_m (optional),
             intensity_column (optional, CSV without header only)
-    camera: model equirectangular|pinhole|fisheye, width, height, K (3x3), dist
+    camera: model (one of ``cameras.camera_kinds()``), width, height and the model's own keys
+            (``cameras/<model>.py``, docs/config.md)
 
 ILCC's schema (mfxox/ILCC ``config.yaml``; its tuples are often strings such as ``'(6,8)'``):
 
@@ -35,7 +36,6 @@ that wraps through +-180 deg (e.g. ``[170, -170]`` is the 20 deg sector behind t
 from __future__ import annotations
 
 import ast
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -43,14 +43,12 @@ from typing import Any
 import numpy as np
 
 from .board import Board
-from .camera_models import CameraModel, make_camera
+from .cameras import CameraModel, camera_from_config
+from .checks import MISSING, Checker
 from .errors import InputError
 from .lidar_models import ILCC_ALIASES, MODEL_NAMES, LidarModel, lidar_model
 
-__all__ = ["Roi", "Config", "load_config", "parse_config", "config_to_dict", "CAMERA_MODELS"]
-
-CAMERA_MODELS = ("equirectangular", "pinhole", "fisheye")
-_MISSING = object()
+__all__ = ["Roi", "Config", "load_config", "parse_config", "config_to_dict"]
 
 
 @dataclass(frozen=True)
@@ -117,77 +115,6 @@ class Config:
     schema: str = "ilcc_graph"
 
 
-# --------------------------------------------------------------------------- validation helpers
-class _Checker:
-    """Builds messages ``<file>: <key> = <value>: expected <what>``."""
-
-    def __init__(self, source: str) -> None:
-        self.source = source
-
-    def fail(self, key: str, value: Any, expected: str) -> InputError:
-        shown = "missing" if value is _MISSING else repr(value)
-        if len(shown) > 120:
-            shown = shown[:117] + "..."
-        return InputError(f"{self.source}: {key} = {shown}: expected {expected}")
-
-    def section(self, d: Any, key: str) -> dict:
-        if d is _MISSING:
-            raise self.fail(key, d, "a mapping (section)")
-        if not isinstance(d, dict):
-            raise self.fail(key, d, "a mapping (section)")
-        return d
-
-    def unknown(self, d: dict, allowed: tuple[str, ...] | set[str], prefix: str) -> None:
-        for k in d:
-            if k not in allowed:
-                path = f"{prefix}.{k}" if prefix else str(k)
-                raise self.fail(path, d[k], f"no such key; allowed keys here: {sorted(allowed)}")
-
-    def number(
-        self,
-        v: Any,
-        key: str,
-        lo: float | None = None,
-        hi: float | None = None,
-        integer: bool = False,
-        lo_open: bool = False,
-    ) -> float:
-        what = "an integer" if integer else "a number"
-        rng = ""
-        if lo is not None or hi is not None:
-            lb = "(" if lo_open else "["
-            rng = f" in {lb}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}]"
-        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-            raise self.fail(key, v, what + rng)
-        if integer and not float(v).is_integer():
-            raise self.fail(key, v, what + rng)
-        x = float(v)
-        if not math.isfinite(x):
-            raise self.fail(key, v, "a finite " + what[2:] + rng)
-        if (lo is not None and (x < lo or (lo_open and x == lo))) or (hi is not None and x > hi):
-            raise self.fail(key, v, what + rng)
-        return int(x) if integer else x
-
-    def numbers(self, v: Any, key: str, n: int | tuple[int, ...] | None, **kw: Any) -> list[float]:
-        sizes = (n,) if isinstance(n, int) else n
-        count = "" if sizes is None else f" of {' or '.join(map(str, sizes))}"
-        if not isinstance(v, (list, tuple)) or (sizes is not None and len(v) not in sizes):
-            raise self.fail(key, v, f"a list{count} numbers")
-        return [self.number(x, f"{key}[{i}]", **kw) for i, x in enumerate(v)]
-
-    def choice(self, v: Any, key: str, options: tuple[str, ...]) -> str:
-        if not isinstance(v, str) or v.lower() not in options:
-            raise self.fail(key, v, f"one of {list(options)}")
-        return v.lower()
-
-    def interval(self, v: Any, key: str, lo: float, hi: float, wrap: bool = False) -> tuple[float, float]:
-        a, b = self.numbers(v, key, 2, lo=lo, hi=hi)
-        if a == b or (a > b and not wrap):
-            extra = " (min > max wraps through +-180)" if wrap else ""
-            raise self.fail(key, v, f"[min, max] with min < max{extra}")
-        return (a, b)
-
-
 # --------------------------------------------------------------------------- our schema
 _TOP_KEYS = ("board", "lidar", "camera")
 _BOARD_KEYS = ("squares", "square_size", "margin", "lower_left", "roi")
@@ -199,23 +126,17 @@ _LIDAR_KEYS = (
     "range_sigma_m",
     "intensity_column",
 )
-_CAMERA_KEYS = {
-    "equirectangular": ("model", "width", "height"),
-    "pinhole": ("model", "width", "height", "K", "dist"),
-    "fisheye": ("model", "width", "height", "K", "dist"),
-}
-_DIST_SIZES = {"pinhole": (4, 5, 8), "fisheye": (4,)}
 
 
-def _parse_board(c: _Checker, d: dict) -> tuple[Board, Roi | None]:
+def _parse_board(c: Checker, d: dict) -> tuple[Board, Roi | None]:
     c.unknown(d, _BOARD_KEYS, "board")
-    sq = d.get("squares", _MISSING)
+    sq = d.get("squares", MISSING)
     if not isinstance(sq, (list, tuple)) or len(sq) != 2:
         raise c.fail("board.squares", sq, "[rows, cols]: squares along the short and the long side")
     rows, cols = (c.number(x, f"board.squares[{i}]", lo=2, hi=100, integer=True) for i, x in enumerate(sq))
     if rows > cols:
         raise c.fail("board.squares", sq, "[rows, cols] with rows <= cols (the short side first)")
-    s = c.number(d.get("square_size", _MISSING), "board.square_size", lo=0.0, hi=1.0, lo_open=True)
+    s = c.number(d.get("square_size", MISSING), "board.square_size", lo=0.0, hi=1.0, lo_open=True)
     m = d.get("margin", 0.0)
     if isinstance(m, (list, tuple)):
         m_long, m_short = c.numbers(m, "board.margin", 2, lo=0.0, hi=2.0)
@@ -242,18 +163,18 @@ def _parse_board(c: _Checker, d: dict) -> tuple[Board, Roi | None]:
     return Board(rows, cols, s, m_long, m_short, lower_left), roi
 
 
-def _parse_lidar(c: _Checker, d: dict) -> tuple[LidarModel, int | None]:
+def _parse_lidar(c: Checker, d: dict) -> tuple[LidarModel, int | None]:
     c.unknown(d, _LIDAR_KEYS, "lidar")
-    name = c.choice(d.get("model", _MISSING), "lidar.model", MODEL_NAMES)
+    name = c.choice(d.get("model", MISSING), "lidar.model", MODEL_NAMES)
     angles = d.get("vertical_angles_deg")
     res = d.get("horizontal_resolution_deg")
     if name == "generic":
         if angles is None:
             raise c.fail(
-                "lidar.vertical_angles_deg", _MISSING, "a list of beam elevations in degrees (generic)"
+                "lidar.vertical_angles_deg", MISSING, "a list of beam elevations in degrees (generic)"
             )
         if res is None:
-            raise c.fail("lidar.horizontal_resolution_deg", _MISSING, "a number in (0, 10] degrees (generic)")
+            raise c.fail("lidar.horizontal_resolution_deg", MISSING, "a number in (0, 10] degrees (generic)")
     if angles is not None:
         if not isinstance(angles, (list, tuple)) or len(angles) < 1:
             raise c.fail(
@@ -276,59 +197,18 @@ def _parse_lidar(c: _Checker, d: dict) -> tuple[LidarModel, int | None]:
     return lidar_model(name, angles, res, sigma), col
 
 
-def _intensity_column(c: _Checker, v: Any, key: str) -> int:
+def _intensity_column(c: Checker, v: Any, key: str) -> int:
     col = c.number(v, key, lo=0, hi=1000, integer=True)
     if col < 3:
         raise c.fail(key, v, "a column index >= 3 (columns 0, 1, 2 hold x, y, z)")
     return int(col)
 
 
-def _matrix3(c: _Checker, v: Any, key: str) -> list[list[float]]:
-    if isinstance(v, (list, tuple)) and len(v) == 9 and not any(isinstance(x, (list, tuple)) for x in v):
-        v = [list(v[0:3]), list(v[3:6]), list(v[6:9])]
-    if not (
-        isinstance(v, (list, tuple))
-        and len(v) == 3
-        and all(isinstance(r, (list, tuple)) and len(r) == 3 for r in v)
-    ):
-        raise c.fail(key, v, "a 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
-    K = [c.numbers(r, f"{key}[{i}]", 3) for i, r in enumerate(v)]
-    if not (K[0][0] > 0 and K[1][1] > 0 and K[1][0] == 0 and K[2] == [0.0, 0.0, 1.0]):
-        raise c.fail(key, v, "[[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
-    return K
-
-
-def _parse_camera(c: _Checker, d: dict) -> CameraModel:
-    kind = c.choice(d.get("model", _MISSING), "camera.model", CAMERA_MODELS)
-    c.unknown(d, _CAMERA_KEYS[kind], "camera")
-    w = c.number(d.get("width", _MISSING), "camera.width", lo=1, hi=100000, integer=True)
-    h = c.number(d.get("height", _MISSING), "camera.height", lo=1, hi=100000, integer=True)
-    out: dict[str, Any] = {"model": kind, "width": int(w), "height": int(h)}
-    if kind == "equirectangular":
-        if w != 2 * h:
-            raise c.fail(
-                "camera.width", d.get("width"), f"2 * height = {2 * int(h)} for an equirectangular image"
-            )
-    else:
-        out["K"] = _matrix3(c, d.get("K", _MISSING), "camera.K")
-        sizes = _DIST_SIZES[kind]
-        dist = d.get("dist")
-        out["dist"] = (
-            [0.0] * sizes[-1 if kind == "fisheye" else 1]
-            if dist is None
-            else c.numbers(dist, "camera.dist", sizes)
-        )
-    try:
-        return make_camera(out)
-    except (ValueError, TypeError) as e:
-        raise c.fail("camera", d, f"a valid camera ({e})") from None
-
-
-def _parse_ours(c: _Checker, d: dict, source: str) -> Config:
+def _parse_ours(c: Checker, d: dict, source: str) -> Config:
     c.unknown(d, _TOP_KEYS, "")
-    board, roi = _parse_board(c, c.section(d.get("board", _MISSING), "board"))
-    lidar, col = _parse_lidar(c, c.section(d.get("lidar", _MISSING), "lidar"))
-    camera = _parse_camera(c, c.section(d.get("camera", _MISSING), "camera"))
+    board, roi = _parse_board(c, c.section(d.get("board", MISSING), "board"))
+    lidar, col = _parse_lidar(c, c.section(d.get("lidar", MISSING), "lidar"))
+    camera = camera_from_config(d.get("camera", MISSING), source)
     return Config(board, lidar, camera, roi, col, source, "ilcc_graph")
 
 
@@ -363,7 +243,7 @@ _ILCC_IGNORED = (
 _ILCC_BEAMS = {16: "vlp16", 32: "hdl32", 64: "hdl64"}
 
 
-def _ilcc_tuple(c: _Checker, v: Any, key: str) -> Any:
+def _ilcc_tuple(c: Checker, v: Any, key: str) -> Any:
     """ILCC writes tuples as YAML strings ``'(6,8)'``; turn them into lists of literals."""
     if isinstance(v, str):
         try:
@@ -389,12 +269,12 @@ def _image_size_from_dir(img_dir: Path) -> tuple[int, int] | None:
     return None
 
 
-def _parse_ilcc(c: _Checker, d: dict, source: str, base: Path | None) -> Config:
+def _parse_ilcc(c: Checker, d: dict, source: str, base: Path | None) -> Config:
     c.unknown(d, _ILCC_USED + _ILCC_IGNORED, "")
     if "pattern_size" not in d:
-        raise c.fail("pattern_size", _MISSING, "(rows, cols): squares along the short and long side")
+        raise c.fail("pattern_size", MISSING, "(rows, cols): squares along the short and long side")
     if "grid_length" not in d:
-        raise c.fail("grid_length", _MISSING, "the square size in metres")
+        raise c.fail("grid_length", MISSING, "the square size in metres")
     board_d: dict[str, Any] = {
         "squares": _ilcc_tuple(c, d["pattern_size"], "pattern_size"),
         "square_size": d["grid_length"],
@@ -421,7 +301,7 @@ def _parse_ilcc(c: _Checker, d: dict, source: str, base: Path | None) -> Config:
             raise c.fail("laser_beams_num", n, f"one of {sorted(_ILCC_BEAMS)} when LiDAR_type is absent")
         name = _ILCC_BEAMS[int(n)]
     else:
-        raise c.fail("LiDAR_type", _MISSING, f"one of {sorted(ILCC_ALIASES)}")
+        raise c.fail("LiDAR_type", MISSING, f"one of {sorted(ILCC_ALIASES)}")
     col = None
     if d.get("intensity_col_ind") is not None:
         col = _intensity_column(c, d["intensity_col_ind"], "intensity_col_ind")
@@ -436,7 +316,7 @@ def _parse_ilcc(c: _Checker, d: dict, source: str, base: Path | None) -> Config:
         res = (int(hw[1]), int(hw[0]))  # ILCC writes (height, width)
     if ctype == "panoramic":
         if res is None:
-            raise c.fail("image_res", _MISSING, "(height, width) of the panoramic images")
+            raise c.fail("image_res", MISSING, "(height, width) of the panoramic images")
         if res[0] != 2 * res[1]:
             raise c.fail(
                 "image_res", d["image_res"], "(height, width) with width = 2 * height (equirectangular)"
@@ -444,15 +324,15 @@ def _parse_ilcc(c: _Checker, d: dict, source: str, base: Path | None) -> Config:
         cam_d: dict[str, Any] = {"model": "equirectangular", "width": res[0], "height": res[1]}
     else:
         if d.get("instrinsic_para") is None:
-            raise c.fail("instrinsic_para", _MISSING, "9 numbers of K, row-major, for a perspective camera")
+            raise c.fail("instrinsic_para", MISSING, "9 numbers of K, row-major, for a perspective camera")
         k = c.numbers(_ilcc_tuple(c, d["instrinsic_para"], "instrinsic_para"), "instrinsic_para", 9)
         size = _image_size_from_dir(base / "img") if base is not None else None
         size = size or res
         if size is None:
-            raise c.fail("image_res", _MISSING, "(height, width) of the images (no image found in img/)")
+            raise c.fail("image_res", MISSING, "(height, width) of the images (no image found in img/)")
         cam_d = {"model": "pinhole", "width": size[0], "height": size[1], "K": k, "dist": [0.0] * 5}
     try:
-        camera = _parse_camera(c, cam_d)
+        camera = camera_from_config(cam_d, source)
     except InputError as e:
         msg = str(e).replace("camera.K", "instrinsic_para").replace("camera.width", "image_res")
         raise InputError(msg) from None
@@ -470,7 +350,7 @@ def parse_config(d: Any, source: str = "<config>", base_dir: Path | str | None =
     source names the file in messages; base_dir is the data folder (ILCC perspective cameras
     read their image size from ``base_dir/img``).
     """
-    c = _Checker(source)
+    c = Checker(source)
     if not isinstance(d, dict):
         raise InputError(
             f"{source}: expected a mapping with sections board, lidar, camera; got {type(d).__name__}"

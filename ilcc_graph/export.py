@@ -17,6 +17,7 @@ from typing import Any
 import gtsam
 import numpy as np
 
+from ilcc_graph.cameras import CameraModel, camera_class, make_camera
 from ilcc_graph.handoff import (
     check_covariance,
     check_rigid,
@@ -29,14 +30,10 @@ CONVENTION = (
     "T_cam_lidar maps LiDAR-frame points to camera-frame points: p_cam = R @ p_lidar + t "
     "(metres). Covariances are 6x6 in GTSAM's Pose3 tangent convention for the named pose T: "
     "T_true = T * Pose3.Expmap(xi), xi = (rx, ry, rz, tx, ty, tz), rotation first, radians and "
-    "metres. LiDAR frame: the sensor's own (x forward, y left, z up). Camera frame: OpenCV's "
-    "(z forward, x right, y down) for pinhole and fisheye cameras; x forward (image centre "
-    "column), y left, z up for equirectangular cameras."
+    "metres. LiDAR frame: the sensor's own (x forward, y left, z up). Camera frame: the camera "
+    "model's own: OpenCV's (z forward, x right, y down) for lens models (pinhole, fisheye, ...); "
+    "x forward (image centre column), y left, z up for equirectangular cameras."
 )
-
-# Rotation from the equirectangular camera frame (x forward, y left, z up) to a camera frame at
-# the same place with OpenCV's axes (z forward, x right, y down): p_cv = R_CV_EQ @ p_eq.
-R_CV_EQ = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
 
 CalibrationLike = Calibration | tuple[gtsam.Pose3 | np.ndarray, np.ndarray] | str | Path
 
@@ -57,24 +54,20 @@ def _as_T_cov(cal: CalibrationLike) -> tuple[np.ndarray, np.ndarray | None]:
     return check_rigid(T, "T_cam_lidar"), check_covariance(cov, "covariance")
 
 
-def _camera_dict(camera: Any) -> dict | None:
-    """Our config schema (``model``, ``width``, ``height``, ``K``, ``dist``) from a dict or a
-    ``CameraModel`` (anything with ``to_dict()``); None stays None."""
-    if camera is None:
-        return None
-    if isinstance(camera, Mapping):
-        d = dict(camera)
-    elif hasattr(camera, "to_dict"):
-        d = dict(camera.to_dict())
-    else:
+def _camera(camera: Any) -> CameraModel | None:
+    """The camera model from our config schema (a mapping) or a ``CameraModel``; None stays None.
+
+    Raises ValueError for a mapping that is not a valid ``camera:`` section.
+    """
+    if camera is None or isinstance(camera, CameraModel):
+        return camera
+    if not isinstance(camera, Mapping):
         raise TypeError(f"camera: expected a dict or a CameraModel, got {type(camera).__name__}")
+    d = dict(camera)
     if "model" not in d and "kind" in d:
-        d["model"] = d["kind"]
-    if d.get("model") not in ("equirectangular", "pinhole", "fisheye"):
-        raise ValueError(
-            f"camera: unknown model {d.get('model')!r}; expected equirectangular|pinhole|fisheye"
-        )
-    return d
+        d["model"] = d.pop("kind")
+    camera_class(d.get("model", ""))  # an unknown model: say so plainly
+    return make_camera(d)
 
 
 def _quat_xyzw(R: np.ndarray) -> np.ndarray:
@@ -104,7 +97,7 @@ def _jsonable(o: Any) -> Any:
     raise TypeError(f"cannot write {type(o).__name__} to JSON")
 
 
-def _export_json(T: np.ndarray, cov: np.ndarray | None, camera: dict | None) -> str:
+def _export_json(T: np.ndarray, cov: np.ndarray | None, camera: CameraModel | None) -> str:
     T_inv, cov_inv = invert_with_covariance(T, np.eye(6) if cov is None else cov)
     doc = {
         "T_cam_lidar": T.tolist(),
@@ -114,7 +107,7 @@ def _export_json(T: np.ndarray, cov: np.ndarray | None, camera: dict | None) -> 
         "sigma": None if cov is None else sigma_dict(cov),
         "sigma_T_lidar_cam": None if cov is None else sigma_dict(cov_inv),
         "quaternion_xyzw_cam_lidar": _quat_xyzw(T[:3, :3]).tolist(),
-        "camera": camera,
+        "camera": None if camera is None else camera.to_dict(),
         "convention": CONVENTION,
     }
     return json.dumps(doc, indent=2, default=_jsonable) + "\n"
@@ -124,7 +117,7 @@ def _export_json(T: np.ndarray, cov: np.ndarray | None, camera: dict | None) -> 
 def _export_ros_tf(
     T: np.ndarray,
     cov: np.ndarray | None,
-    camera: dict | None,
+    camera: CameraModel | None,
     *,
     parent: str = "lidar",
     lidar_frame: str = "lidar",
@@ -132,8 +125,7 @@ def _export_ros_tf(
     ros: str = "both",
 ) -> str:
     if camera_frame is None:
-        optical = camera is not None and camera["model"] in ("pinhole", "fisheye")
-        camera_frame = "camera_optical" if optical else "camera"
+        camera_frame = "camera_optical" if camera is not None and camera.optical else "camera"
     if parent == "lidar":
         T_pc, parent_frame, child_frame = np.linalg.inv(T), lidar_frame, camera_frame
     elif parent == "camera":
@@ -146,10 +138,10 @@ def _export_ros_tf(
     qx, qy, qz, qw = (_num(v) for v in _quat_xyzw(T_pc[:3, :3]))
     if camera is None:
         axes = "unknown (pass the camera model)"
-    elif camera["model"] == "equirectangular":
-        axes = "x forward, y left, z up (equirectangular)"
-    else:
+    elif camera.optical:
         axes = "OpenCV optical (z forward, x right, y down)"
+    else:
+        axes = f"{camera.axes} ({camera.kind})"
     which = "T_lidar_cam = inverse of T_cam_lidar" if parent == "lidar" else "T_cam_lidar"
     about = (
         f"static transform {parent_frame} -> {child_frame}: the pose of '{child_frame}' in "
@@ -180,21 +172,21 @@ def _export_ros_tf(
 def _export_kitti(
     T: np.ndarray,
     cov: np.ndarray | None,
-    camera: dict | None,
+    camera: CameraModel | None,
     *,
     calib_time: _dt.datetime | str | None = None,
 ) -> str:
     T_out = T.copy()
     if camera is None:
         frame = "camera frame as calibrated (camera model not given; OpenCV axes assumed)"
-    elif camera["model"] == "equirectangular":
-        T_out[:3, :] = R_CV_EQ @ T[:3, :]
-        frame = (
-            "OpenCV axes (z forward = equirectangular image centre column, x right, y down), "
-            "rotated from ilcc_graph's equirectangular camera frame (x forward, y left, z up)"
-        )
+    elif camera.optical:
+        frame = f"OpenCV camera frame (z forward, x right, y down) of the {camera.kind} camera"
     else:
-        frame = f"OpenCV camera frame (z forward, x right, y down) of the {camera['model']} camera"
+        T_out[:3, :] = camera.R_opencv_cam @ T[:3, :]
+        frame = (
+            f"OpenCV axes (z forward, x right, y down), rotated from ilcc_graph's {camera.kind} "
+            f"camera frame ({camera.axes})"
+        )
     if calib_time is None:
         calib_time = _dt.datetime.now(_dt.timezone.utc)
     if isinstance(calib_time, _dt.datetime):
@@ -218,7 +210,7 @@ def _yaml_row(v: np.ndarray) -> str:
 def _export_kalibr(
     T: np.ndarray,
     cov: np.ndarray | None,
-    camera: dict | None,
+    camera: CameraModel | None,
     *,
     rostopic: str = "/camera/image_raw",
 ) -> str:
@@ -236,28 +228,11 @@ def _export_kalibr(
     else:
         notes.append("no covariance: the calibration method gives none.")
     if camera is not None:
-        model = camera["model"]
-        if model == "equirectangular":
-            notes.append("Kalibr has no equirectangular model: camera frame x forward, y left, z up.")
-            body.append("  camera_model: equirectangular")
-        else:
-            K = np.asarray(camera["K"], dtype=np.float64)
-            dist = np.asarray(camera.get("dist", []), dtype=np.float64).ravel()
-            body.append("  camera_model: pinhole")
-            body.append(f"  intrinsics: {_yaml_row([K[0, 0], K[1, 1], K[0, 2], K[1, 2]])}")
-            if model == "fisheye":
-                body.append("  distortion_model: equidistant")
-                body.append(f"  distortion_coeffs: {_yaml_row(np.pad(dist, (0, max(0, 4 - dist.size)))[:4])}")
-            elif np.all(dist[4:] == 0.0):
-                body.append("  distortion_model: radtan")
-                body.append(f"  distortion_coeffs: {_yaml_row(np.pad(dist, (0, max(0, 4 - dist.size)))[:4])}")
-            else:
-                notes.append(
-                    "OpenCV distortion with k3.. non-zero has no Kalibr model: "
-                    "opencv_dist holds (k1, k2, p1, p2, k3, ...) and no distortion_model is written."
-                )
-                body.append(f"  opencv_dist: {_yaml_row(dist)}")
-        body.append(f"  resolution: [{int(camera['width'])}, {int(camera['height'])}]")
+        fields, camera_notes = camera.kalibr()
+        notes += camera_notes
+        for key, value in fields.items():
+            body.append(f"  {key}: {value if isinstance(value, str) else _yaml_row(value)}")
+        body.append(f"  resolution: [{int(camera.width)}, {int(camera.height)}]")
     else:
         notes.append("camera intrinsics not given: only the extrinsic is written.")
     body += ["  cam_overlaps: []", f"  rostopic: {rostopic}"]
@@ -282,10 +257,11 @@ def export_calibration(cal: CalibrationLike, fmt: str, *, camera: Any = None, **
         path of a calibration.yaml.
     fmt : ``json`` | ``ros-tf`` | ``kitti`` | ``kalibr``.
     camera : the camera model (our config dict or a ``CameraModel``); tells the camera frame's axes
-        (KITTI converts an equirectangular camera to OpenCV axes) and gives Kalibr its intrinsics.
+        (KITTI converts a camera without OpenCV axes, e.g. equirectangular, to OpenCV axes) and
+        gives Kalibr its intrinsics (``CameraModel.kalibr``).
     options : per format (see docs/exports.md):
         ros-tf: ``parent`` ("lidar" default | "camera"), ``lidar_frame`` ("lidar"),
-        ``camera_frame`` ("camera", or "camera_optical" for pinhole/fisheye), ``ros`` ("both" |
+        ``camera_frame`` ("camera", or "camera_optical" for a camera with OpenCV axes), ``ros`` ("both" |
         "ros1" | "ros2"); kitti: ``calib_time`` (datetime or text, default now, UTC);
         kalibr: ``rostopic``.
 
@@ -303,4 +279,4 @@ def export_calibration(cal: CalibrationLike, fmt: str, *, camera: Any = None, **
         if name not in allowed:
             raise ValueError(f"export format {fmt!r} has no option {name!r}; options: {allowed or 'none'}")
     T, cov = _as_T_cov(cal)
-    return exporter(T, cov, _camera_dict(camera), **options)
+    return exporter(T, cov, _camera(camera), **options)

@@ -43,8 +43,7 @@ def truth_uv(spec, T_lidar_board: np.ndarray) -> np.ndarray:
 
 def _errors(camera, uv: np.ndarray, ref: np.ndarray) -> np.ndarray:
     d = uv - ref
-    if hasattr(camera, "wrap_du"):
-        d[:, 0] = camera.wrap_du(d[:, 0])
+    d[:, 0] = camera.wrap_du(d[:, 0])
     return d
 
 

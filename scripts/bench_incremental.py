@@ -27,7 +27,7 @@ from bench_customfactor import write_section  # noqa: E402
 from synthetic_graph import session_frames  # noqa: E402
 
 from ilcc_graph.board import Board  # noqa: E402
-from ilcc_graph.camera_models import Equirectangular  # noqa: E402
+from ilcc_graph.cameras import Equirectangular  # noqa: E402
 from ilcc_graph.estimation import NoiseOptions, solve  # noqa: E402
 from ilcc_graph.estimation.incremental import IncrementalCalibrator  # noqa: E402
 

@@ -31,7 +31,7 @@ from test_joint import pinhole  # noqa: E402
 
 from factors.range_offset import shifted_board_pose  # noqa: E402
 from ilcc_graph.board import Board  # noqa: E402
-from ilcc_graph.camera_models import Equirectangular  # noqa: E402
+from ilcc_graph.cameras import Equirectangular  # noqa: E402
 from ilcc_graph.errors import CalibrationError  # noqa: E402
 from ilcc_graph.estimation import NoiseOptions  # noqa: E402
 from ilcc_graph.estimation.graphs import board_face_samples  # noqa: E402

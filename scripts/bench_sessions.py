@@ -29,7 +29,7 @@ from bench_customfactor import write_section  # noqa: E402
 from synthetic_graph import session_frames  # noqa: E402
 
 from ilcc_graph.board import Board  # noqa: E402
-from ilcc_graph.camera_models import Equirectangular  # noqa: E402
+from ilcc_graph.cameras import Equirectangular  # noqa: E402
 from ilcc_graph.estimation import NoiseOptions  # noqa: E402
 from ilcc_graph.estimation.sessions import JointOptions, Session, solve_sessions  # noqa: E402
 

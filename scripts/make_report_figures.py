@@ -26,6 +26,7 @@ from scipy.spatial.transform import Rotation
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from ilcc_graph.cameras import camera_kinds  # noqa: E402
 from ilcc_graph.config import load_config  # noqa: E402
 from ilcc_graph.io import atomic_write, list_frames, read_ground_truth, read_image, read_scan, write_ply  # noqa: E402
 from ilcc_graph.report import (  # noqa: E402
@@ -107,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default="out/report_figures", help="output folder (data/, report/, coloured/)")
     ap.add_argument("--width", type=int, default=2000, help="image width in pixels (standard panorama: 8000)")
-    ap.add_argument("--camera", choices=("equirectangular", "pinhole", "fisheye"), default="equirectangular")
+    ap.add_argument("--camera", choices=camera_kinds(), default="equirectangular")
     ap.add_argument("--lidar", default="hdl32", help="hdl32 | hdl64 | vlp16 | vlp32c | os1-64")
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--seed", type=int, default=0)

@@ -16,7 +16,7 @@ import numpy as np
 
 from factors.testing import sample_bearing
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.estimation.graphs import board_face_samples
 from ilcc_graph.estimation.rig import RigFrame, RigView
 from ilcc_graph.types import GraphFrame

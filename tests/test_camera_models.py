@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ilcc_graph.camera_models import CameraModel, Equirectangular, Fisheye, Pinhole, make_camera
+from ilcc_graph.cameras import CameraModel, Equirectangular, Fisheye, Pinhole, make_camera
 
 ACFR_K = [[1176.93, 0.0, 962.275], [0.0, 1177.72, 612.725], [0.0, 0.0, 1.0]]
 ACFR_DIST = [-0.0540096, -0.0784275, 0.0959641, -0.0515253]

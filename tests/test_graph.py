@@ -11,7 +11,7 @@ import pytest
 
 from factors.testing import sample_bearing
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import Equirectangular
+from ilcc_graph.cameras import Equirectangular
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.estimation import NoiseOptions, solve
 from ilcc_graph.types import GraphFrame
@@ -213,7 +213,7 @@ def test_robust_kernel_keeps_frame_with_one_bad_corner() -> None:
 
 def test_pinhole_camera_and_corners_it_cannot_see() -> None:
     """Bearings in OpenCV's frame; a board behind the camera has no usable corner and is dropped."""
-    from ilcc_graph.camera_models import Pinhole
+    from ilcc_graph.cameras import Pinhole
 
     camera = Pinhole(
         1280, 960, np.array([[800.0, 0, 640], [0, 800.0, 480], [0, 0, 1]]), np.array([-0.1, 0.01, 0, 0])

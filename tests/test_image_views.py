@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import Equirectangular, Fisheye, Pinhole
+from ilcc_graph.cameras import Equirectangular, Fisheye, Pinhole
 from ilcc_graph.errors import CornersNotFound
 from ilcc_graph.image.ordering import order_grid
 from ilcc_graph.image.uncertainty import homography_sigma, image_covariance

@@ -10,7 +10,7 @@ import pytest
 from synthetic_graph import session_frames
 
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import Equirectangular
+from ilcc_graph.cameras import Equirectangular
 from ilcc_graph.estimation import NoiseOptions, solve
 from ilcc_graph.estimation.incremental import IncrementalCalibrator
 from ilcc_graph.report.text import format_update

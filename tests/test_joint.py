@@ -8,7 +8,7 @@ import pytest
 from synthetic_graph import rig_frames, session_frames
 
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import Equirectangular, Pinhole
+from ilcc_graph.cameras import Equirectangular, Pinhole
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import NoiseOptions, solve, solve_problem
 from ilcc_graph.estimation.problem import frames_problem

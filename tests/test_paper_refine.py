@@ -6,8 +6,8 @@ import gtsam
 import numpy as np
 
 from factors.testing import sample_bearing
+from ilcc_graph.cameras import R_FLU_OPENCV as R_PANO_OPENCV
 from ilcc_graph.estimation.paper import (
-    R_PANO_OPENCV,
     inclination_azimuth,
     paper_residuals,
     refine_paper,

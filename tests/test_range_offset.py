@@ -16,7 +16,7 @@ from factors.range_offset import (
 )
 from factors.testing import factor_jacobian_error, numerical_jacobian, random_pose
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import Equirectangular
+from ilcc_graph.cameras import Equirectangular
 from ilcc_graph.estimation import NoiseOptions
 from ilcc_graph.estimation.graphs import board_face_samples
 from ilcc_graph.estimation.sessions import JointOptions, Session, solve_sessions

@@ -11,7 +11,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 from test_report_metric import BOARD, R_OPENCV_LIDAR, board_pose_facing, pose, synthetic_frame
 
-from ilcc_graph.camera_models import Pinhole
+from ilcc_graph.cameras import Pinhole
 from ilcc_graph.report import (
     OCCLUDED_RGB,
     build_report,
@@ -260,7 +260,7 @@ def test_evaluate_calibration_judges_another_extrinsic_on_the_same_frames(tmp_pa
 
 
 def test_panorama_crop_wraps_across_the_seam() -> None:
-    from ilcc_graph.camera_models import Equirectangular
+    from ilcc_graph.cameras import Equirectangular
     from ilcc_graph.report.overlays import crop_around
 
     cam = Equirectangular(400, 200)
@@ -277,7 +277,7 @@ def test_panorama_crop_wraps_across_the_seam() -> None:
 
 
 def test_depth_map_hides_points_behind_nearer_ones() -> None:
-    from ilcc_graph.camera_models import Equirectangular
+    from ilcc_graph.cameras import Equirectangular
 
     cam = Equirectangular(720, 360)
     az = np.radians(np.linspace(-20, 20, 81))

@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import Equirectangular, Pinhole
+from ilcc_graph.cameras import R_FLU_OPENCV, Equirectangular, Pinhole
 from ilcc_graph.report.metric import (
     EvalFrame,
     cell_coordinates,
@@ -19,7 +19,7 @@ from ilcc_graph.report.metric import (
 )
 
 BOARD = Board(6, 8, 0.075)
-R_OPENCV_LIDAR = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+R_OPENCV_LIDAR = R_FLU_OPENCV.T  # nominal R_cam_lidar of a lens camera looking along LiDAR x
 
 
 def pose(rotvec_deg, t) -> np.ndarray:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.estimation.noise import BoardStats, NoiseOptions, Solution, solve_problem
 from ilcc_graph.estimation.problem import frames_problem
 from ilcc_graph.estimation.solver import check_pose

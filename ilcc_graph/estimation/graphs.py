@@ -19,7 +19,7 @@ import numpy as np
 from factors import FrameBearingFactor, tangent_bases
 from factors.range_offset import RangeOffsetBoardFactor
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.keys import POSE3_DOF, B, O, X
 from ilcc_graph.estimation.problem import BoardPrior, Problem, Tie

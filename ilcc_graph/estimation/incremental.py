@@ -33,7 +33,7 @@ from scipy.stats import chi2 as chi2_dist
 
 from factors import POSE3_DOF, FrameBearingFactor
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.batch import BatchSolution, solve
 from ilcc_graph.estimation.graphs import frame_bearing_factor, upnp_start

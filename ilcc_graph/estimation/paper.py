@@ -18,10 +18,6 @@ from scipy.optimize import least_squares
 
 from ilcc_graph.types import GraphFrame
 
-# Rotation from OpenCV's camera frame (z forward, x right, y down) to the paper's panoramic frame
-# (x forward, y left, z up): pass it as ``R_pano_cam`` for pinhole and fisheye cameras.
-R_PANO_OPENCV = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-
 
 def wrap_angle(a: np.ndarray) -> np.ndarray:
     """Angles (any shape, rad) wrapped into (-pi, pi]."""
@@ -64,8 +60,8 @@ def refine_paper(
     frames : ``GraphFrame``s; only ``T_lidar_board``, ``points_board`` and ``bearings`` are used.
     T_init : (4, 4) starting ``T_cam_lidar``.
     R_pano_cam : (3, 3) rotation from the camera frame to the panoramic frame (x forward, y left,
-        z up) in which inclination and azimuth are measured; None = identity (equirectangular
-        camera). Use ``R_PANO_OPENCV`` for pinhole and fisheye cameras.
+        z up) in which inclination and azimuth are measured: the camera model's ``R_flu_cam``;
+        None = identity (an equirectangular camera's).
     max_nfev : function-evaluation budget of ``least_squares``.
 
     Returns

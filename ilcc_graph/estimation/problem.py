@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.types import GraphFrame
 
 __all__ = ["BoardPrior", "Problem", "Tie", "View", "frames_problem", "merge_problems"]

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.graphs import upnp_start
 from ilcc_graph.estimation.keys import POSE3_DOF

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from ilcc_graph.board import Board
-from ilcc_graph.camera_models import CameraModel
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.graphs import board_face_samples, upnp_start
 from ilcc_graph.estimation.keys import POSE3_DOF

@@ -21,7 +21,7 @@ import cv2
 import numpy as np
 
 from ..board import Board
-from ..camera_models import CameraModel
+from ..cameras import CameraModel
 from ..errors import CornersNotFound
 from ..types import ImageCorners
 from .ordering import order_grid
@@ -181,8 +181,7 @@ def _coarse_downscaled(gray: np.ndarray, camera: CameraModel, board: Board, widt
     s = min(1.0, width / W)
     small = gray if s == 1.0 else cv2.resize(gray, (round(W * s), round(H * s)), interpolation=cv2.INTER_AREA)
     sx, sy = small.shape[1] / W, small.shape[0] / H
-    seam = getattr(camera, "wrap_u", None) is not None
-    for shift in (0, small.shape[1] // 2) if seam else (0,):
+    for shift in (0, small.shape[1] // 2) if camera.periodic_u else (0,):
         c = _sb(np.roll(small, -shift, axis=1) if shift else small, board, _SB_COARSE)
         if c is not None:
             c[:, 0] += shift

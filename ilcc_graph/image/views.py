@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from ..camera_models import CameraModel
+from ..cameras import CameraModel
 
 _INTERP = cv2.INTER_LINEAR
 
@@ -56,11 +56,10 @@ class VirtualView:
 
 def wrap_image_u(camera: CameraModel, uv: np.ndarray) -> np.ndarray:
     """Pixels with the column wrapped across the panorama seam (a no-op for cameras without a seam)."""
-    wrap = getattr(camera, "wrap_u", None)
-    if wrap is None:
+    if not camera.periodic_u:
         return uv
     out = np.array(uv, dtype=np.float64, copy=True)
-    out[..., 0] = wrap(out[..., 0])
+    out[..., 0] = camera.wrap_u(out[..., 0])
     return out
 
 
@@ -73,13 +72,11 @@ def view_jacobian(view: VirtualView, camera: CameraModel, xy: np.ndarray, h: flo
     """(N, 2, 2) d(image pixel) / d(view pixel) at view pixels (N, 2), central differences."""
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     J = np.empty((len(xy), 2, 2))
-    wrap_du = getattr(camera, "wrap_du", None)
     for a in range(2):
         step = np.zeros(2)
         step[a] = h
         d = camera.project(view.rays(xy + step)) - camera.project(view.rays(xy - step))
-        if wrap_du is not None:
-            d[:, 0] = wrap_du(d[:, 0])
+        d[:, 0] = camera.wrap_du(d[:, 0])
         J[:, :, a] = d / (2 * h)
     return J
 
@@ -176,8 +173,7 @@ def render_view(view: VirtualView, camera: CameraModel, image: np.ndarray) -> np
         map_x, map_y = _cached_maps(camera, key)
     else:
         map_x, map_y = _view_maps(view, camera)
-    seam = getattr(camera, "wrap_u", None) is not None
-    border = cv2.BORDER_WRAP if seam else cv2.BORDER_CONSTANT
+    border = cv2.BORDER_WRAP if camera.periodic_u else cv2.BORDER_CONSTANT
     return cv2.remap(image, map_x, map_y, _INTERP, borderMode=border)
 
 

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..board import Board
-from ..camera_models import CameraModel
+from ..cameras import CameraModel
 from ..types import Calibration, FrameResult, Scan
 from .metric import (
     EvalFrame,

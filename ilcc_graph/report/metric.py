@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..board import Board
-from ..camera_models import CameraModel, Equirectangular
+from ..cameras import CameraModel
 from ..types import Calibration, FrameResult, Scan
 
 __all__ = [
@@ -264,7 +264,7 @@ def circular_mean_u(u: np.ndarray, width: int) -> float:
 
 def _unwrap(uv: np.ndarray, u_ref: float, camera: CameraModel) -> np.ndarray:
     """Panorama columns brought next to ``u_ref`` across the seam (other cameras: unchanged)."""
-    if not isinstance(camera, Equirectangular):
+    if not camera.periodic_u:
         return uv
     out = np.array(uv, dtype=np.float64, copy=True)
     out[:, 0] = u_ref + camera.wrap_du(out[:, 0] - u_ref)
@@ -334,7 +334,7 @@ def metric_points(
     uv = camera.project(transform_points(T_cam_lidar, p)) if len(p) else np.zeros((0, 2))
     u_ref = (
         circular_mean_u(corners_uv[:, 0], camera.width)
-        if isinstance(camera, Equirectangular)
+        if camera.periodic_u
         else float(np.nanmedian(corners_uv[:, 0]))
     )
     inside, ab = cell_coordinates(_unwrap(uv, u_ref, camera), _unwrap(corners_uv, u_ref, camera), board)
@@ -392,8 +392,7 @@ def corner_errors(
     best: tuple[float, float, float, bool] | None = None
     for n, perm in enumerate(orders):
         d = pred - uv[perm]
-        if isinstance(camera, Equirectangular):
-            d[:, 0] = camera.wrap_du(d[:, 0])
+        d[:, 0] = camera.wrap_du(d[:, 0])
         e = np.linalg.norm(d, axis=1)
         bm = b_meas[perm]
         ang = np.arctan2(np.linalg.norm(np.cross(b_pred, bm), axis=1), np.sum(b_pred * bm, axis=1))

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from ..board import Board
-from ..camera_models import CameraModel, Equirectangular
+from ..cameras import CameraModel
 from ..types import Scan
 from .metric import MetricPoints, circular_mean_u, transform_points
 
@@ -144,12 +144,12 @@ def crop_around(
 ) -> Crop:
     """A crop around pixels ``uv`` (N, 2) padded by ``pad`` of their extent on every side.
 
-    For an equirectangular ``camera`` the window may cross the seam: columns wrap around.
+    For a ``camera`` whose columns wrap (a panorama) the window may cross the seam.
     """
     H, W = image.shape[:2]
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     uv = uv[np.all(np.isfinite(uv), axis=1)]
-    wrap = isinstance(camera, Equirectangular)
+    wrap = camera is not None and camera.periodic_u
     if uv.size == 0:
         return Crop(np.ascontiguousarray(image[:0, :0]), 0, 0, W, wrap)
     if wrap:

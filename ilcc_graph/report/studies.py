@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..board import Board
-from ..camera_models import CameraModel
+from ..cameras import CameraModel
 from ..types import FrameResult
 from .metric import EvalFrame, Evaluation, FrameEvaluation, eval_frame, evaluate
 

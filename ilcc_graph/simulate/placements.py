@@ -1,15 +1,15 @@
 """Board placements like the paper's Section 6.2 and the per-frame scene around each board.
 
 Default placements (LiDAR frame): frames are split over five horizontal directions (72 deg apart
-for a panoramic camera; spread over the horizontal field of view for pinhole/fisheye), four per
+for a panoramic camera, whose columns wrap; spread over the horizontal field of view otherwise), four per
 direction for 20 frames. Each board sits 1.2-2.6 m away (the distances of one direction staggered
 over that range), its azimuth jittered by up to 12 deg, its centre at a height that keeps the whole
 board inside the LiDAR's vertical field of view; it faces the sensors (board z towards the point
 between LiDAR and camera), is turned 45 deg in its plane (a diamond; plus a random quarter turn and
 up to 8 deg jitter, so every corner of the pattern may end up lowest) and tilted by up to 15 deg
 (pitch) and 25 deg (yaw). A placement is redrawn until the board is fully inside the LiDAR's vertical
-field, inside the room and (pinhole/fisheye) inside the image with a 3 % border; after repeated
-failures the draws move farther out (up to 1.5 m beyond 2.6 m) and, for pinhole/fisheye, towards
+field, inside the room and (not panoramic) inside the image with a 3 % border; after repeated
+failures the draws move farther out (up to 1.5 m beyond 2.6 m) and, when not panoramic, towards
 the middle of the view (e.g. a VLP-16's +-15 deg field cannot hold a 0.75 m board at 1.2 m).
 
 Per frame: a thin pole (3 x 3 cm) from the ground up to just below and behind the board's lowest
@@ -82,9 +82,9 @@ def _pose(spec: SimulationSpec, centre: np.ndarray, roll: float, pitch: float, y
 
 
 def _azimuth_range(spec: SimulationSpec) -> tuple[float, float] | None:
-    """Horizontal span (rad, LiDAR azimuth) of a pinhole/fisheye image's middle row; None for panoramas."""
+    """Horizontal span (rad, LiDAR azimuth) of the image's middle row; None for a panorama (columns wrap)."""
     cam = spec.camera
-    if cam.kind == "equirectangular":
+    if cam.periodic_u:
         return None
     uv = np.column_stack([np.linspace(0, cam.width - 1, 81), np.full(81, (cam.height - 1) / 2)])
     b = cam.bearing(uv)
@@ -109,7 +109,7 @@ def _acceptable(spec: SimulationSpec, T: np.ndarray) -> bool:
         if pts[:, 1].min() < ymin + 0.3 or pts[:, 1].max() > ymax - 0.3:
             return False
     cam = spec.camera
-    if cam.kind != "equirectangular":
+    if not cam.periodic_u:
         uv = cam.project(pts @ spec.T_cam_lidar[:3, :3].T + spec.T_cam_lidar[:3, 3])
         bw, bh = 0.03 * cam.width, 0.03 * cam.height
         if not np.all(np.isfinite(uv)):
@@ -146,7 +146,7 @@ def board_placements(spec: SimulationSpec) -> list[np.ndarray]:
         for attempt in range(400):
             relax = attempt / 400.0
             d = lo + (j + rng.random()) * (hi - lo) / m + 1.5 * relax  # move out when nothing fits
-            # pinhole/fisheye: drift towards the middle of the view when nothing fits
+            # not panoramic: drift towards the middle of the view when nothing fits
             az = centres[direction[i]] + rng.uniform(-1, 1) * jitter * (1.0 - relax)
             if az_range is not None:
                 az = (1.0 - relax) * az + relax * 0.5 * (az_range[0] + az_range[1])

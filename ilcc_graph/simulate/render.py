@@ -23,7 +23,6 @@ import cv2
 import numpy as np
 from scipy.special import ndtri
 
-from ..camera_models import Equirectangular
 from .placements import PURPOSE_FRAME, PURPOSE_UNIT, camera_centre_lidar, frame_rng, static_scene
 from .scene import (
     SURF_BOARD,
@@ -185,7 +184,7 @@ class ImageRenderer:
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None] | None:
         """Pixels that may show an object, from LiDAR-frame points along its edges.
 
-        Returns rows (h,), columns (w,) (wrapped modulo W for panoramas) of a bounding box, and a
+        Returns rows (h,), columns (w,) (wrapped modulo W when the camera's columns wrap) of a box, and a
         (h, w) bool mask of the convex hull of the points' images grown by ``pad`` pixels (None:
         the whole box); None when the object cannot be seen.
         """
@@ -196,10 +195,10 @@ class ImageRenderer:
         finite = np.all(np.isfinite(uv), axis=1)
         if not finite.any():
             return None
-        if not isinstance(cam, Equirectangular) and not finite.all():
+        if not cam.periodic_u and not finite.all():
             return np.arange(H), np.arange(W), None  # partly not imageable: be safe, take everything
         u, v = uv[finite, 0], uv[finite, 1]
-        if isinstance(cam, Equirectangular):
+        if cam.periodic_u:
             u = u[0] + cam.wrap_du(u - u[0])
             lo, hi = int(np.floor(u.min())) - pad, int(np.ceil(u.max())) + pad
             if hi - lo + 1 >= W // 2:

@@ -1,8 +1,9 @@
 """What to simulate: :class:`SimulationSpec` and its option groups, and :func:`standard_spec`.
 
 Frames follow ``shared/interface.md``: LiDAR x forward, y left, z up; ``T_cam_lidar`` maps LiDAR
-points into the camera frame (equirectangular: x forward, y left, z up; pinhole/fisheye: OpenCV's
-z forward, x right, y down). Lengths are metres, angles degrees where a name says ``_deg``.
+points into the camera frame (the camera model's axes, ``CameraModel.R_flu_cam``: equirectangular
+x forward, y left, z up; lens models OpenCV's z forward, x right, y down). Lengths are metres,
+angles degrees where a name says ``_deg``.
 
 Default magnitudes and why:
 
@@ -26,7 +27,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..board import Board
-from ..camera_models import CameraModel, Equirectangular, Fisheye, Pinhole
+from ..cameras import CameraModel, Equirectangular, camera_class
 from ..lidar_models import LidarModel, lidar_model
 
 __all__ = [
@@ -39,8 +40,6 @@ __all__ = [
     "paper_board",
 ]
 
-# Camera axes for pinhole/fisheye (OpenCV: x right, y down, z forward) in terms of LiDAR axes.
-R_OPENCV_LIDAR = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
 #: Default camera centre in the LiDAR frame (m): a camera mounted 25 cm above the LiDAR.
 DEFAULT_CAMERA_CENTRE_LIDAR = (0.05, -0.03, 0.25)
 #: Default small rotation (rotation vector, degrees) between the nominal and the true camera axes.
@@ -140,7 +139,7 @@ class SimulationSpec:
     n_frames: number of frames (board placements).
     seed: master seed; every random stream is derived from it with ``np.random.SeedSequence``.
     noise_scale: multiplies every geometric LiDAR noise sigma (board and range noise).
-    T_cam_lidar: (4, 4) true extrinsic; None -> :func:`default_T_cam_lidar` for the camera kind.
+    T_cam_lidar: (4, 4) true extrinsic; None -> :func:`default_T_cam_lidar` of the camera.
     board_noise_sigma_m: (3,) sigma along the board's x, y and normal, before ``noise_scale``.
     systematics: switchable systematic errors.
     placements: explicit ``T_lidar_board`` (4, 4) per frame (overrides ``n_frames``) or None.
@@ -171,11 +170,7 @@ class SimulationSpec:
     def __post_init__(self) -> None:
         model = self.lidar if isinstance(self.lidar, LidarModel) else lidar_model(self.lidar)
         object.__setattr__(self, "_lidar_model", model)
-        T = (
-            default_T_cam_lidar(self.camera.kind)
-            if self.T_cam_lidar is None
-            else _check_pose(self.T_cam_lidar)
-        )
+        T = default_T_cam_lidar(self.camera) if self.T_cam_lidar is None else _check_pose(self.T_cam_lidar)
         T.setflags(write=False)
         object.__setattr__(self, "T_cam_lidar", T)
         if self.placements is not None:
@@ -203,15 +198,14 @@ class SimulationSpec:
     def with_(self, **changes: Any) -> SimulationSpec:
         """A copy with some fields changed (``dataclasses.replace``).
 
-        A new ``camera`` of another kind also gets that kind's default ``T_cam_lidar`` when the
-        current one is the old kind's default and no ``T_cam_lidar`` is given.
+        A new ``camera`` also gets its default ``T_cam_lidar`` (its own nominal axes) when the
+        current one is the old camera's default and no ``T_cam_lidar`` is given.
         """
         cam = changes.get("camera")
         if (
             cam is not None
             and "T_cam_lidar" not in changes
-            and cam.kind != self.camera.kind
-            and np.array_equal(self.T_cam_lidar, default_T_cam_lidar(self.camera.kind))
+            and np.array_equal(self.T_cam_lidar, default_T_cam_lidar(self.camera))
         ):
             changes["T_cam_lidar"] = None
         return replace(self, **changes)
@@ -256,15 +250,17 @@ def _check_pose(T: Any) -> np.ndarray:
     return T
 
 
-def default_T_cam_lidar(kind: str) -> np.ndarray:
-    """The default true extrinsic for a camera kind, (4, 4).
+def default_T_cam_lidar(camera: str | CameraModel) -> np.ndarray:
+    """The default true extrinsic for a camera (or camera kind), (4, 4).
 
     The camera centre sits at ``DEFAULT_CAMERA_CENTRE_LIDAR`` in the LiDAR frame (25 cm above it);
-    its axes are the nominal ones (equirectangular: the LiDAR's; pinhole/fisheye: OpenCV's with z
-    along LiDAR x) turned by the rotation vector ``DEFAULT_ROTVEC_DEG``.
+    its axes are the camera model's nominal ones looking along LiDAR x (``R_flu_cam.T``, the LiDAR
+    frame being forward-left-up: equirectangular the LiDAR's own, lens models OpenCV's with z along
+    LiDAR x) turned by the rotation vector ``DEFAULT_ROTVEC_DEG``.
     """
+    R_flu_cam = (camera_class(camera) if isinstance(camera, str) else camera).R_flu_cam
     R_small = Rotation.from_rotvec(np.deg2rad(DEFAULT_ROTVEC_DEG)).as_matrix()
-    R = R_small if kind == "equirectangular" else R_small @ R_OPENCV_LIDAR
+    R = R_small @ R_flu_cam.T
     T = np.eye(4)
     T[:3, :3] = R
     T[:3, 3] = -R @ np.asarray(DEFAULT_CAMERA_CENTRE_LIDAR)
@@ -272,28 +268,8 @@ def default_T_cam_lidar(kind: str) -> np.ndarray:
 
 
 def default_camera(kind: str, width: int | None = None) -> CameraModel:
-    """A camera of the given kind with plausible intrinsics.
-
-    equirectangular: W x W/2 (default 8000). pinhole: W x 5W/8 (default 1920 x 1200), 90 deg
-    horizontal field, mild barrel distortion. fisheye: W x 4W/5 (default 1280 x 1024), equidistant
-    f = 0.3 W (about 190 deg across the diagonal) with small k1..k4.
-    """
-    if kind == "equirectangular":
-        w = 8000 if width is None else int(width)
-        return Equirectangular(w, w // 2)
-    if kind == "pinhole":
-        w = 1920 if width is None else int(width)
-        h = (w * 5) // 8
-        f = 0.5 * w
-        K = np.array([[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]])
-        return Pinhole(w, h, K, np.array([-0.05, 0.01, 0.0, 0.0, 0.0]))
-    if kind == "fisheye":
-        w = 1280 if width is None else int(width)
-        h = (w * 4) // 5
-        f = 0.3 * w
-        K = np.array([[f, 0.0, (w - 1) / 2], [0.0, f, (h - 1) / 2], [0.0, 0.0, 1.0]])
-        return Fisheye(w, h, K, np.array([0.02, -0.005, 0.001, 0.0]))
-    raise ValueError(f"unknown camera model {kind!r}; expected equirectangular, pinhole or fisheye")
+    """A camera of the given kind with plausible intrinsics (``CameraModel.default``), ``width`` px wide."""
+    return camera_class(kind).default(width)
 
 
 def standard_spec(
@@ -307,7 +283,8 @@ def standard_spec(
 ) -> SimulationSpec:
     """The paper's Section 6.2 set-up (and more) for a LiDAR and camera kind.
 
-    width: image width in pixels; None -> 8000 (equirectangular), 1920 (pinhole), 1280 (fisheye).
+    camera: a camera kind (``cameras.camera_kinds()``); its ``default(width)`` intrinsics.
+    width: image width in pixels; None -> the kind's default (equirectangular 8000, pinhole 1920, ...).
     overrides: any other :class:`SimulationSpec` field (``systematics=Systematics.off()``, ...).
     """
     return SimulationSpec(
