@@ -1,0 +1,184 @@
+"""A board's LiDAR returns in the graph, with the LiDAR's own errors as shared variables.
+
+Keys: the board pose ``T_lidar_board`` (Pose3, ``p_lidar = T * p_board``) and the LiDAR's
+intrinsic parameters ``l`` (a Vector shared by every board: per-beam range offsets, the dark-print
+offset, a range scale, per-beam elevation offsets; which entry is which is the caller's layout).
+
+Each return j (measured point ``p_j``, unit ray ``u_j``, range ``rho_j``) is corrected to first order
+
+    q_j(l) = p_j - u_j (a_j . l) + rho_j e_j (b_j . l)
+
+where ``a_j . l`` is its range error (measured minus true range, metres; e.g. its beam's offset, plus
+the dark-print offset on black print, plus ``rho_j`` times the scale error) and ``b_j . l`` its
+elevation error (rad), ``e_j`` the unit vector of increasing elevation at ``u_j``. ``a_j`` and
+``b_j`` are sparse: each holds a few (parameter index, coefficient) pairs. The residual is the
+corrected return's height above the board's plane, ``z`` of ``T^-1 q_j`` in the board frame,
+divided by its sigma. The board's in-plane position comes from the LiDAR stage's intensity fit,
+which the points do not see: a 3-dof prior ``W S Logmap(T_meas^-1 T)`` (S selects and couples the
+components, W the square-root information of that fit) closes the board's pose. Jacobians are
+analytic; one factor per board (see docs/factors.md for why few, large Python factors).
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+POSE3_DOF = 6
+
+__all__ = ["BoardPointsFactor", "elevation_directions"]
+
+
+def elevation_directions(u: np.ndarray) -> np.ndarray:
+    """(M, 3) unit vectors of increasing elevation at unit rays ``u`` (M, 3), LiDAR frame (z up)."""
+    u = np.asarray(u, dtype=np.float64)
+    h = np.hypot(u[:, 0], u[:, 1])
+    az = np.arctan2(u[:, 1], u[:, 0])
+    el = np.arctan2(u[:, 2], h)
+    return np.column_stack([-np.sin(el) * np.cos(az), -np.sin(el) * np.sin(az), np.cos(el)])
+
+
+class BoardPointsFactor:
+    """One board's returns and in-plane prior on (``T_lidar_board``, LiDAR parameters ``l``).
+
+    Parameters
+    ----------
+    key_board, key_lidar : GTSAM keys (Pose3, Vector of dimension ``n_params``).
+    points : (M, 3) measured returns, LiDAR frame, metres.
+    sigma : (M,) one-sigma range noise of each return, metres (its plane-height sigma is
+        ``sigma * |n . u|``, n the normal of ``T_measured``: a noise model fixed at construction).
+    range_index, range_coef : (M, k) parameter indices and coefficients of ``a_j`` (pad with
+        coefficient 0); ``elevation_index``, ``elevation_coef`` likewise for ``b_j`` (or None).
+    n_params : dimension of ``l``.
+    T_measured : the LiDAR stage's board pose (4, 4) or Pose3.
+    inplane_select : (3, 6) S, inplane_sqrt_info : (3, 3) W of the in-plane prior.
+    """
+
+    def __init__(
+        self,
+        key_board: int,
+        key_lidar: int,
+        points: np.ndarray,
+        sigma: np.ndarray,
+        range_index: np.ndarray,
+        range_coef: np.ndarray,
+        n_params: int,
+        T_measured: np.ndarray | gtsam.Pose3,
+        inplane_select: np.ndarray,
+        inplane_sqrt_info: np.ndarray,
+        elevation_index: np.ndarray | None = None,
+        elevation_coef: np.ndarray | None = None,
+    ) -> None:
+        p = np.asarray(points, dtype=np.float64)
+        M = len(p)
+        if p.shape != (M, 3) or M < 3 or not np.all(np.isfinite(p)):
+            raise ValueError(f"BoardPointsFactor: points must be finite (M >= 3, 3), got {p.shape}")
+        s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (M,)).copy()
+        if not np.all(s > 0):
+            raise ValueError("BoardPointsFactor: sigma must be > 0")
+        ri, rc = np.asarray(range_index, dtype=np.int64), np.asarray(range_coef, dtype=np.float64)
+        if ri.shape != rc.shape or ri.ndim != 2 or ri.shape[0] != M:
+            raise ValueError(
+                f"BoardPointsFactor: range_index/coef must be (M, k), got {ri.shape}, {rc.shape}"
+            )
+        if ri.size and (ri.min() < 0 or ri.max() >= n_params):
+            raise ValueError(f"BoardPointsFactor: range_index outside 0..{n_params - 1}")
+        self.keys = (int(key_board), int(key_lidar))
+        self.points = p
+        self.rho = np.linalg.norm(p, axis=1)
+        self.u = p / self.rho[:, None]
+        self.sigma = s
+        self.range_index, self.range_coef = ri, rc
+        self.n_params = int(n_params)
+        self.elev = None
+        if elevation_index is not None:
+            ei = np.asarray(elevation_index, dtype=np.int64)
+            ec = np.asarray(elevation_coef, dtype=np.float64)
+            if ei.shape != ec.shape or ei.ndim != 2 or ei.shape[0] != M:
+                raise ValueError("BoardPointsFactor: elevation_index/coef must be (M, k)")
+            self.elev = (ei, ec, elevation_directions(self.u))
+        self.T_measured = T_measured if isinstance(T_measured, gtsam.Pose3) else gtsam.Pose3(T_measured)
+        self.S = np.asarray(inplane_select, dtype=np.float64).reshape(3, POSE3_DOF)
+        self.W = np.asarray(inplane_sqrt_info, dtype=np.float64).reshape(3, 3)
+        n0 = self.T_measured.rotation().matrix()[:, 2]
+        self.weight = 1.0 / (s * np.maximum(np.abs(self.u @ n0), 0.05))  # 1 / plane-height sigma
+        self.scale = 1.0  # variance scale of the point rows (``scaled``)
+        self.inplane_scale = 1.0
+
+    @property
+    def n_points(self) -> int:
+        return len(self.points)
+
+    @property
+    def dim(self) -> int:
+        """Error dimension: one row per return, then three for the in-plane prior."""
+        return self.n_points + 3
+
+    def scaled(self, points_scale: float, inplane_scale: float) -> BoardPointsFactor:
+        """The same data with the point and in-plane variances multiplied by the given factors."""
+        import copy
+
+        other = copy.copy(self)
+        other.scale, other.inplane_scale = self.scale * points_scale, self.inplane_scale * inplane_scale
+        return other
+
+    def corrected(self, lidar: np.ndarray) -> np.ndarray:
+        """(M, 3) the returns corrected by the LiDAR parameters ``lidar`` (n_params,)."""
+        dr = np.sum(self.range_coef * lidar[self.range_index], axis=1)
+        q = self.points - self.u * dr[:, None]
+        if self.elev is not None:
+            ei, ec, e = self.elev
+            q = q + (self.rho * np.sum(ec * lidar[ei], axis=1))[:, None] * e
+        return q
+
+    def evaluate(
+        self, T: gtsam.Pose3, lidar: np.ndarray, jacobians: bool
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Whitened error (M + 3,) and ``order="F"`` Jacobians w.r.t. ``T`` (M+3, 6) and ``l`` (M+3, n)."""
+        lidar = np.asarray(lidar, dtype=np.float64).reshape(self.n_params)
+        R, t = T.rotation().matrix(), T.translation()
+        n = R[:, 2]
+        q = self.corrected(lidar)
+        pb = (q - t) @ R  # board frame
+        nu = self.u @ n
+        w = self.weight / np.sqrt(self.scale)
+        r_pts = w * pb[:, 2]
+        H_log = np.zeros((POSE3_DOF, POSE3_DOF), order="F") if jacobians else None
+        H_btw = np.zeros((POSE3_DOF, POSE3_DOF), order="F") if jacobians else None
+        rel = self.T_measured.between(T, None, H_btw)
+        xi = np.asarray(gtsam.Pose3.Logmap(rel, H_log) if jacobians else gtsam.Pose3.Logmap(rel))
+        Wi = self.W / np.sqrt(self.inplane_scale)
+        r_in = Wi @ (self.S @ xi)
+        err = np.concatenate([r_pts, r_in])
+        if not jacobians:
+            return err, None, None
+        M = self.n_points
+        H_T = np.zeros((M + 3, POSE3_DOF), order="F")
+        # z of Exp(xi)^-1 p_b: d/d omega = -(p_b x e_z) = (-y, x, 0), d/d v = (0, 0, -1)
+        H_T[:M, 0] = -w * pb[:, 1]
+        H_T[:M, 1] = w * pb[:, 0]
+        H_T[:M, 5] = -w
+        H_T[M:] = Wi @ self.S @ H_log @ H_btw
+        H_l = np.zeros((M + 3, self.n_params), order="F")
+        rows = np.repeat(np.arange(M), self.range_index.shape[1])
+        np.add.at(H_l, (rows, self.range_index.ravel()), (-(w * nu)[:, None] * self.range_coef).ravel())
+        if self.elev is not None:
+            ei, ec, e = self.elev
+            ne = e @ n
+            rows_e = np.repeat(np.arange(M), ei.shape[1])
+            np.add.at(H_l, (rows_e, ei.ravel()), ((w * self.rho * ne)[:, None] * ec).ravel())
+        return err, H_T, H_l
+
+    def _error(
+        self, this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None
+    ) -> np.ndarray:
+        keys = this.keys()
+        T, lidar = values.atPose3(keys[0]), values.atVector(keys[1])
+        err, H_T, H_l = self.evaluate(T, lidar, H is not None)
+        if H is not None:
+            H[0], H[1] = H_T, H_l
+        return err
+
+    def factor(self) -> gtsam.CustomFactor:
+        """The GTSAM factor (unit noise model of dimension M + 3, whitening done inside)."""
+        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(self.dim), list(self.keys), self._error)
