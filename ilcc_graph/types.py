@@ -88,6 +88,26 @@ class Scan:
 
 
 @dataclass(frozen=True)
+class BoardReturns:
+    """A board's LiDAR returns as the estimation core uses them to calibrate the LiDAR's own errors.
+
+    points: (M, 3) measured returns well inside the board, LiDAR frame, metres.
+    ring: (M,) int beam index (0 = lowest beam). dark: (M,) 1.0 on black print, 0.0 on white.
+    sigma_m: one-sigma range noise of a return (the stage's plane-fit residual), metres.
+    inplane_cov: (3, 3) covariance of the intensity fit's in-plane pose (rz, tx, ty), board frame.
+    inplane_coupling: (3, 3) K: the in-plane error caused by a plane error (rx, ry, tz), so that
+        the in-plane measurement is ``e_in + K e_plane`` (``lidar.covariance.ray_coupling``).
+    """
+
+    points: np.ndarray
+    ring: np.ndarray
+    dark: np.ndarray
+    sigma_m: float
+    inplane_cov: np.ndarray
+    inplane_coupling: np.ndarray
+
+
+@dataclass(frozen=True)
 class BoardFit:
     """The LiDAR stage's answer for one frame.
 
@@ -110,6 +130,7 @@ class BoardFit:
     half_turn_ambiguous: bool
     cost: float = float("nan")
     diagnostics: dict[str, float] = field(default_factory=dict)
+    returns: BoardReturns | None = None
 
 
 @dataclass(frozen=True)
@@ -140,6 +161,7 @@ class GraphFrame:
     points_board: (K, 3) corners in the board frame, metres (``Board.corners_board()`` order).
     bearings: (K, 3) measured bearings of the same corners, camera frame (normalised by the core).
     cov_px: (K, 2, 2) pixel covariance of each image corner, px^2.
+    returns: the board's LiDAR returns (to calibrate the LiDAR's own errors), or None.
     """
 
     name: str
@@ -148,6 +170,7 @@ class GraphFrame:
     points_board: np.ndarray
     bearings: np.ndarray
     cov_px: np.ndarray
+    returns: BoardReturns | None = None
 
 
 @dataclass(frozen=True)
