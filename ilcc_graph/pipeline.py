@@ -23,6 +23,7 @@ from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import NoiseOptions
 from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.batch import solve as solve_batch
+from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.estimation.incremental import FrameUpdate, IncrementalCalibrator
 from ilcc_graph.estimation.noise import BoardStats
 from ilcc_graph.estimation.paper import refine_paper
@@ -161,14 +162,22 @@ def _prepare(observed: Sequence[FrameResult], config: Config) -> _Prepared:
     frames = [
         GraphFrame(
             r.name,
-            r.board.T_lidar_board,
-            r.board.covariance,
-            board.corners_board(),  # type: ignore[union-attr]
-            r.corners.bearings,
-            r.corners.cov_px,
-        )  # type: ignore[union-attr]
+            r.board.T_lidar_board,  # type: ignore[union-attr]
+            r.board.covariance,  # type: ignore[union-attr]
+            board.corners_board(),
+            r.corners.bearings,  # type: ignore[union-attr]
+            r.corners.cov_px,  # type: ignore[union-attr]
+            r.board.returns,  # type: ignore[union-attr]
+        )
         for r in kept
     ]
+    geometry = board_geometry(frames)
+    for name, first in geometry.repeats.items():
+        _drop(results, name, f"same board pose as {first}: one observation, not an independent one")
+    if not geometry.ok:
+        raise CalibrationImpossible(f"{geometry.reason}. What to capture next: {geometry.advice}")
+    frames = [f for f in frames if f.name not in geometry.repeats]
+    kept = [r for r in kept if r.name not in geometry.repeats]
     T_init = order.T_cam_lidar
     if T_init is None:
         P = np.vstack([r.board.corners_lidar for r in kept])  # type: ignore[union-attr]
