@@ -176,6 +176,8 @@ def _prepare(observed: Sequence[FrameResult], config: Config) -> _Prepared:
         _drop(results, name, f"same board pose as {first}: one observation, not an independent one")
     if not geometry.ok:
         raise CalibrationImpossible(f"{geometry.reason}. What to capture next: {geometry.advice}")
+    if geometry.parallel:
+        log.warning("%s: %s", config.source, geometry.parallel)
     frames = [f for f in frames if f.name not in geometry.repeats]
     kept = [r for r in kept if r.name not in geometry.repeats]
     T_init = order.T_cam_lidar

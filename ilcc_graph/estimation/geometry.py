@@ -6,11 +6,14 @@ counting them as independent would shrink the covariance for nothing. ``board_ge
 such frames (board centres within ``same_mm``, normals within ``same_deg``, long sides within
 ``same_deg`` modulo a half turn).
 
-Each distinct pose's LiDAR estimate is least sure along its own normal (range errors) and in its tilt;
-the extrinsic's translation is then fixed only when the normals of the distinct poses span all three
-directions, and it is at least three of them. ``spread`` is the square root of the smallest
-eigenvalue of the mean of ``n n^T`` over the distinct poses (0: all normals parallel or in one
-plane; 0.58: three orthogonal ones).
+At least three distinct poses are needed (each pose gives the board's full pose in both sensors,
+but what is wrong with one placement cannot be told from the extrinsic without others). Each
+distinct pose's LiDAR estimate is least sure along its own normal (range errors): when all the
+normals are parallel, a range error of the LiDAR moves the extrinsic along that normal unseen, so a
+warning says so (``parallel``); it is not refused, because the intensity fit fixes the boards
+in-plane and a modelled range error (``lidar_errors``) shows up in the covariance. ``spread`` is
+the square root of the smallest eigenvalue of the mean of ``n n^T`` over the distinct poses (0:
+all normals parallel or in one plane; 0.58: three orthogonal ones).
 """
 
 from __future__ import annotations
@@ -22,17 +25,19 @@ import numpy as np
 
 from ilcc_graph.types import GraphFrame
 
-__all__ = ["MIN_DISTINCT_POSES", "MIN_SPREAD", "Geometry", "board_geometry"]
+__all__ = ["MAX_PARALLEL_DEG", "MIN_DISTINCT_POSES", "Geometry", "board_geometry"]
 
 MIN_DISTINCT_POSES = 3
-MIN_SPREAD = 0.05
+#: normals all within this angle of their mean count as parallel (a warning)
+MAX_PARALLEL_DEG = 5.0
 
 
 @dataclass(frozen=True)
 class Geometry:
     """groups: frame names per distinct board pose, in input order (the first of each is kept).
     normals: (G, 3) board normals of the distinct poses, LiDAR frame. spread: see the module.
-    ok: whether they can determine the extrinsic; reason and advice when not."""
+    ok: whether they can determine the extrinsic; reason and advice when not. parallel: a warning
+    when every normal is within ``MAX_PARALLEL_DEG`` of their mean."""
 
     groups: list[list[str]]
     normals: np.ndarray
@@ -40,6 +45,7 @@ class Geometry:
     ok: bool
     reason: str | None = None
     advice: str | None = None
+    parallel: str | None = None
 
     @property
     def repeats(self) -> dict[str, str]:
@@ -78,16 +84,19 @@ def board_geometry(frames: Sequence[GraphFrame], same_mm: float = 30.0, same_deg
     if len(groups) < MIN_DISTINCT_POSES:
         return Geometry(
             names, normals, spread, False,
-            f"{len(frames)} frame(s) show only {len(groups)} distinct board pose(s)" + (f" ({said})" if said else "")
+            f"{len(frames)} frame(s) show only {len(groups)} distinct board pose(s)"
+            + (f" ({said})" if said else "")
             + f"; at least {MIN_DISTINCT_POSES} are needed to determine all six degrees of freedom",
             "capture the board in more places (left, right, near, far) and tilted differently "
             "(turned left/right and up/down by 20-40 degrees)",
         )  # fmt: skip
-    if spread < MIN_SPREAD:
-        return Geometry(
-            names, normals, spread, False,
-            f"the {len(groups)} distinct board poses have nearly parallel or coplanar normals (spread {spread:.3f} "
-            f"< {MIN_SPREAD}): the extrinsic's translation along the missing direction is not determined",
-            "tilt the board up and down as well as left and right between captures",
-        )  # fmt: skip
-    return Geometry(names, normals, spread, True)
+    mean = normals.mean(axis=0)
+    mean /= np.linalg.norm(mean)
+    parallel = None
+    if np.degrees(np.arccos(np.clip(normals @ mean, -1.0, 1.0))).max() < MAX_PARALLEL_DEG:
+        parallel = (
+            f"the {len(groups)} distinct board poses all face one way "
+            f"(normals within {MAX_PARALLEL_DEG:g} deg): a range error of the LiDAR moves the extrinsic along that direction unseen; tilt the board "
+            "between captures"
+        )
+    return Geometry(names, normals, spread, True, parallel=parallel)
