@@ -404,11 +404,12 @@ def _run_stage(args: argparse.Namespace, run: Callable, label: str, **require: b
     """
     from ilcc_graph.config import load_config
     from ilcc_graph.io import list_frames, write_yaml
-    from ilcc_graph.pipeline import check_board_colour
+    from ilcc_graph.pipeline import check_board_colour, resolve_lidar
 
     data = _need_dir(args.data)
     config = load_config(data / "config.yaml")
     frames, unpaired = list_frames(data, **require)
+    config = resolve_lidar(frames, config)  # the beam table the scans show
     config = check_board_colour(frames, config)  # uses the images where there are any
     out = _run_dir(args.out)
     results = run(frames, config, args.jobs, _Progress(label))

@@ -18,12 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from ilcc_graph.config import Config, load_config
-from ilcc_graph.errors import BoardColourMismatch, CalibrationImpossible, FrameError
+from ilcc_graph.errors import BoardColourMismatch, CalibrationImpossible, FrameError, InputError
 from ilcc_graph.graph import GraphFrame, GraphOptions, solve
 from ilcc_graph.image import detect_corners
 from ilcc_graph.init import resolve_half_turns, upnp
 from ilcc_graph.io import FramePaths, list_frames, read_image, read_scan
 from ilcc_graph.lidar import estimate_board
+from ilcc_graph.lidars import choose_model, measure_beams
 from ilcc_graph.paper_refine import refine_paper
 from ilcc_graph.types import BoardFit, Calibration, FrameResult, ImageCorners
 
@@ -51,6 +52,29 @@ def observe_lidar(paths: FramePaths, config: Config) -> BoardFit:
     """The LiDAR stage on one frame's scan; raises FrameError with the reason."""
     scan = read_scan(paths.scan, config.intensity_column)
     return estimate_board(scan, config.board, config.lidar, config.roi)
+
+
+def resolve_lidar(frames: Sequence[FramePaths], config: Config, look: int = 3) -> Config:
+    """The config with the beam table the scans show, warning once when it contradicts the config's.
+
+    The first readable scan of the first ``look`` frames is measured (``lidars.measure_beams``:
+    ring field, organised rows or elevation clusters) and checked against ``config.lidar`` (a named
+    model or a calibration file); the measured table is used where they differ. With no model in
+    the config the measured one is used silently. An unreadable scan is left to the LiDAR stage.
+    """
+    for paths in frames[:look]:
+        if paths.scan is None:
+            continue
+        try:
+            scan = read_scan(paths.scan, config.intensity_column)
+        except InputError:
+            continue
+        name = f"{paths.scan.parent.name}/{paths.scan.name}"
+        model, warning = choose_model(measure_beams(scan), config.lidar, name)
+        if warning:
+            log.warning("%s", warning)
+        return dataclasses.replace(config, lidar=model)
+    return config
 
 
 def observe_image(paths: FramePaths, config: Config) -> ImageCorners:
@@ -313,6 +337,7 @@ def observe_dataset(
     data_dir = Path(data_dir)
     config = load_config(data_dir / "config.yaml")
     frames, unpaired = list_frames(data_dir)
+    config = resolve_lidar(frames, config)
     config = check_board_colour(frames, config)
     observed = observe_frames(frames, config, jobs, progress)
     observed += [FrameResult(name=stem, used=False, reason=why) for stem, why in unpaired]

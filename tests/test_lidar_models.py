@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ilcc_graph.errors import InputError
-from ilcc_graph.lidar_models import MODEL_NAMES, LidarModel, lidar_model, ring_from_points
+from ilcc_graph.lidars import MODEL_NAMES, LidarModel, lidar_model, ring_from_points
 
 NAMED = [m for m in MODEL_NAMES if m != "generic"]
 

@@ -6,7 +6,8 @@ common aliases (``laser_id`` for ``ring``, VeloView's ``Points:0`` for ``x``, Cl
 ``scalar_Intensity`` for ``intensity``).
 
 Rows whose x, y, z or intensity is not finite are dropped (Velodyne drivers write NaN for "no
-return"); a file whose rows are all non-finite, or that has no rows, raises ``InputError``.
+return"), and so are points exactly at the origin (Ouster's organised clouds write (0, 0, 0) for
+"no return"); a file whose rows are all unusable, or that has no rows, raises ``InputError``.
 """
 
 from __future__ import annotations
@@ -90,8 +91,10 @@ def find_fields(path: Path, names: Sequence[str], need_intensity: bool = True) -
     return found
 
 
-def make_scan(path: Path, xyz: np.ndarray, intensity: np.ndarray, ring: np.ndarray | None) -> Scan:
-    """Check values, drop non-finite rows and build the ``Scan`` (float64 / int32 copies)."""
+def make_scan(
+    path: Path, xyz: np.ndarray, intensity: np.ndarray, ring: np.ndarray | None, columns: int | None = None
+) -> Scan:
+    """Check values, drop non-finite rows and (0, 0, 0) points; the ``Scan`` (float64 / int32 copies)."""
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
     inten = np.asarray(intensity, dtype=np.float64).reshape(-1)
     n = xyz.shape[0]
@@ -100,6 +103,9 @@ def make_scan(path: Path, xyz: np.ndarray, intensity: np.ndarray, ring: np.ndarr
     ok = np.isfinite(xyz).all(axis=1) & np.isfinite(inten)
     if not ok.any():
         raise InputError(f"{path}: all {n} points have non-finite x, y, z or intensity (NaN/inf)")
+    ok &= (xyz != 0).any(axis=1)
+    if not ok.any():
+        raise InputError(f"{path}: all {n} points are at (0, 0, 0) (no return)")
     r = None
     if ring is not None:
         rf = np.asarray(ring).reshape(-1)
@@ -117,7 +123,11 @@ def make_scan(path: Path, xyz: np.ndarray, intensity: np.ndarray, ring: np.ndarr
         xyz, inten = xyz[ok], inten[ok]
         r = None if r is None else r[ok]
     return Scan(
-        points=np.ascontiguousarray(xyz), intensity=np.ascontiguousarray(inten), ring=r, source=str(path)
+        points=np.ascontiguousarray(xyz),
+        intensity=np.ascontiguousarray(inten),
+        ring=r,
+        source=str(path),
+        columns=columns,
     )
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..board import Board
-from ..lidar_models import LidarModel
+from ..lidars import LidarModel
 from ..types import Scan
 
 

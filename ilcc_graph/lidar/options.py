@@ -57,6 +57,8 @@ class LidarOptions:
         (None: all); the soft-edged refinement that follows uses all of them.
     refine: run the soft-edged Gauss-Newton refinement (gives the in-plane covariance and the
         final pose); when False the Powell pose is returned with the refinement's covariance.
+    max_fits: the chessboard is fitted to at most this many of the candidates that pass the tests
+        (best first, see choice.py); the best fit wins.
     min_agreement: after the fit, the share of black/white returns (away from the edges) whose
         colour matches the fitted pattern must reach this, else BoardNotFound.
     covariance_inflation: multiplies the final covariance (1 = the derivation as documented).
@@ -84,5 +86,6 @@ class LidarOptions:
     powell_max_points: int | None = 600
     projection: str = "ray"
     refine: bool = True
+    max_fits: int = 4
     min_agreement: float = 0.8
     covariance_inflation: float = 1.0

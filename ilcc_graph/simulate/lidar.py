@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..lidar_models import LidarModel
+from ..lidars import LidarModel
 from ..types import Scan
 from .placements import PURPOSE_FRAME, PURPOSE_UNIT, frame_rng
 from .scene import (

@@ -27,7 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from ..board import Board
 from ..camera_models import CameraModel, Equirectangular, Fisheye, Pinhole
-from ..lidar_models import LidarModel, lidar_model
+from ..lidars import LidarModel, lidar_model
 
 __all__ = [
     "Systematics",
