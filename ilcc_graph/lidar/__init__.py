@@ -332,10 +332,11 @@ def estimate_board(
     mask = None if expected is None else expected_mask(pts, board, expected)
     fits: list[tuple[float, Candidate, BoardFit]] = []
     refused: list[str] = []
-    budget = [max(1, options.max_fits)]
+    budget = [3 * max(1, options.max_fits)]  # fits over all batches of candidates
 
     def accept(cands: list[Candidate]) -> bool:
-        for cand in candidate_order(cands, pts, board, expected):
+        """Fit the best few new candidates; True (stop searching) once a fit is good."""
+        for cand in candidate_order(cands, pts, board, expected)[: max(1, options.max_fits)]:
             if budget[0] <= 0:
                 break
             budget[0] -= 1
@@ -345,11 +346,18 @@ def estimate_board(
                 refused.append(str(e))
                 continue
             score = fit_score(fit, board, expected)
-            if np.isfinite(score):
-                fits.append((score, cand, fit))
-            else:
+            if not np.isfinite(score):
                 refused.append("the fitted board lies beyond the expected board's tolerances")
-        return bool(fits) or budget[0] <= 0
+            elif score < options.min_fit_score:
+                off = fit.cost / max(fit.diagnostics["n_points"], 1.0) / board.square_size
+                refused.append(
+                    f"a board-shaped object at {fit.diagnostics['range_m']:.2f} m, but the fitted chessboard "
+                    f"explains it poorly (colour agreement {fit.diagnostics['colour_agreement']:.0%}, "
+                    f"returns {off:.2f} squares off the pattern on average)"
+                )
+            else:
+                fits.append((score, cand, fit))
+        return any(f[0] >= options.good_fit_score for f in fits) or budget[0] <= 0
 
     cands = find_candidates(pts, ring, inten, board, lidar_model, roi, options, rng, mask, accept)
     if not fits:
