@@ -27,6 +27,8 @@ EXAMPLES = """\
 examples:
   ilcc-graph demo                                   simulate the standard panoramic set and calibrate it
   ilcc-graph simulate sim/ --lidar hdl32 --camera equirectangular --frames 20 --seed 0
+  ilcc-graph simulate os1/ --lidar os1-64-rev6 --format ouster     Ouster-like organised PCDs, raw signal
+  ilcc-graph simulate csv/ --lidar hdl32 --format velodyne-csv      ILCC CSVs with hardware laser_id
   ilcc-graph calibrate DATA --out out/run1          scans in DATA/pcd, images in DATA/img, DATA/config.yaml
   ilcc-graph calibrate DATA --refine paper          the paper's refinement (no covariance), for comparison
   ilcc-graph calibrate MON/ TUE/ WED/ --mode rigid  three sessions jointly; tells if the mount moved
@@ -178,6 +180,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         frames=args.frames,
         seed=args.seed,
         noise_scale=args.noise_scale,
+        sensor_format=args.format,
     )
     try:
         out = simulate_dataset(Path(args.out), spec, progress=_Progress("simulate"))
@@ -624,8 +627,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = add("simulate", cmd_simulate, "write a simulated data set with ground truth")
     sp.add_argument("out", metavar="OUT")
-    sp.add_argument("--lidar", default="hdl32", choices=("hdl32", "hdl64", "vlp16", "vlp32c", "os1-64"))
+    from ilcc_graph.lidars.tables import MODEL_NAMES
+
+    sp.add_argument("--lidar", default="hdl32", choices=[m for m in MODEL_NAMES if m != "generic"])
     sp.add_argument("--camera", default="equirectangular", choices=("equirectangular", "pinhole", "fisheye"))
+    sp.add_argument(
+        "--format",
+        default="plain",
+        choices=("plain", "ouster", "velodyne-csv"),  # simulate.SENSOR_FORMATS (not imported: heavy)
+        help="how the scans look: plain PCD; ouster (organised PCD, ring 0 = top, raw signal intensity, "
+        "(0,0,0) for lost returns); velodyne-csv (ILCC CSV with the hardware laser_id; hdl32, vlp16)",
+    )
     sp.add_argument("--frames", type=int, default=20)
     sp.add_argument("--seed", type=int, default=0)
     sp.add_argument("--noise-scale", type=float, default=1.0, help="multiplier on the baseline LiDAR noise")

@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import InputError
 from ..types import Scan
 
-__all__ = ["read_scan", "reader", "supported_scan_suffixes", "FIELD_ALIASES"]
+__all__ = ["read_scan", "reader", "supported_scan_suffixes", "FIELD_ALIASES", "write_csv"]
 
 ReadFn = Callable[[Path, "int | None"], Scan]
 _READERS: dict[str, ReadFn] = {}
@@ -204,3 +204,22 @@ def read_csv(path: Path, intensity_column: int | None = None) -> Scan:
         raise InputError(f"{path}: rows have {sorted(widths)} values, the first row has {ncols}")
     ring = data[:, 4] if cols["ring"] is not None else None
     return make_scan(path, data[:, :3], data[:, 3], ring)
+
+
+def write_csv(path: str | Path, scan: Scan, ring_name: str = "laser_id") -> Path:
+    """Write ``scan`` as ILCC's / VeloView's CSV: header ``Points:0,Points:1,Points:2,intensity,laser_id``
+    (ring column named ``ring_name``; omitted when the scan has no ring), atomically."""
+    from .files import atomic_write
+
+    pts = np.asarray(scan.points, dtype=np.float64).reshape(-1, 3)
+    cols = [pts[:, 0], pts[:, 1], pts[:, 2], np.asarray(scan.intensity, dtype=np.float64)]
+    names = ["Points:0", "Points:1", "Points:2", "intensity"]
+    fmt = ["%.6f", "%.6f", "%.6f", "%.6g"]
+    if scan.ring is not None:
+        cols.append(np.asarray(scan.ring, dtype=np.float64))
+        names.append(ring_name)
+        fmt.append("%d")
+    row = ",".join(fmt) + "\n"
+    values = np.stack(cols, axis=1).ravel().tolist()
+    body = (row * len(pts)) % tuple(values) if len(pts) else ""
+    return atomic_write(path, (",".join(names) + "\n" + body).encode("ascii"))

@@ -324,6 +324,13 @@ def estimate_board(
     pts = np.asarray(scan.points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"{scan.source or 'scan'}: points must be (N, 3), got {pts.shape}")
+    valid = np.isfinite(pts).all(axis=1) & (pts != 0).any(
+        axis=1
+    )  # (0, 0, 0): an organised cloud's "no return"
+    if not valid.all():
+        ring_v = None if scan.ring is None else np.asarray(scan.ring)[valid]
+        scan = Scan(pts[valid], np.asarray(scan.intensity)[valid], ring_v, scan.source, scan.columns)
+        pts = scan.points
     if lidar_model is None:
         lidar_model = choose_model(measure_beams(scan), None, scan.source)[0]
     ring = beam_index(scan, lidar_model)

@@ -93,13 +93,15 @@ def measure_beams(scan: Scan, gap_deg: float = 0.06) -> MeasuredBeams | None:
     measured (too few returns): the caller then keeps the named table.
     """
     p = np.asarray(scan.points, dtype=np.float64).reshape(-1, 3)
+    valid = np.isfinite(p).all(axis=1) & (p != 0).any(axis=1)  # (0, 0, 0): no return
+    p = p[valid]
     if p.shape[0] < 50:
         return None
     far = _far(p)
     el = _elevation_deg(p)
     columns = getattr(scan, "columns", None)
     if scan.ring is not None:
-        ring = np.asarray(scan.ring).astype(np.int64)
+        ring = np.asarray(scan.ring).astype(np.int64)[valid]
         ids, med, _ = _group_medians(el[far], ring[far])
         missing = np.setdiff1d(np.unique(ring), ids)
         if missing.size:  # beams with near returns only
