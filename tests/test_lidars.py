@@ -118,13 +118,15 @@ def test_velodyne_xml_yaml_and_hesai_csv(tmp_path: Path) -> None:
     )
     xml = tmp_path / "db.xml"
     xml.write_text(
-        f'<?xml version="1.0"?><boost_serialization><DB><lasers_><count>16</count>{items}</lasers_></DB></boost_serialization>'
+        '<?xml version="1.0"?><boost_serialization><DB><lasers_><count>16</count>'
+        f"{items}</lasers_></DB></boost_serialization>"
     )
     yml = tmp_path / "VLP16db.yaml"
     yml.write_text(
         "lasers:\n"
         + "".join(
-            f"- {{laser_id: {i}, rot_correction: 0.0, vert_correction: {float(np.deg2rad(v))!r}, dist_correction: 0.0}}\n"
+            f"- {{laser_id: {i}, rot_correction: 0.0, vert_correction: {float(np.deg2rad(v))!r}, "
+            "dist_correction: 0.0}\n"
             for i, v in enumerate(ids)
         )
         + "num_lasers: 16\n"
@@ -143,7 +145,10 @@ def test_velodyne_xml_yaml_and_hesai_csv(tmp_path: Path) -> None:
 
 
 def test_config_model_optional_and_calibration_file(tmp_path: Path) -> None:
-    base = "board: {squares: [6, 8], square_size: 0.1}\ncamera: {model: equirectangular, width: 800, height: 400}\n"
+    base = (
+        "board: {squares: [6, 8], square_size: 0.1}\n"
+        "camera: {model: equirectangular, width: 800, height: 400}\n"
+    )
     (tmp_path / "config.yaml").write_text(base)
     assert load_config(tmp_path / "config.yaml").lidar is None
     (tmp_path / "cal").mkdir()

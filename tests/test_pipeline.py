@@ -94,8 +94,9 @@ def test_outlier_frame_is_dropped_with_reason():
     cfg, frames = _frames(10, seed=2)
     bad = frames[3]
     shifted = bad.corners.uv + np.array([40.0, -25.0])  # ~2 deg off in the panorama
-    frames[3] = dataclasses.replace(bad, corners=dataclasses.replace(
-        bad.corners, uv=shifted, bearings=cfg.camera.bearing(shifted)))
+    frames[3] = dataclasses.replace(
+        bad, corners=dataclasses.replace(bad.corners, uv=shifted, bearings=cfg.camera.bearing(shifted))
+    )
     cal = solve_extrinsic(frames, cfg)
     dropped = {f.name: f.reason for f in cal.frames if not f.used}
     assert list(dropped) == ["0003"] and dropped["0003"]
