@@ -162,3 +162,20 @@ def test_config_model_optional_and_calibration_file(tmp_path: Path) -> None:
     (tmp_path / "config.yaml").write_text(base + "lidar: {calibration_file: cal/nothing.json}\n")
     with pytest.raises(InputError, match="nothing.json"):
         load_config(tmp_path / "config.yaml")
+
+
+def test_clusters_find_a_beam_origin_above_the_points_origin() -> None:
+    # Ouster clouds are given in a frame ~36 mm below the beams' origin: seen from the points'
+    # origin a beam's elevation then changes with range (1 deg at 1.5 m for the top beam)
+    spec, scan = _sim("os1-64-rev6", "ouster")
+    valid = (scan.points != 0).any(axis=1)
+    p = scan.points[valid] + [0.0, 0.0, 0.036]
+    truth = 63 - scan.ring[valid]
+    m = measure_beams(Scan(p, scan.intensity[valid], None))
+    assert m.method == "elevation clusters" and m.model.n_beams == 64
+    assert m.model.beam_origin_z_m == pytest.approx(0.035, abs=0.006)
+    assert np.allclose(m.model.vertical_angles_deg, spec.lidar_model.vertical_angles_deg, atol=0.05)
+    assert np.mean(beam_index(Scan(p, scan.intensity[valid], None), m.model) == truth) > 0.999
+    m0 = measure_beams(Scan(p, scan.intensity[valid], scan.ring[valid]))  # with the ring field too
+    assert m0.model.beam_origin_z_m == pytest.approx(0.035, abs=0.006)
+    assert table_difference(m0, spec.lidar_model) is None

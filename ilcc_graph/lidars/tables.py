@@ -69,6 +69,9 @@ class LidarModel:
     range_sigma_m: one-sigma range noise, metres.
     beam_divergence_rad: full beam divergence, radians.
     source: where the table came from, for messages (``"table"``, a calibration file, a scan).
+    beam_origin_z_m: height of the beams' origin above the points' origin (metres; 0 for the
+        named tables). Ouster clouds are given in a frame ~36 mm below the beams' origin, which a
+        table measured by clustering elevations finds; ring from elevation uses ``z - beam_origin_z_m``.
     """
 
     name: str
@@ -77,6 +80,7 @@ class LidarModel:
     range_sigma_m: float = 0.03
     beam_divergence_rad: float = 3e-3
     source: str = "table"
+    beam_origin_z_m: float = 0.0
 
     def __post_init__(self) -> None:
         a = np.asarray(self.vertical_angles_deg, dtype=np.float64).reshape(-1)
@@ -148,7 +152,7 @@ def ring_from_points(points: np.ndarray, model: LidarModel) -> np.ndarray:
     A point at the origin has elevation 0 and gets the beam nearest the horizon.
     """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
+    el = np.degrees(np.arctan2(p[:, 2] - model.beam_origin_z_m, np.hypot(p[:, 0], p[:, 1])))
     a = model.vertical_angles_deg
     if a.size == 1:
         return np.zeros(p.shape[0], dtype=np.int32)
