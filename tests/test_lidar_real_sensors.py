@@ -96,8 +96,17 @@ def _small_spec(lidar: str, fmt: str, frames: int, **kw) -> SimulationSpec:
     )
 
 
+OS1_2048 = lidar_model("os1-64-rev6", horizontal_resolution_deg=360 / 2048)
+
+
 @pytest.mark.parametrize(
-    ("lidar", "fmt", "frames"), [("hdl32", "velodyne-csv", 20), ("os1-64-rev6", "ouster", 4)]
+    ("lidar", "fmt", "frames"),
+    [
+        ("hdl32", "velodyne-csv", 20),
+        ("vlp16", "velodyne-csv", 4),
+        ("os1-64-rev6", "ouster", 4),
+        (OS1_2048, "ouster", 2),
+    ],
 )
 def test_simulated_real_sensor_sets_give_the_board_in_every_frame(
     tmp_path: Path, lidar: str, fmt: str, frames: int
@@ -110,7 +119,8 @@ def test_simulated_real_sensor_sets_give_the_board_in_every_frame(
     for p in paths:
         scan = read_scan(p.scan)
         if fmt == "ouster":
-            assert scan.columns == 1024 and scan.intensity.max() > 300  # raw signal, not 0-255
+            assert scan.columns == round(360 / config.lidar.horizontal_resolution_deg)
+            assert scan.columns in (1024, 2048) and scan.intensity.max() > 300  # raw signal, not 0-255
         else:
             assert p.scan.suffix == ".csv" and scan.ring is not None
         fit = estimate_board(scan, config.board, config.lidar, config.roi)
