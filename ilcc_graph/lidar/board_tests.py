@@ -30,9 +30,14 @@ def intensity_contrast(intensity: np.ndarray) -> tuple[float, float]:
 
     Otsu's split into two classes; d' = (mean_high - mean_low) / pooled within-class sigma.
     A printed chessboard gives d' > 4 with both classes near half; a plain surface gives d' < 3.
-    Both numbers are unchanged by any gain and offset of the intensity (scale-free).
+    Both numbers are unchanged by any gain and offset of the intensity (scale-free); values beyond
+    the 2-98 % quantiles are clipped to them first, so a few saturated returns (retro-reflective
+    tape) do not make a class of their own.
     """
-    r = np.sort(np.asarray(intensity, dtype=np.float64))
+    r = np.asarray(intensity, dtype=np.float64)
+    if r.size >= 4:
+        r = np.clip(r, *np.quantile(r, [0.02, 0.98]))
+    r = np.sort(r)
     m = r.size
     if m < 4 or r[-1] == r[0]:
         return 0.0, 0.0
