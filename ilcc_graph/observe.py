@@ -16,9 +16,10 @@ from dataclasses import dataclass
 
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
-from ilcc_graph.errors import BoardColourMismatch, FrameError
+from ilcc_graph.errors import BoardColourMismatch, FrameError, InputError
 from ilcc_graph.image import ImageOptions, detect_corners
 from ilcc_graph.lidar import LidarOptions, estimate_board
+from ilcc_graph.lidars import choose_model, measure_beams
 from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
 
 log = logging.getLogger(__name__)
@@ -31,6 +32,7 @@ __all__ = [
     "observe_frame",
     "observe_image",
     "observe_lidar",
+    "resolve_lidar",
     "run_image_stage",
     "run_lidar_stage",
 ]
@@ -114,6 +116,28 @@ def _map(fn: Callable, items: Sequence[tuple], jobs: int, progress: Progress | N
     return out
 
 
+def resolve_lidar(source: FrameSource, refs: Sequence[FrameRef], config: Config, look: int = 3) -> Config:
+    """The config with the beam table the scans show, warning once when it contradicts the config's.
+
+    The first readable scan of the first ``look`` frames is measured (``lidars.measure_beams``:
+    ring field, organised rows or elevation clusters) and checked against ``config.lidar`` (a named
+    model or a calibration file); the measured table is used where they differ. With no model in
+    the config the measured one is used silently. An unreadable scan is left to the LiDAR stage.
+    """
+    for ref in refs[:look]:
+        if ref.scan is None:
+            continue
+        try:
+            scan = source.read_scan(ref, config)
+        except InputError:
+            continue
+        model, warning = choose_model(measure_beams(scan), config.lidar, scan.source or ref.name)
+        if warning:
+            log.warning("%s", warning)
+        return dataclasses.replace(config, lidar=model)
+    return config
+
+
 def check_board_colour(
     source: FrameSource,
     refs: Sequence[FrameRef],
@@ -167,8 +191,9 @@ def observe(
     source: FrameSource, options: StageOptions = StageOptions(), progress: Progress | None = None
 ) -> Observation:
     """Read a source's config, list its frames, check the print's colour, run both stages per frame."""
-    config = source.config()
+    config = source.config()  # the config's mistakes first, then the folders'
     refs = source.frames()
+    config = resolve_lidar(source, refs, config)
     config, known = check_board_colour(source, refs, config, options.image)
     items = [(source, r, config, options, known.get(r.name)) for r in refs]
     frames = _map(observe_frame, items, options.jobs, progress)

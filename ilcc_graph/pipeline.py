@@ -29,7 +29,14 @@ from ilcc_graph.estimation.noise import BoardStats
 from ilcc_graph.estimation.paper import refine_paper
 from ilcc_graph.estimation.sessions import JointOptions, JointSolution, Session, solve_sessions
 from ilcc_graph.init import resolve_half_turns, upnp
-from ilcc_graph.observe import Observation, StageOptions, check_board_colour, observe, observe_frame
+from ilcc_graph.observe import (
+    Observation,
+    StageOptions,
+    check_board_colour,
+    observe,
+    observe_frame,
+    resolve_lidar,
+)
 from ilcc_graph.types import Calibration, FrameResult, GraphFrame, ImageCorners, rotation_angle_deg
 
 log = logging.getLogger(__name__)
@@ -254,8 +261,9 @@ def _incremental(
     source: FrameSource, options: RunOptions, report: Callable[[FrameUpdate], None] | None
 ) -> RunResult:
     """Frames observed one at a time and fed to iSAM2; the last update is the batch answer."""
-    config = source.config()
+    config = source.config()  # the config's mistakes first, then the folders'
     refs = source.frames()
+    config = resolve_lidar(source, refs, config)
     config, known = check_board_colour(source, refs, config, options.stages.image)
     cal = IncrementalCalibrator(
         config.camera, config.board, target_sigma=options.target_sigma, noise=options.noise
@@ -311,7 +319,14 @@ def _sessions(observations: Sequence[Observation], names: Sequence[str], options
     """Sources as sessions of one mount, through the sessions strategy."""
     preps = [_prepare(o.frames, o.config) for o in observations]
     sessions = [
-        Session(n, p.frames, o.config.camera, p.T_init, o.config.lidar.name, o.config.board)
+        Session(
+            n,
+            p.frames,
+            o.config.camera,
+            p.T_init,
+            o.config.lidar.name if o.config.lidar else "lidar",
+            o.config.board,
+        )
         for n, p, o in zip(names, preps, observations, strict=True)
     ]
     joint_opts = dataclasses.replace(options.joint, noise=options.noise)

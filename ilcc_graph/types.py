@@ -74,14 +74,19 @@ class Scan:
 
     points: (N, 3) float64, LiDAR frame, metres.
     intensity: (N,) float64, the sensor's reflectance units.
-    ring: (N,) int32 beam index (0 = lowest elevation) or None when the file has none.
+    ring: (N,) int32 ring value as the file gives it (the file's numbering: Ouster's ring 0 is the
+        top beam, Velodyne CSVs carry the hardware laser id; an organised cloud's row), or None when
+        the file has none. The LiDAR stage maps it onto its beam table (0 = lowest elevation) with
+        ``lidars.beam_index``; the simulator writes 0 = lowest unless told otherwise.
     source: where it came from, for messages.
+    columns: columns per turn of an organised cloud (PCD WIDTH when HEIGHT > 1), else None.
     """
 
     points: np.ndarray
     intensity: np.ndarray
     ring: np.ndarray | None = None
     source: str = ""
+    columns: int | None = None
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -212,3 +217,26 @@ class Calibration:
     def extrinsic(self) -> Estimate:
         """``T_cam_lidar`` with its covariance."""
         return Estimate(self.T_cam_lidar, self.covariance)
+
+
+@dataclass(frozen=True)
+class ExpectedBoard:
+    """Where the board is expected in a scan (e.g. predicted from the image and an extrinsic).
+
+    T_lidar_board: (4, 4) predicted board pose in the LiDAR frame (board frame of interface.md;
+        for a half-turn symmetric board either of the two equivalent poses).
+    position_tol_m: how far the board's centre may be from the prediction, metres.
+    angle_tol_deg: how far the board's normal may be turned from the prediction, degrees.
+    """
+
+    T_lidar_board: np.ndarray
+    position_tol_m: float = 0.3
+    angle_tol_deg: float = 20.0
+
+    def __post_init__(self) -> None:
+        T = np.asarray(self.T_lidar_board, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValueError(f"T_lidar_board must be a finite (4, 4) matrix, got shape {T.shape}")
+        if not (self.position_tol_m > 0 and 0 < self.angle_tol_deg <= 180):
+            raise ValueError("position_tol_m must be > 0 and angle_tol_deg in (0, 180]")
+        object.__setattr__(self, "T_lidar_board", T)

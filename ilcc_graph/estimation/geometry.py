@@ -96,7 +96,7 @@ def board_geometry(frames: Sequence[GraphFrame], same_mm: float = 30.0, same_deg
     if np.degrees(np.arccos(np.clip(normals @ mean, -1.0, 1.0))).max() < MAX_PARALLEL_DEG:
         parallel = (
             f"the {len(groups)} distinct board poses all face one way "
-            f"(normals within {MAX_PARALLEL_DEG:g} deg): a range error of the LiDAR moves the extrinsic along that direction unseen; tilt the board "
-            "between captures"
+            f"(normals within {MAX_PARALLEL_DEG:g} deg): a range error of the LiDAR moves the extrinsic "
+            "along that direction unseen; tilt the board between captures"
         )
     return Geometry(names, normals, spread, True, parallel=parallel)
