@@ -129,16 +129,31 @@ def _drop(results: dict[str, FrameResult], name: str, reason: str) -> None:
     results[name] = dataclasses.replace(results[name], used=False, reason=reason)
 
 
-def _prepare(observed: Sequence[FrameResult], config: Config) -> _Prepared:
-    """Order corners across frames (half turns) and take the start from the consensus.
+def _graph_frame(r: FrameResult, config: Config) -> GraphFrame:
+    b, c = r.board, r.corners
+    return GraphFrame(r.name, b.T_lidar_board, b.covariance, config.board.corners_board(),  # type: ignore[union-attr]
+                      c.bearings, c.cov_px, b.returns)  # type: ignore[union-attr]  # fmt: skip
 
-    Raises CalibrationImpossible when no frame has the board in both sensors or the order is ambiguous.
+
+def _prepare(observed: Sequence[FrameResult], config: Config) -> _Prepared:
+    """Repeated board poses out, corners ordered across frames (half turns), the start from the consensus.
+
+    Raises CalibrationImpossible when no frame has the board in both sensors, the distinct board
+    poses cannot calibrate (``estimation.geometry``), or the corner order is ambiguous.
     """
     results = {r.name: r for r in observed}
     usable = [r for r in observed if r.used and r.board is not None and r.corners is not None]
     if not usable:
         reasons = "; ".join(f"{r.name}: {r.reason}" for r in observed) or "no frames"
         raise CalibrationImpossible(f"no frame has the board in both the scan and the image ({reasons})")
+    geometry = board_geometry([_graph_frame(r, config) for r in usable])
+    for name, first in geometry.repeats.items():
+        _drop(results, name, f"same board pose as {first}: one observation, not an independent one")
+    if not geometry.ok:
+        raise CalibrationImpossible(f"{geometry.reason}. What to capture next: {geometry.advice}")
+    if geometry.parallel:
+        log.warning("%s: %s", config.source, geometry.parallel)
+    usable = [r for r in usable if r.name not in geometry.repeats]
     board = config.board
     perm = board.half_turn_permutation() if board.half_turn_symmetric else None
     order = resolve_half_turns(
@@ -166,27 +181,7 @@ def _prepare(observed: Sequence[FrameResult], config: Config) -> _Prepared:
             "no frame left after ordering the corners: "
             + "; ".join(f"{n}: {why}" for n, why in order.dropped)
         )
-    frames = [
-        GraphFrame(
-            r.name,
-            r.board.T_lidar_board,  # type: ignore[union-attr]
-            r.board.covariance,  # type: ignore[union-attr]
-            board.corners_board(),
-            r.corners.bearings,  # type: ignore[union-attr]
-            r.corners.cov_px,  # type: ignore[union-attr]
-            r.board.returns,  # type: ignore[union-attr]
-        )
-        for r in kept
-    ]
-    geometry = board_geometry(frames)
-    for name, first in geometry.repeats.items():
-        _drop(results, name, f"same board pose as {first}: one observation, not an independent one")
-    if not geometry.ok:
-        raise CalibrationImpossible(f"{geometry.reason}. What to capture next: {geometry.advice}")
-    if geometry.parallel:
-        log.warning("%s: %s", config.source, geometry.parallel)
-    frames = [f for f in frames if f.name not in geometry.repeats]
-    kept = [r for r in kept if r.name not in geometry.repeats]
+    frames = [_graph_frame(r, config) for r in kept]
     T_init = order.T_cam_lidar
     if T_init is None:
         P = np.vstack([r.board.corners_lidar for r in kept])  # type: ignore[union-attr]
