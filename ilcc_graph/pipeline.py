@@ -36,8 +36,15 @@ from ilcc_graph.observe import (
     observe,
     observe_frame,
     resolve_lidar,
+    second_pass,
 )
-from ilcc_graph.types import Calibration, FrameResult, GraphFrame, ImageCorners, rotation_angle_deg
+from ilcc_graph.types import (
+    Calibration,
+    FrameResult,
+    GraphFrame,
+    ImageCorners,
+    rotation_angle_deg,
+)
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +71,8 @@ class RunOptions:
     noise: the estimation core's noise policy. stages: the per-frame stages' options and processes.
     joint: sessions mode (rigid / drift, range offset, tests).
     target_sigma: incremental mode's (deg, mm) target; stop_at_target: read no frame after it.
+    second_pass: once an extrinsic is known, search the boards the LiDAR stage missed (or found
+        elsewhere than the image says) near where the image and the extrinsic put them, and solve again.
     """
 
     mode: str = "graph"
@@ -72,6 +81,7 @@ class RunOptions:
     joint: JointOptions = JointOptions()
     target_sigma: tuple[float, float] | None = None
     stop_at_target: bool = False
+    second_pass: bool = True
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -401,12 +411,25 @@ def solve_observations(
     names: Sequence[str] | None = None,
 ) -> RunResult:
     """The estimation strategy of ``options.mode`` on observed sources (``sessions`` for several,
-    or with a range offset); ``names`` label the sessions (default: the sources' labels)."""
+    or with a range offset); ``names`` label the sessions (default: the sources' labels). With
+    ``options.second_pass`` the boards the LiDAR stage missed are searched where the first
+    answer puts them (``second_pass``), and the data solved again when some are found."""
     names = list(names) if names is not None else session_names([o.source for o in observations])
-    if len(observations) > 1 or options.joint.range_offset or options.mode == "sessions":
-        return _sessions(observations, names, options)
     if options.mode == "incremental":
         raise ValueError("incremental mode observes frame by frame: use run()")
+    result = _solve_once(observations, options, names)
+    if not options.second_pass:
+        return result
+    again = [second_pass(s.observation, s.calibration, options.stages) for s in result.sessions]
+    if all(a is None for a in again):
+        return result
+    observations = [o if a is None else a for o, a in zip(observations, again, strict=True)]
+    return _solve_once(observations, options, names)
+
+
+def _solve_once(observations: Sequence[Observation], options: RunOptions, names: list[str]) -> RunResult:
+    if len(observations) > 1 or options.joint.range_offset or options.mode == "sessions":
+        return _sessions(observations, names, options)
     obs = observations[0]
     cal = solve_observed(obs.frames, obs.config, options)
     return RunResult(options.mode, cal, (SessionResult(names[0], obs, cal),), options)
