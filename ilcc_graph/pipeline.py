@@ -25,6 +25,7 @@ from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.batch import solve as solve_batch
 from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.estimation.incremental import FrameUpdate, IncrementalCalibrator
+from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.noise import BoardStats
 from ilcc_graph.estimation.paper import refine_paper
 from ilcc_graph.estimation.sessions import JointOptions, JointSolution, Session, solve_sessions
@@ -73,6 +74,7 @@ class RunOptions:
     target_sigma: incremental mode's (deg, mm) target; stop_at_target: read no frame after it.
     second_pass: once an extrinsic is known, search the boards the LiDAR stage missed (or found
         elsewhere than the image says) near where the image and the extrinsic put them, and solve again.
+    lidar_errors: the LiDAR's own errors the graph estimates from the boards' returns (None: none).
     """
 
     mode: str = "graph"
@@ -82,6 +84,7 @@ class RunOptions:
     target_sigma: tuple[float, float] | None = None
     stop_at_target: bool = False
     second_pass: bool = True
+    lidar_errors: LidarErrorOptions | None = LidarErrorOptions()
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -254,7 +257,7 @@ def solve_observed(
         }
         sol = BatchSolution(T, np.full((6, 6), np.nan), {}, stats, [], 0)
         return _finish(prep, observed, config, "paper", sol)
-    sol = solve_batch(prep.frames, config.camera, prep.T_init, options.noise)
+    sol = solve_batch(prep.frames, config.camera, prep.T_init, options.noise, options.lidar_errors)
     return _finish(prep, observed, config, "graph", sol)
 
 
@@ -271,8 +274,9 @@ def _incremental(
     config = resolve_lidar(source, refs, config)
     config, known = check_board_colour(source, refs, config, options.stages.image)
     cal = IncrementalCalibrator(
-        config.camera, config.board, target_sigma=options.target_sigma, noise=options.noise
-    )
+        config.camera, config.board, target_sigma=options.target_sigma, noise=options.noise,
+        lidar_errors=options.lidar_errors,
+    )  # fmt: skip
     observed: list[FrameResult] = []
     updates: list[FrameUpdate] = []
 
@@ -334,7 +338,7 @@ def _sessions(observations: Sequence[Observation], names: Sequence[str], options
         )
         for n, p, o in zip(names, preps, observations, strict=True)
     ]
-    joint_opts = dataclasses.replace(options.joint, noise=options.noise)
+    joint_opts = dataclasses.replace(options.joint, noise=options.noise, lidar_errors=options.lidar_errors)
     sol = solve_sessions(sessions, joint_opts)
     method = f"joint-{joint_opts.mode}"
     results = []

@@ -20,6 +20,7 @@ arrive; ``finish()`` judges every frame again, as the batch strategy does.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -37,6 +38,7 @@ from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.batch import BatchSolution, solve
 from ilcc_graph.estimation.graphs import frame_bearing_factor, upnp_start
+from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.noise import NoiseOptions
 from ilcc_graph.estimation.solver import gaussian
 from ilcc_graph.init import resolve_half_turns
@@ -97,7 +99,7 @@ class IncrementalCalibrator:
     init_frames : frames buffered before the first estimate when ``T_init`` is None (>= 1).
     relinearize_threshold : iSAM2's per-variable relinearisation threshold (rad / m).
     gate_prob : chi-square quantile above which a frame is rejected; None: never.
-    noise : the noise policy of ``finish()``'s batch solve.
+    noise : the noise policy of ``finish()``'s batch solve; lidar_errors: the LiDAR's own errors it estimates.
     """
 
     camera: CameraModel
@@ -108,6 +110,7 @@ class IncrementalCalibrator:
     relinearize_threshold: float = 1e-3
     gate_prob: float | None = 0.999
     noise: NoiseOptions = NoiseOptions()
+    lidar_errors: LidarErrorOptions | None = None
     _isam: gtsam.ISAM2 = field(init=False, repr=False)
     _pending: list[_Pending] = field(init=False, repr=False, default_factory=list)
     _frames: list[GraphFrame] = field(init=False, repr=False, default_factory=list)
@@ -164,6 +167,7 @@ class IncrementalCalibrator:
             self.board.corners_board(),
             frame.corners.bearings,
             frame.corners.cov_px,
+            frame.board.returns,
         )
         flippable = self.board.half_turn_symmetric and (
             frame.board.half_turn_ambiguous or frame.corners.half_turn_ambiguous
@@ -172,9 +176,7 @@ class IncrementalCalibrator:
 
     def _flipped(self, f: GraphFrame) -> GraphFrame:
         perm = self.board.half_turn_permutation()
-        return GraphFrame(
-            f.name, f.T_lidar_board, f.board_cov, f.points_board, f.bearings[perm], f.cov_px[perm]
-        )
+        return dataclasses.replace(f, bearings=f.bearings[perm], cov_px=f.cov_px[perm])
 
     def add_frame(self, frame: GraphFrame | FrameResult) -> FrameUpdate:
         """Add one frame (a ``GraphFrame``, or the pipeline's ``FrameResult`` with board and corners).
@@ -356,7 +358,7 @@ class IncrementalCalibrator:
             if not self._pending:
                 raise CalibrationImpossible("no frame was added")
             self._initialise(self._pending[-1].frame.name, t0)
-        sol = solve(self._offered, self.camera, np.asarray(self._T.matrix()), self.noise)
+        sol = solve(self._offered, self.camera, np.asarray(self._T.matrix()), self.noise, self.lidar_errors)
         kept = [f for f in self._offered if f.name in sol.per_frame]
         self._isam = gtsam.ISAM2(self._isam.params())
         self._frames = []

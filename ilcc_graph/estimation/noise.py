@@ -46,6 +46,10 @@ log = logging.getLogger(__name__)
 __all__ = ["BoardStats", "NoiseOptions", "Solution", "redundancies", "replace_scales", "solve_problem"]
 
 MIN_BOARDS_ADVISED = 4
+#: a board's returns fail the gate only above this multiple of their dof (after the median scale)
+RETURNS_MAX_RATIO = 2.0
+#: kinds of residual rows with a variance component each (per noise group)
+COMPONENT_KINDS = ("board", "bearing", "points", "inplane")
 
 
 @dataclass(frozen=True)
@@ -216,7 +220,8 @@ def _gate_failures(
     """Boards failing the gate as (log survival probability, board, reason), worst first.
 
     Views (bearings and the board's prior) and, where they enter, the board's LiDAR returns are
-    tested apart, each against its own median scale.
+    tested apart, each against its own median scale; the returns only against a gross misfit
+    (``RETURNS_MAX_RATIO`` times their dof: their residuals are heavy-tailed, a wrong object is not).
     """
     failing = []
     for i, s in stats.items():
@@ -228,6 +233,8 @@ def _gate_failures(
             scale = scales.get(part, 1.0)
             value /= scale
             bound = float(chi2_dist.ppf(prob, dof))
+            if part == "returns":  # heavy-tailed in practice: only a gross misfit (another object) fails
+                bound = max(bound, RETURNS_MAX_RATIO * dof)
             if value > bound:
                 scaled = f" (divided by the frames' median chi2/dof {scale:.2f})" if scale > 1.0 else ""
                 reason = (
@@ -477,10 +484,6 @@ def solve_problem(
     if vf > 1.0 and variance_factor is None:
         log.info("the residuals are %.2f times the stated noise variance; covariance scaled by it", vf)
     return sol
-
-
-#: kinds of residual rows with a variance component each (per noise group)
-COMPONENT_KINDS = ("board", "bearing", "points", "inplane")
 
 
 def _unobservable(sol: Solution) -> dict[int, tuple[list[str], str]]:
