@@ -26,6 +26,8 @@ from ilcc_graph.pipeline import run
 from ilcc_graph.simulate import ImageOptions, simulate_dataset, simulate_frames, standard_spec, write_bag
 from ilcc_graph.simulate.bag import RosMessages, WalkAndPause, simulate_walk
 
+INFO = "sensor_msgs/msg/CameraInfo"
+
 
 @pytest.fixture(scope="module")
 def sets(tmp_path_factory) -> dict:
@@ -199,6 +201,17 @@ def test_bad_input_names_the_bag_and_the_problem(sets, tmp_path) -> None:
     )
     with pytest.raises(InputError, match=r"odd\.bag:/cam/image: image encoding 'yuv422' is not supported"):
         open_source(odd).frames()
+
+    info = m.camera_info(standard_spec(camera="pinhole", width=320, frames=1), 10**9)
+    info.K[:] = 0.0  # an uncalibrated camera
+    uncal = _tiny_bag(tmp_path / "uncal.bag", {"/points": [cloud], "/cam/camera_info": [(INFO, info)]})
+    cfg = read_yaml(uncal.with_suffix(".yaml"))
+    del cfg["camera"]
+    (tmp_path / "uncal.yaml").write_text(yaml.safe_dump(cfg))
+    with pytest.raises(
+        InputError, match=r"uncal\.yaml: camera\.K = .*comes from .*uncal\.bag:/cam/camera_info"
+    ):
+        open_source(uncal).config()
 
     nowhere = tmp_path / "alone"
     nowhere.mkdir()

@@ -40,9 +40,10 @@ IMAGE_LEVEL, IMAGE_STILL = 10, 0.002  # a pixel changed by > 10 grey levels; sti
 LIDAR_STEP_M, LIDAR_STILL = 0.10, 0.003  # a cell changed by > 10 cm and 3 %; still: <= 0.3 % changed
 AZIMUTH_BINS = 360
 _PF = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
-#: encoding -> (bytes per channel, channels, channel order to BGR or None for grey)
-_ENCODINGS = {"bgr8": (1, 3, [0, 1, 2]), "rgb8": (1, 3, [2, 1, 0]), "bgra8": (1, 4, [0, 1, 2]),
-              "rgba8": (1, 4, [2, 1, 0]), "mono8": (1, 1, None), "mono16": (2, 1, None)}  # fmt: skip
+#: encoding -> (bytes per channel, channels, OpenCV conversion to BGR or None)
+_ENCODINGS = {"bgr8": (1, 3, None), "rgb8": (1, 3, "RGB2BGR"), "bgra8": (1, 4, "BGRA2BGR"),
+              "rgba8": (1, 4, "RGBA2BGR"), "mono8": (1, 1, "GRAY2BGR"),
+              "mono16": (2, 1, "GRAY2BGR")}  # fmt: skip
 
 
 def is_bag(path: Path) -> bool:
@@ -92,8 +93,10 @@ def decode_cloud(msg: Any, where: str) -> Scan:
     rec = _records(msg, where)
     names = list(rec.dtype.names or ())
     cols = find_fields(where, names)  # type: ignore[arg-type]
-    xyz = np.column_stack([_column(rec, names[cols[k]]) for k in "xyz"]).astype(np.float64)  # type: ignore[index]
-    xyz[~xyz.any(axis=1)] = np.nan
+    xyz = np.empty((len(rec), 3))
+    for k, axis in enumerate("xyz"):
+        xyz[:, k] = _column(rec, names[cols[axis]])  # type: ignore[index]
+    xyz[(xyz[:, 0] == 0) & (xyz[:, 1] == 0) & (xyz[:, 2] == 0)] = np.nan
     ring = None if cols["ring"] is None else _column(rec, names[cols["ring"]])
     return make_scan(where, xyz, _column(rec, names[cols["intensity"]]), ring)  # type: ignore[index, arg-type]
 
@@ -127,7 +130,7 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
         raise InputError(
             f"{where}: image encoding {msg.encoding!r} is not supported ({', '.join(_ENCODINGS)})"
         )
-    size, ch, order = enc
+    size, ch, conversion = enc
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     data = np.asarray(msg.data, dtype=np.uint8)
     if step < w * ch * size or data.size < h * step:
@@ -135,10 +138,8 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
     px = data[: h * step].reshape(h, step)[:, : w * ch * size]
     if size == 2:  # 16 bits scaled to 8 as io.read_image does
         px = np.round(px.copy().view(">u2" if msg.is_bigendian else "<u2") / 257.0).astype(np.uint8)
-    px = px.reshape(h, w, ch)
-    if order is None:
-        return cv2.cvtColor(np.ascontiguousarray(px[:, :, 0]), cv2.COLOR_GRAY2BGR)
-    return np.ascontiguousarray(px[:, :, order])
+    px = np.array(px).reshape(h, w, ch)  # a copy: the message's buffer is read-only
+    return px if conversion is None else cv2.cvtColor(px, getattr(cv2, f"COLOR_{conversion}"))
 
 
 def _field(msg: Any, name: str) -> Any:
@@ -172,9 +173,9 @@ def camera_section(info: Any, where: str, rectified: bool = False) -> dict[str, 
 def _grey(img: np.ndarray) -> np.ndarray:
     import cv2
 
-    f = max(1, round(img.shape[1] / IMAGE_WIDTH))
-    g = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-    return cv2.resize(g, (g.shape[1] // f, g.shape[0] // f), interpolation=cv2.INTER_AREA)
+    f = max(1, round(img.shape[1] / IMAGE_WIDTH))  # area averaging: noise / f, board motion kept
+    small = cv2.resize(img, (img.shape[1] // f, img.shape[0] // f), interpolation=cv2.INTER_AREA)
+    return cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
 
 
 def _image_change(a: np.ndarray, b: np.ndarray) -> float:
