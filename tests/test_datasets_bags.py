@@ -152,6 +152,10 @@ def test_unsynchronised_clocks_fall_back_to_bag_time(sets, tmp_path, caplog) -> 
     with caplog.at_level(logging.WARNING):
         refs = open_source(bag).frames()
     assert len(refs) == 3 and "pair by bag (receive) time" in caplog.text
+    with pytest.raises(
+        InputError, match=r"clocks\.bag: no scan has an image within 0\.001 s .*99\.812 s apart"
+    ):
+        open_source(bag, sync_tolerance=0.001).frames()  # neither clock pairs: say how far apart they are
 
 
 def _tiny_bag(path: Path, topics: dict[str, list]) -> Path:

@@ -464,6 +464,10 @@ class BagSource(FrameSource):
             raise InputError(f"{self.path}: no Image or CompressedImage topic; topics: {', '.join(streams)}")
         ts, ti = lid.times(), (img.times() if img else np.zeros(0))
         pairs = _pairs(ts, ti, self.tolerance)
+        if require_image and not pairs:
+            gap = float(np.abs(ti[_nearest(ti, ts)] - ts).min()) if len(ti) else float("inf")
+            raise InputError(f"{self.path}: no scan has an image within {self.tolerance} s (the closest are "
+                             f"{gap:.3f} s apart); check the topics or --sync-tolerance")  # fmt: skip
         scans = [i for i in range(len(ts)) if i in pairs or not require_image]
         motion = img or lid
         runs, moving = motion.runs(), max(motion.changes, default=0.0) > motion.still
