@@ -343,9 +343,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp = add(
         "calibrate", cmd_calibrate, "calibrate from data sets (DATA/config.yaml, pcd/, img/) or ROS bags"
     )
-    sp.add_argument(
-        "data", nargs="+", metavar="DATA", help="data sets or bags, or several sessions of one rig"
-    )
+    sp.add_argument("data", nargs="+", metavar="DATA", help="data sets or bags (several: sessions of a rig)")
     _solve_args(sp, jobs)
     _bag_args(sp)
     g = sp.add_argument_group("several sessions (joint calibration)")

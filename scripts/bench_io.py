@@ -11,6 +11,7 @@ Prints markdown tables and writes them to docs/io_benchmark.md. Run: python3 scr
 
 from __future__ import annotations
 
+import os
 import tempfile
 import time
 from functools import partial
@@ -163,8 +164,10 @@ def main() -> None:
         formats = scan_formats(d, _scan())
         o3d = open3d_readers(d)
         bags = bag_sources(d)
+    load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     text = (
-        f"# Scan and frame-source I/O\n\nShared 2-core machine; `python3 scripts/bench_io.py`.\n\n"
+        f"# Scan and frame-source I/O\n\nShared 2-core machine (load average {load} at the end of the run: "
+        "figures from a busy machine vary by up to 2x between runs); `python3 scripts/bench_io.py`.\n\n"
         f"## Scan formats, {N} points (x y z intensity ring), best of {REPEATS}\n\n{formats}\n"
         f"## Open3D's PCD readers against ours (same files), best of {REPEATS}\n\n"
         "`open3d.io.read_point_cloud` (legacy) returns x y z only (no intensity: unusable for the LiDAR "
