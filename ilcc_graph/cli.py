@@ -34,6 +34,7 @@ examples:
   ilcc-graph simulate sim/ --lidar hdl32 --camera equirectangular --frames 20 --seed 0
   ilcc-graph simulate os1/ --lidar os1-64-rev6 --format ouster   Ouster-like organised PCDs, raw signal
   ilcc-graph calibrate DATA --out out/run1          scans in DATA/pcd, images in DATA/img, DATA/config.yaml
+  ilcc-graph calibrate run.bag --lidar-topic /os_cloud_node/points --image-topic /camera/image_raw
   ilcc-graph calibrate DATA --refine paper          the paper's refinement (no covariance), for comparison
   ilcc-graph calibrate MON/ TUE/ WED/ --mode rigid  three sessions jointly; tells if the mount moved
   ilcc-graph calibrate DATA --range-offset          also estimate the LiDAR's range offset
@@ -136,7 +137,7 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
     from ilcc_graph.report.text import format_joint, format_update, frames_table, summarise
 
     options = _run_options(args)
-    sources = [open_source(d) for d in data]
+    sources = [open_source(d, **_bag_options(args)) for d in data]
     bars: dict[str, _Progress] = {}
     t0 = time.perf_counter()
     result = run(
@@ -226,7 +227,7 @@ def _stage_command(args: argparse.Namespace, stage: str, header: tuple[str, ...]
     from ilcc_graph.outputs import write_stage
     from ilcc_graph.report.text import format_table
 
-    source = open_source(args.data)
+    source = open_source(args.data, **_bag_options(args))
     config = source.config()
     refs = source.frames(require_image=stage == "image", require_scan=stage == "lidar")
     config = resolve_lidar(source, refs, config)  # the beam table the scans show
@@ -260,7 +261,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from ilcc_graph.report.text import format_table
 
     cal = read_calibration(Path(args.calibration))
-    obs = observe(open_source(args.data), StageOptions(jobs=args.jobs), _Progress("frames"))
+    obs = observe(
+        open_source(args.data, **_bag_options(args)), StageOptions(jobs=args.jobs), _Progress("frames")
+    )
     for r in obs.frames:
         if r.board is None or r.corners is None:
             print(f"{r.name}: not evaluated ({r.reason})")
@@ -300,6 +303,22 @@ def cmd_export(args: argparse.Namespace) -> int:
 # ----------------------------------------------------------------------------------------------
 # Parser and entry point
 
+_BAG_OPTIONS = ("config", "lidar_topic", "image_topic", "sync_tolerance", "min_pause", "select")
+
+
+def _bag_options(args: argparse.Namespace) -> dict:
+    return {k: getattr(args, k, None) for k in _BAG_OPTIONS}
+
+
+def _bag_args(sp: argparse.ArgumentParser) -> None:
+    g = sp.add_argument_group("ROS 1 / ROS 2 bags (docs/datasets.md)")
+    g.add_argument("--config", help="the bag's config (default: <bag>.yaml or config.yaml beside it)")
+    g.add_argument("--lidar-topic", help="PointCloud2 topic (default: the only one)")
+    g.add_argument("--image-topic", help="Image or CompressedImage topic (default: the only one)")
+    g.add_argument("--sync-tolerance", type=float, metavar="S", help="scan-image stamp difference (0.05)")
+    g.add_argument("--min-pause", type=float, metavar="S", help="shortest still pause giving a frame (1.0)")
+    g.add_argument("--select", choices=("auto", "pauses", "all"), help="frames: one per pause, or all scans")
+
 
 def _solve_args(sp: argparse.ArgumentParser, jobs: int, studies: bool = False) -> None:
     sp.add_argument("--out", help="output folder (default: out/<timestamp>, linked as out/latest)")
@@ -334,10 +353,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     jobs = max(1, min(2, os.cpu_count() or 1))
     sp = add(
-        "calibrate", cmd_calibrate, "calibrate from one or more data sets (DATA/config.yaml, pcd/, img/)"
+        "calibrate", cmd_calibrate, "calibrate from data sets (DATA/config.yaml, pcd/, img/) or ROS bags"
     )
-    sp.add_argument("data", nargs="+", metavar="DATA", help="one data set, or several sessions of one rig")
+    sp.add_argument("data", nargs="+", metavar="DATA", help="data sets or bags (several: sessions of a rig)")
     _solve_args(sp, jobs)
+    _bag_args(sp)
     g = sp.add_argument_group("several sessions (joint calibration)")
     help = "rigid: one extrinsic for all sessions; drift: one per session, tied by --drift-sigma"
     g.add_argument("--mode", choices=("rigid", "drift"), default="rigid", help=help)
@@ -376,12 +396,14 @@ def build_parser() -> argparse.ArgumentParser:
         sp.add_argument("data", metavar="DATA")
         sp.add_argument("--out", help="output folder (default: out/<timestamp>)")
         sp.add_argument("--jobs", type=int, default=jobs)
+        _bag_args(sp)
 
     sp = add("evaluate", cmd_evaluate, "the paper's re-projection metric and corner errors of a calibration")
     sp.add_argument("data", metavar="DATA", help="a data set (may hold frames the calibration did not use)")
     sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")
     sp.add_argument("--out", help="folder for evaluation.yaml (default: print only)")
     sp.add_argument("--jobs", type=int, default=jobs)
+    _bag_args(sp)
 
     sp = add("export", cmd_export, "write a calibration in another tool's format")
     sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")

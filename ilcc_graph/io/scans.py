@@ -31,7 +31,7 @@ FIELD_ALIASES: dict[str, tuple[str, ...]] = {
     "x": ("x", "points:0", "points_m_xyz:0", "point:0"),
     "y": ("y", "points:1", "points_m_xyz:1", "point:1"),
     "z": ("z", "points:2", "points_m_xyz:2", "point:2"),
-    "intensity": ("intensity", "scalar_intensity", "reflectance", "reflectivity", "i"),
+    "intensity": ("intensity", "scalar_intensity", "reflectance", "reflectivity", "signal", "i"),
     "ring": ("ring", "laser_id", "scalar_ring", "scalar_laser_id", "ring_id"),
 }
 

@@ -2,7 +2,8 @@
 
 ``simulate_frames(spec)`` yields :class:`SimFrame` objects; ``ground_truth(spec, frames)`` gives the
 content of ground_truth.yaml; ``simulate_dataset(out_dir, spec)`` (in ``export``, the one module that
-writes files) writes the data-set layout of interface.md.
+writes files) writes the data-set layout of interface.md; ``write_bag(path, spec)`` (in ``bag``)
+writes it as a ROS 1 or ROS 2 bag, optionally as a walk-and-pause recording (``bag.WalkAndPause``).
 """
 
 from __future__ import annotations
@@ -32,10 +33,17 @@ def simulate_dataset(*args, **kwargs):  # lazy: keeps io out of `import ilcc_gra
     return _write(*args, **kwargs)
 
 
+def write_bag(*args, **kwargs):  # lazy: keeps rosbags out of `import ilcc_graph.simulate`
+    """Write a data set as a ROS bag; see :func:`ilcc_graph.simulate.bag.write_bag`."""
+    from .bag import write_bag as _write
+
+    return _write(*args, **kwargs)
+
+
 __all__ = [
     "SENSOR_FORMATS",
     "Box", "ImageOptions", "ImageRenderer", "Scene", "SceneOptions", "SimFrame", "SimulationSpec",
     "Systematics", "beam_biases", "beam_gains", "board_placements", "cast_rays", "default_T_cam_lidar",
     "default_camera", "frame_name", "frame_scene", "ground_truth", "paper_board", "simulate_dataset",
-    "simulate_frame", "simulate_frames", "simulate_scan", "standard_spec",
+    "simulate_frame", "simulate_frames", "simulate_scan", "standard_spec", "write_bag",
 ]  # fmt: skip
