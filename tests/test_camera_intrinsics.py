@@ -163,6 +163,42 @@ def test_intrinsics_jacobian_matches_central_differences(strategy, max_deg: floa
     assert_intrinsics_jacobian(cam, p)
 
 
+@pytest.mark.parametrize("n_dist", [0, 4, 5, 8])
+def test_pinhole_intrinsics_jacobian_is_opencvs(n_dist: int) -> None:
+    """``cv2.projectPoints`` returns d uv / d (fx, fy, cx, cy, dist...) after the pose columns."""
+    import cv2
+
+    rng = np.random.default_rng(n_dist)
+    K = np.array([[1400.0, 0.0, 955.3], [0.0, 1404.0, 610.1], [0.0, 0.0, 1.0]])
+    dist = {
+        0: [],
+        4: [-0.12, 0.03, -0.001, 0.0008],
+        5: [-0.28, 0.075, 0.0006, -0.0004, -0.009],
+        8: [0.6, -0.05, 0.0007, 0.0005, 0.002, 0.95, 0.03, 0.004],
+    }[n_dist]
+    cam = Pinhole(1920, 1208, K, dist)
+    p = np.c_[rng.uniform(-0.5, 0.5, (30, 2)), np.ones(30)] * rng.uniform(0.5, 8.0, (30, 1))
+    _, J_cv = cv2.projectPoints(p[:, None], np.zeros(3), np.zeros(3), K, np.array(cam.dist, dtype=np.float64))
+    J_t = cam.project_with_intrinsics_jacobian(p)[2]
+    J_cv = J_cv.reshape(30, 2, -1)[:, :, 6 : 6 + J_t.shape[2]]
+    np.testing.assert_allclose(J_t, J_cv, rtol=1e-10, atol=1e-9 * np.abs(J_t).max())
+
+
+def test_fisheye_intrinsics_jacobian_is_opencvs() -> None:
+    """``cv2.fisheye.projectPoints`` returns d uv / d (fx, fy, cx, cy, k1..k4) first."""
+    import cv2
+
+    rng = np.random.default_rng(7)
+    K = np.array([[1176.93, 0.0, 962.275], [0.0, 1177.72, 612.725], [0.0, 0.0, 1.0]])
+    cam = Fisheye(1920, 1208, K, [-0.0540096, -0.0784275, 0.0959641, -0.0515253])
+    p = np.c_[rng.uniform(-1.0, 1.0, (30, 2)), np.ones(30)] * rng.uniform(0.5, 8.0, (30, 1))
+    _, J_cv = cv2.fisheye.projectPoints(p[:, None], np.zeros(3), np.zeros(3), K, cam.dist)
+    J_t = cam.project_with_intrinsics_jacobian(p)[2]
+    np.testing.assert_allclose(
+        J_t, J_cv.reshape(30, 2, -1)[:, :, :8], rtol=1e-10, atol=1e-9 * np.abs(J_t).max()
+    )
+
+
 def test_equirectangular_has_nothing_to_refine() -> None:
     cam = Equirectangular(800, 400)
     p = np.random.default_rng(0).normal(size=(20, 3))

@@ -261,7 +261,7 @@ def test_pixel_and_bearing_graphs_reach_the_same_optimum_and_covariance(kind: st
         assert np.sqrt(d @ np.linalg.solve(C_px, d)) < 2e-3  # optima apart by < 0.002 sigma
         L = np.linalg.cholesky(np.linalg.inv(C_px))
         assert np.abs(np.linalg.eigvalsh(L.T @ C_b @ L) - 1).max() < 1e-4  # covariances within 1e-4
-        assert abs(g_px.error(r_px) / g_b.error(r_b) - 1) < 1e-4
+        assert abs(g_px.error(r_px) / g_b.error(r_b) - 1) < 3e-4  # chi-squares: second-order apart
 
 
 def _recovery(kind: str, seed: int, sigma_dist: list[float], n_views: int = 10, px: float = 0.3):

@@ -8,6 +8,7 @@ writes files) writes the data-set layout of interface.md.
 from __future__ import annotations
 
 from .frames import SimFrame, frame_name, ground_truth, simulate_frame, simulate_frames
+from .intrinsics import IntrinsicsError, stated_camera
 from .lidar import beam_biases, beam_gains, simulate_scan
 from .placements import board_placements, frame_scene
 from .render import ImageRenderer
@@ -36,4 +37,5 @@ __all__ = [
     "Systematics", "beam_biases", "beam_gains", "board_placements", "cast_rays", "default_T_cam_lidar",
     "default_camera", "frame_name", "frame_scene", "ground_truth", "paper_board", "simulate_dataset",
     "simulate_frame", "simulate_frames", "simulate_scan", "standard_spec",
+    "IntrinsicsError", "stated_camera",
 ]  # fmt: skip
