@@ -24,6 +24,7 @@ from ilcc_graph.errors import (
     IndeterminateSystem,
     InputError,
 )
+from ilcc_graph.lidars.tables import MODEL_NAMES as LIDAR_NAMES
 
 log = logging.getLogger("ilcc_graph")
 
@@ -31,6 +32,7 @@ EXAMPLES = """\
 examples:
   ilcc-graph demo                                   simulate the standard panoramic set and calibrate it
   ilcc-graph simulate sim/ --lidar hdl32 --camera equirectangular --frames 20 --seed 0
+  ilcc-graph simulate os1/ --lidar os1-64-rev6 --format ouster   Ouster-like organised PCDs, raw signal
   ilcc-graph calibrate DATA --out out/run1          scans in DATA/pcd, images in DATA/img, DATA/config.yaml
   ilcc-graph calibrate DATA --refine paper          the paper's refinement (no covariance), for comparison
   ilcc-graph calibrate MON/ TUE/ WED/ --mode rigid  three sessions jointly; tells if the mount moved
@@ -202,6 +204,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
             frames=args.frames,
             seed=args.seed,
             noise_scale=args.noise_scale,
+            sensor_format=args.format,
             intrinsics_error=IntrinsicsError.typical(args.intrinsics_error),
         )
     except ValueError as err:
@@ -217,13 +220,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 def _stage_command(args: argparse.Namespace, stage: str, header: tuple[str, ...]) -> int:
     """A stage alone over a data set: one YAML (and a drawing) per frame, and a table."""
     from ilcc_graph.datasets import open_source
-    from ilcc_graph.observe import StageOptions, check_board_colour, run_image_stage, run_lidar_stage
+    from ilcc_graph.observe import (
+        StageOptions,
+        check_board_colour,
+        resolve_lidar,
+        run_image_stage,
+        run_lidar_stage,
+    )
     from ilcc_graph.outputs import write_stage
     from ilcc_graph.report.text import format_table
 
     source = open_source(args.data)
+    config = source.config()
     refs = source.frames(require_image=stage == "image", require_scan=stage == "lidar")
-    config, _ = check_board_colour(source, refs, source.config())  # uses the images where there are any
+    config = resolve_lidar(source, refs, config)  # the beam table the scans show
+    config, _ = check_board_colour(source, refs, config)  # uses the images where there are any
     fn = run_lidar_stage if stage == "lidar" else run_image_stage
     results = fn(source, refs, config, StageOptions(jobs=args.jobs), _Progress(stage))
     out = _run_dir(args.out)
@@ -352,7 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = add("simulate", cmd_simulate, "write a simulated data set with ground truth")
     sp.add_argument("out", metavar="OUT")
-    sp.add_argument("--lidar", default="hdl32", choices=("hdl32", "hdl64", "vlp16", "vlp32c", "os1-64"))
+    sp.add_argument("--lidar", default="hdl32", choices=[m for m in LIDAR_NAMES if m != "generic"])
+    help = "plain PCD; ouster: organised, ring 0 at the top, raw signal; velodyne-csv: hardware laser_id"
+    sp.add_argument("--format", default="plain", choices=("plain", "ouster", "velodyne-csv"), help=help)
     sp.add_argument("--camera", default="equirectangular", choices=camera_kinds())
     sp.add_argument("--frames", type=int, default=20)
     sp.add_argument("--seed", type=int, default=0)

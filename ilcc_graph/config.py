@@ -8,9 +8,11 @@ Our schema (see interface.md)::
 
     board:  squares [rows, cols] (rows <= cols), square_size m, margin m or [long, short],
             lower_left black|white, roi (optional: azimuth_deg, elevation_deg, range_m as [min, max])
-    lidar:  model hdl32|hdl64|vlp16|vlp32c|os1-64|generic, vertical_angles_deg, horizontal_resolution_deg
-            (generic: required; others: optional overrides), range_sigma_m (optional),
-            intensity_column (optional, CSV without header only)
+    lidar:  model (optional: a name of ``lidars.MODEL_NAMES`` or generic; without it the scans'
+            own beam table is used), vertical_angles_deg, horizontal_resolution_deg (generic:
+            required; others: optional overrides), range_sigma_m (optional), calibration_file
+            (optional: the unit's Ouster metadata JSON, Velodyne db.xml / YAML or Hesai CSV, path
+            relative to the config file's folder), intensity_column (optional, CSV without header)
     camera: model (one of ``cameras.camera_kinds()``), width, height and the model's own keys
             (``cameras/<model>.py``, docs/config.md)
 
@@ -46,7 +48,7 @@ from .board import Board
 from .cameras import CameraModel, camera_from_config
 from .checks import MISSING, Checker
 from .errors import InputError
-from .lidar_models import ILCC_ALIASES, MODEL_NAMES, LidarModel, lidar_model
+from .lidars import ILCC_ALIASES, MODEL_NAMES, LidarModel, lidar_model, read_calibration_file
 
 __all__ = ["Roi", "Config", "load_config", "parse_config", "config_to_dict"]
 
@@ -101,13 +103,14 @@ class Roi:
 class Config:
     """A resolved configuration.
 
-    board, lidar, camera: ready model objects. roi: board-search limits or None.
+    board, lidar, camera: ready model objects (lidar None: no model named, the scans' own beam
+    table is used, see observe.resolve_lidar). roi: board-search limits or None.
     intensity_column: CSV column of intensity for files without header (None: not given).
     source: the file it came from (for messages). schema: ``"ilcc_graph"`` or ``"ILCC"``.
     """
 
     board: Board
-    lidar: LidarModel
+    lidar: LidarModel | None
     camera: CameraModel
     roi: Roi | None = None
     intensity_column: int | None = None
@@ -124,6 +127,7 @@ _LIDAR_KEYS = (
     "vertical_angles_deg",
     "horizontal_resolution_deg",
     "range_sigma_m",
+    "calibration_file",
     "intensity_column",
 )
 
@@ -163,9 +167,10 @@ def _parse_board(c: Checker, d: dict) -> tuple[Board, Roi | None]:
     return Board(rows, cols, s, m_long, m_short, lower_left), roi
 
 
-def _parse_lidar(c: Checker, d: dict) -> tuple[LidarModel, int | None]:
+def _parse_lidar(c: Checker, d: dict, base: Path | None = None) -> tuple[LidarModel | None, int | None]:
     c.unknown(d, _LIDAR_KEYS, "lidar")
-    name = c.choice(d.get("model", MISSING), "lidar.model", MODEL_NAMES)
+    raw_name = d.get("model")
+    name = None if raw_name is None else c.choice(raw_name, "lidar.model", MODEL_NAMES)
     angles = d.get("vertical_angles_deg")
     res = d.get("horizontal_resolution_deg")
     if name == "generic":
@@ -194,7 +199,28 @@ def _parse_lidar(c: Checker, d: dict) -> tuple[LidarModel, int | None]:
     col = d.get("intensity_column")
     if col is not None:
         col = _intensity_column(c, col, "lidar.intensity_column")
-    return lidar_model(name, angles, res, sigma), col
+    calib = d.get("calibration_file")
+    if calib is not None and not isinstance(calib, str):
+        raise c.fail("lidar.calibration_file", calib, "a file path (relative to the config file's folder)")
+    if name is None and (angles is not None or res is not None) and calib is None:
+        raise c.fail(
+            "lidar.model",
+            MISSING,
+            "a model name (or generic) when vertical_angles_deg or horizontal_resolution_deg are given",
+        )
+    model = None if name is None else lidar_model(name, angles, res, sigma)
+    if calib is not None:
+        path = Path(calib) if base is None or Path(calib).is_absolute() else base / calib
+        ref = model
+        ref_res = 0.2 if ref is None else ref.horizontal_resolution_deg
+        model = read_calibration_file(
+            path,
+            name="measured" if ref is None else ref.name,
+            default_resolution_deg=res if res is not None else ref_res,
+            range_sigma_m=sigma if sigma is not None else (0.03 if ref is None else ref.range_sigma_m),
+            beam_divergence_rad=3e-3 if ref is None else ref.beam_divergence_rad,
+        )
+    return model, col
 
 
 def _intensity_column(c: Checker, v: Any, key: str) -> int:
@@ -204,10 +230,11 @@ def _intensity_column(c: Checker, v: Any, key: str) -> int:
     return int(col)
 
 
-def _parse_ours(c: Checker, d: dict, source: str) -> Config:
+def _parse_ours(c: Checker, d: dict, source: str, base: Path | None = None) -> Config:
     c.unknown(d, _TOP_KEYS, "")
     board, roi = _parse_board(c, c.section(d.get("board", MISSING), "board"))
-    lidar, col = _parse_lidar(c, c.section(d.get("lidar", MISSING), "lidar"))
+    section = d.get("lidar")
+    lidar, col = _parse_lidar(c, {} if section is None else c.section(section, "lidar"), base)
     camera = camera_from_config(d.get("camera", MISSING), source)
     return Config(board, lidar, camera, roi, col, source, "ilcc_graph")
 
@@ -362,7 +389,7 @@ def parse_config(d: Any, source: str = "<config>", base_dir: Path | str | None =
                 ours[0], d[ours[0]], "either our schema (board, lidar, camera) or ILCC's keys, not both"
             )
         return _parse_ilcc(c, d, source, Path(base_dir) if base_dir is not None else None)
-    return _parse_ours(c, d, source)
+    return _parse_ours(c, d, source, Path(base_dir) if base_dir is not None else None)
 
 
 def load_config(path: str | Path) -> Config:
@@ -401,7 +428,7 @@ def config_to_dict(cfg: Config) -> dict:
     }
     if cfg.roi is not None and not cfg.roi.is_empty():
         board["roi"] = cfg.roi.to_dict()
-    lidar = cfg.lidar.to_dict()
+    lidar = {} if cfg.lidar is None else cfg.lidar.to_dict()
     if cfg.intensity_column is not None:
         lidar["intensity_column"] = int(cfg.intensity_column)
     camera = _plain(cfg.camera.to_dict())

@@ -14,12 +14,16 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
+import numpy as np
+
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
-from ilcc_graph.errors import BoardColourMismatch, FrameError
+from ilcc_graph.errors import BoardColourMismatch, FrameError, InputError
 from ilcc_graph.image import ImageOptions, detect_corners
+from ilcc_graph.init import upnp
 from ilcc_graph.lidar import LidarOptions, estimate_board
-from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
+from ilcc_graph.lidars import choose_model, measure_beams
+from ilcc_graph.types import BoardFit, Calibration, ExpectedBoard, FrameResult, ImageCorners
 
 log = logging.getLogger(__name__)
 
@@ -27,12 +31,15 @@ __all__ = [
     "Observation",
     "StageOptions",
     "check_board_colour",
+    "look_again",
     "observe",
     "observe_frame",
     "observe_image",
     "observe_lidar",
+    "resolve_lidar",
     "run_image_stage",
     "run_lidar_stage",
+    "second_pass",
 ]
 
 Progress = Callable[[int, int], None]
@@ -57,9 +64,16 @@ class Observation:
     frames: list[FrameResult]
 
 
-def observe_lidar(source: FrameSource, ref: FrameRef, config: Config, options: LidarOptions) -> BoardFit:
-    """The LiDAR stage on one frame's scan; raises FrameError with the reason."""
-    return estimate_board(source.read_scan(ref, config), config.board, config.lidar, config.roi, options)
+def observe_lidar(
+    source: FrameSource,
+    ref: FrameRef,
+    config: Config,
+    options: LidarOptions,
+    expected: ExpectedBoard | None = None,
+) -> BoardFit:
+    """The LiDAR stage on one frame's scan (near ``expected`` when given); FrameError says why not."""
+    scan = source.read_scan(ref, config)
+    return estimate_board(scan, config.board, config.lidar, config.roi, options, expected)
 
 
 def observe_image(source: FrameSource, ref: FrameRef, config: Config, options: ImageOptions) -> ImageCorners:
@@ -112,6 +126,28 @@ def _map(fn: Callable, items: Sequence[tuple], jobs: int, progress: Progress | N
             if progress:
                 progress(i + 1, len(items))
     return out
+
+
+def resolve_lidar(source: FrameSource, refs: Sequence[FrameRef], config: Config, look: int = 3) -> Config:
+    """The config with the beam table the scans show, warning once when it contradicts the config's.
+
+    The first readable scan of the first ``look`` frames is measured (``lidars.measure_beams``:
+    ring field, organised rows or elevation clusters) and checked against ``config.lidar`` (a named
+    model or a calibration file); the measured table is used where they differ. With no model in
+    the config the measured one is used silently. An unreadable scan is left to the LiDAR stage.
+    """
+    for ref in refs[:look]:
+        if ref.scan is None:
+            continue
+        try:
+            scan = source.read_scan(ref, config)
+        except InputError:
+            continue
+        model, warning = choose_model(measure_beams(scan), config.lidar, scan.source or ref.name)
+        if warning:
+            log.warning("%s", warning)
+        return dataclasses.replace(config, lidar=model)
+    return config
 
 
 def check_board_colour(
@@ -167,8 +203,9 @@ def observe(
     source: FrameSource, options: StageOptions = StageOptions(), progress: Progress | None = None
 ) -> Observation:
     """Read a source's config, list its frames, check the print's colour, run both stages per frame."""
-    config = source.config()
+    config = source.config()  # the config's mistakes first, then the folders'
     refs = source.frames()
+    config = resolve_lidar(source, refs, config)
     config, known = check_board_colour(source, refs, config, options.image)
     items = [(source, r, config, options, known.get(r.name)) for r in refs]
     frames = _map(observe_frame, items, options.jobs, progress)
@@ -204,3 +241,78 @@ def run_image_stage(
     return _map(
         _stage, [(observe_image, source, r, config, options.image) for r in refs], options.jobs, progress
     )
+
+
+def _expected_lidar(source: FrameSource, ref: FrameRef, config: Config, options: LidarOptions,
+                    expected: ExpectedBoard) -> object:  # fmt: skip
+    return _attempt(observe_lidar, source, ref, config, options, expected)
+
+
+def look_again(
+    source: FrameSource, config: Config, frames: Sequence[FrameResult], expected: dict[str, ExpectedBoard],
+    options: StageOptions = StageOptions(),
+) -> list[FrameResult]:  # fmt: skip
+    """The frames again, the LiDAR stage searching near ``expected[name]`` for the frames named there.
+
+    A frame whose board is then found gets it (with ``diagnostics["found_near_prediction"] = 1``);
+    the others stay as they were. Frames are matched to the source's by name.
+    """
+    refs = {r.name: r for r in source.frames()}
+    names = [n for n in expected if n in refs]
+    items = [(source, refs[n], config, options.lidar, expected[n]) for n in names]
+    found = dict(zip(names, _map(_expected_lidar, items, options.jobs, None), strict=True))
+    out = []
+    for f in frames:
+        res = found.get(f.name)
+        if res is None or isinstance(res, FrameError):
+            out.append(f)
+            continue
+        res.diagnostics["found_near_prediction"] = 1.0
+        image_reason = [r for r in (f.reason or "").split("; ") if r.startswith("image:")]
+        out.append(dataclasses.replace(f, board=res, used=f.corners is not None,
+                                       reason="; ".join(image_reason) or None))  # fmt: skip
+    return out
+
+
+def _predicted_board(corners: ImageCorners, config: Config, T_cam_lidar: np.ndarray) -> np.ndarray | None:
+    """(4, 4) ``T_lidar_board`` as the image and the extrinsic put it (UPnP of the corners), or None."""
+    b = corners.bearings / np.linalg.norm(corners.bearings, axis=1, keepdims=True)
+    ok = np.all(np.isfinite(b), axis=1)
+    if ok.sum() < 6:
+        return None
+    T_cam_board = upnp(config.board.corners_board()[ok], b[ok], prefer_front=True)[0].T_cam_points
+    return np.linalg.inv(T_cam_lidar) @ T_cam_board
+
+
+def second_pass(
+    obs: Observation, cal: Calibration, stages: StageOptions, far_m: float = 0.15
+) -> Observation | None:
+    """The observation with the boards found near their predicted place, or None when none changed.
+
+    Frames with image corners whose LiDAR board is missing, or lies more than ``far_m`` from where
+    the image and ``cal``'s extrinsic put it, are searched again near that place
+    (``lidar.ExpectedBoard``): clutter that won the first search (a board-sized object, a pillar the
+    board merged with) then no longer costs the frame.
+    """
+    expected: dict[str, ExpectedBoard] = {}
+    centre = obs.config.board.corners_board().mean(axis=0)
+    unused = {g.name for g in cal.frames if not g.used}
+    for f in obs.frames:
+        if f.corners is None or f.name not in unused:
+            continue
+        pred = _predicted_board(f.corners, obs.config, cal.T_cam_lidar)
+        if pred is None:
+            continue
+        if f.board is not None:
+            seen = f.board.T_lidar_board[:3, :3] @ centre + f.board.T_lidar_board[:3, 3]
+            if np.linalg.norm(seen - (pred[:3, :3] @ centre + pred[:3, 3])) < far_m:
+                continue  # the LiDAR saw it there: its drop has another reason
+        expected[f.name] = ExpectedBoard(pred)
+    if not expected:
+        return None
+    frames = look_again(obs.source, obs.config, obs.frames, expected, stages)
+    found = [f.name for f, g in zip(frames, obs.frames, strict=True) if f is not g]
+    if not found:
+        return None
+    log.info("second pass: the board found near its predicted place in %s", ", ".join(found))
+    return Observation(obs.source, obs.config, frames)

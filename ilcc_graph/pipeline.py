@@ -23,13 +23,28 @@ from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import NoiseOptions
 from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.batch import solve as solve_batch
+from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.estimation.incremental import FrameUpdate, IncrementalCalibrator
 from ilcc_graph.estimation.noise import BoardStats
 from ilcc_graph.estimation.paper import refine_paper
 from ilcc_graph.estimation.sessions import JointOptions, JointSolution, Session, solve_sessions
 from ilcc_graph.init import resolve_half_turns, upnp
-from ilcc_graph.observe import Observation, StageOptions, check_board_colour, observe, observe_frame
-from ilcc_graph.types import Calibration, FrameResult, GraphFrame, ImageCorners, rotation_angle_deg
+from ilcc_graph.observe import (
+    Observation,
+    StageOptions,
+    check_board_colour,
+    observe,
+    observe_frame,
+    resolve_lidar,
+    second_pass,
+)
+from ilcc_graph.types import (
+    Calibration,
+    FrameResult,
+    GraphFrame,
+    ImageCorners,
+    rotation_angle_deg,
+)
 
 log = logging.getLogger(__name__)
 
@@ -56,6 +71,8 @@ class RunOptions:
     noise: the estimation core's noise policy. stages: the per-frame stages' options and processes.
     joint: sessions mode (rigid / drift, range offset, tests).
     target_sigma: incremental mode's (deg, mm) target; stop_at_target: read no frame after it.
+    second_pass: once an extrinsic is known, search the boards the LiDAR stage missed (or found
+        elsewhere than the image says) near where the image and the extrinsic put them, and solve again.
     """
 
     mode: str = "graph"
@@ -64,6 +81,7 @@ class RunOptions:
     joint: JointOptions = JointOptions()
     target_sigma: tuple[float, float] | None = None
     stop_at_target: bool = False
+    second_pass: bool = True
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -121,16 +139,31 @@ def _drop(results: dict[str, FrameResult], name: str, reason: str) -> None:
     results[name] = dataclasses.replace(results[name], used=False, reason=reason)
 
 
-def _prepare(observed: Sequence[FrameResult], config: Config) -> _Prepared:
-    """Order corners across frames (half turns) and take the start from the consensus.
+def _graph_frame(r: FrameResult, config: Config) -> GraphFrame:
+    b, c = r.board, r.corners
+    return GraphFrame(r.name, b.T_lidar_board, b.covariance, config.board.corners_board(),  # type: ignore[union-attr]
+                      c.bearings, c.cov_px, b.returns)  # type: ignore[union-attr]  # fmt: skip
 
-    Raises CalibrationImpossible when no frame has the board in both sensors or the order is ambiguous.
+
+def _prepare(observed: Sequence[FrameResult], config: Config) -> _Prepared:
+    """Repeated board poses out, corners ordered across frames (half turns), the start from the consensus.
+
+    Raises CalibrationImpossible when no frame has the board in both sensors, the distinct board
+    poses cannot calibrate (``estimation.geometry``), or the corner order is ambiguous.
     """
     results = {r.name: r for r in observed}
     usable = [r for r in observed if r.used and r.board is not None and r.corners is not None]
     if not usable:
         reasons = "; ".join(f"{r.name}: {r.reason}" for r in observed) or "no frames"
         raise CalibrationImpossible(f"no frame has the board in both the scan and the image ({reasons})")
+    geometry = board_geometry([_graph_frame(r, config) for r in usable])
+    for name, first in geometry.repeats.items():
+        _drop(results, name, f"same board pose as {first}: one observation, not an independent one")
+    if not geometry.ok:
+        raise CalibrationImpossible(f"{geometry.reason}. What to capture next: {geometry.advice}")
+    if geometry.parallel:
+        log.warning("%s: %s", config.source, geometry.parallel)
+    usable = [r for r in usable if r.name not in geometry.repeats]
     board = config.board
     perm = board.half_turn_permutation() if board.half_turn_symmetric else None
     order = resolve_half_turns(
@@ -158,17 +191,7 @@ def _prepare(observed: Sequence[FrameResult], config: Config) -> _Prepared:
             "no frame left after ordering the corners: "
             + "; ".join(f"{n}: {why}" for n, why in order.dropped)
         )
-    frames = [
-        GraphFrame(
-            r.name,
-            r.board.T_lidar_board,
-            r.board.covariance,
-            board.corners_board(),  # type: ignore[union-attr]
-            r.corners.bearings,
-            r.corners.cov_px,
-        )  # type: ignore[union-attr]
-        for r in kept
-    ]
+    frames = [_graph_frame(r, config) for r in kept]
     T_init = order.T_cam_lidar
     if T_init is None:
         P = np.vstack([r.board.corners_lidar for r in kept])  # type: ignore[union-attr]
@@ -243,8 +266,9 @@ def _incremental(
     source: FrameSource, options: RunOptions, report: Callable[[FrameUpdate], None] | None
 ) -> RunResult:
     """Frames observed one at a time and fed to iSAM2; the last update is the batch answer."""
-    config = source.config()
+    config = source.config()  # the config's mistakes first, then the folders'
     refs = source.frames()
+    config = resolve_lidar(source, refs, config)
     config, known = check_board_colour(source, refs, config, options.stages.image)
     cal = IncrementalCalibrator(
         config.camera, config.board, target_sigma=options.target_sigma, noise=options.noise
@@ -300,7 +324,14 @@ def _sessions(observations: Sequence[Observation], names: Sequence[str], options
     """Sources as sessions of one mount, through the sessions strategy."""
     preps = [_prepare(o.frames, o.config) for o in observations]
     sessions = [
-        Session(n, p.frames, o.config.camera, p.T_init, o.config.lidar.name, o.config.board)
+        Session(
+            n,
+            p.frames,
+            o.config.camera,
+            p.T_init,
+            o.config.lidar.name if o.config.lidar else "lidar",
+            o.config.board,
+        )
         for n, p, o in zip(names, preps, observations, strict=True)
     ]
     joint_opts = dataclasses.replace(options.joint, noise=options.noise)
@@ -380,12 +411,25 @@ def solve_observations(
     names: Sequence[str] | None = None,
 ) -> RunResult:
     """The estimation strategy of ``options.mode`` on observed sources (``sessions`` for several,
-    or with a range offset); ``names`` label the sessions (default: the sources' labels)."""
+    or with a range offset); ``names`` label the sessions (default: the sources' labels). With
+    ``options.second_pass`` the boards the LiDAR stage missed are searched where the first
+    answer puts them (``second_pass``), and the data solved again when some are found."""
     names = list(names) if names is not None else session_names([o.source for o in observations])
-    if len(observations) > 1 or options.joint.range_offset or options.mode == "sessions":
-        return _sessions(observations, names, options)
     if options.mode == "incremental":
         raise ValueError("incremental mode observes frame by frame: use run()")
+    result = _solve_once(observations, options, names)
+    if not options.second_pass:
+        return result
+    again = [second_pass(s.observation, s.calibration, options.stages) for s in result.sessions]
+    if all(a is None for a in again):
+        return result
+    observations = [o if a is None else a for o, a in zip(observations, again, strict=True)]
+    return _solve_once(observations, options, names)
+
+
+def _solve_once(observations: Sequence[Observation], options: RunOptions, names: list[str]) -> RunResult:
+    if len(observations) > 1 or options.joint.range_offset or options.mode == "sessions":
+        return _sessions(observations, names, options)
     obs = observations[0]
     cal = solve_observed(obs.frames, obs.config, options)
     return RunResult(options.mode, cal, (SessionResult(names[0], obs, cal),), options)

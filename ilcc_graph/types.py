@@ -74,17 +74,42 @@ class Scan:
 
     points: (N, 3) float64, LiDAR frame, metres.
     intensity: (N,) float64, the sensor's reflectance units.
-    ring: (N,) int32 beam index (0 = lowest elevation) or None when the file has none.
+    ring: (N,) int32 ring value as the file gives it (the file's numbering: Ouster's ring 0 is the
+        top beam, Velodyne CSVs carry the hardware laser id; an organised cloud's row), or None when
+        the file has none. The LiDAR stage maps it onto its beam table (0 = lowest elevation) with
+        ``lidars.beam_index``; the simulator writes 0 = lowest unless told otherwise.
     source: where it came from, for messages.
+    columns: columns per turn of an organised cloud (PCD WIDTH when HEIGHT > 1), else None.
     """
 
     points: np.ndarray
     intensity: np.ndarray
     ring: np.ndarray | None = None
     source: str = ""
+    columns: int | None = None
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
+
+
+@dataclass(frozen=True)
+class BoardReturns:
+    """A board's LiDAR returns as the estimation core uses them to calibrate the LiDAR's own errors.
+
+    points: (M, 3) measured returns well inside the board, LiDAR frame, metres.
+    ring: (M,) int beam index (0 = lowest beam). dark: (M,) 1.0 on black print, 0.0 on white.
+    sigma_m: one-sigma range noise of a return (the stage's plane-fit residual), metres.
+    inplane_cov: (3, 3) covariance of the intensity fit's in-plane pose (rz, tx, ty), board frame.
+    inplane_coupling: (3, 3) K: the in-plane error caused by a plane error (rx, ry, tz), so that
+        the in-plane measurement is ``e_in + K e_plane`` (``lidar.covariance.ray_coupling``).
+    """
+
+    points: np.ndarray
+    ring: np.ndarray
+    dark: np.ndarray
+    sigma_m: float
+    inplane_cov: np.ndarray
+    inplane_coupling: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -110,6 +135,7 @@ class BoardFit:
     half_turn_ambiguous: bool
     cost: float = float("nan")
     diagnostics: dict[str, float] = field(default_factory=dict)
+    returns: BoardReturns | None = None
 
 
 @dataclass(frozen=True)
@@ -140,6 +166,7 @@ class GraphFrame:
     points_board: (K, 3) corners in the board frame, metres (``Board.corners_board()`` order).
     bearings: (K, 3) measured bearings of the same corners, camera frame (normalised by the core).
     cov_px: (K, 2, 2) pixel covariance of each image corner, px^2.
+    returns: the board's LiDAR returns (to calibrate the LiDAR's own errors), or None.
     """
 
     name: str
@@ -148,6 +175,7 @@ class GraphFrame:
     points_board: np.ndarray
     bearings: np.ndarray
     cov_px: np.ndarray
+    returns: BoardReturns | None = None
 
 
 @dataclass(frozen=True)
@@ -189,3 +217,26 @@ class Calibration:
     def extrinsic(self) -> Estimate:
         """``T_cam_lidar`` with its covariance."""
         return Estimate(self.T_cam_lidar, self.covariance)
+
+
+@dataclass(frozen=True)
+class ExpectedBoard:
+    """Where the board is expected in a scan (e.g. predicted from the image and an extrinsic).
+
+    T_lidar_board: (4, 4) predicted board pose in the LiDAR frame (board frame of interface.md;
+        for a half-turn symmetric board either of the two equivalent poses).
+    position_tol_m: how far the board's centre may be from the prediction, metres.
+    angle_tol_deg: how far the board's normal may be turned from the prediction, degrees.
+    """
+
+    T_lidar_board: np.ndarray
+    position_tol_m: float = 0.3
+    angle_tol_deg: float = 20.0
+
+    def __post_init__(self) -> None:
+        T = np.asarray(self.T_lidar_board, dtype=np.float64)
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise ValueError(f"T_lidar_board must be a finite (4, 4) matrix, got shape {T.shape}")
+        if not (self.position_tol_m > 0 and 0 < self.angle_tol_deg <= 180):
+            raise ValueError("position_tol_m must be > 0 and angle_tol_deg in (0, 180]")
+        object.__setattr__(self, "T_lidar_board", T)

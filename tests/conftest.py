@@ -15,3 +15,22 @@ def acfr_data() -> Path:
     if not (SHARED_DATA / "config.yaml").is_file():
         pytest.skip(f"recorded data set not found at {SHARED_DATA} (only in the project's own workspace)")
     return SHARED_DATA
+
+
+def _shared_set(name: str) -> Path:
+    path = SHARED_DATA.parent / name
+    if not (path / "config.yaml").is_file():
+        pytest.skip(f"recorded data set not found at {path} (only in the project's own workspace)")
+    return path
+
+
+@pytest.fixture(scope="session")
+def acfr_os1_fisheye() -> Path:
+    """The recorded Ouster OS1-64 + fisheye set (11 frames) in ../shared; skip where it is absent."""
+    return _shared_set("acfr-os1-fisheye")
+
+
+@pytest.fixture(scope="session")
+def acfr_os1_pinhole() -> Path:
+    """The recorded Ouster + pinhole set (6 frames) in ../shared; skip where it is absent."""
+    return _shared_set("acfr-os1-pinhole")

@@ -157,3 +157,69 @@ def rig_frames(
         T_meas, cov = board_prior(rng, T_lb, board, range_offset_m)
         out.append(RigFrame(f"{len(out):04d}", T_meas, cov, p_board, tuple(views)))
     return out
+
+
+def board_returns(
+    rng: np.random.Generator,
+    T_lidar_board: gtsam.Pose3,
+    board: Board,
+    elevations_deg: np.ndarray,
+    beam_offsets_m: np.ndarray,
+    dark_offset_m: float = 0.0,
+    sigma_m: float = 0.01,
+    step_deg: float = 0.2,
+    inplane_sigmas: tuple[float, float, float] = (2e-3, 1.5e-3, 1.5e-3),
+):
+    """A spinning LiDAR's returns from the board's face, with per-beam range offsets and a dark-print
+    offset (measured minus true range), and the in-plane pose an intensity fit would report.
+
+    Returns (BoardReturns, T_measured (4, 4), covariance (6, 6)): T_measured is the truth moved by
+    an in-plane error drawn from ``inplane_sigmas`` (rz, tx, ty) and by the plane of the biased
+    returns (a least-squares plane, as the LiDAR stage fits it); the covariance holds the in-plane
+    sigmas and the plane fit's.
+    """
+    from ilcc_graph.types import BoardReturns
+
+    R, t = T_lidar_board.rotation().matrix(), T_lidar_board.translation()
+    n = R[:, 2]
+    x0, x1, y0, y1 = board.extent()
+    c = T_lidar_board.transformFrom(np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0]))
+    az0 = np.arctan2(c[1], c[0])
+    span = np.hypot(x1 - x0, y1 - y0) / np.linalg.norm(c)
+    az = az0 + np.arange(-span, span, np.radians(step_deg))
+    pts, ring, dark = [], [], []
+    for b, el in enumerate(np.radians(elevations_deg)):
+        d = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.full(az.size, np.sin(el))])
+        s = (n @ t) / (d @ n)
+        ok = s > 0
+        p = d[ok] * s[ok, None]
+        pb = (p - t) @ R
+        inside = (pb[:, 0] > x0) & (pb[:, 0] < x1) & (pb[:, 1] > y0) & (pb[:, 1] < y1)
+        if not inside.any():
+            continue
+        p, pb, dd = p[inside], pb[inside], d[ok][inside]
+        w = 1.0 - board.colour_at(pb[:, :2])
+        noise = rng.normal(0, sigma_m, len(p))
+        rng_m = np.linalg.norm(p, axis=1) + beam_offsets_m[b] + w * dark_offset_m + noise
+        pts.append(dd * rng_m[:, None])
+        ring.append(np.full(len(p), b))
+        dark.append(w)
+    P, ring, dark = np.vstack(pts), np.concatenate(ring), np.concatenate(dark)
+    # the plane of the biased returns, in the true board frame (z = a + bx x + by y)
+    pb = (P - t) @ R
+    A = np.column_stack([np.ones(len(pb)), pb[:, 0], pb[:, 1]])
+    coef, *_ = np.linalg.lstsq(A, pb[:, 2], rcond=None)
+    res = pb[:, 2] - A @ coef
+    cov_plane = np.var(res) * np.linalg.inv(A.T @ A)  # (tz, slope x, slope y)
+    xi = np.zeros(6)
+    xi[0], xi[1], xi[5] = coef[2], -coef[1], coef[0]  # rotation about x tilts y, about y tilts -x
+    sig_in = np.asarray(inplane_sigmas)
+    xi[[2, 3, 4]] = rng.normal(0, sig_in)
+    T_meas = T_lidar_board.compose(gtsam.Pose3.Expmap(xi))
+    cov = np.zeros((6, 6))
+    J = np.zeros((3, 3))  # (rx, ry, tz) from (tz, slope x, slope y)
+    J[0, 2], J[1, 1], J[2, 0] = 1.0, -1.0, 1.0
+    cov[np.ix_([0, 1, 5], [0, 1, 5])] = J @ cov_plane @ J.T
+    cov[np.ix_([2, 3, 4], [2, 3, 4])] = np.diag(sig_in**2)
+    returns = BoardReturns(P, ring, dark, sigma_m, np.diag(sig_in**2), np.zeros((3, 3)))
+    return returns, np.asarray(T_meas.matrix()), cov

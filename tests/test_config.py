@@ -12,7 +12,7 @@ import yaml
 from ilcc_graph.board import Board
 from ilcc_graph.config import Config, Roi, config_to_dict, load_config, parse_config
 from ilcc_graph.errors import InputError
-from ilcc_graph.lidar_models import lidar_model
+from ilcc_graph.lidars import lidar_model
 
 OURS_PANO = """
 board:

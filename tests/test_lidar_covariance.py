@@ -10,7 +10,7 @@ from ilcc_graph.board import Board
 from ilcc_graph.lidar import estimate_board
 from ilcc_graph.lidar._synthetic import SynthScene, synth_scan
 from ilcc_graph.lidar.covariance import assemble_covariance, plane_fit, ray_coupling, soft_intensity
-from ilcc_graph.lidar_models import lidar_model
+from ilcc_graph.lidars import lidar_model
 
 
 @pytest.mark.parametrize("board", [Board(6, 8, 0.075), Board(5, 8, 0.1, 0.04, 0.02, lower_left="white")])

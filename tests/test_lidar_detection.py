@@ -11,7 +11,7 @@ from ilcc_graph.errors import BoardNotFound, InputError
 from ilcc_graph.lidar import estimate_board
 from ilcc_graph.lidar._synthetic import SynthScene, synth_scan
 from ilcc_graph.lidar.detection import find_board, intensity_contrast, roi_mask
-from ilcc_graph.lidar_models import lidar_model
+from ilcc_graph.lidars import lidar_model
 from ilcc_graph.types import Scan
 
 BOARD = Board(6, 8, 0.075)

@@ -17,7 +17,7 @@ from ilcc_graph.lidar.fit import (
     paper_cost,
     powell_batched,
 )
-from ilcc_graph.lidar_models import lidar_model
+from ilcc_graph.lidars import lidar_model
 
 BOARD = Board(6, 8, 0.075)
 

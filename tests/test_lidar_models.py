@@ -6,17 +6,24 @@ import numpy as np
 import pytest
 
 from ilcc_graph.errors import InputError
-from ilcc_graph.lidar_models import MODEL_NAMES, LidarModel, lidar_model, ring_from_points
+from ilcc_graph.lidars import MODEL_NAMES, LidarModel, lidar_model, ring_from_points
 
 NAMED = [m for m in MODEL_NAMES if m != "generic"]
 
-# (beams, lowest, highest, horizontal resolution) from the data sheets named in lidar_models.py
+# (beams, lowest, highest, horizontal resolution) from the data sheets named in lidars/tables.py
 SPECS = {
     "hdl32": (32, -30.67, 10.67, 0.16),
     "hdl64": (64, -24.33, 2.0, 0.1728),
     "vlp16": (16, -15.0, 15.0, 0.2),
     "vlp32c": (32, -25.0, 15.0, 0.2),
     "os1-64": (64, -16.611, 16.611, 360 / 2048),
+    **{f"os1-{n}-gen2": (n, -22.5, 22.5, 360 / 1024) for n in (32, 64, 128)},
+    **{f"os1-{n}-rev6": (n, -21.2, 21.2, 360 / 1024) for n in (32, 64, 128)},
+    **{f"os0-{n}": (n, -45.0, 45.0, 360 / 1024) for n in (64, 128)},
+    **{f"os2-{n}": (n, -11.25, 11.25, 360 / 1024) for n in (64, 128)},
+    "pandar40p": (40, -25.0, 15.0, 0.2),
+    "pandar64": (64, -24.897, 14.882, 0.2),
+    "pandar-xt32": (32, -16.0, 15.0, 0.18),
 }
 
 

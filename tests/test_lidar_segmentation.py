@@ -8,7 +8,7 @@ import pytest
 from ilcc_graph.board import Board
 from ilcc_graph.lidar._synthetic import SynthScene, board_pose, synth_scan
 from ilcc_graph.lidar.segmentation import estimate_range_noise, segment_scan
-from ilcc_graph.lidar_models import lidar_model
+from ilcc_graph.lidars import lidar_model
 
 BOARD = Board(6, 8, 0.075)
 

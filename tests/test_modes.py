@@ -105,3 +105,20 @@ def test_refined_board_poses_are_kept(observed) -> None:
         f for f in cal.frames if f.used and not np.allclose(f.T_lidar_board_refined, f.board.T_lidar_board)
     ]
     assert moved  # the graph refines the boards, and the output keeps that
+
+
+def test_second_pass_finds_a_missed_board_where_the_image_puts_it(observed) -> None:
+    import dataclasses
+
+    lost = observed.frames[2]
+    assert lost.board is not None
+    missed = dataclasses.replace(lost, board=None, used=False, reason="LiDAR: no segment passed the tests")
+    frames = [missed if f.name == lost.name else f for f in observed.frames]
+    obs = dataclasses.replace(observed, frames=frames)
+    without = solve_observations([obs], RunOptions(second_pass=False)).calibration
+    assert not next(f for f in without.frames if f.name == lost.name).used
+    res = solve_observations([obs])
+    again = next(f for f in res.calibration.frames if f.name == lost.name)
+    assert again.used and again.board.diagnostics["found_near_prediction"] == 1.0
+    d = np.linalg.inv(lost.board.T_lidar_board) @ again.board.T_lidar_board
+    assert np.linalg.norm(d[:3, 3]) < 0.01  # the same board pose as the first search found

@@ -161,3 +161,44 @@ def test_recorded_board_print_is_white_at_lower_left(acfr_data):
     assert same == config and len(known) >= 2  # computed once, reused by the run
     wrong = dataclasses.replace(config, board=dataclasses.replace(config.board, lower_left="black"))
     assert check_board_colour(source, frames[:4], wrong)[0].board.lower_left == "white"
+
+
+def test_repeated_board_poses_are_one_observation():
+    cfg, frames = _frames(6, seed=5, flip_every=0)
+    again = [dataclasses.replace(frames[2], name="0002b"), dataclasses.replace(frames[4], name="0004b")]
+    cal = solve_observed(frames + again, cfg)
+    by = {f.name: f for f in cal.frames}
+    assert not by["0002b"].used and "same board pose as 0002" in by["0002b"].reason
+    assert not by["0004b"].used and "same board pose as 0004" in by["0004b"].reason
+    assert sum(f.used for f in cal.frames) == 6
+
+
+def test_too_few_distinct_poses_is_impossible_and_says_what_to_capture():
+    cfg, frames = _frames(6, seed=6, flip_every=0)
+    copies = [dataclasses.replace(frames[k % 2], name=f"c{k}") for k in range(6)]
+    with pytest.raises(CalibrationImpossible, match=r"only 2 distinct board pose\(s\).*capture the board"):
+        solve_observed(copies, cfg)
+
+
+def test_parallel_normals_are_said():
+    """Boards moved side by side, never tilted: allowed (the intensity fit fixes them in-plane), with
+    a warning that a LiDAR range error would move the extrinsic along their common normal."""
+    from ilcc_graph.estimation.geometry import board_geometry
+    from ilcc_graph.types import GraphFrame
+
+    cfg, frames = _frames(3, seed=7, flip_every=0)
+    f0 = frames[0]
+    moved = []
+    for k, shift in enumerate(([0, 0, 0], [0.0, 0.4, 0], [0.0, -0.4, 0.3], [0.3, 0.2, -0.3])):
+        T = f0.board.T_lidar_board.copy()
+        T[:3, 3] += shift
+        c = f0.corners
+        moved.append(
+            GraphFrame(f"m{k}", T, f0.board.covariance, cfg.board.corners_board(), c.bearings, c.cov_px)
+        )
+    g = board_geometry(moved)
+    assert len(g.groups) == 4 and g.ok and "range error" in g.parallel
+    around = [GraphFrame(f.name, f.board.T_lidar_board, f.board.covariance, cfg.board.corners_board(),
+                         f.corners.bearings, f.corners.cov_px) for f in frames]  # fmt: skip
+    g = board_geometry(around)
+    assert g.ok and g.parallel is None

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ilcc_graph.cameras import CameraModel
+from ilcc_graph.estimation.lidar_errors import LidarErrorOptions, LidarLayout
 from ilcc_graph.estimation.noise import BoardStats, NoiseOptions, Solution, solve_problem
 from ilcc_graph.estimation.problem import frames_problem
 from ilcc_graph.estimation.solver import check_pose
@@ -29,6 +30,8 @@ class BatchSolution:
     T_cam_lidar: (4, 4). covariance: (6, 6) of ``T_cam_lidar`` (interface.md convention).
     T_lidar_board: refined board poses of the used frames. per_frame: their residual statistics.
     dropped: ``(name, reason)`` in the order dropped. variance_components: (board priors, bearings).
+    lidar: the LiDAR's own errors (names, values, sigmas) when estimated; lidar_layout: which terms
+    entered and which were left out (``layout.excluded``).
     """
 
     T_cam_lidar: np.ndarray
@@ -40,6 +43,8 @@ class BatchSolution:
     timings: dict[str, float] = field(default_factory=dict)
     variance_factor: float = 1.0
     variance_components: tuple[float, float] = (1.0, 1.0)
+    lidar: tuple[list[str], np.ndarray, np.ndarray] | None = None
+    lidar_layout: LidarLayout | None = None
 
     @property
     def extrinsic(self) -> Estimate:
@@ -65,6 +70,8 @@ def batch_solution(sol: Solution, e: int = 0, group: str = "") -> BatchSolution:
         timings=sol.timings,
         variance_factor=sol.variance_factor,
         variance_components=sol.components(group),
+        lidar=sol.lidar(0),
+        lidar_layout=sol.assembly.layouts.get(0),
     )
 
 
@@ -73,13 +80,15 @@ def solve(
     camera: CameraModel,
     T_init: np.ndarray,
     options: NoiseOptions = NoiseOptions(),
+    lidar_errors: LidarErrorOptions | None = None,
 ) -> BatchSolution:
     """Refine ``T_cam_lidar`` over all frames and return it with its marginal covariance.
 
     frames: the frames (``types.GraphFrame``), bearings in the camera frame of ``camera``.
+    lidar_errors: the LiDAR's own errors to estimate from the frames' returns (None: none).
     T_init: (4, 4) start (e.g. UPnP's). Raises CalibrationImpossible (no usable frame),
     IndeterminateSystem (the data do not determine ``T_cam_lidar``), ValueError (malformed input).
     """
     check_pose(T_init, "T_init")
-    sol = solve_problem(frames_problem(frames, camera, T_init), options)
+    sol = solve_problem(frames_problem(frames, camera, T_init, lidar_errors=lidar_errors), options)
     return batch_solution(sol)

@@ -16,16 +16,18 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors import FrameBearingFactor, tangent_bases
+from factors import FrameBearingFactor, sqrt_information, tangent_bases
+from factors.board_points import BoardPointsFactor
 from factors.range_offset import RangeOffsetBoardFactor
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
-from ilcc_graph.estimation.keys import POSE3_DOF, B, O, X
+from ilcc_graph.estimation.keys import POSE3_DOF, B, L, O, X, key_dim
+from ilcc_graph.estimation.lidar_errors import LidarLayout, layout_for
 from ilcc_graph.estimation.problem import BoardPrior, Problem, Tie
 from ilcc_graph.estimation.solver import check_covariance, check_pose, gaussian
 from ilcc_graph.init import upnp
-from ilcc_graph.types import GraphFrame
+from ilcc_graph.types import BoardReturns, GraphFrame
 
 log = logging.getLogger(__name__)
 
@@ -166,6 +168,40 @@ def offset_prior_graph(lidars: Sequence[int], sigma_m: float) -> gtsam.Nonlinear
     return graph
 
 
+def board_points_factor(
+    index: int, board: BoardPrior, layout: LidarLayout, max_points: int
+) -> BoardPointsFactor:
+    """The board's returns on (``B(index)``, ``L(board.lidar)``) with the terms of ``layout``.
+
+    At most ``max_points`` returns (evenly spread over the list) enter. The in-plane prior is the
+    LiDAR stage's intensity fit: ``W (xi_in - K xi_out)``, ``xi = Logmap(T_measured^-1 T)``.
+    """
+    r: BoardReturns = board.returns  # type: ignore[assignment]
+    P = np.asarray(r.points, dtype=np.float64)
+    keep = np.arange(len(P)) if len(P) <= max_points else np.linspace(0, len(P) - 1, max_points).astype(int)
+    rho = np.linalg.norm(P[keep], axis=1)
+    range_index, range_coef, e_idx, e_coef = layout.terms(r, rho, keep)
+    S = np.zeros((3, POSE3_DOF))
+    S[:, [2, 3, 4]] = np.eye(3)
+    S[:, [0, 1, 5]] = -np.asarray(r.inplane_coupling, dtype=np.float64)
+    return BoardPointsFactor(
+        B(index), L(board.lidar), P[keep], float(r.sigma_m), range_index, range_coef, layout.dim,
+        board.T_lidar_board, S, sqrt_information(np.asarray(r.inplane_cov, dtype=np.float64)), e_idx, e_coef,
+    )  # fmt: skip
+
+
+def lidar_prior_graph(layouts: Mapping[int, LidarLayout]) -> gtsam.NonlinearFactorGraph:
+    """A weak zero-mean prior on each LiDAR's parameter vector ``L(l)`` (the layout's sigmas)."""
+    graph = gtsam.NonlinearFactorGraph()
+    for lid, lay in layouts.items():
+        graph.add(
+            gtsam.PriorFactorVector(
+                L(lid), np.zeros(lay.dim), gtsam.noiseModel.Diagonal.Sigmas(lay.prior_sigmas())
+            )
+        )
+    return graph
+
+
 # ------------------------------------------------------------------------------ the assembly
 @dataclass(frozen=True)
 class Term:
@@ -176,6 +212,7 @@ class Term:
     group: str
     board: int | None
     dim: int
+    parts: tuple[tuple[str, int, int], ...] = ()  # (kind, first row, end row) when rows differ in kind
 
 
 class Assembly:
@@ -183,10 +220,18 @@ class Assembly:
 
     robust: m-estimator applied per corner to the bearing factors (None: least squares).
     Views with fewer than ``MIN_CORNERS`` usable corners are left out; ``unusable`` names their
-    boards with the reason (a board without any usable view cannot be estimated).
+    boards with the reason (a board without any usable view cannot be estimated). With
+    ``problem.lidar_errors``, each board that carries its returns enters through a
+    ``BoardPointsFactor`` on its LiDAR's parameters ``L(l)`` (``layouts`` per LiDAR, default from
+    the returns: ``lidar_errors.layout_for``); the others through their LiDAR prior.
     """
 
-    def __init__(self, problem: Problem, robust: gtsam.noiseModel.mEstimator.Base | None = None) -> None:
+    def __init__(
+        self,
+        problem: Problem,
+        robust: gtsam.noiseModel.mEstimator.Base | None = None,
+        layouts: Mapping[int, LidarLayout] | None = None,
+    ) -> None:
         self.problem = problem
         self.robust = robust
         self.priors = [
@@ -225,6 +270,21 @@ class Assembly:
                 else:
                     pts = next(v.points_board for v in problem.views if v.board == i)
                     self.samples[i] = samples_from_corners(pts)
+        self.layouts: dict[int, LidarLayout] = {}
+        self.points: dict[int, BoardPointsFactor] = {}
+        opts = problem.lidar_errors
+        if opts is not None and opts.any:
+            by_lidar: dict[int, list[int]] = {}
+            for i, b in enumerate(problem.boards):
+                if b.returns is not None:
+                    by_lidar.setdefault(b.lidar, []).append(i)
+            for lid, idx in by_lidar.items():
+                lay = (layouts or {}).get(lid) or layout_for([problem.boards[i].returns for i in idx], opts)
+                self.layouts[lid] = lay
+                if lay.dim == 0:
+                    continue  # nothing left to estimate: the boards enter through their priors
+                for i in idx:
+                    self.points[i] = board_points_factor(i, problem.boards[i], lay, opts.max_points_per_board)
 
     @property
     def usable(self) -> list[int]:
@@ -243,11 +303,20 @@ class Assembly:
         keep = set(boards)
         order = [i for i in range(len(pr.boards)) if i in keep]
         with_offset = pr.range_offset_sigma_m is not None
+        plain_boards = [i for i in order if i not in self.points]
         priors = [
-            (i, pr.boards[i], self.priors[i] * scales.get(("board", pr.boards[i].group), 1.0)) for i in order
+            (i, pr.boards[i], self.priors[i] * scales.get(("board", pr.boards[i].group), 1.0))
+            for i in plain_boards
         ]
         graph = board_prior_graph(priors, with_offset, self.samples)
-        terms = [Term("board", pr.boards[i].group, i, POSE3_DOF) for i in order]
+        terms = [Term("board", pr.boards[i].group, i, POSE3_DOF) for i in plain_boards]
+        for i in order:
+            if i in self.points:
+                g = pr.boards[i].group
+                f = self.points[i].scaled(scales.get(("points", g), 1.0), scales.get(("inplane", g), 1.0))
+                graph.add(f.factor())
+                m = f.n_points
+                terms.append(Term("board", g, i, f.dim, (("points", 0, m), ("inplane", m, m + 3))))
         facs = []
         for j, fac in self.views:
             v = pr.views[j]
@@ -266,7 +335,21 @@ class Assembly:
             lidars = self.lidars(order)
             graph.push_back(offset_prior_graph(lidars, float(pr.range_offset_sigma_m)))
             terms += [Term("offset", "", None, 1) for _ in lidars]
+        layouts = {lid: self.layouts[lid] for lid in self.point_lidars(order)}
+        graph.push_back(lidar_prior_graph(layouts))
+        terms += [Term("lidar", "", None, lay.dim) for lay in layouts.values()]
         return graph, terms
+
+    def point_lidars(self, boards: Sequence[int]) -> list[int]:
+        """LiDARs whose parameters ``L(l)`` the boards' returns enter."""
+        return sorted({self.problem.boards[i].lidar for i in boards if i in self.points})
+
+    def dim(self, key: int) -> int:
+        """Tangent dimension of the variable behind ``key``."""
+        sym = gtsam.Symbol(key)
+        if chr(sym.chr()).lower() == "l":
+            return self.layouts[int(sym.index())].dim
+        return key_dim(key)
 
     def extrinsics(self, boards: Sequence[int]) -> list[int]:
         """Extrinsic indices seen by the views of ``boards`` (and those tied to them), ascending."""
@@ -292,9 +375,10 @@ class Assembly:
         extrinsics: Mapping[int, gtsam.Pose3],
         board_poses: Mapping[int, gtsam.Pose3] | None = None,
         offsets: Mapping[int, float] | None = None,
+        lidar: Mapping[int, np.ndarray] | None = None,
     ) -> gtsam.Values:
         """Initial values: the extrinsics given, each board at ``board_poses`` or its LiDAR prior,
-        each range offset at ``offsets`` or 0."""
+        each range offset at ``offsets`` or 0, each LiDAR's parameters at ``lidar`` or 0."""
         values = gtsam.Values()
         for e in self.extrinsics(boards):
             T = extrinsics.get(e)
@@ -307,4 +391,10 @@ class Assembly:
         if self.problem.range_offset_sigma_m is not None:
             for lid in self.lidars(boards):
                 values.insert(O(lid), np.array([(offsets or {}).get(lid, 0.0)]))
+        for lid in self.point_lidars(boards):
+            v = (lidar or {}).get(lid)
+            values.insert(
+                L(lid),
+                v if v is not None and len(v) == self.layouts[lid].dim else np.zeros(self.layouts[lid].dim),
+            )
         return values

@@ -8,16 +8,16 @@ p_board``). ``O(l)``: LiDAR l's range offset (Vector1, metres, measured minus tr
 from __future__ import annotations
 
 import gtsam
-from gtsam.symbol_shorthand import B, O, X
+from gtsam.symbol_shorthand import B, L, O, X
 
-__all__ = ["B", "O", "POSE3_DOF", "X", "is_board", "key_dim"]
+__all__ = ["B", "L", "O", "POSE3_DOF", "X", "is_board", "key_dim"]
 
 POSE3_DOF = 6
 _DIMS = {"x": POSE3_DOF, "b": POSE3_DOF, "o": 1}  # symbol_shorthand letters are lower case
 
 
 def key_dim(key: int) -> int:
-    """Tangent dimension of the variable behind ``key``."""
+    """Tangent dimension of a Pose3 or range-offset variable behind ``key`` (L(l): ``Assembly.dim``)."""
     return _DIMS[chr(gtsam.Symbol(key).chr()).lower()]
 
 

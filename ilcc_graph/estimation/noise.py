@@ -35,7 +35,8 @@ from scipy.stats import chi2 as chi2_dist
 
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.estimation.graphs import Assembly, Scales, Term
-from ilcc_graph.estimation.keys import POSE3_DOF, B, O, X, is_board, key_dim
+from ilcc_graph.estimation.keys import POSE3_DOF, B, L, O, X, is_board, key_dim
+from ilcc_graph.estimation.lidar_errors import LidarLayout
 from ilcc_graph.estimation.problem import Problem
 from ilcc_graph.estimation.solver import MarginalCovariances, SolverOptions, optimize, robust_kernel
 from ilcc_graph.types import Estimate
@@ -80,15 +81,18 @@ class NoiseOptions:
 class BoardStats:
     """Residual statistics of one board at the solution.
 
-    chi2: its prior's term plus its views' whitened squared bearing errors; dof: the views' residual
-    count (2 per corner); rms_bearing_error_mrad: RMS angle between predicted and measured bearings;
-    chi2_robust: with a robust kernel ``2 sum rho`` plus the prior's term (what the gate tests then).
+    chi2: its prior's term (the in-plane prior when its returns enter) plus its views' whitened
+    squared bearing errors; dof: the views' residual count (2 per corner); rms_bearing_error_mrad:
+    RMS angle between predicted and measured bearings; chi2_robust: with a robust kernel
+    ``2 sum rho`` plus the prior's term (what the gate tests then); returns: (chi2, dof) of its
+    LiDAR returns about the board's plane, when they enter the graph.
     """
 
     chi2: float
     dof: int
     rms_bearing_error_mrad: float
     chi2_robust: float | None = None
+    returns: tuple[float, int] | None = None
 
 
 @dataclass
@@ -140,19 +144,39 @@ class Solution:
         return v, float(np.sqrt(self.marginals.covariance(O(lidar), f"range offset O({lidar})")[0, 0]))
 
     def components(self, group: str = "") -> tuple[float, float]:
-        """(board priors, bearings) variance components of ``group``."""
-        return self.scales.get(("board", group), 1.0), self.scales.get(("bearing", group), 1.0)
+        """(board priors, bearings) variance components of ``group`` (with the boards' returns in the
+        graph, the first is that of their in-plane priors)."""
+        board = self.scales.get(("board", group), self.scales.get(("inplane", group), 1.0))
+        return board, self.scales.get(("bearing", group), 1.0)
+
+    def lidar(self, lidar: int = 0) -> tuple[list[str], np.ndarray, np.ndarray] | None:
+        """(names, values, sigmas) of LiDAR ``lidar``'s own errors (``lidar_errors``), or None."""
+        lay = self.assembly.layouts.get(lidar)
+        if lay is None or lidar not in self.assembly.point_lidars(self.boards):
+            return None
+        v = np.asarray(self.values.atVector(L(lidar)), dtype=np.float64)
+        C = self.marginals.covariance(L(lidar), f"the errors of LiDAR {lidar}")
+        return lay.names, v, np.sqrt(np.diag(C))
 
 
 # ------------------------------------------------------------------------------ statistics
 def _board_stats(
     graph: gtsam.NonlinearFactorGraph, terms: Sequence[Term], facs: Mapping[int, list], values: gtsam.Values
 ) -> dict[int, BoardStats]:
-    """Per kept board: chi-square of its prior and views, their dof, RMS bearing angle."""
+    """Per kept board: chi-square of its views (bearings plus its pose prior, or the in-plane prior
+    of its returns) with their dof, that of its returns, the RMS bearing angle."""
     prior: dict[int, float] = {}
+    returns: dict[int, tuple[float, int]] = {}
     for k, t in enumerate(terms):
-        if t.kind == "board":
+        if t.kind != "board":
+            continue
+        if not t.parts:
             prior[t.board] = 2.0 * graph.at(k).error(values)  # type: ignore[index]
+            continue
+        e = np.asarray(graph.at(k).whitenedError(values))
+        (_, a0, a1), (_, b0, b1) = t.parts
+        returns[t.board] = (float(e[a0:a1] @ e[a0:a1]), a1 - a0 - 3)  # type: ignore[index]
+        prior[t.board] = float(e[b0:b1] @ e[b0:b1])  # type: ignore[index]
     out: dict[int, BoardStats] = {}
     for i, fs in facs.items():
         chi2 = prior[i]
@@ -169,44 +193,65 @@ def _board_stats(
             # |e| is the sine of the angle between the bearings (< 90 deg near a solution)
             angles.append(np.arcsin(np.clip(np.linalg.norm(e, axis=1), 0.0, 1.0)))
         a = np.concatenate(angles)
-        out[i] = BoardStats(chi2, dof, float(1e3 * np.sqrt(np.mean(a**2))), robust)
+        out[i] = BoardStats(chi2, dof, float(1e3 * np.sqrt(np.mean(a**2))), robust, returns.get(i))
     return out
 
 
-def _gate_scale(stats: Mapping[int, BoardStats]) -> float:
+def _gate_scale(stats: Mapping[int, BoardStats], part: str = "views") -> float:
     """Robust noise scale for the gate: the median chi2/dof over boards, at least 1."""
-    ratios = [(s.chi2 if s.chi2_robust is None else s.chi2_robust) / s.dof for s in stats.values()]
+    ratios = [c / d for c, d, _ in (_part(s, part) for s in stats.values()) if d > 0]
     return max(1.0, float(np.median(ratios))) if ratios else 1.0
 
 
+def _part(s: BoardStats, part: str) -> tuple[float, int, str]:
+    """(value the gate tests, its dof, its name) of the views or the returns of a board."""
+    if part == "returns":
+        return (s.returns[0], s.returns[1], "returns chi2") if s.returns else (0.0, 0, "")
+    return (s.chi2, s.dof, "chi2") if s.chi2_robust is None else (s.chi2_robust, s.dof, "robust chi2")
+
+
 def _gate_failures(
-    stats: Mapping[int, BoardStats], names: Sequence[str], prob: float, scale: float
+    stats: Mapping[int, BoardStats], prob: float, scales: Mapping[str, float]
 ) -> list[tuple[float, int, str]]:
-    """Boards failing the gate as (log survival probability, board, reason), worst first."""
+    """Boards failing the gate as (log survival probability, board, reason), worst first.
+
+    Views (bearings and the board's prior) and, where they enter, the board's LiDAR returns are
+    tested apart, each against its own median scale.
+    """
     failing = []
     for i, s in stats.items():
-        value, what = (s.chi2, "chi2") if s.chi2_robust is None else (s.chi2_robust, "robust chi2")
-        value /= scale
-        bound = float(chi2_dist.ppf(prob, s.dof))
-        if value > bound:
-            scaled = f" (divided by the frames' median chi2/dof {scale:.2f})" if scale > 1.0 else ""
-            reason = (
-                f"chi-square gate: residual {what}{scaled} {value:.1f} > {bound:.1f} ({s.dof} dof, "
-                f"p={prob}); rms bearing error {s.rms_bearing_error_mrad:.3f} mrad"
-            )
-            failing.append((float(chi2_dist.logsf(value, s.dof)), i, reason))
+        worst = None
+        for part in ("views", "returns"):
+            value, dof, what = _part(s, part)
+            if dof <= 0:
+                continue
+            scale = scales.get(part, 1.0)
+            value /= scale
+            bound = float(chi2_dist.ppf(prob, dof))
+            if value > bound:
+                scaled = f" (divided by the frames' median chi2/dof {scale:.2f})" if scale > 1.0 else ""
+                reason = (
+                    f"chi-square gate: residual {what}{scaled} {value:.1f} > {bound:.1f} ({dof} dof, "
+                    f"p={prob}); rms bearing error {s.rms_bearing_error_mrad:.3f} mrad"
+                )
+                logp = float(chi2_dist.logsf(value, dof))
+                if worst is None or logp < worst[0]:
+                    worst = (logp, i, reason)
+        if worst is not None:
+            failing.append(worst)
     return sorted(failing)
 
 
-def _linear_blocks(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term]):
-    """Per factor: (board key or None, A_board, global keys, A_globals, b) of its whitened linearisation."""
+def _linear_blocks(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim):
+    """Per factor and row kind: (kind, group, board key or None, A_board, global keys, A_globals, b)
+    of its whitened linearisation."""
     out = []
-    for k in range(len(terms)):
+    for k, t in enumerate(terms):
         A, b = graph.at(k).linearize(values).jacobian()
         keys = list(graph.at(k).keys())
         col, board_key, A_b, g_keys, g_cols = 0, None, None, [], []
         for key in keys:
-            d = key_dim(key)
+            d = dim(key)
             if is_board(key):
                 board_key, A_b = key, A[:, col : col + d]
             else:
@@ -214,37 +259,41 @@ def _linear_blocks(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, term
                 g_cols.append(A[:, col : col + d])
             col += d
         A_g = np.hstack(g_cols) if g_cols else np.zeros((A.shape[0], 0))
-        out.append((board_key, A_b, g_keys, A_g, b))
+        for kind, r0, r1 in t.parts or ((t.kind, 0, len(b)),):
+            rows = slice(r0, r1)
+            out.append(
+                (kind, t.group, board_key, None if A_b is None else A_b[rows], g_keys, A_g[rows], b[rows])
+            )
     return out
 
 
 def redundancies(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term]
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim=key_dim
 ) -> dict[tuple[str, str], tuple[float, float]]:
     """Per (kind, group): (whitened chi-square, redundancy ``m_g - trace(N^-1 N_g)``) at ``values``.
 
     N is the information matrix of the whitened linear system. Boards are eliminated first (each
     factor touches at most one), so the cost is O(boards) plus a dense inverse over the globals.
+    ``dim(key)``: the tangent dimension of a variable (``Assembly.dim``).
     """
-    blocks = _linear_blocks(graph, values, terms)
+    blocks = _linear_blocks(graph, values, terms, dim)
     g_index: dict[int, int] = {}
-    for _, _, g_keys, _, _ in blocks:
+    G = 0
+    for *_, g_keys, _, _ in blocks:
         for key in g_keys:
             if key not in g_index:
-                g_index[key] = sum(key_dim(k) for k in g_index)
-    G = sum(key_dim(k) for k in g_index)
+                g_index[key] = G
+                G += dim(key)
 
     def cols(g_keys: Sequence[int]) -> np.ndarray:
-        return (
-            np.concatenate([np.arange(g_index[k], g_index[k] + key_dim(k)) for k in g_keys])
-            if g_keys
-            else np.zeros(0, int)
-        )
+        if not g_keys:
+            return np.zeros(0, int)
+        return np.concatenate([np.arange(g_index[k], g_index[k] + dim(k)) for k in g_keys])
 
     D: dict[int, np.ndarray] = {}
     C: dict[int, np.ndarray] = {}
     E = np.zeros((G, G))
-    for board_key, A_b, g_keys, A_g, _ in blocks:
+    for _, _, board_key, A_b, g_keys, A_g, _ in blocks:
         c = cols(g_keys)
         if board_key is not None:
             D[board_key] = D.get(board_key, np.zeros((POSE3_DOF, POSE3_DOF))) + A_b.T @ A_b
@@ -258,7 +307,7 @@ def redundancies(
     except np.linalg.LinAlgError:
         raise IndeterminateSystem("the graph does not determine its global variables") from None
     out: dict[tuple[str, str], list[float]] = {}
-    for (board_key, A_b, g_keys, A_g, b), t in zip(blocks, terms, strict=True):
+    for kind, group, board_key, A_b, g_keys, A_g, b in blocks:
         c = cols(g_keys)
         if board_key is not None:
             di, ci = Dinv[board_key], C[board_key]
@@ -268,7 +317,7 @@ def redundancies(
             Sig = np.block([[S_bb, S_bg[:, c]], [S_bg[:, c].T, S_inv[np.ix_(c, c)]]])
         else:
             A, Sig = A_g, S_inv[np.ix_(c, c)]
-        acc = out.setdefault((t.kind, t.group), [0.0, 0.0])
+        acc = out.setdefault((kind, group), [0.0, 0.0])
         acc[0] += float(b @ b)
         acc[1] += len(b) - float(np.sum(Sig * (A.T @ A)))
     return {k: (v[0], v[1]) for k, v in out.items()}
@@ -284,20 +333,23 @@ def solve_problem(
     variance_factor: float | None = None,
     gate: bool = True,
     start: Mapping[int, gtsam.Pose3] | None = None,
+    layouts: Mapping[int, LidarLayout] | None = None,
 ) -> Solution:
     """Solve ``problem`` under the noise policy of this module.
 
     boards: names of the boards to use (None: all). scales: fixed variance components per (kind,
     group) (then none are estimated). variance_factor: a fixed final factor (None: estimated when
     ``options.variance_components``). gate: apply the chi-square gate. start: extrinsic starts per
-    index (else ``problem.T_init``).
+    index (else ``problem.T_init``). layouts: the LiDAR errors' layouts per LiDAR (default: from
+    the returns); with ``problem.lidar_errors``, terms the boards cannot determine are left out
+    (``Solution.assembly.layouts[l].excluded`` says which and why) and the problem solved again.
 
     Raises CalibrationImpossible (no usable board), IndeterminateSystem (the data do not determine
     the variables), ValueError (malformed input, the message names the board).
     """
     t_start = time.perf_counter()
     robust = robust_kernel(options.robust, options.robust_k)
-    asm = Assembly(problem, robust)
+    asm = Assembly(problem, robust, layouts)
     wanted = range(len(problem.boards)) if boards is None else [problem.index(n) for n in boards]
     names = [b.name for b in problem.boards]
     dropped = [(names[i], asm.unusable[i]) for i in wanted if i in asm.unusable]
@@ -312,6 +364,7 @@ def solve_problem(
     ext = {e: T for e, T in ext.items() if T is not None}
     board_est: dict[int, gtsam.Pose3] = {}
     offsets: dict[int, float] = {}
+    lidar_est: dict[int, np.ndarray] = {}
     timings = {"build": 0.0, "optimize": 0.0}
     iterations = 0
 
@@ -319,7 +372,7 @@ def solve_problem(
         nonlocal iterations
         t0 = time.perf_counter()
         g, terms = asm.graph(kept, comps, plain)
-        values = asm.values(kept, ext, board_est, offsets)
+        values = asm.values(kept, ext, board_est, offsets, lidar_est)
         t1 = time.perf_counter()
         res, n_it = optimize(g, values, options.solver)
         timings["build"] += t1 - t0
@@ -332,6 +385,8 @@ def solve_problem(
         if problem.range_offset_sigma_m is not None:
             for lid in asm.lidars(kept):
                 offsets[lid] = float(res.atVector(O(lid))[0])
+        for lid in asm.point_lidars(kept):
+            lidar_est[lid] = np.asarray(res.atVector(L(lid)))
         return g, terms, res
 
     def stats_of(kept: Sequence[int], comps: Scales, g, terms, res) -> dict[int, BoardStats]:
@@ -355,17 +410,16 @@ def solve_problem(
             st = stats_of(kept, comps, g, terms, res)
             if not gate or options.chi2_gate_prob is None:
                 break
-            scale = _gate_scale(st) if options.variance_components else 1.0
-            failing = _gate_failures(st, names, options.chi2_gate_prob, scale)
+            on = options.variance_components
+            gate_scales = {p: _gate_scale(st, p) if on else 1.0 for p in ("views", "returns")}
+            failing = _gate_failures(st, options.chi2_gate_prob, gate_scales)
             if not failing:
                 break
             if len(gone) >= allowed_drops or len(kept) == 1:
                 log.warning(
                     "chi-square gate fails for %d frame(s) (%s) but at most %d frames may be dropped; kept",
-                    len(failing),
-                    ", ".join(names[i] for _, i, _ in failing),
-                    allowed_drops,
-                )
+                    len(failing), ", ".join(names[i] for _, i, _ in failing), allowed_drops,
+                )  # fmt: skip
                 break
             _, worst, reason = failing[0]
             log.info("dropping frame %s: %s", names[worst], reason)
@@ -376,10 +430,10 @@ def solve_problem(
     def with_components(kept: Sequence[int], comps: dict[tuple[str, str], float]):
         g, terms, res = fit(kept, comps)
         for _ in range(8):
-            ratios = redundancies(g, res, terms)
+            ratios = redundancies(g, res, terms, asm.dim)
             new = dict(comps)
             for key, (c2, r) in ratios.items():
-                if key[0] in ("board", "bearing"):
+                if key[0] in COMPONENT_KINDS:
                     new[key] = max(1.0, comps.get(key, 1.0) * (c2 / r if r > 0.5 else 1.0))
             if all(abs(new[k] / comps.get(k, 1.0) - 1.0) < 0.02 for k in new):
                 break
@@ -397,41 +451,68 @@ def solve_problem(
         g, terms, res, comps = with_components(kept, comps)
         st = stats_of(kept, comps, g, terms, res)
     dropped.extend(gone)
+    if variance_factor is None:
+        vf = _variance_factor(g, terms, res, asm, st) if options.variance_components else 1.0
+    else:
+        vf = variance_factor
+    timings["total"] = time.perf_counter() - t_start
+    sol = Solution(problem, asm, kept, g, res, st, dropped, comps, float(vf), iterations, timings)
+    weak = _unobservable(sol) if layouts is None else {}
+    if weak:
+        for lid, (terms_out, why) in weak.items():
+            log.info("LiDAR %d: %s left out: %s", lid, ", ".join(terms_out), why)
+        again = {lid: lay.without(*weak[lid]) if lid in weak else lay for lid, lay in asm.layouts.items()}
+        return solve_problem(problem, options, boards=boards, scales=scales, variance_factor=variance_factor,
+                             gate=gate, start=start, layouts=again)  # fmt: skip
     if len(kept) < MIN_BOARDS_ADVISED:
         log.warning(
             "only %d usable frame(s) in the graph; at least %d are advised for a reliable extrinsic",
-            len(kept),
-            MIN_BOARDS_ADVISED,
-        )
+            len(kept), MIN_BOARDS_ADVISED,
+        )  # fmt: skip
     if any(v != 1.0 for v in comps.values()) and not fixed:
         log.info(
             "variance components (residuals against the stated noise): %s",
             ", ".join(f"{k}{'/' + grp if grp else ''} x {v:.2f}" for (k, grp), v in sorted(comps.items())),
         )
-    if variance_factor is None:
-        variance_factor = _variance_factor(g, terms, res, asm, st) if options.variance_components else 1.0
-        if variance_factor > 1.0:
-            log.info(
-                "the residuals are %.2f times the stated noise variance; covariance scaled by it",
-                variance_factor,
-            )
-    timings["total"] = time.perf_counter() - t_start
-    return Solution(
-        problem, asm, kept, g, res, st, dropped, comps, float(variance_factor), iterations, timings
-    )
+    if vf > 1.0 and variance_factor is None:
+        log.info("the residuals are %.2f times the stated noise variance; covariance scaled by it", vf)
+    return sol
+
+
+#: kinds of residual rows with a variance component each (per noise group)
+COMPONENT_KINDS = ("board", "bearing", "points", "inplane")
+
+
+def _unobservable(sol: Solution) -> dict[int, tuple[list[str], str]]:
+    """Per LiDAR, its error terms the boards hardly determine, and why (posterior over prior variance)."""
+    out: dict[int, tuple[list[str], str]] = {}
+    opts = sol.problem.lidar_errors
+    for lid, lay in sol.assembly.layouts.items():
+        if lid not in sol.assembly.point_lidars(sol.boards):
+            continue
+        C = sol.marginals.covariance(L(lid), f"the errors of LiDAR {lid}") / sol.variance_factor
+        ratio = np.diag(C) / lay.prior_sigmas() ** 2
+        weak = [n for n, q in zip(lay.names, ratio, strict=True) if q > opts.observable_ratio]  # type: ignore[union-attr]
+        if weak:
+            worst = float(ratio.max())
+            out[lid] = (weak, f"not observable from the boards given (the boards shrink its prior variance "
+                              f"only to {100 * worst:.0f} % of it or less)")  # fmt: skip
+    return out
 
 
 def _variance_factor(g, terms: Sequence[Term], values, asm: Assembly, st: Mapping[int, BoardStats]) -> float:
     """``chi2 / (m - n)`` over the whole graph, at least 1 (bearings without their robust kernel)."""
-    chi2 = sum(s.chi2 for s in st.values())
-    chi2 += sum(2.0 * g.at(k).error(values) for k, t in enumerate(terms) if t.kind in ("tie", "offset"))
+    chi2 = sum(s.chi2 + (s.returns[0] if s.returns else 0.0) for s in st.values())
+    chi2 += sum(
+        2.0 * g.at(k).error(values) for k, t in enumerate(terms) if t.kind in ("tie", "offset", "lidar")
+    )
     m = sum(t.dim for t in terms)
-    n = sum(key_dim(k) for k in values.keys())
+    n = sum(asm.dim(k) for k in values.keys())
     return max(1.0, chi2 / (m - n)) if m > n else 1.0
 
 
 def replace_scales(sol: Solution, factor: float) -> dict[tuple[str, str], float]:
     """The solution's components with its final variance factor folded in (for sub-problem solves)."""
-    groups = {(k, b.group) for b in sol.problem.boards for k in ("board", "bearing")}
+    groups = {(k, b.group) for b in sol.problem.boards for k in COMPONENT_KINDS}
     groups |= {("bearing", v.group) for v in sol.problem.views}
     return {key: sol.scales.get(key, 1.0) * factor for key in groups}

@@ -19,7 +19,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ilcc_graph.cameras import CameraModel
-from ilcc_graph.types import GraphFrame
+from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
+from ilcc_graph.types import BoardReturns, GraphFrame
 
 __all__ = ["BoardPrior", "Problem", "Tie", "View", "frames_problem", "merge_problems"]
 
@@ -34,6 +35,7 @@ class BoardPrior:
     lidar: index of the LiDAR unit (shares the range-offset variable ``O(lidar)``).
     samples_board: (M, 3) points of the board's face, board frame, for the range offset (None: a
         grid over the corners grown by one square).
+    returns: its LiDAR returns, to calibrate the LiDAR's own errors (``Problem.lidar_errors``).
     """
 
     name: str
@@ -42,6 +44,7 @@ class BoardPrior:
     group: str = ""
     lidar: int = 0
     samples_board: np.ndarray | None = None
+    returns: BoardReturns | None = None
 
 
 @dataclass(frozen=True)
@@ -78,6 +81,7 @@ class Problem:
 
     T_init: per extrinsic index its (4, 4) start. range_offset_sigma_m: None for no range-offset
     variables; else the sigma of each LiDAR's weak zero-mean prior on its offset (metres).
+    lidar_errors: which of the LiDAR's own errors to estimate from the boards' returns (None: none).
     """
 
     boards: tuple[BoardPrior, ...]
@@ -86,6 +90,7 @@ class Problem:
     ties: tuple[Tie, ...] = ()
     range_offset_sigma_m: float | None = None
     lidar_names: tuple[str, ...] = field(default=("lidar",))
+    lidar_errors: LidarErrorOptions | None = None
 
     def __post_init__(self) -> None:
         names = [b.name for b in self.boards]
@@ -133,15 +138,19 @@ def frames_problem(
     lidar: int = 0,
     samples_board: np.ndarray | None = None,
     prefix: str = "",
+    lidar_errors: LidarErrorOptions | None = None,
 ) -> Problem:
     """The problem of one data set: per frame one board (named ``prefix + frame.name``) and one view."""
     boards = tuple(
-        BoardPrior(prefix + f.name, f.T_lidar_board, f.board_cov, group, lidar, samples_board) for f in frames
+        BoardPrior(prefix + f.name, f.T_lidar_board, f.board_cov, group, lidar, samples_board, f.returns)
+        for f in frames
     )
     views = tuple(
         View(i, extrinsic, f.points_board, f.bearings, f.cov_px, camera, group) for i, f in enumerate(frames)
     )
-    return Problem(boards, views, {extrinsic: np.asarray(T_init, dtype=np.float64)})
+    return Problem(
+        boards, views, {extrinsic: np.asarray(T_init, dtype=np.float64)}, lidar_errors=lidar_errors
+    )
 
 
 def merge_problems(parts: Sequence[Problem], **kw: object) -> Problem:

@@ -17,9 +17,10 @@ from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.graphs import upnp_start
 from ilcc_graph.estimation.keys import POSE3_DOF
+from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.noise import NoiseOptions, solve_problem
 from ilcc_graph.estimation.problem import BoardPrior, Problem, View
-from ilcc_graph.types import Estimate, GraphFrame
+from ilcc_graph.types import BoardReturns, Estimate, GraphFrame
 
 __all__ = ["RigFrame", "RigOptions", "RigSolution", "RigView", "relative_pose", "solve_rig"]
 
@@ -43,7 +44,7 @@ class RigView:
 class RigFrame:
     """One board placement seen by the LiDAR and by one or more cameras.
 
-    T_lidar_board (4, 4), board_cov (6, 6), points_board (K, 3) as ``types.GraphFrame``.
+    T_lidar_board (4, 4), board_cov (6, 6), points_board (K, 3), returns as ``types.GraphFrame``.
     """
 
     name: str
@@ -51,17 +52,20 @@ class RigFrame:
     board_cov: np.ndarray
     points_board: np.ndarray
     views: Sequence[RigView]
+    returns: BoardReturns | None = None
 
 
 @dataclass(frozen=True)
 class RigOptions:
     """range_offset: estimate the LiDAR's range offset (weak prior ``range_offset_prior_sigma_m``);
-    samples_board: (M, 3) board-face points for it (None: from the corners); noise: the noise policy."""
+    samples_board: (M, 3) board-face points for it (None: from the corners); noise: the noise policy;
+    lidar_errors: the LiDAR's own errors to estimate from the boards' returns."""
 
     range_offset: bool = False
     range_offset_prior_sigma_m: float = 0.1
     samples_board: np.ndarray | None = None
     noise: NoiseOptions = NoiseOptions()
+    lidar_errors: LidarErrorOptions | None = None
 
 
 @dataclass(frozen=True)
@@ -115,7 +119,9 @@ def solve_rig(
     per_camera: dict[int, list[GraphFrame]] = {i: [] for i in range(len(names))}
     for f in frames:
         b = len(boards)
-        boards.append(BoardPrior(f.name, f.T_lidar_board, f.board_cov, "", 0, options.samples_board))
+        boards.append(
+            BoardPrior(f.name, f.T_lidar_board, f.board_cov, "", 0, options.samples_board, f.returns)
+        )
         for v in f.views:
             if v.camera not in index:
                 raise ValueError(
@@ -132,7 +138,10 @@ def solve_rig(
         given = None if T_init is None else T_init.get(n)
         init[c] = upnp_start(per_camera[c]) if given is None else np.asarray(given, dtype=np.float64)
     sigma = options.range_offset_prior_sigma_m if options.range_offset else None
-    sol = solve_problem(Problem(tuple(boards), tuple(views), init, range_offset_sigma_m=sigma), options.noise)
+    problem = Problem(
+        tuple(boards), tuple(views), init, range_offset_sigma_m=sigma, lidar_errors=options.lidar_errors
+    )
+    sol = solve_problem(problem, options.noise)
     ext = {n: sol.extrinsic(c) for n, c in index.items()}
     J = sol.joint_covariance(list(range(len(names))))
     rel: dict[tuple[str, str], Estimate] = {}

@@ -26,6 +26,7 @@ from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.graphs import board_face_samples, upnp_start
 from ilcc_graph.estimation.keys import POSE3_DOF
+from ilcc_graph.estimation.lidar_errors import LidarErrorOptions, LidarLayout
 from ilcc_graph.estimation.noise import NoiseOptions, Solution, replace_scales, solve_problem
 from ilcc_graph.estimation.problem import Problem, Tie, frames_problem, merge_problems
 from ilcc_graph.estimation.solver import check_pose
@@ -77,6 +78,7 @@ class JointOptions:
         frames' covariances do not describe; added to each session's covariance in the tests only.
     range_offset: estimate a range offset per LiDAR label. range_offset_prior_sigma_m: its weak prior.
     noise: the core's noise policy (gate, variance components, robust kernel).
+    lidar_errors: the LiDAR's own errors to estimate from the boards' returns, per LiDAR label.
     """
 
     mode: str = "rigid"
@@ -89,6 +91,7 @@ class JointOptions:
     range_offset: bool = False
     range_offset_prior_sigma_m: float = 0.1
     noise: NoiseOptions = NoiseOptions()
+    lidar_errors: LidarErrorOptions | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -153,7 +156,9 @@ class JointSolution:
     (when asked). dropped: per session the frames the gate dropped. components: per session the
     (board priors, bearings) variance components. variance_factor: the final factor.
     T_lidar_board: per session the refined board poses of the kept frames. per_frame: per session
-    the kept frames' residual statistics (``noise.BoardStats``).
+    the kept frames' residual statistics (``noise.BoardStats``). lidar_errors: per LiDAR label
+    (names, values, sigmas) of its own errors when estimated; lidar_layouts: their layouts (what
+    entered, what was left out and why).
     """
 
     mode: str
@@ -171,6 +176,8 @@ class JointSolution:
     variance_factor: float = 1.0
     T_lidar_board: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     per_frame: dict[str, dict] = field(default_factory=dict)
+    lidar_errors: dict[str, tuple] = field(default_factory=dict)
+    lidar_layouts: dict[str, LidarLayout] = field(default_factory=dict)
 
 
 def compare_estimates(ref: Estimate, other: Estimate) -> tuple[np.ndarray, np.ndarray]:
@@ -221,7 +228,9 @@ def _session_problem(sessions: Sequence[Session], options: JointOptions) -> Prob
             )
         )
     sigma = options.range_offset_prior_sigma_m if options.range_offset else None
-    return merge_problems(parts, range_offset_sigma_m=sigma, lidar_names=tuple(labels))
+    return merge_problems(
+        parts, range_offset_sigma_m=sigma, lidar_names=tuple(labels), lidar_errors=options.lidar_errors
+    )
 
 
 def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOptions()) -> JointSolution:
@@ -251,9 +260,8 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
 
     def sub(problem: Problem, boards: list[str], start: dict) -> Solution:
         nonlocal iterations
-        s = solve_problem(
-            problem, options.noise, boards=boards, scales=fixed, variance_factor=1.0, gate=False, start=start
-        )
+        s = solve_problem(problem, options.noise, boards=boards, scales=fixed, variance_factor=1.0,
+                          gate=False, start=start, layouts=sol.assembly.layouts)  # fmt: skip
         iterations += s.iterations
         return s
 
@@ -338,6 +346,10 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         variance_factor=sol.variance_factor,
         T_lidar_board=boards_out,
         per_frame=stats_out,
+        lidar_errors={
+            lab: e for lid, lab in enumerate(sep.lidar_names) if (e := final.lidar(lid)) is not None
+        },
+        lidar_layouts={sep.lidar_names[lid]: lay for lid, lay in sol.assembly.layouts.items()},
     )
 
 

@@ -100,7 +100,8 @@ def _layout(path: Path, h: dict[str, list[str]]) -> tuple[list[str], np.dtype, i
     return names, np.dtype(fields), points
 
 
-def _columns(path: Path, names: list[str], rec: np.ndarray) -> Scan:
+def _columns(path: Path, names: list[str], rec: np.ndarray, width: int = -1, height: int = 1) -> Scan:
+    """The Scan of the records; an organised cloud (HEIGHT > 1) without a ring field gets ring = row."""
     idx = find_fields(path, names)
     keys = rec.dtype.names
     assert keys is not None
@@ -111,7 +112,10 @@ def _columns(path: Path, names: list[str], rec: np.ndarray) -> Scan:
 
     xyz = np.stack([col("x"), col("y"), col("z")], axis=1)
     ring = col("ring") if idx["ring"] is not None else None
-    return make_scan(path, xyz, col("intensity"), ring)
+    organised = height > 1 and width > 0 and width * height == rec.shape[0]
+    if ring is None and organised:
+        ring = np.repeat(np.arange(height, dtype=np.int64), width)
+    return make_scan(path, xyz, col("intensity"), ring, width if organised else None)
 
 
 @reader(".pcd")
@@ -165,7 +169,8 @@ def read_pcd(path: Path, intensity_column: int | None = None) -> Scan:
         raise InputError(
             f"{path}: unknown PCD DATA type {' '.join(h['DATA'])!r}; expected ascii|binary|binary_compressed"
         )
-    return _columns(path, names, rec)
+    width, height = int(h.get("WIDTH", ["-1"])[0]), int(h.get("HEIGHT", ["1"])[0])
+    return _columns(path, names, rec, width, height)
 
 
 def _read_ascii(path: Path, body: bytes, names: list[str], dtype: np.dtype, n: int) -> np.ndarray:
@@ -194,14 +199,21 @@ def _read_ascii(path: Path, body: bytes, names: list[str], dtype: np.dtype, n: i
     return rec
 
 
-def write_pcd(path: str | Path, scan: Scan, data: str = "binary") -> Path:
+def write_pcd(
+    path: str | Path, scan: Scan, data: str = "binary", organised: tuple[int, int] | None = None
+) -> Path:
     """Write ``scan`` as PCD v0.7: fields x y z intensity (float32) [ring (uint16)], atomically.
 
     data: ``"binary"`` (default), ``"ascii"`` or ``"binary_compressed"``.
+    organised: (HEIGHT, WIDTH) to write an organised cloud (row-major: point k is row k // WIDTH);
+        the scan must then hold HEIGHT * WIDTH points, (0, 0, 0) where a pixel has no return.
     """
     if data not in ("binary", "ascii", "binary_compressed"):
         raise ValueError(f"data must be 'binary', 'ascii' or 'binary_compressed', got {data!r}")
     n = len(scan)
+    height, width = (1, n) if organised is None else (int(organised[0]), int(organised[1]))
+    if height * width != n:
+        raise ValueError(f"organised {organised} needs {height * width} points, the scan has {n}")
     fields = [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "<f4")]
     if scan.ring is not None:
         fields.append(("ring", "<u2"))
@@ -218,7 +230,7 @@ def write_pcd(path: str | Path, scan: Scan, data: str = "binary") -> Path:
         f"SIZE {' '.join(str(np.dtype(t).itemsize) for _, t in fields)}\n"
         f"TYPE {' '.join('F' if np.dtype(t).kind == 'f' else 'U' for _, t in fields)}\n"
         f"COUNT {' '.join('1' for _ in fields)}\n"
-        f"WIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {data}\n"
+        f"WIDTH {width}\nHEIGHT {height}\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\nDATA {data}\n"
     )
     if data == "binary":
         payload = rec.tobytes()

@@ -6,7 +6,8 @@ common aliases (``laser_id`` for ``ring``, VeloView's ``Points:0`` for ``x``, Cl
 ``scalar_Intensity`` for ``intensity``).
 
 Rows whose x, y, z or intensity is not finite are dropped (Velodyne drivers write NaN for "no
-return"); a file whose rows are all non-finite, or that has no rows, raises ``InputError``.
+return"), and so are points exactly at the origin (Ouster's organised clouds write (0, 0, 0) for
+"no return"); a file whose rows are all unusable, or that has no rows, raises ``InputError``.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import numpy as np
 from ..errors import InputError
 from ..types import Scan
 
-__all__ = ["read_scan", "reader", "supported_scan_suffixes", "FIELD_ALIASES"]
+__all__ = ["read_scan", "reader", "supported_scan_suffixes", "FIELD_ALIASES", "write_csv"]
 
 ReadFn = Callable[[Path, "int | None"], Scan]
 _READERS: dict[str, ReadFn] = {}
@@ -90,8 +91,10 @@ def find_fields(path: Path, names: Sequence[str], need_intensity: bool = True) -
     return found
 
 
-def make_scan(path: Path, xyz: np.ndarray, intensity: np.ndarray, ring: np.ndarray | None) -> Scan:
-    """Check values, drop non-finite rows and build the ``Scan`` (float64 / int32 copies)."""
+def make_scan(
+    path: Path, xyz: np.ndarray, intensity: np.ndarray, ring: np.ndarray | None, columns: int | None = None
+) -> Scan:
+    """Check values, drop non-finite rows and (0, 0, 0) points; the ``Scan`` (float64 / int32 copies)."""
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
     inten = np.asarray(intensity, dtype=np.float64).reshape(-1)
     n = xyz.shape[0]
@@ -100,6 +103,9 @@ def make_scan(path: Path, xyz: np.ndarray, intensity: np.ndarray, ring: np.ndarr
     ok = np.isfinite(xyz).all(axis=1) & np.isfinite(inten)
     if not ok.any():
         raise InputError(f"{path}: all {n} points have non-finite x, y, z or intensity (NaN/inf)")
+    ok &= (xyz != 0).any(axis=1)
+    if not ok.any():
+        raise InputError(f"{path}: all {n} points are at (0, 0, 0) (no return)")
     r = None
     if ring is not None:
         rf = np.asarray(ring).reshape(-1)
@@ -117,7 +123,11 @@ def make_scan(path: Path, xyz: np.ndarray, intensity: np.ndarray, ring: np.ndarr
         xyz, inten = xyz[ok], inten[ok]
         r = None if r is None else r[ok]
     return Scan(
-        points=np.ascontiguousarray(xyz), intensity=np.ascontiguousarray(inten), ring=r, source=str(path)
+        points=np.ascontiguousarray(xyz),
+        intensity=np.ascontiguousarray(inten),
+        ring=r,
+        source=str(path),
+        columns=columns,
     )
 
 
@@ -194,3 +204,22 @@ def read_csv(path: Path, intensity_column: int | None = None) -> Scan:
         raise InputError(f"{path}: rows have {sorted(widths)} values, the first row has {ncols}")
     ring = data[:, 4] if cols["ring"] is not None else None
     return make_scan(path, data[:, :3], data[:, 3], ring)
+
+
+def write_csv(path: str | Path, scan: Scan, ring_name: str = "laser_id") -> Path:
+    """Write ``scan`` as ILCC's / VeloView's CSV: header ``Points:0,Points:1,Points:2,intensity,laser_id``
+    (ring column named ``ring_name``; omitted when the scan has no ring), atomically."""
+    from .files import atomic_write
+
+    pts = np.asarray(scan.points, dtype=np.float64).reshape(-1, 3)
+    cols = [pts[:, 0], pts[:, 1], pts[:, 2], np.asarray(scan.intensity, dtype=np.float64)]
+    names = ["Points:0", "Points:1", "Points:2", "intensity"]
+    fmt = ["%.6f", "%.6f", "%.6f", "%.6g"]
+    if scan.ring is not None:
+        cols.append(np.asarray(scan.ring, dtype=np.float64))
+        names.append(ring_name)
+        fmt.append("%d")
+    row = ",".join(fmt) + "\n"
+    values = np.stack(cols, axis=1).ravel().tolist()
+    body = (row * len(pts)) % tuple(values) if len(pts) else ""
+    return atomic_write(path, (",".join(names) + "\n" + body).encode("ascii"))

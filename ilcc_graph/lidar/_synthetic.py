@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..board import Board
-from ..lidar_models import LidarModel
+from ..lidars import LidarModel
 from ..types import Scan
 
 
@@ -39,6 +39,9 @@ class SynthScene:
     dropout: float = 0.0  # fraction of returns lost at random
     footprint: float = 0.01  # beam diameter at the sensor (m); grows with the model's divergence
     in_plane_sigma: float = 0.0016  # board points: Gaussian offsets within the board plane (m)
+    # a board-sized panel facing the sensor at the board's distance and this azimuth, painted dark on
+    # one half and bright on the other: it passes the paper's tests and the contrast test
+    decoy_azimuth_deg: float | None = None
 
 
 def _rot(axis: np.ndarray, ang: float) -> np.ndarray:
@@ -160,6 +163,11 @@ def synth_scan(
         hi = np.array([foot[0] + 0.02, foot[1] + 0.02, foot[2]])
         hits.append(_hit_box(u, lo, hi))
         levels.append(np.full(u.shape[0], 25.0))
+    if sc.decoy_azimuth_deg is not None:
+        Td = board_pose(board, SynthScene(distance=sc.distance, azimuth_deg=sc.decoy_azimuth_deg))
+        t_d, loc_d = _hit_rect(u, Td, board.extent())
+        hits.append(t_d)
+        levels.append(np.where(loc_d[:, 0] < 0.5 * (x0 + x1), sc.black, sc.white))
     H = np.stack(hits, axis=1)
     k = np.argmin(H, axis=1)
     t = H[np.arange(u.shape[0]), k]

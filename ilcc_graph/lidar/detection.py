@@ -10,16 +10,17 @@ A candidate passes the paper's tests, with the board's physical size (margin inc
    one ring spacing: a board turned diamond-wise loses its tips between rings);
 5. uniformity ``1 - (n_max - n_min) / n_all >= uniformity_min`` over the four quadrants of the
    extent, each return weighted by the board area it stands for (range^2 / cos(incidence));
-6. (ours) the intensities split into two levels (black and white print).
+6. (ours) the intensities split into two levels (black and white print), measured on the
+   candidate itself (Otsu's split, separation in pooled sigmas): no absolute intensity scale, so
+   Velodyne 0-100, Ouster raw signal or reflectivity and Livox 0-255 are treated alike.
 
-The most uniform candidate wins. An object that fails because it is too large or not planar
-(board merged with a wall close behind, a person touching it, the stand under it) is split:
-RANSAC planes are peeled off it one by one and each plane's inliers are cut into connected
-pieces with the segmentation's own point links; every piece is tested again.
+:func:`find_candidates` returns every candidate that passes; the caller (``estimate_board``)
+fits the chessboard to the best few and picks by how well the fitted pattern explains them.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,11 +28,15 @@ import numpy as np
 
 from ..board import Board
 from ..errors import BoardNotFound
-from ..lidar_models import LidarModel
+from ..lidars import LidarModel
+from .board_tests import board_tests, intensity_contrast, local_elevation_step
 from .options import LidarOptions
 from .segmentation import Segmentation, components_of, segment_scan
 
-__all__ = ["Candidate", "find_board", "roi_mask", "board_tests", "ransac_plane"]
+__all__ = [
+    "Candidate", "find_board", "find_candidates", "roi_mask", "board_tests", "intensity_contrast",
+    "ransac_plane",
+]  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -41,7 +46,7 @@ class Candidate:
     indices: (M,) indices into the scan's points. normal: (3,) unit plane normal towards the sensor.
     offset: plane offset d with ``normal @ p = d`` (metres, negative: the sensor is on the normal's side).
     uniformity: the paper's quadrant uniformity. noise_sigma: range noise of the scan (m).
-    tested: number of candidates tested.
+    tested: number of candidates tested (so far). contrast: the black/white separation d'.
     """
 
     indices: np.ndarray
@@ -50,6 +55,7 @@ class Candidate:
     uniformity: float
     noise_sigma: float
     tested: int
+    contrast: float = 0.0
 
 
 def roi_mask(points: np.ndarray, roi: Any | None) -> np.ndarray:
@@ -112,120 +118,6 @@ def ransac_plane(
     return n, float(dd), inl
 
 
-def _local_elevation_step(model: LidarModel, elevation):  # noqa: ANN001, ANN202 - float or array
-    """Ring spacing (rad) of the model's beam table at an elevation (rad), scalar or array."""
-    el = model.vertical_angles_rad
-    if el.size < 2:
-        return np.deg2rad(2.0) + 0.0 * np.asarray(elevation)
-    mids = 0.5 * (el[1:] + el[:-1])
-    gaps = np.diff(el)
-    out = np.interp(elevation, mids, gaps)
-    return float(out) if np.ndim(out) == 0 else out
-
-
-def intensity_contrast(intensity: np.ndarray, scale: float | None = None) -> tuple[float, float]:
-    """Two-level contrast of intensities (M,): (separation d', smaller class fraction).
-
-    Otsu's split into two classes; d' = (mean_high - mean_low) / pooled within-class sigma.
-    A printed chessboard gives d' > 4 with both classes near half; a plain surface gives d' < 3.
-    scale: the scan's intensity scale (e.g. its 99th percentile); a step between the two means
-    smaller than 15 % of it counts as no contrast (d' = 0), whatever the spread, and so does a dark
-    level above half the bright one (black print returns far less than white on any LiDAR we know).
-    """
-    r = np.sort(np.asarray(intensity, dtype=np.float64))
-    m = r.size
-    if m < 4 or r[-1] == r[0]:
-        return 0.0, 0.0
-    c = np.cumsum(r)
-    k = np.arange(1, m)
-    m0, m1 = c[:-1] / k, (c[-1] - c[:-1]) / (m - k)
-    between = k * (m - k) * (m1 - m0) ** 2
-    j = int(np.argmax(between))
-    lo, hi = r[: j + 1], r[j + 1 :]
-    pooled = np.sqrt((lo.var() * lo.size + hi.var() * hi.size) / m)
-    if (scale is not None and hi.mean() - lo.mean() < 0.15 * scale) or lo.mean() > 0.5 * hi.mean():
-        return 0.0, float(min(lo.size, hi.size) / m)
-    return float((hi.mean() - lo.mean()) / max(pooled, 1e-9)), float(min(lo.size, hi.size) / m)
-
-
-def board_tests(
-    p: np.ndarray,
-    board: Board,
-    model: LidarModel,
-    sigma: float,
-    options: LidarOptions,
-    intensity: np.ndarray | None = None,
-    intensity_scale: float | None = None,
-) -> tuple[bool, float, str, str]:
-    """The paper's tests on one candidate's points p (M, 3) (and intensities (M,), when given).
-
-    Returns (passed, uniformity, failed test name or "", human-readable detail).
-    """
-    x0, x1, y0, y1 = board.extent()
-    long_side, short_side = x1 - x0, y1 - y0
-    m = p.shape[0]
-    mu = p.mean(axis=0)
-    dist = float(np.linalg.norm(mu))
-    step_az = np.deg2rad(model.horizontal_resolution_deg)
-    # local ring spacing at each return: beam tables need not be uniform (vlp32c, hdl64)
-    r_i = np.linalg.norm(p, axis=1)
-    el_i = np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
-    step_el_i = _local_elevation_step(model, el_i)
-    step_el = float(np.mean(step_el_i))
-    area = long_side * short_side
-    n_theory = area / (dist**2 * step_az * step_el)
-    hi = options.count_ratio[1] * (1 + dist * step_el / short_side) * (1 + dist * step_az / short_side)
-    ratio = m / n_theory
-    if not (options.count_ratio[0] <= ratio <= hi):
-        return False, 0.0, "count", f"{m} points, {ratio:.2f} x the {n_theory:.0f} expected at {dist:.2f} m"
-    # every return stands for the board area r^2 d_az d_el / cos(incidence); weighing by it makes
-    # the PCA and the quadrant counts follow the board, not where the beams are dense (a board
-    # tilted at close range, a table denser near the horizon)
-    w0 = r_i**2 * step_el_i
-    mu_w = (w0[:, None] * p).sum(axis=0) / w0.sum()
-    q = p - mu_w
-    cov = (w0[:, None] * q).T @ q / w0.sum()
-    w, v = np.linalg.eigh(cov)
-    cos_i = np.abs(p @ v[:, 0]) / np.maximum(r_i, 1e-9)
-    w_i = w0 / np.maximum(cos_i, 0.2)
-    noise_share = (0.5 * options.noise_sigmas * sigma) ** 2
-    planar = (w[0] - noise_share) / w.sum()
-    if planar > options.planarity_ratio:
-        return False, 0.0, "planarity", f"not flat (PCA ratio {w[0] / w.sum():.3f}) at {dist:.2f} m"
-    uv = q @ v[:, [2, 1]]
-    lo, hi_ = np.quantile(uv, 0.01, axis=0), np.quantile(uv, 0.99, axis=0)
-    ext = (hi_ - lo) * m / max(m - 1, 1)
-    smin, smax = options.size_ratio
-    slack = dist * step_el  # a ring spacing: the scan can miss a corner's tip between two rings
-    if not (
-        smin * long_side - slack <= ext[0] <= smax * long_side
-        and smin * short_side - slack <= ext[1] <= smax * short_side
-    ):
-        return (
-            False, 0.0, "size",
-            f"{ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m, board {long_side:.2f} x {short_side:.2f} m",
-        )  # fmt: skip
-    mid = 0.5 * (lo + hi_)
-    quad = (uv[:, 0] >= mid[0]).astype(int) * 2 + (uv[:, 1] >= mid[1]).astype(int)
-    nq = np.bincount(quad, weights=w_i, minlength=4)
-    uniformity = 1.0 - (nq.max() - nq.min()) / nq.sum()
-    if uniformity < options.uniformity_min:
-        return (
-            False,
-            uniformity,
-            "uniformity",
-            f"uneven ({uniformity:.2f}) {ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m",
-        )
-    if intensity is not None:
-        sep, frac = intensity_contrast(intensity, intensity_scale)
-        if sep < options.contrast_min or frac < 0.1:
-            return (
-                False, uniformity, "contrast",
-                f"board-shaped at {dist:.2f} m but no black/white contrast (d'={sep:.1f}, {frac:.0%})",
-            )  # fmt: skip
-    return True, float(uniformity), "", f"{m} points at {dist:.2f} m"
-
-
 def trim_attachments(
     p: np.ndarray, ring: np.ndarray, step_az: float, short_side: float, strength: float = 1.0
 ) -> np.ndarray:
@@ -271,19 +163,44 @@ def find_board(
     options: LidarOptions = LidarOptions(),
     rng: np.random.Generator | None = None,
 ) -> Candidate:
-    """Segment the scan and return the chessboard's points; raise BoardNotFound with the reason.
+    """Segment the scan and return the most uniform candidate; raise BoardNotFound with the reason.
 
     points: (N, 3) LiDAR frame. ring: (N,) beam index. intensity: (N,).
+    """
+    cands = find_candidates(points, ring, intensity, board, model, roi, options, rng)
+    return max(cands, key=lambda c: c.uniformity)
+
+
+def find_candidates(
+    points: np.ndarray,
+    ring: np.ndarray,
+    intensity: np.ndarray,
+    board: Board,
+    model: LidarModel,
+    roi: Any | None = None,
+    options: LidarOptions = LidarOptions(),
+    rng: np.random.Generator | None = None,
+    mask: np.ndarray | None = None,
+    accept: Callable[[list[Candidate]], bool] | None = None,
+) -> list[Candidate]:
+    """Every segment that passes the chessboard tests; raise BoardNotFound with the reason if none.
+
+    points: (N, 3) LiDAR frame. ring: (N,) beam index. intensity: (N,). mask: optional (N,) bool,
+    the points the search may use (with ``roi``). The objects are tested as they are; only when
+    ``accept`` (given the new candidates) says no, the over-merged objects are split, smallest
+    first, and ``accept`` is asked again after each. Without ``accept`` the first candidates found
+    are taken.
     """
     rng = np.random.default_rng(0) if rng is None else rng
     p = np.asarray(points, dtype=np.float64)
     inten = np.asarray(intensity, dtype=np.float64)
     ring_a = np.asarray(ring)
-    fin = inten[np.isfinite(inten)]
-    inten_scale = float(np.percentile(fin, 99) - np.percentile(fin, 1)) if fin.size else None
     inside = roi_mask(p, roi)
+    if mask is not None:
+        inside &= np.asarray(mask, bool)
     if not inside.any():
-        raise BoardNotFound("no point of the scan lies inside the region of interest (board.roi)")
+        where = "the region of interest (board.roi)" if mask is None else "the expected board's box"
+        raise BoardNotFound(f"no point of the scan lies inside {where}")
     seg: Segmentation = segment_scan(p, ring, model, options, valid=inside)
     sigma = seg.noise_sigma
     x0, x1, y0, y1 = board.extent()
@@ -297,7 +214,7 @@ def find_board(
     first = np.searchsorted(lab_sorted, np.arange(seg.n_objects))
     last = np.searchsorted(lab_sorted, np.arange(seg.n_objects), side="right")
 
-    passed: list[tuple[float, np.ndarray]] = []
+    passed: list[tuple[float, np.ndarray, float]] = []
     misses: list[tuple[int, str, str]] = []  # (size, test, detail)
     to_split: list[np.ndarray] = []
     tested = 0
@@ -305,9 +222,7 @@ def find_board(
     def min_count(idx: np.ndarray) -> float:
         q = p[idx]
         d = float(np.linalg.norm(q.mean(axis=0)))
-        step_el = float(
-            np.mean(_local_elevation_step(model, np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1]))))
-        )
+        step_el = float(np.mean(local_elevation_step(model, np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1])))))
         n_th = (x1 - x0) * short_side / (d**2 * step_az * step_el)
         return options.count_ratio[0] * n_th
 
@@ -323,11 +238,11 @@ def find_board(
         ):
             return
         tested += 1
-        ok, uni, name, detail = board_tests(q, board, model, sigma, options, inten[idx], inten_scale)
+        ok, uni, name, detail = board_tests(q, board, model, sigma, options, inten[idx])
         if ok:
             n, d, inl = ransac_plane(q, thr, rng)
             if inl.mean() >= 0.9:
-                passed.append((uni, idx[inl]))
+                passed.append((uni, idx[inl], intensity_contrast(inten[idx[inl]])[0]))
                 return
             name, detail = "plane", f"only {inl.mean():.0%} of its points on one plane; {detail}"
         if depth == 1 and name in ("size", "uniformity", "count", "plane", "contrast"):
@@ -375,7 +290,8 @@ def find_board(
         idx = np.sort(idx)
         queue = [(idx, e_all[e_obj == seg.labels[idx[0]]])]
         own = options.max_planes * 3
-        while queue and budget[0] > 0 and own > 0 and not passed:
+        n_before = len(passed)
+        while queue and budget[0] > 0 and own > 0 and len(passed) == n_before:
             own -= 1
             # smallest first: the floor and walls are big, a board with a pole or an arm is not
             queue.sort(key=lambda t: -len(t[0]))
@@ -405,17 +321,36 @@ def find_board(
                 ):
                     queue.append((piece, pe))  # big enough, and with returns enough, to hold a board
 
+    out: list[Candidate] = []
+
+    def offer() -> bool:
+        """Turn the new passes into Candidates; True when the caller accepts them (stop searching)."""
+        new: list[Candidate] = []
+        for uni, members, sep in passed[len(out) :]:
+            idx = np.unique(members)
+            q = p[idx]
+            n, d, inl = ransac_plane(q, thr, rng)
+            if n @ q.mean(axis=0) > 0:  # normal towards the sensor
+                n, d = -n, -d
+            new.append(Candidate(idx, n, float(d), float(uni), sigma, tested, float(sep)))
+        out.extend(new)
+        if not new:
+            return False
+        return True if accept is None else bool(accept(new))
+
     for k in range(seg.n_objects):
         idx = order[first[k] : last[k]]
         test(idx, 0)
-    # only when no object passed as it is: split the over-merged ones, largest first
-    # smallest first: a board merged with a hand or its stand is cheap to split; the room comes last
+    # only when no object passed as it is (or none of them was accepted): split the over-merged
+    # ones, smallest first: a board merged with a hand or its stand is cheap to split; the room last
+    done = offer()
     for idx in sorted(to_split, key=len):
-        if passed:
+        if done:
             break
         split(idx)
+        done = offer()
 
-    if not passed:
+    if not out:
         if not misses:
             raise BoardNotFound(
                 f"no object of board size ({x1 - x0:.2f} x {short_side:.2f} m) in the scan"
@@ -427,10 +362,4 @@ def find_board(
             f"no segment passed the chessboard tests ({tested} board-sized candidates); largest: {near}. "
             "If the board is in view, narrow the search with board.roi (azimuth_deg, elevation_deg, range_m)."
         )
-    best = max(passed, key=lambda t: t[0])
-    idx = np.unique(best[1])
-    q = p[idx]
-    n, d, inl = ransac_plane(q, thr, rng)
-    if n @ q.mean(axis=0) > 0:  # normal towards the sensor
-        n, d = -n, -d
-    return Candidate(idx, n, float(d), float(best[0]), sigma, tested)
+    return out

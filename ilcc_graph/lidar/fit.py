@@ -83,13 +83,19 @@ def gray_zone(
     """The paper's gray zone from the two histogram peaks.
 
     The intensities are split in two by Otsu's threshold; R_L and R_H are the centres of the
-    fullest histogram bin below and above it. Returns (tau_l, tau_h, R_L, R_H) with
+    fullest histogram bin below and above it. The histogram spans the 2-98 % quantiles (values
+    beyond are clipped into its end bins), so a few saturated returns (retro-reflective tape, an
+    Ouster's raw signal at close range) do not squeeze the board's two levels into a few bins; the
+    result does not depend on the intensity's unit. Returns (tau_l, tau_h, R_L, R_H) with
     ``tau_l = ((eps-1) R_L + R_H) / eps`` and ``tau_h = (R_L + (eps-1) R_H) / eps``.
     """
     r = np.asarray(intensity, dtype=np.float64)
-    lo, hi = float(r.min()), float(r.max())
-    if hi - lo <= 0:
+    if float(r.max()) - float(r.min()) <= 0:
         raise ValueError("gray_zone: all intensities are equal; no black and white to tell apart")
+    lo, hi = (float(v) for v in np.quantile(r, [0.02, 0.98]))
+    if hi - lo <= 0:
+        lo, hi = float(r.min()), float(r.max())
+    r = np.clip(r, lo, hi)
     hist, edges = np.histogram(r, bins=bins, range=(lo, hi))
     centres = 0.5 * (edges[1:] + edges[:-1])
     w0 = np.cumsum(hist)[:-1].astype(float)

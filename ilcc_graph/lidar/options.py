@@ -57,6 +57,11 @@ class LidarOptions:
         (None: all); the soft-edged refinement that follows uses all of them.
     refine: run the soft-edged Gauss-Newton refinement (gives the in-plane covariance and the
         final pose); when False the Powell pose is returned with the refinement's covariance.
+    max_fits: the chessboard is fitted to at most this many of each batch of candidates that pass
+        the tests (best first, see choice.py; three batches' worth in all); the best fit wins.
+    good_fit_score, min_fit_score: a fit scoring at least ``good_fit_score`` (choice.fit_score:
+        colour agreement less the cost per return in squares) ends the search; fits below
+        ``min_fit_score`` are refused.
     min_agreement: after the fit, the share of black/white returns (away from the edges) whose
         colour matches the fitted pattern must reach this, else BoardNotFound.
     covariance_inflation: multiplies the final covariance (1 = the derivation as documented).
@@ -84,5 +89,8 @@ class LidarOptions:
     powell_max_points: int | None = 600
     projection: str = "ray"
     refine: bool = True
+    max_fits: int = 4
+    good_fit_score: float = 0.9
+    min_fit_score: float = 0.5
     min_agreement: float = 0.8
     covariance_inflation: float = 1.0

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from ..lidar_models import LidarModel
+from ..lidars import LidarModel
 from .options import LidarOptions
 
 __all__ = ["Segmentation", "segment_scan", "estimate_range_noise", "components_of"]

@@ -2,7 +2,7 @@
 
 Both take the per-frame observations (``FrameResult`` with ``board`` and ``corners``) and a solver
 callable ``solve(frames) -> (T_cam_lidar (4, 4), covariance (6, 6))`` (the pipeline's
-``solve_extrinsic`` wrapped by the caller), so they run with any refinement and never touch files.
+``solve_observed`` wrapped by the caller), so they run with any refinement and never touch files.
 A subset the solver rejects (it raises) is recorded with the reason and skipped.
 
 Pose differences are tangent vectors in the covariance convention of ``shared/interface.md``:

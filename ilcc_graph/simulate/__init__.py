@@ -14,6 +14,7 @@ from .placements import board_placements, frame_scene
 from .render import ImageRenderer
 from .scene import Box, Scene, cast_rays
 from .spec import (
+    SENSOR_FORMATS,
     ImageOptions,
     SceneOptions,
     SimulationSpec,
@@ -33,6 +34,7 @@ def simulate_dataset(*args, **kwargs):  # lazy: keeps io out of `import ilcc_gra
 
 
 __all__ = [
+    "SENSOR_FORMATS",
     "Box", "ImageOptions", "ImageRenderer", "Scene", "SceneOptions", "SimFrame", "SimulationSpec",
     "Systematics", "beam_biases", "beam_gains", "board_placements", "cast_rays", "default_T_cam_lidar",
     "default_camera", "frame_name", "frame_scene", "ground_truth", "paper_board", "simulate_dataset",

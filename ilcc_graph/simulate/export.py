@@ -1,7 +1,9 @@
 """Write a simulated data set (the simulator's only file I/O, through ``ilcc_graph.io`` writers).
 
 Layout (interface.md): ``config.yaml`` (our schema), ``pcd/<stem>.pcd`` (binary, x y z intensity
-ring), ``img/<stem>.png``, ``ground_truth.yaml``. Every file is written atomically; the data set
+ring; organised HEIGHT x WIDTH for ``sensor_format="ouster"``) or ``pcd/<stem>.csv`` (ILCC's CSV
+with the hardware ``laser_id`` for ``"velodyne-csv"``), ``img/<stem>.png``, ``ground_truth.yaml``.
+Every file is written atomically; the data set
 is assembled in a sibling temporary folder and renamed into place at the end, so ``out_dir``
 either holds a complete data set or is left as it was.
 """
@@ -14,6 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..io import write_image, write_pcd, write_yaml
+from ..io.scans import write_csv
 from .frames import ground_truth, simulate_frames
 from .intrinsics import stated_camera
 from .spec import SimulationSpec
@@ -51,7 +54,19 @@ def simulate_dataset(
         names, poses = [], []
         total = int(spec.n_frames)
         for k, frame in enumerate(simulate_frames(spec)):
-            write_pcd(tmp / "pcd" / f"{frame.name}.pcd", frame.scan, data="binary")
+            scan = frame.scan
+            if spec.sensor_format == "velodyne-csv":
+                write_csv(tmp / "pcd" / f"{frame.name}.csv", scan)
+            elif spec.sensor_format == "ouster":
+                rows = len(scan) // int(scan.columns)  # type: ignore[arg-type]
+                write_pcd(
+                    tmp / "pcd" / f"{frame.name}.pcd",
+                    scan,
+                    data="binary",
+                    organised=(rows, int(scan.columns)),
+                )  # type: ignore[arg-type]
+            else:
+                write_pcd(tmp / "pcd" / f"{frame.name}.pcd", scan, data="binary")
             write_image(tmp / "img" / f"{frame.name}.png", frame.image)
             names.append(frame.name)
             poses.append(frame.T_lidar_board)

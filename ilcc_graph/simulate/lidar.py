@@ -22,6 +22,17 @@ Measurement model (all geometric sigmas times ``spec.noise_scale``):
   ``range_offset_m``; dropped returns with probability ``dropout`` (``dropout_black`` on black print);
   a relative intensity gain per beam (``beam_intensity_gain_sigma``).
 
+Sensor formats (``spec.sensor_format``), how a real driver writes the same returns:
+
+- ``"plain"``: as above (ring 0 = lowest beam, intensity 0-255, lost returns omitted).
+- ``"ouster"``: an Ouster-like organised scan: ``HEIGHT = n_beams`` rows, ring 0 = the TOP beam,
+  ``WIDTH = 360 / horizontal_resolution_deg`` columns (1024 or 2048), row-major, (0, 0, 0) with
+  intensity 0 where a pixel has no return (``Scan.columns`` = WIDTH); intensity is a raw signal
+  count: reflectivity level / 255 * 6000 * min(1, (2 m / range)^2) plus noise of sigma
+  ``2 sqrt(signal) + 5``, so the board's black/white step depends on range (~100-1000 at 3 m).
+- ``"velodyne-csv"``: ring is the hardware ``laser_id`` of VeloView's numbering (interleaved on
+  the HDL-32E and VLP-16, ``lidars.LASER_ID_ELEVATIONS_DEG``); written as ILCC's CSV.
+
 Not modelled: mixed returns where a footprint straddles the board's outline (the return is the
 board's), multiple returns, the board's thickness, motion during the sweep.
 
@@ -33,7 +44,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..lidar_models import LidarModel
+from ..lidars import LASER_ID_ELEVATIONS_DEG, LidarModel
 from ..types import Scan
 from .placements import PURPOSE_FRAME, PURPOSE_UNIT, frame_rng
 from .scene import (
@@ -166,6 +177,43 @@ def simulate_scan(spec: SimulationSpec, scene: Scene, frame: int, biases: np.nda
 
     p_drop = np.where(board, sy.dropout + (sy.dropout_black - sy.dropout) * (1.0 - colour), sy.dropout)
     keep = np.isfinite(t) & (t >= MIN_RANGE_M) & (t <= MAX_RANGE_M) & (u_drop >= p_drop)
+    if spec.sensor_format == "ouster":
+        r = np.linalg.norm(p, axis=1)
+        signal = (
+            gain
+            * level
+            * (0.85 + 0.15 * cos_inc)
+            / 255.0
+            * 6000.0
+            * np.minimum(1.0, (2.0 / np.maximum(r, 1e-3)) ** 2)
+        )
+        z_sig = frame_rng(spec.seed, PURPOSE_FRAME, frame, 1, 4).standard_normal(n)
+        raw = np.clip(np.rint(signal + (2.0 * np.sqrt(signal) + 5.0) * z_sig), 0, 65535)
+        return _organised(model, p, raw, keep)
+    out_ring = ring
+    if spec.sensor_format == "velodyne-csv":
+        out_ring = laser_ids(model)[ring]
     return Scan(
-        points=p[keep], intensity=intensity[keep], ring=ring[keep].astype(np.int32), source="simulated"
+        points=p[keep], intensity=intensity[keep], ring=out_ring[keep].astype(np.int32), source="simulated"
     )
+
+
+def laser_ids(model: LidarModel) -> np.ndarray:
+    """(n_beams,) the hardware laser id (VeloView numbering) of each beam, lowest beam first."""
+    ids = LASER_ID_ELEVATIONS_DEG.get(model.name)
+    if ids is None or ids.size != model.n_beams:
+        raise ValueError(
+            f"no hardware laser numbering known for lidar {model.name!r} ({model.n_beams} beams)"
+        )
+    # beam k (ascending table) is the laser whose nominal elevation is nearest table[k]
+    return np.argmin(np.abs(model.vertical_angles_deg[:, None] - ids[None, :]), axis=1).astype(np.int32)
+
+
+def _organised(model: LidarModel, p: np.ndarray, intensity: np.ndarray, keep: np.ndarray) -> Scan:
+    """Firing-order returns as an Ouster-like organised cloud: rows top beam first, (0, 0, 0) where lost."""
+    n_b = model.n_beams
+    n_az = p.shape[0] // n_b
+    pts = np.where(keep[:, None], p, 0.0).reshape(n_az, n_b, 3).transpose(1, 0, 2)[::-1].reshape(-1, 3)
+    inten = np.where(keep, intensity, 0.0).reshape(n_az, n_b).T[::-1].reshape(-1)
+    ring = np.repeat(np.arange(n_b, dtype=np.int32), n_az)  # row index: 0 = top beam
+    return Scan(points=pts, intensity=inten, ring=ring, source="simulated", columns=n_az)

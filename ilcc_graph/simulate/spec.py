@@ -28,10 +28,11 @@ from scipy.spatial.transform import Rotation
 
 from ..board import Board
 from ..cameras import CameraModel, Equirectangular, camera_class
-from ..lidar_models import LidarModel, lidar_model
+from ..lidars import LASER_ID_ELEVATIONS_DEG, LidarModel, lidar_model
 from .intrinsics import IntrinsicsError
 
 __all__ = [
+    "SENSOR_FORMATS",
     "Systematics",
     "ImageOptions",
     "SceneOptions",
@@ -41,6 +42,8 @@ __all__ = [
     "paper_board",
 ]
 
+#: how simulated scans are written (see simulate/lidar.py)
+SENSOR_FORMATS = ("plain", "ouster", "velodyne-csv")
 #: Default camera centre in the LiDAR frame (m): a camera mounted 25 cm above the LiDAR.
 DEFAULT_CAMERA_CENTRE_LIDAR = (0.05, -0.03, 0.25)
 #: Default small rotation (rotation vector, degrees) between the nominal and the true camera axes.
@@ -134,7 +137,7 @@ class SceneOptions:
 class SimulationSpec:
     """Everything a simulated data set depends on; same spec, same bytes.
 
-    lidar: LiDAR model name (``lidar_models.MODEL_NAMES``) or a ready :class:`LidarModel`.
+    lidar: LiDAR model name (``lidars.MODEL_NAMES``) or a ready :class:`LidarModel`.
     camera: the true camera model, which renders the images (config.yaml states it as is, or
         perturbed by ``intrinsics_error``; ground_truth.yaml records it as ``camera_truth``).
     intrinsics_error: how far config.yaml's camera is from ``camera`` (off by default).
@@ -150,6 +153,10 @@ class SimulationSpec:
     intensity_black, intensity_white: mean LiDAR intensity on black and white print.
     intensity_sigma_black, intensity_sigma_white: its noise on each.
     beam_aperture_m: beam diameter at the sensor; footprint diameter = aperture + divergence * range.
+    sensor_format: how the scans look on disk, like a real driver's (``SENSOR_FORMATS``, see
+        simulate/lidar.py): ``"plain"`` (PCD, ring 0 = lowest, intensity 0-255), ``"ouster"``
+        (organised PCD, ring 0 = top, raw signal intensity, (0, 0, 0) for lost returns) or
+        ``"velodyne-csv"`` (ILCC CSV with the hardware laser_id; hdl32 and vlp16).
     """
 
     lidar: str | LidarModel = "hdl32"
@@ -170,11 +177,21 @@ class SimulationSpec:
     intensity_sigma_black: float = 1.5
     intensity_sigma_white: float = 4.0
     beam_aperture_m: float = 0.01
+    sensor_format: str = "plain"
 
     def __post_init__(self) -> None:
         model = self.lidar if isinstance(self.lidar, LidarModel) else lidar_model(self.lidar)
         self.intrinsics_error.sigmas(self.camera)  # ValueError: an error on a camera without intrinsics
         object.__setattr__(self, "_lidar_model", model)
+        if self.sensor_format not in SENSOR_FORMATS:
+            raise ValueError(
+                f"SimulationSpec: sensor_format must be one of {SENSOR_FORMATS}, got {self.sensor_format!r}"
+            )
+        if self.sensor_format == "velodyne-csv" and model.name not in LASER_ID_ELEVATIONS_DEG:
+            raise ValueError(
+                f"SimulationSpec: sensor_format 'velodyne-csv' needs a lidar with a known laser_id numbering "
+                f"({sorted(LASER_ID_ELEVATIONS_DEG)}), got {model.name!r}"
+            )
         T = default_T_cam_lidar(self.camera) if self.T_cam_lidar is None else _check_pose(self.T_cam_lidar)
         T.setflags(write=False)
         object.__setattr__(self, "T_cam_lidar", T)
@@ -220,6 +237,7 @@ class SimulationSpec:
         s = self.systematics
         return {
             "lidar_model": self.lidar_model.name,
+            "sensor_format": self.sensor_format,
             "camera_model": self.camera.kind,
             "intrinsics_error": self.intrinsics_error.summary(),
             "n_frames": int(self.n_frames),

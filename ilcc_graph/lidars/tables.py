@@ -22,6 +22,22 @@ Sources of the numbers (nominal values; a unit's own calibration file differs by
   0.53 deg spacing; real units report their own ``beam_altitude_angles``). 2048x10 mode:
   360/2048 deg. Accuracy "+-3 cm" (Lambertian targets) -> 0.03 m. Divergence ~0.13 deg FWHM
   (~2.3 mrad).
+- Later Ouster units (uniform beam spacing; the sensor's metadata JSON has the exact angles, see
+  calibration_files.py), all at the default ``1024x10`` mode (360/1024 deg), accuracy "+-3 cm"
+  -> 0.03 m, divergence 2.3 mrad as gen 1:
+  ``os1-64-gen2`` / ``os1-32-gen2`` / ``os1-128-gen2``: OS1 Rev C (gen 2) data sheet, 45 deg
+  vertical field (+22.5 .. -22.5). ``os1-64-rev6`` / ``os1-32-rev6`` / ``os1-128-rev6``: OS1 Rev6
+  (and Rev7) data sheet, 42.4 deg (+21.2 .. -21.2; the ACFR unit in ../shared measures
+  +21.4 .. -20.8). ``os0-64`` / ``os0-128``: OS0, 90 deg (+-45). ``os2-64`` / ``os2-128``: OS2,
+  22.5 deg (+-11.25).
+- ``pandar40p``: Hesai Pandar40P, the 40 channels' nominal elevations (+15 .. -25, 1/3 deg
+  around the horizon) as Hesai's own ROS driver lists them (``pandar40p_elev_angle_map``,
+  HesaiTechnology HesaiLidar_General_ROS); 10 Hz: 0.2 deg; accuracy "+-2 cm" -> 0.02 m.
+- ``pandar64``: Hesai Pandar64, 64 channels +14.882 .. -24.897 (0.167 deg around the horizon),
+  the same driver's ``pandarGeneral_elev_angle_map``; 10 Hz: 0.2 deg; "+-2 cm" -> 0.02 m.
+- ``pandar-xt32``: Hesai PandarXT-32, 32 channels +15 .. -16 deg in 1 deg steps (data sheet);
+  10 Hz: 0.18 deg; accuracy "+-1 cm" -> 0.01 m.
+  Hesai divergence is not on those sheets: 3 mrad assumed.
 - ``generic``: the user's ``vertical_angles_deg`` and ``horizontal_resolution_deg``; range sigma
   0.03 m and divergence 3 mrad unless given.
 
@@ -35,20 +51,27 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
-__all__ = ["LidarModel", "lidar_model", "ring_from_points", "MODEL_NAMES", "ILCC_ALIASES"]
+__all__ = [
+    "LidarModel", "lidar_model", "ring_from_points", "MODEL_NAMES", "ILCC_ALIASES", "LASER_ID_ELEVATIONS_DEG",
+]  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)
 class LidarModel:
     """A spinning multi-beam LiDAR.
 
-    name: model name (one of ``MODEL_NAMES``).
+    name: model name (one of ``MODEL_NAMES``, or ``measured`` for a table measured from a scan or
+        read from a calibration file).
     vertical_angles_deg: (n,) float64, ascending; index = ring, 0 = lowest beam.
     horizontal_resolution_deg: azimuth step between successive firings of one beam.
     range_sigma_m: one-sigma range noise, metres.
     beam_divergence_rad: full beam divergence, radians.
+    source: where the table came from, for messages (``"table"``, a calibration file, a scan).
+    beam_origin_z_m: height of the beams' origin above the points' origin (metres; 0 for the
+        named tables). Ouster clouds are given in a frame ~36 mm below the beams' origin, which a
+        table measured by clustering elevations finds; ring from elevation uses ``z - beam_origin_z_m``.
     """
 
     name: str
@@ -56,6 +79,8 @@ class LidarModel:
     horizontal_resolution_deg: float
     range_sigma_m: float = 0.03
     beam_divergence_rad: float = 3e-3
+    source: str = "table"
+    beam_origin_z_m: float = 0.0
 
     def __post_init__(self) -> None:
         a = np.asarray(self.vertical_angles_deg, dtype=np.float64).reshape(-1)
@@ -109,8 +134,8 @@ class LidarModel:
     def to_dict(self) -> dict:
         """Our config schema's ``lidar`` section (without ``intensity_column``); a named model
         lists only what differs from its table (angles, resolution, range sigma)."""
-        d: dict = {"model": self.name}
         ref = _TABLES.get(self.name)
+        d: dict = {"model": self.name if ref is not None else "generic"}
         if ref is None or not np.array_equal(ref[0], self.vertical_angles_deg):
             d["vertical_angles_deg"] = [float(v) for v in self.vertical_angles_deg]
         if ref is None or ref[1] != self.horizontal_resolution_deg:
@@ -127,7 +152,7 @@ def ring_from_points(points: np.ndarray, model: LidarModel) -> np.ndarray:
     A point at the origin has elevation 0 and gets the beam nearest the horizon.
     """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
+    el = np.degrees(np.arctan2(p[:, 2] - model.beam_origin_z_m, np.hypot(p[:, 0], p[:, 1])))
     a = model.vertical_angles_deg
     if a.size == 1:
         return np.zeros(p.shape[0], dtype=np.int32)
@@ -149,6 +174,25 @@ _VLP32C = np.array([
     0.667, 1.0, 1.333, 1.667, 2.333, 3.333, 4.667, 7.0, 10.333, 15.0,
 ])  # fmt: skip
 _OS1_64 = np.linspace(-16.611, 16.611, 64)
+_PANDAR40P = np.array([
+    15.0, 11.0, 8.0, 5.0, 3.0, 2.0, 1.67, 1.33, 1.0, 0.67, 0.33, 0.0, -0.33, -0.67, -1.0, -1.33,
+    -1.66, -2.0, -2.33, -2.67, -3.0, -3.33, -3.67, -4.0, -4.33, -4.67, -5.0, -5.33, -5.67, -6.0,
+    -7.0, -8.0, -9.0, -10.0, -11.0, -12.0, -13.0, -14.0, -19.0, -25.0,
+])[::-1]  # fmt: skip
+_PANDAR64 = np.array([
+    14.882, 11.032, 8.059, 5.057, 3.04, 2.028, 1.86, 1.688, 1.522, 1.351, 1.184, 1.013, 0.846,
+    0.675, 0.508, 0.337, 0.169, 0.0, -0.169, -0.337, -0.508, -0.675, -0.845, -1.013, -1.184,
+    -1.351, -1.522, -1.688, -1.86, -2.028, -2.198, -2.365, -2.536, -2.7, -2.873, -3.04, -3.21,
+    -3.375, -3.548, -3.712, -3.884, -4.05, -4.221, -4.385, -4.558, -4.72, -4.892, -5.057, -5.229,
+    -5.391, -5.565, -5.726, -5.898, -6.061, -7.063, -8.059, -9.06, -9.885, -11.032, -12.006,
+    -12.974, -13.93, -18.889, -24.897,
+])[::-1]  # fmt: skip
+_OUSTER_1024 = 360.0 / 1024.0
+
+
+def _uniform(half_fov_deg: float, n: int) -> np.ndarray:
+    return np.linspace(-half_fov_deg, half_fov_deg, n)
+
 
 _TABLES: dict[str, tuple[np.ndarray, float, float, float]] = {
     # name: (vertical angles deg, horizontal resolution deg @10 Hz, range sigma m, divergence rad)
@@ -157,6 +201,63 @@ _TABLES: dict[str, tuple[np.ndarray, float, float, float]] = {
     "vlp16": (_VLP16, 0.2, 0.03, 3.0e-3),
     "vlp32c": (_VLP32C, 0.2, 0.03, 3.0e-3),
     "os1-64": (_OS1_64, 360.0 / 2048.0, 0.03, 2.3e-3),
+    **{
+        f"{unit}-{n}{suffix}": (_uniform(half, n), _OUSTER_1024, 0.03, 2.3e-3)
+        for unit, suffix, half in (
+            ("os1", "-gen2", 22.5),
+            ("os1", "-rev6", 21.2),
+            ("os0", "", 45.0),
+            ("os2", "", 11.25),
+        )
+        for n in ((32, 64, 128) if unit == "os1" else (64, 128))
+    },
+    "pandar40p": (_PANDAR40P, 0.2, 0.02, 3.0e-3),
+    "pandar64": (_PANDAR64, 0.2, 0.02, 3.0e-3),
+    "pandar-xt32": (np.arange(-16.0, 15.0 + 1e-9, 1.0), 0.18, 0.01, 3.0e-3),
+}
+
+#: Hardware laser numbering (the ``laser_id`` a Velodyne driver or VeloView writes): the elevation
+#: (deg) of laser id 0, 1, ... The HDL-32E and VLP-16 manuals interleave lower and upper lasers.
+LASER_ID_ELEVATIONS_DEG: dict[str, np.ndarray] = {
+    "hdl32": np.array(
+        [
+            -30.67,
+            -9.33,
+            -29.33,
+            -8.00,
+            -28.00,
+            -6.67,
+            -26.67,
+            -5.33,
+            -25.33,
+            -4.00,
+            -24.00,
+            -2.67,
+            -22.67,
+            -1.33,
+            -21.33,
+            0.00,
+            -20.00,
+            1.33,
+            -18.67,
+            2.67,
+            -17.33,
+            4.00,
+            -16.00,
+            5.33,
+            -14.67,
+            6.67,
+            -13.33,
+            8.00,
+            -12.00,
+            9.33,
+            -10.67,
+            10.67,
+        ]
+    ),  # fmt: skip
+    "vlp16": np.array(
+        [-15.0, 1.0, -13.0, 3.0, -11.0, 5.0, -9.0, 7.0, -7.0, 9.0, -5.0, 11.0, -3.0, 13.0, -1.0, 15.0]
+    ),
 }
 
 MODEL_NAMES: tuple[str, ...] = (*_TABLES, "generic")

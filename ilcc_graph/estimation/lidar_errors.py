@@ -1,0 +1,194 @@
+"""The LiDAR's own errors as variables shared by every board: which terms, and their layout.
+
+A LiDAR's parameter vector ``L(l)`` holds, in this order (each part optional):
+
+- ``offset[b]``: the range offset of beam b (measured minus true range, metres);
+- ``offset``: one range offset for all beams (what ``--range-offset`` estimated), when the
+  per-beam offsets are off;
+- ``dark``: the extra range of returns from black print (a weak return reads long), metres;
+- ``scale``: a range scale error (measured = true * (1 + scale));
+- ``elevation[b]``: the elevation error of beam b (measured minus true, rad).
+
+A return j of beam b on print of darkness w at range rho has the range error
+``offset[b] + w dark + rho scale`` and the elevation error ``elevation[b]`` (``factors.BoardPointsFactor``).
+Every term has a weak zero-mean prior (the plausible size of such an error). A beam enters only
+when the boards hold enough of its returns; a term the boards cannot determine (its variance
+barely shrinks below its prior's) is left out and said so (``noise.solve_problem``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ilcc_graph.types import BoardReturns
+
+__all__ = ["LidarErrorOptions", "LidarLayout", "layout_for"]
+
+
+@dataclass(frozen=True)
+class LidarErrorOptions:
+    """Which of the LiDAR's own errors the graph estimates, with their priors (one sigma).
+
+    beam_offsets, global_offset, dark_offset, range_scale, beam_elevations: the terms (see the
+    module docstring); ``global_offset`` is used only when ``beam_offsets`` is off.
+    min_points_per_beam, min_boards_per_beam: a beam's terms enter only with at least this many
+    returns over at least this many boards.
+    max_points_per_board: returns per board given to the graph (an even subsample beyond).
+    observable_ratio: a term is left out when the boards shrink its prior variance to no less than
+        this fraction of it (the data hardly tell it).
+    """
+
+    beam_offsets: bool = True
+    global_offset: bool = False
+    dark_offset: bool = True
+    range_scale: bool = False
+    beam_elevations: bool = False
+    prior_offset_m: float = 0.05
+    prior_dark_m: float = 0.05
+    prior_scale: float = 0.01
+    prior_elevation_rad: float = 0.005
+    min_points_per_beam: int = 40
+    min_boards_per_beam: int = 2
+    max_points_per_board: int = 1200
+    observable_ratio: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("prior_offset_m", "prior_dark_m", "prior_scale", "prior_elevation_rad"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"LidarErrorOptions.{name} must be > 0, got {getattr(self, name)!r}")
+        if not 0.0 < self.observable_ratio < 1.0:
+            raise ValueError(
+                f"LidarErrorOptions.observable_ratio must be in (0, 1), got {self.observable_ratio!r}"
+            )
+
+    @property
+    def any(self) -> bool:
+        return (
+            self.beam_offsets
+            or self.global_offset
+            or self.dark_offset
+            or self.range_scale
+            or self.beam_elevations
+        )
+
+
+@dataclass(frozen=True)
+class LidarLayout:
+    """Which entry of one LiDAR's parameter vector is which.
+
+    beams: beams with an offset (ascending); global_offset, dark, scale: whether those entries are
+    there; elevations: beams with an elevation error. excluded: (term, reason) left out.
+    """
+
+    beams: tuple[int, ...] = ()
+    global_offset: bool = False
+    dark: bool = False
+    scale: bool = False
+    elevations: tuple[int, ...] = ()
+    priors: tuple[float, float, float, float] = (0.05, 0.05, 0.01, 0.005)
+    excluded: tuple[tuple[str, str], ...] = field(default=())
+
+    @property
+    def names(self) -> list[str]:
+        out = [f"offset[{b}]" for b in self.beams]
+        out += ["offset"] * self.global_offset + ["dark"] * self.dark + ["scale"] * self.scale
+        return out + [f"elevation[{b}]" for b in self.elevations]
+
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    def prior_sigmas(self) -> np.ndarray:
+        """(dim,) the priors' sigmas (metres, -, rad as each term's unit)."""
+        off, dark, scale, elev = self.priors
+        s = [off] * len(self.beams) + [off] * self.global_offset + [dark] * self.dark + [scale] * self.scale
+        return np.array(s + [elev] * len(self.elevations), dtype=np.float64)
+
+    def without(self, names: Sequence[str], reason: str) -> LidarLayout:
+        """The layout with the terms ``names`` left out, each with ``reason``."""
+        drop = set(names)
+        beams = tuple(b for b in self.beams if f"offset[{b}]" not in drop)
+        elev = tuple(b for b in self.elevations if f"elevation[{b}]" not in drop)
+        return replace(
+            self, beams=beams, elevations=elev, global_offset=self.global_offset and "offset" not in drop,
+            dark=self.dark and "dark" not in drop, scale=self.scale and "scale" not in drop,
+            excluded=self.excluded + tuple((n, reason) for n in names),
+        )  # fmt: skip
+
+    def terms(self, r: BoardReturns, rho: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, ...]:
+        """For the returns ``r`` (rows ``keep``): range_index, range_coef (M, k) and
+        elevation_index, elevation_coef (M, 1), or None for the latter without elevation terms."""
+        ring, dark = np.asarray(r.ring)[keep], np.asarray(r.dark, dtype=np.float64)[keep]
+        M = len(ring)
+        idx, coef = [], []
+        pos = {b: i for i, b in enumerate(self.beams)}
+        k = len(self.beams)
+        if self.beams:
+            has = np.isin(ring, self.beams)
+            idx.append(np.where(has, [pos.get(int(b), 0) for b in ring], 0))
+            coef.append(has.astype(np.float64))
+        if self.global_offset:
+            idx.append(np.full(M, k))
+            coef.append(np.ones(M))
+            k += 1
+        if self.dark:
+            idx.append(np.full(M, k))
+            coef.append(dark)
+            k += 1
+        if self.scale:
+            idx.append(np.full(M, k))
+            coef.append(rho)
+            k += 1
+        if not idx:
+            idx, coef = [np.zeros(M, np.int64)], [np.zeros(M)]
+        range_index, range_coef = np.column_stack(idx).astype(np.int64), np.column_stack(coef)
+        if not self.elevations:
+            return range_index, range_coef, None, None
+        epos = {b: k + i for i, b in enumerate(self.elevations)}
+        has = np.isin(ring, self.elevations)
+        e_idx = np.where(has, [epos.get(int(b), k) for b in ring], k)[:, None].astype(np.int64)
+        return range_index, range_coef, e_idx, has.astype(np.float64)[:, None]
+
+
+def layout_for(returns: Sequence[BoardReturns], options: LidarErrorOptions) -> LidarLayout:
+    """The layout of one LiDAR from the returns of its boards: beams with enough returns on enough
+    boards get their terms; the others are excluded with the reason."""
+    excluded: list[tuple[str, str]] = []
+    counts: dict[int, int] = {}
+    boards: dict[int, int] = {}
+    for r in returns:
+        ring = np.asarray(r.ring)
+        for b, n in zip(*np.unique(ring, return_counts=True), strict=True):
+            counts[int(b)] = counts.get(int(b), 0) + int(n)
+            boards[int(b)] = boards.get(int(b), 0) + 1
+    good = tuple(
+        sorted(
+            b
+            for b in counts
+            if counts[b] >= options.min_points_per_beam and boards[b] >= options.min_boards_per_beam
+        )
+    )
+    for b in sorted(set(counts) - set(good)):
+        excluded.append(
+            (f"beam {b}", f"{counts[b]} returns on {boards[b]} board(s): too few to estimate its terms")
+        )
+    any_dark = any(0.1 < float(np.mean(r.dark)) < 0.9 for r in returns)
+    if options.dark_offset and not any_dark:
+        excluded.append(("dark", "no board shows both black and white returns"))
+    return LidarLayout(
+        beams=good if options.beam_offsets else (),
+        global_offset=options.global_offset and not options.beam_offsets,
+        dark=options.dark_offset and any_dark,
+        scale=options.range_scale,
+        elevations=good if options.beam_elevations else (),
+        priors=(
+            options.prior_offset_m,
+            options.prior_dark_m,
+            options.prior_scale,
+            options.prior_elevation_rad,
+        ),
+        excluded=tuple(excluded),
+    )

@@ -1,0 +1,129 @@
+"""The paper's board tests on one candidate (Wang et al. 2017, Section 4.1) and the contrast test.
+
+See detection.py for the list; every intensity rule here is scale-free (measured on the candidate).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..board import Board
+from ..lidars import LidarModel
+from .options import LidarOptions
+
+__all__ = ["board_tests", "intensity_contrast", "local_elevation_step"]
+
+
+def local_elevation_step(model: LidarModel, elevation):  # noqa: ANN001, ANN202 - float or array
+    """Ring spacing (rad) of the model's beam table at an elevation (rad), scalar or array."""
+    el = model.vertical_angles_rad
+    if el.size < 2:
+        return np.deg2rad(2.0) + 0.0 * np.asarray(elevation)
+    mids = 0.5 * (el[1:] + el[:-1])
+    gaps = np.diff(el)
+    out = np.interp(elevation, mids, gaps)
+    return float(out) if np.ndim(out) == 0 else out
+
+
+def intensity_contrast(intensity: np.ndarray) -> tuple[float, float]:
+    """Two-level contrast of intensities (M,): (separation d', smaller class fraction).
+
+    Otsu's split into two classes; d' = (mean_high - mean_low) / pooled within-class sigma.
+    A printed chessboard gives d' > 4 with both classes near half; a plain surface gives d' < 3.
+    Both numbers are unchanged by any gain and offset of the intensity (scale-free); values beyond
+    the 2-98 % quantiles are clipped to them first, so a few saturated returns (retro-reflective
+    tape) do not make a class of their own.
+    """
+    r = np.asarray(intensity, dtype=np.float64)
+    if r.size >= 4:
+        r = np.clip(r, *np.quantile(r, [0.02, 0.98]))
+    r = np.sort(r)
+    m = r.size
+    if m < 4 or r[-1] == r[0]:
+        return 0.0, 0.0
+    c = np.cumsum(r - r[0])
+    k = np.arange(1, m)
+    m0, m1 = c[:-1] / k, (c[-1] - c[:-1]) / (m - k)
+    between = k * (m - k) * (m1 - m0) ** 2
+    j = int(np.argmax(between))
+    lo, hi = r[: j + 1], r[j + 1 :]
+    pooled = np.sqrt((lo.var() * lo.size + hi.var() * hi.size) / m)
+    spread = r[-1] - r[0]
+    return float((hi.mean() - lo.mean()) / max(pooled, 1e-9 * spread)), float(min(lo.size, hi.size) / m)
+
+
+def board_tests(
+    p: np.ndarray,
+    board: Board,
+    model: LidarModel,
+    sigma: float,
+    options: LidarOptions,
+    intensity: np.ndarray | None = None,
+) -> tuple[bool, float, str, str]:
+    """The paper's tests on one candidate's points p (M, 3) (and intensities (M,), when given).
+
+    Returns (passed, uniformity, failed test name or "", human-readable detail).
+    """
+    x0, x1, y0, y1 = board.extent()
+    long_side, short_side = x1 - x0, y1 - y0
+    m = p.shape[0]
+    mu = p.mean(axis=0)
+    dist = float(np.linalg.norm(mu))
+    step_az = np.deg2rad(model.horizontal_resolution_deg)
+    # local ring spacing at each return: beam tables need not be uniform (vlp32c, hdl64)
+    r_i = np.linalg.norm(p, axis=1)
+    el_i = np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
+    step_el_i = local_elevation_step(model, el_i)
+    step_el = float(np.mean(step_el_i))
+    area = long_side * short_side
+    n_theory = area / (dist**2 * step_az * step_el)
+    hi = options.count_ratio[1] * (1 + dist * step_el / short_side) * (1 + dist * step_az / short_side)
+    ratio = m / n_theory
+    if not (options.count_ratio[0] <= ratio <= hi):
+        return False, 0.0, "count", f"{m} points, {ratio:.2f} x the {n_theory:.0f} expected at {dist:.2f} m"
+    # every return stands for the board area r^2 d_az d_el / cos(incidence); weighing by it makes
+    # the PCA and the quadrant counts follow the board, not where the beams are dense (a board
+    # tilted at close range, a table denser near the horizon)
+    w0 = r_i**2 * step_el_i
+    mu_w = (w0[:, None] * p).sum(axis=0) / w0.sum()
+    q = p - mu_w
+    cov = (w0[:, None] * q).T @ q / w0.sum()
+    w, v = np.linalg.eigh(cov)
+    cos_i = np.abs(p @ v[:, 0]) / np.maximum(r_i, 1e-9)
+    w_i = w0 / np.maximum(cos_i, 0.2)
+    noise_share = (0.5 * options.noise_sigmas * sigma) ** 2
+    planar = (w[0] - noise_share) / w.sum()
+    if planar > options.planarity_ratio:
+        return False, 0.0, "planarity", f"not flat (PCA ratio {w[0] / w.sum():.3f}) at {dist:.2f} m"
+    uv = q @ v[:, [2, 1]]
+    lo, hi_ = np.quantile(uv, 0.01, axis=0), np.quantile(uv, 0.99, axis=0)
+    ext = (hi_ - lo) * m / max(m - 1, 1)
+    smin, smax = options.size_ratio
+    slack = dist * step_el  # a ring spacing: the scan can miss a corner's tip between two rings
+    if not (
+        smin * long_side - slack <= ext[0] <= smax * long_side
+        and smin * short_side - slack <= ext[1] <= smax * short_side
+    ):
+        return (
+            False, 0.0, "size",
+            f"{ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m, board {long_side:.2f} x {short_side:.2f} m",
+        )  # fmt: skip
+    mid = 0.5 * (lo + hi_)
+    quad = (uv[:, 0] >= mid[0]).astype(int) * 2 + (uv[:, 1] >= mid[1]).astype(int)
+    nq = np.bincount(quad, weights=w_i, minlength=4)
+    uniformity = 1.0 - (nq.max() - nq.min()) / nq.sum()
+    if uniformity < options.uniformity_min:
+        return (
+            False,
+            uniformity,
+            "uniformity",
+            f"uneven ({uniformity:.2f}) {ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m",
+        )
+    if intensity is not None:
+        sep, frac = intensity_contrast(intensity)
+        if sep < options.contrast_min or frac < 0.1:
+            return (
+                False, uniformity, "contrast",
+                f"board-shaped at {dist:.2f} m but no black/white contrast (d'={sep:.1f}, {frac:.0%})",
+            )  # fmt: skip
+    return True, float(uniformity), "", f"{m} points at {dist:.2f} m"

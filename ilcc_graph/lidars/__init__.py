@@ -1,0 +1,31 @@
+"""Beam tables of spinning LiDARs: named models, tables read from a unit's calibration file, and
+tables measured from a scan.
+
+- tables.py: :class:`LidarModel`, the named tables (data sheets cited there), ring from elevation.
+- calibration_files.py: Ouster metadata JSON, Velodyne ``db.xml`` and ROS YAML, Hesai CSV.
+- measure.py: the table a scan shows (ring field, organised rows, or clusters of elevations),
+  the scan's rings renumbered onto a table, and the comparison with a named table.
+"""
+
+from .calibration_files import CalibrationTable, read_calibration_file, read_calibration_table
+from .measure import (
+    MeasuredBeams,
+    beam_index,
+    choose_model,
+    measure_beams,
+    table_difference,
+)  # fmt: skip
+from .tables import (
+    ILCC_ALIASES,
+    LASER_ID_ELEVATIONS_DEG,
+    MODEL_NAMES,
+    LidarModel,
+    lidar_model,
+    ring_from_points,
+)
+
+__all__ = [
+    "LidarModel", "lidar_model", "ring_from_points", "MODEL_NAMES", "ILCC_ALIASES",
+    "LASER_ID_ELEVATIONS_DEG", "MeasuredBeams", "measure_beams", "beam_index", "table_difference",
+    "choose_model", "read_calibration_file", "read_calibration_table", "CalibrationTable",
+]  # fmt: skip

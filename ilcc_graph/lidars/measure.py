@@ -1,0 +1,277 @@
+"""Beam tables measured from a scan, rings renumbered onto a table, and tables compared.
+
+A spinning LiDAR's returns carry their beam's elevation ``atan2(z, hypot(x, y))`` (LiDAR frame,
+x forward, y left, z up), so a scan describes its sensor:
+
+- with a ring field (any numbering: Ouster's ring 0 at the top, Velodyne's interleaved hardware
+  ``laser_id``), each distinct ring value is one beam at the median elevation of its returns;
+- an organised cloud (PCD ``HEIGHT > 1``) is read with ring = row (io/pcd.py), the same case;
+- otherwise the elevations cluster around the beams: sorted elevations of the farther returns
+  are cut where two neighbours are more than a gap apart; the gap is the smallest of 0.04 ..
+  0.15 deg from which on the number of clusters stays the same over three steps. The elevations
+  are taken from the height ``h`` (-8 .. +8 cm) that makes their histogram sharpest (least
+  entropy in 0.02 deg bins), in every case: the beams' origin need not be the points' origin
+  (Ouster: ~36 mm), and the table is then the one a calibration file would list.
+
+The azimuth step is the median step between successive returns of one beam (single steps only),
+snapped to 360 / WIDTH for an organised cloud. Medians use returns beyond 1 m where there are
+enough: an Ouster's beams leave from ~15.8 mm off the axis, which biases the elevation seen from
+the sensor origin by ``elevation * 0.0158 / range`` (0.1 deg for a +20 deg beam at 3 m).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..errors import InputError
+from ..types import Scan
+from .tables import LidarModel
+
+__all__ = ["MeasuredBeams", "measure_beams", "beam_index", "table_difference", "choose_model"]
+
+
+@dataclass(frozen=True, eq=False)
+class MeasuredBeams:
+    """The beam table a scan shows.
+
+    model: the measured :class:`LidarModel` (name ``measured``), elevations ascending.
+    ring_values: (n,) the file's ring value of each beam (ascending elevation), or None when the
+        beams were found by clustering elevations.
+    method: ``"ring field"``, ``"organised rows"`` or ``"elevation clusters"``.
+    """
+
+    model: LidarModel
+    ring_values: np.ndarray | None
+    method: str
+
+
+def _elevation_deg(p: np.ndarray, h: float = 0.0) -> np.ndarray:
+    """Elevation (deg) of points (N, 3) seen from the height ``h`` (m) above their origin."""
+    return np.degrees(np.arctan2(p[:, 2] - h, np.hypot(p[:, 0], p[:, 1])))
+
+
+def _group_medians(values: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(distinct group ids, median of ``values`` per group, count per group)."""
+    order = np.argsort(groups, kind="stable")
+    g, v = groups[order], values[order]
+    ids, start, counts = np.unique(g, return_index=True, return_counts=True)
+    med = np.array([np.median(v[s : s + c]) for s, c in zip(start, counts, strict=True)])
+    return ids, med, counts
+
+
+def _far(p: np.ndarray) -> np.ndarray:
+    """Mask of the returns used for elevations: beyond 1 m when at least half of them are."""
+    r = np.linalg.norm(p, axis=1)
+    far = r > 1.0
+    return far if far.sum() >= 0.5 * r.size else r > 0.05
+
+
+def _azimuth_step_deg(p: np.ndarray, beam: np.ndarray, columns: int | None) -> float | None:
+    """Median azimuth step (deg) between successive returns of one beam; None with too few."""
+    az = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
+    order = np.lexsort((az, beam))
+    a, b = az[order], beam[order]
+    d = np.diff(a)
+    d = d[(b[1:] == b[:-1]) & (d > 1e-6) & (d < 5.0)]
+    if d.size < 20:
+        return None
+    step = float(np.median(d[d < 1.5 * np.median(d)]))
+    if columns and abs(360.0 / columns - step) < 0.1 * step:
+        step = 360.0 / columns
+    return step
+
+
+_GAPS_DEG = (0.04, 0.06, 0.08, 0.1, 0.12, 0.15)
+
+
+def _sharpest_origin_height(p: np.ndarray) -> float:
+    """Height h (m) of the beams' origin that makes the elevations' histogram sharpest."""
+    best = (np.inf, 0.0)
+    rho = np.hypot(p[:, 0], p[:, 1])
+    for h in np.round(np.linspace(-0.08, 0.08, 33), 4):
+        el = np.degrees(np.arctan2(p[:, 2] - h, rho))
+        c, _ = np.histogram(el, bins=max(1, int(np.ptp(el) / 0.02)))
+        q = c[c > 0] / c.sum()
+        best = min(best, (float(-(q * np.log(q)).sum()) + 1e-9 * abs(h), float(h)))
+    return best[1]
+
+
+def _stable_clusters(el: np.ndarray, min_points: int) -> np.ndarray:
+    """Cluster medians at the smallest gap from which the count holds over three gap steps."""
+    found = [_clusters(el, g, min_points) for g in _GAPS_DEG]
+    counts = [a.size for a in found]
+    for k in range(len(found) - 2):
+        if counts[k] == counts[k + 1] == counts[k + 2]:
+            return found[k]
+    return found[-1]
+
+
+def _clusters(el: np.ndarray, gap_deg: float, min_points: int) -> np.ndarray:
+    """Median elevation (deg, ascending) of each cluster of sorted elevations cut at gaps > gap_deg."""
+    e = np.sort(el)
+    cuts = np.flatnonzero(np.diff(e) > gap_deg) + 1
+    parts = [c for c in np.split(e, cuts) if c.size >= min_points]
+    return np.array([np.median(c) for c in parts])
+
+
+def measure_beams(scan: Scan) -> MeasuredBeams | None:
+    """The beam table of one scan (see the module's docstring); None when it shows none.
+
+    Returns None for a scan with fewer than 2 beams found, or whose azimuth step cannot be
+    measured (too few returns): the caller then keeps the named table.
+    """
+    p = np.asarray(scan.points, dtype=np.float64).reshape(-1, 3)
+    valid = np.isfinite(p).all(axis=1) & (p != 0).any(axis=1)  # (0, 0, 0): no return
+    p = p[valid]
+    if p.shape[0] < 50:
+        return None
+    far = _far(p)
+    sub = p[far][:: max(1, int(far.sum()) // 20000)]  # the height search on at most ~20k returns
+    h = _sharpest_origin_height(sub)
+    el = _elevation_deg(p, h)
+    columns = getattr(scan, "columns", None)
+    if scan.ring is not None:
+        ring = np.asarray(scan.ring).astype(np.int64)[valid]
+        ids, med, _ = _group_medians(el[far], ring[far])
+        missing = np.setdiff1d(np.unique(ring), ids)
+        if missing.size:  # beams with near returns only
+            ids2, med2, _ = _group_medians(el, ring)
+            keep = np.isin(ids2, missing)
+            ids, med = np.concatenate([ids, ids2[keep]]), np.concatenate([med, med2[keep]])
+            by_id = np.argsort(ids)
+            ids, med = ids[by_id], med[by_id]
+        order = np.argsort(med, kind="stable")
+        rank = np.empty(ids.size, np.int64)
+        rank[order] = np.arange(ids.size)
+        angles, ring_values = med[order], ids[order]
+        if angles.size >= 2 and np.any(np.diff(angles) <= 0):
+            angles = angles + 1e-6 * np.arange(angles.size)  # two ring values at one elevation
+        beam_of_point = rank[np.searchsorted(ids, ring)]
+        method = "organised rows" if columns else "ring field"
+    else:
+        angles = _stable_clusters(el[far], max(3, int(2e-4 * far.sum())))
+        if angles.size < 2:
+            return None
+        ring_values = None  # type: ignore[assignment]
+        method = "elevation clusters"
+        mid = 0.5 * (angles[1:] + angles[:-1])
+        beam_of_point = np.searchsorted(mid, el)
+    if angles.size < 2 or np.any(np.abs(angles) >= 90):
+        return None
+    step = _azimuth_step_deg(p, beam_of_point, columns)
+    if step is None:
+        return None
+    try:
+        model = LidarModel(
+            "measured",
+            angles,
+            min(step, 10.0),
+            source=f"measured from {scan.source or 'a scan'}",
+            beam_origin_z_m=h,
+        )
+    except ValueError:
+        return None
+    return MeasuredBeams(model, ring_values, method)
+
+
+def beam_index(scan: Scan, model: LidarModel) -> np.ndarray:
+    """(N,) int32 index into ``model``'s table (0 = lowest beam) of each return of ``scan``.
+
+    With a ring field, each distinct ring value goes to the beam nearest the median elevation of
+    its returns (so any numbering works: top-first, hardware ids); without one, each return goes
+    to the beam nearest its own elevation.
+    """
+    p = np.asarray(scan.points, dtype=np.float64).reshape(-1, 3)
+    if scan.ring is None:
+        return model.ring_from_points(p)
+    ring = np.asarray(scan.ring).astype(np.int64)
+    far = _far(p)
+    el = _elevation_deg(p, model.beam_origin_z_m)
+    ids, med, _ = _group_medians(el, ring)
+    if far.any():
+        ids_f, med_f, _ = _group_medians(el[far], ring[far])
+        med[np.searchsorted(ids, ids_f)] = med_f
+    a = model.vertical_angles_deg
+    beam = (
+        np.zeros(ids.size, np.int32)
+        if a.size == 1
+        else np.searchsorted(0.5 * (a[1:] + a[:-1]), med).astype(np.int32)
+    )
+    return beam[np.searchsorted(ids, ring)]
+
+
+def _describe(model: LidarModel) -> str:
+    a = model.vertical_angles_deg
+    lo, hi = float(a[0]), float(a[-1])
+    span = f"+-{hi:.1f}" if abs(hi + lo) < 0.05 else f"{hi:+.1f} .. {lo:+.1f}"
+    return f"{model.n_beams} beams over {span} deg, {model.horizontal_resolution_deg:.3f} deg"
+
+
+def table_difference(measured: MeasuredBeams, named: LidarModel) -> str | None:
+    """A sentence naming how the scan's table differs from ``named``, or None when they agree.
+
+    They agree when the beam counts match (a clustered measurement may miss beams that saw
+    nothing: then every measured beam must sit on a named one), every beam is within a third of
+    the local beam spacing of the named one (ring from elevation stays right), and the azimuth
+    steps are within 10 %.
+    """
+    m, a = measured.model.vertical_angles_deg, named.vertical_angles_deg
+    step_m, step_n = measured.model.horizontal_resolution_deg, named.horizontal_resolution_deg
+    spacing = float(np.median(np.diff(a))) if a.size > 1 else 1.0
+    if measured.ring_values is None and m.size <= a.size:
+        near = np.abs(m[:, None] - a[None, :]).min(axis=1)
+        same_beams = bool(np.all(near < spacing / 3))
+    else:
+        same_beams = m.size == a.size and bool(np.all(np.abs(m - a) < spacing / 3))
+    if same_beams and abs(step_m - step_n) <= 0.1 * step_n:
+        return None
+    lo, hi = float(m[0]), float(m[-1])
+    return (
+        f"the scan's {m.size} beams span {hi:+.1f} .. {lo:+.1f} deg ({measured.method}), "
+        f"{step_m:.3f} deg azimuth step; the {named.name} table says {_describe(named)}; using the scan's"
+    )
+
+
+def choose_model(
+    measured: MeasuredBeams | None, given: LidarModel | None, source: str = ""
+) -> tuple[LidarModel, str | None]:
+    """The table to use, and a warning (or None) when the scan contradicts the given one.
+
+    Without a given table the measured one is used (range sigma and divergence defaults of
+    LidarModel). A given table that agrees with the scan is kept, with the scan's own elevations
+    when they come from a ring field (the unit's real angles) and the scan's azimuth step. A given
+    table that disagrees is replaced by the scan's (keeping its range sigma and divergence).
+    Raises InputError when there is neither.
+    """
+    if measured is None:
+        if given is None:
+            raise InputError(
+                f"{source or 'scan'}: the scan shows no beam table (no ring field, too few returns) and "
+                "config.yaml names no lidar.model; set lidar.model or lidar.calibration_file"
+            )
+        return given, None
+    m = measured.model
+    if given is None:
+        return m, None
+    diff = table_difference(measured, given)
+    if diff is None:
+        if measured.ring_values is None:  # clusters may miss beams: keep the complete table
+            used = replace(
+                given,
+                horizontal_resolution_deg=m.horizontal_resolution_deg,
+                beam_origin_z_m=m.beam_origin_z_m,
+            )
+            return used, None
+        used = replace(
+            given,
+            vertical_angles_deg=m.vertical_angles_deg,
+            horizontal_resolution_deg=m.horizontal_resolution_deg,
+            source=f"{given.source}, angles {m.source}",
+        )
+        return used, None
+    used = replace(
+        m, name=given.name, range_sigma_m=given.range_sigma_m, beam_divergence_rad=given.beam_divergence_rad
+    )
+    return used, f"{source}: {diff}" if source else diff
