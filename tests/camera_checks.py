@@ -45,6 +45,44 @@ def assert_jacobian(cam: CameraModel, p: np.ndarray, rel: float = 2e-6) -> None:
     assert radial.max() <= 1e-9
 
 
+def numeric_intrinsics_jacobian(cam: CameraModel, p: np.ndarray, h: float = 1e-6) -> np.ndarray:
+    """(N, 2, n) central differences of ``cam.with_intrinsics(theta).project(p)`` w.r.t. theta
+    (steps relative to each parameter, at least ``h``)."""
+    theta = cam.intrinsics()
+    J = np.empty((len(p), 2, theta.size))
+    for j in range(theta.size):
+        step = np.zeros(theta.size)
+        step[j] = h * max(1.0, abs(theta[j]))
+        d = cam.with_intrinsics(theta + step).project(p) - cam.with_intrinsics(theta - step).project(p)
+        d[:, 0] = cam.wrap_du(d[:, 0])
+        J[:, :, j] = d / (2 * step[j])
+    return J
+
+
+def intrinsics_jacobian_errors(cam: CameraModel, p: np.ndarray) -> np.ndarray:
+    """(n,) largest |analytic - central differences| of d uv / d theta_j over the points (pixels
+    per unit of theta_j), after checking that uv and d uv / d p are those of ``project`` and
+    ``d_uv_d_point`` and that the points are imaged."""
+    uv, J_p, J_t = cam.project_with_intrinsics_jacobian(p)
+    assert J_t.shape == (len(p), 2, len(cam.intrinsic_names))
+    assert np.all(np.isfinite(uv)) and np.all(np.isfinite(J_t)), "points must be inside the valid region"
+    np.testing.assert_array_equal(uv, cam.project(p))
+    np.testing.assert_array_equal(J_p, cam.d_uv_d_point(p))
+    return np.abs(J_t - numeric_intrinsics_jacobian(cam, p)).max(axis=(0, 1), initial=0.0)
+
+
+def assert_intrinsics_jacobian(cam: CameraModel, p: np.ndarray, rel: float = 1e-6) -> np.ndarray:
+    """Analytic d uv / d intrinsics equals central differences to ``rel`` of each column's largest
+    entry (plus 1e-7 px); the round trip ``with_intrinsics(intrinsics()) == cam`` holds. Returns
+    the errors per parameter."""
+    assert len(cam.intrinsics()) == len(cam.intrinsic_names) == len(set(cam.intrinsic_names))
+    assert cam.with_intrinsics(cam.intrinsics()) == cam
+    err = intrinsics_jacobian_errors(cam, p)
+    scale = np.abs(cam.project_with_intrinsics_jacobian(p)[2]).max(axis=(0, 1), initial=0.0)
+    assert np.all(err <= rel * scale + 1e-7), dict(zip(cam.intrinsic_names, err, strict=True))
+    return err
+
+
 def assert_pixel_round_trip(cam: CameraModel, uv: np.ndarray, atol: float = 1e-7) -> np.ndarray:
     """Pixels with a bearing project back onto themselves; returns the (N,) mask of those."""
     b = cam.bearing(uv)

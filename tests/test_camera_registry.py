@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from camera_checks import assert_jacobian, assert_pixel_round_trip
+from camera_checks import assert_intrinsics_jacobian, assert_jacobian, assert_pixel_round_trip
 
 from ilcc_graph.cameras import (
     R_FLU_OPENCV,
@@ -51,6 +51,7 @@ def test_every_kind_honours_the_interface(kind: str) -> None:
     if cam.periodic_u:  # keep away from the poles of a panorama
         b = b[np.abs(b[:, 2]) < 0.95]
     assert_jacobian(cam, b * rng.uniform(0.5, 20.0, (len(b), 1)))
+    assert_intrinsics_jacobian(cam, b * rng.uniform(0.5, 20.0, (len(b), 1)))
     assert np.all(cam.fov_contains(b))
     # its config section: through YAML and back, from the registry
     d = yaml.safe_load(yaml.safe_dump(cam.to_dict()))

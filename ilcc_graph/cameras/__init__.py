@@ -1,23 +1,16 @@
 """Camera models, one file each, registered by kind (``camera.model`` in config.yaml).
 
-The imports below are the registry: a model file joins it by being imported here. See
-``base.py`` for what a model file holds; nothing outside this package branches on the kind.
+The model imports below fill the registry (``registry.py``): a model file joins it by being
+imported here. See ``base.py`` for what a model file holds; nothing outside this package branches
+on the kind.
 """
 
-from .base import (
-    R_FLU_OPENCV,
-    CameraModel,
-    LensModel,
-    camera_class,
-    camera_from_config,
-    camera_kinds,
-    make_camera,
-    register,
-)
+from .base import R_FLU_OPENCV, CameraModel, LensModel
 from .double_sphere import DoubleSphere as DoubleSphere
 from .equirectangular import Equirectangular as Equirectangular
 from .fisheye import Fisheye as Fisheye
 from .pinhole import Pinhole as Pinhole
+from .registry import camera_class, camera_from_config, camera_kinds, make_camera, register
 from .unified import Unified as Unified
 
 __all__ = [

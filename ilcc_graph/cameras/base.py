@@ -1,11 +1,15 @@
-"""The camera interface, its shared helpers and the registry of camera kinds.
+"""The camera interface (the registry of kinds: ``registry.py``; shared numerics: ``common.py``).
 
 A camera model is one file in this package: a frozen dataclass subclassing :class:`CameraModel`
 (or :class:`LensModel` when it has a K matrix), decorated with ``@register("<kind>")`` and
 imported in ``cameras/__init__.py``. Everything that differs between models lives in that file:
 
 - ``_project`` (pixels, and beside them the analytic Jacobian) and ``_bearing`` (its inverse),
-  NaN wherever the model cannot image a point or no ray maps to a pixel;
+  NaN wherever the model cannot image a point or no ray maps to a pixel; a :class:`LensModel`
+  gives ``_normalised`` (its coordinates before K, with their Jacobians w.r.t. the point and its
+  own parameters) instead of ``_project``;
+- its refinable intrinsics: ``intrinsic_names``, ``intrinsics()``, ``with_intrinsics(theta)``
+  and the Jacobian w.r.t. them beside the projection (``project_with_intrinsics_jacobian``);
 - ``R_flu_cam``: the model's camera axes in a forward-left-up frame (x forward, y left, z up);
   lens models use OpenCV's axes, :data:`R_FLU_OPENCV`;
 - ``periodic_u``, ``wrap_u``, ``wrap_du`` when its image columns wrap around (a panorama);
@@ -26,132 +30,16 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..checks import MISSING, Checker
-from ..errors import InputError
+from ..checks import Checker
+from .common import as_points, axes_text, check_intrinsics_sigma, check_K, check_size
 
-__all__ = [
-    "R_FLU_OPENCV",
-    "CameraModel",
-    "LensModel",
-    "register",
-    "camera_kinds",
-    "camera_class",
-    "camera_from_config",
-    "make_camera",
-]
+__all__ = ["R_FLU_OPENCV", "CameraModel", "LensModel"]
 
 #: OpenCV's camera axes (x right, y down, z forward) in a forward-left-up frame: the columns are
 #: the camera's x, y, z axes. ``R_FLU_OPENCV.T`` is the nominal ``R_cam_lidar`` of a lens camera
 #: looking along the LiDAR's x axis.
 R_FLU_OPENCV = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 R_FLU_OPENCV.setflags(write=False)
-
-_FLU_AXIS_NAMES = (("backward", "forward"), ("right", "left"), ("down", "up"))
-
-
-# ----------------------------------------------------------------------------- helpers
-def as_points(p: np.ndarray, dim: int, what: str) -> tuple[np.ndarray, tuple[int, ...]]:
-    """Coerce to float64 (N, dim); return it with the leading shape to restore."""
-    a = np.asarray(p, dtype=np.float64)
-    if a.ndim == 0 or a.shape[-1] != dim:
-        raise ValueError(f"{what} must have shape (..., {dim}), got {a.shape}")
-    return a.reshape(-1, dim), a.shape[:-1]
-
-
-def check_K(K: Any) -> np.ndarray:
-    """K as a read-only float64 [[fx, skew, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0; ValueError else."""
-    K = np.array(K, dtype=np.float64)
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)):
-        raise ValueError(f"K must be a finite 3x3 matrix, got {K.tolist() if K.size <= 16 else K.shape}")
-    if K[0, 0] <= 0 or K[1, 1] <= 0 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
-        raise ValueError(
-            f"K must be [[fx, skew, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0, got {K.tolist()}"
-        )
-    K.setflags(write=False)
-    return K
-
-
-def check_size(width: Any, height: Any) -> tuple[int, int]:
-    for name, v in (("width", width), ("height", height)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
-            raise ValueError(f"camera {name} must be a positive integer (pixels), got {v!r}")
-    return int(width), int(height)
-
-
-def finite_vector(v: Any, what: str) -> np.ndarray:
-    """A read-only float64 1-D copy of ``v``; ValueError when not finite."""
-    d = np.array(v, dtype=np.float64).ravel()
-    if not np.all(np.isfinite(d)):
-        raise ValueError(f"{what} must be finite, got {d.tolist()}")
-    d.setflags(write=False)
-    return d
-
-
-def solve_increasing(f, target: np.ndarray, hi: float, iters: int = 100) -> np.ndarray:
-    """Solve f(x) = target for x in [0, hi], f increasing there with f(0) = 0; safeguarded Newton.
-
-    ``f(x) -> (value, derivative)``. Targets outside [0, f(hi)] must be masked by the caller.
-    """
-    lo_b = np.zeros_like(target)
-    hi_b = np.full_like(target, hi)
-    x = np.clip(target, 0.0, hi)  # f(x) ~ x near 0 for every lens here
-    for _ in range(iters):
-        fx, dfx = f(x)
-        r = fx - target
-        lo_b = np.where(r < 0, x, lo_b)
-        hi_b = np.where(r > 0, x, hi_b)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            x_new = x - r / dfx
-        bad = ~np.isfinite(x_new) | (x_new <= lo_b) | (x_new >= hi_b)
-        x_new = np.where(bad, 0.5 * (lo_b + hi_b), x_new)
-        done = np.abs(x_new - x) <= 1e-15 * np.maximum(1.0, np.abs(x))
-        x = x_new
-        if np.all(done | (r == 0)):
-            break
-    return x
-
-
-def first_fold(dfdx, hi: float, n: int = 20001) -> float:
-    """Smallest x in (0, hi) where dfdx(x) <= 0 (bisection-refined), or ``hi`` when there is none."""
-    xs = np.linspace(0.0, hi, n)
-    bad = ~(dfdx(xs) > 0)
-    if not bad.any():
-        return hi
-    k = int(np.argmax(bad))
-    lo, up = xs[max(k - 1, 0)], xs[k]
-    for _ in range(60):
-        mid = 0.5 * (lo + up)
-        if dfdx(np.array([mid]))[0] > 0:
-            lo = mid
-        else:
-            up = mid
-    return float(lo)
-
-
-def config_K(c: Checker, v: Any, key: str) -> list[list[float]]:
-    """A config value for K: 3x3 nested or 9 numbers row-major, [[fx, s, cx], [0, fy, cy], [0, 0, 1]]."""
-    if isinstance(v, (list, tuple)) and len(v) == 9 and not any(isinstance(x, (list, tuple)) for x in v):
-        v = [list(v[0:3]), list(v[3:6]), list(v[6:9])]
-    if not (
-        isinstance(v, (list, tuple))
-        and len(v) == 3
-        and all(isinstance(r, (list, tuple)) and len(r) == 3 for r in v)
-    ):
-        raise c.fail(key, v, "a 3x3 matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]")
-    K = [c.numbers(r, f"{key}[{i}]", 3) for i, r in enumerate(v)]
-    if not (K[0][0] > 0 and K[1][1] > 0 and K[1][0] == 0 and K[2] == [0.0, 0.0, 1.0]):
-        raise c.fail(key, v, "[[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
-    return K
-
-
-def axes_text(R_flu_cam: np.ndarray) -> str:
-    """The camera axes in words, e.g. ``x right, y down, z forward`` for OpenCV's."""
-    words = []
-    for j, name in enumerate("xyz"):
-        col = R_flu_cam[:, j]
-        i = int(np.argmax(np.abs(col)))
-        words.append(f"{name} {_FLU_AXIS_NAMES[i][int(col[i] > 0)] if abs(col[i]) == 1.0 else 'tilted'}")
-    return ", ".join(words)
 
 
 # --------------------------------------------------------------------------- the base
@@ -160,6 +48,9 @@ class CameraModel(ABC):
     """A calibrated camera: pixel (u, v) <-> unit bearing in the camera frame.
 
     width, height: image size in pixels.
+    intrinsics_sigma: optional stated one-sigma uncertainty of the intrinsics, (n,) in
+        ``intrinsic_names`` order (pixels for fx, fy, cx, cy; the coefficients' own units else;
+        0 = known exactly), or a mapping by name; keyword only. Config key ``intrinsics_sigma``.
     """
 
     kind: ClassVar[str] = ""
@@ -171,6 +62,7 @@ class CameraModel(ABC):
     config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height")
     width: int
     height: int
+    intrinsics_sigma: np.ndarray | None = field(default=None, kw_only=True)
 
     # -- projection and its Jacobian
     @abstractmethod
@@ -205,6 +97,55 @@ class CameraModel(ABC):
         """Unit bearings (..., 3), camera frame, of pixels (..., 2); NaN where no ray maps there."""
         q, lead = as_points(uv, 2, "uv")
         return self._bearing(q).reshape(*lead, 3)
+
+    # -- intrinsics: what a calibration may refine (skew and the image size stay fixed)
+    @property
+    def intrinsic_names(self) -> tuple[str, ...]:
+        """Names of the refinable intrinsics, the order of ``intrinsics()``; () when there are none."""
+        return ()
+
+    def intrinsics(self) -> np.ndarray:
+        """(n,) float64 copy of the refinable intrinsics, in ``intrinsic_names`` order."""
+        return np.zeros(0)
+
+    def with_intrinsics(self, theta: np.ndarray) -> CameraModel:
+        """This camera (same kind, size, skew and ``intrinsics_sigma``) with intrinsics ``theta`` (n,).
+
+        Validated as the constructor validates (``ValueError``, e.g. fx <= 0 or a double sphere's
+        alpha outside [0, 1]). ``with_intrinsics(intrinsics()) == self``.
+        """
+        t = np.array(theta, dtype=np.float64)
+        names = self.intrinsic_names
+        if t.shape != (len(names),) or not np.all(np.isfinite(t)):
+            raise ValueError(
+                f"{self.kind} intrinsics must be {len(names)} finite numbers ({', '.join(names)}), got "
+                f"{t.tolist() if t.size <= 16 else t.shape}"
+            )
+        return self._with_intrinsics(t)
+
+    def _with_intrinsics(self, theta: np.ndarray) -> CameraModel:
+        return self
+
+    def project_with_intrinsics_jacobian(
+        self, p_cam: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(uv (..., 2), d uv / d p (..., 2, 3), d uv / d intrinsics (..., 2, n)) in one pass.
+
+        Analytic; ``d uv / d p`` equals ``d_uv_d_point``; columns of the last follow
+        ``intrinsic_names``. NaN where ``project`` is NaN.
+        """
+        p, lead = as_points(p_cam, 3, "p_cam")
+        uv, J, J_t = self._project_intrinsics(p)
+        return uv.reshape(*lead, 2), J.reshape(*lead, 2, 3), J_t.reshape(*lead, 2, J_t.shape[-1])
+
+    def _project_intrinsics(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        uv, J = self._project(p, True)
+        return uv, J, np.zeros((len(p), 2, 0))  # type: ignore[return-value]
+
+    def _check_intrinsics_sigma(self) -> None:
+        """Coerce ``intrinsics_sigma`` (call at the end of ``__post_init__``, once the names are known)."""
+        s = check_intrinsics_sigma(self.intrinsics_sigma, self.intrinsic_names, self.kind)
+        object.__setattr__(self, "intrinsics_sigma", s)
 
     # -- uncertainty
     def bearing_tangent_cov(self, b: np.ndarray, cov_px: np.ndarray, basis: np.ndarray) -> np.ndarray:
@@ -283,7 +224,16 @@ class CameraModel(ABC):
         ``config_keys``; width and height already parsed); ``InputError`` via ``c`` on bad values."""
 
     def to_dict(self) -> dict[str, Any]:
-        """Our config schema's ``camera`` section."""
+        """Our config schema's ``camera`` section (``intrinsics_sigma`` last, by name, when stated)."""
+        d = self._section()
+        if self.intrinsics_sigma is not None:
+            d["intrinsics_sigma"] = dict(
+                zip(self.intrinsic_names, self.intrinsics_sigma.tolist(), strict=True)
+            )
+        return d
+
+    def _section(self) -> dict[str, Any]:
+        """The model's own keys of its ``camera`` section."""
         return {"model": self.kind, "width": self.width, "height": self.height}
 
     @abstractmethod
@@ -329,7 +279,7 @@ class LensModel(CameraModel):
         return xd, yd
 
     def _chain_K(self, J_d: np.ndarray) -> np.ndarray:
-        """d uv / d p from d (xd, yd) / d p, (N, 2, 3)."""
+        """d uv / d x from d (xd, yd) / d x, (N, 2, m)."""
         K = self.K
         J = np.empty_like(J_d)
         J[:, 0] = K[0, 0] * J_d[:, 0] + K[0, 1] * J_d[:, 1]
@@ -339,68 +289,65 @@ class LensModel(CameraModel):
     def _kalibr_fxfycxcy(self) -> list[float]:
         return [float(self.K[0, 0]), float(self.K[1, 1]), float(self.K[0, 2]), float(self.K[1, 2])]
 
-    def to_dict(self) -> dict[str, Any]:
-        d = super().to_dict()
+    def _section(self) -> dict[str, Any]:
+        d = super()._section()
         d["K"] = self.K.tolist()
         return d
 
+    # -- what each lens file gives: its coordinates before K and its own parameters
+    @abstractmethod
+    def _normalised(
+        self, p: np.ndarray, jac: bool, jac_params: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """p (N, 3) -> (xd, yd, ok, d (xd, yd) / d p (N, 2, 3) when ``jac``, d (xd, yd) / d params
+        (N, 2, m) when ``jac_params``); ``ok`` (N,) False where the model cannot image the point."""
 
-# ----------------------------------------------------------------------------- registry
-_REGISTRY: dict[str, type[CameraModel]] = {}
+    @property
+    @abstractmethod
+    def param_names(self) -> tuple[str, ...]:
+        """Names of the model's own intrinsics after fx, fy, cx, cy (distortion, xi, alpha, ...)."""
 
+    @abstractmethod
+    def params(self) -> np.ndarray:
+        """(m,) the model's own intrinsics, ``param_names`` order."""
 
-def register(kind: str):
-    """Class decorator: make a ``CameraModel`` subclass the model of ``camera.model: <kind>``."""
+    @abstractmethod
+    def _with_params(self, K: np.ndarray, q: np.ndarray) -> LensModel:
+        """This camera with another K and own parameters (through the constructor)."""
 
-    def add(cls: type[CameraModel]) -> type[CameraModel]:
-        if kind in _REGISTRY:
-            raise ValueError(f"camera kind {kind!r} is already {_REGISTRY[kind].__name__}'s")
-        R = np.array(getattr(cls, "R_flu_cam", None), dtype=np.float64)
-        if R.shape != (3, 3) or np.abs(R.T @ R - np.eye(3)).max() > 1e-12 or np.linalg.det(R) < 0:
-            raise ValueError(f"{cls.__name__}.R_flu_cam must be a (3, 3) rotation")
-        R.setflags(write=False)
-        cls.R_flu_cam = R
-        cls.kind = kind
-        _REGISTRY[kind] = cls
-        return cls
+    def _project(self, p: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        xd, yd, ok, D_p, _ = self._normalised(p, jac, False)
+        with np.errstate(over="ignore", invalid="ignore"):
+            uv = self._to_pixels(xd, yd)
+        uv[~ok] = np.nan
+        if not jac:
+            return uv, None
+        J = self._chain_K(D_p)
+        J[~ok] = np.nan
+        return uv, J
 
-    return add
+    def _project_intrinsics(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        xd, yd, ok, D_p, D_q = self._normalised(p, True, True)
+        with np.errstate(over="ignore", invalid="ignore"):
+            uv = self._to_pixels(xd, yd)
+        J = self._chain_K(D_p)
+        J_t = np.zeros((len(p), 2, 4 + D_q.shape[2]))  # type: ignore[union-attr]
+        J_t[:, 0, 0], J_t[:, 1, 1] = xd, yd  # u = fx xd + s yd + cx, v = fy yd + cy
+        J_t[:, 0, 2] = J_t[:, 1, 3] = 1.0
+        J_t[:, :, 4:] = self._chain_K(D_q)
+        for a in (uv, J, J_t):
+            a[~ok] = np.nan
+        return uv, J, J_t
 
+    @property
+    def intrinsic_names(self) -> tuple[str, ...]:
+        return ("fx", "fy", "cx", "cy", *self.param_names)
 
-def camera_kinds() -> tuple[str, ...]:
-    """The registered camera kinds (``camera.model`` values), in registration order."""
-    return tuple(_REGISTRY)
+    def intrinsics(self) -> np.ndarray:
+        K = self.K
+        return np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], self.params()])
 
-
-def camera_class(kind: str) -> type[CameraModel]:
-    """The model class of a kind; ValueError naming the known kinds otherwise."""
-    cls = _REGISTRY.get(str(kind).lower())
-    if cls is None:
-        raise ValueError(f"camera: unknown model {kind!r}; expected one of {'|'.join(_REGISTRY)}")
-    return cls
-
-
-def camera_from_config(d: Any, source: str = "<config>") -> CameraModel:
-    """A camera from our config's ``camera:`` section ``d``.
-
-    ``source`` names the file in messages. Raises ``InputError`` naming file, key, value found
-    and what was expected (``<source>: camera.dist = [1, 2]: expected a list of 4 numbers``).
-    """
-    c = Checker(source)
-    d = c.section(d, "camera")
-    cls = _REGISTRY[c.choice(d.get("model", MISSING), "camera.model", camera_kinds())]
-    c.unknown(d, cls.config_keys, "camera")
-    w = c.number(d.get("width", MISSING), "camera.width", lo=1, hi=100000, integer=True)
-    h = c.number(d.get("height", MISSING), "camera.height", lo=1, hi=100000, integer=True)
-    try:
-        return cls.from_config(c, d, int(w), int(h))
-    except (ValueError, TypeError) as e:
-        raise c.fail("camera", d, f"a valid camera ({e})") from None
-
-
-def make_camera(d: dict[str, Any]) -> CameraModel:
-    """A camera from a ``to_dict()``-style mapping; as :func:`camera_from_config` but raises ValueError."""
-    try:
-        return camera_from_config(d, "camera")
-    except InputError as e:
-        raise ValueError(str(e)) from None
+    def _with_intrinsics(self, theta: np.ndarray) -> LensModel:
+        K = np.array(self.K)
+        K[0, 0], K[1, 1], K[0, 2], K[1, 2] = theta[:4]
+        return self._with_params(K, theta[4:])

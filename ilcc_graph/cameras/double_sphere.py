@@ -24,13 +24,15 @@ and ``b = (mz xi + sqrt(mz^2 + (1 - xi^2) r^2)) / (mz^2 + r^2) (mx, my, mz) - (0
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 import numpy as np
 
 from ..checks import MISSING, Checker
-from .base import R_FLU_OPENCV, LensModel, config_K, register
+from .base import R_FLU_OPENCV, LensModel
+from .common import config_K
+from .registry import register
 
 
 @register("double_sphere")
@@ -44,7 +46,15 @@ class DoubleSphere(LensModel):
     """
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
-    config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height", "K", "xi", "alpha")
+    config_keys: ClassVar[tuple[str, ...]] = (
+        "model",
+        "width",
+        "height",
+        "K",
+        "xi",
+        "alpha",
+        "intrinsics_sigma",
+    )
     xi: float = 0.0
     alpha: float = 0.0
 
@@ -59,6 +69,7 @@ class DoubleSphere(LensModel):
             raise ValueError(f"double_sphere xi must be in (-1, 1], got {self.xi!r}")
         if not 0.0 <= self.alpha <= 1.0:
             raise ValueError(f"double_sphere alpha must be in [0, 1], got {self.alpha!r}")
+        self._check_intrinsics_sigma()
 
     @property
     def w1(self) -> float:
@@ -73,7 +84,18 @@ class DoubleSphere(LensModel):
         c = -xi * (1 - w1 * w1) - w1 * np.sqrt(1 - xi * xi * (1 - w1 * w1))
         return float(np.arccos(np.clip(c, -1.0, 1.0)))
 
-    def _project(self, p: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    # -- intrinsics after fx, fy, cx, cy: xi, alpha
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return ("xi", "alpha")
+
+    def params(self) -> np.ndarray:
+        return np.array([self.xi, self.alpha])
+
+    def _with_params(self, K: np.ndarray, q: np.ndarray) -> DoubleSphere:
+        return replace(self, K=K, xi=float(q[0]), alpha=float(q[1]))
+
+    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool):
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         a, xi = self.alpha, self.xi
         d1 = np.sqrt(x * x + y * y + z * z)
@@ -83,10 +105,14 @@ class DoubleSphere(LensModel):
         ok = (d1 > 0) & (k > -self.w1 * d2)
         with np.errstate(divide="ignore", invalid="ignore"):
             mx, my = x / den, y / den
-            uv = self._to_pixels(mx, my)
-        uv[~ok] = np.nan
+            m = np.stack([mx, my], axis=1)
+        D_q = None
+        if jac_params:  # d den / d xi = (alpha k / d2 + 1 - alpha) d1, d den / d alpha = d2 - k
+            with np.errstate(divide="ignore", invalid="ignore"):
+                dden_q = np.stack([(a * k / d2 + (1 - a)) * d1, d2 - k], axis=1)
+                D_q = -m[:, :, None] * (dden_q / den[:, None])[:, None, :]
         if not jac:
-            return uv, None
+            return mx, my, ok, None, D_q
         with np.errstate(divide="ignore", invalid="ignore"):
             dd1 = p / d1[:, None]  # d d1 / d p
             dk = xi * dd1
@@ -95,13 +121,11 @@ class DoubleSphere(LensModel):
             dd2[:, 0] += x / d2
             dd2[:, 1] += y / d2
             dden = a * dd2 + (1 - a) * dk
-            Jm = -np.stack([mx, my], axis=1)[:, :, None] * dden[:, None, :]
+            Jm = -m[:, :, None] * dden[:, None, :]
             Jm[:, 0, 0] += 1.0
             Jm[:, 1, 1] += 1.0
             Jm /= den[:, None, None]
-        J = self._chain_K(Jm)
-        J[~ok] = np.nan
-        return uv, J
+        return mx, my, ok, Jm, D_q
 
     def _bearing(self, uv: np.ndarray) -> np.ndarray:
         a, xi = self.alpha, self.xi
@@ -130,8 +154,8 @@ class DoubleSphere(LensModel):
         alpha = c.number(d.get("alpha", MISSING), "camera.alpha", lo=0.0, hi=1.0)
         return cls(width, height, K, xi, alpha)
 
-    def to_dict(self) -> dict[str, Any]:
-        d = super().to_dict()
+    def _section(self) -> dict[str, Any]:
+        d = super()._section()
         d["xi"] = self.xi
         d["alpha"] = self.alpha
         return d

@@ -14,7 +14,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..checks import Checker
-from .base import CameraModel, check_size, register
+from .base import CameraModel
+from .common import check_size
+from .registry import register
 
 _TWO_PI = 2.0 * np.pi
 
@@ -36,6 +38,7 @@ class Equirectangular(CameraModel):
         w, h = check_size(self.width, self.height)
         object.__setattr__(self, "width", w)
         object.__setattr__(self, "height", h)
+        self._check_intrinsics_sigma()
 
     def _project(self, p: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
         W, H = float(self.width), float(self.height)

@@ -6,13 +6,15 @@ Camera frame OpenCV's (z forward, x right, y down). Config keys: ``model, width,
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
 
 from ..checks import MISSING, Checker
-from .base import R_FLU_OPENCV, LensModel, config_K, finite_vector, first_fold, register, solve_increasing
+from .base import R_FLU_OPENCV, LensModel
+from .common import config_K, finite_vector, first_fold, solve_increasing
+from .registry import register
 
 
 @register("fisheye")
@@ -28,7 +30,7 @@ class Fisheye(LensModel):
     """
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
-    config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height", "K", "dist")
+    config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height", "K", "dist", "intrinsics_sigma")
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
     theta_max: float = field(init=False, repr=False, default=np.pi)
 
@@ -41,6 +43,7 @@ class Fisheye(LensModel):
             object.__setattr__(self, "dist", finite_vector(np.zeros(4), "dist"))
         th = first_fold(lambda t: self._theta_d(t)[1], np.pi)
         object.__setattr__(self, "theta_max", min(th, np.pi))
+        self._check_intrinsics_sigma()
 
     def _theta_d(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """theta_d(theta) and its derivative."""
@@ -50,7 +53,18 @@ class Fisheye(LensModel):
         dpoly = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
         return t * poly, dpoly
 
-    def _project(self, p: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    # -- intrinsics after fx, fy, cx, cy: k1..k4
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return ("k1", "k2", "k3", "k4")
+
+    def params(self) -> np.ndarray:
+        return np.array(self.dist)
+
+    def _with_params(self, K: np.ndarray, q: np.ndarray) -> Fisheye:
+        return replace(self, K=K, dist=q)
+
+    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool):
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         rho2 = x * x + y * y
         rho = np.sqrt(rho2)
@@ -64,10 +78,16 @@ class Fisheye(LensModel):
             h = np.where(theta > 0, td / st, 1.0)  # theta_d / sin(theta), smooth at the axis
             xr, yr = x / R, y / R
         xd, yd = h * xr, h * yr
-        uv = self._to_pixels(xd, yd)
-        uv[~ok] = np.nan
+        D_q = None
+        if jac_params:
+            # d (xd, yd) / d k_i = theta^(2i+1) / sin(theta) (x, y) / R = theta^(2i) (theta / rho) (x, y)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t_rho = np.where(rho > 0, theta / rho, 1.0 / R)
+            t2 = theta * theta
+            pw = np.stack([t2, t2**2, t2**3, t2**4], axis=1) * t_rho[:, None]
+            D_q = np.stack([pw * x[:, None], pw * y[:, None]], axis=1)
         if not jac:
-            return uv, None
+            return xd, yd, ok, None, D_q
         k1 = self.dist[0]
         small = theta < 1e-3
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -83,9 +103,7 @@ class Fisheye(LensModel):
         Jd[:, 1, 1] += 1
         Jd *= (h * iR)[:, None, None]
         Jd += unit[:, :, None] * grad_h[:, None, :]
-        J = self._chain_K(Jd)
-        J[~ok] = np.nan
-        return uv, J
+        return xd, yd, ok, Jd, D_q
 
     def _bearing(self, uv: np.ndarray) -> np.ndarray:
         xd, yd = self._from_pixels(uv)
@@ -110,8 +128,8 @@ class Fisheye(LensModel):
             dist = c.numbers(dist, "camera.dist", (4,))
         return cls(width, height, K, dist)
 
-    def to_dict(self) -> dict[str, Any]:
-        d = super().to_dict()
+    def _section(self) -> dict[str, Any]:
+        d = super()._section()
         d["dist"] = self.dist.tolist()
         return d
 

@@ -8,15 +8,19 @@ with other models that apply it to their own normalised coordinates.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
 
 from ..checks import MISSING, Checker
-from .base import R_FLU_OPENCV, LensModel, config_K, finite_vector, first_fold, register, solve_increasing
+from .base import R_FLU_OPENCV, LensModel
+from .common import config_K, finite_vector, first_fold, solve_increasing
+from .registry import register
 
 _THETA_HI = np.pi / 2 - 1e-6  # radii are searched as r = tan(theta) up to here
+#: Names of OpenCV's distortion coefficients, in its order.
+DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
 
 
 @dataclass(frozen=True, eq=False)
@@ -75,6 +79,23 @@ class RadTan:
         D[:, 1, 0] = 2 * a * b * drad + 2 * p1 * a + 2 * p2 * b
         D[:, 1, 1] = rad + 2 * b * b * drad + 6 * p1 * b + 2 * p2 * a
         return xd, yd, D
+
+    def d_coefficients(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """(N, 2, 8) d (xd, yd) / d d8 at normalised (a, b), columns in :data:`DIST_NAMES` order."""
+        r2 = a * a + b * b
+        rad, _, den = self.radial(r2)
+        powers = np.stack([r2, r2 * r2, r2 * r2 * r2], axis=1)  # r2, r2^2, r2^3
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d_rad = np.empty((a.size, 8))
+            d_rad[:, [0, 1, 4]] = powers / den[:, None]  # numerator: k1, k2, k3
+            d_rad[:, 5:] = -(rad / den)[:, None] * powers  # denominator: k4, k5, k6
+        d_rad[:, 2:4] = 0.0
+        J = np.empty((a.size, 2, 8))
+        J[:, 0], J[:, 1] = a[:, None] * d_rad, b[:, None] * d_rad
+        J[:, 0, 2] = J[:, 1, 3] = 2 * a * b
+        J[:, 1, 2] = r2 + 2 * b * b
+        J[:, 0, 3] = r2 + 2 * a * a
+        return J
 
     def _newton(
         self, a: np.ndarray, b: np.ndarray, xd: np.ndarray, yd: np.ndarray, iters: int = 50
@@ -152,7 +173,7 @@ class Pinhole(LensModel):
     """
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
-    config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height", "K", "dist")
+    config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height", "K", "dist", "intrinsics_sigma")
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
     r_max: float = field(init=False, repr=False, default=np.inf)
     _rt: RadTan = field(init=False, repr=False, default=None)  # type: ignore[assignment]
@@ -167,29 +188,40 @@ class Pinhole(LensModel):
             )
         object.__setattr__(self, "_rt", RadTan.of(self.dist))
         object.__setattr__(self, "r_max", self._rt.r_max)
+        self._check_intrinsics_sigma()
 
     def _radial(self, r2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """rad(r2), d rad / d r2 and the rational denominator (see :class:`RadTan`)."""
         return self._rt.radial(r2)
 
-    def _project(self, p: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    # -- intrinsics after fx, fy, cx, cy: the coefficients of ``dist``
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return DIST_NAMES[: self.dist.size]
+
+    def params(self) -> np.ndarray:
+        return np.array(self.dist)
+
+    def _with_params(self, K: np.ndarray, q: np.ndarray) -> Pinhole:
+        return replace(self, K=K, dist=q)
+
+    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool):
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             iz = np.where(z > 0, 1.0 / z, np.nan)
         a, b = x * iz, y * iz
         ok = (z > 0) & (a * a + b * b < self.r_max**2)
         xd, yd, D = self._rt.distort(a, b, jac)
-        uv = self._to_pixels(xd, yd)
-        uv[~ok] = np.nan
-        if not jac:
-            return uv, None
-        dab = np.zeros((p.shape[0], 2, 3))
-        dab[:, 0, 0] = dab[:, 1, 1] = iz
-        dab[:, 0, 2] = -a * iz
-        dab[:, 1, 2] = -b * iz
-        J = self._chain_K(D @ dab)
-        J[~ok] = np.nan
-        return uv, J
+        D_p = D_q = None
+        if jac:
+            dab = np.zeros((p.shape[0], 2, 3))
+            dab[:, 0, 0] = dab[:, 1, 1] = iz
+            dab[:, 0, 2] = -a * iz
+            dab[:, 1, 2] = -b * iz
+            D_p = D @ dab
+        if jac_params:
+            D_q = self._rt.d_coefficients(a, b)[:, :, : self.dist.size]
+        return xd, yd, ok, D_p, D_q
 
     def _bearing(self, uv: np.ndarray) -> np.ndarray:
         a, b, ok = self._rt.undistort(*self._from_pixels(uv))
@@ -209,8 +241,8 @@ class Pinhole(LensModel):
             dist = c.numbers(dist, "camera.dist", (4, 5, 8))
         return cls(width, height, K, dist)
 
-    def to_dict(self) -> dict[str, Any]:
-        d = super().to_dict()
+    def _section(self) -> dict[str, Any]:
+        d = super()._section()
         d["dist"] = self.dist.tolist()
         return d
 

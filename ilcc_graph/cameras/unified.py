@@ -18,14 +18,16 @@ there has two rays). Unprojection: undistort (Newton), then the closed-form lift
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
 
 from ..checks import MISSING, Checker
-from .base import R_FLU_OPENCV, LensModel, config_K, finite_vector, register
-from .pinhole import RadTan
+from .base import R_FLU_OPENCV, LensModel
+from .common import config_K, finite_vector
+from .pinhole import DIST_NAMES, RadTan
+from .registry import register
 
 
 @register("unified")
@@ -39,7 +41,15 @@ class Unified(LensModel):
     """
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
-    config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height", "K", "xi", "dist")
+    config_keys: ClassVar[tuple[str, ...]] = (
+        "model",
+        "width",
+        "height",
+        "K",
+        "xi",
+        "dist",
+        "intrinsics_sigma",
+    )
     xi: float = 0.0
     dist: np.ndarray = field(default_factory=lambda: np.zeros(4))
     r_max: float = field(init=False, repr=False, default=np.inf)
@@ -59,13 +69,25 @@ class Unified(LensModel):
         object.__setattr__(self, "dist", finite_vector(np.zeros(4), "dist") if dist.size == 0 else dist)
         object.__setattr__(self, "_rt", RadTan.of(self.dist))
         object.__setattr__(self, "r_max", self._rt.r_max)
+        self._check_intrinsics_sigma()
 
     @property
     def w(self) -> float:
         """The valid region is z > -w |p|."""
         return self.xi if self.xi <= 1 else 1 / self.xi
 
-    def _project(self, p: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    # -- intrinsics after fx, fy, cx, cy: xi, then k1, k2, p1, p2
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        return ("xi", *DIST_NAMES[:4])
+
+    def params(self) -> np.ndarray:
+        return np.concatenate([[self.xi], self.dist])
+
+    def _with_params(self, K: np.ndarray, q: np.ndarray) -> Unified:
+        return replace(self, K=K, xi=float(q[0]), dist=q[1:])
+
+    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool):
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         xi = self.xi
         d = np.sqrt(x * x + y * y + z * z)
@@ -75,11 +97,16 @@ class Unified(LensModel):
             a, b = x / den, y / den
         ok &= a * a + b * b < self.r_max**2
         with np.errstate(over="ignore", invalid="ignore"):
-            xd, yd, D = self._rt.distort(a, b, jac)
-            uv = self._to_pixels(xd, yd)
-        uv[~ok] = np.nan
+            xd, yd, D = self._rt.distort(a, b, jac or jac_params)
+        D_q = None
+        if jac_params:  # d (a, b) / d xi = -(a, b) |p| / den, then through the distortion
+            D_q = np.empty((len(p), 2, 5))
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                dab_xi = -np.stack([a, b], axis=1) * (d / den)[:, None]
+                D_q[:, :, 0] = np.einsum("nij,nj->ni", D, dab_xi)
+                D_q[:, :, 1:] = self._rt.d_coefficients(a, b)[:, :, :4]
         if not jac:
-            return uv, None
+            return xd, yd, ok, None, D_q
         with np.errstate(divide="ignore", invalid="ignore"):
             dden = xi * p / d[:, None]  # d den / d p
             dden[:, 2] += 1.0
@@ -87,9 +114,7 @@ class Unified(LensModel):
             dab[:, 0, 0] += 1.0
             dab[:, 1, 1] += 1.0
             dab /= den[:, None, None]
-        J = self._chain_K(D @ dab)
-        J[~ok] = np.nan
-        return uv, J
+        return xd, yd, ok, D @ dab, D_q
 
     def _bearing(self, uv: np.ndarray) -> np.ndarray:
         xi = self.xi
@@ -116,8 +141,8 @@ class Unified(LensModel):
             dist = c.numbers(dist, "camera.dist", (4,))
         return cls(width, height, K, xi, dist)
 
-    def to_dict(self) -> dict[str, Any]:
-        d = super().to_dict()
+    def _section(self) -> dict[str, Any]:
+        d = super()._section()
         d["xi"] = self.xi
         d["dist"] = self.dist.tolist()
         return d

@@ -9,6 +9,7 @@ writes it as a ROS 1 or ROS 2 bag, optionally as a walk-and-pause recording (``b
 from __future__ import annotations
 
 from .frames import SimFrame, frame_name, ground_truth, simulate_frame, simulate_frames
+from .intrinsics import IntrinsicsError, stated_camera
 from .lidar import beam_biases, beam_gains, simulate_scan
 from .placements import board_placements, frame_scene
 from .render import ImageRenderer
@@ -46,4 +47,5 @@ __all__ = [
     "Systematics", "beam_biases", "beam_gains", "board_placements", "cast_rays", "default_T_cam_lidar",
     "default_camera", "frame_name", "frame_scene", "ground_truth", "paper_board", "simulate_dataset",
     "simulate_frame", "simulate_frames", "simulate_scan", "standard_spec", "write_bag",
+    "IntrinsicsError", "stated_camera",
 ]  # fmt: skip

@@ -18,17 +18,19 @@ from pathlib import Path
 from ..io import write_image, write_pcd, write_yaml
 from ..io.scans import write_csv
 from .frames import ground_truth, simulate_frames
+from .intrinsics import stated_camera
 from .spec import SimulationSpec
 
 __all__ = ["simulate_dataset", "config_dict"]
 
 
 def config_dict(spec: SimulationSpec) -> dict:
-    """config.yaml content (our schema) for the spec's board, LiDAR and camera."""
+    """config.yaml content (our schema) for the spec's board, LiDAR and camera (the stated camera:
+    the truth perturbed by ``spec.intrinsics_error``)."""
     return {
         "board": spec.board.to_dict(),
         "lidar": spec.lidar_model.to_dict(),
-        "camera": spec.camera.to_dict(),
+        "camera": stated_camera(spec.camera, spec.intrinsics_error, spec.seed).to_dict(),
     }
 
 

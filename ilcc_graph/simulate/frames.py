@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..types import Scan
+from .intrinsics import stated_camera
 from .lidar import beam_biases, beam_gains, simulate_scan
 from .placements import board_placements, frame_scene
 from .render import ImageRenderer
@@ -69,6 +70,8 @@ def ground_truth(spec: SimulationSpec, frames: Iterable[SimFrame] | None = None)
 
     Keys: ``T_cam_lidar`` (4x4); ``T_lidar_board`` {stem: 4x4}; ``corners_lidar`` {stem: (K, 3)
     inner corners in the LiDAR frame, index k as interface.md}; ``board`` (config schema);
+    ``camera_truth`` (the camera that rendered the images, config schema) and
+    ``camera_intrinsics_error`` {name: stated minus true} (config.yaml's camera is the stated one);
     ``lidar_beam_bias_m`` and ``lidar_beam_intensity_gain`` (per ring); ``simulation`` (the
     settings). ``frames``: the frames written (their names and poses); None -> every frame of the
     spec, from the placements alone.
@@ -84,7 +87,16 @@ def ground_truth(spec: SimulationSpec, frames: Iterable[SimFrame] | None = None)
         "T_lidar_board": {k: np.asarray(T).tolist() for k, T in poses.items()},
         "corners_lidar": corners,
         "board": spec.board.to_dict(),
+        "camera_truth": spec.camera.to_dict(),
+        "camera_intrinsics_error": _intrinsics_error(spec),
         "lidar_beam_bias_m": beam_biases(spec).tolist(),
         "lidar_beam_intensity_gain": beam_gains(spec).tolist(),
         "simulation": spec.summary(),
     }
+
+
+def _intrinsics_error(spec: SimulationSpec) -> dict[str, float]:
+    """{name: stated minus true} of the camera's intrinsics (all 0 when the error is off)."""
+    stated = stated_camera(spec.camera, spec.intrinsics_error, spec.seed).intrinsics()
+    d = stated - spec.camera.intrinsics()
+    return {n: float(v) for n, v in zip(spec.camera.intrinsic_names, d, strict=True)}

@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 from ..board import Board
 from ..cameras import CameraModel, Equirectangular, camera_class
 from ..lidars import LASER_ID_ELEVATIONS_DEG, LidarModel, lidar_model
+from .intrinsics import IntrinsicsError
 
 __all__ = [
     "SENSOR_FORMATS",
@@ -137,7 +138,9 @@ class SimulationSpec:
     """Everything a simulated data set depends on; same spec, same bytes.
 
     lidar: LiDAR model name (``lidars.MODEL_NAMES``) or a ready :class:`LidarModel`.
-    camera: the camera model (its intrinsics are the truth written to config.yaml).
+    camera: the true camera model, which renders the images (config.yaml states it as is, or
+        perturbed by ``intrinsics_error``; ground_truth.yaml records it as ``camera_truth``).
+    intrinsics_error: how far config.yaml's camera is from ``camera`` (off by default).
     board: the chessboard.
     n_frames: number of frames (board placements).
     seed: master seed; every random stream is derived from it with ``np.random.SeedSequence``.
@@ -158,6 +161,7 @@ class SimulationSpec:
 
     lidar: str | LidarModel = "hdl32"
     camera: CameraModel = field(default_factory=lambda: Equirectangular(8000, 4000))
+    intrinsics_error: IntrinsicsError = field(default_factory=IntrinsicsError)
     board: Board = field(default_factory=paper_board)
     n_frames: int = 20
     seed: int = 0
@@ -177,6 +181,7 @@ class SimulationSpec:
 
     def __post_init__(self) -> None:
         model = self.lidar if isinstance(self.lidar, LidarModel) else lidar_model(self.lidar)
+        self.intrinsics_error.sigmas(self.camera)  # ValueError: an error on a camera without intrinsics
         object.__setattr__(self, "_lidar_model", model)
         if self.sensor_format not in SENSOR_FORMATS:
             raise ValueError(
@@ -234,6 +239,7 @@ class SimulationSpec:
             "lidar_model": self.lidar_model.name,
             "sensor_format": self.sensor_format,
             "camera_model": self.camera.kind,
+            "intrinsics_error": self.intrinsics_error.summary(),
             "n_frames": int(self.n_frames),
             "seed": int(self.seed),
             "noise_scale": float(self.noise_scale),

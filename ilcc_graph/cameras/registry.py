@@ -1,0 +1,80 @@
+"""The registry of camera kinds: ``@register("<kind>")`` and the look-ups config.py and others use."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from ..checks import MISSING, Checker
+from ..errors import InputError
+from .base import CameraModel
+from .common import config_intrinsics_sigma
+
+__all__ = ["register", "camera_kinds", "camera_class", "camera_from_config", "make_camera"]
+
+
+_REGISTRY: dict[str, type[CameraModel]] = {}
+
+
+def register(kind: str):
+    """Class decorator: make a ``CameraModel`` subclass the model of ``camera.model: <kind>``."""
+
+    def add(cls: type[CameraModel]) -> type[CameraModel]:
+        if kind in _REGISTRY:
+            raise ValueError(f"camera kind {kind!r} is already {_REGISTRY[kind].__name__}'s")
+        R = np.array(getattr(cls, "R_flu_cam", None), dtype=np.float64)
+        if R.shape != (3, 3) or np.abs(R.T @ R - np.eye(3)).max() > 1e-12 or np.linalg.det(R) < 0:
+            raise ValueError(f"{cls.__name__}.R_flu_cam must be a (3, 3) rotation")
+        R.setflags(write=False)
+        cls.R_flu_cam = R
+        cls.kind = kind
+        _REGISTRY[kind] = cls
+        return cls
+
+    return add
+
+
+def camera_kinds() -> tuple[str, ...]:
+    """The registered camera kinds (``camera.model`` values), in registration order."""
+    return tuple(_REGISTRY)
+
+
+def camera_class(kind: str) -> type[CameraModel]:
+    """The model class of a kind; ValueError naming the known kinds otherwise."""
+    cls = _REGISTRY.get(str(kind).lower())
+    if cls is None:
+        raise ValueError(f"camera: unknown model {kind!r}; expected one of {'|'.join(_REGISTRY)}")
+    return cls
+
+
+def camera_from_config(d: Any, source: str = "<config>") -> CameraModel:
+    """A camera from our config's ``camera:`` section ``d``.
+
+    ``source`` names the file in messages. Raises ``InputError`` naming file, key, value found
+    and what was expected (``<source>: camera.dist = [1, 2]: expected a list of 4 numbers``).
+    """
+    c = Checker(source)
+    d = c.section(d, "camera")
+    cls = _REGISTRY[c.choice(d.get("model", MISSING), "camera.model", camera_kinds())]
+    c.unknown(d, {*cls.config_keys, "intrinsics_sigma"}, "camera")
+    w = c.number(d.get("width", MISSING), "camera.width", lo=1, hi=100000, integer=True)
+    h = c.number(d.get("height", MISSING), "camera.height", lo=1, hi=100000, integer=True)
+    sigma = d.get("intrinsics_sigma")
+    try:
+        cam = cls.from_config(c, {k: v for k, v in d.items() if k != "intrinsics_sigma"}, int(w), int(h))
+    except (ValueError, TypeError) as e:
+        raise c.fail("camera", d, f"a valid camera ({e})") from None
+    if sigma is None:
+        return cam
+    s = config_intrinsics_sigma(c, sigma, "camera.intrinsics_sigma", cam.intrinsic_names)
+    return replace(cam, intrinsics_sigma=s)
+
+
+def make_camera(d: dict[str, Any]) -> CameraModel:
+    """A camera from a ``to_dict()``-style mapping; as :func:`camera_from_config` but raises ValueError."""
+    try:
+        return camera_from_config(d, "camera")
+    except InputError as e:
+        raise ValueError(str(e)) from None
