@@ -10,7 +10,14 @@ from .double_sphere import DoubleSphere as DoubleSphere
 from .equirectangular import Equirectangular as Equirectangular
 from .fisheye import Fisheye as Fisheye
 from .pinhole import Pinhole as Pinhole
-from .registry import camera_class, camera_from_config, camera_kinds, make_camera, register
+from .registry import (
+    camera_class,
+    camera_from_config,
+    camera_kinds,
+    camera_section_from_ros,
+    make_camera,
+    register,
+)
 from .unified import Unified as Unified
 
 __all__ = [
@@ -19,6 +26,7 @@ __all__ = [
     "LensModel",
     "camera_class",
     "camera_from_config",
+    "camera_section_from_ros",
     "camera_kinds",
     "make_camera",
     "register",

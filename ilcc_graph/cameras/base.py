@@ -60,6 +60,8 @@ class CameraModel(ABC):
     periodic_u: ClassVar[bool] = False
     #: Keys of this kind's ``camera:`` config section.
     config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height")
+    #: ROS CameraInfo ``distortion_model`` names this model reads (bags); () for none
+    ros_models: ClassVar[tuple[str, ...]] = ()
     width: int
     height: int
     intrinsics_sigma: np.ndarray | None = field(default=None, kw_only=True)
@@ -235,6 +237,15 @@ class CameraModel(ABC):
     def _section(self) -> dict[str, Any]:
         """The model's own keys of its ``camera`` section."""
         return {"model": self.kind, "width": self.width, "height": self.height}
+
+    def ros_camera_info(self) -> tuple[str, list[float]] | None:
+        """(ROS CameraInfo ``distortion_model``, ``D``) of this camera; None when ROS has no such model."""
+        return None
+
+    @classmethod
+    def ros_dist(cls, D: list[float]) -> list[float]:
+        """Our ``dist`` from a CameraInfo's ``D`` of one of ``ros_models``."""
+        return list(D)
 
     @abstractmethod
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:

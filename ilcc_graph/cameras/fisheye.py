@@ -30,6 +30,7 @@ class Fisheye(LensModel):
     """
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
+    ros_models: ClassVar[tuple[str, ...]] = ("equidistant", "fisheye")
     config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height", "K", "dist", "intrinsics_sigma")
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
     theta_max: float = field(init=False, repr=False, default=np.pi)
@@ -132,6 +133,13 @@ class Fisheye(LensModel):
         d = super()._section()
         d["dist"] = self.dist.tolist()
         return d
+
+    def ros_camera_info(self) -> tuple[str, list[float]] | None:
+        return "equidistant", [float(v) for v in self.dist]
+
+    @classmethod
+    def ros_dist(cls, D: list[float]) -> list[float]:
+        return ([float(v) for v in D] + [0.0] * 4)[:4]
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
         return {

@@ -173,6 +173,7 @@ class Pinhole(LensModel):
     """
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
+    ros_models: ClassVar[tuple[str, ...]] = ("plumb_bob", "rational_polynomial")
     config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height", "K", "dist", "intrinsics_sigma")
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
     r_max: float = field(init=False, repr=False, default=np.inf)
@@ -245,6 +246,17 @@ class Pinhole(LensModel):
         d = super()._section()
         d["dist"] = self.dist.tolist()
         return d
+
+    def ros_camera_info(self) -> tuple[str, list[float]] | None:
+        dist = [float(v) for v in self.dist]
+        if len(dist) == 8:
+            return "rational_polynomial", dist
+        return "plumb_bob", (dist + [0.0] * 5)[:5]
+
+    @classmethod
+    def ros_dist(cls, D: list[float]) -> list[float]:
+        D = [float(v) for v in D]
+        return (D + [0.0] * 5)[: max(5, len(D))]
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
         fields: dict[str, Any] = {"camera_model": "pinhole", "intrinsics": self._kalibr_fxfycxcy()}

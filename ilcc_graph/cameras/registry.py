@@ -12,7 +12,14 @@ from ..errors import InputError
 from .base import CameraModel
 from .common import config_intrinsics_sigma
 
-__all__ = ["register", "camera_kinds", "camera_class", "camera_from_config", "make_camera"]
+__all__ = [
+    "register",
+    "camera_kinds",
+    "camera_class",
+    "camera_from_config",
+    "camera_section_from_ros",
+    "make_camera",
+]
 
 
 _REGISTRY: dict[str, type[CameraModel]] = {}
@@ -70,6 +77,24 @@ def camera_from_config(d: Any, source: str = "<config>") -> CameraModel:
         return cam
     s = config_intrinsics_sigma(c, sigma, "camera.intrinsics_sigma", cam.intrinsic_names)
     return replace(cam, intrinsics_sigma=s)
+
+
+def camera_section_from_ros(distortion_model: str, width: int, height: int, K: Any, D: Any) -> dict[str, Any]:
+    """Our config's camera section from a ROS CameraInfo (the model whose ``ros_models`` name its
+    ``distortion_model``); ValueError naming the ROS models we read otherwise."""
+    name = str(distortion_model).lower()
+    for cls in _REGISTRY.values():
+        if name in cls.ros_models:
+            K = np.asarray(K, dtype=np.float64).reshape(3, 3).tolist()
+            return {
+                "model": cls.kind,
+                "width": int(width),
+                "height": int(height),
+                "K": K,
+                "dist": cls.ros_dist(list(D)),
+            }
+    known = sorted(m for cls in _REGISTRY.values() for m in cls.ros_models)
+    raise ValueError(f"CameraInfo distortion_model {distortion_model!r} is not supported (we read {known})")
 
 
 def make_camera(d: dict[str, Any]) -> CameraModel:

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from ilcc_graph.cameras import camera_section_from_ros
 from ilcc_graph.config import Config, parse_config
 from ilcc_graph.datasets.base import FrameRef, FrameSource
 from ilcc_graph.errors import InputError
@@ -148,8 +149,8 @@ def _field(msg: Any, name: str) -> Any:
 
 
 def camera_section(info: Any, where: str, rectified: bool = False) -> dict[str, Any]:
-    """A CameraInfo as our config's camera section (plumb_bob / rational_polynomial -> pinhole,
-    equidistant / fisheye -> fisheye). rectified: the image topic is rectified (P, no distortion)."""
+    """A CameraInfo as our config's camera section (the camera model that reads its distortion_model,
+    ``cameras.camera_section_from_ros``). rectified: the image topic is rectified (P, no distortion)."""
     model = info.distortion_model.lower()
     K = np.asarray(_field(info, "k"), dtype=np.float64).reshape(3, 3)
     dist = [float(v) for v in _field(info, "d")]
@@ -157,13 +158,10 @@ def camera_section(info: Any, where: str, rectified: bool = False) -> dict[str, 
         raise InputError(f"{where}: CameraInfo with binning or a region of interest is not supported")
     if rectified:
         K, dist, model = np.asarray(_field(info, "p"), dtype=np.float64).reshape(3, 4)[:, :3], [], "plumb_bob"
-    if model in ("plumb_bob", "rational_polynomial"):
-        kind, dist = "pinhole", (dist + [0.0] * 5)[: max(5, len(dist))]
-    elif model in ("equidistant", "fisheye"):
-        kind, dist = "fisheye", (dist + [0.0] * 4)[:4]
-    else:
-        raise InputError(f"{where}: CameraInfo distortion_model {info.distortion_model!r} is not supported")
-    return dict(model=kind, width=int(info.width), height=int(info.height), K=K.tolist(), dist=dist)
+    try:
+        return camera_section_from_ros(model, info.width, info.height, K, dist)
+    except ValueError as e:
+        raise InputError(f"{where}: {e}") from None
 
 
 # ----------------------------------------------------------------------------------------------

@@ -139,19 +139,11 @@ class RosMessages:
 
     def camera_info(self, spec: SimulationSpec, t_ns: int) -> object | None:
         cam = spec.camera
-        if cam.kind == "equirectangular":
+        ros = cam.ros_camera_info()
+        if ros is None:
             return None
-        d = cam.to_dict()
-        K, dist = np.asarray(d["K"], dtype=np.float64), [float(v) for v in d["dist"]]
-        model = (
-            "equidistant"
-            if cam.kind == "fisheye"
-            else "rational_polynomial"
-            if len(dist) == 8
-            else "plumb_bob"
-        )
-        if model == "plumb_bob":
-            dist = (dist + [0.0] * 5)[:5]
+        model, dist = ros
+        K = np.asarray(cam.to_dict()["K"], dtype=np.float64)
         P = np.hstack([K, np.zeros((3, 1))])
         roi = self.make("sensor_msgs/msg/RegionOfInterest", x_offset=0, y_offset=0, height=0, width=0,
                         do_rectify=False)  # fmt: skip
