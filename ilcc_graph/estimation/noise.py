@@ -31,23 +31,23 @@ from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
-from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
-from ilcc_graph.estimation.graphs import Assembly, Scales, Term
-from ilcc_graph.estimation.keys import POSE3_DOF, B, L, O, X, is_board, key_dim
+from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.estimation.assembly import Assembly, Term
+from ilcc_graph.estimation.gate import BoardStats, board_stats, gate_failures, gate_scale
+from ilcc_graph.estimation.graphs import Scales
+from ilcc_graph.estimation.keys import POSE3_DOF, B, L, O, X
 from ilcc_graph.estimation.lidar_errors import LidarLayout
+from ilcc_graph.estimation.linear import redundancies
 from ilcc_graph.estimation.problem import Problem
 from ilcc_graph.estimation.solver import MarginalCovariances, SolverOptions, optimize, robust_kernel
 from ilcc_graph.types import Estimate
 
 log = logging.getLogger(__name__)
 
-__all__ = ["BoardStats", "NoiseOptions", "Solution", "redundancies", "replace_scales", "solve_problem"]
+__all__ = ["BoardStats", "NoiseOptions", "Solution", "replace_scales", "solve_problem"]
 
 MIN_BOARDS_ADVISED = 4
-#: a board's returns fail the gate only above this multiple of their dof (after the median scale)
-RETURNS_MAX_RATIO = 2.0
 #: kinds of residual rows with a variance component each (per noise group)
 COMPONENT_KINDS = ("board", "bearing", "points", "inplane")
 
@@ -79,24 +79,6 @@ class NoiseOptions:
         if not 0.0 <= self.max_dropped_fraction <= 1.0:
             raise ValueError(f"max_dropped_fraction must be in [0, 1], got {self.max_dropped_fraction!r}")
         robust_kernel(self.robust, self.robust_k)  # validates the name and threshold
-
-
-@dataclass(frozen=True)
-class BoardStats:
-    """Residual statistics of one board at the solution.
-
-    chi2: its prior's term (the in-plane prior when its returns enter) plus its views' whitened
-    squared bearing errors; dof: the views' residual count (2 per corner); rms_bearing_error_mrad:
-    RMS angle between predicted and measured bearings; chi2_robust: with a robust kernel
-    ``2 sum rho`` plus the prior's term (what the gate tests then); returns: (chi2, dof) of its
-    LiDAR returns about the board's plane, when they enter the graph.
-    """
-
-    chi2: float
-    dof: int
-    rms_bearing_error_mrad: float
-    chi2_robust: float | None = None
-    returns: tuple[float, int] | None = None
 
 
 @dataclass
@@ -161,173 +143,6 @@ class Solution:
         v = np.asarray(self.values.atVector(L(lidar)), dtype=np.float64)
         C = self.marginals.covariance(L(lidar), f"the errors of LiDAR {lidar}")
         return lay.names, v, np.sqrt(np.diag(C))
-
-
-# ------------------------------------------------------------------------------ statistics
-def _board_stats(
-    graph: gtsam.NonlinearFactorGraph, terms: Sequence[Term], facs: Mapping[int, list], values: gtsam.Values
-) -> dict[int, BoardStats]:
-    """Per kept board: chi-square of its views (bearings plus its pose prior, or the in-plane prior
-    of its returns) with their dof, that of its returns, the RMS bearing angle."""
-    prior: dict[int, float] = {}
-    returns: dict[int, tuple[float, int]] = {}
-    for k, t in enumerate(terms):
-        if t.kind != "board":
-            continue
-        if not t.parts:
-            prior[t.board] = 2.0 * graph.at(k).error(values)  # type: ignore[index]
-            continue
-        e = np.asarray(graph.at(k).whitenedError(values))
-        (_, a0, a1), (_, b0, b1) = t.parts
-        returns[t.board] = (float(e[a0:a1] @ e[a0:a1]), a1 - a0 - 3)  # type: ignore[index]
-        prior[t.board] = float(e[b0:b1] @ e[b0:b1])  # type: ignore[index]
-    out: dict[int, BoardStats] = {}
-    for i, fs in facs.items():
-        chi2 = prior[i]
-        robust = prior[i] if any(f.robust is not None for f in fs) else None
-        dof, angles = 0, []
-        for f in fs:
-            T_cl, T_lb = values.atPose3(f.keys[0]), values.atPose3(f.keys[1])
-            e = f.unwhitened(T_cl, T_lb)[0]
-            r = np.einsum("kij,kj->ki", f.sqrt_info, e)
-            chi2 += float(np.sum(r * r))
-            if robust is not None:
-                robust += float(np.sum(f.evaluate(T_cl, T_lb, False)[0] ** 2))
-            dof += f.dim
-            # |e| is the sine of the angle between the bearings (< 90 deg near a solution)
-            angles.append(np.arcsin(np.clip(np.linalg.norm(e, axis=1), 0.0, 1.0)))
-        a = np.concatenate(angles)
-        out[i] = BoardStats(chi2, dof, float(1e3 * np.sqrt(np.mean(a**2))), robust, returns.get(i))
-    return out
-
-
-def _gate_scale(stats: Mapping[int, BoardStats], part: str = "views") -> float:
-    """Robust noise scale for the gate: the median chi2/dof over boards, at least 1."""
-    ratios = [c / d for c, d, _ in (_part(s, part) for s in stats.values()) if d > 0]
-    return max(1.0, float(np.median(ratios))) if ratios else 1.0
-
-
-def _part(s: BoardStats, part: str) -> tuple[float, int, str]:
-    """(value the gate tests, its dof, its name) of the views or the returns of a board."""
-    if part == "returns":
-        return (s.returns[0], s.returns[1], "returns chi2") if s.returns else (0.0, 0, "")
-    return (s.chi2, s.dof, "chi2") if s.chi2_robust is None else (s.chi2_robust, s.dof, "robust chi2")
-
-
-def _gate_failures(
-    stats: Mapping[int, BoardStats], prob: float, scales: Mapping[str, float]
-) -> list[tuple[float, int, str]]:
-    """Boards failing the gate as (log survival probability, board, reason), worst first.
-
-    Views (bearings and the board's prior) and, where they enter, the board's LiDAR returns are
-    tested apart, each against its own median scale; the returns only against a gross misfit
-    (``RETURNS_MAX_RATIO`` times their dof: their residuals are heavy-tailed, a wrong object is not).
-    """
-    failing = []
-    for i, s in stats.items():
-        worst = None
-        for part in ("views", "returns"):
-            value, dof, what = _part(s, part)
-            if dof <= 0:
-                continue
-            scale = scales.get(part, 1.0)
-            value /= scale
-            bound = float(chi2_dist.ppf(prob, dof))
-            if part == "returns":  # heavy-tailed in practice: only a gross misfit (another object) fails
-                bound = max(bound, RETURNS_MAX_RATIO * dof)
-            if value > bound:
-                scaled = f" (divided by the frames' median chi2/dof {scale:.2f})" if scale > 1.0 else ""
-                reason = (
-                    f"chi-square gate: residual {what}{scaled} {value:.1f} > {bound:.1f} ({dof} dof, "
-                    f"p={prob}); rms bearing error {s.rms_bearing_error_mrad:.3f} mrad"
-                )
-                logp = float(chi2_dist.logsf(value, dof))
-                if worst is None or logp < worst[0]:
-                    worst = (logp, i, reason)
-        if worst is not None:
-            failing.append(worst)
-    return sorted(failing)
-
-
-def _linear_blocks(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim):
-    """Per factor and row kind: (kind, group, board key or None, A_board, global keys, A_globals, b)
-    of its whitened linearisation."""
-    out = []
-    for k, t in enumerate(terms):
-        A, b = graph.at(k).linearize(values).jacobian()
-        keys = list(graph.at(k).keys())
-        col, board_key, A_b, g_keys, g_cols = 0, None, None, [], []
-        for key in keys:
-            d = dim(key)
-            if is_board(key):
-                board_key, A_b = key, A[:, col : col + d]
-            else:
-                g_keys.append(key)
-                g_cols.append(A[:, col : col + d])
-            col += d
-        A_g = np.hstack(g_cols) if g_cols else np.zeros((A.shape[0], 0))
-        for kind, r0, r1 in t.parts or ((t.kind, 0, len(b)),):
-            rows = slice(r0, r1)
-            out.append(
-                (kind, t.group, board_key, None if A_b is None else A_b[rows], g_keys, A_g[rows], b[rows])
-            )
-    return out
-
-
-def redundancies(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim=key_dim
-) -> dict[tuple[str, str], tuple[float, float]]:
-    """Per (kind, group): (whitened chi-square, redundancy ``m_g - trace(N^-1 N_g)``) at ``values``.
-
-    N is the information matrix of the whitened linear system. Boards are eliminated first (each
-    factor touches at most one), so the cost is O(boards) plus a dense inverse over the globals.
-    ``dim(key)``: the tangent dimension of a variable (``Assembly.dim``).
-    """
-    blocks = _linear_blocks(graph, values, terms, dim)
-    g_index: dict[int, int] = {}
-    G = 0
-    for *_, g_keys, _, _ in blocks:
-        for key in g_keys:
-            if key not in g_index:
-                g_index[key] = G
-                G += dim(key)
-
-    def cols(g_keys: Sequence[int]) -> np.ndarray:
-        if not g_keys:
-            return np.zeros(0, int)
-        return np.concatenate([np.arange(g_index[k], g_index[k] + dim(k)) for k in g_keys])
-
-    D: dict[int, np.ndarray] = {}
-    C: dict[int, np.ndarray] = {}
-    E = np.zeros((G, G))
-    for _, _, board_key, A_b, g_keys, A_g, _ in blocks:
-        c = cols(g_keys)
-        if board_key is not None:
-            D[board_key] = D.get(board_key, np.zeros((POSE3_DOF, POSE3_DOF))) + A_b.T @ A_b
-            Ci = C.setdefault(board_key, np.zeros((POSE3_DOF, G)))
-            Ci[:, c] += A_b.T @ A_g
-        E[np.ix_(c, c)] += A_g.T @ A_g
-    Dinv = {k: np.linalg.inv(d) for k, d in D.items()}
-    S = E - sum((C[k].T @ Dinv[k] @ C[k] for k in D), np.zeros((G, G)))
-    try:
-        S_inv = np.linalg.inv(S) if G else S
-    except np.linalg.LinAlgError:
-        raise IndeterminateSystem("the graph does not determine its global variables") from None
-    out: dict[tuple[str, str], list[float]] = {}
-    for kind, group, board_key, A_b, g_keys, A_g, b in blocks:
-        c = cols(g_keys)
-        if board_key is not None:
-            di, ci = Dinv[board_key], C[board_key]
-            S_bg = -di @ ci @ S_inv  # (6, G)
-            S_bb = di - S_bg @ ci.T @ di
-            A = np.hstack([A_b, A_g])
-            Sig = np.block([[S_bb, S_bg[:, c]], [S_bg[:, c].T, S_inv[np.ix_(c, c)]]])
-        else:
-            A, Sig = A_g, S_inv[np.ix_(c, c)]
-        acc = out.setdefault((kind, group), [0.0, 0.0])
-        acc[0] += float(b @ b)
-        acc[1] += len(b) - float(np.sum(Sig * (A.T @ A)))
-    return {k: (v[0], v[1]) for k, v in out.items()}
 
 
 # ------------------------------------------------------------------------------- the solve
@@ -403,7 +218,7 @@ def solve_problem(
             if v.board in facs:
                 s = comps.get(("bearing", v.group), 1.0)
                 facs[v.board].append(fac.scaled(s) if s != 1.0 else fac)
-        return _board_stats(g, terms, facs, res)
+        return board_stats(g, terms, facs, res)
 
     if robust is not None:
         fit(candidates, scales or {}, plain=True)
@@ -418,8 +233,8 @@ def solve_problem(
             if not gate or options.chi2_gate_prob is None:
                 break
             on = options.variance_components
-            gate_scales = {p: _gate_scale(st, p) if on else 1.0 for p in ("views", "returns")}
-            failing = _gate_failures(st, options.chi2_gate_prob, gate_scales)
+            gate_scales = {p: gate_scale(st, p) if on else 1.0 for p in ("views", "returns")}
+            failing = gate_failures(st, options.chi2_gate_prob, gate_scales)
             if not failing:
                 break
             if len(gone) >= allowed_drops or len(kept) == 1:

@@ -1,0 +1,120 @@
+"""The chi-square gate's statistics: per board, its views and its returns, against their dof."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from scipy.stats import chi2 as chi2_dist
+
+from ilcc_graph.estimation.assembly import Term
+
+__all__ = ["RETURNS_MAX_RATIO", "BoardStats", "board_stats", "gate_failures", "gate_scale"]
+
+#: a board's returns fail the gate only above this multiple of their dof (after the median scale)
+RETURNS_MAX_RATIO = 2.0
+
+
+@dataclass(frozen=True)
+class BoardStats:
+    """Residual statistics of one board at the solution.
+
+    chi2: its prior's term (the in-plane prior when its returns enter) plus its views' whitened
+    squared bearing errors; dof: the views' residual count (2 per corner); rms_bearing_error_mrad:
+    RMS angle between predicted and measured bearings; chi2_robust: with a robust kernel
+    ``2 sum rho`` plus the prior's term (what the gate tests then); returns: (chi2, dof) of its
+    LiDAR returns about the board's plane, when they enter the graph.
+    """
+
+    chi2: float
+    dof: int
+    rms_bearing_error_mrad: float
+    chi2_robust: float | None = None
+    returns: tuple[float, int] | None = None
+
+
+def board_stats(
+    graph: gtsam.NonlinearFactorGraph, terms: Sequence[Term], facs: Mapping[int, list], values: gtsam.Values
+) -> dict[int, BoardStats]:
+    """Per kept board: chi-square of its views (bearings plus its pose prior, or the in-plane prior
+    of its returns) with their dof, that of its returns, the RMS bearing angle."""
+    prior: dict[int, float] = {}
+    returns: dict[int, tuple[float, int]] = {}
+    for k, t in enumerate(terms):
+        if t.kind != "board":
+            continue
+        if not t.parts:
+            prior[t.board] = 2.0 * graph.at(k).error(values)  # type: ignore[index]
+            continue
+        e = np.asarray(graph.at(k).whitenedError(values))
+        (_, a0, a1), (_, b0, b1) = t.parts
+        returns[t.board] = (float(e[a0:a1] @ e[a0:a1]), a1 - a0 - 3)  # type: ignore[index]
+        prior[t.board] = float(e[b0:b1] @ e[b0:b1])  # type: ignore[index]
+    out: dict[int, BoardStats] = {}
+    for i, fs in facs.items():
+        chi2 = prior[i]
+        robust = prior[i] if any(f.robust is not None for f in fs) else None
+        dof, angles = 0, []
+        for f in fs:
+            T_cl, T_lb = values.atPose3(f.keys[0]), values.atPose3(f.keys[1])
+            e = f.unwhitened(T_cl, T_lb)[0]
+            r = np.einsum("kij,kj->ki", f.sqrt_info, e)
+            chi2 += float(np.sum(r * r))
+            if robust is not None:
+                robust += float(np.sum(f.evaluate(T_cl, T_lb, False)[0] ** 2))
+            dof += f.dim
+            # |e| is the sine of the angle between the bearings (< 90 deg near a solution)
+            angles.append(np.arcsin(np.clip(np.linalg.norm(e, axis=1), 0.0, 1.0)))
+        a = np.concatenate(angles)
+        out[i] = BoardStats(chi2, dof, float(1e3 * np.sqrt(np.mean(a**2))), robust, returns.get(i))
+    return out
+
+
+def gate_scale(stats: Mapping[int, BoardStats], part: str = "views") -> float:
+    """Robust noise scale for the gate: the median chi2/dof over boards, at least 1."""
+    ratios = [c / d for c, d, _ in (_part(s, part) for s in stats.values()) if d > 0]
+    return max(1.0, float(np.median(ratios))) if ratios else 1.0
+
+
+def _part(s: BoardStats, part: str) -> tuple[float, int, str]:
+    """(value the gate tests, its dof, its name) of the views or the returns of a board."""
+    if part == "returns":
+        return (s.returns[0], s.returns[1], "returns chi2") if s.returns else (0.0, 0, "")
+    return (s.chi2, s.dof, "chi2") if s.chi2_robust is None else (s.chi2_robust, s.dof, "robust chi2")
+
+
+def gate_failures(
+    stats: Mapping[int, BoardStats], prob: float, scales: Mapping[str, float]
+) -> list[tuple[float, int, str]]:
+    """Boards failing the gate as (log survival probability, board, reason), worst first.
+
+    Views (bearings and the board's prior) and, where they enter, the board's LiDAR returns are
+    tested apart, each against its own median scale; the returns only against a gross misfit
+    (``RETURNS_MAX_RATIO`` times their dof: their residuals are heavy-tailed, a wrong object is not).
+    """
+    failing = []
+    for i, s in stats.items():
+        worst = None
+        for part in ("views", "returns"):
+            value, dof, what = _part(s, part)
+            if dof <= 0:
+                continue
+            scale = scales.get(part, 1.0)
+            value /= scale
+            bound = float(chi2_dist.ppf(prob, dof))
+            if part == "returns":  # heavy-tailed in practice: only a gross misfit (another object) fails
+                bound = max(bound, RETURNS_MAX_RATIO * dof)
+            if value > bound:
+                scaled = f" (divided by the frames' median chi2/dof {scale:.2f})" if scale > 1.0 else ""
+                reason = (
+                    f"chi-square gate: residual {what}{scaled} {value:.1f} > {bound:.1f} ({dof} dof, "
+                    f"p={prob}); rms bearing error {s.rms_bearing_error_mrad:.3f} mrad"
+                )
+                logp = float(chi2_dist.logsf(value, dof))
+                if worst is None or logp < worst[0]:
+                    worst = (logp, i, reason)
+        if worst is not None:
+            failing.append(worst)
+    return sorted(failing)
