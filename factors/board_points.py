@@ -17,6 +17,14 @@ divided by its sigma. The board's in-plane position comes from the LiDAR stage's
 which the points do not see: a 3-dof prior ``W S Logmap(T_meas^-1 T)`` (S selects and couples the
 components, W the square-root information of that fit) closes the board's pose. Jacobians are
 analytic; one factor per board (see docs/factors.md for why few, large Python factors).
+
+A real board is not the ideal plane of its LiDAR returns: the print and its backing bend, and the
+LiDAR's errors that no term models (incidence, mixed edge returns) move a board's returns as a
+whole. With ``plane_sigma = (offset_m, tilt_rad)`` each board's heights carry a random plane
+``delta + alpha x + beta y`` (board-frame x, y of each return) of those sigmas, marginalised in the
+whitening: the rows are whitened by ``(I + G Sigma G^T)^(-1/2)`` (G the whitened Jacobian of the
+plane's three parameters), computed in the 3-dimensional span of G. The returns then determine a
+board's plane no better than that, while the LiDAR's shared terms still average over the boards.
 """
 
 from __future__ import annotations
@@ -52,6 +60,7 @@ class BoardPointsFactor:
     n_params : dimension of ``l``.
     T_measured : the LiDAR stage's board pose (4, 4) or Pose3.
     inplane_select : (3, 6) S, inplane_sqrt_info : (3, 3) W of the in-plane prior.
+    plane_sigma : (offset m, tilt rad) of each board's own random plane, or None (ideal plane).
     """
 
     def __init__(
@@ -68,6 +77,7 @@ class BoardPointsFactor:
         inplane_sqrt_info: np.ndarray,
         elevation_index: np.ndarray | None = None,
         elevation_coef: np.ndarray | None = None,
+        plane_sigma: tuple[float, float] | None = None,
     ) -> None:
         p = np.asarray(points, dtype=np.float64)
         M = len(p)
@@ -104,6 +114,17 @@ class BoardPointsFactor:
         self.weight = 1.0 / (s * np.maximum(np.abs(self.u @ n0), 0.05))  # 1 / plane-height sigma
         self.scale = 1.0  # variance scale of the point rows (``scaled``)
         self.inplane_scale = 1.0
+        self._plane: tuple[np.ndarray, np.ndarray] | None = None  # (Q (M, 3), R Sigma R^T (3, 3))
+        if plane_sigma is not None:
+            so, st = (float(v) for v in plane_sigma)
+            if not (so > 0 and st > 0):
+                raise ValueError(f"BoardPointsFactor: plane_sigma must be > 0, got {plane_sigma!r}")
+            R0, t0 = self.T_measured.rotation().matrix(), self.T_measured.translation()
+            xy = ((p - t0) @ R0)[:, :2]
+            G = self.weight[:, None] * np.column_stack([np.ones(M), xy])
+            Q, Rg = np.linalg.qr(G)
+            self._plane = (Q, Rg @ np.diag([so**2, st**2, st**2]) @ Rg.T)
+        self._whiten = self._plane_whitening()
 
     @property
     def n_points(self) -> int:
@@ -120,7 +141,24 @@ class BoardPointsFactor:
 
         other = copy.copy(self)
         other.scale, other.inplane_scale = self.scale * points_scale, self.inplane_scale * inplane_scale
+        other._whiten = other._plane_whitening()
         return other
+
+    def _plane_whitening(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(U (M, 3), c (3,)): the point rows' whitening is ``r + U (c * (U^T r))``."""
+        if self._plane is None:
+            return None
+        Q, A = self._plane
+        lam, V = np.linalg.eigh(A / self.scale)
+        return Q @ V, 1.0 / np.sqrt(1.0 + np.maximum(lam, 0.0)) - 1.0
+
+    def _plane_apply(self, r: np.ndarray) -> np.ndarray:
+        """The board-plane whitening applied to point rows ``r`` (M,) or (M, k)."""
+        if self._whiten is None:
+            return r
+        U, c = self._whiten
+        proj = U.T @ r
+        return r + U @ (c[:, None] * proj if r.ndim == 2 else c * proj)
 
     def corrected(self, lidar: np.ndarray) -> np.ndarray:
         """(M, 3) the returns corrected by the LiDAR parameters ``lidar`` (n_params,)."""
@@ -142,7 +180,7 @@ class BoardPointsFactor:
         pb = (q - t) @ R  # board frame
         nu = self.u @ n
         w = self.weight / np.sqrt(self.scale)
-        r_pts = w * pb[:, 2]
+        r_pts = self._plane_apply(w * pb[:, 2])
         H_log = np.zeros((POSE3_DOF, POSE3_DOF), order="F") if jacobians else None
         H_btw = np.zeros((POSE3_DOF, POSE3_DOF), order="F") if jacobians else None
         rel = self.T_measured.between(T, None, H_btw)
@@ -167,6 +205,9 @@ class BoardPointsFactor:
             ne = e @ n
             rows_e = np.repeat(np.arange(M), ei.shape[1])
             np.add.at(H_l, (rows_e, ei.ravel()), ((w * self.rho * ne)[:, None] * ec).ravel())
+        if self._whiten is not None:
+            H_T[:M] = self._plane_apply(H_T[:M])
+            H_l[:M] = self._plane_apply(H_l[:M])
         return err, H_T, H_l
 
     def _error(

@@ -98,6 +98,8 @@ def _pair(text: str | None, what: str) -> tuple[float, float] | None:
 def _run_options(args: argparse.Namespace):  # noqa: ANN202 - pipeline.RunOptions
     """The run's options from the arguments (the only mapping from flags to options)."""
     from ilcc_graph.estimation import NoiseOptions
+    from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
+    from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
     from ilcc_graph.estimation.sessions import JointOptions
     from ilcc_graph.observe import StageOptions
     from ilcc_graph.pipeline import RunOptions
@@ -117,6 +119,8 @@ def _run_options(args: argparse.Namespace):  # noqa: ANN202 - pipeline.RunOption
     if mode != "graph" and (len(getattr(args, "data", [None])) > 1 or joint["range_offset"]):
         raise InputError("--refine paper and --target-sigma calibrate one data set without a range offset")
     return RunOptions(
+        lidar_errors=LidarErrorOptions() if getattr(args, "lidar_errors", False) else None,
+        intrinsics=IntrinsicsOptions(refine=bool(getattr(args, "refine_intrinsics", False))),
         mode=mode,
         noise=NoiseOptions(robust=getattr(args, "robust", None)),
         stages=StageOptions(jobs=args.jobs),
@@ -333,6 +337,10 @@ def _solve_args(sp: argparse.ArgumentParser, jobs: int, studies: bool = False) -
         help="graph: our factor graph with covariance (default); paper: the paper's refinement",
     )
     sp.add_argument("--robust", choices=("huber", "cauchy"), help="robust kernel on the bearing factors")
+    help = "refine the camera's intrinsics (prior: the config's values and camera.intrinsics_sigma)"
+    sp.add_argument("--refine-intrinsics", action="store_true", help=help)
+    help = "estimate the LiDAR's per-beam and dark-print range offsets from the boards' returns"
+    sp.add_argument("--lidar-errors", action="store_true", help=help)
     sp.add_argument("--jobs", type=int, default=jobs, help=f"processes for the per-frame stages ({jobs})")
     sp.add_argument("--no-report", dest="report", action="store_false", help="skip the report and clouds")
     help = "add frames-vs-accuracy and cross-validation to the report"

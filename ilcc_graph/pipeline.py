@@ -25,6 +25,7 @@ from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.batch import solve as solve_batch
 from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.estimation.incremental import FrameUpdate, IncrementalCalibrator
+from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.noise import BoardStats
 from ilcc_graph.estimation.paper import refine_paper
@@ -74,7 +75,10 @@ class RunOptions:
     target_sigma: incremental mode's (deg, mm) target; stop_at_target: read no frame after it.
     second_pass: once an extrinsic is known, search the boards the LiDAR stage missed (or found
         elsewhere than the image says) near where the image and the extrinsic put them, and solve again.
-    lidar_errors: the LiDAR's own errors the graph estimates from the boards' returns (None: none).
+    lidar_errors: the LiDAR's own errors the graph estimates from the boards' returns (None: none,
+        the default: on the recorded sets the boards' 6-dof LiDAR priors gave halves that agree,
+        the returns with these terms did not; docs/bench_real.md).
+    intrinsics: refine the camera's intrinsics, or propagate their stated ``camera.intrinsics_sigma``.
     """
 
     mode: str = "graph"
@@ -84,7 +88,8 @@ class RunOptions:
     target_sigma: tuple[float, float] | None = None
     stop_at_target: bool = False
     second_pass: bool = True
-    lidar_errors: LidarErrorOptions | None = LidarErrorOptions()
+    lidar_errors: LidarErrorOptions | None = None
+    intrinsics: IntrinsicsOptions = IntrinsicsOptions()
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -144,8 +149,9 @@ def _drop(results: dict[str, FrameResult], name: str, reason: str) -> None:
 
 def _graph_frame(r: FrameResult, config: Config) -> GraphFrame:
     b, c = r.board, r.corners
-    return GraphFrame(r.name, b.T_lidar_board, b.covariance, config.board.corners_board(),  # type: ignore[union-attr]
-                      c.bearings, c.cov_px, b.returns)  # type: ignore[union-attr]  # fmt: skip
+    assert b is not None and c is not None
+    corners = config.board.corners_board()
+    return GraphFrame(r.name, b.T_lidar_board, b.covariance, corners, c.bearings, c.cov_px, b.returns, c.uv)
 
 
 def _prepare(observed: Sequence[FrameResult], config: Config) -> _Prepared:
@@ -226,9 +232,30 @@ def _finish(
         "variance_component_bearing": sol.variance_components[1],
         "upnp_rotation_deg": rotation_angle_deg(prep.T_init[:3, :3].T @ sol.T_cam_lidar[:3, :3]),
     }
+    cam = config.camera.to_dict()
     return Calibration(
-        sol.T_cam_lidar, sol.covariance, tuple(frames), method, diagnostics, config.camera.to_dict()
+        sol.T_cam_lidar, sol.covariance, tuple(frames), method, diagnostics, cam, _sensors(sol, config)
     )
+
+
+def _sensors(sol: BatchSolution, config: Config) -> dict:
+    """``Calibration.sensors`` of a strategy's answer: the LiDAR's errors and the camera's intrinsics."""
+    out: dict = {}
+    lay = sol.lidar_layout
+    if sol.lidar is not None or (lay is not None and lay.excluded):
+        names, values, sigmas = sol.lidar if sol.lidar is not None else ([], np.zeros(0), np.zeros(0))
+        left = [] if lay is None else [list(x) for x in lay.excluded]
+        out["lidar_errors"] = {"names": list(names), "values": values, "sigmas": sigmas, "left_out": left}
+    if sol.intrinsics is not None:
+        names, values, sigmas = sol.intrinsics
+        stated = config.camera.intrinsics()
+        out["camera_intrinsics"] = {
+            "names": list(names),
+            "stated": stated,
+            "values": values,
+            "sigmas": sigmas,
+        }
+    return out
 
 
 def _rms_bearing_mrad(T_cam_lidar: np.ndarray, f: GraphFrame) -> float:
@@ -257,7 +284,9 @@ def solve_observed(
         }
         sol = BatchSolution(T, np.full((6, 6), np.nan), {}, stats, [], 0)
         return _finish(prep, observed, config, "paper", sol)
-    sol = solve_batch(prep.frames, config.camera, prep.T_init, options.noise, options.lidar_errors)
+    sol = solve_batch(
+        prep.frames, config.camera, prep.T_init, options.noise, options.lidar_errors, options.intrinsics
+    )
     return _finish(prep, observed, config, "graph", sol)
 
 
@@ -275,7 +304,7 @@ def _incremental(
     config, known = check_board_colour(source, refs, config, options.stages.image)
     cal = IncrementalCalibrator(
         config.camera, config.board, target_sigma=options.target_sigma, noise=options.noise,
-        lidar_errors=options.lidar_errors,
+        lidar_errors=options.lidar_errors, intrinsics=options.intrinsics,
     )  # fmt: skip
     observed: list[FrameResult] = []
     updates: list[FrameUpdate] = []
@@ -338,7 +367,9 @@ def _sessions(observations: Sequence[Observation], names: Sequence[str], options
         )
         for n, p, o in zip(names, preps, observations, strict=True)
     ]
-    joint_opts = dataclasses.replace(options.joint, noise=options.noise, lidar_errors=options.lidar_errors)
+    joint_opts = dataclasses.replace(
+        options.joint, noise=options.noise, lidar_errors=options.lidar_errors, intrinsics=options.intrinsics
+    )
     sol = solve_sessions(sessions, joint_opts)
     method = f"joint-{joint_opts.mode}"
     results = []

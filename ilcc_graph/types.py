@@ -167,6 +167,7 @@ class GraphFrame:
     bearings: (K, 3) measured bearings of the same corners, camera frame (normalised by the core).
     cov_px: (K, 2, 2) pixel covariance of each image corner, px^2.
     returns: the board's LiDAR returns (to calibrate the LiDAR's own errors), or None.
+    uv: (K, 2) the corners' measured pixels (to refine the camera's intrinsics), or None.
     """
 
     name: str
@@ -176,6 +177,7 @@ class GraphFrame:
     bearings: np.ndarray
     cov_px: np.ndarray
     returns: BoardReturns | None = None
+    uv: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -204,6 +206,9 @@ class Calibration:
     frames: every frame, used or not, in input order.
     method: how it was estimated (``graph``, ``paper``, ``incremental``, ``joint-rigid``, ...).
     camera: the camera model's config section (our schema), so that exports need nothing else.
+    sensors: the sensors' own errors the graph estimated, as plain data: ``lidar_errors`` (``names``,
+        ``values``, ``sigmas`` in metres / rad / -, ``left_out``: [term, reason]) and
+        ``camera_intrinsics`` (``names``, ``stated``, ``values``, ``sigmas``), each when present.
     """
 
     T_cam_lidar: np.ndarray
@@ -212,6 +217,7 @@ class Calibration:
     method: str = "graph"
     diagnostics: dict[str, float] = field(default_factory=dict)
     camera: dict[str, Any] | None = None
+    sensors: dict[str, Any] = field(default_factory=dict)
 
     @property
     def extrinsic(self) -> Estimate:

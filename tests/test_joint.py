@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import gtsam
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from synthetic_graph import rig_frames, session_frames
@@ -67,11 +69,13 @@ def test_alone_is_the_session_under_the_joint_noise() -> None:
     sessions = three_sessions(rng)
     sol = solve_sessions(sessions)
     for s in sessions:
-        board, bearing = sol.components[s.name]
+        # the joint graph names its boards "<session>/<frame>", the session's own graph "<frame>"
         comps = {
-            ("board", s.name): board * sol.variance_factor,
-            ("bearing", s.name): bearing * sol.variance_factor,
+            (k, g.replace(f"{s.name}|{s.name}/", f"{s.name}|")): v
+            for (k, g), v in sol.scales.items()
+            if g == s.name or g.startswith(s.name + "|")
         }
+        assert ("board", s.name) in comps and sum(k[0] == "bearing" for k in comps) == len(s.frames)
         problem = frames_problem(s.frames, s.camera, sol.alone[s.name].T, group=s.name)
         kept = [f.name for f in s.frames if f.name not in dict(sol.dropped[s.name])]
         ref = solve_problem(problem, boards=kept, scales=comps, variance_factor=1.0, gate=False).extrinsic(0)
@@ -283,10 +287,11 @@ def test_rig_robust_kernel_limits_bad_corners() -> None:
         views = (RigView(v.camera, b, v.cov_px), *f.views[1:])
         frames[i] = RigFrame(f.name, f.T_lidar_board, f.board_cov, f.points_board, views)
     ref = solve_rig(clean, cams)
-    no_gate = NoiseOptions(chi2_gate_prob=None)
+    # one bearing component for all views: a component per view would down-weight the bad views
+    no_gate = NoiseOptions(chi2_gate_prob=None, view_components=False)
     plain = solve_rig(frames, cams, options=RigOptions(noise=no_gate))
     robust = solve_rig(
-        frames, cams, options=RigOptions(noise=NoiseOptions(robust="cauchy", chi2_gate_prob=None))
+        frames, cams, options=RigOptions(noise=replace(no_gate, robust="cauchy"))
     )
     gated = solve_rig(frames, cams)  # the noise policy's gate drops the three frames instead
     assert sorted(n for n, _ in gated.dropped) == sorted(f.name for f in frames[:3])

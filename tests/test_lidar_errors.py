@@ -21,8 +21,8 @@ VLP16 = np.arange(-15.0, 15.1, 2.0)
 T_TRUE = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.03, -0.05, 0.07), np.array([0.05, -0.03, -0.25]))
 
 
-@pytest.mark.parametrize("elevation", [False, True])
-def test_board_points_factor_jacobians(elevation: bool) -> None:
+@pytest.mark.parametrize(("elevation", "plane"), [(False, None), (True, None), (False, (0.003, 0.004))])
+def test_board_points_factor_jacobians(elevation: bool, plane: tuple[float, float] | None) -> None:
     rng = np.random.default_rng(0)
     T = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.3, -1.2, 2.0), np.array([2.0, 0.5, 0.1]))
     m, nb = 150, 16
@@ -37,12 +37,33 @@ def test_board_points_factor_jacobians(elevation: bool) -> None:
     n = 2 * nb + 2
     extra = (np.column_stack([nb + 2 + ring]), np.ones((m, 1))) if elevation else (None, None)
     f = BoardPointsFactor(1, 2, P, 0.01, ri, rc, n, T.compose(random_pose(rng, 0.01, 0.01)), S,
-                          np.diag([100.0, 300.0, 300.0]), *extra)  # fmt: skip
+                          np.diag([100.0, 300.0, 300.0]), *extra, plane_sigma=plane)  # fmt: skip
     values = gtsam.Values()
     values.insert(1, T.compose(random_pose(rng, 0.02, 0.02)))
     values.insert(2, rng.normal(0, 0.01, n))
     assert f.factor().dim() == m + 3
     assert factor_jacobian_error(f.factor(), values) < 1e-6
+
+
+def test_board_plane_whitening_is_the_dense_covariance() -> None:
+    """The points' rows under plane_sigma are those whitened by (sigma_h^2 I + G Sigma G^T)^(-1/2)."""
+    rng = np.random.default_rng(3)
+    T = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.2, -1.0, 0.5), np.array([2.5, -0.4, 0.2]))
+    m = 60
+    pb = np.column_stack([rng.uniform(0, 0.8, m), rng.uniform(0, 0.6, m), rng.normal(0, 0.01, m)])
+    P = np.array([T.transformFrom(x) for x in pb])
+    args = (1, 2, P, 0.01, np.zeros((m, 1), int), np.zeros((m, 1)), 1, T, np.eye(3, 6), np.eye(3))
+    plain = BoardPointsFactor(*args).scaled(2.0, 1.0)
+    plane = BoardPointsFactor(*args, plane_sigma=(0.004, 0.006)).scaled(2.0, 1.0)
+    T_eval = T.compose(random_pose(rng, 0.01, 0.01))
+    r_plain = plain.evaluate(T_eval, np.zeros(1), False)[0][:m]
+    r_plane = plane.evaluate(T_eval, np.zeros(1), False)[0][:m]
+    h = r_plain / plain.weight * np.sqrt(2.0)  # the plane heights (m)
+    sig_h = 1.0 / plain.weight
+    G = np.column_stack([np.ones(m), pb[:, 0], pb[:, 1]])
+    C = 2.0 * np.diag(sig_h**2) + G @ np.diag([0.004**2, 0.006**2, 0.006**2]) @ G.T
+    assert r_plane @ r_plane == pytest.approx(h @ np.linalg.solve(C, h), rel=1e-9)
+    assert r_plane @ r_plane < r_plain @ r_plain
 
 
 def lidar_frames(rng, n_frames, beam_offsets, dark_offset=0.004, sigma_m=0.01, distance=(1.5, 3.5)):

@@ -17,20 +17,24 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
-from factors import FrameBearingFactor
+from factors import FrameBearingFactor, FramePixelFactor
 from factors.board_points import BoardPointsFactor
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.estimation.graphs import (
     Scales,
     bearing_graph,
     board_points_factor,
     board_prior_graph,
     frame_bearing_factor,
+    frame_pixel_factor,
+    intrinsics_prior_graph,
     lidar_prior_graph,
     offset_prior_graph,
     samples_from_corners,
     tie_graph,
 )
-from ilcc_graph.estimation.keys import POSE3_DOF, B, L, O, X, key_dim
+from ilcc_graph.estimation.intrinsics import prior_sigmas, refinable
+from ilcc_graph.estimation.keys import POSE3_DOF, B, I, L, O, X, key_dim
 from ilcc_graph.estimation.lidar_errors import LidarLayout, layout_for
 from ilcc_graph.estimation.problem import Problem
 from ilcc_graph.estimation.solver import check_covariance, check_pose
@@ -60,7 +64,11 @@ class Assembly:
     boards with the reason (a board without any usable view cannot be estimated). With
     ``problem.lidar_errors``, each board that carries its returns enters through a
     ``BoardPointsFactor`` on its LiDAR's parameters ``L(l)`` (``layouts`` per LiDAR, default from
-    the returns: ``lidar_errors.layout_for``); the others through their LiDAR prior.
+    the returns: ``lidar_errors.layout_for``); the others through their LiDAR prior. With
+    ``problem.intrinsics.refine`` (or ``refine=True`` here), the views of lens cameras enter as
+    pixel factors on the camera's intrinsics ``I(c)`` (``cameras`` lists the distinct cameras;
+    ``refine`` may also name the camera indices to refine). per_view: every view is its own noise
+    group (``view_group``), so that it gets its own bearing variance component.
     """
 
     def __init__(
@@ -68,22 +76,44 @@ class Assembly:
         problem: Problem,
         robust: gtsam.noiseModel.mEstimator.Base | None = None,
         layouts: Mapping[int, LidarLayout] | None = None,
+        refine: bool | set[int] | None = None,
+        per_view: bool = False,
     ) -> None:
         self.problem = problem
         self.robust = robust
+        self.per_view = per_view
+        self.cameras: list[CameraModel] = []
+        cam_of: list[int] = []
+        for v in problem.views:
+            same = [c for c, cam in enumerate(self.cameras) if cam == v.camera]
+            if not same:
+                self.cameras.append(v.camera)
+            cam_of.append(same[0] if same else len(self.cameras) - 1)
+        if refine is None:
+            refine = problem.intrinsics is not None and problem.intrinsics.refine
+        chosen = refine if isinstance(refine, set) else set(range(len(self.cameras))) if refine else set()
+        self.refined = {c for c, cam in enumerate(self.cameras) if c in chosen and refinable(cam)}
         self.priors = [
             check_covariance(b.covariance, POSE3_DOF, f"board {b.name!r} covariance") for b in problem.boards
         ]
         for b in problem.boards:
             check_pose(b.T_lidar_board, f"board {b.name!r} T_lidar_board")
-        self.views: list[tuple[int, FrameBearingFactor]] = []  # (view index, factor)
+        self.views: list[tuple[int, FrameBearingFactor | FramePixelFactor]] = []  # (view index, factor)
+        self.pixel_views: set[int] = set()  # views entering as pixel factors
         seen: set[int] = set()
         reasons: dict[int, str] = {}
         for j, v in enumerate(problem.views):
             name = problem.boards[v.board].name
-            fac, n_ok = frame_bearing_factor(
-                X(v.extrinsic), B(v.board), v.points_board, v.bearings, v.cov_px, v.camera, robust, name
-            )
+            if cam_of[j] in self.refined and v.uv is not None:
+                fac, n_ok = frame_pixel_factor(
+                    X(v.extrinsic), B(v.board), I(cam_of[j]), v.points_board, v.uv, v.cov_px, v.camera, robust
+                )  # type: ignore[assignment]
+                if fac is not None:
+                    self.pixel_views.add(j)
+            else:
+                fac, n_ok = frame_bearing_factor(
+                    X(v.extrinsic), B(v.board), v.points_board, v.bearings, v.cov_px, v.camera, robust, name
+                )
             if fac is None:
                 reasons.setdefault(v.board, f"only {n_ok} corners with a usable bearing and covariance")
                 continue
@@ -121,7 +151,14 @@ class Assembly:
                 if lay.dim == 0:
                     continue  # nothing left to estimate: the boards enter through their priors
                 for i in idx:
-                    self.points[i] = board_points_factor(i, problem.boards[i], lay, opts.max_points_per_board)
+                    self.points[i] = board_points_factor(
+                        i, problem.boards[i], lay, opts.max_points_per_board, opts.board_plane
+                    )
+
+    def view_group(self, j: int) -> str:
+        """The noise group of view ``j``'s bearing or pixel rows."""
+        v = self.problem.views[j]
+        return f"{v.group}|{self.problem.boards[v.board].name}" if self.per_view else v.group
 
     @property
     def usable(self) -> list[int]:
@@ -159,10 +196,11 @@ class Assembly:
             v = pr.views[j]
             if v.board not in keep:
                 continue
-            s = scales.get(("bearing", v.group), 1.0)
+            group = self.view_group(j)
+            s = scales.get(("bearing", group), 1.0)
             fac = fac.scaled(s) if s != 1.0 else fac
             facs.append(fac.with_robust(None) if plain else fac)
-            terms.append(Term("bearing", v.group, v.board, fac.dim))
+            terms.append(Term("bearing", group, v.board, fac.dim))
         graph.push_back(bearing_graph(facs))
         exts = self.extrinsics(order)
         ties = [t for t in pr.ties if t.a in exts and t.b in exts]
@@ -175,7 +213,23 @@ class Assembly:
         layouts = {lid: self.layouts[lid] for lid in self.point_lidars(order)}
         graph.push_back(lidar_prior_graph(layouts))
         terms += [Term("lidar", "", None, lay.dim) for lay in layouts.values()]
+        cams = self.view_cameras(order)
+        graph.push_back(intrinsics_prior_graph({c: self.intrinsics_prior(c) for c in cams}))
+        terms += [Term("intrinsics", "", None, len(self.cameras[c].intrinsic_names)) for c in cams]
         return graph, terms
+
+    def view_cameras(self, boards: Sequence[int]) -> list[int]:
+        """Refined cameras whose intrinsics ``I(c)`` the views of ``boards`` enter."""
+        keep = set(boards)
+        return sorted(
+            {gtsam.Symbol(fac.keys[2]).index() for j, fac in self.views
+             if len(fac.keys) == 3 and self.problem.views[j].board in keep}
+        )  # fmt: skip
+
+    def intrinsics_prior(self, c: int) -> tuple[np.ndarray, np.ndarray]:
+        """(values, sigmas) of camera ``c``'s intrinsics prior (``intrinsics.prior_sigmas``)."""
+        cam = self.cameras[c]
+        return cam.intrinsics(), prior_sigmas(cam)
 
     def point_lidars(self, boards: Sequence[int]) -> list[int]:
         """LiDARs whose parameters ``L(l)`` the boards' returns enter."""
@@ -184,8 +238,11 @@ class Assembly:
     def dim(self, key: int) -> int:
         """Tangent dimension of the variable behind ``key``."""
         sym = gtsam.Symbol(key)
-        if chr(sym.chr()).lower() == "l":
+        letter = chr(sym.chr()).lower()
+        if letter == "l":
             return self.layouts[int(sym.index())].dim
+        if letter == "i":
+            return len(self.cameras[int(sym.index())].intrinsic_names)
         return key_dim(key)
 
     def extrinsics(self, boards: Sequence[int]) -> list[int]:
@@ -213,9 +270,11 @@ class Assembly:
         board_poses: Mapping[int, gtsam.Pose3] | None = None,
         offsets: Mapping[int, float] | None = None,
         lidar: Mapping[int, np.ndarray] | None = None,
+        intrinsics: Mapping[int, np.ndarray] | None = None,
     ) -> gtsam.Values:
         """Initial values: the extrinsics given, each board at ``board_poses`` or its LiDAR prior,
-        each range offset at ``offsets`` or 0, each LiDAR's parameters at ``lidar`` or 0."""
+        each range offset at ``offsets`` or 0, each LiDAR's parameters at ``lidar`` or 0, each refined
+        camera's intrinsics at ``intrinsics`` or the config's."""
         values = gtsam.Values()
         for e in self.extrinsics(boards):
             T = extrinsics.get(e)
@@ -234,4 +293,7 @@ class Assembly:
                 L(lid),
                 v if v is not None and len(v) == self.layouts[lid].dim else np.zeros(self.layouts[lid].dim),
             )
+        for c in self.view_cameras(boards):
+            th = (intrinsics or {}).get(c)
+            values.insert(I(c), th if th is not None else self.cameras[c].intrinsics())
         return values

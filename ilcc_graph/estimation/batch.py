@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ilcc_graph.cameras import CameraModel
+from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions, LidarLayout
 from ilcc_graph.estimation.noise import BoardStats, NoiseOptions, Solution, solve_problem
 from ilcc_graph.estimation.problem import frames_problem
@@ -31,7 +32,8 @@ class BatchSolution:
     T_lidar_board: refined board poses of the used frames. per_frame: their residual statistics.
     dropped: ``(name, reason)`` in the order dropped. variance_components: (board priors, bearings).
     lidar: the LiDAR's own errors (names, values, sigmas) when estimated; lidar_layout: which terms
-    entered and which were left out (``layout.excluded``).
+    entered and which were left out (``layout.excluded``). intrinsics: the camera's refined
+    intrinsics (names, values, sigmas) when refined.
     """
 
     T_cam_lidar: np.ndarray
@@ -45,6 +47,7 @@ class BatchSolution:
     variance_components: tuple[float, float] = (1.0, 1.0)
     lidar: tuple[list[str], np.ndarray, np.ndarray] | None = None
     lidar_layout: LidarLayout | None = None
+    intrinsics: tuple[list[str], np.ndarray, np.ndarray] | None = None
 
     @property
     def extrinsic(self) -> Estimate:
@@ -72,6 +75,7 @@ def batch_solution(sol: Solution, e: int = 0, group: str = "") -> BatchSolution:
         variance_components=sol.components(group),
         lidar=sol.lidar(0),
         lidar_layout=sol.assembly.layouts.get(0),
+        intrinsics=sol.intrinsics(0),
     )
 
 
@@ -81,14 +85,17 @@ def solve(
     T_init: np.ndarray,
     options: NoiseOptions = NoiseOptions(),
     lidar_errors: LidarErrorOptions | None = None,
+    intrinsics: IntrinsicsOptions | None = None,
 ) -> BatchSolution:
     """Refine ``T_cam_lidar`` over all frames and return it with its marginal covariance.
 
     frames: the frames (``types.GraphFrame``), bearings in the camera frame of ``camera``.
     lidar_errors: the LiDAR's own errors to estimate from the frames' returns (None: none).
+    intrinsics: refine the camera's intrinsics (frames need ``uv``), or propagate their stated sigmas.
     T_init: (4, 4) start (e.g. UPnP's). Raises CalibrationImpossible (no usable frame),
     IndeterminateSystem (the data do not determine ``T_cam_lidar``), ValueError (malformed input).
     """
     check_pose(T_init, "T_init")
-    sol = solve_problem(frames_problem(frames, camera, T_init, lidar_errors=lidar_errors), options)
+    problem = frames_problem(frames, camera, T_init, lidar_errors=lidar_errors, intrinsics=intrinsics)
+    sol = solve_problem(problem, options)
     return batch_solution(sol)

@@ -25,7 +25,8 @@ class BoardStats:
     squared bearing errors; dof: the views' residual count (2 per corner); rms_bearing_error_mrad:
     RMS angle between predicted and measured bearings; chi2_robust: with a robust kernel
     ``2 sum rho`` plus the prior's term (what the gate tests then); returns: (chi2, dof) of its
-    LiDAR returns about the board's plane, when they enter the graph.
+    LiDAR returns about the board's plane, when they enter the graph; prior: (chi2, dof) of its
+    prior's term alone (6 dof for a pose prior, 3 for an in-plane prior).
     """
 
     chi2: float
@@ -33,42 +34,58 @@ class BoardStats:
     rms_bearing_error_mrad: float
     chi2_robust: float | None = None
     returns: tuple[float, int] | None = None
+    prior: tuple[float, int] | None = None
 
 
 def board_stats(
     graph: gtsam.NonlinearFactorGraph, terms: Sequence[Term], facs: Mapping[int, list], values: gtsam.Values
 ) -> dict[int, BoardStats]:
-    """Per kept board: chi-square of its views (bearings plus its pose prior, or the in-plane prior
-    of its returns) with their dof, that of its returns, the RMS bearing angle."""
+    """Per kept board: chi-square of its views (bearings or pixels, plus its pose prior or the
+    in-plane prior of its returns) with their dof, that of its returns, the RMS bearing angle.
+
+    facs: per board its view factors with, for a pixel factor, its camera (None for a bearing
+    factor), whose intrinsics at their current value give the measured pixels' rays."""
     prior: dict[int, float] = {}
+    prior_dof: dict[int, int] = {}
     returns: dict[int, tuple[float, int]] = {}
     for k, t in enumerate(terms):
         if t.kind != "board":
             continue
         if not t.parts:
             prior[t.board] = 2.0 * graph.at(k).error(values)  # type: ignore[index]
+            prior_dof[t.board] = graph.at(k).dim()  # type: ignore[index]
             continue
         e = np.asarray(graph.at(k).whitenedError(values))
         (_, a0, a1), (_, b0, b1) = t.parts
         returns[t.board] = (float(e[a0:a1] @ e[a0:a1]), a1 - a0 - 3)  # type: ignore[index]
         prior[t.board] = float(e[b0:b1] @ e[b0:b1])  # type: ignore[index]
+        prior_dof[t.board] = b1 - b0  # type: ignore[index]
     out: dict[int, BoardStats] = {}
     for i, fs in facs.items():
         chi2 = prior[i]
-        robust = prior[i] if any(f.robust is not None for f in fs) else None
+        robust = prior[i] if any(f.robust is not None for f, _ in fs) else None
         dof, angles = 0, []
-        for f in fs:
+        for f, bearings in fs:
             T_cl, T_lb = values.atPose3(f.keys[0]), values.atPose3(f.keys[1])
-            e = f.unwhitened(T_cl, T_lb)[0]
+            theta = values.atVector(f.keys[2]) if len(f.keys) == 3 else None
+            args = (T_cl, T_lb) if bearings is None else (T_cl, T_lb, theta)
+            e = f.unwhitened(*args)[0]
             r = np.einsum("kij,kj->ki", f.sqrt_info, e)
             chi2 += float(np.sum(r * r))
             if robust is not None:
-                robust += float(np.sum(f.evaluate(T_cl, T_lb, False)[0] ** 2))
+                robust += float(np.sum(f.evaluate(*args, False)[0] ** 2))
             dof += f.dim
-            # |e| is the sine of the angle between the bearings (< 90 deg near a solution)
-            angles.append(np.arcsin(np.clip(np.linalg.norm(e, axis=1), 0.0, 1.0)))
+            if bearings is None:  # a bearing factor: |e| is the sine of the angle between the bearings
+                angles.append(np.arcsin(np.clip(np.linalg.norm(e, axis=1), 0.0, 1.0)))
+            else:  # a pixel factor: the angle between the predicted ray and the measured pixel's ray
+                bearings = bearings.with_intrinsics(theta).bearing(f.uv)
+                T = (T_cl * T_lb).matrix()
+                p = f.points_board @ T[:3, :3].T + T[:3, 3]
+                c = np.linalg.norm(np.cross(p, bearings), axis=1)
+                angles.append(np.arctan2(c, np.sum(p * bearings, axis=1)))
         a = np.concatenate(angles)
-        out[i] = BoardStats(chi2, dof, float(1e3 * np.sqrt(np.mean(a**2))), robust, returns.get(i))
+        rms = float(1e3 * np.sqrt(np.mean(a**2)))
+        out[i] = BoardStats(chi2, dof, rms, robust, returns.get(i), (prior[i], prior_dof.get(i, 0)))
     return out
 
 
@@ -82,22 +99,30 @@ def _part(s: BoardStats, part: str) -> tuple[float, int, str]:
     """(value the gate tests, its dof, its name) of the views or the returns of a board."""
     if part == "returns":
         return (s.returns[0], s.returns[1], "returns chi2") if s.returns else (0.0, 0, "")
+    if part == "prior":
+        if not s.prior:
+            return (0.0, 0, "")
+        what = "in-plane pose (intensity pattern)" if s.prior[1] == 3 else "pose"
+        return (s.prior[0], s.prior[1], f"chi2 of the LiDAR's board {what} against the image's")
     return (s.chi2, s.dof, "chi2") if s.chi2_robust is None else (s.chi2_robust, s.dof, "robust chi2")
 
 
 def gate_failures(
-    stats: Mapping[int, BoardStats], prob: float, scales: Mapping[str, float]
+    stats: Mapping[int, BoardStats], prob: float, scales: Mapping[str, float], view_ratio: float = 0.0
 ) -> list[tuple[float, int, str]]:
     """Boards failing the gate as (log survival probability, board, reason), worst first.
 
-    Views (bearings and the board's prior) and, where they enter, the board's LiDAR returns are
-    tested apart, each against its own median scale; the returns only against a gross misfit
-    (``RETURNS_MAX_RATIO`` times their dof: their residuals are heavy-tailed, a wrong object is not).
+    Views (bearings and the board's prior), the board's prior alone (where the views pulled the
+    board away from where the LiDAR saw it, as a wrong correspondence does) and, where they enter,
+    the board's LiDAR returns are tested apart, each against its own median scale; the returns only against a gross misfit
+    (``RETURNS_MAX_RATIO`` times their dof: their residuals are heavy-tailed, a wrong object is not),
+    the views and the prior only above ``view_ratio`` times their dof when that is larger than the quantile (each
+    view then has its own variance component: only a view inconsistent as a whole is dropped).
     """
     failing = []
     for i, s in stats.items():
         worst = None
-        for part in ("views", "returns"):
+        for part in ("views", "prior", "returns"):
             value, dof, what = _part(s, part)
             if dof <= 0:
                 continue
@@ -106,6 +131,8 @@ def gate_failures(
             bound = float(chi2_dist.ppf(prob, dof))
             if part == "returns":  # heavy-tailed in practice: only a gross misfit (another object) fails
                 bound = max(bound, RETURNS_MAX_RATIO * dof)
+            else:
+                bound = max(bound, view_ratio * dof)
             if value > bound:
                 scaled = f" (divided by the frames' median chi2/dof {scale:.2f})" if scale > 1.0 else ""
                 reason = (

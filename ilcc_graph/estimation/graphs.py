@@ -10,13 +10,14 @@ from collections.abc import Mapping, Sequence
 import gtsam
 import numpy as np
 
-from factors import FrameBearingFactor, sqrt_information, tangent_bases
+from factors import FrameBearingFactor, FramePixelFactor, sqrt_information, tangent_bases
 from factors.board_points import BoardPointsFactor
 from factors.range_offset import RangeOffsetBoardFactor
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
-from ilcc_graph.estimation.keys import POSE3_DOF, B, L, O, X
+from ilcc_graph.estimation.intrinsics import projection
+from ilcc_graph.estimation.keys import POSE3_DOF, B, I, L, O, X
 from ilcc_graph.estimation.lidar_errors import LidarLayout
 from ilcc_graph.estimation.problem import BoardPrior, Tie
 from ilcc_graph.estimation.solver import check_pose, gaussian
@@ -32,6 +33,8 @@ __all__ = [
     "board_face_samples",
     "board_prior_graph",
     "frame_bearing_factor",
+    "frame_pixel_factor",
+    "intrinsics_prior_graph",
     "offset_prior_graph",
     "samples_from_corners",
     "tie_graph",
@@ -85,6 +88,43 @@ def frame_bearing_factor(
     return FrameBearingFactor(key_cam_lidar, key_lidar_board, p[ok], b[ok], cov_t[ok], robust), n_ok
 
 
+def frame_pixel_factor(
+    key_cam_lidar: int,
+    key_lidar_board: int,
+    key_intrinsics: int,
+    points_board: np.ndarray,
+    uv: np.ndarray,
+    cov_px: np.ndarray,
+    camera: CameraModel,
+    robust: gtsam.noiseModel.mEstimator.Base | None = None,
+) -> tuple[FramePixelFactor | None, int]:
+    """One board seen by one camera as a grouped pixel factor with the camera's intrinsics ``I(c)``
+    as a variable, and its number of usable corners (finite pixels, positive-definite covariances);
+    None with fewer than ``MIN_CORNERS``."""
+    p = np.asarray(points_board, dtype=np.float64)
+    q = np.asarray(uv, dtype=np.float64)
+    c = np.asarray(cov_px, dtype=np.float64)
+    ok = np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(c), axis=(1, 2))
+    good = np.flatnonzero(ok)
+    if good.size:
+        ok[good] = np.linalg.eigvalsh(c[good]).min(axis=1) > 0
+    n_ok = int(ok.sum())
+    if n_ok < MIN_CORNERS:
+        return None, n_ok
+    fac = FramePixelFactor(
+        key_cam_lidar, key_lidar_board, key_intrinsics, p[ok], q[ok], c[ok], projection(camera), robust=robust
+    )
+    return fac, n_ok
+
+
+def intrinsics_prior_graph(priors: Mapping[int, tuple[np.ndarray, np.ndarray]]) -> gtsam.NonlinearFactorGraph:
+    """A prior on each camera's intrinsics ``I(c)``: (values, sigmas) per camera index."""
+    graph = gtsam.NonlinearFactorGraph()
+    for c, (theta, sigmas) in priors.items():
+        graph.add(gtsam.PriorFactorVector(I(c), theta, gtsam.noiseModel.Diagonal.Sigmas(sigmas)))
+    return graph
+
+
 def samples_from_corners(points_board: np.ndarray, n: int = 13) -> np.ndarray:
     """A grid over the corners' rectangle grown by one corner spacing (a board cut to its pattern)."""
     p = np.asarray(points_board, dtype=np.float64)
@@ -135,8 +175,8 @@ def board_prior_graph(
     return graph
 
 
-def bearing_graph(views: Sequence[FrameBearingFactor]) -> gtsam.NonlinearFactorGraph:
-    """The grouped bearing factors as GTSAM factors."""
+def bearing_graph(views: Sequence[FrameBearingFactor | FramePixelFactor]) -> gtsam.NonlinearFactorGraph:
+    """The grouped view factors (bearing or pixel) as GTSAM factors."""
     graph = gtsam.NonlinearFactorGraph()
     for v in views:
         graph.add(v.factor())
@@ -161,9 +201,14 @@ def offset_prior_graph(lidars: Sequence[int], sigma_m: float) -> gtsam.Nonlinear
 
 
 def board_points_factor(
-    index: int, board: BoardPrior, layout: LidarLayout, max_points: int
+    index: int,
+    board: BoardPrior,
+    layout: LidarLayout,
+    max_points: int,
+    plane_sigma: tuple[float, float] | None = None,
 ) -> BoardPointsFactor:
-    """The board's returns on (``B(index)``, ``L(board.lidar)``) with the terms of ``layout``.
+    """The board's returns on (``B(index)``, ``L(board.lidar)``) with the terms of ``layout`` (and
+    the board's own random plane of ``plane_sigma``, see ``BoardPointsFactor``).
 
     At most ``max_points`` returns (evenly spread over the list) enter. The in-plane prior is the
     LiDAR stage's intensity fit: ``W (xi_in - K xi_out)``, ``xi = Logmap(T_measured^-1 T)``.
@@ -179,6 +224,7 @@ def board_points_factor(
     return BoardPointsFactor(
         B(index), L(board.lidar), P[keep], float(r.sigma_m), range_index, range_coef, layout.dim,
         board.T_lidar_board, S, sqrt_information(np.asarray(r.inplane_cov, dtype=np.float64)), e_idx, e_coef,
+        plane_sigma,
     )  # fmt: skip
 
 

@@ -38,6 +38,7 @@ from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.batch import BatchSolution, solve
 from ilcc_graph.estimation.graphs import frame_bearing_factor, upnp_start
+from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.noise import NoiseOptions
 from ilcc_graph.estimation.solver import gaussian
@@ -111,6 +112,7 @@ class IncrementalCalibrator:
     gate_prob: float | None = 0.999
     noise: NoiseOptions = NoiseOptions()
     lidar_errors: LidarErrorOptions | None = None
+    intrinsics: IntrinsicsOptions | None = None
     _isam: gtsam.ISAM2 = field(init=False, repr=False)
     _pending: list[_Pending] = field(init=False, repr=False, default_factory=list)
     _frames: list[GraphFrame] = field(init=False, repr=False, default_factory=list)
@@ -168,6 +170,7 @@ class IncrementalCalibrator:
             frame.corners.bearings,
             frame.corners.cov_px,
             frame.board.returns,
+            frame.corners.uv,
         )
         flippable = self.board.half_turn_symmetric and (
             frame.board.half_turn_ambiguous or frame.corners.half_turn_ambiguous
@@ -176,7 +179,8 @@ class IncrementalCalibrator:
 
     def _flipped(self, f: GraphFrame) -> GraphFrame:
         perm = self.board.half_turn_permutation()
-        return dataclasses.replace(f, bearings=f.bearings[perm], cov_px=f.cov_px[perm])
+        uv = None if f.uv is None else f.uv[perm]
+        return dataclasses.replace(f, bearings=f.bearings[perm], cov_px=f.cov_px[perm], uv=uv)
 
     def add_frame(self, frame: GraphFrame | FrameResult) -> FrameUpdate:
         """Add one frame (a ``GraphFrame``, or the pipeline's ``FrameResult`` with board and corners).
@@ -358,7 +362,8 @@ class IncrementalCalibrator:
             if not self._pending:
                 raise CalibrationImpossible("no frame was added")
             self._initialise(self._pending[-1].frame.name, t0)
-        sol = solve(self._offered, self.camera, np.asarray(self._T.matrix()), self.noise, self.lidar_errors)
+        T = np.asarray(self._T.matrix())
+        sol = solve(self._offered, self.camera, T, self.noise, self.lidar_errors, self.intrinsics)
         kept = [f for f in self._offered if f.name in sol.per_frame]
         self._isam = gtsam.ISAM2(self._isam.params())
         self._frames = []

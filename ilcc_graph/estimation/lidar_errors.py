@@ -37,6 +37,9 @@ class LidarErrorOptions:
     min_points_per_beam, min_boards_per_beam: a beam's terms enter only with at least this many
     returns over at least this many boards.
     max_points_per_board: returns per board given to the graph (an even subsample beyond).
+    board_plane: (offset m, tilt rad) one sigma of each board's own deviation from the ideal plane
+        of its returns (print and backing bend; LiDAR errors no term models), or None for none
+        (``factors.BoardPointsFactor``, plane_sigma).
     observable_ratio: a term is left out when the boards shrink its prior variance to no less than
         this fraction of it (the data hardly tell it).
     """
@@ -53,12 +56,15 @@ class LidarErrorOptions:
     min_points_per_beam: int = 40
     min_boards_per_beam: int = 2
     max_points_per_board: int = 1200
+    board_plane: tuple[float, float] | None = (0.005, 0.007)
     observable_ratio: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("prior_offset_m", "prior_dark_m", "prior_scale", "prior_elevation_rad"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"LidarErrorOptions.{name} must be > 0, got {getattr(self, name)!r}")
+        if self.board_plane is not None and not (len(self.board_plane) == 2 and min(self.board_plane) > 0):
+            raise ValueError(f"LidarErrorOptions.board_plane must be two sigmas > 0 or None, got {self.board_plane!r}")
         if not 0.0 < self.observable_ratio < 1.0:
             raise ValueError(
                 f"LidarErrorOptions.observable_ratio must be in (0, 1), got {self.observable_ratio!r}"

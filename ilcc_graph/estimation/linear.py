@@ -9,15 +9,16 @@ plus one dense inverse over the globals.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
 from ilcc_graph.errors import IndeterminateSystem
 from ilcc_graph.estimation.assembly import Term
-from ilcc_graph.estimation.keys import POSE3_DOF, is_board, key_dim
+from ilcc_graph.estimation.keys import POSE3_DOF, I, X, is_board, key_dim
 
-__all__ = ["redundancies"]
+__all__ = ["Reduced", "consider_covariance", "reduce", "redundancies"]
 
 
 def _linear_blocks(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim):
@@ -45,6 +46,55 @@ def _linear_blocks(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, term
     return out
 
 
+@dataclass
+class Reduced:
+    """The boards eliminated from a whitened linear system: per board its information ``D`` (inverted,
+    ``Dinv``) and coupling ``C`` to the globals, and the globals' information ``S`` (Schur complement)
+    with each global key's first column in ``index``."""
+
+    blocks: list
+    index: dict[int, int]
+    dims: dict[int, int]
+    Dinv: dict[int, np.ndarray]
+    C: dict[int, np.ndarray]
+    S: np.ndarray
+
+    def cols(self, keys: Sequence[int]) -> np.ndarray:
+        if not keys:
+            return np.zeros(0, int)
+        return np.concatenate([np.arange(self.index[k], self.index[k] + self.dims[k]) for k in keys])
+
+
+def reduce(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim=key_dim,
+    skip: Sequence[str] = (),
+) -> Reduced:  # fmt: skip
+    """Linearise ``graph`` at ``values`` (whitened) and eliminate the boards; rows of the kinds in
+    ``skip`` are left out (e.g. a prior, to get the data's information alone)."""
+    blocks = [b for b in _linear_blocks(graph, values, terms, dim) if b[0] not in skip]
+    index: dict[int, int] = {}
+    dims: dict[int, int] = {}
+    G = 0
+    for *_, g_keys, _, _ in blocks:
+        for key in g_keys:
+            if key not in index:
+                index[key], dims[key] = G, dim(key)
+                G += dims[key]
+    red = Reduced(blocks, index, dims, {}, {}, np.zeros((G, G)))
+    D: dict[int, np.ndarray] = {}
+    for _, _, board_key, A_b, g_keys, A_g, _ in blocks:
+        c = red.cols(g_keys)
+        if board_key is not None:
+            D[board_key] = D.get(board_key, np.zeros((POSE3_DOF, POSE3_DOF))) + A_b.T @ A_b
+            Ci = red.C.setdefault(board_key, np.zeros((POSE3_DOF, G)))
+            Ci[:, c] += A_b.T @ A_g
+        red.S[np.ix_(c, c)] += A_g.T @ A_g
+    red.Dinv = {k: np.linalg.inv(d) for k, d in D.items()}
+    for k, ci in red.C.items():
+        red.S -= ci.T @ red.Dinv[k] @ ci
+    return red
+
+
 def redundancies(
     graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim=key_dim
 ) -> dict[tuple[str, str], tuple[float, float]]:
@@ -54,41 +104,17 @@ def redundancies(
     factor touches at most one), so the cost is O(boards) plus a dense inverse over the globals.
     ``dim(key)``: the tangent dimension of a variable (``Assembly.dim``).
     """
-    blocks = _linear_blocks(graph, values, terms, dim)
-    g_index: dict[int, int] = {}
-    G = 0
-    for *_, g_keys, _, _ in blocks:
-        for key in g_keys:
-            if key not in g_index:
-                g_index[key] = G
-                G += dim(key)
-
-    def cols(g_keys: Sequence[int]) -> np.ndarray:
-        if not g_keys:
-            return np.zeros(0, int)
-        return np.concatenate([np.arange(g_index[k], g_index[k] + dim(k)) for k in g_keys])
-
-    D: dict[int, np.ndarray] = {}
-    C: dict[int, np.ndarray] = {}
-    E = np.zeros((G, G))
-    for _, _, board_key, A_b, g_keys, A_g, _ in blocks:
-        c = cols(g_keys)
-        if board_key is not None:
-            D[board_key] = D.get(board_key, np.zeros((POSE3_DOF, POSE3_DOF))) + A_b.T @ A_b
-            Ci = C.setdefault(board_key, np.zeros((POSE3_DOF, G)))
-            Ci[:, c] += A_b.T @ A_g
-        E[np.ix_(c, c)] += A_g.T @ A_g
-    Dinv = {k: np.linalg.inv(d) for k, d in D.items()}
-    S = E - sum((C[k].T @ Dinv[k] @ C[k] for k in D), np.zeros((G, G)))
+    red = reduce(graph, values, terms, dim)
+    G = len(red.S)
     try:
-        S_inv = np.linalg.inv(S) if G else S
+        S_inv = np.linalg.inv(red.S) if G else red.S
     except np.linalg.LinAlgError:
         raise IndeterminateSystem("the graph does not determine its global variables") from None
     out: dict[tuple[str, str], list[float]] = {}
-    for kind, group, board_key, A_b, g_keys, A_g, b in blocks:
-        c = cols(g_keys)
+    for kind, group, board_key, A_b, g_keys, A_g, b in red.blocks:
+        c = red.cols(g_keys)
         if board_key is not None:
-            di, ci = Dinv[board_key], C[board_key]
+            di, ci = red.Dinv[board_key], red.C[board_key]
             S_bg = -di @ ci @ S_inv  # (6, G)
             S_bb = di - S_bg @ ci.T @ di
             A = np.hstack([A_b, A_g])
@@ -99,3 +125,35 @@ def redundancies(
         acc[0] += float(b @ b)
         acc[1] += len(b) - float(np.sum(Sig * (A.T @ A)))
     return {k: (v[0], v[1]) for k, v in out.items()}
+
+
+def consider_covariance(sol, e: int = 0) -> np.ndarray:  # noqa: ANN001 - noise.Solution
+    """(6, 6) what the stated sigmas of the cameras' unrefined intrinsics add to extrinsic ``e``'s
+    covariance, to first order: ``J Sigma_theta J^T`` with ``J = -S_rr^-1 S_r_theta`` from the data's
+    information over the globals (the intrinsics as variables, without a prior)."""
+    from ilcc_graph.estimation.assembly import Assembly
+    from ilcc_graph.estimation.intrinsics import refinable
+
+    asm = sol.assembly
+    stated = {c for c, cam in enumerate(asm.cameras)
+              if c not in asm.refined and refinable(cam) and cam.intrinsics_sigma is not None}  # fmt: skip
+    if not stated:
+        return np.zeros((POSE3_DOF, POSE3_DOF))
+    alt = Assembly(sol.problem, None, asm.layouts, refine=stated, per_view=asm.per_view)
+    cams = alt.view_cameras(sol.boards)
+    if not cams:
+        return np.zeros((POSE3_DOF, POSE3_DOF))
+    graph, terms = alt.graph(sol.boards, sol.scales)
+    values = gtsam.Values(sol.values)
+    for c in cams:
+        values.insert(I(c), alt.cameras[c].intrinsics())
+    red = reduce(graph, values, terms, alt.dim, skip=("intrinsics",))
+    theta_keys = [I(c) for c in cams]
+    th = red.cols(theta_keys)
+    rest = np.setdiff1d(np.arange(len(red.S)), th)
+    J = -np.linalg.solve(red.S[np.ix_(rest, rest)], red.S[np.ix_(rest, th)])
+    x = np.searchsorted(rest, red.cols([X(e)]))
+    sig = np.concatenate([np.asarray(alt.cameras[c].intrinsics_sigma, dtype=np.float64) for c in cams])
+    Jx = J[x]
+    add = Jx @ np.diag(sig**2) @ Jx.T
+    return 0.5 * (add + add.T)

@@ -36,9 +36,9 @@ from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.assembly import Assembly, Term
 from ilcc_graph.estimation.gate import BoardStats, board_stats, gate_failures, gate_scale
 from ilcc_graph.estimation.graphs import Scales
-from ilcc_graph.estimation.keys import POSE3_DOF, B, L, O, X
+from ilcc_graph.estimation.keys import POSE3_DOF, B, I, L, O, X
 from ilcc_graph.estimation.lidar_errors import LidarLayout
-from ilcc_graph.estimation.linear import redundancies
+from ilcc_graph.estimation.linear import consider_covariance, redundancies
 from ilcc_graph.estimation.problem import Problem
 from ilcc_graph.estimation.solver import MarginalCovariances, SolverOptions, optimize, robust_kernel
 from ilcc_graph.types import Estimate
@@ -50,6 +50,8 @@ __all__ = ["BoardStats", "NoiseOptions", "Solution", "replace_scales", "solve_pr
 MIN_BOARDS_ADVISED = 4
 #: kinds of residual rows with a variance component each (per noise group)
 COMPONENT_KINDS = ("board", "bearing", "points", "inplane")
+#: with a component per view, a view fails the gate only above this multiple of its dof
+VIEW_MAX_RATIO = 4.0
 
 
 @dataclass(frozen=True)
@@ -63,6 +65,9 @@ class NoiseOptions:
     max_dropped_fraction: the gate drops at most this fraction of the usable boards.
     variance_components: scale the gate by the median chi2/dof, estimate the variance components
         (not with a robust kernel) and apply the final variance factor.
+    view_components: every view gets its own bearing variance component (views differ in blur,
+        viewing angle and how well the lens model fits where they sit), and the gate drops a view
+        only when its residuals exceed ``VIEW_MAX_RATIO`` times their dof (after the median scale).
     solver: Levenberg-Marquardt stopping rules.
     """
 
@@ -71,6 +76,7 @@ class NoiseOptions:
     chi2_gate_prob: float | None = 0.999
     max_dropped_fraction: float = 0.5
     variance_components: bool = True
+    view_components: bool = True
     solver: SolverOptions = SolverOptions()
 
     def __post_init__(self) -> None:
@@ -112,9 +118,27 @@ class Solution:
         return self._marginals
 
     def extrinsic(self, e: int = 0) -> Estimate:
-        """``T_cam_lidar`` of extrinsic ``e`` with its marginal covariance."""
+        """``T_cam_lidar`` of extrinsic ``e`` with its marginal covariance (plus the stated
+        uncertainty of intrinsics that were not refined, ``intrinsics.IntrinsicsOptions.propagate``)."""
         T = np.asarray(self.values.atPose3(X(e)).matrix(), dtype=np.float64)
-        return Estimate(T, self.marginals.covariance(X(e), f"T_cam_lidar (X({e}))"))
+        C = self.marginals.covariance(X(e), f"T_cam_lidar (X({e}))")
+        return Estimate(T, C + self.consider(e))
+
+    def consider(self, e: int = 0) -> np.ndarray:
+        """(6, 6) what the stated sigmas of the cameras' unrefined intrinsics add to extrinsic ``e``'s
+        covariance (zero when none are stated, they are refined, or propagation is off)."""
+        opts = self.problem.intrinsics
+        if opts is None or not opts.propagate:
+            return np.zeros((POSE3_DOF, POSE3_DOF))
+        return consider_covariance(self, e)
+
+    def intrinsics(self, c: int = 0) -> tuple[list[str], np.ndarray, np.ndarray] | None:
+        """(names, values, sigmas) of camera ``c``'s refined intrinsics, or None when not refined."""
+        if c not in self.assembly.view_cameras(self.boards):
+            return None
+        v = np.asarray(self.values.atVector(I(c)), dtype=np.float64)
+        C = self.marginals.covariance(I(c), f"the intrinsics of camera {c}")
+        return list(self.assembly.cameras[c].intrinsic_names), v, np.sqrt(np.diag(C))
 
     def joint_covariance(self, extrinsics: Sequence[int]) -> np.ndarray:
         """(6n, 6n) joint marginal covariance of the extrinsics, in the order given."""
@@ -131,9 +155,22 @@ class Solution:
 
     def components(self, group: str = "") -> tuple[float, float]:
         """(board priors, bearings) variance components of ``group`` (with the boards' returns in the
-        graph, the first is that of their in-plane priors)."""
+        graph, the first is that of their in-plane priors; with a component per view, the second is
+        their median)."""
         board = self.scales.get(("board", group), self.scales.get(("inplane", group), 1.0))
-        return board, self.scales.get(("bearing", group), 1.0)
+        views = [
+            v
+            for (k, g), v in self.scales.items()
+            if k == "bearing" and (g == group or g.startswith(group + "|"))
+        ]
+        return board, float(np.median(views)) if views else 1.0
+
+    def view_component(self, board: int) -> float:
+        """The bearing variance component of a board's (first) view."""
+        for j, _ in self.assembly.views:
+            if self.problem.views[j].board == board:
+                return self.scales.get(("bearing", self.assembly.view_group(j)), 1.0)
+        return 1.0
 
     def lidar(self, lidar: int = 0) -> tuple[list[str], np.ndarray, np.ndarray] | None:
         """(names, values, sigmas) of LiDAR ``lidar``'s own errors (``lidar_errors``), or None."""
@@ -171,7 +208,7 @@ def solve_problem(
     """
     t_start = time.perf_counter()
     robust = robust_kernel(options.robust, options.robust_k)
-    asm = Assembly(problem, robust, layouts)
+    asm = Assembly(problem, robust, layouts, per_view=options.view_components)
     wanted = range(len(problem.boards)) if boards is None else [problem.index(n) for n in boards]
     names = [b.name for b in problem.boards]
     dropped = [(names[i], asm.unusable[i]) for i in wanted if i in asm.unusable]
@@ -187,6 +224,7 @@ def solve_problem(
     board_est: dict[int, gtsam.Pose3] = {}
     offsets: dict[int, float] = {}
     lidar_est: dict[int, np.ndarray] = {}
+    intr_est: dict[int, np.ndarray] = {}
     timings = {"build": 0.0, "optimize": 0.0}
     iterations = 0
 
@@ -194,7 +232,7 @@ def solve_problem(
         nonlocal iterations
         t0 = time.perf_counter()
         g, terms = asm.graph(kept, comps, plain)
-        values = asm.values(kept, ext, board_est, offsets, lidar_est)
+        values = asm.values(kept, ext, board_est, offsets, lidar_est, intr_est)
         t1 = time.perf_counter()
         res, n_it = optimize(g, values, options.solver)
         timings["build"] += t1 - t0
@@ -209,6 +247,8 @@ def solve_problem(
                 offsets[lid] = float(res.atVector(O(lid))[0])
         for lid in asm.point_lidars(kept):
             lidar_est[lid] = np.asarray(res.atVector(L(lid)))
+        for c in asm.view_cameras(kept):
+            intr_est[c] = np.asarray(res.atVector(I(c)))
         return g, terms, res
 
     def stats_of(kept: Sequence[int], comps: Scales, g, terms, res) -> dict[int, BoardStats]:
@@ -216,8 +256,10 @@ def solve_problem(
         for j, fac in asm.views:
             v = problem.views[j]
             if v.board in facs:
-                s = comps.get(("bearing", v.group), 1.0)
-                facs[v.board].append(fac.scaled(s) if s != 1.0 else fac)
+                s = comps.get(("bearing", asm.view_group(j)), 1.0)
+                facs[v.board].append(
+                    (fac.scaled(s) if s != 1.0 else fac, v.camera if j in asm.pixel_views else None)
+                )
         return board_stats(g, terms, facs, res)
 
     if robust is not None:
@@ -233,8 +275,9 @@ def solve_problem(
             if not gate or options.chi2_gate_prob is None:
                 break
             on = options.variance_components
-            gate_scales = {p: gate_scale(st, p) if on else 1.0 for p in ("views", "returns")}
-            failing = gate_failures(st, options.chi2_gate_prob, gate_scales)
+            gate_scales = {p: gate_scale(st, p) if on else 1.0 for p in ("views", "prior", "returns")}
+            view_ratio = VIEW_MAX_RATIO if options.view_components and on else 0.0
+            failing = gate_failures(st, options.chi2_gate_prob, gate_scales, view_ratio)
             if not failing:
                 break
             if len(gone) >= allowed_drops or len(kept) == 1:
@@ -331,6 +374,6 @@ def _variance_factor(g, terms: Sequence[Term], values, asm: Assembly, st: Mappin
 
 def replace_scales(sol: Solution, factor: float) -> dict[tuple[str, str], float]:
     """The solution's components with its final variance factor folded in (for sub-problem solves)."""
-    groups = {(k, b.group) for b in sol.problem.boards for k in COMPONENT_KINDS}
-    groups |= {("bearing", v.group) for v in sol.problem.views}
+    groups = {(k, b.group) for b in sol.problem.boards for k in COMPONENT_KINDS if k != "bearing"}
+    groups |= {("bearing", sol.assembly.view_group(j)) for j in range(len(sol.problem.views))}
     return {key: sol.scales.get(key, 1.0) * factor for key in groups}

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ilcc_graph.cameras import CameraModel
+from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.types import BoardReturns, GraphFrame
 
@@ -54,7 +55,8 @@ class View:
     board: index into ``Problem.boards``. extrinsic: index e of the ``T_cam_lidar`` variable X(e).
     points_board: (K, 3) the corners seen, board frame. bearings: (K, 3) camera frame.
     cov_px: (K, 2, 2) pixel covariances, px^2. camera: maps them to bearing covariances.
-    group: noise group of the bearings (session or camera).
+    group: noise group of the bearings (session or camera). uv: (K, 2) the measured pixels (for
+    intrinsics refinement), or None.
     """
 
     board: int
@@ -64,6 +66,7 @@ class View:
     cov_px: np.ndarray
     camera: CameraModel
     group: str = ""
+    uv: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -82,6 +85,7 @@ class Problem:
     T_init: per extrinsic index its (4, 4) start. range_offset_sigma_m: None for no range-offset
     variables; else the sigma of each LiDAR's weak zero-mean prior on its offset (metres).
     lidar_errors: which of the LiDAR's own errors to estimate from the boards' returns (None: none).
+    intrinsics: whether the cameras' intrinsics are refined, or their stated sigmas propagated.
     """
 
     boards: tuple[BoardPrior, ...]
@@ -91,6 +95,7 @@ class Problem:
     range_offset_sigma_m: float | None = None
     lidar_names: tuple[str, ...] = field(default=("lidar",))
     lidar_errors: LidarErrorOptions | None = None
+    intrinsics: IntrinsicsOptions | None = None
 
     def __post_init__(self) -> None:
         names = [b.name for b in self.boards]
@@ -139,6 +144,7 @@ def frames_problem(
     samples_board: np.ndarray | None = None,
     prefix: str = "",
     lidar_errors: LidarErrorOptions | None = None,
+    intrinsics: IntrinsicsOptions | None = None,
 ) -> Problem:
     """The problem of one data set: per frame one board (named ``prefix + frame.name``) and one view."""
     boards = tuple(
@@ -146,11 +152,11 @@ def frames_problem(
         for f in frames
     )
     views = tuple(
-        View(i, extrinsic, f.points_board, f.bearings, f.cov_px, camera, group) for i, f in enumerate(frames)
+        View(i, extrinsic, f.points_board, f.bearings, f.cov_px, camera, group, f.uv)
+        for i, f in enumerate(frames)
     )
-    return Problem(
-        boards, views, {extrinsic: np.asarray(T_init, dtype=np.float64)}, lidar_errors=lidar_errors
-    )
+    T0 = {extrinsic: np.asarray(T_init, dtype=np.float64)}
+    return Problem(boards, views, T0, lidar_errors=lidar_errors, intrinsics=intrinsics)
 
 
 def merge_problems(parts: Sequence[Problem], **kw: object) -> Problem:

@@ -25,6 +25,7 @@ from ilcc_graph.board import Board
 from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.graphs import board_face_samples, upnp_start
+from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.keys import POSE3_DOF
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions, LidarLayout
 from ilcc_graph.estimation.noise import NoiseOptions, Solution, replace_scales, solve_problem
@@ -79,6 +80,7 @@ class JointOptions:
     range_offset: estimate a range offset per LiDAR label. range_offset_prior_sigma_m: its weak prior.
     noise: the core's noise policy (gate, variance components, robust kernel).
     lidar_errors: the LiDAR's own errors to estimate from the boards' returns, per LiDAR label.
+    intrinsics: refine the sessions' camera intrinsics, or propagate their stated sigmas.
     """
 
     mode: str = "rigid"
@@ -92,6 +94,7 @@ class JointOptions:
     range_offset_prior_sigma_m: float = 0.1
     noise: NoiseOptions = NoiseOptions()
     lidar_errors: LidarErrorOptions | None = None
+    intrinsics: IntrinsicsOptions | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -154,7 +157,9 @@ class JointSolution:
     jointly (6 dof). pair_tests: consecutive sessions alone against each other. moved: the session
     that most likely differs when the global test fails, else None. range_offsets: per LiDAR label
     (when asked). dropped: per session the frames the gate dropped. components: per session the
-    (board priors, bearings) variance components. variance_factor: the final factor.
+    (board priors, bearings) variance components (bearings: the median over its views when each
+    view has its own); scales: every variance component by (kind, noise group), the final factor
+    folded in. variance_factor: the final factor.
     T_lidar_board: per session the refined board poses of the kept frames. per_frame: per session
     the kept frames' residual statistics (``noise.BoardStats``). lidar_errors: per LiDAR label
     (names, values, sigmas) of its own errors when estimated; lidar_layouts: their layouts (what
@@ -174,6 +179,7 @@ class JointSolution:
     iterations: int = 0
     components: dict[str, tuple[float, float]] = field(default_factory=dict)
     variance_factor: float = 1.0
+    scales: dict[tuple[str, str], float] = field(default_factory=dict)
     T_lidar_board: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     per_frame: dict[str, dict] = field(default_factory=dict)
     lidar_errors: dict[str, tuple] = field(default_factory=dict)
@@ -229,7 +235,11 @@ def _session_problem(sessions: Sequence[Session], options: JointOptions) -> Prob
         )
     sigma = options.range_offset_prior_sigma_m if options.range_offset else None
     return merge_problems(
-        parts, range_offset_sigma_m=sigma, lidar_names=tuple(labels), lidar_errors=options.lidar_errors
+        parts,
+        range_offset_sigma_m=sigma,
+        lidar_names=tuple(labels),
+        lidar_errors=options.lidar_errors,
+        intrinsics=options.intrinsics,
     )
 
 
@@ -247,23 +257,28 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
     S = len(sessions)
     sep = _session_problem(sessions, options)
     rigid = sep.with_extrinsics({si: 0 for si in range(S)}, {0: sep.T_init[0]})
-    sol = solve_problem(rigid, options.noise)
-    iterations = sol.iterations
+    # the gate and the noise are judged with each session on its own mount: a moved mount must
+    # not read as outlier frames or inflate the noise that the consistency tests then use
+    noise_sol = solve_problem(sep, options.noise)
+    iterations = noise_sol.iterations
     kept: dict[str, list[str]] = {n: [] for n in names}
-    for i in sol.boards:
+    for i in noise_sol.boards:
         kept[sep.boards[i].group].append(sep.boards[i].name)
     for n, k in kept.items():
         if not k:
             raise CalibrationImpossible(f"session {n!r} has no usable frame left")
-    fixed = replace_scales(sol, sol.variance_factor)
-    T_rigid = sol.extrinsic(0)
+    fixed = replace_scales(noise_sol, noise_sol.variance_factor)
 
     def sub(problem: Problem, boards: list[str], start: dict) -> Solution:
         nonlocal iterations
         s = solve_problem(problem, options.noise, boards=boards, scales=fixed, variance_factor=1.0,
-                          gate=False, start=start, layouts=sol.assembly.layouts)  # fmt: skip
+                          gate=False, start=start, layouts=noise_sol.assembly.layouts)  # fmt: skip
         iterations += s.iterations
         return s
+
+    all_kept = [b for n in names for b in kept[n]]
+    sol = sub(rigid, all_kept, {0: noise_sol.extrinsic(0).pose})
+    T_rigid = sol.extrinsic(0)
 
     alone_sol = {n: sub(sep, kept[n], {si: T_rigid.pose}) for si, n in enumerate(names)}
     alone = {n: alone_sol[n].extrinsic(si) for si, n in enumerate(names)}
@@ -321,7 +336,7 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
     if global_test is not None and global_test.moved and session_tests:
         moved = max(session_tests, key=lambda t: t.mahalanobis).session
     dropped: dict[str, list[tuple[str, str]]] = {n: [] for n in names}
-    for full, why in sol.dropped:
+    for full, why in noise_sol.dropped:
         n, frame = _split(sep, sep.index(full))
         dropped[n].append((frame, why))
     boards_out: dict[str, dict[str, np.ndarray]] = {n: {} for n in names}
@@ -344,6 +359,7 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         iterations=iterations,
         components={n: sol.components(n) for n in names},
         variance_factor=sol.variance_factor,
+        scales=dict(fixed),
         T_lidar_board=boards_out,
         per_frame=stats_out,
         lidar_errors={

@@ -66,7 +66,31 @@ def calibration_to_dict(cal: Calibration) -> dict[str, Any]:
         "method": cal.method,
         "diagnostics": {str(k): v for k, v in cal.diagnostics.items()},
         **({"camera": cal.camera} if cal.camera is not None else {}),
+        **({"sensor_errors": _sensors_dict(cal.sensors)} if cal.sensors else {}),
     }
+
+
+def _sensors_dict(sensors: dict[str, Any]) -> dict[str, Any]:
+    """``sensor_errors`` of calibration.yaml: per term its value and sigma (mm for range terms)."""
+    out: dict[str, Any] = {}
+    lid = sensors.get("lidar_errors")
+    if lid is not None:
+        terms = {}
+        for n, v, s in zip(lid["names"], lid["values"], lid["sigmas"], strict=True):
+            if n.startswith("offset") or n == "dark":
+                terms[n] = {"value_mm": 1e3 * float(v), "sigma_mm": 1e3 * float(s)}
+            elif n.startswith("elevation"):
+                terms[n] = {"value_mrad": 1e3 * float(v), "sigma_mrad": 1e3 * float(s)}
+            else:
+                terms[n] = {"value": float(v), "sigma": float(s)}
+        out["lidar"] = {"terms": terms, "left_out": [{"term": t, "reason": r} for t, r in lid["left_out"]]}
+    cam = sensors.get("camera_intrinsics")
+    if cam is not None:
+        out["camera_intrinsics"] = {
+            n: {"stated": float(a), "refined": float(v), "sigma": float(s)}
+            for n, a, v, s in zip(cam["names"], cam["stated"], cam["values"], cam["sigmas"], strict=True)
+        }
+    return out
 
 
 def write_calibration(path: str | Path, cal: Calibration) -> Path:
