@@ -473,6 +473,7 @@ def cmd_image_corners(args: argparse.Namespace) -> int:
     frames, unpaired, out, results, rows = _run_stage(args, run_image_stage, "images", require_scan=False)
     for paths, res in zip(frames, results):
         if isinstance(res, Exception):
+            rows[paths.name] = (paths.name, "no", "", "", str(res))
             continue
         sig = np.sqrt(np.mean(np.trace(res.cov_px, axis1=1, axis2=2) / 2))
         write_yaml(
@@ -480,6 +481,7 @@ def cmd_image_corners(args: argparse.Namespace) -> int:
             {
                 "name": paths.name,
                 "found": True,
+                "detector": res.detector,
                 "half_turn_ambiguous": res.half_turn_ambiguous,
                 "image_corners": res.uv,
                 "bearings": res.bearings,
@@ -488,8 +490,9 @@ def cmd_image_corners(args: argparse.Namespace) -> int:
             },
         )
         write_image(out / f"{paths.name}_corners.png", draw_corners(read_image(paths.image), res.uv))
-        rows[paths.name] = (paths.name, "yes", f"{sig:.3f}", "")
-    return _stage_summary(frames, rows, ("frame", "found", "sigma px", "reason"), unpaired, out)
+        rows[paths.name] = (paths.name, "yes", res.detector, f"{sig:.3f}", "")
+    header = ("frame", "found", "detector", "sigma px", "reason")
+    return _stage_summary(frames, rows, header, unpaired, out)
 
 
 def cmd_export(args: argparse.Namespace) -> int:
