@@ -330,6 +330,22 @@ def test_a_false_grid_from_a_detector_does_not_get_through(pinhole, monkeypatch,
     assert res.detector == "cbdetect"
 
 
+@pytest.mark.parametrize("name", sorted(detectors.DETECTORS))
+def test_detectors_on_images_without_corners(name):
+    """Blank, uniform, noisy and tiny images: every detector says "not found" (libcbdetect used to
+    divide by zero when it saw no corner at all, which killed the process)."""
+    rng = np.random.default_rng(0)
+    board = Board(6, 8, 0.075)
+    for gray in (
+        np.zeros((300, 400), np.uint8),
+        np.full((300, 400), 200, np.uint8),
+        rng.integers(0, 256, (300, 400)).astype(np.uint8),
+        np.zeros((8, 8), np.uint8),
+    ):
+        assert detectors.run_attempt(name, detectors.ContrastCache(gray), board) is None
+        assert detectors.run_attempt(f"{name}+gamma", detectors.ContrastCache(gray), board) is None
+
+
 def test_detector_name_in_the_result(pinhole):
     spec, frames = pinhole
     assert detect_corners(frames[0].image, spec.camera, spec.board).detector == "sb"

@@ -101,6 +101,8 @@ def _cbdetect(gray: np.ndarray, board: Board) -> np.ndarray | None:
     det.show_debug_image = False
     det.array_norm_to_image(gray.astype(np.float64) / 255.0, gray.shape[0], gray.shape[1])
     det.find_corners()
+    if int(det.number_of_corners) < board.n_corners:  # also: the library divides by zero on none
+        return None
     det.find_board_from_corners()
     r, c = int(det.rows), int(det.cols)
     n_i, n_j = board.inner_shape
@@ -153,10 +155,13 @@ class ContrastCache:
 def run_attempt(name: str, images: ContrastCache, board: Board) -> np.ndarray | None:
     """(K, 2) row-major corners found by attempt ``name`` (``detector[+contrast]``), or None.
 
-    A grid that fails :func:`grid_problem` counts as not found.
+    A grid that fails :func:`grid_problem`, or an OpenCV error on degenerate input, counts as not found.
     """
     det, _, con = name.partition("+")
-    xy = DETECTORS[det](images.get(con), board)
+    try:
+        xy = DETECTORS[det](images.get(con), board)
+    except cv2.error:  # OpenCV's asserts on degenerate input (a view a few pixels wide, say)
+        return None
     if xy is None or grid_problem(xy, board) is not None:
         return None
     return xy
