@@ -5,8 +5,9 @@ equirectangular 8000x4000 and 4000x2000, pinhole 1920x1200, fisheye 1280x1024, a
 upside down (rendered), and the 4000x2000 panoramas seen by a camera rolled half a turn (the image
 turned by 180 deg, which is exact for a panorama). The pinhole and fisheye images are also degraded
 after rendering: the whole image dark (x0.2) or washed out (x0.15 + 100), with noise; the board
-alone in shade (x0.3, like the recorded pinhole set), with the default detector cascade and with
-the cascade without its contrast variant; and the board painted out (no board: the time to give up).
+alone in shade (x0.3, like the recorded pinhole set) or in deep shade (x0.15), the latter with the
+default detector cascade and with the cascade without its contrast variants; and the board painted
+out (no board: the time to give up).
 Per set: detection rate, which detector found the boards, corner error against the true
 projection (median / max px, up to the board's half turn, which is reported as ambiguous), NEES of
 the corners under the reported covariance (mean of e^T C^-1 e; 2 when C is right), the measured
@@ -146,11 +147,14 @@ def degraded_sets(
     def washed():
         return [(degrade(img, 0.15, 100.0, seed=i), T) for i, (img, T) in enumerate(frames)]
 
-    def shaded():
-        out = []
-        for i, (img, T) in enumerate(frames):
-            out.append((degrade(img, 1.0 - 0.7 * board_mask(spec, T), seed=i), T))
-        return out
+    def shaded(level: float) -> Callable[[], list]:
+        def make():
+            out = []
+            for i, (img, T) in enumerate(frames):
+                out.append((degrade(img, 1.0 - (1.0 - level) * board_mask(spec, T), seed=i), T))
+            return out
+
+        return make
 
     def removed():
         out = []
@@ -163,8 +167,9 @@ def degraded_sets(
     return [
         (f"{label} dark (x0.2)", spec, dark, None),
         (f"{label} washed out (x0.15 + 100)", spec, washed, None),
-        (f"{label} board in shade (x0.3)", spec, shaded, None),
-        (f"{label} board in shade, no contrast variants", spec, shaded, NO_CONTRAST),
+        (f"{label} board in shade (x0.3)", spec, shaded(0.3), None),
+        (f"{label} board in deep shade (x0.15)", spec, shaded(0.15), None),
+        (f"{label} board in deep shade, no contrast variants", spec, shaded(0.15), NO_CONTRAST),
         (f"{label} board painted out (no board)", spec, removed, None),
     ]
 

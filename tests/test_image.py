@@ -271,6 +271,22 @@ def test_shaded_board(pinhole):
     assert np.median(e) < np.median(e_bright) + 0.05
 
 
+def test_deep_shade_needs_the_contrast_variant(fisheye):
+    """The board at 15 % of its brightness: only the gamma-lifted search image shows it; the
+    contrast variants come after the plain ones, so a bright image is found exactly as without."""
+    spec, frames = fisheye
+    f = frames[0]
+    plain = ImageOptions(cascade=tuple(a for a in ImageOptions().cascade if "+" not in a))
+    shade = 1.0 - 0.85 * _board_mask(spec, f.T_lidar_board)
+    deep = SimpleNamespace(image=_degraded(f.image, shade), T_lidar_board=f.T_lidar_board)
+    with pytest.raises(CornersNotFound):
+        detect_corners(deep.image, spec.camera, spec.board, dataclasses.replace(plain, tile_views=False))
+    res, _ = check(spec, deep, exact=True)
+    assert "+" in res.detector  # found on a contrast variant (then refined on the image itself)
+    bright = detect_corners(f.image, spec.camera, spec.board)
+    np.testing.assert_array_equal(bright.uv, detect_corners(f.image, spec.camera, spec.board, plain).uv)
+
+
 # --------------------------------------------------------------------- detectors and checks
 def test_detectors_agree_on_a_simulated_image(fisheye):
     """Each detector alone seeds the same refinement: the same corners (well within their sigma)

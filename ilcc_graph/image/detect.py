@@ -46,7 +46,7 @@ from .views import (
 
 _SNAP_PX = 2.0  # lattice of the final fine view (view px), see _fine
 
-DEFAULT_CASCADE = ("sb", "cbdetect", "classic", "cbdetect+gamma")
+DEFAULT_CASCADE = ("sb", "cbdetect", "classic", "sb+gamma", "cbdetect+gamma")
 
 
 @dataclass(frozen=True)
