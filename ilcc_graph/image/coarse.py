@@ -31,6 +31,8 @@ from .views import (
 
 @dataclass(frozen=True)
 class Candidate:
+    """Where the coarse search saw the board (plain data for the fine pass)."""
+
     uv: np.ndarray  # (K, 2) approximate image pixels, row-major as the detector returned them
     attempt: str  # detector[+contrast] that found them
     stage: int  # 0 downscaled image, 1 ring of views
@@ -76,7 +78,7 @@ def fit_in_view(
 def downscaled_candidates(
     gray: np.ndarray, camera: CameraModel, board: Board, cascade: tuple[str, ...], width: int
 ) -> Iterator[Candidate]:
-    """Candidates from the cascade on the image downscaled to ``coarse_width`` (and rolled on a panorama)."""
+    """Candidates from the cascade on the image downscaled to ``width`` columns (and rolled on a panorama)."""
     H, W = gray.shape
     s = min(1.0, int(width) / W)
     small = gray if s == 1.0 else cv2.resize(gray, (round(W * s), round(H * s)), interpolation=cv2.INTER_AREA)

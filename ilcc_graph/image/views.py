@@ -127,16 +127,18 @@ def view_around(
     """A view centred on the directions ``b_cam`` (N, 3) that holds them all with ``pad_px`` around.
 
     Its focal length matches the source camera's angular resolution at the centre times ``scale``.
-    With ``snap_px`` > 0 the view is put on a lattice: its axis is rounded to a grid of ``snap_px``
-    view pixels in azimuth and elevation (camera's forward-left-up frame) and its principal point to
-    whole pixels, so that directions that differ by much less than that get the identical view
+    With ``snap_px`` > 0 the view is put on a lattice: its axis is rounded to a grid of about
+    ``snap_px`` view pixels in azimuth and elevation (camera's forward-left-up frame) and its
+    principal point to whole pixels, so that directions that differ by much less than that get the identical view
     (the same resampling of the image).
     """
     b = np.asarray(b_cam, dtype=np.float64).reshape(-1, 3)
     c = b.mean(axis=0)
     c /= np.linalg.norm(c)
     if snap_px > 0:
-        step = snap_px / (scale * pixels_per_radian(camera, c))
+        # the lattice's angular step must not move with c itself: the resolution there rounded to
+        # a power of two, so the step is snap_px view pixels within a factor of sqrt(2)
+        step = snap_px / 2.0 ** np.round(np.log2(scale * pixels_per_radian(camera, c)))
         d = camera.R_flu_cam @ c
         az, el = (
             np.round(np.arctan2(d[1], d[0]) / step) * step,
