@@ -129,8 +129,8 @@ def view_around(
     Its focal length matches the source camera's angular resolution at the centre times ``scale``.
     With ``snap_px`` > 0 the view is put on a lattice: its axis is rounded to a grid of about
     ``snap_px`` view pixels in azimuth and elevation (camera's forward-left-up frame) and its
-    principal point to whole pixels, so that directions that differ by much less than that get the identical view
-    (the same resampling of the image).
+    principal point to whole pixels, so that directions that differ by much less than that get
+    the identical view (the same resampling of the image).
     """
     b = np.asarray(b_cam, dtype=np.float64).reshape(-1, 3)
     c = b.mean(axis=0)
