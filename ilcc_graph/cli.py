@@ -257,7 +257,7 @@ def cmd_lidar_corners(args: argparse.Namespace) -> int:
 
 
 def cmd_image_corners(args: argparse.Namespace) -> int:
-    return _stage_command(args, "image", ("frame", "found", "sigma px", "reason"))
+    return _stage_command(args, "image", ("frame", "found", "detector", "sigma px", "reason"))
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:

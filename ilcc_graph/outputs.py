@@ -246,7 +246,7 @@ def write_run(
 def write_stage(out: Path, stage: str, source, refs, results) -> list[tuple]:  # noqa: ANN001
     """One stage alone (``lidar`` or ``image``) over a source's frames: per frame ``<name>.yaml`` and
     ``<name>_board.pcd`` (LiDAR) or ``<name>_corners.png`` (image). Returns one table row per frame:
-    (name, found, points or sigma px, reason)."""
+    (name, found, points, reason) or (name, found, detector, sigma px, reason)."""
     from ilcc_graph.io import write_image, write_pcd
     from ilcc_graph.report.overlays import draw_corners
     from ilcc_graph.types import Scan
@@ -257,7 +257,7 @@ def write_stage(out: Path, stage: str, source, refs, results) -> list[tuple]:  #
             doc: dict[str, Any] = {"name": ref.name, "found": not isinstance(res, Exception)}
             if isinstance(res, Exception):
                 doc["reason"] = str(res)
-                rows.append((ref.name, "no", "", str(res)))
+                rows.append((ref.name, "no", *[""] * (stage == "image"), "", str(res)))
             elif stage == "lidar":
                 doc.update(
                     T_lidar_board=res.T_lidar_board,
@@ -273,6 +273,7 @@ def write_stage(out: Path, stage: str, source, refs, results) -> list[tuple]:  #
                 rows.append((ref.name, "yes", len(res.points_lidar), ""))
             else:
                 doc.update(
+                    detector=res.detector,
                     half_turn_ambiguous=res.half_turn_ambiguous,
                     image_corners=res.uv,
                     bearings=res.bearings,
@@ -281,6 +282,6 @@ def write_stage(out: Path, stage: str, source, refs, results) -> list[tuple]:  #
                 )
                 write_image(d / f"{ref.name}_corners.png", draw_corners(source.read_image(ref), res.uv))
                 sigma = np.sqrt(np.mean(np.trace(res.cov_px, axis1=1, axis2=2) / 2))
-                rows.append((ref.name, "yes", f"{sigma:.3f}", ""))
+                rows.append((ref.name, "yes", res.detector, f"{sigma:.3f}", ""))
             write_yaml(d / f"{ref.name}.yaml", doc)
     return rows

@@ -147,6 +147,8 @@ class ImageCorners:
     cov_px: (K, 2, 2) pixel covariance of each corner.
     half_turn_ambiguous: True when the order is known only up to the board's half turn.
     diagnostics: free-form numbers for reports.
+    detector: which detector found the grid (e.g. ``"sb"``, ``"classic"``, ``"cbdetect+gamma"``);
+        empty when unknown (corners read back from a file).
     """
 
     uv: np.ndarray
@@ -154,6 +156,7 @@ class ImageCorners:
     cov_px: np.ndarray
     half_turn_ambiguous: bool
     diagnostics: dict[str, float] = field(default_factory=dict)
+    detector: str = ""
 
 
 @dataclass(frozen=True)

@@ -86,6 +86,29 @@ def test_view_around_holds_the_directions():
     assert np.all(xy >= 10.0 - 1e-9) and np.all(xy <= np.array([view.width, view.height]) - 10.0)
 
 
+@pytest.mark.parametrize("camera", CAMERAS, ids=lambda c: c.kind)
+def test_view_around_on_a_lattice(camera):
+    """With snap_px, directions that differ by a small fraction of a pixel get the identical view
+    (so the resampled image the corners are refined in does not depend on the seed), and the
+    directions still fit inside it."""
+    rng = np.random.default_rng(4)
+    b = np.array([_direction(camera, rng) for _ in range(5)])
+    view = view_around(camera, b, pad_px=10.0, snap_px=2.0)
+    xy = view.to_view(b)
+    assert np.all(xy >= 9.0) and np.all(xy <= np.array([view.width, view.height]) - 9.0)
+    assert float(view.cx).is_integer() and float(view.cy).is_integer()
+    same = 0
+    for _ in range(20):  # nudge every direction by ~0.01 view px
+        nudged = b + rng.normal(0.0, 0.01 / view.f, b.shape)
+        nudged /= np.linalg.norm(nudged, axis=1, keepdims=True)
+        v2 = view_around(camera, nudged, pad_px=10.0, snap_px=2.0)
+        same += int(
+            np.array_equal(v2.R_cam_view, view.R_cam_view)
+            and (v2.f, v2.cx, v2.cy) == (view.f, view.cx, view.cy)
+        )
+    assert same >= 17  # a nudge across a lattice cell boundary (2 px) is rare
+
+
 def test_homography_sigma_measures_the_noise():
     rng = np.random.default_rng(3)
     board = Board(9, 12, 0.05)

@@ -119,14 +119,29 @@ def view_around(
     pad_px: float,
     scale: float = 1.0,
     max_size: int = 4000,
+    snap_px: float = 0.0,
 ) -> VirtualView:
     """A view centred on the directions ``b_cam`` (N, 3) that holds them all with ``pad_px`` around.
 
     Its focal length matches the source camera's angular resolution at the centre times ``scale``.
+    With ``snap_px`` > 0 the view is put on a lattice: its axis is rounded to a grid of about
+    ``snap_px`` view pixels in azimuth and elevation (camera's forward-left-up frame) and its
+    principal point to whole pixels, so that directions that differ by much less than that get
+    the identical view (the same resampling of the image).
     """
     b = np.asarray(b_cam, dtype=np.float64).reshape(-1, 3)
     c = b.mean(axis=0)
     c /= np.linalg.norm(c)
+    if snap_px > 0:
+        # the lattice's angular step must not move with c itself: the resolution there rounded to
+        # a power of two, so the step is snap_px view pixels within a factor of sqrt(2)
+        step = snap_px / 2.0 ** np.round(np.log2(scale * pixels_per_radian(camera, c)))
+        d = camera.R_flu_cam @ c
+        az, el = (
+            np.round(np.arctan2(d[1], d[0]) / step) * step,
+            np.round(np.arcsin(np.clip(d[2], -1, 1)) / step) * step,
+        )
+        c = camera.R_flu_cam.T @ np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     R = look_rotation(camera, c)
     f = scale * pixels_per_radian(camera, c)
     probe = VirtualView(R, f, 0.0, 0.0, 1, 1).to_view(b)
@@ -134,6 +149,8 @@ def view_around(
         raise ValueError("view_around: directions span more than a hemisphere")
     lo = probe.min(axis=0) - pad_px
     hi = probe.max(axis=0) + pad_px
+    if snap_px > 0:
+        lo = np.floor(lo)
     size = np.ceil(hi - lo).astype(int) + 1
     if np.any(size > max_size):  # shrink the focal length so the view fits
         k = max_size / float(size.max())
