@@ -11,10 +11,14 @@ from scipy.stats import chi2 as chi2_dist
 
 from ilcc_graph.estimation.assembly import Term
 
-__all__ = ["RETURNS_MAX_RATIO", "BoardStats", "board_stats", "gate_failures", "gate_scale"]
+__all__ = ["PRIOR_MAX_RATIO", "RETURNS_MAX_RATIO", "BoardStats", "board_stats", "gate_failures", "gate_scale"]
 
 #: a board's returns fail the gate only above this multiple of their dof (after the median scale)
 RETURNS_MAX_RATIO = 2.0
+#: a board's LiDAR pose (its prior's term alone) fails only above this multiple of its dof: the
+#: LiDAR fit's errors are heavy-tailed (recorded sets: 35-41 on 6 dof for boards whose views and
+#: returns are fine); a wrong correspondence moves a board by a square (chi2 in the hundreds)
+PRIOR_MAX_RATIO = 8.0
 
 
 @dataclass(frozen=True)
@@ -116,7 +120,8 @@ def gate_failures(
     board away from where the LiDAR saw it, as a wrong correspondence does) and, where they enter,
     the board's LiDAR returns are tested apart, each against its own median scale; the returns only against a gross misfit
     (``RETURNS_MAX_RATIO`` times their dof: their residuals are heavy-tailed, a wrong object is not),
-    the views and the prior only above ``view_ratio`` times their dof when that is larger than the quantile (each
+    the prior alone above ``PRIOR_MAX_RATIO`` times its dof (likewise),
+    the views only above ``view_ratio`` times their dof when that is larger than the quantile (each
     view then has its own variance component: only a view inconsistent as a whole is dropped).
     """
     failing = []
@@ -131,6 +136,8 @@ def gate_failures(
             bound = float(chi2_dist.ppf(prob, dof))
             if part == "returns":  # heavy-tailed in practice: only a gross misfit (another object) fails
                 bound = max(bound, RETURNS_MAX_RATIO * dof)
+            elif part == "prior":
+                bound = max(bound, PRIOR_MAX_RATIO * dof)
             else:
                 bound = max(bound, view_ratio * dof)
             if value > bound:
