@@ -19,6 +19,7 @@ import numpy as np
 
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameSource
+from ilcc_graph.diagnose import dropped_frame_cause, fit_image_alone
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import NoiseOptions
 from ilcc_graph.estimation.batch import BatchSolution
@@ -214,8 +215,10 @@ def _finish(
 ) -> Calibration:
     """The Calibration of one source from a strategy's answer: every frame in input order with its fate."""
     results = dict(prep.results)
-    for name, reason in sol.dropped:
-        _drop(results, name, reason)
+    if sol.dropped:
+        causes = _dropped_causes(results, [n for n, _ in sol.dropped], config, sol.T_cam_lidar)
+        for name, reason in sol.dropped:
+            _drop(results, name, f"{reason}; {causes[name]}" if causes.get(name) else reason)
     frames = []
     for r in (results[o.name] for o in observed):
         if r.used:
@@ -236,6 +239,20 @@ def _finish(
     return Calibration(
         sol.T_cam_lidar, sol.covariance, tuple(frames), method, diagnostics, cam, _sensors(sol, config)
     )
+
+
+def _dropped_causes(
+    results: dict[str, FrameResult], dropped: Sequence[str], config: Config, T_cam_lidar: np.ndarray
+) -> dict[str, str]:
+    """Per dropped frame the likely cause (``diagnose``), judged against the used frames' images."""
+    used = [r for n, r in results.items() if r.used and n not in dropped and r.corners is not None]
+    if len(used) < 3:
+        return {}
+    corners = config.board.corners_board()
+    typical = float(np.median([fit_image_alone(r.corners.bearings, corners).rms_mrad for r in used]))
+    return {
+        n: dropped_frame_cause(results[n], config.board, config.camera, T_cam_lidar, typical) for n in dropped
+    }
 
 
 def _sensors(sol: BatchSolution, config: Config) -> dict:
