@@ -33,6 +33,7 @@ import yaml
 
 from ilcc_graph.errors import BoardNotFound
 from ilcc_graph.lidar import estimate_board
+from ilcc_graph.lidar import pattern as P
 from ilcc_graph.lidar import ringless as R
 from ilcc_graph.lidar.detection import ransac_plane
 from ilcc_graph.simulate import SimulationSpec, Systematics, default_camera, frame_scene, simulate_scan
@@ -110,10 +111,10 @@ def checks_table(frames: int) -> str:
            "|---|---|---|---:|---|\n")  # fmt: skip
     one_band = lambda p: np.zeros(len(p), np.int64)  # noqa: E731
     cases = [
-        ("elevation bands (the stage)", "livox-mid70", 0.5, R.pseudo_rings, LidarOptions()),
+        ("elevation bands (the stage)", "livox-mid70", 0.5, P.pseudo_rings, LidarOptions()),
         ("one band for every return", "livox-mid70", 0.5, one_band, LidarOptions()),
-        ("ray projection (the stage)", "livox-mid40", 1.0, R.pseudo_rings, LidarOptions()),
-        ("orthogonal projection", "livox-mid40", 1.0, R.pseudo_rings, LidarOptions(projection="normal")),
+        ("ray projection (the stage)", "livox-mid40", 1.0, P.pseudo_rings, LidarOptions()),
+        ("orthogonal projection", "livox-mid40", 1.0, P.pseudo_rings, LidarOptions(projection="normal")),
     ]
     for label, name, T, rings, opts in cases:
         spec = _spec(name, T, frames, 0, systematics=Systematics.off())
@@ -125,7 +126,7 @@ def checks_table(frames: int) -> str:
                 rows.append(_board_error(fit, Tb, spec))
             except BoardNotFound:
                 pass
-        lidar_pkg.pseudo_rings = R.pseudo_rings
+        lidar_pkg.pseudo_rings = P.pseudo_rings
         z = np.sqrt((np.array([r[2] for r in rows]) ** 2).mean(axis=0))
         nees = np.mean([r[1] for r in rows])
         out += (f"| {label} | {name}, {T:.1f} s | {len(rows)}/{frames} | {nees:.1f} | "
@@ -161,8 +162,8 @@ def backends_table(frames: int) -> str:
     o3d.utility.random.seed(0)
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     cases = {
-        "numpy RANSAC + scipy links (ours)": (ransac_plane, R.link_components),
-        "Open3D segment_plane + scipy links": (_o3d_plane, R.link_components),
+        "numpy RANSAC + scipy links (ours)": (ransac_plane, P.link_components),
+        "Open3D segment_plane + scipy links": (_o3d_plane, P.link_components),
         "numpy RANSAC + Open3D cluster_dbscan": (ransac_plane, _o3d_dbscan),
         "Open3D segment_plane + cluster_dbscan": (_o3d_plane, _o3d_dbscan),
     }

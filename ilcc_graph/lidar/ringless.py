@@ -1,26 +1,25 @@
 """Finding the chessboard in a scan without scanlines (Livox-style non-repetitive patterns).
 
 A scanline-free scan has no ring and no azimuth order: the scanline segmentation has nothing to
-walk along. Here the same ideas are carried over to neighbours in direction:
+walk along. Here the same ideas are carried over to neighbours in direction (pattern.py):
 
-1. **Density.** The pattern's returns per steradian, on 1 x 1 deg cells of azimuth and elevation
-   smoothed over 5 x 5 cells inside the field (:class:`DensityMap`). It is measured from the scan
-   itself (a rosette is several times denser at its centre than half-way out, and the density
-   grows with the integration time); the local mean spacing is ``delta = 1 / sqrt(density)``.
+1. **Density.** The pattern's returns per steradian on 1 x 1 deg cells, smoothed over 5 x 5 cells
+   of the field, measured from the scan itself (a rosette is several times denser at its centre
+   than half-way out, and denser the longer it integrates); the local spacing is
+   ``delta = 1 / sqrt(density)``.
 2. **Objects.** The search runs on at most ``SEARCH_POINTS`` returns (an even random draw of a long
-   integration). Two returns are linked when their directions are less than ``jump_ratio * delta``
-   apart and their distance is below ``jump_ratio * range * delta`` plus the noise allowance
-   ``noise_sigmas * sigma`` (the scanline stage's jump rule, with the local spacing for the azimuth
-   step; ``sigma`` from local plane fits, :func:`estimate_noise`). Connected components
-   (cKDTree pairs, scipy.sparse.csgraph) are the objects.
+   integration). A return is linked to those of its 32 nearest directions that are less than
+   ``jump_ratio * delta`` away in direction and closer than ``jump_ratio * range * delta`` plus
+   the noise allowance ``noise_sigmas * sigma`` (the scanline stage's jump rule, the local spacing
+   for the azimuth step; ``sigma`` from local planes). Connected components are the objects.
 3. **Tests.** Each object is put to the paper's board tests (``board_tests.board_tests``) with a
    local beam model whose azimuth and elevation steps are both the spacing over the object (RMS of
    ``delta``): the theoretical count is ``area * density / d^2`` with the pattern's mean density
-   over the object's solid angle, the size slack one spacing; each
-   return stands for the solid angle ``delta^2`` at its own direction (the PCA and the quadrant
-   counts follow the board, not where the rosette is dense).
+   over the object, the size slack one spacing; each return stands for the part of the object's
+   plane nearest to it (``pattern.area_weights``), so that the PCA and the quadrant counts follow the
+   board, not where the rosette's petals happen to cross it.
 4. **Splitting.** An object that fails and is big enough to hold a board is split: a RANSAC plane
-   is peeled off (floor, wall), its inliers and the rest are cut into connected pieces again and
+   is peeled off (floor, wall), its inliers and the rest are clustered into pieces again and
    tested (a board on its stand comes apart from the floor); a piece that fails the size or
    uniformity test is trimmed in its own plane (a morphological opening a third of the board's
    short side wide removes a pole or an arm).
@@ -38,12 +37,10 @@ docs/lidar_ringless.md). Frames: the LiDAR frame, metres, radians.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
-from scipy.spatial import cKDTree
 
 from ..board import Board
 from ..errors import BoardNotFound
@@ -52,199 +49,20 @@ from ..types import BoardFit
 from .board_tests import board_tests, intensity_contrast
 from .detection import Candidate, ransac_plane, roi_mask
 from .options import LidarOptions
-from .segmentation import components_of
+from .pattern import area_weights, density_map, estimate_noise, link_components, pseudo_rings, trim_in_plane
 
-__all__ = [
-    "DensityMap", "density_map", "estimate_noise", "link_edges", "find_ringless_candidates", "pseudo_rings",
-    "one_pseudo_beam",
-    "trim_in_plane", "area_weights", "link_components", "SEARCH_POINTS",
-]  # fmt: skip
+__all__ = ["find_ringless_candidates", "one_pseudo_beam", "pseudo_rings", "SEARCH_POINTS"]
 
 PlaneFn = Callable[[np.ndarray, float, np.random.Generator], tuple[np.ndarray, float, np.ndarray]]
-_CELL_DEG = 1.0
-_SMOOTH_CELLS = 5
-_NEIGHBOURS = 32
 #: the search runs on at most this many returns (an even random draw: the pattern's angular density
 #: scales, nothing else changes); the fit gathers every return near a candidate's plane
 SEARCH_POINTS = 20_000
-
-
-@dataclass(frozen=True)
-class DensityMap:
-    """Returns per steradian on 1 deg cells: ``density[el_cell, az_cell]``, 0 outside the field."""
-
-    density: np.ndarray
-
-    def at(self, u: np.ndarray) -> np.ndarray:
-        """(N,) returns per steradian at unit directions u (N, 3); the nearest non-zero cell's."""
-        i, j = _cells(u)
-        return self.density[i, j]
-
-    def spacing(self, u: np.ndarray) -> np.ndarray:
-        """(N,) local mean angular spacing (rad) of the returns at directions u (N, 3)."""
-        return 1.0 / np.sqrt(np.maximum(self.at(u), 1.0))
-
-
-def _cells(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    el = np.degrees(np.arcsin(np.clip(u[:, 2], -1.0, 1.0)))
-    az = np.degrees(np.arctan2(u[:, 1], u[:, 0]))
-    i = np.clip(((el + 90.0) / _CELL_DEG).astype(np.int64), 0, int(180 / _CELL_DEG) - 1)
-    j = np.clip(((az + 180.0) / _CELL_DEG).astype(np.int64), 0, int(360 / _CELL_DEG) - 1)
-    return i, j
-
-
-def density_map(u: np.ndarray) -> DensityMap:
-    """The pattern's density from the directions u (N, 3) of a scan's returns.
-
-    Counts per cell over the cell's solid angle, smoothed by a normalised box filter over the cells
-    of the field (a cell with returns, or one whose 5 x 5 neighbourhood is at least 40 % such cells:
-    the gaps between a short integration's petals count, the sky beyond the rim does not). Cells
-    outside get the density of the nearest cell of the field.
-    """
-    n_el, n_az = int(180 / _CELL_DEG), int(360 / _CELL_DEG)
-    i, j = _cells(u)
-    counts = np.bincount(i * n_az + j, minlength=n_el * n_az).reshape(n_el, n_az).astype(np.float64)
-    el_c = np.deg2rad(-90.0 + _CELL_DEG * (np.arange(n_el) + 0.5))
-    area = np.cos(el_c)[:, None] * np.deg2rad(_CELL_DEG) ** 2 * np.ones((1, n_az))
-    modes = ("nearest", "wrap")
-    occupied = counts > 0
-    field = occupied | (ndimage.uniform_filter(occupied.astype(np.float64), _SMOOTH_CELLS, mode=modes) >= 0.4)
-    if not occupied.any():
-        return DensityMap(np.full((n_el, n_az), 1.0))
-    num = ndimage.uniform_filter(counts, _SMOOTH_CELLS, mode=modes)
-    den = ndimage.uniform_filter(area * field, _SMOOTH_CELLS, mode=modes)
-    dens = np.where(field, num / np.maximum(den, 1e-12), 0.0)
-    # outside the field: the nearest cell's value inside it
-    _, (ii, jj) = ndimage.distance_transform_edt(~field, return_indices=True)
-    return DensityMap(dens[ii, jj])
-
-
-def estimate_noise(p: np.ndarray, rng: np.random.Generator, k: int = 24, n: int = 2000) -> float:
-    """Range noise (m, one sigma) from local planes: the median smallest PCA spread of the k nearest
-    returns of up to n random returns (floor 2 mm)."""
-    if p.shape[0] < k + 1:
-        return 0.01
-    sub = p[rng.choice(p.shape[0], min(n, p.shape[0]), replace=False)]
-    _, nb = cKDTree(p).query(sub, k)
-    Q = p[nb] - p[nb].mean(axis=1, keepdims=True)
-    w = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", Q, Q) / (k - 3))[:, 0]
-    return max(float(np.sqrt(np.median(np.maximum(w, 0.0)))), 0.002)
-
-
-def link_edges(
-    p: np.ndarray, u: np.ndarray, delta: np.ndarray, jump_ratio: float, allow: float, k: int = _NEIGHBOURS
-) -> np.ndarray:
-    """(E, 2) pairs of returns linked as neighbours (see the module docstring, step 2).
-
-    p: (N, 3) points, u: (N, 3) their unit directions, delta: (N,) local spacing (rad). Each return
-    is paired with its ``k`` nearest in direction (a radius of ``jump_ratio`` spacings holds ~80 on
-    average; 32 nearest bridge the gaps between a 0.1 s rosette's petals as well as the radius does
-    and cost a quarter), of which those within both limits are links.
-    """
-    n = p.shape[0]
-    if n < 2:
-        return np.zeros((0, 2), np.int64)
-    k = min(k, n)
-    ang, nb = cKDTree(u).query(u, k)
-    a = np.repeat(np.arange(n), k - 1)
-    b = nb[:, 1:].ravel()
-    ang = ang[:, 1:].ravel()
-    d_loc = np.maximum(delta[a], delta[b])
-    r = np.linalg.norm(p, axis=1)
-    dist = np.linalg.norm(p[a] - p[b], axis=1)
-    keep = (ang < jump_ratio * d_loc) & (dist < jump_ratio * np.minimum(r[a], r[b]) * d_loc + allow)
-    return np.stack([a[keep], b[keep]], axis=1).astype(np.int64)
-
-
-def link_components(
-    p: np.ndarray, u: np.ndarray, delta: np.ndarray, jump_ratio: float, allow: float
-) -> np.ndarray:
-    """(N,) object label of each return: connected components of :func:`link_edges`."""
-    return components_of(p.shape[0], link_edges(p, u, delta, jump_ratio, allow))[1]
-
-
-def pseudo_rings(points: np.ndarray) -> np.ndarray:
-    """(N,) int elevation band of each return, one median local spacing high (0 = lowest band).
-
-    What the intensity fit groups returns by when a scan has no rings: its sampling covariance
-    pairs neighbours within a band and with the next one up, and counts the pairs crossing one
-    grid line between the same two bands once; its plane fit takes a delete-one-band jackknife.
-    Bands one spacing high give the boards' in-plane errors z-scores of 0.8-1.0, one band for all
-    returns 0.4-0.6 (too cautious; docs/lidar_ringless.md).
-    """
-    p = np.asarray(points, dtype=np.float64)
-    if p.shape[0] == 0:
-        return np.zeros(0, np.int64)
-    r = np.linalg.norm(p, axis=1)
-    u = p / np.maximum(r, 1e-9)[:, None]
-    step = float(np.median(density_map(u).spacing(u)))
-    band = np.floor(np.arcsin(np.clip(u[:, 2], -1.0, 1.0)) / step).astype(np.int64)
-    return band - band.min()
 
 
 def one_pseudo_beam(fit: BoardFit) -> BoardFit:
     """The fit with its returns on the one pseudo-beam 0 (what the estimation core is given: one
     laser, one range offset; the bands were for the fit's own covariance)."""
     return replace(fit, returns=replace(fit.returns, ring=np.zeros(len(fit.returns.ring), np.int64)))
-
-
-def trim_in_plane(q: np.ndarray, normal: np.ndarray, cell: float, width: float) -> np.ndarray:
-    """Indices of the largest compact blob of the planar piece q (M, 3): drops thin attachments.
-
-    The returns are rasterised in their plane (``normal``) on cells of ``cell`` metres (closed once
-    against holes between returns); an opening by a square ``width`` metres wide removes poles and
-    arms; the largest block left, grown back, is kept.
-    """
-    ref = np.array([0.0, 0.0, 1.0]) if abs(normal[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
-    e1 = np.cross(normal, ref)
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(normal, e1)
-    xy = np.column_stack([q @ e1, q @ e2])
-    ij = np.floor((xy - xy.min(axis=0)) / cell).astype(np.int64)
-    k = max(3, int(np.ceil(width / cell)))
-    shape = ij.max(axis=0) + 1 + 2 * k
-    if shape[0] * shape[1] > 4_000_000:
-        return np.arange(q.shape[0])
-    occ = np.zeros(shape, bool)
-    occ[ij[:, 0] + k, ij[:, 1] + k] = True
-    occ = ndimage.binary_closing(occ, structure=np.ones((3, 3), bool))
-    box = np.ones((k, k), bool)
-    lab, n = ndimage.label(ndimage.binary_erosion(occ, structure=box))
-    if n == 0:
-        return np.arange(q.shape[0])
-    big = np.argmax(np.bincount(lab.ravel())[1:]) + 1
-    keep = ndimage.binary_dilation(lab == big, structure=box)
-    return np.flatnonzero(keep[ij[:, 0] + k, ij[:, 1] + k])
-
-
-def area_weights(q: np.ndarray, spacing_m: float, reach: float = 3.0) -> np.ndarray:
-    """(M,) board area (m^2) each return of the planar piece q (M, 3) stands for: the part of the
-    piece's plane nearer to it than to any other return, up to ``reach`` mean spacings away.
-
-    A rosette crosses a board along a few petals in a short integration: counted per return, the
-    quadrants of a whole board look uneven; weighted by the area each return covers they do not,
-    while a piece with a real hole (larger than ``reach`` spacings) still does.
-    spacing_m: the mean spacing of the returns on the piece (m).
-    """
-    mu = q.mean(axis=0)
-    _, _, vt = np.linalg.svd(q - mu, full_matrices=False)
-    xy = (q - mu) @ vt[:2].T
-    cell = max(spacing_m / 3.0, 1e-3)
-    pad = int(np.ceil(reach * spacing_m / cell)) + 1
-    ij = np.floor((xy - xy.min(axis=0)) / cell).astype(np.int64) + pad
-    shape = ij.max(axis=0) + 1 + pad
-    if shape[0] * shape[1] > 4_000_000:
-        return np.full(q.shape[0], 1.0)
-    owner = np.full(shape, -1, np.int64)
-    owner[ij[:, 0], ij[:, 1]] = np.arange(q.shape[0])  # one return per occupied cell owns it
-    dist, (ii, jj) = ndimage.distance_transform_edt(owner < 0, return_indices=True)
-    near = owner[ii, jj][dist * cell <= reach * spacing_m]
-    cells = np.bincount(near, minlength=q.shape[0]).astype(np.float64)
-    # returns sharing a cell share its area
-    key = ij[:, 0] * shape[1] + ij[:, 1]
-    _, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
-    per_cell = np.bincount(inv, weights=cells) / cnt
-    return per_cell[inv] * cell**2
 
 
 def _local_model(model: LidarModel, spacing_rad: float) -> LidarModel:
