@@ -186,3 +186,24 @@ def test_a_livox_set_whose_config_names_no_lidar_calibrates_with_its_range_offse
     cal = result.calibration
     assert sum(f.used for f in cal.frames) == 5
     assert _nees(cal, data) < CHI2_6_9997
+
+
+def test_a_livox_recording_as_a_ros2_bag_reads_without_rings(tmp_path: Path) -> None:
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.simulate import ImageOptions, simulate_frames, write_bag
+
+    spec = _spec(frames=2, integration_time_s=0.3, image=ImageOptions(supersample=1))
+    frames = list(simulate_frames(spec))
+    src = open_source(write_bag(tmp_path / "livox", spec, frames=frames, storage="mcap"))
+    refs = src.frames()
+    assert len(refs) == 2
+    config = src.config()
+    assert config.lidar.ringless
+    scan = src.read_scan(refs[0], config)
+    assert scan.ring is None and np.allclose(scan.points, frames[0].scan.points, atol=1e-5)
+    fit = estimate_board(scan, config.board, config.lidar)
+    T = frames[0].T_lidar_board
+    truth = spec.board.corners_board() @ T[:3, :3].T + T[:3, 3]
+    err = min(np.sqrt(((fit.corners_lidar[p] - truth) ** 2).sum(axis=1).mean())
+              for p in (np.arange(len(truth)), spec.board.half_turn_permutation()))  # fmt: skip
+    assert err < 0.004
