@@ -155,7 +155,11 @@ def main() -> None:
             try:
                 cal = solve_observations([obs], options).calibration
             except (CalibrationImpossible, IndeterminateSystem) as e:
-                lines.append(f"| {vname} | - | cannot calibrate: {e} |" + " |" * (head.count("|") - 4))
+                lines.append(
+                    f"| {vname} | - | cannot calibrate (exit 3, below) |" + " |" * (head.count("|") - 4)
+                )
+                if f"- {e}" not in notes:
+                    notes.append(f"- {e}")
                 continue
             t_solve = time.perf_counter() - t1
             T_lc = np.linalg.inv(cal.T_cam_lidar)
@@ -181,7 +185,7 @@ def main() -> None:
             for f in cal.frames:
                 if not f.used:
                     notes.append(f"- {vname}: {f.name}: {f.reason}")
-        lines += ["", "Frames left out:", "", *(notes or ["- none"]), ""]
+        lines += ["", "Frames left out, or why the set cannot calibrate:", "", *(notes or ["- none"]), ""]
     text = "\n".join(lines) + "\n"
     print(text)
     atomic_write(Path(args.out), text)
