@@ -25,24 +25,22 @@ iteration costs O(factors x variables). One factor per frame keeps both small (s
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Sequence
 
 import gtsam
 import numpy as np
 
-POSE3_DOF = 6
+from factors.grouped import POSE3_DOF, CornerGroupFactor, pose_chain, sqrt_information
+
 BEARING_DOF = 2
 
 __all__ = [
     "BEARING_DOF",
-    "POSE3_DOF",
     "FrameBearingFactor",
     "bearing_error",
     "bearing_factor",
     "bearing_point_factor",
     "board_bearing_error",
-    "sqrt_information",
     "tangent_bases",
 ]
 
@@ -188,33 +186,8 @@ def tangent_bases(bearings: np.ndarray | Sequence[gtsam.Unit3]) -> np.ndarray:
     return np.stack([u.basis() for u in units])
 
 
-def sqrt_information(cov: np.ndarray) -> np.ndarray:
-    """Upper-triangular square roots ``R`` with ``R.T @ R = inv(cov)`` for covariances (..., n, n).
-
-    Raises ``ValueError`` when a covariance is not symmetric positive definite.
-    """
-    cov = np.asarray(cov, dtype=np.float64)
-    if not np.all(np.isfinite(cov)):
-        raise ValueError("sqrt_information: covariance has non-finite entries")
-    try:
-        info = np.linalg.inv(cov)
-        L = np.linalg.cholesky(0.5 * (info + np.swapaxes(info, -1, -2)))
-    except np.linalg.LinAlgError as exc:
-        raise ValueError(f"sqrt_information: covariance is not positive definite ({exc})") from None
-    return np.swapaxes(L, -1, -2).copy()
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """(K, 3) -> (K, 3, 3) cross-product matrices."""
-    S = np.zeros((len(v), 3, 3))
-    S[:, 0, 1], S[:, 0, 2] = -v[:, 2], v[:, 1]
-    S[:, 1, 0], S[:, 1, 2] = v[:, 2], -v[:, 0]
-    S[:, 2, 0], S[:, 2, 1] = -v[:, 1], v[:, 0]
-    return S
-
-
 # ------------------------------------------------------------------------- per-frame group
-class FrameBearingFactor:
+class FrameBearingFactor(CornerGroupFactor):
     """All corners of one frame as one factor on (``T_cam_lidar``, ``T_lidar_board``).
 
     Each corner k has its own 2x2 bearing covariance ``cov_tangent[k]`` in the basis
@@ -262,24 +235,8 @@ class FrameBearingFactor:
         self.robust = robust
         self.n_corners = K
 
-    def with_robust(self, robust: gtsam.noiseModel.mEstimator.Base | None) -> FrameBearingFactor:
-        """The same measurements with another (or no) m-estimator; shares the arrays."""
-        other = copy.copy(self)
-        other.robust = robust
-        return other
-
-    def scaled(self, variance_scale: float) -> FrameBearingFactor:
-        """The same measurements with every covariance multiplied by ``variance_scale`` (> 0)."""
-        if not variance_scale > 0:
-            raise ValueError(f"FrameBearingFactor.scaled: variance_scale must be > 0, got {variance_scale!r}")
-        other = copy.copy(self)
-        other.sqrt_info = self.sqrt_info / np.sqrt(variance_scale)
-        return other
-
-    @property
-    def dim(self) -> int:
-        """Error dimension 2K."""
-        return BEARING_DOF * self.n_corners
+    def _variables(self, values: gtsam.Values, keys: Sequence[int]) -> tuple[gtsam.Pose3, gtsam.Pose3]:
+        return values.atPose3(keys[0]), values.atPose3(keys[1])
 
     # -- the math, no GTSAM objects involved beyond the two poses
     def unwhitened(
@@ -302,14 +259,7 @@ class FrameBearingFactor:
             return e, None, None
         Bt = np.swapaxes(self.bases, 1, 2)  # (K, 2, 3)
         D_e_pc = (Bt - np.einsum("kj,ki->kji", e, u)) / r[:, None, None]  # B^T (I - u u^T) / r
-        D_e_pl = D_e_pc @ R_cl  # (K, 2, 3)
-        H_cam = np.empty((self.n_corners, 2, POSE3_DOF))
-        H_cam[:, :, :3] = -D_e_pl @ _skew(p_lidar)
-        H_cam[:, :, 3:] = D_e_pl
-        D_e_pb = D_e_pl @ R_lb
-        H_board = np.empty((self.n_corners, 2, POSE3_DOF))
-        H_board[:, :, :3] = -D_e_pb @ _skew(self.points_board)
-        H_board[:, :, 3:] = D_e_pb
+        H_cam, H_board = pose_chain(D_e_pc @ R_cl, R_lb, p_lidar, self.points_board)
         return e, H_cam, H_board
 
     def whitened(self, T_cam_lidar: gtsam.Pose3, T_lidar_board: gtsam.Pose3) -> np.ndarray:
@@ -327,32 +277,12 @@ class FrameBearingFactor:
         """
         e, H_cam, H_board = self.unwhitened(T_cam_lidar, T_lidar_board, jacobians)
         r = np.einsum("kij,kj->ki", self.sqrt_info, e)
-        if self.robust is not None:
-            norms = np.linalg.norm(r, axis=1)
-            if jacobians:
-                s = np.sqrt([self.robust.weight(float(x)) for x in norms])
-            else:
-                loss = np.array([self.robust.loss(float(x)) for x in norms])
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    s = np.where(norms > 0, np.sqrt(2.0 * loss) / norms, 1.0)
+        s = self._robust_scales(r, jacobians)
+        if s is not None:
             r = r * s[:, None]
         if not jacobians:
             return r.reshape(-1), None, None
-        Wt = self.sqrt_info if self.robust is None else self.sqrt_info * s[:, None, None]
+        Wt = self.sqrt_info if s is None else self.sqrt_info * s[:, None, None]
         A_cam = np.asfortranarray((Wt @ H_cam).reshape(-1, POSE3_DOF))
         A_board = np.asfortranarray((Wt @ H_board).reshape(-1, POSE3_DOF))
         return r.reshape(-1), A_cam, A_board
-
-    def _error(
-        self, this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None
-    ) -> np.ndarray:
-        keys = this.keys()
-        T_cl, T_lb = values.atPose3(keys[0]), values.atPose3(keys[1])
-        r, A_cam, A_board = self.evaluate(T_cl, T_lb, H is not None)
-        if H is not None:
-            H[0], H[1] = A_cam, A_board
-        return r
-
-    def factor(self) -> gtsam.CustomFactor:
-        """The GTSAM factor (unit noise model of dimension 2K, whitening done inside)."""
-        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(self.dim), list(self.keys), self._error)

@@ -29,10 +29,12 @@ board's plane no better than that, while the LiDAR's shared terms still average 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import gtsam
 import numpy as np
 
-POSE3_DOF = 6
+from factors.grouped import POSE3_DOF, GroupedFactor
 
 __all__ = ["BoardPointsFactor", "elevation_directions"]
 
@@ -46,7 +48,7 @@ def elevation_directions(u: np.ndarray) -> np.ndarray:
     return np.column_stack([-np.sin(el) * np.cos(az), -np.sin(el) * np.sin(az), np.cos(el)])
 
 
-class BoardPointsFactor:
+class BoardPointsFactor(GroupedFactor):
     """One board's returns and in-plane prior on (``T_lidar_board``, LiDAR parameters ``l``).
 
     Parameters
@@ -210,16 +212,5 @@ class BoardPointsFactor:
             H_l[:M] = self._plane_apply(H_l[:M])
         return err, H_T, H_l
 
-    def _error(
-        self, this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None
-    ) -> np.ndarray:
-        keys = this.keys()
-        T, lidar = values.atPose3(keys[0]), values.atVector(keys[1])
-        err, H_T, H_l = self.evaluate(T, lidar, H is not None)
-        if H is not None:
-            H[0], H[1] = H_T, H_l
-        return err
-
-    def factor(self) -> gtsam.CustomFactor:
-        """The GTSAM factor (unit noise model of dimension M + 3, whitening done inside)."""
-        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(self.dim), list(self.keys), self._error)
+    def _variables(self, values: gtsam.Values, keys: Sequence[int]) -> tuple[gtsam.Pose3, np.ndarray]:
+        return values.atPose3(keys[0]), values.atVector(keys[1])

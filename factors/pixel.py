@@ -28,13 +28,12 @@ here all the same).
 
 from __future__ import annotations
 
-import copy
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import gtsam
 import numpy as np
 
-from factors.bearing import POSE3_DOF, _skew, sqrt_information
+from factors.grouped import CornerGroupFactor, pose_chain, sqrt_information
 
 PIXEL_DOF = 2
 #: Whitened residual (per component) of a corner that cannot be imaged at the current estimate.
@@ -46,7 +45,7 @@ Projection = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np
 __all__ = ["PIXEL_DOF", "UNIMAGED_RESIDUAL", "FramePixelFactor", "Projection"]
 
 
-class FramePixelFactor:
+class FramePixelFactor(CornerGroupFactor):
     """All corners of one view as one factor on (``T_cam_lidar``, ``T_lidar_board``, ``theta``).
 
     Parameters
@@ -101,24 +100,9 @@ class FramePixelFactor:
         self.robust = robust
         self.n_corners = K
 
-    def with_robust(self, robust: gtsam.noiseModel.mEstimator.Base | None) -> FramePixelFactor:
-        """The same measurements with another (or no) m-estimator; shares the arrays."""
-        other = copy.copy(self)
-        other.robust = robust
-        return other
-
-    def scaled(self, variance_scale: float) -> FramePixelFactor:
-        """The same measurements with every pixel covariance multiplied by ``variance_scale`` (> 0)."""
-        if not variance_scale > 0:
-            raise ValueError(f"FramePixelFactor.scaled: variance_scale must be > 0, got {variance_scale!r}")
-        other = copy.copy(self)
-        other.sqrt_info = self.sqrt_info / np.sqrt(variance_scale)
-        return other
-
-    @property
-    def dim(self) -> int:
-        """Error dimension 2K."""
-        return PIXEL_DOF * self.n_corners
+    def _variables(self, values: gtsam.Values, keys: Sequence[int]) -> tuple:
+        theta = values.atVector(keys[2]) if len(keys) == 3 else None
+        return values.atPose3(keys[0]), values.atPose3(keys[1]), theta
 
     def _theta(self, theta: np.ndarray | None) -> np.ndarray:
         if self.fixed_intrinsics is not None:
@@ -149,14 +133,9 @@ class FramePixelFactor:
         e = np.asarray(uv, dtype=np.float64) - self.uv
         if not jacobians:
             return e, None, None, None
-        D_e_pl = np.asarray(J_p, dtype=np.float64) @ R_cl  # (K, 2, 3)
-        H_cam = np.empty((self.n_corners, 2, POSE3_DOF))
-        H_cam[:, :, :3] = -D_e_pl @ _skew(p_lidar)
-        H_cam[:, :, 3:] = D_e_pl
-        D_e_pb = D_e_pl @ R_lb
-        H_board = np.empty((self.n_corners, 2, POSE3_DOF))
-        H_board[:, :, :3] = -D_e_pb @ _skew(self.points_board)
-        H_board[:, :, 3:] = D_e_pb
+        H_cam, H_board = pose_chain(
+            np.asarray(J_p, dtype=np.float64) @ R_cl, R_lb, p_lidar, self.points_board
+        )
         H_theta = np.asarray(J_t, dtype=np.float64).reshape(self.n_corners, 2, th.size)
         return e, H_cam, H_board, H_theta
 
@@ -191,15 +170,10 @@ class FramePixelFactor:
                 & np.all(np.isfinite(H_theta), axis=(1, 2))  # type: ignore[arg-type]
             )
         r[bad] = UNIMAGED_RESIDUAL
-        s = np.ones(self.n_corners)
-        if self.robust is not None:
-            norms = np.linalg.norm(r, axis=1)
-            if jacobians:
-                s = np.sqrt([self.robust.weight(float(x)) for x in norms])
-            else:
-                loss = np.array([self.robust.loss(float(x)) for x in norms])
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    s = np.where(norms > 0, np.sqrt(2.0 * loss) / norms, 1.0)
+        s = self._robust_scales(r, jacobians)
+        if s is None:
+            s = np.ones(self.n_corners)
+        else:
             r = r * s[:, None]
         if not jacobians:
             return r.reshape(-1), None, None, None
@@ -210,20 +184,3 @@ class FramePixelFactor:
             H = np.where(bad[:, None, None], 0.0, H)  # type: ignore[call-overload]
             blocks.append(np.asfortranarray((Wt @ H).reshape(self.dim, -1)))
         return r.reshape(-1), blocks[0], blocks[1], blocks[2]
-
-    def _error(
-        self, this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None
-    ) -> np.ndarray:
-        keys = this.keys()
-        T_cl, T_lb = values.atPose3(keys[0]), values.atPose3(keys[1])
-        theta = values.atVector(keys[2]) if len(keys) == 3 else None
-        r, A_cam, A_board, A_theta = self.evaluate(T_cl, T_lb, theta, H is not None)
-        if H is not None:
-            H[0], H[1] = A_cam, A_board
-            if len(keys) == 3:
-                H[2] = A_theta
-        return r
-
-    def factor(self) -> gtsam.CustomFactor:
-        """The GTSAM factor (unit noise model of dimension 2K, whitening done inside)."""
-        return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(self.dim), list(self.keys), self._error)

@@ -26,9 +26,7 @@ from __future__ import annotations
 import gtsam
 import numpy as np
 
-from factors.bearing import _skew
-
-POSE3_DOF = 6
+from factors.grouped import POSE3_DOF, skew
 
 __all__ = ["RangeOffsetBoardFactor", "range_offset_direction", "range_offset_error", "shifted_board_pose"]
 
@@ -41,7 +39,7 @@ class _Samples:
         if P.ndim != 2 or P.shape[1] != 3 or len(P) < 3 or not np.all(np.isfinite(P)):
             raise ValueError(f"samples_board: expected finite (M>=3, 3) board-frame points, got {P.shape}")
         A = np.zeros((len(P), 3, POSE3_DOF))
-        A[:, :, :3] = -_skew(P)
+        A[:, :, :3] = -skew(P)
         A[:, :, 3:] = np.eye(3)
         N = np.einsum("kia,kib->ab", A, A)
         if np.linalg.cond(N) > 1e12:

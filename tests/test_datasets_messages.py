@@ -13,7 +13,8 @@ import pytest
 
 from ilcc_graph.cameras import Fisheye, Pinhole
 from ilcc_graph.config import parse_config
-from ilcc_graph.datasets.rosbag import camera_section, decode_cloud, decode_image, still_runs, sweep_offset
+from ilcc_graph.datasets.ros_messages import camera_section, decode_cloud, decode_image, sweep_offset
+from ilcc_graph.datasets.timeline import still_runs
 from ilcc_graph.errors import InputError
 from ilcc_graph.simulate.bag import RosMessages
 

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import gtsam
 from dataclasses import replace
 
+import gtsam
 import numpy as np
 import pytest
 from synthetic_graph import rig_frames, session_frames
@@ -290,9 +290,7 @@ def test_rig_robust_kernel_limits_bad_corners() -> None:
     # one bearing component for all views: a component per view would down-weight the bad views
     no_gate = NoiseOptions(chi2_gate_prob=None, view_components=False)
     plain = solve_rig(frames, cams, options=RigOptions(noise=no_gate))
-    robust = solve_rig(
-        frames, cams, options=RigOptions(noise=replace(no_gate, robust="cauchy"))
-    )
+    robust = solve_rig(frames, cams, options=RigOptions(noise=replace(no_gate, robust="cauchy")))
     gated = solve_rig(frames, cams)  # the noise policy's gate drops the three frames instead
     assert sorted(n for n, _ in gated.dropped) == sorted(f.name for f in frames[:3])
     for name in cams:

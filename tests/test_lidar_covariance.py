@@ -9,7 +9,8 @@ import pytest
 from ilcc_graph.board import Board
 from ilcc_graph.lidar import estimate_board
 from ilcc_graph.lidar._synthetic import SynthScene, synth_scan
-from ilcc_graph.lidar.covariance import assemble_covariance, plane_fit, ray_coupling, soft_intensity
+from ilcc_graph.lidar.covariance import assemble_covariance, plane_fit, ray_coupling
+from ilcc_graph.lidar.soft_edge import soft_intensity
 from ilcc_graph.lidars import lidar_model
 
 

@@ -8,15 +8,8 @@ import pytest
 from ilcc_graph.board import Board
 from ilcc_graph.lidar import LidarOptions, estimate_board
 from ilcc_graph.lidar._synthetic import SynthScene, synth_scan
-from ilcc_graph.lidar.fit import (
-    fit_in_plane,
-    gray_zone,
-    grid_l1_distance,
-    intensity_classes,
-    model_colour,
-    paper_cost,
-    powell_batched,
-)
+from ilcc_graph.lidar.cost import gray_zone, grid_l1_distance, intensity_classes, model_colour, paper_cost
+from ilcc_graph.lidar.fit import fit_in_plane, powell_batched
 from ilcc_graph.lidars import lidar_model
 
 BOARD = Board(6, 8, 0.075)

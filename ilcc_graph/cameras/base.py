@@ -301,8 +301,13 @@ class LensModel(CameraModel):
         return [float(self.K[0, 0]), float(self.K[1, 1]), float(self.K[0, 2]), float(self.K[1, 2])]
 
     def _section(self) -> dict[str, Any]:
+        """model, width, height, K, then the model's own ``config_keys`` from its fields of those names."""
         d = super()._section()
         d["K"] = self.K.tolist()
+        for key in self.config_keys:
+            if key not in d and key != "intrinsics_sigma":
+                v = getattr(self, key)
+                d[key] = v.tolist() if isinstance(v, np.ndarray) else v
         return d
 
     # -- what each lens file gives: its coordinates before K and its own parameters

@@ -105,6 +105,17 @@ def config_K(c: Checker, v: Any, key: str) -> list[list[float]]:
     return K
 
 
+def config_dist(c: Checker, d: dict, lengths: tuple[int, ...], missing: list[float]) -> list[float]:
+    """The ``dist`` key of a camera section: ``missing`` when absent, [] when empty, else numbers of
+    one of ``lengths``."""
+    dist = d.get("dist")
+    if dist is None:
+        return list(missing)
+    if isinstance(dist, (list, tuple)) and len(dist) == 0:
+        return []
+    return c.numbers(dist, "camera.dist", lengths)
+
+
 def axes_text(R_flu_cam: np.ndarray) -> str:
     """The camera axes in words, e.g. ``x right, y down, z forward`` for OpenCV's."""
     words = []

@@ -46,15 +46,7 @@ class DoubleSphere(LensModel):
     """
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
-    config_keys: ClassVar[tuple[str, ...]] = (
-        "model",
-        "width",
-        "height",
-        "K",
-        "xi",
-        "alpha",
-        "intrinsics_sigma",
-    )
+    config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "xi", "alpha", "intrinsics_sigma")
     xi: float = 0.0
     alpha: float = 0.0
 
@@ -153,12 +145,6 @@ class DoubleSphere(LensModel):
         xi = c.number(d.get("xi", MISSING), "camera.xi", lo=-1.0, hi=1.0, lo_open=True)
         alpha = c.number(d.get("alpha", MISSING), "camera.alpha", lo=0.0, hi=1.0)
         return cls(width, height, K, xi, alpha)
-
-    def _section(self) -> dict[str, Any]:
-        d = super()._section()
-        d["xi"] = self.xi
-        d["alpha"] = self.alpha
-        return d
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
         return {

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..checks import MISSING, Checker
 from .base import R_FLU_OPENCV, LensModel
-from .common import config_K, finite_vector, first_fold, solve_increasing
+from .common import config_dist, config_K, finite_vector, first_fold, solve_increasing
 from .registry import register
 
 
@@ -31,7 +31,7 @@ class Fisheye(LensModel):
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
     ros_models: ClassVar[tuple[str, ...]] = ("equidistant", "fisheye")
-    config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height", "K", "dist", "intrinsics_sigma")
+    config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "dist", "intrinsics_sigma")
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
     theta_max: float = field(init=False, repr=False, default=np.pi)
 
@@ -122,17 +122,7 @@ class Fisheye(LensModel):
     @classmethod
     def from_config(cls, c: Checker, d: dict, width: int, height: int) -> Fisheye:
         K = config_K(c, d.get("K", MISSING), "camera.K")
-        dist = d.get("dist")
-        if dist is None:
-            dist = [0.0] * 4
-        elif not (isinstance(dist, (list, tuple)) and len(dist) == 0):
-            dist = c.numbers(dist, "camera.dist", (4,))
-        return cls(width, height, K, dist)
-
-    def _section(self) -> dict[str, Any]:
-        d = super()._section()
-        d["dist"] = self.dist.tolist()
-        return d
+        return cls(width, height, K, config_dist(c, d, (4,), [0.0] * 4))
 
     def ros_camera_info(self) -> tuple[str, list[float]] | None:
         return "equidistant", [float(v) for v in self.dist]

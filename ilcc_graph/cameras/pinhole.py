@@ -15,7 +15,7 @@ import numpy as np
 
 from ..checks import MISSING, Checker
 from .base import R_FLU_OPENCV, LensModel
-from .common import config_K, finite_vector, first_fold, solve_increasing
+from .common import config_dist, config_K, finite_vector, first_fold, solve_increasing
 from .registry import register
 
 _THETA_HI = np.pi / 2 - 1e-6  # radii are searched as r = tan(theta) up to here
@@ -174,7 +174,7 @@ class Pinhole(LensModel):
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
     ros_models: ClassVar[tuple[str, ...]] = ("plumb_bob", "rational_polynomial")
-    config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height", "K", "dist", "intrinsics_sigma")
+    config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "dist", "intrinsics_sigma")
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
     r_max: float = field(init=False, repr=False, default=np.inf)
     _rt: RadTan = field(init=False, repr=False, default=None)  # type: ignore[assignment]
@@ -235,17 +235,7 @@ class Pinhole(LensModel):
     @classmethod
     def from_config(cls, c: Checker, d: dict, width: int, height: int) -> Pinhole:
         K = config_K(c, d.get("K", MISSING), "camera.K")
-        dist = d.get("dist")
-        if dist is None:
-            dist = [0.0] * 5
-        elif not (isinstance(dist, (list, tuple)) and len(dist) == 0):
-            dist = c.numbers(dist, "camera.dist", (4, 5, 8))
-        return cls(width, height, K, dist)
-
-    def _section(self) -> dict[str, Any]:
-        d = super()._section()
-        d["dist"] = self.dist.tolist()
-        return d
+        return cls(width, height, K, config_dist(c, d, (4, 5, 8), [0.0] * 5))
 
     def ros_camera_info(self) -> tuple[str, list[float]] | None:
         dist = [float(v) for v in self.dist]

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..checks import MISSING, Checker
 from .base import R_FLU_OPENCV, LensModel
-from .common import config_K, finite_vector
+from .common import config_dist, config_K, finite_vector
 from .pinhole import DIST_NAMES, RadTan
 from .registry import register
 
@@ -41,15 +41,7 @@ class Unified(LensModel):
     """
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
-    config_keys: ClassVar[tuple[str, ...]] = (
-        "model",
-        "width",
-        "height",
-        "K",
-        "xi",
-        "dist",
-        "intrinsics_sigma",
-    )
+    config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "xi", "dist", "intrinsics_sigma")
     xi: float = 0.0
     dist: np.ndarray = field(default_factory=lambda: np.zeros(4))
     r_max: float = field(init=False, repr=False, default=np.inf)
@@ -134,18 +126,7 @@ class Unified(LensModel):
     def from_config(cls, c: Checker, d: dict, width: int, height: int) -> Unified:
         K = config_K(c, d.get("K", MISSING), "camera.K")
         xi = c.number(d.get("xi", MISSING), "camera.xi", lo=0.0)
-        dist = d.get("dist")
-        if dist is None or (isinstance(dist, (list, tuple)) and len(dist) == 0):
-            dist = []
-        else:
-            dist = c.numbers(dist, "camera.dist", (4,))
-        return cls(width, height, K, xi, dist)
-
-    def _section(self) -> dict[str, Any]:
-        d = super()._section()
-        d["xi"] = self.xi
-        d["dist"] = self.dist.tolist()
-        return d
+        return cls(width, height, K, xi, config_dist(c, d, (4,), []))
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
         return {

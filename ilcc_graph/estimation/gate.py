@@ -118,7 +118,8 @@ def gate_failures(
 
     Views (bearings and the board's prior), the board's prior alone (where the views pulled the
     board away from where the LiDAR saw it, as a wrong correspondence does) and, where they enter,
-    the board's LiDAR returns are tested apart, each against its own median scale; the returns only against a gross misfit
+    the board's LiDAR returns are tested apart, each against its own median scale; the returns only
+    against a gross misfit
     (``RETURNS_MAX_RATIO`` times their dof: their residuals are heavy-tailed, a wrong object is not),
     the prior alone above ``PRIOR_MAX_RATIO`` times its dof (likewise),
     the views only above ``view_ratio`` times their dof when that is larger than the quantile (each

@@ -46,6 +46,15 @@ MIN_CORNERS = 3
 Scales = Mapping[tuple[str, str], float]
 
 
+def _positive_definite(ok: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """(K,) ``ok`` and the corner's covariance (K, 2, 2) finite and positive definite."""
+    ok = ok & np.all(np.isfinite(cov), axis=(1, 2))
+    good = np.flatnonzero(ok)
+    if good.size:
+        ok[good] = np.linalg.eigvalsh(cov[good]).min(axis=1) > 0
+    return ok
+
+
 def frame_bearing_factor(
     key_cam_lidar: int,
     key_lidar_board: int,
@@ -78,10 +87,7 @@ def frame_bearing_factor(
     cov_t = np.full((K, 2, 2), np.nan)
     if ok.any():
         cov_t[ok] = camera.bearing_tangent_cov(b[ok], c[ok], tangent_bases(b[ok]))
-    ok &= np.all(np.isfinite(cov_t), axis=(1, 2))
-    good = np.flatnonzero(ok)
-    if good.size:
-        ok[good] = np.linalg.eigvalsh(cov_t[good]).min(axis=1) > 0
+    ok = _positive_definite(ok, cov_t)
     n_ok = int(ok.sum())
     if n_ok < MIN_CORNERS:
         return None, n_ok
@@ -104,10 +110,7 @@ def frame_pixel_factor(
     p = np.asarray(points_board, dtype=np.float64)
     q = np.asarray(uv, dtype=np.float64)
     c = np.asarray(cov_px, dtype=np.float64)
-    ok = np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(p), axis=1) & np.all(np.isfinite(c), axis=(1, 2))
-    good = np.flatnonzero(ok)
-    if good.size:
-        ok[good] = np.linalg.eigvalsh(c[good]).min(axis=1) > 0
+    ok = _positive_definite(np.all(np.isfinite(q), axis=1) & np.all(np.isfinite(p), axis=1), c)
     n_ok = int(ok.sum())
     if n_ok < MIN_CORNERS:
         return None, n_ok

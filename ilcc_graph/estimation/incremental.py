@@ -30,7 +30,6 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, X
-from scipy.stats import chi2 as chi2_dist
 
 from factors import POSE3_DOF, FrameBearingFactor
 from ilcc_graph.board import Board
@@ -38,6 +37,7 @@ from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.batch import BatchSolution, solve
 from ilcc_graph.estimation.graphs import frame_bearing_factor, upnp_start
+from ilcc_graph.estimation.innovation import innovation_gate
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.noise import NoiseOptions
@@ -47,7 +47,7 @@ from ilcc_graph.types import FrameResult, GraphFrame
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FrameUpdate", "IncrementalCalibrator", "calibrate_incrementally", "format_update"]
+__all__ = ["FrameUpdate", "IncrementalCalibrator", "calibrate_incrementally"]
 
 
 @dataclass(frozen=True)
@@ -271,57 +271,8 @@ class IncrementalCalibrator:
             return g, gfac
         return f, fac
 
-    def _innovation_chi2(self, f: GraphFrame, fac: FrameBearingFactor) -> float:
-        """The frame's chi-square against the current state (2K dof when the frame is right).
-
-        Gauss-Newton over the frame's board and the extrinsic, the extrinsic held by a prior with its
-        current marginal covariance (none before the first covariance: then held fixed).
-        """
-        prior = gtsam.Pose3(np.asarray(f.T_lidar_board, dtype=np.float64))
-        Lb = np.linalg.cholesky(np.linalg.inv(np.asarray(f.board_cov, dtype=np.float64))).T
-        Lx = None if self._cov is None else np.linalg.cholesky(np.linalg.inv(self._cov)).T
-        T_cl, T_lb = self._T, prior
-
-        def residuals(T_cl: gtsam.Pose3, T_lb: gtsam.Pose3) -> np.ndarray:
-            parts = [fac.evaluate(T_cl, T_lb, False)[0], Lb @ np.asarray(prior.localCoordinates(T_lb))]
-            if Lx is not None:
-                parts.append(Lx @ np.asarray(self._T.localCoordinates(T_cl)))
-            return np.concatenate(parts)
-
-        for _ in range(6):
-            r, A_cam, A_board = fac.evaluate(T_cl, T_lb, True)
-            xb = Lb @ np.asarray(prior.localCoordinates(T_lb))
-            # normal equations; the priors' Jacobians to first order (identity in the tangent)
-            Hbb = A_board.T @ A_board + Lb.T @ Lb
-            gb = A_board.T @ r + Lb.T @ xb
-            if Lx is None:
-                step_b = -np.linalg.solve(Hbb, gb)
-                T_lb = T_lb.retract(step_b)
-                step = step_b
-            else:
-                xx = Lx @ np.asarray(self._T.localCoordinates(T_cl))
-                H = np.zeros((12, 12))
-                H[:6, :6] = A_cam.T @ A_cam + Lx.T @ Lx
-                H[:6, 6:] = A_cam.T @ A_board
-                H[6:, :6] = H[:6, 6:].T
-                H[6:, 6:] = Hbb
-                step = -np.linalg.solve(H, np.concatenate([A_cam.T @ r + Lx.T @ xx, gb]))
-                T_cl, T_lb = T_cl.retract(step[:6]), T_lb.retract(step[6:])
-            if np.abs(step).max() < 1e-9:
-                break
-        r = residuals(T_cl, T_lb)
-        return float(r @ r)
-
     def _gate(self, f: GraphFrame, fac: FrameBearingFactor | None) -> tuple[bool, str | None]:
-        if fac is None:
-            return False, "fewer than 3 corners with a usable bearing covariance"
-        if self.gate_prob is None:
-            return True, None
-        c2, dof = self._innovation_chi2(f, fac), fac.dim
-        bound = float(chi2_dist.ppf(self.gate_prob, dof))
-        if c2 > bound:
-            return False, f"chi-square gate: {c2:.1f} > {bound:.1f} ({dof} dof, p={self.gate_prob})"
-        return True, None
+        return innovation_gate(f, fac, self._T, self._cov, self.gate_prob)  # type: ignore[arg-type]
 
     def _insert(self, frames: Iterable[GraphFrame], first: bool) -> None:
         graph = gtsam.NonlinearFactorGraph()
@@ -376,17 +327,9 @@ class IncrementalCalibrator:
     # -------------------------------------------------------------------------------- results
     def _result(self, name: str, t0: float, sol: BatchSolution) -> FrameUpdate:
         sig = np.sqrt(np.diag(sol.covariance))
+        n, dt = len(sol.per_frame), time.perf_counter() - t0
         return FrameUpdate(
-            sol.T_cam_lidar,
-            sig,
-            self._reached(sig),
-            sol.covariance,
-            name,
-            True,
-            None,
-            len(sol.per_frame),
-            time.perf_counter() - t0,
-            sol,
+            sol.T_cam_lidar, sig, self._reached(sig), sol.covariance, name, True, None, n, dt, sol
         )
 
     def _reached(self, sig: np.ndarray) -> bool:
@@ -397,50 +340,16 @@ class IncrementalCalibrator:
 
     def _update(self, name: str, t0: float, accepted: bool, reason: str | None) -> FrameUpdate:
         if self._T is None:
+            nan = np.full((6, 6), np.nan)
             return FrameUpdate(
-                None,
-                np.full(6, np.inf),
-                False,
-                np.full((6, 6), np.nan),
-                name,
-                accepted,
-                reason,
-                0,
-                time.perf_counter() - t0,
+                None, np.full(6, np.inf), False, nan, name, accepted, reason, 0, time.perf_counter() - t0
             )
         cov = np.asarray(self._isam.marginalCovariance(X(0)), dtype=np.float64)
         cov = 0.5 * (cov + cov.T)
         self._cov = cov
         sig = np.sqrt(np.diag(cov))
-        reached = self._reached(sig)
-        return FrameUpdate(
-            np.asarray(self._T.matrix()),
-            sig,
-            reached,
-            cov,
-            name,
-            accepted,
-            reason,
-            len(self._frames),
-            time.perf_counter() - t0,
-        )
-
-
-def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = None) -> str:
-    """One line for the command line: frame, count, sigmas in deg / mm, time, target status."""
-    head = f"{u.name or '(final)':>10s}  n={u.n_frames:<4d}"
-    if not u.accepted:
-        return f"{head}  rejected: {u.reason}"
-    if u.T_cam_lidar is None:
-        return f"{head}  {u.reason or 'waiting'}"
-    s = u.sigmas
-    body = (
-        f"sigma rot [deg] {np.degrees(s[0]):.3f} {np.degrees(s[1]):.3f} {np.degrees(s[2]):.3f}  "
-        f"trans [mm] {1e3 * s[3]:.2f} {1e3 * s[4]:.2f} {1e3 * s[5]:.2f}  ({1e3 * u.seconds:.0f} ms)"
-    )
-    if target_sigma is not None:
-        body += "  target reached" if u.reached_target else "  target not yet reached"
-    return f"{head}  {body}"
+        T, n, dt = np.asarray(self._T.matrix()), len(self._frames), time.perf_counter() - t0
+        return FrameUpdate(T, sig, self._reached(sig), cov, name, accepted, reason, n, dt)
 
 
 def calibrate_incrementally(
@@ -452,7 +361,8 @@ def calibrate_incrementally(
     report: Callable[[FrameUpdate], None] | None = None,
     stop_at_target: bool = False,
 ) -> tuple[IncrementalCalibrator, FrameUpdate]:
-    """Feed ``frames`` one by one, calling ``report(update)`` after each (e.g. ``print(format_update(u))``).
+    """Feed ``frames`` one by one, calling ``report(update)`` after each (e.g. printing
+    ``report.text.format_update(u)``).
 
     Frames without a board in both sensors are skipped (reported as not accepted, with their reason).
     With ``stop_at_target`` it stops at the first frame that reaches ``target_sigma`` (``frames`` may be
@@ -463,18 +373,9 @@ def calibrate_incrementally(
     for f in frames:
         if isinstance(f, FrameResult) and (not f.used or f.board is None or f.corners is None):
             if report is not None:
-                nan6 = np.full(POSE3_DOF, np.nan)
+                nan6, nan66 = np.full(POSE3_DOF, np.nan), np.full((POSE3_DOF, POSE3_DOF), np.nan)
                 report(
-                    FrameUpdate(
-                        cal.estimate,
-                        nan6,
-                        False,
-                        np.full((POSE3_DOF, POSE3_DOF), np.nan),
-                        f.name,
-                        False,
-                        f.reason,
-                        len(cal.frames),
-                    )
+                    FrameUpdate(cal.estimate, nan6, False, nan66, f.name, False, f.reason, len(cal.frames))
                 )
             continue
         u = cal.add_frame(f)

@@ -29,6 +29,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ilcc_graph.init.consensus import (
+    Consensus,
+    Frames,
+    bearing_errors,
+    half_turn_size,
+    rms,
+    rot_angle,
+    rotation_hypotheses,
+)
 from ilcc_graph.init.upnp import upnp
 
 __all__ = ["OrderOptions", "OrderResult", "resolve_half_turns", "bearing_errors"]
@@ -96,121 +105,6 @@ class OrderResult:
     T_cam_lidar: np.ndarray | None = None
     ambiguous: str | None = None
     errors_mrad: dict[str, tuple[float, float]] = field(default_factory=dict)
-
-
-def bearing_errors(T_cam_lidar: np.ndarray, lidar_corners: np.ndarray, bearings: np.ndarray) -> np.ndarray:
-    """Angles (rad) between bearings (..., K, 3) and the directions of T @ corners (..., K, 3)."""
-    X = lidar_corners @ T_cam_lidar[:3, :3].T + T_cam_lidar[:3, 3]
-    cr = np.linalg.norm(np.cross(X, bearings), axis=-1)
-    return np.arctan2(cr, np.sum(X * bearings, axis=-1))
-
-
-def _rms(a: np.ndarray, axis: int = -1) -> np.ndarray:
-    return np.sqrt(np.mean(a * a, axis=axis))
-
-
-def _angular_radius(F: np.ndarray) -> float:
-    m = F.mean(axis=0)
-    m /= max(np.linalg.norm(m), 1e-300)
-    return float(_rms(np.arctan2(np.linalg.norm(np.cross(F, m), axis=1), F @ m)))
-
-
-def _half_turn_size(F: np.ndarray, perm: np.ndarray | None) -> float:
-    """RMS angle (rad) by which the half turn moves the frame's corners in the image (2x the
-    board's angular radius when there is no half turn)."""
-    if perm is None:
-        return 2.0 * _angular_radius(F)
-    G = F[perm]
-    return float(_rms(np.arctan2(np.linalg.norm(np.cross(F, G), axis=1), np.sum(F * G, axis=1))))
-
-
-def _rot_angle(R: np.ndarray) -> float:
-    return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
-
-
-@dataclass(frozen=True)
-class _Hypothesis:
-    """A single-frame pose as seen by every frame: which frames support it and in which order."""
-
-    score: tuple[int, float]
-    anchor: int
-    support: np.ndarray  # (n,) bool: rotation within the gate under some order
-    undecided: np.ndarray  # (n,) bool: within the gate under both orders
-    orders: np.ndarray  # (n,) int: the order closest in rotation
-    distance: np.ndarray  # (n,) rad: that rotation distance
-
-
-def _score_hypothesis(a: int, d: np.ndarray, rot_gate: float) -> _Hypothesis:
-    """d (n, 2): rotation distance of each frame's orders to the hypothesis from frame a."""
-    orders = np.argmin(d, axis=1)
-    dmin = d[np.arange(len(d)), orders]
-    sup = dmin < rot_gate
-    undecided = sup & np.all(d < rot_gate, axis=1)
-    score = (int(sup.sum()), -float(np.sum(np.where(sup, dmin / rot_gate, 1.0))))
-    return _Hypothesis(score, a, sup, undecided, orders, dmin)
-
-
-@dataclass(frozen=True)
-class _Consensus:
-    T: np.ndarray  # (4, 4) T_cam_lidar
-    E: np.ndarray  # (n, 2) RMS bearing error per frame and order, rad
-    inliers: np.ndarray  # (n,) bool
-    orders: np.ndarray  # (n,) int
-    score: tuple[int, float]  # (frames agreeing, -sum of their errors / noise)
-
-    @property
-    def key(self) -> np.ndarray:
-        return np.where(self.inliers, self.orders, -1)
-
-
-class _Frames:
-    """The frames that have a pose of their own, and the consensus machinery over them."""
-
-    def __init__(self, L, F, perm, flip_ok, gate, noise, options: OrderOptions) -> None:
-        self.L, self.F, self.perm, self.flip_ok = L, F, perm, flip_ok
-        self.g = gate
-        self.noise = noise
-        self.gk = np.minimum(gate, max(options.min_gate_mrad * 1e-3, options.robust_factor * noise))
-        self.options = options
-
-    def oriented(self, a: int, o: int) -> np.ndarray:
-        return self.F[a][self.perm] if o else self.F[a]
-
-    def errors(self, T: np.ndarray) -> np.ndarray:
-        """(n, 2) RMS bearing error (rad) of each frame per order; inf where it cannot flip."""
-        E = np.full((len(self.L), 2), np.inf)
-        for a in range(len(self.L)):
-            for o in (0, 1) if self.flip_ok[a] else (0,):
-                E[a, o] = _rms(bearing_errors(T, self.L[a], self.oriented(a, o)))
-        return E
-
-    def fit(self, idx: np.ndarray, orders: np.ndarray) -> np.ndarray:
-        """T_cam_lidar by UPnP on the frames idx in the given orders."""
-        P = np.vstack([self.L[a] for a in idx])
-        B = np.vstack([self.oriented(a, int(orders[a])) for a in idx])
-        return upnp(P, B, prefer_front=True, tie_rtol=np.inf)[0].T_cam_points
-
-    def evaluate(self, T: np.ndarray) -> _Consensus:
-        E = self.errors(T)
-        orders = np.argmin(E, axis=1)
-        best = E[np.arange(len(E)), orders]
-        inl = best < self.gk
-        return _Consensus(T, E, inl, orders, (int(inl.sum()), -float(np.sum(best[inl])) / self.noise))
-
-    def consensus(self, T: np.ndarray) -> _Consensus:
-        """Refit on the frames that agree with T, re-assign their orders, until stable."""
-        c = self.evaluate(T)
-        for _ in range(self.options.rounds):
-            if c.inliers.sum() < 2:
-                break
-            c2 = self.evaluate(self.fit(np.flatnonzero(c.inliers), c.orders))
-            if c2.score < c.score:
-                break
-            stable = np.array_equal(c2.key, c.key)
-            c = c2
-            if stable:
-                break
-        return c
 
 
 def _check_inputs(lidar_corners, bearings, perm, names, flippable):
@@ -292,7 +186,7 @@ def resolve_half_turns(
                     for s in front[: options.max_candidates]
                     if s.cost <= options.cand_cost_ratio * front[0].cost + 1e-15
                 ]
-            own_rms[j] = float(_rms(bearing_errors(own[(j, 0)][0], L[j], oriented(j, 0))))
+            own_rms[j] = float(rms(bearing_errors(own[(j, 0)][0], L[j], oriented(j, 0))))
             alive.append(j)
         except ValueError as e:
             dropped.append(
@@ -312,39 +206,18 @@ def resolve_half_turns(
             log.warning(amb)
         return OrderResult({names[j]: False}, dropped, {names[j]: own[(j, 0)][0]}, own[(j, 0)][0], amb)
 
-    # 2. hypotheses: every frame's own pose in each order; a frame supports one when its own
-    # rotation under one of its orders is within rot_gate (cheap, and blind to the big lever-arm
-    # errors of one-board translations)
+    # 2. hypotheses: every frame's own pose in each order, best supported first
     rot_gate = np.radians(options.rot_gate_deg)
-    n_c = max(len(v) for v in own.values())
-    Rown = np.full((len(alive), 2, n_c, 3, 3), np.nan)
-    for a, j in enumerate(alive):
-        for o in (0, 1):
-            for c, Tc in enumerate(own.get((j, o), [])):
-                Rown[a, o, c] = Tc[:3, :3]
-    step = max(1, int(np.ceil(len(alive) / options.max_hypotheses_frames)))
-    hyps: list[_Hypothesis] = []
-    for a in range(0, len(alive), step):
-        for o in (0, 1):
-            for c in range(len(own.get((alive[a], o), []))):
-                tr = np.einsum("ij,kocij->koc", Rown[a, o, c], Rown)
-                d = np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
-                d = np.where(np.isnan(d), np.inf, d).min(axis=2)
-                d[a, 1 - o] = np.inf  # the anchor's order is the hypothesis
-                hyps.append(_score_hypothesis(a, d, rot_gate))
-    hyps.sort(key=lambda h: h.score, reverse=True)
+    hyps = rotation_hypotheses(own, alive, rot_gate, options.max_hypotheses_frames)
 
     # noise scale: each frame's RMS bearing error under its own pose (an outlier frame fits itself)
     noise = max(float(np.median([own_rms[j] for j in alive])), 1e-6)
-    fr = _Frames(
-        [L[j] for j in alive],
-        [F[j] for j in alive],
-        perm,
-        [flip_ok[j] for j in alive],
-        np.array([options.gate_rel * _half_turn_size(F[j], perm) for j in alive]),
-        noise,
-        options,
-    )
+    gate = np.array([options.gate_rel * half_turn_size(F[j], perm) for j in alive])
+    strict = np.minimum(gate, max(options.min_gate_mrad * 1e-3, options.robust_factor * noise))
+    fr = Frames(
+        [L[j] for j in alive], [F[j] for j in alive], perm, [flip_ok[j] for j in alive], gate, strict, noise,
+        options.rounds,
+    )  # fmt: skip
 
     # 3. pair hypotheses: the best-supported single-frame poses, each with the frames whose rotation
     # agrees best, fitted jointly (a pair fixes the extrinsic far better than one board); each grown
@@ -377,7 +250,7 @@ def resolve_half_turns(
         orders[a], orders[b] = oa, ob
         starts.append(fr.evaluate(fr.fit(np.array([a, b]), orders)))
     starts.sort(key=lambda c: c.score, reverse=True)
-    finals: list[_Consensus] = []
+    finals: list[Consensus] = []
     for c0 in starts:
         if len(finals) >= options.consensus_tries:
             break
@@ -443,5 +316,5 @@ def resolve_half_turns(
             continue
         flip[names[j]] = bool(o)
         cands = own[(j, o)]
-        per_frame[names[j]] = min(cands, key=lambda Tc: _rot_angle(Tc[:3, :3].T @ T[:3, :3]))
+        per_frame[names[j]] = min(cands, key=lambda Tc: rot_angle(Tc[:3, :3].T @ T[:3, :3]))
     return OrderResult(flip, dropped, per_frame, T, ambiguous, errs)
