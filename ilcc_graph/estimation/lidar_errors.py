@@ -9,6 +9,10 @@ A LiDAR's parameter vector ``L(l)`` holds, in this order (each part optional):
 - ``scale``: a range scale error (measured = true * (1 + scale));
 - ``elevation[b]``: the elevation error of beam b (measured minus true, rad).
 
+A scanline-free LiDAR's returns all carry the pseudo-beam 0 (``lidar/ringless.py``): ``offset[0]`` is
+its one laser's range offset and it gets no elevation term (a constant elevation error of every
+return is a rotation of the sensor: the extrinsic's).
+
 A return j of beam b on print of darkness w at range rho has the range error
 ``offset[b] + w dark + rho scale`` and the elevation error ``elevation[b]`` (``factors.BoardPointsFactor``).
 Every term has a weak zero-mean prior (the plausible size of such an error). A beam enters only
@@ -183,6 +187,11 @@ def layout_for(returns: Sequence[BoardReturns], options: LidarErrorOptions) -> L
         excluded.append(
             (f"beam {b}", f"{counts[b]} returns on {boards[b]} board(s): too few to estimate its terms")
         )
+    # a scanline-free LiDAR (Livox) gives every return one pseudo-beam 0: its offset is the one laser's
+    # range offset; an elevation term would turn every return alike, which the extrinsic already does
+    one_beam = set(counts) <= {0}
+    if options.beam_elevations and one_beam and good:
+        excluded.append(("elevation[0]", "one pseudo-beam (a LiDAR without scanlines): no beam elevation"))
     any_dark = any(0.1 < float(np.mean(r.dark)) < 0.9 for r in returns)
     if options.dark_offset and not any_dark:
         excluded.append(("dark", "no board shows both black and white returns"))
@@ -191,7 +200,7 @@ def layout_for(returns: Sequence[BoardReturns], options: LidarErrorOptions) -> L
         global_offset=options.global_offset and not options.beam_offsets,
         dark=options.dark_offset and any_dark,
         scale=options.range_scale,
-        elevations=good if options.beam_elevations else (),
+        elevations=good if options.beam_elevations and not one_beam else (),
         priors=(
             options.prior_offset_m,
             options.prior_dark_m,

@@ -2,10 +2,11 @@
 
 ``estimate_board(scan, board, lidar_model=None, roi=None, options=LidarOptions(), expected=None)
 -> BoardFit`` (raises ``BoardNotFound`` with the reason, ``InputError`` for a scan without usable
-intensity). Pipeline: segmentation.py (scanlines -> objects), detection.py (the paper's board
-tests), choice.py (the best of the candidates, the expected-board hint), pose.py (a candidate's
-points -> BoardFit) with cost.py (the paper's intensity cost), fit.py (the in-plane fit, Powell),
-soft_edge.py (soft-edged refinement) and covariance.py (plane fit, sampling, coupling).
+intensity). Pipeline: segmentation.py (scanlines -> objects; ringless.py for a scan without
+scanlines), detection.py (the paper's board tests), choice.py (the best of the candidates, the
+expected-board hint), pose.py (a candidate's points -> BoardFit) with cost.py (the paper's intensity
+cost), fit.py (the in-plane fit, Powell), soft_edge.py (soft-edged refinement) and covariance.py
+(plane fit, sampling, coupling).
 See docs/lidar_stage.md.
 """
 
@@ -24,6 +25,7 @@ from .choice import candidate_order, expected_mask, fit_score
 from .detection import Candidate, find_candidates
 from .options import LidarOptions
 from .pose import fit_board_points
+from .ringless import find_ringless_candidates, one_pseudo_beam, pseudo_rings
 
 __all__ = ["estimate_board", "LidarOptions", "check_intensity", "fit_board_points", "ExpectedBoard"]
 
@@ -109,7 +111,7 @@ def estimate_board(
         pts = scan.points
     if lidar_model is None:
         lidar_model = choose_model(measure_beams(scan), None, scan.source)[0]
-    ring = beam_index(scan, lidar_model)
+    ring = pseudo_rings(pts) if lidar_model.ringless else beam_index(scan, lidar_model)  # no scanlines
     rng = np.random.default_rng(0)
     inten = np.asarray(scan.intensity, np.float64)
     mask = None if expected is None else expected_mask(pts, board, expected)
@@ -142,7 +144,8 @@ def estimate_board(
                 fits.append((score, cand, fit))
         return any(f[0] >= options.good_fit_score for f in fits) or budget[0] <= 0
 
-    cands = find_candidates(pts, ring, inten, board, lidar_model, roi, options, rng, mask, accept)
+    find = find_ringless_candidates if lidar_model.ringless else find_candidates
+    cands = find(pts, ring, inten, board, lidar_model, roi, options, rng, mask, accept)
     if not fits:
         raise BoardNotFound(
             refused[0]
@@ -150,6 +153,7 @@ def estimate_board(
             else f"{len(refused)} board-shaped candidates, none fits: " + "; ".join(refused[:3])
         )
     score, cand, fit = max(fits, key=lambda t: t[0])
+    fit = one_pseudo_beam(fit) if lidar_model.ringless else fit
     t_all, c_all = time.perf_counter() - t0, time.process_time() - c0
     fit.diagnostics.update(
         {"time_total_s": t_all, "cpu_total_s": c_all,

@@ -59,9 +59,12 @@ def board_tests(
     sigma: float,
     options: LidarOptions,
     intensity: np.ndarray | None = None,
+    solid_angle: np.ndarray | None = None,
 ) -> tuple[bool, float, str, str]:
     """The paper's tests on one candidate's points p (M, 3) (and intensities (M,), when given).
 
+    solid_angle: optional (M,) steradians each return stands for (a scanline-free pattern: one over
+    its local density); None: the beam model's azimuth step times the local ring spacing.
     Returns (passed, uniformity, failed test name or "", human-readable detail).
     """
     x0, x1, y0, y1 = board.extent()
@@ -84,7 +87,7 @@ def board_tests(
     # every return stands for the board area r^2 d_az d_el / cos(incidence); weighing by it makes
     # the PCA and the quadrant counts follow the board, not where the beams are dense (a board
     # tilted at close range, a table denser near the horizon)
-    w0 = r_i**2 * step_el_i
+    w0 = r_i**2 * (step_el_i if solid_angle is None else np.asarray(solid_angle, np.float64))
     mu_w = (w0[:, None] * p).sum(axis=0) / w0.sum()
     q = p - mu_w
     cov = (w0[:, None] * q).T @ q / w0.sum()

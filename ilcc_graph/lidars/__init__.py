@@ -3,8 +3,9 @@ tables measured from a scan.
 
 - tables.py: :class:`LidarModel`, the named tables (data sheets cited there), ring from elevation.
 - calibration_files.py: Ouster metadata JSON, Velodyne ``db.xml`` and ROS YAML, Hesai CSV.
-- measure.py: the table a scan shows (ring field, organised rows, or clusters of elevations),
-  the scan's rings renumbered onto a table, and the comparison with a named table.
+- measure.py: the table a scan shows (ring field, organised rows, or clusters of elevations; or
+  none: a scanline-free pattern), the scan's rings renumbered onto a table, and the comparison
+  with a named table.
 """
 
 from .calibration_files import CalibrationTable, read_calibration_file, read_calibration_table
@@ -13,12 +14,14 @@ from .measure import (
     beam_index,
     choose_model,
     measure_beams,
+    scanline_free,
     table_difference,
 )  # fmt: skip
 from .tables import (
     ILCC_ALIASES,
     LASER_ID_ELEVATIONS_DEG,
     MODEL_NAMES,
+    NON_REPETITIVE,
     LidarModel,
     lidar_model,
     ring_from_points,
@@ -27,5 +30,6 @@ from .tables import (
 __all__ = [
     "LidarModel", "lidar_model", "ring_from_points", "MODEL_NAMES", "ILCC_ALIASES",
     "LASER_ID_ELEVATIONS_DEG", "MeasuredBeams", "measure_beams", "beam_index", "table_difference",
-    "choose_model", "read_calibration_file", "read_calibration_table", "CalibrationTable",
+    "choose_model", "scanline_free", "NON_REPETITIVE", "read_calibration_file", "read_calibration_table",
+    "CalibrationTable",
 ]  # fmt: skip

@@ -13,6 +13,11 @@ x forward, y left, z up), so a scan describes its sensor:
   entropy in 0.02 deg bins), in every case: the beams' origin need not be the points' origin
   (Ouster: ~36 mm), and the table is then the one a calibration file would list.
 
+A scan without ring field whose elevations form no clusters at all (``scanline_free``: the sorted
+elevations' gaps are those of a continuum, not a few wide gaps between beams) comes from a
+scanline-free pattern (Livox): it is described by a ``pattern="non-repetitive"`` model (method
+``"no scanlines"``) holding its elevation range and the mean angular spacing of its returns.
+
 The azimuth step is the median step between successive returns of one beam (single steps only),
 snapped to 360 / WIDTH for an organised cloud. Medians use returns beyond 1 m where there are
 enough: an Ouster's beams leave from ~15.8 mm off the axis, which biases the elevation seen from
@@ -29,7 +34,9 @@ from ..errors import InputError
 from ..types import Scan
 from .tables import LidarModel
 
-__all__ = ["MeasuredBeams", "measure_beams", "beam_index", "table_difference", "choose_model"]
+__all__ = [
+    "MeasuredBeams", "measure_beams", "beam_index", "table_difference", "choose_model", "scanline_free",
+]  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)
@@ -39,7 +46,7 @@ class MeasuredBeams:
     model: the measured :class:`LidarModel` (name ``measured``), elevations ascending.
     ring_values: (n,) the file's ring value of each beam (ascending elevation), or None when the
         beams were found by clustering elevations.
-    method: ``"ring field"``, ``"organised rows"`` or ``"elevation clusters"``.
+    method: ``"ring field"``, ``"organised rows"``, ``"elevation clusters"`` or ``"no scanlines"``.
     """
 
     model: LidarModel
@@ -116,6 +123,61 @@ def _clusters(el: np.ndarray, gap_deg: float, min_points: int) -> np.ndarray:
     return np.array([np.median(c) for c in parts])
 
 
+def scanline_free(points: np.ndarray) -> bool:
+    """True when the elevations of points (N, 3) (LiDAR frame) lie on no beams.
+
+    A spinning LiDAR's sorted elevations (the farther returns, from the sharpest beam origin height,
+    as for the clusters) jump from beam to beam: gaps wider than 20 times the median gap make up
+    most of the elevation span (every beam spacing is one). A scanline-free pattern's elevations
+    are a continuum whose gaps are about exponentially distributed: gaps that wide cover nearly
+    nothing. The threshold is half of the span: between-beam gaps cover > 99 % of it in simulated
+    scans of every named table and 94-95 % in the recorded OS1-64 scans (their ring field removed),
+    a simulated Livox rosette's wide gaps < 1 % (docs/lidar_ringless.md).
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1) & (p != 0).any(axis=1)]
+    if p.shape[0] < 200:
+        return False
+    far = p[_far(p)]
+    h = _sharpest_origin_height(far[:: max(1, far.shape[0] // 20000)])
+    return _continuous(_elevation_deg(far, h))
+
+
+def _continuous(el: np.ndarray) -> bool:
+    """The test of :func:`scanline_free` on elevations (deg)."""
+    el = np.sort(el)
+    if el.size < 200:
+        return False
+    lo, hi = np.quantile(el, [0.005, 0.995])
+    el = el[(el >= lo) & (el <= hi)]
+    gaps = np.diff(el)
+    span = float(el[-1] - el[0])
+    if span <= 0:
+        return False
+    wide = gaps[gaps > 20.0 * max(float(np.median(gaps)), 1e-9)].sum()
+    return bool(wide < 0.5 * span)
+
+
+def _ringless_model(p: np.ndarray, source: str) -> LidarModel:
+    """A non-repetitive model of the returns p (N, 3): elevation range (1-99 %) and mean spacing."""
+    u = p / np.linalg.norm(p, axis=1, keepdims=True)
+    el = np.degrees(np.arcsin(np.clip(u[:, 2], -1, 1)))
+    lo, hi = np.quantile(el, [0.01, 0.99])
+    # the returns' solid angle: occupied cells of 1 x 1 deg in azimuth/elevation, each cos(el) deg^2
+    az = np.degrees(np.arctan2(u[:, 1], u[:, 0]))
+    cells = np.unique(np.floor(el).astype(np.int64) * 1000 + np.floor(az).astype(np.int64) + 500)
+    cos_el = np.cos(np.deg2rad(cells // 1000 + 0.5))
+    solid = float(cos_el.sum()) * np.deg2rad(1.0) ** 2
+    spacing = float(np.degrees(np.sqrt(solid / p.shape[0])))
+    return LidarModel(
+        "measured",
+        np.array([min(lo, hi - 0.1), hi]),
+        min(max(spacing, 1e-3), 10.0),
+        source=f"measured from {source or 'a scan'}",
+        pattern="non-repetitive",
+    )
+
+
 def measure_beams(scan: Scan) -> MeasuredBeams | None:
     """The beam table of one scan (see the module's docstring); None when it shows none.
 
@@ -132,6 +194,8 @@ def measure_beams(scan: Scan) -> MeasuredBeams | None:
     h = _sharpest_origin_height(sub)
     el = _elevation_deg(p, h)
     columns = getattr(scan, "columns", None)
+    if scan.ring is None and not columns and _continuous(el[far]):
+        return MeasuredBeams(_ringless_model(p, scan.source), None, "no scanlines")
     if scan.ring is not None:
         ring = np.asarray(scan.ring).astype(np.int64)[valid]
         ids, med, _ = _group_medians(el[far], ring[far])
@@ -181,10 +245,10 @@ def beam_index(scan: Scan, model: LidarModel) -> np.ndarray:
 
     With a ring field, each distinct ring value goes to the beam nearest the median elevation of
     its returns (so any numbering works: top-first, hardware ids); without one, each return goes
-    to the beam nearest its own elevation.
+    to the beam nearest its own elevation. A scanline-free model has one pseudo-beam 0.
     """
     p = np.asarray(scan.points, dtype=np.float64).reshape(-1, 3)
-    if scan.ring is None:
+    if scan.ring is None or model.ringless:
         return model.ring_from_points(p)
     ring = np.asarray(scan.ring).astype(np.int64)
     far = _far(p)
@@ -217,6 +281,16 @@ def table_difference(measured: MeasuredBeams, named: LidarModel) -> str | None:
     the local beam spacing of the named one (ring from elevation stays right), and the azimuth
     steps are within 10 %.
     """
+    if measured.model.ringless or named.ringless:
+        if measured.model.ringless and named.ringless:
+            return None  # no table to compare: the stage measures the density from each scan
+        what = (
+            "shows no scanlines (a non-repetitive pattern)"
+            if measured.model.ringless
+            else (f"has {measured.model.n_beams} beams ({measured.method})")
+        )
+        kind = "scanline-free" if named.ringless else "spinning"
+        return f"the scan {what}; {named.name} is a {kind} model; using the scan's"
     m, a = measured.model.vertical_angles_deg, named.vertical_angles_deg
     step_m, step_n = measured.model.horizontal_resolution_deg, named.horizontal_resolution_deg
     spacing = float(np.median(np.diff(a))) if a.size > 1 else 1.0
@@ -256,6 +330,10 @@ def choose_model(
     if given is None:
         return m, None
     diff = table_difference(measured, given)
+    if diff is None and m.ringless:
+        return given, None
+    if diff is not None and m.ringless != given.ringless:  # another kind of sensor than the one named
+        return m, f"{source}: {diff}" if source else diff
     if diff is None:
         if measured.ring_values is None:  # clusters may miss beams: keep the complete table
             used = replace(

@@ -40,6 +40,15 @@ Sources of the numbers (nominal values; a unit's own calibration file differs by
   Hesai divergence is not on those sheets: 3 mrad assumed.
 - ``generic``: the user's ``vertical_angles_deg`` and ``horizontal_resolution_deg``; range sigma
   0.03 m and divergence 3 mrad unless given.
+- Scanline-free units (``pattern="non-repetitive"``: Livox's Risley-prism rosettes; the returns lie on
+  no beams, so there is no ring): ``livox-mid40``, Livox Mid-40 data sheet: 38.4 deg circular field
+  of view, 100,000 points/s, range precision 2 cm (1 sigma at 20 m) -> 0.02 m, beam divergence
+  0.28 x 0.03 deg (we keep the larger, 4.9 mrad). ``livox-mid70``, Mid-70 data sheet: the same but a
+  70.4 deg circular field. Their ``vertical_angles_deg`` are the field's lowest and highest elevation
+  (the cone about x), ``horizontal_resolution_deg`` the mean angular spacing of the returns of one
+  0.1 s frame (10,000 returns over the cone's solid angle). The LiDAR stage measures the real
+  density from each scan (lidar/ringless.py); a scan without ring field and scanlines is recognised
+  as such whatever model is named (``lidars.measure``).
 
 Rule used for ``range_sigma_m``: the data sheet's accuracy figure is taken as one sigma
 (conservative when the sheet quotes a typical bound).
@@ -55,7 +64,11 @@ from ..errors import InputError
 
 __all__ = [
     "LidarModel", "lidar_model", "ring_from_points", "MODEL_NAMES", "ILCC_ALIASES", "LASER_ID_ELEVATIONS_DEG",
+    "NON_REPETITIVE", "PATTERNS",
 ]  # fmt: skip
+
+#: scan patterns a LidarModel may have
+PATTERNS = ("spinning", "non-repetitive")
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,6 +85,9 @@ class LidarModel:
     beam_origin_z_m: height of the beams' origin above the points' origin (metres; 0 for the
         named tables). Ouster clouds are given in a frame ~36 mm below the beams' origin, which a
         table measured by clustering elevations finds; ring from elevation uses ``z - beam_origin_z_m``.
+    pattern: ``"spinning"`` (beams at ``vertical_angles_deg``) or ``"non-repetitive"`` (no scanlines,
+        e.g. Livox; ``vertical_angles_deg`` is then the field's (lowest, highest) elevation, every
+        return is on one pseudo-beam 0 and ``horizontal_resolution_deg`` is a nominal spacing).
     """
 
     name: str
@@ -81,8 +97,11 @@ class LidarModel:
     beam_divergence_rad: float = 3e-3
     source: str = "table"
     beam_origin_z_m: float = 0.0
+    pattern: str = "spinning"
 
     def __post_init__(self) -> None:
+        if self.pattern not in PATTERNS:
+            raise ValueError(f"pattern must be one of {PATTERNS}, got {self.pattern!r}")
         a = np.asarray(self.vertical_angles_deg, dtype=np.float64).reshape(-1)
         if a.size < 1 or not np.all(np.isfinite(a)):
             raise ValueError(f"vertical_angles_deg must be finite numbers, got {self.vertical_angles_deg!r}")
@@ -111,13 +130,20 @@ class LidarModel:
             and self.horizontal_resolution_deg == other.horizontal_resolution_deg
             and self.range_sigma_m == other.range_sigma_m
             and self.beam_divergence_rad == other.beam_divergence_rad
+            and self.pattern == other.pattern
         )
 
     __hash__ = None  # type: ignore[assignment]
 
     @property
     def n_beams(self) -> int:
-        return int(self.vertical_angles_deg.size)
+        """Number of beams (a scanline-free pattern: its one pseudo-beam)."""
+        return 1 if self.ringless else int(self.vertical_angles_deg.size)
+
+    @property
+    def ringless(self) -> bool:
+        """True for a scanline-free pattern (no ring, no beam table)."""
+        return self.pattern == "non-repetitive"
 
     @property
     def vertical_angles_rad(self) -> np.ndarray:
@@ -133,8 +159,14 @@ class LidarModel:
 
     def to_dict(self) -> dict:
         """Our config schema's ``lidar`` section (without ``intensity_column``); a named model
-        lists only what differs from its table (angles, resolution, range sigma)."""
+        lists only what differs from its table (angles, resolution, range sigma). A scanline-free
+        pattern measured from the scans has no table to write: ``{}`` (measured again)."""
         ref = _TABLES.get(self.name)
+        if self.ringless:
+            d_ringless: dict = {} if ref is None else {"model": self.name}
+            if ref is not None and self.range_sigma_m != ref[2]:
+                d_ringless["range_sigma_m"] = self.range_sigma_m
+            return d_ringless
         d: dict = {"model": self.name if ref is not None else "generic"}
         if ref is None or not np.array_equal(ref[0], self.vertical_angles_deg):
             d["vertical_angles_deg"] = [float(v) for v in self.vertical_angles_deg]
@@ -149,9 +181,12 @@ def ring_from_points(points: np.ndarray, model: LidarModel) -> np.ndarray:
     """Assign each point the beam whose vertical angle is nearest its elevation (vectorised).
 
     points: (N, 3) LiDAR frame, metres. Returns (N,) int32 in [0, n_beams).
-    A point at the origin has elevation 0 and gets the beam nearest the horizon.
+    A point at the origin has elevation 0 and gets the beam nearest the horizon. A scanline-free
+    model puts every point on its one pseudo-beam 0.
     """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if model.ringless:
+        return np.zeros(p.shape[0], dtype=np.int32)
     el = np.degrees(np.arctan2(p[:, 2] - model.beam_origin_z_m, np.hypot(p[:, 0], p[:, 1])))
     a = model.vertical_angles_deg
     if a.size == 1:
@@ -194,6 +229,12 @@ def _uniform(half_fov_deg: float, n: int) -> np.ndarray:
     return np.linspace(-half_fov_deg, half_fov_deg, n)
 
 
+def _cone_spacing_deg(half_angle_deg: float, n: int) -> float:
+    """Mean angular spacing (deg) of ``n`` returns spread over a cone of that half-angle."""
+    solid = 2 * np.pi * (1 - np.cos(np.deg2rad(half_angle_deg)))
+    return float(np.degrees(np.sqrt(solid / n)))
+
+
 _TABLES: dict[str, tuple[np.ndarray, float, float, float]] = {
     # name: (vertical angles deg, horizontal resolution deg @10 Hz, range sigma m, divergence rad)
     "hdl32": (_HDL32, 0.16, 0.02, 2.8e-3),
@@ -214,7 +255,13 @@ _TABLES: dict[str, tuple[np.ndarray, float, float, float]] = {
     "pandar40p": (_PANDAR40P, 0.2, 0.02, 3.0e-3),
     "pandar64": (_PANDAR64, 0.2, 0.02, 3.0e-3),
     "pandar-xt32": (np.arange(-16.0, 15.0 + 1e-9, 1.0), 0.18, 0.01, 3.0e-3),
+    **{
+        name: (np.array([-half, half]), _cone_spacing_deg(half, 10_000), 0.02, np.deg2rad(0.28))
+        for name, half in (("livox-mid40", 19.2), ("livox-mid70", 35.2))
+    },
 }
+#: the named scanline-free (non-repetitive) models
+NON_REPETITIVE: tuple[str, ...] = ("livox-mid40", "livox-mid70")
 
 #: Hardware laser numbering (the ``laser_id`` a Velodyne driver or VeloView writes): the elevation
 #: (deg) of laser id 0, 1, ... The HDL-32E and VLP-16 manuals interleave lower and upper lasers.
@@ -298,9 +345,15 @@ def lidar_model(
         raise InputError(f"unknown lidar model {name!r}; expected one of {list(MODEL_NAMES)}")
     if range_sigma_m is not None:
         sigma = float(range_sigma_m)
+    pattern = "non-repetitive" if key in NON_REPETITIVE else "spinning"
     try:
         return LidarModel(
-            key, np.sort(np.asarray(table, float)) if key == "generic" else table, res, sigma, div
+            key,
+            np.sort(np.asarray(table, float)) if key == "generic" else table,
+            res,
+            sigma,
+            div,
+            pattern=pattern,
         )
     except ValueError as e:
         raise InputError(f"lidar model {name!r}: {e}") from None

@@ -1,7 +1,7 @@
 """Write a simulated data set as a ROS 1 bag or a ROS 2 bag (sqlite3 or mcap), with rosbags' writers.
 
-Messages: ``sensor_msgs/PointCloud2`` (x y z intensity float32, ring uint16, Velodyne's 32-byte
-point layout), ``sensor_msgs/Image`` (bgr8) or ``CompressedImage`` (png / jpeg) and
+Messages: ``sensor_msgs/PointCloud2`` (x y z intensity float32, ring uint16 (none for a scanline-free
+lidar), Velodyne's 32-byte point layout), ``sensor_msgs/Image`` (bgr8) or ``CompressedImage`` (png / jpeg) and
 ``sensor_msgs/CameraInfo`` (pinhole: plumb_bob or rational_polynomial; fisheye: equidistant; none for
 a panorama), serialised with rosbags' typestore. Stamps: scan k at ``start + k / rate_hz``, its image
 ``image_delay_s`` later; bag (receive) times lag the stamps by the transport latencies.
@@ -117,9 +117,13 @@ class RosMessages:
                                  "formats": ["<f4", "<f4", "<f4", "<f4", "<u2"],
                                  "offsets": [0, 4, 8, 16, 20], "itemsize": 32})  # fmt: skip
         rec["x"], rec["y"], rec["z"] = scan.points.T
-        rec["intensity"], rec["ring"] = scan.intensity, scan.ring
+        rec["intensity"] = scan.intensity
         pf = "sensor_msgs/msg/PointField"
         layout = (("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 16, 7), ("ring", 20, 4))  # 7 f4, 4 u2
+        if scan.ring is None:  # a scanline-free lidar (Livox): no ring field
+            layout = layout[:4]
+        else:
+            rec["ring"] = scan.ring
         fields = [self.make(pf, name=c, offset=o, datatype=d, count=1) for c, o, d in layout]
         return self.make("sensor_msgs/msg/PointCloud2", header=self.header(t_ns, "lidar"), height=1, width=n,
                          fields=fields, is_bigendian=False, point_step=32, row_step=32 * n,

@@ -1,9 +1,11 @@
-"""LiDAR scans by ray casting every beam of a spinning multi-beam model.
+"""LiDAR scans by ray casting every beam of a spinning multi-beam model, or a scanline-free pattern.
 
 One scan: the head turns clockwise seen from above (azimuth ``atan2(y, x)`` decreasing), firing all
 beams at each of ``round(360 / horizontal_resolution_deg)`` steps from a random start phase. Points
 are in scan order (firing after firing, beams ascending within a firing); lost returns are
-omitted, as a driver does. Ranges 0.4-100 m.
+omitted, as a driver does. Ranges 0.4-100 m. A scanline-free model (``LidarModel.ringless``, e.g.
+``livox-mid70``) fires along its rosette (simulate/rosette.py) for ``spec.integration_time_s`` from a
+random start time, one laser (beam 0 for the per-beam systematics); its scans have no ring field.
 
 Measurement model (all geometric sigmas times ``spec.noise_scale``):
 
@@ -47,6 +49,7 @@ import numpy as np
 from ..lidars import LASER_ID_ELEVATIONS_DEG, LidarModel
 from ..types import Scan
 from .placements import PURPOSE_FRAME, PURPOSE_UNIT, frame_rng
+from .rosette import rosette_directions, rosette_for
 from .scene import (
     SURF_BOARD,
     SURF_BOARD_BACK,
@@ -134,7 +137,11 @@ def simulate_scan(spec: SimulationSpec, scene: Scene, frame: int, biases: np.nda
     model, sy = spec.lidar_model, spec.systematics
     streams = [frame_rng(spec.seed, PURPOSE_FRAME, frame, 1, k) for k in range(4)]
     phase = streams[0].uniform(0.0, 2 * np.pi)
-    d, ring = _beam_directions(model, phase)
+    if model.ringless:  # the start time from the same draw: 0 .. 1000 s into the pattern
+        d = rosette_directions(rosette_for(model), 1000.0 * phase / (2 * np.pi), spec.integration_time_s)
+        ring = np.zeros(len(d), np.int32)
+    else:
+        d, ring = _beam_directions(model, phase)
     n = len(d)
     hits = cast_rays(scene, np.zeros(3), d)
     t = hits.t
@@ -190,6 +197,8 @@ def simulate_scan(spec: SimulationSpec, scene: Scene, frame: int, biases: np.nda
         z_sig = frame_rng(spec.seed, PURPOSE_FRAME, frame, 1, 4).standard_normal(n)
         raw = np.clip(np.rint(signal + (2.0 * np.sqrt(signal) + 5.0) * z_sig), 0, 65535)
         return _organised(model, p, raw, keep)
+    if model.ringless:
+        return Scan(points=p[keep], intensity=intensity[keep], ring=None, source="simulated")
     out_ring = ring
     if spec.sensor_format == "velodyne-csv":
         out_ring = laser_ids(model)[ring]

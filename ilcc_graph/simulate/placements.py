@@ -11,6 +11,8 @@ up to 8 deg jitter, so every corner of the pattern may end up lowest) and tilted
 field, inside the room and (not panoramic) inside the image with a 3 % border; after repeated
 failures the draws move farther out (up to 1.5 m beyond 2.6 m) and, when not panoramic, towards
 the middle of the view (e.g. a VLP-16's +-15 deg field cannot hold a 0.75 m board at 1.2 m).
+A scanline-free lidar's field is a cone about x (``vertical_angles_deg`` = +-its half-angle): the
+directions are spread over its width (for a panorama too) and the board must lie inside the cone.
 
 Per frame: a thin pole (3 x 3 cm) from the ground up to just below and behind the board's lowest
 point, and, with ``SceneOptions.person_probability``, a person-sized box (0.44 x 0.28 x 1.7 m)
@@ -81,16 +83,28 @@ def _pose(spec: SimulationSpec, centre: np.ndarray, roll: float, pitch: float, y
     return T
 
 
+def _cone_half_angle(spec: SimulationSpec) -> float | None:
+    """Half-angle (rad) of a scanline-free lidar's circular field about x; None for a spinning one."""
+    m = spec.lidar_model
+    return float(np.deg2rad(np.abs(m.vertical_angles_deg).max())) if m.ringless else None
+
+
 def _azimuth_range(spec: SimulationSpec) -> tuple[float, float] | None:
-    """Horizontal span (rad, LiDAR azimuth) of the image's middle row; None for a panorama (columns wrap)."""
+    """Horizontal span (rad, LiDAR azimuth) of the image's middle row (within a scanline-free lidar's
+    cone); None for a panorama (columns wrap) with a spinning lidar."""
     cam = spec.camera
-    if cam.periodic_u:
+    cone = _cone_half_angle(spec)
+    if cone is not None:
+        lim_c = 0.8 * cone
+        if cam.periodic_u:
+            return -lim_c, lim_c
+    elif cam.periodic_u:
         return None
     uv = np.column_stack([np.linspace(0, cam.width - 1, 81), np.full(81, (cam.height - 1) / 2)])
     b = cam.bearing(uv)
     d = b[np.all(np.isfinite(b), axis=1)] @ spec.T_cam_lidar[:3, :3]  # rows: R_lidar_cam b
     az = np.arctan2(d[:, 1], d[:, 0])
-    lim = np.deg2rad(80.0)
+    lim = np.deg2rad(80.0) if cone is None else lim_c
     return float(max(az.min(), -lim)), float(min(az.max(), lim))
 
 
@@ -101,6 +115,11 @@ def _acceptable(spec: SimulationSpec, T: np.ndarray) -> bool:
     va = spec.lidar_model.vertical_angles_deg
     if el.min() < va[0] + 0.3 or el.max() > va[-1] - 0.3 or pts[:, 2].min() < scene.ground_z + 0.3:
         return False
+    cone = _cone_half_angle(spec)
+    if cone is not None:
+        off_axis = np.arccos(np.clip(pts[:, 0] / np.linalg.norm(pts, axis=1), -1.0, 1.0))
+        if off_axis.max() > cone - np.deg2rad(0.5):
+            return False
     room = spec.scene.room
     if room is not None:
         xmin, xmax, ymin, ymax = room
@@ -136,6 +155,7 @@ def board_placements(spec: SimulationSpec) -> list[np.ndarray]:
     x0, x1, y0, y1 = spec.board.extent()
     radius = 0.5 * np.hypot(x1 - x0, y1 - y0)
     va = np.deg2rad(spec.lidar_model.vertical_angles_deg)
+    cone = _cone_half_angle(spec)
     direction = (np.arange(n) * N_DIRECTIONS) // n
     out = []
     for i in range(n):
@@ -152,6 +172,10 @@ def board_placements(spec: SimulationSpec) -> list[np.ndarray]:
                 az = (1.0 - relax) * az + relax * 0.5 * (az_range[0] + az_range[1])
             a = np.arcsin(min(1.0, radius / d))
             el_lo, el_hi = va[0] + a + np.deg2rad(1.0), va[-1] - a - np.deg2rad(1.0)
+            if cone is not None:  # inside the cone at this azimuth: cos(el) cos(az) >= cos(room)
+                c = np.cos(max(cone - a - np.deg2rad(1.0), 0.0)) / max(np.cos(az), 1e-9)
+                el_hi = float(np.arccos(c)) if c <= 1.0 else -1.0
+                el_lo = -el_hi
             el = 0.5 * (el_lo + el_hi) + (0.0 if el_hi < el_lo else rng.uniform(-0.4, 0.4) * (el_hi - el_lo))
             centre = d * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
             roll = np.deg2rad(45.0 + 90.0 * rng.integers(4) + rng.uniform(-8, 8))

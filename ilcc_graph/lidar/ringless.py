@@ -1,0 +1,263 @@
+"""Finding the chessboard in a scan without scanlines (Livox-style non-repetitive patterns).
+
+A scanline-free scan has no ring and no azimuth order: the scanline segmentation has nothing to
+walk along. Here the same ideas are carried over to neighbours in direction (pattern.py):
+
+1. **Density.** The pattern's returns per steradian on 1 x 1 deg cells, smoothed over 5 x 5 cells
+   of the field, measured from the scan itself (a rosette is several times denser at its centre
+   than half-way out, and denser the longer it integrates); the local spacing is
+   ``delta = 1 / sqrt(density)``.
+2. **Objects.** The search runs on at most ``SEARCH_POINTS`` returns (an even random draw of a long
+   integration). A return is linked to those of its 32 nearest directions that are less than
+   ``jump_ratio * delta`` away in direction and closer than ``jump_ratio * range * delta`` plus
+   the noise allowance ``noise_sigmas * sigma`` (the scanline stage's jump rule, the local spacing
+   for the azimuth step; ``sigma`` from local planes). Connected components are the objects.
+3. **Tests.** Each object is put to the paper's board tests (``board_tests.board_tests``) with a
+   local beam model whose azimuth and elevation steps are both the spacing over the object (RMS of
+   ``delta``): the theoretical count is ``area * density / d^2`` with the pattern's mean density
+   over the object, the size slack one spacing; each return stands for the part of the object's
+   plane nearest to it (``pattern.area_weights``), so that the PCA and the quadrant counts follow the
+   board, not where the rosette's petals happen to cross it.
+4. **Splitting.** An object that fails and is big enough to hold a board is split: a RANSAC plane
+   is peeled off (floor, wall), its inliers and the rest are clustered into pieces again and
+   tested (a board on its stand comes apart from the floor); a piece that fails the size or
+   uniformity test is trimmed in its own plane (a morphological opening a third of the board's
+   short side wide removes a pole or an arm).
+
+The candidates then go to the same intensity fit as ring-based ones, which groups returns by ring
+for its sampling covariance and plane jackknife: here by elevation bands one spacing high
+(:func:`pseudo_rings`). The estimation core gets a single pseudo-beam 0 (:func:`one_pseudo_beam`:
+one laser, one range offset).
+
+Planes and clusters are pluggable (``plane_fn``, ``cluster_fn``) so that Open3D's
+``segment_plane`` and ``cluster_dbscan`` can be measured against these (scripts/bench_ringless.py,
+docs/lidar_ringless.md). Frames: the LiDAR frame, metres, radians.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from ..board import Board
+from ..errors import BoardNotFound
+from ..lidars import LidarModel
+from ..types import BoardFit
+from .board_tests import board_tests, intensity_contrast
+from .detection import Candidate, ransac_plane, roi_mask
+from .options import LidarOptions
+from .pattern import area_weights, density_map, estimate_noise, link_components, pseudo_rings, trim_in_plane
+
+__all__ = ["find_ringless_candidates", "one_pseudo_beam", "pseudo_rings", "SEARCH_POINTS"]
+
+PlaneFn = Callable[[np.ndarray, float, np.random.Generator], tuple[np.ndarray, float, np.ndarray]]
+#: the search runs on at most this many returns (an even random draw: the pattern's angular density
+#: scales, nothing else changes); the fit gathers every return near a candidate's plane
+SEARCH_POINTS = 20_000
+
+
+def one_pseudo_beam(fit: BoardFit) -> BoardFit:
+    """The fit with its returns on the one pseudo-beam 0 (what the estimation core is given: one
+    laser, one range offset; the bands were for the fit's own covariance)."""
+    return replace(fit, returns=replace(fit.returns, ring=np.zeros(len(fit.returns.ring), np.int64)))
+
+
+def _local_model(model: LidarModel, spacing_rad: float) -> LidarModel:
+    """A beam model whose azimuth and elevation steps are both the local spacing: what the paper's
+    tests need to give ``area * density / d^2`` as the theoretical count."""
+    s = float(np.degrees(min(max(spacing_rad, 1e-5), np.deg2rad(9.0))))
+    return LidarModel(
+        "local", np.array([-0.5 * s, 0.5 * s]), s, model.range_sigma_m, model.beam_divergence_rad
+    )
+
+
+def _groups(labels: np.ndarray) -> list[np.ndarray]:
+    """Indices (sorted) of each label's members; negative labels (DBSCAN's noise) left out."""
+    order = np.argsort(labels, kind="stable")
+    cuts = np.flatnonzero(np.diff(labels[order])) + 1
+    return [np.sort(g) for g in np.split(order, cuts) if labels[g[0]] >= 0]
+
+
+def find_ringless_candidates(
+    points: np.ndarray,
+    ring: np.ndarray | None,
+    intensity: np.ndarray,
+    board: Board,
+    model: LidarModel,
+    roi: Any | None = None,
+    options: LidarOptions = LidarOptions(),
+    rng: np.random.Generator | None = None,
+    mask: np.ndarray | None = None,
+    accept: Callable[[list[Candidate]], bool] | None = None,
+    plane_fn: PlaneFn = ransac_plane,
+    cluster_fn: Callable[..., np.ndarray] = link_components,
+) -> list[Candidate]:
+    """Every segment of a scanline-free scan that passes the chessboard tests (``detection.find_candidates``'s
+    contract: same arguments, ``ring`` unused); raise BoardNotFound with the reason if none.
+
+    points: (N, 3) LiDAR frame. intensity: (N,). mask: optional (N,) bool of points the search may
+    use (with ``roi``). ``accept`` is asked after the objects as found and after each split object.
+    plane_fn(p, threshold, rng) -> (normal, offset, inliers); cluster_fn(p, u, delta, jump_ratio,
+    allow) -> labels (negative: noise): the plane segmentation and the clustering (run again on
+    the pieces of a split object).
+    """
+    rng = np.random.default_rng(0) if rng is None else rng
+    p_all = np.asarray(points, dtype=np.float64)
+    inten_all = np.asarray(intensity, dtype=np.float64)
+    r_all = np.linalg.norm(p_all, axis=1)
+    ok = np.isfinite(r_all) & (r_all > options.min_range_m)
+    if ok.sum() > SEARCH_POINTS:
+        keep = np.zeros_like(ok)
+        keep[np.sort(rng.choice(np.flatnonzero(ok), SEARCH_POINTS, replace=False))] = True
+        ok = keep
+    dens = density_map(p_all[ok] / r_all[ok, None])
+    inside = ok & roi_mask(p_all, roi)
+    if mask is not None:
+        inside &= np.asarray(mask, bool)
+    if not inside.any():
+        where = "the region of interest (board.roi)" if mask is None else "the expected board's box"
+        raise BoardNotFound(f"no point of the scan lies inside {where}")
+    idx_all = np.flatnonzero(inside)
+    p, inten = p_all[idx_all], inten_all[idx_all]
+    u = p / r_all[idx_all, None]
+    delta = dens.spacing(u)
+    sigma = estimate_noise(p, rng)
+    thr = max(options.ransac_threshold_m, 2.5 * sigma)
+    allow = options.noise_sigmas * sigma
+
+    def pieces(sub: np.ndarray) -> list[np.ndarray]:
+        """The connected pieces of the subset ``sub`` (indices), clustered on their own."""
+        if sub.size < 12:
+            return []
+        return [sub[g] for g in _groups(cluster_fn(p[sub], u[sub], delta[sub], options.jump_ratio, allow))]
+
+    x0, x1, y0, y1 = board.extent()
+    short_side = y1 - y0
+    diag = float(np.hypot(x1 - x0, y1 - y0))
+    area = (x1 - x0) * short_side
+
+    passed: list[tuple[float, np.ndarray, float]] = []
+    misses: list[tuple[int, str, str]] = []
+    to_split: list[np.ndarray] = []
+    tested = 0
+
+    def n_theory(idx: np.ndarray) -> tuple[float, float]:
+        """(theoretical count of a frontal board at the piece's range, the spacing that gives it).
+
+        The pattern's mean density over the piece's solid angle is ``M / sum_i delta_i^2`` (each
+        return stands for ``delta_i^2`` sr), the spacing ``sqrt(mean(delta_i^2))``.
+        """
+        d = float(np.linalg.norm(p[idx].mean(axis=0)))
+        s = float(np.sqrt(np.mean(delta[idx] ** 2)))
+        return area / (d * s) ** 2, s
+
+    def test(idx: np.ndarray, depth: int) -> None:
+        nonlocal tested
+        q = p[idx]
+        span = float(np.linalg.norm(np.ptp(q, axis=0)))
+        if span < options.size_ratio[0] * short_side or idx.size < max(12, options.min_points):
+            return
+        n_th, s = n_theory(idx)
+        if idx.size < options.count_ratio[0] * n_th:
+            return
+        tested += 1
+        r_q = np.linalg.norm(q, axis=1)
+        w_area = area_weights(q, float(np.linalg.norm(q.mean(axis=0))) * s)
+        n_q = np.linalg.svd(q - q.mean(axis=0), full_matrices=False)[2][2]
+        solid = w_area * np.abs(q @ n_q) / r_q**3  # each return's board area as a solid angle
+        ok_, uni, name, detail = board_tests(
+            q, board, _local_model(model, s), sigma, options, inten[idx], solid
+        )
+        if ok_:
+            n, d, inl = plane_fn(q, thr, rng)
+            if inl.mean() >= 0.9:
+                passed.append((uni, idx[inl], intensity_contrast(inten[idx[inl]])[0]))
+                return
+            name, detail = "plane", f"only {inl.mean():.0%} of its points on one plane; {detail}"
+        if depth >= 1 and name in ("size", "uniformity", "count", "plane", "contrast"):
+            n, d, inl = plane_fn(q, thr, rng)
+            dist = float(np.linalg.norm(q.mean(axis=0)))
+            cell = max(0.01, 1.5 * dist * s)
+            for strength in (1.0, 1.6):
+                kept = trim_in_plane(q[inl], n, cell, strength * short_side / 3.0)
+                if 12 <= kept.size < idx.size and depth < 3:
+                    n_pass = len(passed)
+                    test(idx[np.flatnonzero(inl)[kept]], 3)
+                    if len(passed) > n_pass:
+                        return
+        misses.append((idx.size, name, detail))
+        if depth == 0 and span >= options.size_ratio[0] * diag:
+            to_split.append(idx)
+
+    budget = [options.max_planes * 6]
+
+    def split(idx: np.ndarray) -> None:
+        queue = [np.sort(idx)]
+        own = options.max_planes * 3
+        n_before = len(passed)
+        while queue and budget[0] > 0 and own > 0 and len(passed) == n_before:
+            own -= 1
+            queue.sort(key=len, reverse=True)
+            cur = queue.pop()  # smallest first: a board with its stand before the room
+            if cur.size < 12:
+                continue
+            budget[0] -= 1
+            _, _, inl = plane_fn(p[cur], thr, rng)
+            if inl.sum() < 12:
+                continue
+            for piece in pieces(cur[inl]):
+                test(piece, 1)
+            for piece in pieces(cur[~inl]):
+                if piece.size < 12:
+                    continue
+                size = float(np.linalg.norm(np.ptp(p[piece], axis=0)))
+                if size < 2.0 * diag:
+                    test(piece, 1)
+                if size >= options.size_ratio[0] * diag and piece.size >= max(
+                    options.count_ratio[0] * n_theory(piece)[0], options.min_points
+                ):
+                    queue.append(piece)
+
+    out: list[Candidate] = []
+
+    def offer() -> bool:
+        new: list[Candidate] = []
+        for uni, members, sep in passed[len(out) :]:
+            loc = np.unique(members)
+            q = p[loc]
+            n, d, _ = plane_fn(q, thr, rng)
+            if n @ q.mean(axis=0) > 0:  # normal towards the sensor
+                n, d = -n, -d
+            new.append(Candidate(idx_all[loc], n, float(d), float(uni), sigma, tested, float(sep)))
+        out.extend(new)
+        if not new:
+            return False
+        return True if accept is None else bool(accept(new))
+
+    for obj in pieces(np.arange(p.shape[0])):
+        test(obj, 0)
+    done = offer()
+    for obj in sorted(to_split, key=len):
+        if done:
+            break
+        split(obj)
+        done = offer()
+
+    if not out:
+        if not misses:
+            raise BoardNotFound(
+                f"no object of board size ({x1 - x0:.2f} x {short_side:.2f} m) in the scan"
+                + (" inside the region of interest" if roi is not None else "")
+            )
+        misses.sort(key=lambda t: -t[0])
+        near = "; ".join(f"{name}: {detail}" for _, name, detail in misses[:3])
+        raise BoardNotFound(
+            f"no segment passed the chessboard tests ({tested} board-sized candidates, scan without "
+            f"scanlines); largest: {near}. If the board is in view, narrow the search with board.roi "
+            "(azimuth_deg, elevation_deg, range_m), and accumulate the scan longer (a non-repetitive "
+            "pattern covers a board evenly after about 0.5 s)."
+        )
+    return out
