@@ -64,7 +64,9 @@ class LidarErrorOptions:
             if not getattr(self, name) > 0:
                 raise ValueError(f"LidarErrorOptions.{name} must be > 0, got {getattr(self, name)!r}")
         if self.board_plane is not None and not (len(self.board_plane) == 2 and min(self.board_plane) > 0):
-            raise ValueError(f"LidarErrorOptions.board_plane must be two sigmas > 0 or None, got {self.board_plane!r}")
+            raise ValueError(
+                f"LidarErrorOptions.board_plane must be two sigmas > 0 or None, got {self.board_plane!r}"
+            )
         if not 0.0 < self.observable_ratio < 1.0:
             raise ValueError(
                 f"LidarErrorOptions.observable_ratio must be in (0, 1), got {self.observable_ratio!r}"
