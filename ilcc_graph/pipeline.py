@@ -1,7 +1,7 @@
 """The run: frame sources -> the stages per frame -> corner order and start -> an estimation strategy.
 
-``observe.observe`` runs the per-frame stages on a source; ``_prepare`` orders the corners across
-frames (half turns) and takes the start from that consensus; one strategy of the estimation core
+``observe.observe`` runs the per-frame stages on a source; ``prepare.prepare`` orders the corners
+across frames (half turns) and takes the start from that consensus; one strategy of the estimation core
 then solves: batch (``graph``), the paper's refinement (``paper``), incremental (iSAM2 with a
 target), or sessions (several sources, or a range offset). Every mode returns one ``RunResult``;
 ``outputs`` writes it. Only sources read files.
@@ -19,18 +19,15 @@ import numpy as np
 
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameSource
-from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import NoiseOptions
 from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.batch import solve as solve_batch
-from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.estimation.incremental import FrameUpdate, IncrementalCalibrator
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.noise import BoardStats
 from ilcc_graph.estimation.paper import refine_paper
 from ilcc_graph.estimation.sessions import JointOptions, JointSolution, Session, solve_sessions
-from ilcc_graph.init import resolve_half_turns, upnp
 from ilcc_graph.observe import (
     Observation,
     StageOptions,
@@ -40,13 +37,8 @@ from ilcc_graph.observe import (
     resolve_lidar,
     second_pass,
 )
-from ilcc_graph.types import (
-    Calibration,
-    FrameResult,
-    GraphFrame,
-    ImageCorners,
-    rotation_angle_deg,
-)
+from ilcc_graph.prepare import Prepared, finish, permute_corners, prepare, rms_bearing_mrad
+from ilcc_graph.types import Calibration, FrameResult
 
 log = logging.getLogger(__name__)
 
@@ -127,157 +119,6 @@ class RunResult:
 # From observations to the extrinsic
 
 
-@dataclass(frozen=True)
-class _Prepared:
-    """Frames in a consistent corner order with the start from their consensus."""
-
-    frames: list[GraphFrame]
-    T_init: np.ndarray
-    results: dict[str, FrameResult]  # every frame, with the ordering's drops and re-indexed corners
-
-
-def _permute_corners(corners: ImageCorners, perm: np.ndarray) -> ImageCorners:
-    """The same corners re-indexed: new corner k is old corner perm[k]."""
-    return dataclasses.replace(
-        corners, uv=corners.uv[perm], bearings=corners.bearings[perm], cov_px=corners.cov_px[perm]
-    )
-
-
-def _drop(results: dict[str, FrameResult], name: str, reason: str) -> None:
-    results[name] = dataclasses.replace(results[name], used=False, reason=reason)
-
-
-def _graph_frame(r: FrameResult, config: Config) -> GraphFrame:
-    b, c = r.board, r.corners
-    assert b is not None and c is not None
-    corners = config.board.corners_board()
-    return GraphFrame(r.name, b.T_lidar_board, b.covariance, corners, c.bearings, c.cov_px, b.returns, c.uv)
-
-
-def _prepare(observed: Sequence[FrameResult], config: Config) -> _Prepared:
-    """Repeated board poses out, corners ordered across frames (half turns), the start from the consensus.
-
-    Raises CalibrationImpossible when no frame has the board in both sensors, the distinct board
-    poses cannot calibrate (``estimation.geometry``), or the corner order is ambiguous.
-    """
-    results = {r.name: r for r in observed}
-    usable = [r for r in observed if r.used and r.board is not None and r.corners is not None]
-    if not usable:
-        reasons = "; ".join(f"{r.name}: {r.reason}" for r in observed) or "no frames"
-        raise CalibrationImpossible(f"no frame has the board in both the scan and the image ({reasons})")
-    geometry = board_geometry([_graph_frame(r, config) for r in usable])
-    for name, first in geometry.repeats.items():
-        _drop(results, name, f"same board pose as {first}: one observation, not an independent one")
-    if not geometry.ok:
-        raise CalibrationImpossible(f"{geometry.reason}. What to capture next: {geometry.advice}")
-    if geometry.parallel:
-        log.warning("%s: %s", config.source, geometry.parallel)
-    usable = [r for r in usable if r.name not in geometry.repeats]
-    board = config.board
-    perm = board.half_turn_permutation() if board.half_turn_symmetric else None
-    order = resolve_half_turns(
-        [r.board.corners_lidar for r in usable],  # type: ignore[union-attr]
-        [r.corners.bearings for r in usable],  # type: ignore[union-attr]
-        perm,
-        [r.name for r in usable],
-    )
-    if order.ambiguous:
-        raise CalibrationImpossible(
-            f"the corner order between image and scan cannot be decided: {order.ambiguous}"
-        )
-    for name, reason in order.dropped:
-        _drop(results, name, reason)
-    kept: list[FrameResult] = []
-    for r in usable:
-        if not results[r.name].used:
-            continue
-        if perm is not None and order.flip.get(r.name, False):
-            r = dataclasses.replace(r, corners=_permute_corners(r.corners, perm))  # type: ignore[arg-type]
-            results[r.name] = r
-        kept.append(r)
-    if not kept:
-        raise CalibrationImpossible(
-            "no frame left after ordering the corners: "
-            + "; ".join(f"{n}: {why}" for n, why in order.dropped)
-        )
-    frames = [_graph_frame(r, config) for r in kept]
-    T_init = order.T_cam_lidar
-    if T_init is None:
-        P = np.vstack([r.board.corners_lidar for r in kept])  # type: ignore[union-attr]
-        F = np.vstack([r.corners.bearings for r in kept])  # type: ignore[union-attr]
-        T_init = upnp(P, F, prefer_front=True)[0].T_cam_points  # corners lie ahead along their rays
-    return _Prepared(frames, np.asarray(T_init, dtype=np.float64), results)
-
-
-def _finish(
-    prep: _Prepared, observed: Sequence[FrameResult], config: Config, method: str, sol: BatchSolution
-) -> Calibration:
-    """The Calibration of one source from a strategy's answer: every frame in input order with its fate."""
-    results = dict(prep.results)
-    for name, reason in sol.dropped:
-        _drop(results, name, reason)
-    frames = []
-    for r in (results[o.name] for o in observed):
-        if r.used:
-            stats = sol.per_frame.get(r.name)
-            rms = None if stats is None else stats.rms_bearing_error_mrad
-            r = dataclasses.replace(
-                r, rms_bearing_error_mrad=rms, T_lidar_board_refined=sol.T_lidar_board.get(r.name)
-            )
-        frames.append(r)
-    diagnostics = {
-        "iterations": float(sol.iterations),
-        "variance_factor": sol.variance_factor,
-        "variance_component_board": sol.variance_components[0],
-        "variance_component_bearing": sol.variance_components[1],
-        "upnp_rotation_deg": rotation_angle_deg(prep.T_init[:3, :3].T @ sol.T_cam_lidar[:3, :3]),
-    }
-    cam = config.camera.to_dict()
-    return Calibration(
-        sol.T_cam_lidar, sol.covariance, tuple(frames), method, diagnostics, cam, _sensors(sol, config)
-    )
-
-
-def _sensors(sol: BatchSolution, config: Config) -> dict:
-    """``Calibration.sensors`` of a strategy's answer: the LiDAR's errors, the camera's intrinsics and
-    what each moved the extrinsic."""
-    out: dict = {}
-    lay = sol.lidar_layout
-    if sol.lidar is not None or (lay is not None and lay.excluded):
-        names, values, sigmas = sol.lidar if sol.lidar is not None else ([], np.zeros(0), np.zeros(0))
-        left = [] if lay is None else [list(x) for x in lay.excluded]
-        out["lidar_errors"] = {"names": list(names), "values": values, "sigmas": sigmas, "left_out": left}
-        if sol.lidar_covariance is not None:
-            out["lidar_errors"]["covariance"] = sol.lidar_covariance
-        if config.lidar is not None:  # each beam's nominal elevation (beam index 0 = lowest)
-            el = config.lidar.vertical_angles_deg
-            beams = {n: int(n[n.index("[") + 1 : -1]) for n in names if "[" in n}
-            out["lidar_errors"]["elevation_deg"] = {
-                n: round(float(el[b]), 3) for n, b in beams.items() if b < len(el)
-            }
-    if sol.effects:
-        out["effects"] = {k: dataclasses.asdict(v) for k, v in sol.effects.items()}
-    if sol.intrinsics is not None:
-        names, values, sigmas = sol.intrinsics
-        stated = config.camera.intrinsics()
-        out["camera_intrinsics"] = {
-            "names": list(names),
-            "stated": stated,
-            "values": values,
-            "sigmas": sigmas,
-        }
-    return out
-
-
-def _rms_bearing_mrad(T_cam_lidar: np.ndarray, f: GraphFrame) -> float:
-    """RMS angle (mrad) between measured bearings and the corners predicted through T."""
-    T = T_cam_lidar @ f.T_lidar_board
-    p = f.points_board @ T[:3, :3].T + T[:3, 3]
-    p /= np.linalg.norm(p, axis=1, keepdims=True)
-    ang = np.arctan2(np.linalg.norm(np.cross(p, f.bearings), axis=1), np.sum(p * f.bearings, axis=1))
-    return float(1e3 * np.sqrt(np.mean(ang**2)))
-
-
 def solve_observed(
     observed: Sequence[FrameResult], config: Config, options: RunOptions = RunOptions()
 ) -> Calibration:
@@ -285,21 +126,21 @@ def solve_observed(
 
     Raises CalibrationImpossible when no frame has the board in both sensors.
     """
-    prep = _prepare(observed, config)
+    prep = prepare(observed, config)
     if options.mode == "paper":
         T = refine_paper(prep.frames, prep.T_init, R_pano_cam=config.camera.R_flu_cam)
         if len(prep.frames) < 4:
             log.warning("only %d usable frame(s); at least 4 are advised", len(prep.frames))
         stats = {
-            f.name: BoardStats(math.nan, 2 * len(f.bearings), _rms_bearing_mrad(T, f)) for f in prep.frames
+            f.name: BoardStats(math.nan, 2 * len(f.bearings), rms_bearing_mrad(T, f)) for f in prep.frames
         }
         sol = BatchSolution(T, np.full((6, 6), np.nan), {}, stats, [], 0)
-        return _finish(prep, observed, config, "paper", sol)
+        return finish(prep, observed, config, "paper", sol)
     sol = solve_batch(
         prep.frames, config.camera, prep.T_init, options.noise, options.lidar_errors, options.intrinsics,
         effects=True,
     )  # fmt: skip
-    return _finish(prep, observed, config, "graph", sol)
+    return finish(prep, observed, config, "graph", sol)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -340,7 +181,7 @@ def _incremental(
     ]
     observed += [FrameResult(name=n, used=False, reason=why) for n, why in source.skipped()]
     if not updates:
-        _prepare(observed, config)  # no frame reached the calibrator: raises with every frame's reason
+        prepare(observed, config)  # no frame reached the calibrator: raises with every frame's reason
     final = cal.finish()
     updates.append(final)
     if report is not None:
@@ -349,14 +190,14 @@ def _incremental(
     for name in cal.flipped:  # the corner order the calibrator chose
         f = results[name]
         results[name] = dataclasses.replace(
-            f, corners=_permute_corners(f.corners, config.board.half_turn_permutation())
+            f, corners=permute_corners(f.corners, config.board.half_turn_permutation())
         )  # type: ignore[arg-type]
     offered = {f.name for f in cal.offered}
-    prep = _Prepared(cal.offered, np.asarray(final.T_cam_lidar), results)
+    prep = Prepared(cal.offered, np.asarray(final.T_cam_lidar), results)
     sol = final.solution
     assert sol is not None
     not_offered = [(f.name, "not offered") for f in observed if f.used and f.name not in offered]
-    calib = _finish(
+    calib = finish(
         prep, observed, config, "incremental", dataclasses.replace(sol, dropped=sol.dropped + not_offered)
     )
     obs = Observation(source, config, observed)
@@ -367,7 +208,7 @@ def _incremental(
 
 def _sessions(observations: Sequence[Observation], names: Sequence[str], options: RunOptions) -> RunResult:
     """Sources as sessions of one mount, through the sessions strategy."""
-    preps = [_prepare(o.frames, o.config) for o in observations]
+    preps = [prepare(o.frames, o.config) for o in observations]
     sessions = [
         Session(
             n,
@@ -398,7 +239,7 @@ def _sessions(observations: Sequence[Observation], names: Sequence[str], options
             sol.variance_factor,
             sol.components[n],
         )
-        results.append(SessionResult(n, o, _finish(p, o.frames, o.config, method, part)))
+        results.append(SessionResult(n, o, finish(p, o.frames, o.config, method, part)))
     prefix = len(names) > 1
     frames = tuple(
         dataclasses.replace(f, name=f"{r.name}/{f.name}") if prefix else f

@@ -1,7 +1,7 @@
 """The recorded data sets (../shared/data): what the tool makes of each, with the config as written.
 
-For every set present and every variant (the default; the camera's intrinsics refined; no sensor
-error terms) it prints and writes to docs/bench_real.md:
+For every set present and every variant (the default; the camera's intrinsics refined; the LiDAR's
+own errors estimated; both) it prints and writes to docs/bench_real.md:
 
 - frames used of the frames given, and why the others were left out;
 - the extrinsic (as the camera's position in the LiDAR frame, mm) with its 1-sigma;
@@ -33,6 +33,7 @@ from scipy.stats import chi2
 from ilcc_graph.datasets import open_source
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
+from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.io import atomic_write
 from ilcc_graph.observe import Observation, StageOptions, observe
 from ilcc_graph.pipeline import RunOptions, solve_observations
@@ -42,12 +43,14 @@ SETS = ("acfr-vlp16-fisheye", "acfr-os1-fisheye", "acfr-os1-pinhole")
 VARIANTS = {
     "default": RunOptions(),
     "refine intrinsics": RunOptions(intrinsics=IntrinsicsOptions(refine=True)),
-    "no sensor errors": RunOptions(lidar_errors=None),
+    "LiDAR errors": RunOptions(lidar_errors=LidarErrorOptions()),
+    "both": RunOptions(lidar_errors=LidarErrorOptions(), intrinsics=IntrinsicsOptions(refine=True)),
 }
 
 
-def acfr_reference(folder: Path) -> np.ndarray | None:
-    """ACFR's T_lidar_cam (4, 4): column means of their estimates after dropping |z| >= 2, or None."""
+def acfr_reference(folder: Path) -> tuple[np.ndarray, np.ndarray] | None:
+    """ACFR's T_lidar_cam (4, 4) (column means of their estimates after dropping |z| >= 2) and the
+    standard deviation of their rows' translations (3,), or None."""
     files = sorted((folder / "acfr_reference").glob("calibration_*.csv"))
     if not files:
         return None
@@ -61,7 +64,7 @@ def acfr_reference(folder: Path) -> np.ndarray | None:
     T = np.eye(4)
     T[:3, :3] = gtsam.Rot3.Ypr(yaw, pitch, roll).matrix()  # R = Rz(yaw) Ry(pitch) Rx(roll)
     T[:3, 3] = [x, y, z]
-    return T
+    return T, rows[:, 3:].std(axis=0, ddof=1)
 
 
 def corner_rms_px(cal: Calibration, obs: Observation) -> float:
@@ -127,9 +130,22 @@ def main() -> None:
         t0 = time.perf_counter()
         obs = observe(open_source(folder), StageOptions(jobs=args.jobs))
         t_obs = time.perf_counter() - t0
-        ref = acfr_reference(folder)
+        acfr = acfr_reference(folder)
+        ref = None if acfr is None else acfr[0]
         lines += [f"## {name}", "", f"Observation (LiDAR and image stages): {t_obs:.1f} s.", ""]
-        head = "| variant | used | camera in LiDAR frame x, y, z mm (1-sigma) | rot. sigma deg | corner RMS px | halves | solve s |"
+        if acfr is not None:
+            lines += [
+                "ACFR's result (camera in LiDAR frame, mm): "
+                + ", ".join(f"{1e3 * v:.1f}" for v in ref[:3, 3])  # type: ignore[index]
+                + "; the spread (std) of their own estimates: "
+                + ", ".join(f"{1e3 * v:.1f}" for v in acfr[1])
+                + ".",
+                "",
+            ]
+        head = (
+            "| variant | used | camera in LiDAR frame x, y, z mm (1-sigma) | rot. sigma deg "
+            "| corner RMS px | halves | solve s |"
+        )
         if ref is not None:
             head += " vs ACFR: rot deg, trans mm |"
         lines += [head, "|" + "---|" * (head.count("|") - 1)]
@@ -139,7 +155,11 @@ def main() -> None:
             try:
                 cal = solve_observations([obs], options).calibration
             except (CalibrationImpossible, IndeterminateSystem) as e:
-                lines.append(f"| {vname} | - | cannot calibrate: {e} |" + " |" * (head.count("|") - 4))
+                lines.append(
+                    f"| {vname} | - | cannot calibrate (exit 3, below) |" + " |" * (head.count("|") - 4)
+                )
+                if f"- {e}" not in notes:
+                    notes.append(f"- {e}")
                 continue
             t_solve = time.perf_counter() - t1
             T_lc = np.linalg.inv(cal.T_cam_lidar)
@@ -158,13 +178,14 @@ def main() -> None:
             )
             if ref is not None:
                 D = gtsam.Pose3(ref).between(gtsam.Pose3(T_lc))
-                row += f" {np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(D.rotation()))):.3f}, {1e3 * np.linalg.norm(T_lc[:3, 3] - ref[:3, 3]):.1f} |"
+                rot = np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(D.rotation())))
+                row += f" {rot:.3f}, {1e3 * np.linalg.norm(T_lc[:3, 3] - ref[:3, 3]):.1f} |"
             lines.append(row)
             print(row, flush=True)
             for f in cal.frames:
                 if not f.used:
                     notes.append(f"- {vname}: {f.name}: {f.reason}")
-        lines += ["", "Frames left out:", "", *(notes or ["- none"]), ""]
+        lines += ["", "Frames left out, or why the set cannot calibrate:", "", *(notes or ["- none"]), ""]
     text = "\n".join(lines) + "\n"
     print(text)
     atomic_write(Path(args.out), text)

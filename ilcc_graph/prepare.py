@@ -1,0 +1,197 @@
+"""Observed frames into the estimation core's input, and a strategy's answer back into a Calibration.
+
+``prepare``: repeated board poses out, the corner order made consistent across frames (half
+turns), ``GraphFrame``s and the start (UPnP on that consensus). ``finish``: every frame in input
+order with its fate (used, or why not, with the likely cause of a dropped frame), the refined
+board poses, the sensors' own errors.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ilcc_graph.config import Config
+from ilcc_graph.diagnose import dropped_frame_cause, fit_image_alone
+from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.estimation.batch import BatchSolution
+from ilcc_graph.estimation.geometry import board_geometry
+from ilcc_graph.init import resolve_half_turns, upnp
+from ilcc_graph.types import Calibration, FrameResult, GraphFrame, ImageCorners, rotation_angle_deg
+
+log = logging.getLogger(__name__)
+
+__all__ = ["Prepared", "drop", "finish", "graph_frame", "permute_corners", "prepare", "rms_bearing_mrad"]
+
+
+@dataclass(frozen=True)
+class Prepared:
+    """Frames in a consistent corner order with the start from their consensus."""
+
+    frames: list[GraphFrame]
+    T_init: np.ndarray
+    results: dict[str, FrameResult]  # every frame, with the ordering's drops and re-indexed corners
+
+
+def permute_corners(corners: ImageCorners, perm: np.ndarray) -> ImageCorners:
+    """The same corners re-indexed: new corner k is old corner perm[k]."""
+    return dataclasses.replace(
+        corners, uv=corners.uv[perm], bearings=corners.bearings[perm], cov_px=corners.cov_px[perm]
+    )
+
+
+def drop(results: dict[str, FrameResult], name: str, reason: str) -> None:
+    """Mark frame ``name`` unused with ``reason`` (in place)."""
+    results[name] = dataclasses.replace(results[name], used=False, reason=reason)
+
+
+def graph_frame(r: FrameResult, config: Config) -> GraphFrame:
+    """The estimation core's input of one frame with both stages' results."""
+    b, c = r.board, r.corners
+    assert b is not None and c is not None
+    corners = config.board.corners_board()
+    return GraphFrame(r.name, b.T_lidar_board, b.covariance, corners, c.bearings, c.cov_px, b.returns, c.uv)
+
+
+def prepare(observed: Sequence[FrameResult], config: Config) -> Prepared:
+    """Repeated board poses out, corners ordered across frames (half turns), the start from the consensus.
+
+    Raises CalibrationImpossible when no frame has the board in both sensors, the distinct board
+    poses cannot calibrate (``estimation.geometry``), or the corner order is ambiguous.
+    """
+    results = {r.name: r for r in observed}
+    usable = [r for r in observed if r.used and r.board is not None and r.corners is not None]
+    if not usable:
+        reasons = "; ".join(f"{r.name}: {r.reason}" for r in observed) or "no frames"
+        raise CalibrationImpossible(f"no frame has the board in both the scan and the image ({reasons})")
+    geometry = board_geometry([graph_frame(r, config) for r in usable])
+    for name, first in geometry.repeats.items():
+        drop(results, name, f"same board pose as {first}: one observation, not an independent one")
+    if not geometry.ok:
+        raise CalibrationImpossible(f"{geometry.reason}. What to capture next: {geometry.advice}")
+    if geometry.parallel:
+        log.warning("%s: %s", config.source, geometry.parallel)
+    usable = [r for r in usable if r.name not in geometry.repeats]
+    board = config.board
+    perm = board.half_turn_permutation() if board.half_turn_symmetric else None
+    order = resolve_half_turns(
+        [r.board.corners_lidar for r in usable],  # type: ignore[union-attr]
+        [r.corners.bearings for r in usable],  # type: ignore[union-attr]
+        perm,
+        [r.name for r in usable],
+    )
+    if order.ambiguous:
+        raise CalibrationImpossible(
+            f"the corner order between image and scan cannot be decided: {order.ambiguous}"
+        )
+    for name, reason in order.dropped:
+        drop(results, name, reason)
+    kept: list[FrameResult] = []
+    for r in usable:
+        if not results[r.name].used:
+            continue
+        if perm is not None and order.flip.get(r.name, False):
+            r = dataclasses.replace(r, corners=permute_corners(r.corners, perm))  # type: ignore[arg-type]
+            results[r.name] = r
+        kept.append(r)
+    if not kept:
+        raise CalibrationImpossible(
+            "no frame left after ordering the corners: "
+            + "; ".join(f"{n}: {why}" for n, why in order.dropped)
+        )
+    frames = [graph_frame(r, config) for r in kept]
+    T_init = order.T_cam_lidar
+    if T_init is None:
+        P = np.vstack([r.board.corners_lidar for r in kept])  # type: ignore[union-attr]
+        F = np.vstack([r.corners.bearings for r in kept])  # type: ignore[union-attr]
+        T_init = upnp(P, F, prefer_front=True)[0].T_cam_points  # corners lie ahead along their rays
+    return Prepared(frames, np.asarray(T_init, dtype=np.float64), results)
+
+
+def finish(
+    prep: Prepared, observed: Sequence[FrameResult], config: Config, method: str, sol: BatchSolution
+) -> Calibration:
+    """The Calibration of one source from a strategy's answer: every frame in input order with its fate."""
+    results = dict(prep.results)
+    if sol.dropped:
+        causes = _dropped_causes(results, [n for n, _ in sol.dropped], config, sol.T_cam_lidar)
+        for name, reason in sol.dropped:
+            drop(results, name, f"{reason}; {causes[name]}" if causes.get(name) else reason)
+    frames = []
+    for r in (results[o.name] for o in observed):
+        if r.used:
+            stats = sol.per_frame.get(r.name)
+            rms = None if stats is None else stats.rms_bearing_error_mrad
+            r = dataclasses.replace(
+                r, rms_bearing_error_mrad=rms, T_lidar_board_refined=sol.T_lidar_board.get(r.name)
+            )
+        frames.append(r)
+    diagnostics = {
+        "iterations": float(sol.iterations),
+        "variance_factor": sol.variance_factor,
+        "variance_component_board": sol.variance_components[0],
+        "variance_component_bearing": sol.variance_components[1],
+        "upnp_rotation_deg": rotation_angle_deg(prep.T_init[:3, :3].T @ sol.T_cam_lidar[:3, :3]),
+    }
+    cam = config.camera.to_dict()
+    return Calibration(
+        sol.T_cam_lidar, sol.covariance, tuple(frames), method, diagnostics, cam, _sensors(sol, config)
+    )
+
+
+def _dropped_causes(
+    results: dict[str, FrameResult], dropped: Sequence[str], config: Config, T_cam_lidar: np.ndarray
+) -> dict[str, str]:
+    """Per dropped frame the likely cause (``diagnose``), judged against the used frames' images."""
+    used = [r for n, r in results.items() if r.used and n not in dropped and r.corners is not None]
+    if len(used) < 3:
+        return {}
+    corners = config.board.corners_board()
+    typical = float(np.median([fit_image_alone(r.corners.bearings, corners).rms_mrad for r in used]))
+    return {
+        n: dropped_frame_cause(results[n], config.board, config.camera, T_cam_lidar, typical) for n in dropped
+    }
+
+
+def _sensors(sol: BatchSolution, config: Config) -> dict:
+    """``Calibration.sensors`` of a strategy's answer: the LiDAR's errors, the camera's intrinsics and
+    what each moved the extrinsic."""
+    out: dict = {}
+    lay = sol.lidar_layout
+    if sol.lidar is not None or (lay is not None and lay.excluded):
+        names, values, sigmas = sol.lidar if sol.lidar is not None else ([], np.zeros(0), np.zeros(0))
+        left = [] if lay is None else [list(x) for x in lay.excluded]
+        out["lidar_errors"] = {"names": list(names), "values": values, "sigmas": sigmas, "left_out": left}
+        if sol.lidar_covariance is not None:
+            out["lidar_errors"]["covariance"] = sol.lidar_covariance
+        if config.lidar is not None:  # each beam's nominal elevation (beam index 0 = lowest)
+            el = config.lidar.vertical_angles_deg
+            beams = {n: int(n[n.index("[") + 1 : -1]) for n in names if "[" in n}
+            out["lidar_errors"]["elevation_deg"] = {
+                n: round(float(el[b]), 3) for n, b in beams.items() if b < len(el)
+            }
+    if sol.effects:
+        out["effects"] = {k: dataclasses.asdict(v) for k, v in sol.effects.items()}
+    if sol.intrinsics is not None:
+        names, values, sigmas = sol.intrinsics
+        stated = config.camera.intrinsics()
+        out["camera_intrinsics"] = {
+            "names": list(names),
+            "stated": stated,
+            "values": values,
+            "sigmas": sigmas,
+        }
+    return out
+
+
+def rms_bearing_mrad(T_cam_lidar: np.ndarray, f: GraphFrame) -> float:
+    """RMS angle (mrad) between measured bearings and the corners predicted through T."""
+    T = T_cam_lidar @ f.T_lidar_board
+    p = f.points_board @ T[:3, :3].T + T[:3, 3]
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    ang = np.arctan2(np.linalg.norm(np.cross(p, f.bearings), axis=1), np.sum(p * f.bearings, axis=1))
+    return float(1e3 * np.sqrt(np.mean(ang**2)))

@@ -1,0 +1,62 @@
+"""The likely cause of a dropped frame (ilcc_graph.diagnose), on boards made to fail one way each."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from ilcc_graph.board import Board
+from ilcc_graph.cameras import Pinhole
+from ilcc_graph.diagnose import dropped_frame_cause, fit_image_alone
+from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
+
+BOARD = Board(6, 8, 0.095, 0.045, 0.02, "white")
+CAMERA = Pinhole(1280, 800, np.array([[900.0, 0, 640], [0, 900.0, 400], [0, 0, 1]]))
+T_CL = gtsam.Pose3(gtsam.Rot3(np.array([[0.0, -1, 0], [0, 0, -1], [1, 0, 0]])), np.array([0.05, -0.1, 0.02]))
+
+
+def frame(rng: np.random.Generator, moved_m: float = 0.0, bend_m: float = 0.0) -> FrameResult:
+    """A board 2.5 m ahead; the image sees it ``moved_m`` aside and bent by ``bend_m`` (its middle)."""
+    facing = gtsam.Rot3(np.array([[0.0, 0, 1], [1, 0, 0], [0, 1, 0]]))  # board x, y along LiDAR y, z
+    tilt = gtsam.Rot3.RzRyRx(*rng.normal(0, 0.2, 3))
+    T_lb = gtsam.Pose3(tilt.compose(facing), np.array([2.5, -0.3, -0.2]))
+    pb = BOARD.corners_board()
+    lidar = np.array([T_lb.transformFrom(p) for p in pb])
+    seen = pb.copy()
+    c = pb[:, :2].mean(axis=0)
+    seen[:, 2] += bend_m * (
+        1.0 - np.sum((pb[:, :2] - c) ** 2, axis=1) / np.max(np.sum((pb[:, :2] - c) ** 2, axis=1))
+    )
+    seen[:, 0] += moved_m
+    p_cam = np.array([T_CL.transformFrom(T_lb.transformFrom(p)) for p in seen])
+    uv = CAMERA.project(p_cam) + rng.normal(0, 0.1, (len(pb), 2))
+    bearings = CAMERA.bearing(uv)
+    board = BoardFit(T_lb.matrix(), np.eye(6) * 1e-6, lidar, lidar, np.zeros(len(lidar)), True)
+    corners = ImageCorners(uv, bearings, np.tile(np.eye(2) * 0.01, (len(pb), 1, 1)), True)
+    return FrameResult("f", False, None, board, corners)
+
+
+def test_image_alone_fits_a_flat_board_to_its_noise() -> None:
+    rng = np.random.default_rng(0)
+    f = frame(rng)
+    alone = fit_image_alone(f.corners.bearings, BOARD.corners_board())  # type: ignore[union-attr]
+    assert 0.02 < alone.rms_mrad < 0.2  # 0.1 px at 900 px focal length: ~0.1 mrad
+    gap = np.linalg.norm(
+        alone.corners_cam - np.array([T_CL.transformFrom(p) for p in f.board.corners_lidar]), axis=1
+    )  # type: ignore[union-attr]
+    assert np.max(gap) < 0.02
+
+
+def test_a_moved_board_and_a_bent_image_are_told_apart() -> None:
+    rng = np.random.default_rng(1)
+    typical = float(
+        np.median(
+            [fit_image_alone(frame(rng).corners.bearings, BOARD.corners_board()).rms_mrad for _ in range(5)]
+        )
+    )  # type: ignore[union-attr]
+    moved = dropped_frame_cause(frame(rng, moved_m=0.05), BOARD, CAMERA, T_CL.matrix(), typical)
+    assert "moved between the scan and the photo" in moved
+    mm = float(moved.split(" mm (corner rms)")[0].rsplit(" ", 1)[1])
+    assert 35 < mm < 65, moved
+    bent = dropped_frame_cause(frame(rng, bend_m=0.01), BOARD, CAMERA, T_CL.matrix(), typical)
+    assert "fit a flat board worse" in bent and "blur, a curled print" in bent
