@@ -23,6 +23,10 @@ and on (the boards' returns with per-beam offsets and the dark-print offset), an
 Timing: the core (``estimation.batch.solve``: gate, variance components, marginals) on 20 and 400
 frames of one simulated HDL-32E set (400 frames observed once, cached in the sink's folder).
 
+BLAS: the script runs each process with one OpenBLAS thread (``OPENBLAS_NUM_THREADS=1`` unless set):
+on the shared 2-core machine, threaded BLAS in the core's small dense products made the solve 3-8x
+slower in wall time.
+
 Recorded data (``--real``): per set, two disjoint halves of the frames (odd / even positions) solved
 with the terms on; the beam offsets both halves estimate compared by ``d^T (C_a + C_b)^-1 d``
 (chi-square with as many dof as common terms), and the extrinsic halves likewise (6 dof).
@@ -33,6 +37,12 @@ with the terms on; the beam offsets both halves estimate compared by ``d^T (C_a 
 
 from __future__ import annotations
 
+import os
+
+# one BLAS thread per process: the core's small dense products slow down many times over when
+# OpenBLAS threads compete with the other process and the machine's other jobs (measured: docs)
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import argparse
 import logging
 import pickle
@@ -40,7 +50,7 @@ import sys
 import time
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import gtsam
@@ -304,6 +314,240 @@ def mc_tables(results: Sequence[SetResult]) -> list[str]:
     return lines
 
 
+# ----------------------------------------------------------------------------------------------
+# Timing: the core on 20 and 400 frames of one simulated set
+
+
+def observe_many(rig: str, seed: int, n: int, jobs: int, cache: Path | None) -> Observed:
+    """``n`` frames of one simulated set, observed in ``jobs`` processes (cached in ``cache``)."""
+    if cache is not None and cache.is_file():
+        with cache.open("rb") as fh:
+            return pickle.load(fh)
+    chunks = [list(range(k, n, jobs)) for k in range(jobs)]
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        parts = list(pool.map(observe_set, [rig] * jobs, [seed] * jobs, chunks, [n] * jobs))
+    by_name = {f.name: f for p in parts for f in p.frames}
+    obs = parts[0]
+    obs.frames = [by_name[k] for k in sorted(by_name)]
+    obs.T_lidar_board = {k: v for p in parts for k, v in p.T_lidar_board.items()}
+    obs.seconds = sum(p.seconds for p in parts)
+    if cache is not None:
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        with cache.open("wb") as fh:
+            pickle.dump(obs, fh)
+    return obs
+
+
+def timing(obs: Observed, sizes: Sequence[int] = (20, 400), repeats: int = 3) -> list[str]:
+    """Wall and CPU time of ``estimation.batch.solve`` (gate, variance components, marginals) with the
+    terms off and on, on the first frames of ``obs``; and of the effects' extra solves."""
+    from ilcc_graph.estimation import NoiseOptions
+    from ilcc_graph.estimation.batch import solve
+    from ilcc_graph.prepare import prepare
+
+    logging.getLogger("ilcc_graph").setLevel(logging.ERROR)
+    lines = [
+        "| frames | terms | solve + marginals s, wall (CPU) | of which marginals s | effects' re-solve s | "
+        "used | iterations |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for n in sizes:
+        prep = prepare(obs.frames[:n], obs.config)
+        for name in ("off", "on"):
+            lo = VARIANTS[name]
+            walls, cpus = [], []
+            for _ in range(repeats if n <= 50 else 1):
+                t0, c0 = time.perf_counter(), time.process_time()
+                sol = solve(prep.frames, obs.config.camera, prep.T_init, NoiseOptions(), lo)
+                walls.append(time.perf_counter() - t0)
+                cpus.append(time.process_time() - c0)
+            eff = ""
+            if lo is not None:
+                t0 = time.perf_counter()
+                solve(prep.frames, obs.config.camera, prep.T_init, NoiseOptions(), lo, effects=True)
+                eff = f"{time.perf_counter() - t0 - min(walls):.2f}"
+            k = int(np.argmin(walls))
+            lines.append(
+                f"| {len(prep.frames)} | {name} | {walls[k]:.2f} ({cpus[k]:.2f}) | "
+                f"{sol.timings.get('marginals', float('nan')):.2f} | {eff or '-'} | {len(sol.T_lidar_board)} | "
+                f"{sol.iterations} |"
+            )
+            print(lines[-1], flush=True)
+    return lines
+
+
+# ----------------------------------------------------------------------------------------------
+# Recorded data: two disjoint halves
+
+
+REAL_SETS = ("acfr-vlp16-fisheye", "acfr-os1-fisheye")
+
+
+def _halves_test(a: Calibration, b: Calibration) -> tuple[float, int, float, int, str]:
+    """(extrinsic chi2, 6, beam-offset chi2, dof, dark note) between two halves' calibrations."""
+    D = gtsam.Pose3(a.T_cam_lidar).between(gtsam.Pose3(b.T_cam_lidar))
+    d = np.asarray(gtsam.Pose3.Logmap(D))
+    Ad = D.inverse().AdjointMap()
+    m2 = float(d @ np.linalg.solve(a.covariance + Ad @ b.covariance @ Ad.T, d))
+    la, lb = a.sensors.get("lidar_errors"), b.sensors.get("lidar_errors")
+    if not la or not lb or "covariance" not in la or "covariance" not in lb:
+        return m2, 6, float("nan"), 0, "-"
+    common = [n for n in la["names"] if n.startswith("offset[") and n in lb["names"]]
+    ia = [la["names"].index(n) for n in common]
+    ib = [lb["names"].index(n) for n in common]
+    dv = np.asarray(la["values"])[ia] - np.asarray(lb["values"])[ib]
+    C = np.asarray(la["covariance"])[np.ix_(ia, ia)] + np.asarray(lb["covariance"])[np.ix_(ib, ib)]
+    b2 = float(dv @ np.linalg.solve(C, dv)) if common else float("nan")
+    note = "-"
+    if "dark" in la["names"] and "dark" in lb["names"]:
+        i, j = la["names"].index("dark"), lb["names"].index("dark")
+        va, vb = 1e3 * la["values"][i], 1e3 * lb["values"][j]
+        sa, sb = 1e3 * la["sigmas"][i], 1e3 * lb["sigmas"][j]
+        note = f"{va:.1f} +- {sa:.1f} / {vb:.1f} +- {sb:.1f} ({(va - vb) / np.hypot(sa, sb):+.1f} sigma)"
+    return m2, 6, b2, len(common), note
+
+
+def real_data(root: Path, jobs: int) -> list[str]:
+    """Per recorded set and variant: frames used, dark offset, beams, the halves' agreement."""
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.observe import StageOptions, observe
+    from ilcc_graph.pipeline import solve_observations
+
+    logging.getLogger("ilcc_graph").setLevel(logging.ERROR)
+    lines: list[str] = []
+    for name in REAL_SETS:
+        folder = root / name
+        if not (folder / "config.yaml").is_file():
+            lines += [f"{name}: not present under the data folder, skipped", ""]
+            continue
+        obs = observe(open_source(folder), StageOptions(jobs=jobs))
+        lines += [
+            f"### {name}",
+            "",
+            "| variant | used | beams (left out) | dark mm | without the terms: deg, mm (sigma) | "
+            "halves: extrinsic chi2 (6 dof) | halves: beam offsets chi2 (dof, p) | halves: dark mm | solve s |",
+            "|---|---|---|---|---|---|---|---|---|",
+        ]
+        parts = [replace(obs, frames=obs.frames[0::2]), replace(obs, frames=obs.frames[1::2])]
+        for vname, lo in VARIANTS.items():
+            opts = RunOptions(lidar_errors=lo, second_pass=False)
+            t0 = time.perf_counter()
+            try:
+                cal = solve_observations([obs], opts).calibration
+                halves = [solve_observations([p], opts).calibration for p in parts]
+            except (CalibrationImpossible, IndeterminateSystem) as err:
+                lines.append(f"| {vname} | cannot calibrate: {err} |" + " |" * 7)
+                continue
+            dt = time.perf_counter() - t0
+            le = cal.sensors.get("lidar_errors", {})
+            names = le.get("names", [])
+            beams = sum(n.startswith("offset[") for n in names)
+            dark = "-"
+            if "dark" in names:
+                i = names.index("dark")
+                dark = f"{1e3 * le['values'][i]:+.1f} +- {1e3 * le['sigmas'][i]:.1f}"
+            eff = cal.sensors.get("effects", {}).get("lidar_errors")
+            eff_s = (
+                "-"
+                if eff is None
+                else (f"{eff['rotation_deg']:.3f}, {eff['translation_mm']:.1f} ({eff['mahalanobis']:.1f})")
+            )
+            m2, _, b2, dof, dnote = _halves_test(*halves)
+            used = [sum(f.used for f in c.frames) for c in halves]
+            beams_s = "-" if lo is None else f"{beams} ({len(le.get('left_out', []))})"
+            bstr = "-" if dof == 0 else f"{b2:.1f} ({dof}, p = {chi2.sf(b2, dof):.3f})"
+            lines.append(
+                f"| {vname} | {sum(f.used for f in cal.frames)}/{len(cal.frames)} | {beams_s} | {dark} | {eff_s} | "
+                f"{m2:.1f} ({used[0]} + {used[1]} frames, p = {chi2.sf(m2, 6):.3f}) | {bstr} | {dnote} | {dt:.1f} |"
+            )
+            print(lines[-1], flush=True)
+        lines.append("")
+    return lines
+
+
+# ----------------------------------------------------------------------------------------------
+# Figure and document
+
+
+def figure(results: Sequence[SetResult], path: Path) -> None:
+    """NEES per set (off vs on), beam z-scores, corner RMS against distance, board-plane sensitivity."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(2, 2, figsize=(11, 8))
+    colours = {"hdl32": "tab:blue", "vlp16": "tab:orange"}
+    for rig in RIGS:
+        sets = [r for r in results if r.rig == rig and "on" in r.variants and "off" in r.variants]
+        if not sets:
+            continue
+        c = colours[rig]
+        off = [r.variants["off"].nees for r in sets]
+        on = [r.variants["on"].nees for r in sets]
+        ax[0, 0].scatter(off, on, s=14, color=c, label=f"{rig} ({len(sets)} sets)")
+        z = np.concatenate([r.variants["on"].beam_z for r in sets])
+        ax[0, 1].hist(z, bins=np.linspace(-5, 5, 41), density=True, histtype="step", color=c, label=rig)
+        d = np.concatenate([r.variants["on"].distance_m for r in sets])
+        e = np.concatenate([r.variants["on"].corner_rms_mm for r in sets])
+        ax[1, 0].scatter(d, e, s=6, color=c, alpha=0.5, label=rig)
+        target, dmax = CORNER_TARGET[rig]
+        ax[1, 0].plot([0, dmax], [target, target], color=c, lw=1, ls="--")
+        names = [n for n in VARIANTS if n != "off"]
+        ax[1, 1].plot(
+            range(len(names)),
+            [np.mean([r.variants[n].nees for r in sets if n in r.variants]) for n in names],
+            "o-", color=c, label=f"{rig} mean NEES",
+        )  # fmt: skip
+        ax[1, 1].plot(
+            range(len(names)),
+            [np.median([r.variants[n].trans_mm for r in sets if n in r.variants]) for n in names],
+            "s--", color=c, label=f"{rig} median trans. error mm",
+        )  # fmt: skip
+        ax[1, 1].set_xticks(
+            range(len(names)), [n.replace("on, ", "") for n in names], rotation=15, fontsize=8
+        )
+    lim = max(ax[0, 0].get_xlim()[1], ax[0, 0].get_ylim()[1])
+    ax[0, 0].plot([0, lim], [0, lim], color="grey", lw=0.8)
+    for v in (CHI2_6_95,):
+        ax[0, 0].axhline(v, color="grey", ls=":", lw=0.8)
+        ax[0, 0].axvline(v, color="grey", ls=":", lw=0.8)
+    ax[0, 0].set(
+        xlabel="NEES, terms off", ylabel="NEES, terms on", title="extrinsic NEES per set (95 % bound dotted)"
+    )
+    x = np.linspace(-5, 5, 200)
+    ax[0, 1].plot(x, np.exp(-0.5 * x**2) / np.sqrt(2 * np.pi), color="grey", lw=0.8, label="N(0, 1)")
+    ax[0, 1].set(xlabel="(estimated - true) / sigma", title="beam offsets, terms on")
+    ax[1, 0].set(
+        xlabel="board distance (m)",
+        ylabel="corner RMS (mm)",
+        title="boards after the joint solve (targets dashed)",
+    )
+    ax[1, 1].axhspan(4.5, 7.5, color="green", alpha=0.08)
+    ax[1, 1].set(title="terms on: board-plane sigma (NEES target band shaded)")
+    for a in ax.ravel():
+        a.legend(fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+BEGIN, END = "<!-- bench:begin -->", "<!-- bench:end -->"
+
+
+def write_doc(auto: list[str]) -> None:
+    """Put ``auto`` between the markers of docs/bench_lidar_errors.md (the text around them stays)."""
+    from ilcc_graph.io import atomic_write
+
+    block = "\n".join([BEGIN, *auto, END])
+    if DOC.is_file() and BEGIN in (text := DOC.read_text()) and END in text:
+        text = text[: text.index(BEGIN)] + block + text[text.index(END) + len(END) :]
+    else:
+        text = "# The LiDAR's own error terms (issue 11)\n\n" + block + "\n"
+    atomic_write(DOC, text)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sets", type=int, default=0, help="simulated sets per rig")
@@ -312,8 +556,13 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--sink", help="append every finished set to this pickle")
     ap.add_argument("--from-sink", help="tables from a sink written before")
+    ap.add_argument("--timing", action="store_true", help="time the core on 20 and 400 frames")
+    ap.add_argument("--timing-cache", help="pickle of the 400 observed frames (made when absent)")
+    ap.add_argument("--real", action="store_true", help="the recorded sets' halves")
+    ap.add_argument("--data", default=str(ROOT.parent / "shared" / "data"))
     ap.add_argument("--write", action="store_true", help=f"write {DOC.relative_to(ROOT)} and its figure")
     args = ap.parse_args()
+    t_start = time.perf_counter()
     logging.basicConfig(level=logging.ERROR, format="%(levelname)s: %(message)s")
     results: list[SetResult] = []
     if args.from_sink:
@@ -344,7 +593,39 @@ def main() -> None:
                 )
         if sink is not None:
             sink.close()
-    print("\n".join(mc_tables(results)))
+    auto = [
+        f"Generated by `python scripts/bench_lidar_errors.py {' '.join(sys.argv[1:])}` on "
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; load average at the start of the tables "
+        f"{' / '.join(f'{v:.1f}' for v in os.getloadavg())} (2 cores, shared).",
+        "",
+    ]
+    if results:
+        auto += ["## Monte Carlo", "", *mc_tables(results)]
+        print("\n".join(mc_tables(results)))
+    if args.timing:
+        cache = Path(args.timing_cache) if args.timing_cache else None
+        t0 = time.perf_counter()
+        obs400 = observe_many("hdl32", 9000, 400, args.jobs, cache)
+        auto += [
+            "## Timing",
+            "",
+            f"One simulated HDL-32E set of 400 frames (seed 9000; observed in {time.perf_counter() - t0:.0f} s "
+            "wall or read from the cache); the core (`estimation.batch.solve`: gate, variance components, "
+            "the observability check, marginals) on its first 20 and on all frames, best of 3 at 20.",
+            "",
+            *timing(obs400),
+            "",
+        ]
+    if args.real:
+        auto += ["## Recorded data", "", *real_data(Path(args.data), args.jobs)]
+    if args.write:
+        if results:
+            fig = DOC.with_name("bench_lidar_errors.png")
+            figure(results, fig)
+            auto += ["", f"![Monte Carlo]({fig.name})", ""]
+        auto.append(f"Whole script: {(time.perf_counter() - t_start) / 60:.1f} min.")
+        write_doc(auto)
+        print(f"wrote {DOC}")
 
 
 if __name__ == "__main__":
