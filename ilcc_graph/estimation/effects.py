@@ -1,7 +1,7 @@
 """How much the sensors' own error terms moved the extrinsic.
 
 A solved problem is solved once more with a group of terms taken back to what the user stated, on the
-same boards with the same noise (variance components and final factor held, no gate):
+same boards (no gate), its variance components estimated again (the residuals change with the terms):
 
 - ``lidar_errors``: the LiDAR's own errors (``L(l)``: per-beam offsets, dark print, ...) held at zero
   (their prior tightened to ``HOLD_SIGMA``), the boards' returns still in the graph;
@@ -85,8 +85,7 @@ def sensor_effects(sol: Solution, options: NoiseOptions = NoiseOptions(), e: int
     for group, (pr, layouts) in variants.items():
         try:
             re = solve_problem(
-                pr, options, boards=names, scales=sol.scales,
-                variance_factor=sol.variance_factor, gate=False, start=start, layouts=layouts,
+                pr, options, boards=names, gate=False, start=start, layouts=layouts,
             )  # fmt: skip
         except (CalibrationImpossible, IndeterminateSystem, ValueError) as err:
             log.info("the extrinsic without the %s terms could not be solved: %s", group, err)
