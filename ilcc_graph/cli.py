@@ -138,6 +138,7 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
     from ilcc_graph.datasets import open_source
     from ilcc_graph.outputs import write_run
     from ilcc_graph.pipeline import run
+    from ilcc_graph.report.sensors import sensors_text
     from ilcc_graph.report.text import format_joint, format_update, frames_table, summarise
 
     options = _run_options(args)
@@ -162,6 +163,8 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
     if result.joint is not None:
         print(format_joint(result.joint), "", sep="\n")
     print(summarise(cal.T_cam_lidar, cal.covariance, truth))
+    if sensor_lines := sensors_text(cal):
+        print(sensor_lines)
     if (vf := cal.diagnostics.get("variance_factor", 1.0)) > 1.0:
         print(f"  (the residuals are {vf:.2f} x the stated noise variance: sigmas x {np.sqrt(vf):.2f})")
     n_used = sum(f.used for f in cal.frames)
@@ -296,6 +299,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         camera = read_yaml(resolved).get("camera")
     names = ("parent", "lidar_frame", "camera_frame", "ros") if args.format == "ros-tf" else ()
     options = {k: getattr(args, k) for k in names if getattr(args, k) is not None}
+    if args.format == "lidar-offsets":  # a table: CSV when the output file says so
+        options["table"] = "csv" if args.out and Path(args.out).suffix.lower() == ".csv" else "yaml"
     try:
         text = export_calibration(cal, args.format, camera=camera, **options)
     except ValueError as err:
@@ -421,7 +426,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sp = add("export", cmd_export, "write a calibration in another tool's format")
     sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")
-    sp.add_argument("--format", required=True, choices=("json", "ros-tf", "kitti", "kalibr"))
+    sp.add_argument("--format", required=True, choices=("json", "ros-tf", "kitti", "kalibr", "lidar-offsets"))
     sp.add_argument("--out", help="file to write (default: standard output)")
     sp.add_argument("--parent", choices=("lidar", "camera"), help="ros-tf: the parent frame (default lidar)")
     sp.add_argument("--lidar-frame", help="ros-tf: the LiDAR's frame id (default lidar)")

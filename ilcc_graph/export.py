@@ -1,4 +1,5 @@
-"""Write the extrinsic in other tools' formats (JSON, ROS static tf, KITTI, Kalibr).
+"""Write the extrinsic in other tools' formats (JSON, ROS static tf, KITTI, Kalibr), and the LiDAR's
+own errors the graph estimated (``lidar-offsets``, YAML or CSV).
 
 Every format starts from ``T_cam_lidar`` (``p_cam = R @ p_lidar + t``) and its 6x6 covariance in
 GTSAM's Pose3 tangent convention (``shared/interface.md``). ``docs/exports.md`` gives each
@@ -239,13 +240,71 @@ def _export_kalibr(
     return "\n".join(out + [f"# {n}" for n in notes] + body) + "\n"
 
 
+# ------------------------------------------------------------------------------ lidar-offsets
+def _export_lidar_offsets(cal: Calibration, *, table: str = "yaml") -> str:
+    """The LiDAR's own errors the graph estimated (a LiDAR intrinsic check): per beam its range
+    offset with sigma (mm), the dark-print offset, and the terms left out with the reason."""
+    if table not in ("yaml", "csv"):
+        raise ValueError(f"table must be 'yaml' or 'csv', got {table!r}")
+    lid = (cal.sensors or {}).get("lidar_errors")
+    if lid is None:
+        raise ValueError(
+            "the calibration holds no LiDAR error terms (calibrate with --lidar-errors to estimate them)"
+        )
+    elev = lid.get("elevation_deg", {})
+    rows = []
+    for n, v, s in zip(lid["names"], lid["values"], lid["sigmas"], strict=True):
+        beam = int(n[n.index("[") + 1 : -1]) if "[" in n else None
+        unit = (
+            "mrad" if n.startswith("elevation") else "mm" if (n.startswith("offset") or n == "dark") else ""
+        )
+        k = 1e3 if unit else 1.0
+        rows.append((n, beam, elev.get(n), k * float(v), k * float(s), unit))
+    if table == "csv":
+        out = ["term,beam,elevation_deg,value,sigma,unit"]
+        for n, beam, e, v, s, unit in rows:
+            cells = (n, "" if beam is None else beam, "" if e is None else _num(e), _num(v), _num(s), unit)
+            out.append(",".join(str(c) for c in cells))
+        out += [f"# left out: {t}: {r}" for t, r in lid.get("left_out", [])]
+        return "\n".join(out) + "\n"
+    out = [
+        "# LiDAR error terms estimated by ilcc_graph from the chessboard's returns, shared by all frames.",
+        "# offset[b]: range offset of beam b (0 = lowest elevation), measured minus true range: subtract it",
+        "# from the measured range to correct. dark: extra range of returns from black print (scaled by",
+        "# the return's darkness, 0 white .. 1 black). Sigmas are one standard deviation.",
+        "beams:",
+    ]
+    for n, beam, e, v, s, _ in rows:
+        if beam is not None and n.startswith("offset"):
+            el = "" if e is None else f", elevation_deg: {_num(e)}"
+            out.append(f"  - {{beam: {beam}{el}, offset_mm: {_num(v)}, sigma_mm: {_num(s)}}}")
+    if not any(b is not None and n.startswith("offset") for n, b, *_ in rows):
+        out[-1] = "beams: []"
+    for n, beam, _, v, s, unit in rows:
+        if beam is None:
+            key = f"{n}_{unit}" if unit else n
+            out.append(f"{key}: {{value: {_num(v)}, sigma: {_num(s)}}}")
+    elev_terms = [(n, b, v, s) for n, b, _, v, s, _ in rows if b is not None and n.startswith("elevation")]
+    if elev_terms:
+        out.append("elevation_errors:")
+        out += [
+            f"  - {{beam: {b}, value_mrad: {_num(v)}, sigma_mrad: {_num(s)}}}" for _, b, v, s in elev_terms
+        ]
+    left = lid.get("left_out", [])
+    out.append("left_out:" if left else "left_out: []")
+    out += [f"  - {{term: {json.dumps(str(t))}, reason: {json.dumps(str(r))}}}" for t, r in left]
+    return "\n".join(out) + "\n"
+
+
 _EXPORTERS: dict[str, Callable[..., str]] = {
     "json": _export_json,
     "ros-tf": _export_ros_tf,
     "kitti": _export_kitti,
     "kalibr": _export_kalibr,
 }
-FORMATS: tuple[str, ...] = tuple(_EXPORTERS)
+#: formats that write the sensors' own errors rather than the extrinsic (they take the Calibration)
+_SENSOR_EXPORTERS: dict[str, Callable[..., str]] = {"lidar-offsets": _export_lidar_offsets}
+FORMATS: tuple[str, ...] = tuple(_EXPORTERS) + tuple(_SENSOR_EXPORTERS)
 
 
 def export_calibration(cal: CalibrationLike, fmt: str, *, camera: Any = None, **options: Any) -> str:
@@ -255,7 +314,8 @@ def export_calibration(cal: CalibrationLike, fmt: str, *, camera: Any = None, **
     ----------
     cal : a ``Calibration``, a pair ``(T_cam_lidar as Pose3 or (4, 4), covariance (6, 6))``, or the
         path of a calibration.yaml.
-    fmt : ``json`` | ``ros-tf`` | ``kitti`` | ``kalibr``.
+    fmt : ``json`` | ``ros-tf`` | ``kitti`` | ``kalibr`` | ``lidar-offsets`` (the LiDAR's own
+        errors of a calibration with ``--lidar-errors``; needs a ``Calibration`` or a path).
     camera : the camera model (our config dict or a ``CameraModel``); tells the camera frame's axes
         (KITTI converts a camera without OpenCV axes, e.g. equirectangular, to OpenCV axes) and
         gives Kalibr its intrinsics (``CameraModel.kalibr``).
@@ -263,13 +323,13 @@ def export_calibration(cal: CalibrationLike, fmt: str, *, camera: Any = None, **
         ros-tf: ``parent`` ("lidar" default | "camera"), ``lidar_frame`` ("lidar"),
         ``camera_frame`` ("camera", or "camera_optical" for a camera with OpenCV axes), ``ros`` ("both" |
         "ros1" | "ros2"); kitti: ``calib_time`` (datetime or text, default now, UTC);
-        kalibr: ``rostopic``.
+        kalibr: ``rostopic``; lidar-offsets: ``table`` ("yaml" default | "csv").
 
     Raises ``ValueError`` for an unknown format or option value, ``InputError`` for a bad file.
     """
-    if fmt not in _EXPORTERS:
+    if fmt not in FORMATS:
         raise ValueError(f"unknown export format {fmt!r}; expected one of {', '.join(FORMATS)}")
-    exporter = _EXPORTERS[fmt]
+    exporter = _EXPORTERS.get(fmt) or _SENSOR_EXPORTERS[fmt]
     allowed = [
         name
         for name, p in inspect.signature(exporter).parameters.items()
@@ -278,5 +338,13 @@ def export_calibration(cal: CalibrationLike, fmt: str, *, camera: Any = None, **
     for name in options:
         if name not in allowed:
             raise ValueError(f"export format {fmt!r} has no option {name!r}; options: {allowed or 'none'}")
+    if fmt in _SENSOR_EXPORTERS:
+        if isinstance(cal, (str, Path)):
+            from ilcc_graph.io import read_calibration
+
+            cal = read_calibration(cal)
+        if not isinstance(cal, Calibration):
+            raise ValueError(f"export format {fmt!r} needs a Calibration or a calibration.yaml")
+        return exporter(cal, **options)
     T, cov = _as_T_cov(cal)
     return exporter(T, cov, _camera(camera), **options)

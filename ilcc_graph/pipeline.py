@@ -137,8 +137,9 @@ def solve_observed(
         sol = BatchSolution(T, np.full((6, 6), np.nan), {}, stats, [], 0)
         return finish(prep, observed, config, "paper", sol)
     sol = solve_batch(
-        prep.frames, config.camera, prep.T_init, options.noise, options.lidar_errors, options.intrinsics
-    )
+        prep.frames, config.camera, prep.T_init, options.noise, options.lidar_errors, options.intrinsics,
+        effects=True,
+    )  # fmt: skip
     return finish(prep, observed, config, "graph", sol)
 
 

@@ -158,13 +158,24 @@ def _dropped_causes(
 
 
 def _sensors(sol: BatchSolution, config: Config) -> dict:
-    """``Calibration.sensors`` of a strategy's answer: the LiDAR's errors and the camera's intrinsics."""
+    """``Calibration.sensors`` of a strategy's answer: the LiDAR's errors, the camera's intrinsics and
+    what each moved the extrinsic."""
     out: dict = {}
     lay = sol.lidar_layout
     if sol.lidar is not None or (lay is not None and lay.excluded):
         names, values, sigmas = sol.lidar if sol.lidar is not None else ([], np.zeros(0), np.zeros(0))
         left = [] if lay is None else [list(x) for x in lay.excluded]
         out["lidar_errors"] = {"names": list(names), "values": values, "sigmas": sigmas, "left_out": left}
+        if sol.lidar_covariance is not None:
+            out["lidar_errors"]["covariance"] = sol.lidar_covariance
+        if config.lidar is not None:  # each beam's nominal elevation (beam index 0 = lowest)
+            el = config.lidar.vertical_angles_deg
+            beams = {n: int(n[n.index("[") + 1 : -1]) for n in names if "[" in n}
+            out["lidar_errors"]["elevation_deg"] = {
+                n: round(float(el[b]), 3) for n, b in beams.items() if b < len(el)
+            }
+    if sol.effects:
+        out["effects"] = {k: dataclasses.asdict(v) for k, v in sol.effects.items()}
     if sol.intrinsics is not None:
         names, values, sigmas = sol.intrinsics
         stated = config.camera.intrinsics()

@@ -60,7 +60,7 @@ def rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def test_formats_listed():
-    assert FORMATS == ("json", "ros-tf", "kitti", "kalibr")
+    assert FORMATS == ("json", "ros-tf", "kitti", "kalibr", "lidar-offsets")
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
@@ -216,3 +216,40 @@ def test_errors():
         export_calibration((np.diag([1.0, 2.0, 1.0, 1.0]), cov), "json")
     with pytest.raises(ValueError, match="unknown model"):
         export_calibration((T, cov), "json", camera={"model": "orthographic"})
+
+
+def test_lidar_offsets_yaml_and_csv(tmp_path: Path) -> None:
+    import csv
+    import io
+
+    from ilcc_graph.io import write_calibration
+
+    T, cov = sample(7)
+    lid = {
+        "names": ["offset[0]", "offset[5]", "dark"],
+        "values": np.array([0.0012, -0.0031, 0.0123]),
+        "sigmas": np.array([0.0004, 0.0006, 0.0002]),
+        "left_out": [["beam 2", "3 returns on 1 board(s): too few to estimate its terms"]],
+        "elevation_deg": {"offset[0]": -15.0, "offset[5]": 1.0},
+    }
+    cal = Calibration(T_cam_lidar=T, covariance=cov, frames=(), sensors={"lidar_errors": lid})
+    doc = yaml.safe_load(export_calibration(cal, "lidar-offsets"))
+    assert [b["beam"] for b in doc["beams"]] == [0, 5]
+    assert doc["beams"][1]["offset_mm"] == pytest.approx(-3.1) and doc["beams"][1][
+        "sigma_mm"
+    ] == pytest.approx(0.6)
+    assert doc["beams"][0]["elevation_deg"] == -15.0
+    assert doc["dark_mm"] == {"value": pytest.approx(12.3), "sigma": pytest.approx(0.2)}
+    assert doc["left_out"][0]["term"] == "beam 2"
+    rows = list(csv.DictReader(io.StringIO(export_calibration(cal, "lidar-offsets", table="csv"))))
+    rows = [r for r in rows if not r["term"].startswith("#")]
+    assert [r["term"] for r in rows] == lid["names"]
+    assert float(rows[2]["value"]) == pytest.approx(12.3) and rows[2]["unit"] == "mm"
+    # from the file calibrate writes, and a clear error when the terms were not estimated
+    path = write_calibration(tmp_path / "calibration.yaml", cal)
+    again = yaml.safe_load(export_calibration(path, "lidar-offsets"))
+    assert [(b["beam"], b["elevation_deg"]) for b in again["beams"]] == [(0, -15.0), (5, 1.0)]
+    assert [b["offset_mm"] for b in again["beams"]] == pytest.approx([1.2, -3.1])
+    assert again["left_out"] == doc["left_out"]
+    with pytest.raises(ValueError, match="--lidar-errors"):
+        export_calibration(Calibration(T_cam_lidar=T, covariance=cov, frames=()), "lidar-offsets")

@@ -64,3 +64,24 @@ def test_stated_sigmas_widen_the_covariance_when_not_refined(observed) -> None:
     extra = on.covariance - off.covariance
     assert np.linalg.eigvalsh(0.5 * (extra + extra.T)).min() > -1e-12 * np.abs(off.covariance).max()
     assert np.trace(on.covariance[3:, 3:]) > 1.05 * np.trace(off.covariance[3:, 3:])
+
+
+def test_effect_of_the_refined_intrinsics_is_the_difference_to_the_stated_camera(observed) -> None:
+    """calibration.sensors says how far refining the intrinsics moved the extrinsic: the difference to
+    a solve of the same frames with the stated camera."""
+    from ilcc_graph.estimation import NoiseOptions
+
+    res = solve_observations(
+        [observed], RunOptions(intrinsics=IntrinsicsOptions(refine=True), second_pass=False)
+    ).calibration
+    eff = res.sensors["effects"]["camera_intrinsics"]
+    used = {f.name for f in res.frames if f.used}
+    same = dataclasses.replace(observed, frames=[f for f in observed.frames if f.name in used])
+    no_gate = NoiseOptions(chi2_gate_prob=None)
+    stated = solve_observations(
+        [same], RunOptions(noise=no_gate, intrinsics=IntrinsicsOptions(propagate=False), second_pass=False)
+    ).calibration
+    c_ref = -res.T_cam_lidar[:3, :3].T @ res.T_cam_lidar[:3, 3]
+    c_st = -stated.T_cam_lidar[:3, :3].T @ stated.T_cam_lidar[:3, 3]
+    assert eff["translation_mm"] == pytest.approx(1e3 * np.linalg.norm(c_ref - c_st), rel=1e-3, abs=1e-3)
+    assert eff["mahalanobis"] > 0 and "lidar_errors" not in res.sensors["effects"]

@@ -492,6 +492,60 @@ def test_calibration_round_trip(tmp_path: Path) -> None:
     assert (f1.used, f1.reason, f1.board, f1.corners) == (False, "no board found in the scan", None, None)
 
 
+def _with_lidar_errors() -> Calibration:
+    """_calibration() with the LiDAR's errors estimated and the first board refined by the core."""
+    import dataclasses
+
+    cal = _calibration()
+    T_ref = cal.frames[0].board.T_lidar_board.copy()
+    T_ref[:3, 3] += [0.002, -0.001, 0.003]
+    f0 = dataclasses.replace(cal.frames[0], T_lidar_board_refined=T_ref)
+    sensors = {
+        "lidar_errors": {
+            "names": ["offset[3]", "offset[4]", "dark"],
+            "values": np.array([0.0021, -0.0013, 0.0123]),
+            "sigmas": np.array([0.0004, 0.0005, 0.0002]),
+            "left_out": [["beam 9", "12 returns on 1 board(s): too few to estimate its terms"]],
+            "elevation_deg": {"offset[3]": -9.0, "offset[4]": 7.0},
+        },
+        "camera_intrinsics": {
+            "names": ["fx", "fy"], "stated": np.array([900.0, 901.0]),
+            "values": np.array([903.0, 899.5]), "sigmas": np.array([1.5, 1.4]),
+        },
+        "effects": {"lidar_errors": {"rotation_deg": 0.01, "translation_mm": 1.2, "mahalanobis": 2.5}},
+    }  # fmt: skip
+    return dataclasses.replace(cal, frames=(f0, cal.frames[1]), sensors=sensors)
+
+
+def test_sensor_errors_round_trip_and_refined_corners(tmp_path: Path) -> None:
+    cal = _with_lidar_errors()
+    p = write_calibration(tmp_path / "calibration.yaml", cal)
+    d = yaml.safe_load(p.read_text())
+    terms = d["sensor_errors"]["lidar"]["terms"]
+    assert terms["dark"] == {"value_mm": pytest.approx(12.3), "sigma_mm": pytest.approx(0.2)}
+    assert terms["offset[3]"]["elevation_deg"] == -9.0
+    assert d["sensor_errors"]["effect_on_extrinsic"]["lidar_errors"]["translation_mm"] == 1.2
+    # the reported corners are the refined board's, the stage's kept beside them
+    f = cal.frames[0]
+    np.testing.assert_allclose(
+        d["frames"][0]["lidar_corners"], f.board.corners_lidar + [0.002, -0.001, 0.003]
+    )
+    np.testing.assert_allclose(d["frames"][0]["lidar_corners_stage"], f.board.corners_lidar)
+    back = read_calibration(p)
+    np.testing.assert_array_equal(back.frames[0].board.corners_lidar, f.board.corners_lidar)
+    for k in ("values", "sigmas"):
+        np.testing.assert_allclose(back.sensors["lidar_errors"][k], cal.sensors["lidar_errors"][k])
+        np.testing.assert_allclose(back.sensors["camera_intrinsics"][k], cal.sensors["camera_intrinsics"][k])
+    assert back.sensors["lidar_errors"]["names"] == cal.sensors["lidar_errors"]["names"]
+    assert back.sensors["lidar_errors"]["left_out"] == cal.sensors["lidar_errors"]["left_out"]
+    assert back.sensors["effects"] == cal.sensors["effects"]
+    again = yaml.safe_load(write_calibration(tmp_path / "again.yaml", back).read_text())
+    assert again["frames"] == d["frames"]  # written again: the same corners, not moved twice
+    # without the LiDAR's terms the stage's corners are reported, as before
+    plain = write_calibration(tmp_path / "plain.yaml", _calibration())
+    assert "lidar_corners_stage" not in yaml.safe_load(plain.read_text())["frames"][0]
+
+
 def test_read_calibration_rejects_bad_content(tmp_path: Path) -> None:
     p = write_calibration(tmp_path / "c.yaml", _calibration())
     d = yaml.safe_load(p.read_text())

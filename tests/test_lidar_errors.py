@@ -121,3 +121,100 @@ def test_terms_the_boards_cannot_tell_are_left_out() -> None:
     frames, _ = lidar_frames(rng, 8, np.zeros(16))
     sol = solve(frames, CAMERA, T_TRUE.matrix(), lidar_errors=LidarErrorOptions())
     assert not any("not observable" in why for _, why in sol.lidar_layout.excluded)
+
+
+def test_effects_say_how_far_the_terms_moved_the_extrinsic() -> None:
+    """A LiDAR reading ~20 mm long (ideal board planes): holding its terms at zero moves the extrinsic
+    by many sigma; a LiDAR without errors: the terms move it by about its sigma at most."""
+    from ilcc_graph.estimation.effects import sensor_effects
+    from ilcc_graph.estimation.noise import solve_problem
+    from ilcc_graph.estimation.problem import frames_problem
+
+    rng = np.random.default_rng(4)
+    for offsets, far in ((0.02 + rng.normal(0, 0.004, 16), True), (np.zeros(16), False)):
+        frames, _ = lidar_frames(rng, 12, offsets, dark_offset=0.0)
+        opts = LidarErrorOptions(board_plane=None)
+        problem = frames_problem(frames, CAMERA, T_TRUE.matrix(), lidar_errors=opts)
+        sol = solve_problem(problem)
+        eff = sensor_effects(sol)
+        assert set(eff) == {"lidar_errors"}
+        e = eff["lidar_errors"]
+        if far:
+            assert e.mahalanobis > 5.0 and e.translation_mm > 1.0, e
+        else:
+            assert e.mahalanobis < 3.0, e
+
+
+def test_solve_reports_effects_and_the_terms_covariance() -> None:
+    rng = np.random.default_rng(5)
+    frames, _ = lidar_frames(rng, 10, rng.normal(0, 0.003, 16))
+    sol = solve(frames, CAMERA, T_TRUE.matrix(), lidar_errors=LidarErrorOptions(), effects=True)
+    names, _, sigmas = sol.lidar
+    assert sol.lidar_covariance.shape == (len(names), len(names))
+    np.testing.assert_allclose(np.sqrt(np.diag(sol.lidar_covariance)), sigmas)
+    assert "lidar_errors" in sol.effects
+    assert solve(frames, CAMERA, T_TRUE.matrix(), lidar_errors=None, effects=True).effects == {}
+
+
+def test_returns_carry_their_darkness_from_the_intensity() -> None:
+    """The stage hands each return's darkness (its intensity between the board's two levels): ~1 deep
+    in black squares, ~0 deep in white ones, in between where the footprint straddles an edge."""
+    from ilcc_graph.lidar import estimate_board
+    from ilcc_graph.simulate import simulate_frame, standard_spec
+
+    spec = standard_spec("hdl32", "equirectangular", width=400, frames=4, seed=3)
+    f = simulate_frame(spec, 1)
+    fit = estimate_board(f.scan, spec.board, spec.lidar_model)
+    r = fit.returns
+    assert np.all((r.dark >= 0) & (r.dark <= 1))
+    T = f.T_lidar_board
+    if spec.board.half_turn_symmetric and np.linalg.norm(fit.T_lidar_board[:3, 3] - T[:3, 3]) > 0.05:
+        T = T @ spec.board.T_half_turn()
+    b = (r.points - T[:3, 3]) @ T[:3, :3]
+    colour = spec.board.colour_at(b[:, :2])
+    s = spec.board.square_size
+    u = b[:, :2] / s
+    deep = np.all(np.abs(u - np.round(u)) > 0.25, axis=1)  # > 19 mm from every grid line
+    assert np.mean(r.dark[deep & (colour == 0)]) > 0.9 and np.mean(r.dark[deep & (colour == 1)]) < 0.1
+    assert np.mean((r.dark > 0.2) & (r.dark < 0.8)) > 0.01
+
+
+def test_calibrate_with_lidar_errors_writes_terms_refined_corners_and_exports_them(tmp_path) -> None:
+    """End to end: ``calibrate --lidar-errors`` on a simulated set, then ``export --format lidar-offsets``."""
+    import yaml
+
+    from ilcc_graph.cli import main
+
+    data, out = tmp_path / "data", tmp_path / "out"
+    assert main(["simulate", str(data), "--frames", "6", "--seed", "2", "--width", "1600"]) == 0
+    assert (
+        main(["calibrate", str(data), "--out", str(out), "--jobs", "1", "--no-report", "--lidar-errors"]) == 0
+    )
+    cal = yaml.safe_load((out / "calibration.yaml").read_text())
+    lid = cal["sensor_errors"]["lidar"]
+    truth = yaml.safe_load((data / "ground_truth.yaml").read_text())
+    bias = np.array(truth["lidar_beam_bias_m"])
+    z = [
+        (t["value_mm"] - 1e3 * bias[int(n[7:-1])]) / t["sigma_mm"]
+        for n, t in lid["terms"].items()
+        if n.startswith("offset[")
+    ]
+    assert len(z) >= 8 and np.mean(np.abs(z) < 3) >= 0.9
+    assert "lidar_errors" in cal["sensor_errors"]["effect_on_extrinsic"]
+    used = [f for f in cal["frames"] if f["used"]]
+    assert used and all("lidar_corners_stage" in f for f in used)
+    assert (
+        main(
+            [
+                "export",
+                str(out / "calibration.yaml"),
+                "--format",
+                "lidar-offsets",
+                "--out",
+                str(out / "o.csv"),
+            ]
+        )
+        == 0
+    )
+    rows = [r.split(",") for r in (out / "o.csv").read_text().splitlines()[1:] if not r.startswith("#")]
+    assert [r[0] for r in rows] == list(lid["terms"])

@@ -352,3 +352,15 @@ def test_open_scene_and_camera_switch():
     assert upward.any() and np.all(on_board[upward])  # no walls or ceiling: only the board returns above
     pin = spec.with_(camera=standard_spec(camera="pinhole", width=320).camera)
     np.testing.assert_allclose(pin.T_cam_lidar[2, :3] @ [1.0, 0.0, 0.0], 1.0, atol=0.01)  # z_cam ~ x_lidar
+
+
+def test_board_distance_option_moves_the_placements_out() -> None:
+    from ilcc_graph.simulate import SceneOptions
+
+    scene = SceneOptions(room=(-9.0, 9.0, -9.0, 9.0), ceiling_height_m=4.0, board_distance_m=(2.9, 5.0))
+    spec = standard_spec("vlp16", "pinhole", frames=12, seed=1, scene=scene)
+    c = spec.board.pattern_centre
+    d = [np.linalg.norm(T[:3, :3] @ c + T[:3, 3]) for T in board_placements(spec)]
+    assert min(d) >= 2.85 and max(d) <= 5.0 + 1.5
+    with pytest.raises(ValueError, match="board_distance_m"):
+        SceneOptions(board_distance_m=(3.0, 2.0))

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ilcc_graph.cameras import CameraModel
+from ilcc_graph.estimation.effects import Effect, sensor_effects
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions, LidarLayout
 from ilcc_graph.estimation.noise import BoardStats, NoiseOptions, Solution, solve_problem
@@ -32,8 +33,10 @@ class BatchSolution:
     T_lidar_board: refined board poses of the used frames. per_frame: their residual statistics.
     dropped: ``(name, reason)`` in the order dropped. variance_components: (board priors, bearings).
     lidar: the LiDAR's own errors (names, values, sigmas) when estimated; lidar_layout: which terms
-    entered and which were left out (``layout.excluded``). intrinsics: the camera's refined
-    intrinsics (names, values, sigmas) when refined.
+    entered and which were left out (``layout.excluded``); lidar_covariance: their (n, n) marginal
+    covariance. intrinsics: the camera's refined intrinsics (names, values, sigmas) when refined.
+    effects: per group of sensor terms what holding it at the stated values moves the extrinsic
+    (``effects.sensor_effects``).
     """
 
     T_cam_lidar: np.ndarray
@@ -48,6 +51,8 @@ class BatchSolution:
     lidar: tuple[list[str], np.ndarray, np.ndarray] | None = None
     lidar_layout: LidarLayout | None = None
     intrinsics: tuple[list[str], np.ndarray, np.ndarray] | None = None
+    lidar_covariance: np.ndarray | None = None
+    effects: dict[str, Effect] = field(default_factory=dict)
 
     @property
     def extrinsic(self) -> Estimate:
@@ -59,7 +64,9 @@ class BatchSolution:
         return self.extrinsic.pose
 
 
-def batch_solution(sol: Solution, e: int = 0, group: str = "") -> BatchSolution:
+def batch_solution(
+    sol: Solution, e: int = 0, group: str = "", effects: dict[str, Effect] | None = None
+) -> BatchSolution:
     """The ``BatchSolution`` view of a solved problem (extrinsic ``e``, noise ``group``)."""
     est = sol.extrinsic(e)
     names = [b.name for b in sol.problem.boards]
@@ -76,6 +83,8 @@ def batch_solution(sol: Solution, e: int = 0, group: str = "") -> BatchSolution:
         lidar=sol.lidar(0),
         lidar_layout=sol.assembly.layouts.get(0),
         intrinsics=sol.intrinsics(0),
+        lidar_covariance=sol.lidar_covariance(0),
+        effects=dict(effects or {}),
     )
 
 
@@ -86,16 +95,18 @@ def solve(
     options: NoiseOptions = NoiseOptions(),
     lidar_errors: LidarErrorOptions | None = None,
     intrinsics: IntrinsicsOptions | None = None,
+    effects: bool = False,
 ) -> BatchSolution:
     """Refine ``T_cam_lidar`` over all frames and return it with its marginal covariance.
 
     frames: the frames (``types.GraphFrame``), bearings in the camera frame of ``camera``.
     lidar_errors: the LiDAR's own errors to estimate from the frames' returns (None: none).
     intrinsics: refine the camera's intrinsics (frames need ``uv``), or propagate their stated sigmas.
+    effects: also solve with the sensor terms taken back, to say what they moved (``BatchSolution.effects``).
     T_init: (4, 4) start (e.g. UPnP's). Raises CalibrationImpossible (no usable frame),
     IndeterminateSystem (the data do not determine ``T_cam_lidar``), ValueError (malformed input).
     """
     check_pose(T_init, "T_init")
     problem = frames_problem(frames, camera, T_init, lidar_errors=lidar_errors, intrinsics=intrinsics)
     sol = solve_problem(problem, options)
-    return batch_solution(sol)
+    return batch_solution(sol, effects=sensor_effects(sol, options) if effects else None)

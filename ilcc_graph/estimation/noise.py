@@ -174,12 +174,18 @@ class Solution:
 
     def lidar(self, lidar: int = 0) -> tuple[list[str], np.ndarray, np.ndarray] | None:
         """(names, values, sigmas) of LiDAR ``lidar``'s own errors (``lidar_errors``), or None."""
+        C = self.lidar_covariance(lidar)
+        if C is None:
+            return None
+        v = np.asarray(self.values.atVector(L(lidar)), dtype=np.float64)
+        return self.assembly.layouts[lidar].names, v, np.sqrt(np.diag(C))
+
+    def lidar_covariance(self, lidar: int = 0) -> np.ndarray | None:
+        """(n, n) marginal covariance of LiDAR ``lidar``'s own errors (layout order), or None."""
         lay = self.assembly.layouts.get(lidar)
         if lay is None or lidar not in self.assembly.point_lidars(self.boards):
             return None
-        v = np.asarray(self.values.atVector(L(lidar)), dtype=np.float64)
-        C = self.marginals.covariance(L(lidar), f"the errors of LiDAR {lidar}")
-        return lay.names, v, np.sqrt(np.diag(C))
+        return self.marginals.covariance(L(lidar), f"the errors of LiDAR {lidar}")
 
 
 # ------------------------------------------------------------------------------- the solve

@@ -6,8 +6,12 @@ millimetres), ``frames`` (per frame: ``name``, ``used``, ``reason`` when dropped
 ``lidar_corners`` (K,3) LiDAR frame metres, ``image_corners`` (K,2) pixels,
 ``rms_bearing_error_mrad``, then ``T_lidar_board`` (4x4, the LiDAR stage's) and
 ``T_lidar_board_refined`` (4x4, the estimation core's) when known), then ``method``,
-``diagnostics`` and ``camera`` (the camera model in our config schema, so that exports need nothing
-else).
+``diagnostics``, ``camera`` (the camera model in our config schema, so that exports need nothing
+else) and, when the graph estimated the sensors' own errors, ``sensor_errors`` (``lidar``: per term
+its value and sigma, mm for range terms, and the terms left out with the reason;
+``camera_intrinsics``: stated, refined, sigma; ``effect_on_extrinsic``: what each group moved the
+extrinsic). With the LiDAR's errors estimated, ``lidar_corners`` are the refined board's corners
+(``lidar_corners_stage`` the LiDAR stage's).
 
 Reading it back gives a ``Calibration`` whose frames carry minimal ``BoardFit`` /
 ``ImageCorners``: what the file stores (corners, T_lidar_board) is filled in; the rest (segment
@@ -30,6 +34,7 @@ __all__ = [
     "write_calibration",
     "read_calibration",
     "calibration_to_dict",
+    "refined_corners",
     "GroundTruth",
     "write_ground_truth",
     "read_ground_truth",
@@ -38,11 +43,28 @@ __all__ = [
 GROUND_TRUTH_FILE = "ground_truth.yaml"
 
 
-def _frame_dict(f: FrameResult) -> dict[str, Any]:
+def refined_corners(f: FrameResult) -> np.ndarray | None:
+    """(K, 3) the board's inner corners at the pose the estimation core settled on
+    (``T_lidar_board_refined``), LiDAR frame, metres; None without a board or a refined pose."""
+    if f.board is None or f.T_lidar_board_refined is None:
+        return None
+    T0, T1 = np.asarray(f.board.T_lidar_board, np.float64), np.asarray(f.T_lidar_board_refined, np.float64)
+    c = np.asarray(f.board.corners_lidar, dtype=np.float64)
+    if not (np.all(np.isfinite(T0)) and np.all(np.isfinite(T1))):
+        return None
+    T = T1 @ np.linalg.inv(T0)  # the stage's corners carried onto the refined board
+    return c @ T[:3, :3].T + T[:3, 3]
+
+
+def _frame_dict(f: FrameResult, refined: bool = False) -> dict[str, Any]:
     d: dict[str, Any] = {"name": str(f.name), "used": bool(f.used)}
     if f.reason is not None or not f.used:
         d["reason"] = f.reason or "not used"
-    if f.board is not None:
+    corners = refined_corners(f) if refined else None
+    if corners is not None:
+        d["lidar_corners"] = corners
+        d["lidar_corners_stage"] = np.asarray(f.board.corners_lidar, dtype=np.float64)  # type: ignore[union-attr]
+    elif f.board is not None:
         d["lidar_corners"] = np.asarray(f.board.corners_lidar, dtype=np.float64)
     if f.corners is not None:
         d["image_corners"] = np.asarray(f.corners.uv, dtype=np.float64)
@@ -57,12 +79,18 @@ def _frame_dict(f: FrameResult) -> dict[str, Any]:
 
 
 def calibration_to_dict(cal: Calibration) -> dict[str, Any]:
-    """The calibration.yaml content as plain data (numpy arrays left for the YAML writer)."""
+    """The calibration.yaml content as plain data (numpy arrays left for the YAML writer).
+
+    With the LiDAR's own errors estimated, ``lidar_corners`` are the corners of the board the
+    estimation core settled on (its returns corrected by the calibrated beams, its in-plane pose
+    from the intensity fit and the image), and ``lidar_corners_stage`` the LiDAR stage's own.
+    """
+    refined = bool(cal.sensors.get("lidar_errors", {}).get("names"))
     return {
         "T_cam_lidar": np.asarray(cal.T_cam_lidar, dtype=np.float64),
         "covariance": np.asarray(cal.covariance, dtype=np.float64),
         "sigma": sigma_dict(cal.covariance),
-        "frames": [_frame_dict(f) for f in cal.frames],
+        "frames": [_frame_dict(f, refined) for f in cal.frames],
         "method": cal.method,
         "diagnostics": {str(k): v for k, v in cal.diagnostics.items()},
         **({"camera": cal.camera} if cal.camera is not None else {}),
@@ -83,6 +111,8 @@ def _sensors_dict(sensors: dict[str, Any]) -> dict[str, Any]:
                 terms[n] = {"value_mrad": 1e3 * float(v), "sigma_mrad": 1e3 * float(s)}
             else:
                 terms[n] = {"value": float(v), "sigma": float(s)}
+            if n in lid.get("elevation_deg", {}):
+                terms[n]["elevation_deg"] = float(lid["elevation_deg"][n])
         out["lidar"] = {"terms": terms, "left_out": [{"term": t, "reason": r} for t, r in lid["left_out"]]}
     cam = sensors.get("camera_intrinsics")
     if cam is not None:
@@ -90,6 +120,55 @@ def _sensors_dict(sensors: dict[str, Any]) -> dict[str, Any]:
             n: {"stated": float(a), "refined": float(v), "sigma": float(s)}
             for n, a, v, s in zip(cam["names"], cam["stated"], cam["values"], cam["sigmas"], strict=True)
         }
+    if sensors.get("effects"):
+        out["effect_on_extrinsic"] = {
+            k: {n: float(x) for n, x in v.items()} for k, v in sensors["effects"].items()
+        }
+    return out
+
+
+def _sensors_from_dict(src: str, d: Any) -> dict[str, Any]:
+    """``Calibration.sensors`` from calibration.yaml's ``sensor_errors`` (SI units, as written)."""
+    if d is None:
+        return {}
+    if not isinstance(d, dict):
+        raise InputError(f"{src}: sensor_errors must be a mapping")
+    out: dict[str, Any] = {}
+    try:
+        lid = d.get("lidar")
+        if lid is not None:
+            names, values, sigmas, elev = [], [], [], {}
+            for n, t in (lid.get("terms") or {}).items():
+                if "value_mm" in t:
+                    v, s = 1e-3 * float(t["value_mm"]), 1e-3 * float(t["sigma_mm"])
+                elif "value_mrad" in t:
+                    v, s = 1e-3 * float(t["value_mrad"]), 1e-3 * float(t["sigma_mrad"])
+                else:
+                    v, s = float(t["value"]), float(t["sigma"])
+                names.append(str(n))
+                values.append(v)
+                sigmas.append(s)
+                if "elevation_deg" in t:
+                    elev[str(n)] = float(t["elevation_deg"])
+            out["lidar_errors"] = {
+                "names": names, "values": np.array(values), "sigmas": np.array(sigmas),
+                "left_out": [[str(x["term"]), str(x["reason"])] for x in lid.get("left_out") or []],
+                **({"elevation_deg": elev} if elev else {}),
+            }  # fmt: skip
+        cam = d.get("camera_intrinsics")
+        if cam is not None:
+            out["camera_intrinsics"] = {
+                "names": [str(n) for n in cam],
+                "stated": np.array([float(t["stated"]) for t in cam.values()]),
+                "values": np.array([float(t["refined"]) for t in cam.values()]),
+                "sigmas": np.array([float(t["sigma"]) for t in cam.values()]),
+            }
+        if d.get("effect_on_extrinsic"):
+            out["effects"] = {
+                str(k): {str(n): float(x) for n, x in v.items()} for k, v in d["effect_on_extrinsic"].items()
+            }
+    except (AttributeError, KeyError, TypeError, ValueError) as err:
+        raise InputError(f"{src}: sensor_errors is malformed ({err!r})") from None
     return out
 
 
@@ -144,7 +223,9 @@ def read_calibration(path: str | Path) -> Calibration:
             raise InputError(f"{src}: {key} must be a mapping with name and used")
         board = None
         if fd.get("lidar_corners") is not None:
-            corners = _matrix(src, fd["lidar_corners"], f"{key}.lidar_corners", (-1, 3))
+            # the BoardFit is the LiDAR stage's: its own corners when the file also has refined ones
+            which = "lidar_corners_stage" if fd.get("lidar_corners_stage") is not None else "lidar_corners"
+            corners = _matrix(src, fd[which], f"{key}.{which}", (-1, 3))
             Tb = (
                 _matrix(src, fd["T_lidar_board"], f"{key}.T_lidar_board", (4, 4), pose=True)
                 if fd.get("T_lidar_board") is not None
@@ -198,6 +279,7 @@ def read_calibration(path: str | Path) -> Calibration:
         method=str(d.get("method", "graph")),
         diagnostics=dict(diag),
         camera=camera,
+        sensors=_sensors_from_dict(src, d.get("sensor_errors")),
     )
 
 

@@ -233,15 +233,28 @@ def fit_board_points(
         half_turn_ambiguous=board.half_turn_symmetric,
         cost=float(fit.cost),
         diagnostics=diag,
-        returns=_returns(P[core], ring[core], intensity_classes(inten[core], *fit.tau), pf, b_raw, cov),
+        returns=_returns(
+            P[core],
+            ring[core],
+            intensity_classes(inten[core], *fit.tau),
+            pf,
+            b_raw,
+            cov,
+            inten[core],
+            (soft.a, soft.a + soft.c) if soft.converged else fit.levels,
+        ),  # fmt: skip
     )
 
 
-def _returns(points, ring, cls, pf, b_raw, cov) -> BoardReturns:  # noqa: ANN001
+def _returns(points, ring, cls, pf, b_raw, cov, inten, levels) -> BoardReturns:  # noqa: ANN001
     """The board's returns for the estimation core: those well inside the board (``points``, their
     board-frame coordinates ``b_raw``), clearly black or white, within 3 sigma of the plane fit ``pf``;
     and the in-plane part of the final covariance ``cov`` (same board frame):
-    ``cov_in = C_ii - K C_oo K^T``, ``K = C_io C_oo^-1`` (``covariance.assemble_covariance``)."""
+    ``cov_in = C_ii - K C_oo K^T``, ``K = C_io C_oo^-1`` (``covariance.assemble_covariance``).
+
+    Each return's darkness is its intensity between the board's black and white ``levels``
+    (1 black, 0 white, clipped): a footprint on both colours returns a blend, and the range walk of a
+    weak return follows its strength, not the class it is sorted into."""
     rx, ry, tz, delta = pf.coef[:4] if len(pf.coef) > 3 else (*pf.coef[:3], 0.0)
     res = b_raw[:, 2] - (tz + rx * b_raw[:, 1] - ry * b_raw[:, 0] + delta * (cls == 0))
     keep = (cls >= 0) & (np.abs(res) < 3.0 * pf.sigma)
@@ -249,7 +262,11 @@ def _returns(points, ring, cls, pf, b_raw, cov) -> BoardReturns:  # noqa: ANN001
     C_oo, C_io = cov[np.ix_(io, io)], cov[np.ix_(ii, io)]
     K = np.linalg.solve(C_oo.T, C_io.T).T
     cov_in = cov[np.ix_(ii, ii)] - K @ C_oo @ K.T
-    dark = (cls[keep] == 0).astype(np.float64)
+    lo, hi = (float(v) for v in levels)
+    if hi - lo > 1e-9:
+        dark = np.clip((hi - np.asarray(inten, dtype=np.float64)[keep]) / (hi - lo), 0.0, 1.0)
+    else:
+        dark = (cls[keep] == 0).astype(np.float64)
     return BoardReturns(
         points[keep], np.asarray(ring)[keep], dark, float(pf.sigma), 0.5 * (cov_in + cov_in.T), K
     )

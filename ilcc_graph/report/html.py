@@ -49,6 +49,7 @@ from .plots import (
     plot_per_frame,
     plot_valley,
 )
+from .sensors import sensors_html
 from .studies import CrossValidation, FramesCurve, pose_difference, valley
 
 __all__ = ["FrameFigures", "frame_figures", "build_report", "FIGURES_DIR"]
@@ -529,6 +530,8 @@ def build_report(
         body.append(gt_verdict)
     body.append("<h2>The result</h2>")
     body.append(transform_html)
+    if sensor_html := sensors_html(calibration):
+        body += ["<h2>The sensors' own errors</h2>", sensor_html]
 
     body.append("<h2>Frames</h2>")
     rows, classes = _frame_rows(calibration, ev, expected, {n for n, _ in pictures})

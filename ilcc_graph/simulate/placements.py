@@ -2,14 +2,14 @@
 
 Default placements (LiDAR frame): frames are split over five horizontal directions (72 deg apart
 for a panoramic camera, whose columns wrap; spread over the horizontal field of view otherwise), four per
-direction for 20 frames. Each board sits 1.2-2.6 m away (the distances of one direction staggered
-over that range), its azimuth jittered by up to 12 deg, its centre at a height that keeps the whole
-board inside the LiDAR's vertical field of view; it faces the sensors (board z towards the point
-between LiDAR and camera), is turned 45 deg in its plane (a diamond; plus a random quarter turn and
+direction for 20 frames. Each board sits 1.2-2.6 m away (``SceneOptions.board_distance_m``; the
+distances of one direction staggered over that range), its azimuth jittered by up to 12 deg, its centre
+at a height that keeps the whole board inside the LiDAR's vertical field of view; it faces the sensors
+(board z towards the point between LiDAR and camera), is turned 45 deg in its plane (a diamond; plus a random quarter turn and
 up to 8 deg jitter, so every corner of the pattern may end up lowest) and tilted by up to 15 deg
 (pitch) and 25 deg (yaw). A placement is redrawn until the board is fully inside the LiDAR's vertical
 field, inside the room and (not panoramic) inside the image with a 3 % border; after repeated
-failures the draws move farther out (up to 1.5 m beyond 2.6 m) and, when not panoramic, towards
+failures the draws move farther out (up to 1.5 m beyond the far distance) and, when not panoramic, towards
 the middle of the view (e.g. a VLP-16's +-15 deg field cannot hold a 0.75 m board at 1.2 m).
 A scanline-free lidar's field is a cone about x (``vertical_angles_deg`` = +-its half-angle): the
 directions are spread over its width (for a panorama too) and the board must lie inside the cone.
@@ -31,7 +31,6 @@ __all__ = ["board_placements", "frame_scene", "static_scene", "frame_rng", "came
 # stream keys for np.random.SeedSequence(seed, spawn_key=(purpose, ...))
 PURPOSE_UNIT, PURPOSE_PLACEMENT, PURPOSE_FRAME = 0, 1, 2
 N_DIRECTIONS = 5
-DIST_RANGE = (1.2, 2.6)
 PERSON_HALF = np.array([0.22, 0.14, 0.85])
 
 
@@ -162,7 +161,7 @@ def board_placements(spec: SimulationSpec) -> list[np.ndarray]:
         rng = frame_rng(spec.seed, PURPOSE_PLACEMENT, i)
         members = np.flatnonzero(direction == direction[i])
         j, m = int(np.searchsorted(members, i)), len(members)
-        lo, hi = DIST_RANGE
+        lo, hi = spec.scene.board_distance_m
         for attempt in range(400):
             relax = attempt / 400.0
             d = lo + (j + rng.random()) * (hi - lo) / m + 1.5 * relax  # move out when nothing fits

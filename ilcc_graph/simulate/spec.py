@@ -124,6 +124,8 @@ class SceneOptions:
     clutter: a person-sized box standing near some boards.
     person_probability: chance per frame of the person when ``clutter``.
     stand: the board stands on a thin pole reaching the ground.
+    board_distance_m: (near, far) distances of the default board placements from the LiDAR, m
+        (``placements.board_placements``).
     """
 
     lidar_height_m: float = 1.5
@@ -132,6 +134,15 @@ class SceneOptions:
     clutter: bool = True
     person_probability: float = 0.6
     stand: bool = True
+    board_distance_m: tuple[float, float] = (1.2, 2.6)
+
+    def __post_init__(self) -> None:
+        lo, hi = (float(v) for v in self.board_distance_m)
+        if not 0.3 < lo <= hi:
+            raise ValueError(
+                f"SceneOptions: board_distance_m must be 0.3 < near <= far, got {self.board_distance_m!r}"
+            )
+        object.__setattr__(self, "board_distance_m", (lo, hi))
 
 
 @dataclass(frozen=True, eq=False)

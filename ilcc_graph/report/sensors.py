@@ -1,0 +1,132 @@
+"""The sensors' own errors the graph estimated, for the report and the terminal.
+
+From ``Calibration.sensors`` (``pipeline._sensors``): the LiDAR's per-beam range offsets and its
+dark-print offset with their sigmas, the terms left out and why, the refined camera intrinsics
+against the stated ones, and what each group moved the extrinsic (``estimation.effects``). Pure:
+returns strings.
+"""
+
+from __future__ import annotations
+
+import html
+from typing import Any
+
+import numpy as np
+
+from ..types import Calibration
+
+__all__ = ["sensors_html", "sensors_text"]
+
+_GROUPS = {
+    "lidar_errors": "LiDAR error terms (held at zero)",
+    "camera_intrinsics": "camera intrinsics (as stated)",
+}
+
+
+def _e(s: object) -> str:
+    return html.escape(str(s), quote=True)
+
+
+def _term_rows(lid: dict[str, Any]) -> list[tuple[str, str, str, str]]:
+    """(term, elevation deg, value, sigma) with units, per LiDAR term."""
+    elev = lid.get("elevation_deg", {})
+    rows = []
+    for n, v, s in zip(lid["names"], lid["values"], lid["sigmas"], strict=True):
+        e = f"{elev[n]:+.2f}" if n in elev else ""
+        if n.startswith("offset") or n == "dark":
+            rows.append((n, e, f"{1e3 * v:+.2f} mm", f"{1e3 * s:.2f} mm"))
+        elif n.startswith("elevation"):
+            rows.append((n, e, f"{1e3 * v:+.3f} mrad", f"{1e3 * s:.3f} mrad"))
+        else:
+            rows.append((n, e, f"{v:+.2e}", f"{s:.1e}"))
+    return rows
+
+
+def _effect_rows(effects: dict[str, dict[str, float]]) -> list[tuple[str, str, str, str]]:
+    return [
+        (
+            _GROUPS.get(k, k),
+            f"{v['rotation_deg']:.4f}",
+            f"{v['translation_mm']:.2f}",
+            f"{v['mahalanobis']:.1f}",
+        )
+        for k, v in effects.items()
+    ]
+
+
+def _html_table(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:
+    th = "".join(f"<th>{_e(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{_e(c)}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><tr>{th}</tr>{body}</table>"
+
+
+def sensors_html(cal: Calibration) -> str:
+    """The report's section on the sensors' own errors ("" when the graph estimated none)."""
+    sensors = cal.sensors or {}
+    parts: list[str] = []
+    lid = sensors.get("lidar_errors")
+    if lid is not None:
+        if lid["names"]:
+            parts.append(
+                "<p>LiDAR error terms estimated from the boards' returns, shared by every frame: range "
+                "offset per beam (measured minus true range; beam 0 is the lowest), the extra range of "
+                "returns from black print (<code>dark</code>). The board corners in calibration.yaml are "
+                "those of the boards the graph settled on.</p>"
+            )
+            parts.append(_html_table(("term", "beam elevation (deg)", "value", "sigma"), _term_rows(lid)))
+        if lid.get("left_out"):
+            parts.append("<p>Left out (not estimated, so that they do not absorb noise):</p><ul>")
+            parts += [f"<li><b>{_e(t)}</b>: {_e(r)}</li>" for t, r in lid["left_out"]]
+            parts.append("</ul>")
+    cam = sensors.get("camera_intrinsics")
+    if cam is not None:
+        rows = [
+            (n, f"{a:.6g}", f"{v:.6g}", f"{s:.2g}", f"{(v - a) / s:+.1f}" if s > 0 else "")
+            for n, a, v, s in zip(cam["names"], cam["stated"], cam["values"], cam["sigmas"], strict=True)
+        ]
+        parts.append("<p>Camera intrinsics refined (prior: the config's values):</p>")
+        parts.append(_html_table(("parameter", "stated", "refined", "sigma", "change (sigma)"), rows))
+    if sensors.get("effects"):
+        parts.append(
+            "<p>What the terms moved the extrinsic: the same frames solved once more with each group "
+            "taken back (the same noise, no gate).</p>"
+        )
+        parts.append(
+            _html_table(
+                ("without", "rotation (deg)", "camera position (mm)", "in sigmas"),
+                _effect_rows(sensors["effects"]),
+            )
+        )
+    return "\n".join(parts)
+
+
+def sensors_text(cal: Calibration) -> str:
+    """A few lines for the terminal ("" when the graph estimated none)."""
+    sensors = cal.sensors or {}
+    lines: list[str] = []
+    lid = sensors.get("lidar_errors")
+    if lid is not None and lid["names"]:
+        names = list(lid["names"])
+        v, s = np.asarray(lid["values"]), np.asarray(lid["sigmas"])
+        beams = [i for i, n in enumerate(names) if n.startswith("offset[")]
+        if beams:
+            lo, hi = 1e3 * v[beams].min(), 1e3 * v[beams].max()
+            lines.append(
+                f"LiDAR beam offsets: {len(beams)} beams, {lo:+.1f} .. {hi:+.1f} mm "
+                f"(sigma {1e3 * np.median(s[beams]):.1f} mm median)"
+            )
+        for i, n in enumerate(names):
+            if i in beams:
+                continue
+            if n in ("dark", "offset"):
+                lines.append(f"LiDAR {n}: {1e3 * v[i]:+.2f} mm, sigma {1e3 * s[i]:.2f} mm")
+            else:
+                lines.append(f"LiDAR {n}: {v[i]:+.3g}, sigma {s[i]:.2g}")
+    if lid is not None and lid.get("left_out"):
+        lines.append(f"left out: {', '.join(t for t, _ in lid['left_out'])}")
+    for k, e in (sensors.get("effects") or {}).items():
+        lines.append(
+            f"without the {_GROUPS.get(k, k)}: the extrinsic moves {e['rotation_deg']:.4f} deg, "
+            f"{e['translation_mm']:.2f} mm ({e['mahalanobis']:.1f} sigma)"
+        )
+    return "\n".join(lines)
