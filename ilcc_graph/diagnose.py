@@ -5,11 +5,11 @@ it: the LiDAR stage reports a board-shaped object whose pattern it cannot fit, o
 no chessboard, and the run ends with "no frame has the board" (or, worse, with a few frames that
 passed by chance). These checks look for the evidence and say what is likely wrong, in one line:
 
-- ``board.square_size``: after a calibration, the images put the boards at k times the distance the
-  scans give (UPnP of the image corners with the configured board, against the LiDAR's board
-  through the extrinsic), the same k in every frame; when no frame has the board in both sensors,
-  the LiDAR stage finds it with the square size scaled by k where the configured one fails, and the
-  images' distances agree with that k.
+- ``board.square_size``: the images say the board moved k times as far between two frames as the
+  scans say (``board_scale``: the distance between two poses of the board is the same in both
+  sensors' frames, no extrinsic needed; from the image it scales with the configured square size);
+  when no frame has the board in both sensors, the LiDAR stage is tried with scaled square sizes,
+  and the scale at which both sensors agree must show the board in the scans too.
 - ``board.squares``: beyond the detected corners the image shows the checker pattern going on (a
   part of a bigger print was found); or, when the images show no board, the image stage finds one
   with a square fewer on both sides (squares counted as inner corners), and so does the LiDAR stage.
@@ -32,43 +32,56 @@ from ilcc_graph.config import Config
 from ilcc_graph.errors import FrameError, InputError
 from ilcc_graph.init import upnp
 from ilcc_graph.observe import Observation, StageOptions, observe_image, observe_lidar
-from ilcc_graph.types import Calibration, FrameResult, ImageCorners
+from ilcc_graph.types import Calibration, ImageCorners
 
 log = logging.getLogger(__name__)
 
-__all__ = ["diagnose_failure", "diagnose_result", "distance_ratio", "pattern_continues"]
+__all__ = ["board_scale", "diagnose_failure", "diagnose_result", "pattern_continues"]
 
 #: square-size factors tried when the configured board is found in no scan
 SCALES = (0.8, 0.85, 0.9, 0.95, 1.05, 1.1, 1.15, 1.2, 1.25)
 LOOK = 3  # frames looked at per check (each check runs a stage per frame)
-RATIO_TOL = 0.05  # image/LiDAR distance ratios within this of 1 are normal
-AGREE_TOL = 0.1  # the images' k against the scans' k (the camera-LiDAR baseline)
+SCALE_TOL = 0.03  # board_scale within this of 1 is normal (the recorded sets: 1.003, 1.006)
 
 
-def _board_distance_image(corners: ImageCorners, board: Board) -> float | None:
-    """Distance (m) from the camera to the pattern's centre, from the image corners and the board."""
+def _centre_image(corners: ImageCorners, board: Board) -> np.ndarray | None:
+    """(3,) the pattern's centre in the camera frame from the image corners and the board (UPnP)."""
     b = corners.bearings / np.linalg.norm(corners.bearings, axis=1, keepdims=True)
     ok = np.all(np.isfinite(b), axis=1)
     if ok.sum() < 6:
         return None
     T = upnp(board.corners_board()[ok], b[ok], prefer_front=True)[0].T_cam_points
-    return float(np.linalg.norm(T[:3, :3] @ board.pattern_centre + T[:3, 3]))
+    return T[:3, :3] @ board.pattern_centre + T[:3, 3]
 
 
-def distance_ratio(frames: Sequence[FrameResult], board: Board, T_cam_lidar: np.ndarray) -> list[float]:
-    """Per frame with both stages' results: image distance / LiDAR distance to the board (camera frame)."""
-    out = []
-    for f in frames:
-        if f.board is None or f.corners is None:
-            continue
-        d_img = _board_distance_image(f.corners, board)
-        p = T_cam_lidar[:3, :3] @ (
-            f.board.T_lidar_board[:3, :3] @ board.pattern_centre + f.board.T_lidar_board[:3, 3]
-        )
-        d_lid = float(np.linalg.norm(p + T_cam_lidar[:3, 3]))
-        if d_img is not None and d_lid > 0:
-            out.append(d_img / d_lid)
-    return out
+def board_scale(
+    pairs: Sequence[tuple[ImageCorners, np.ndarray]], board: Board, min_apart_m: float = 0.3
+) -> tuple[float, float, int] | None:
+    """How much bigger the images say the board's moves are than the scans: (median k, spread, pairs).
+
+    pairs: per frame the image corners and the LiDAR's (4, 4) ``T_lidar_board``. For two frames the
+    distance between the pattern's centres is the same in either sensor's frame (no extrinsic
+    needed); from the image it scales with the configured square size, from the scans it does not.
+    So k = s_configured / s_print (1 when the square size is right; the recorded sets give 1.003 and
+    1.006, a simulated square 6 % too small 0.940). Pairs closer than ``min_apart_m`` are left out.
+    spread: the median absolute deviation of the pairs' ratios. None with fewer than two frames.
+    """
+    cam, lid = [], []
+    for corners, T in pairs:
+        c = _centre_image(corners, board)
+        if c is not None:
+            cam.append(c)
+            lid.append(T[:3, :3] @ board.pattern_centre + T[:3, 3])
+    ratios = []
+    for i in range(len(cam)):
+        for j in range(i + 1, len(cam)):
+            d_cam, d_lid = float(np.linalg.norm(cam[i] - cam[j])), float(np.linalg.norm(lid[i] - lid[j]))
+            if d_cam >= min_apart_m and d_lid > 0:
+                ratios.append(d_cam / d_lid)
+    if not ratios:
+        return None
+    k = float(np.median(ratios))
+    return k, float(np.median(np.abs(np.asarray(ratios) - k))), len(ratios)
 
 
 def _square_size_line(board: Board, k: float, evidence: str) -> str:
@@ -142,14 +155,17 @@ def diagnose_result(obs: Observation, cal: Calibration, images: int = 2) -> list
     board = obs.config.board
     used = {f.name for f in cal.frames if f.used}
     frames = [f for f in obs.frames if f.name in used]
-    ratios = distance_ratio(frames, board, cal.T_cam_lidar)
-    if len(ratios) >= 3:
-        k = float(np.median(ratios))
-        spread = float(np.median(np.abs(np.asarray(ratios) - k)))
-        if abs(k - 1) > RATIO_TOL and spread < 0.5 * abs(k - 1):
-            n = len(ratios)
-            ev = f"the images put the board at {k:.2f} x the distance the scans give (median of {n} frames)"
-            lines.append(_square_size_line(board, 1 / k, ev))
+    both = [(f.corners, f.board.T_lidar_board) for f in obs.frames if f.corners is not None and f.board]
+    scale = board_scale(both, board)  # type: ignore[arg-type]
+    if (
+        scale is not None
+        and scale[2] >= 3
+        and abs(scale[0] - 1) > SCALE_TOL
+        and scale[1] < abs(scale[0] - 1) / 3
+    ):
+        k, _, n = scale
+        ev = f"the images make the board's moves between frames {k:.3f} x what the scans give ({n} pairs)"
+        lines.append(_square_size_line(board, 1 / k, ev))
     refs = {r.name: r for r in obs.source.frames()}
     extra = []
     for f in frames[:images]:
@@ -220,24 +236,20 @@ def _square_size_search(obs: Observation, stages: StageOptions, refs: dict) -> s
     if found is None:
         return None
     k, fits = found
-    ratios = []
-    for f, fit in zip(frames, fits, strict=True):
-        if isinstance(fit, FrameError) or f.corners is None:
-            continue
-        d_img = _board_distance_image(f.corners, board)
-        T = fit.T_lidar_board
-        d_lid = float(np.linalg.norm(T[:3, :3] @ (board.pattern_centre * k) + T[:3, 3]))
-        if d_img is not None:
-            ratios.append(d_img / d_lid)
-    if not ratios:
+    pairs = [
+        (f.corners, fit.T_lidar_board)
+        for f, fit in zip(frames, fits, strict=True)
+        if not isinstance(fit, FrameError)
+    ]
+    scale = board_scale(pairs, _scaled(cfg, k).board)  # type: ignore[arg-type]
+    if scale is None:
         return None
-    k_img = 1.0 / float(np.median(ratios))
-    if abs(k_img - 1) <= RATIO_TOL or (n := _found(lidar(k_img))) < need:
+    k_img = k / scale[0]  # with square size s k, the images' moves are scale[0] x the scans'
+    if abs(k_img - 1) <= SCALE_TOL or (n := _found(lidar(k_img))) < need:
         return None
     ev = (
-        f"the images put the board at {1 / k_img:.2f} x the distance the scans give, and with the square "
-        f"size that makes them agree the scans show the board in {n} of {len(frames)} frames (none with "
-        "the value given)"
+        f"the scans show the board in none of {len(frames)} frames with it, and in {n} with the square size "
+        "at which the images and the scans agree on how far the board moved between frames"
     )
     return _square_size_line(board, k_img, ev)
 

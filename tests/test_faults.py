@@ -8,6 +8,7 @@ test_faults_fuzz.py.
 
 from __future__ import annotations
 
+import dataclasses
 import errno
 import os
 import shutil
@@ -25,6 +26,7 @@ import ilcc_graph.io.files as io_files
 from ilcc_graph.cli import main
 from ilcc_graph.datasets import FolderSource, open_source
 from ilcc_graph.errors import InputError, OutputError
+from ilcc_graph.image import ImageOptions
 from ilcc_graph.io import list_frames, read_scan, write_calibration, write_pcd, write_ply
 from ilcc_graph.io.scans import write_csv
 from ilcc_graph.observe import Observation
@@ -364,3 +366,72 @@ def test_two_processes_committing_one_folder_at_once(tmp_path):
     writers = {p.read_text() for p in out.iterdir()}
     assert len(writers) == 1 and len(list(out.iterdir())) == 50  # one writer's files, all of them
     assert _leftovers(tmp_path) == []
+
+
+# ------------------------------------------------------------------------------ set-up mistakes
+
+
+def _pose(rng: np.random.Generator) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(rng.normal(0, 0.3, 3)).as_matrix()
+    T[:3, 3] = [rng.uniform(-0.8, 0.8), rng.uniform(-0.3, 0.3), rng.uniform(1.5, 4.0)]  # OpenCV: z ahead
+    return T
+
+
+@pytest.mark.parametrize("configured", [0.075, 0.09, 0.0625])
+def test_board_scale_is_the_square_size_ratio_without_an_extrinsic(configured):
+    """Images of a 0.075 m print, read with another square size, against the scans' board poses."""
+    from ilcc_graph.board import Board
+    from ilcc_graph.diagnose import board_scale
+    from ilcc_graph.types import ImageCorners
+
+    rng = np.random.default_rng(0)
+    true, cfg = Board(6, 8, 0.075), Board(6, 8, configured)
+    T_lidar_cam = _pose(rng)  # any extrinsic: the check does not use it
+    pairs = []
+    for _ in range(5):
+        T_cam_board = _pose(rng)
+        p = true.corners_board() @ T_cam_board[:3, :3].T + T_cam_board[:3, 3]
+        corners = ImageCorners(
+            np.zeros((len(p), 2)),
+            p / np.linalg.norm(p, axis=1, keepdims=True),
+            np.zeros((len(p), 2, 2)),
+            False,
+        )
+        shift = np.eye(4)
+        shift[:3, 3] = true.pattern_centre - cfg.pattern_centre  # the scans' fit centres the (wrong) pattern
+        pairs.append((corners, T_lidar_cam @ T_cam_board @ shift))
+    k, spread, n = board_scale(pairs, cfg)
+    assert n >= 6 and abs(k - configured / 0.075) < 1e-6 and spread < 1e-6
+
+
+def test_a_wrong_square_size_is_said_in_one_line(sim, tmp_path, capsys):
+    data = tmp_path / "data"
+    data.mkdir()
+    for sub in ("pcd", "img"):
+        (data / sub).symlink_to(sim / sub)
+    cfg = yaml.safe_load((sim / "config.yaml").read_text())
+    cfg["board"]["square_size"] = 0.09  # the print's squares are 0.075 m
+    (data / "config.yaml").write_text(yaml.safe_dump(cfg))
+    assert main(["calibrate", str(data), "--out", str(tmp_path / "out"), "--no-report"]) == 3
+    likely = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip().startswith("likely:")]
+    assert len(likely) == 1 and "board.square_size 0.09 m looks wrong" in likely[0], likely
+    assert "a square of this print is about 0.07" in likely[0]
+
+
+def test_a_part_of_a_bigger_print_is_seen(sim):
+    """[5, 7] configured for the [6, 8] print: the image stage finds a part of it in frame 0001, and
+    beyond those corners the checker pattern goes on by a row and a column."""
+    from ilcc_graph.diagnose import pattern_continues
+    from ilcc_graph.observe import observe_image
+
+    source = open_source(sim)
+    ref = source.frames()[0]
+    right = source.config()
+    wrong = dataclasses.replace(right, board=dataclasses.replace(right.board, rows=5, cols=7))
+    image = source.read_image(ref)
+    part = observe_image(source, ref, wrong, ImageOptions())
+    assert pattern_continues(image, wrong, part) == (1, 1)
+    assert pattern_continues(image, right, observe_image(source, ref, right, ImageOptions())) == (0, 0)
