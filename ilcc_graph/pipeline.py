@@ -21,7 +21,7 @@ from ilcc_graph import signals
 from ilcc_graph.config import Config
 from ilcc_graph.damage import check_image_size
 from ilcc_graph.datasets import FrameSource
-from ilcc_graph.diagnose import diagnose_failure, diagnose_result
+from ilcc_graph.setup_mistakes import diagnose_failure, diagnose_result
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import NoiseOptions
 from ilcc_graph.estimation.batch import BatchSolution

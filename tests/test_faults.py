@@ -384,7 +384,7 @@ def _pose(rng: np.random.Generator) -> np.ndarray:
 def test_board_scale_is_the_square_size_ratio_without_an_extrinsic(configured):
     """Images of a 0.075 m print, read with another square size, against the scans' board poses."""
     from ilcc_graph.board import Board
-    from ilcc_graph.diagnose import board_scale
+    from ilcc_graph.setup_mistakes import board_scale
     from ilcc_graph.types import ImageCorners
 
     rng = np.random.default_rng(0)
@@ -424,7 +424,7 @@ def test_a_wrong_square_size_is_said_in_one_line(sim, tmp_path, capsys):
 def test_a_part_of_a_bigger_print_is_seen(sim):
     """[5, 7] configured for the [6, 8] print: the image stage finds a part of it in frame 0001, and
     beyond those corners the checker pattern goes on by a row and a column."""
-    from ilcc_graph.diagnose import pattern_continues
+    from ilcc_graph.setup_mistakes import pattern_continues
     from ilcc_graph.observe import observe_image
 
     source = open_source(sim)
