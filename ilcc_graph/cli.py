@@ -12,19 +12,27 @@ import os
 import sys
 import time
 from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from ilcc_graph.cameras import camera_kinds
-from ilcc_graph.errors import (
-    EXIT_IMPOSSIBLE,
-    EXIT_INPUT,
-    CalibrationImpossible,
-    IndeterminateSystem,
-    InputError,
+from ilcc_graph import signals
+from ilcc_graph.console import (
+    COUNT,
+    DEG_MM,
+    NON_NEGATIVE,
+    PIXELS,
+    POSITIVE,
+    RATE,
+    SEED,
+    Progress,
+    run_command,
+    setup_logging,
 )
-from ilcc_graph.lidars.tables import MODEL_NAMES as LIDAR_NAMES
+from ilcc_graph.errors import InputError
+
+if TYPE_CHECKING:
+    import numpy as np
 
 log = logging.getLogger("ilcc_graph")
 
@@ -48,51 +56,15 @@ exit codes: 0 success, 2 bad usage or bad input, 3 calibration impossible from t
 """
 
 
-class _Progress:
-    """One progress-bar helper: a callback (done, total) drawing a tqdm bar on stderr."""
+def _run_dir(args: argparse.Namespace, root: str = "out") -> Path:
+    """``--out`` as given, else ``out/<timestamp>`` (linked as ``out/latest`` once written); checked
+    now, before a long run."""
+    from ilcc_graph.outputs import check_output
 
-    def __init__(self, desc: str) -> None:
-        self.desc, self.bar = desc, None
-
-    def __call__(self, done: int, total: int) -> None:
-        if self.bar is None:
-            from tqdm import tqdm
-
-            self.bar = tqdm(
-                total=total, desc=self.desc, unit="frame", leave=False, file=sys.stderr, disable=None
-            )
-        self.bar.n = done
-        self.bar.refresh()
-        if done >= total:
-            self.bar.close()
-
-
-def _run_dir(out: str | None, root: str = "out") -> Path:
-    """``out`` as given, else ``out/<timestamp>`` (``_link_latest`` points ``out/latest`` at it)."""
-    return Path(out) if out else Path(root) / time.strftime("%Y%m%d-%H%M%S")
-
-
-def _link_latest(path: Path, given: str | None, root: str = "out") -> None:
-    if given:
-        return
-    latest = Path(root) / "latest"
-    try:
-        if latest.is_symlink() or latest.exists():
-            latest.unlink()
-        latest.symlink_to(path.name)
-    except OSError:
-        pass
-
-
-def _pair(text: str | None, what: str) -> tuple[float, float] | None:
-    """'DEG,MM' -> (deg, mm)."""
-    if text is None:
-        return None
-    try:
-        a, b = (float(v) for v in text.split(","))
-    except ValueError:
-        raise InputError(f"{what} expects DEG,MM (e.g. 0.05,1.0), got {text!r}") from None
-    return a, b
+    out = Path(args.out) if args.out else Path(root) / time.strftime("%Y%m%d-%H%M%S")
+    check_output(out)
+    args.out_dir = out  # where an internal error's log goes (main)
+    return out
 
 
 def _run_options(args: argparse.Namespace):  # noqa: ANN202 - pipeline.RunOptions
@@ -101,7 +73,6 @@ def _run_options(args: argparse.Namespace):  # noqa: ANN202 - pipeline.RunOption
     from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
     from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
     from ilcc_graph.estimation.sessions import JointOptions
-    from ilcc_graph.observe import StageOptions
     from ilcc_graph.pipeline import RunOptions
 
     joint: dict = {
@@ -109,11 +80,11 @@ def _run_options(args: argparse.Namespace):  # noqa: ANN202 - pipeline.RunOption
         "alpha": getattr(args, "alpha", 0.01),
         "range_offset": getattr(args, "range_offset", False),
     }
-    if (drift := _pair(getattr(args, "drift_sigma", None), "--drift-sigma")) is not None:
+    if (drift := getattr(args, "drift_sigma", None)) is not None:
         joint["drift_sigma_deg"], joint["drift_sigma_mm"] = drift
-    if (rep := _pair(getattr(args, "repeatability", None), "--repeatability")) is not None:
+    if (rep := getattr(args, "repeatability", None)) is not None:
         joint["repeatability_deg"], joint["repeatability_mm"] = rep
-    target = _pair(getattr(args, "target_sigma", None), "--target-sigma")
+    target = getattr(args, "target_sigma", None)
     stop = bool(getattr(args, "stop_at_target", False))
     mode = "incremental" if target is not None or stop else getattr(args, "refine", "graph")
     if mode != "graph" and (len(getattr(args, "data", [None])) > 1 or joint["range_offset"]):
@@ -123,56 +94,48 @@ def _run_options(args: argparse.Namespace):  # noqa: ANN202 - pipeline.RunOption
         intrinsics=IntrinsicsOptions(refine=bool(getattr(args, "refine_intrinsics", False))),
         mode=mode,
         noise=NoiseOptions(robust=getattr(args, "robust", None)),
-        stages=StageOptions(jobs=args.jobs),
+        stages=_stage_options(args),
         joint=JointOptions(**joint),
         target_sigma=target,
         stop_at_target=stop,
     )
 
 
+def _stage_options(args: argparse.Namespace):  # noqa: ANN202 - observe.StageOptions
+    from ilcc_graph.observe import StageOptions
+
+    return StageOptions(jobs=args.jobs, strict=bool(getattr(args, "strict", False)))
+
+
 # ----------------------------------------------------------------------------------------------
-# Commands
+# Commands: each maps its arguments and calls into the package
 
 
 def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
     from ilcc_graph.datasets import open_source
-    from ilcc_graph.outputs import write_run
+    from ilcc_graph.outputs import link_latest, write_run
     from ilcc_graph.pipeline import run
-    from ilcc_graph.report.sensors import sensors_text
-    from ilcc_graph.report.text import format_joint, format_update, frames_table, summarise
+    from ilcc_graph.report.text import format_update, run_summary
 
     options = _run_options(args)
+    out = _run_dir(args)
     sources = [open_source(d, **_bag_options(args)) for d in data]
-    bars: dict[str, _Progress] = {}
+    bars: dict[str, Progress] = {}
     t0 = time.perf_counter()
     result = run(
         sources,
         options,
-        progress=lambda name, i, n: bars.setdefault(name, _Progress(name))(i, n),
+        progress=lambda name, i, n: bars.setdefault(name, Progress(name))(i, n),
         report=lambda u: print(format_update(u, options.target_sigma), flush=True),
     )
-    t_cal = time.perf_counter() - t0
-    out = _run_dir(args.out)
     t1 = time.perf_counter()
     write_run(
         out, result, report=args.report, studies=args.studies, truth=truth, command=" ".join(sys.argv[1:])
     )
-    _link_latest(out, args.out)
-    cal = result.calibration
-    print(frames_table(cal), "", sep="\n")
-    if result.joint is not None:
-        print(format_joint(result.joint), "", sep="\n")
-    print(summarise(cal.T_cam_lidar, cal.covariance, truth))
-    if sensor_lines := sensors_text(cal):
-        print(sensor_lines)
-    if (vf := cal.diagnostics.get("variance_factor", 1.0)) > 1.0:
-        print(f"  (the residuals are {vf:.2f} x the stated noise variance: sigmas x {np.sqrt(vf):.2f})")
-    n_used = sum(f.used for f in cal.frames)
-    what = "calibration.yaml and the report" if args.report else "calibration.yaml"
-    print(
-        f"\n{n_used} of {len(cal.frames)} frames used; calibrated in {t_cal:.1f} s; "
-        f"wrote {what} to {out} ({time.perf_counter() - t1:.1f} s)"
-    )
+    if not args.out:
+        link_latest(out)
+    seconds = (t1 - t0, time.perf_counter() - t1)
+    print(run_summary(result.calibration, result.joint, truth, out, seconds, args.report))
     return 0
 
 
@@ -182,132 +145,80 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     from ilcc_graph.io import read_ground_truth
-    from ilcc_graph.simulate import simulate_dataset, standard_spec
+    from ilcc_graph.simulate.export import write_standard_set
 
-    data = (
-        Path(args.data)
-        if args.data
-        else Path(args.cache) / f"demo-hdl32-equirect{args.width}-seed{args.seed}"
-    )
-    if (data / "ground_truth.yaml").is_file():
-        print(f"re-using the simulated data set in {data}")
-    else:
-        size = f"{args.width}x{args.width // 2}"
-        print(f"simulating the standard panoramic set (HDL-32E, {size}, 20 frames) into {data}")
-        spec = standard_spec(
-            lidar="hdl32", camera="equirectangular", width=args.width, frames=20, seed=args.seed
-        )
-        simulate_dataset(data, spec, progress=_Progress("simulate"))
+    data = Path(args.data or Path(args.cache) / f"demo-hdl32-equirect{args.width}-seed{args.seed}")
+    if not (data / "ground_truth.yaml").is_file():
+        print(f"simulating the standard panoramic set (HDL-32E, {args.width} px wide, 20 frames) into {data}")
+        kw = {"lidar": "hdl32", "camera": "equirectangular", "frames": 20}
+        write_standard_set(data, Progress("simulate"), width=args.width, seed=args.seed, **kw)
     return _calibrate([str(data)], args, read_ground_truth(data).T_cam_lidar)
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from ilcc_graph.simulate import IntrinsicsError, simulate_dataset, standard_spec
+    from ilcc_graph.simulate.export import write_standard_set
 
-    try:
-        spec = standard_spec(
-            lidar=args.lidar,
-            camera=args.camera,
-            width=args.width,
-            frames=args.frames,
-            seed=args.seed,
-            noise_scale=args.noise_scale,
-            sensor_format=args.format,
-            intrinsics_error=IntrinsicsError.typical(args.intrinsics_error),
-        )
-    except ValueError as err:
-        raise InputError(f"simulate: {err}") from None
-    try:
-        out = simulate_dataset(Path(args.out), spec, progress=_Progress("simulate"))
-    except FileExistsError as err:
-        raise InputError(f"{err}; choose a new folder") from err
-    print(f"wrote {spec.n_frames} frames to {out}")
+    names = ("lidar", "camera", "width", "frames", "seed", "noise_scale", "intrinsics_error")
+    spec = write_standard_set(
+        args.out, Progress("simulate"), sensor_format=args.format, **{k: getattr(args, k) for k in names}
+    )
+    print(f"wrote {spec.n_frames} frames to {args.out}")
     return 0
 
 
-def _stage_command(args: argparse.Namespace, stage: str, header: tuple[str, ...]) -> int:
+def _stage_command(args: argparse.Namespace, stage: str) -> int:
     """A stage alone over a data set: one YAML (and a drawing) per frame, and a table."""
     from ilcc_graph.datasets import open_source
-    from ilcc_graph.observe import (
-        StageOptions,
-        check_board_colour,
-        resolve_lidar,
-        run_image_stage,
-        run_lidar_stage,
-    )
-    from ilcc_graph.outputs import write_stage
-    from ilcc_graph.report.text import format_table
+    from ilcc_graph.observe import stage_alone
+    from ilcc_graph.outputs import link_latest, write_stage
+    from ilcc_graph.report.text import stage_table
 
+    out = _run_dir(args)
     source = open_source(args.data, **_bag_options(args))
-    config = source.config()
-    refs = source.frames(require_image=stage == "image", require_scan=stage == "lidar")
-    config = resolve_lidar(source, refs, config)  # the beam table the scans show
-    config, _ = check_board_colour(source, refs, config)  # uses the images where there are any
-    fn = run_lidar_stage if stage == "lidar" else run_image_stage
-    results = fn(source, refs, config, StageOptions(jobs=args.jobs), _Progress(stage))
-    out = _run_dir(args.out)
+    _, refs, results = stage_alone(source, stage, _stage_options(args), Progress(stage))
     rows = write_stage(out, stage, source, refs, results)
-    _link_latest(out, args.out)
-    print(format_table(rows, header))
-    for name, why in source.skipped():
-        print(f"{name}: skipped ({why})")
-    print(f"wrote {out}")
+    if not args.out:
+        link_latest(out)
+    print(stage_table(stage, rows, source.skipped(), out))
     return 0
-
-
-def cmd_lidar_corners(args: argparse.Namespace) -> int:
-    return _stage_command(args, "lidar", ("frame", "found", "points", "reason"))
-
-
-def cmd_image_corners(args: argparse.Namespace) -> int:
-    return _stage_command(args, "image", ("frame", "found", "detector", "sigma px", "reason"))
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """The paper's metric and corner errors of a calibration on a data set's frames."""
     from ilcc_graph.datasets import open_source
-    from ilcc_graph.io import read_calibration, write_yaml
-    from ilcc_graph.observe import StageOptions, observe
-    from ilcc_graph.report import eval_frames, evaluate, evaluation_rows, evaluation_to_dict
-    from ilcc_graph.report.text import format_table
+    from ilcc_graph.evaluation import evaluate_on
+    from ilcc_graph.io import read_calibration
+    from ilcc_graph.outputs import check_output, write_evaluation
+    from ilcc_graph.report import evaluation_rows
+    from ilcc_graph.report.text import evaluation_text
 
-    cal = read_calibration(Path(args.calibration))
-    obs = observe(
-        open_source(args.data, **_bag_options(args)), StageOptions(jobs=args.jobs), _Progress("frames")
-    )
-    for r in obs.frames:
-        if r.board is None or r.corners is None:
-            print(f"{r.name}: not evaluated ({r.reason})")
-    ev = evaluate(eval_frames(obs.frames), obs.config.camera, obs.config.board, cal.T_cam_lidar)
-    header, rows = evaluation_rows(ev)
-    print(format_table(rows, header))
     if args.out:
-        write_yaml(Path(args.out) / "evaluation.yaml", evaluation_to_dict(ev))
-        print(f"wrote {Path(args.out) / 'evaluation.yaml'}")
+        check_output(Path(args.out))
+    cal = read_calibration(Path(args.calibration))
+    source = open_source(args.data, **_bag_options(args))
+    ev, skipped = evaluate_on(source, cal.T_cam_lidar, _stage_options(args), Progress("frames"))
+    print(evaluation_text(evaluation_rows(ev), skipped))
+    if args.out:
+        print(f"wrote {write_evaluation(Path(args.out), ev)}")
     return 0
 
 
 def cmd_export(args: argparse.Namespace) -> int:
     from ilcc_graph.export import export_calibration
-    from ilcc_graph.io import atomic_write, read_calibration, read_yaml
+    from ilcc_graph.io import read_calibration_with_camera
+    from ilcc_graph.outputs import write_file
 
-    path = Path(args.calibration)
-    cal = read_calibration(path)
-    camera = cal.camera
-    resolved = path.parent / "config.resolved.yaml"  # calibration.yaml of older versions had no camera
-    if camera is None and resolved.is_file():
-        camera = read_yaml(resolved).get("camera")
+    cal = read_calibration_with_camera(args.calibration)
     names = ("parent", "lidar_frame", "camera_frame", "ros") if args.format == "ros-tf" else ()
-    options = {k: getattr(args, k) for k in names if getattr(args, k) is not None}
+    options = {k: getattr(args, k) for k in names if getattr(args, k)}
     if args.format == "lidar-offsets":  # a table: CSV when the output file says so
         options["table"] = "csv" if args.out and Path(args.out).suffix.lower() == ".csv" else "yaml"
     try:
-        text = export_calibration(cal, args.format, camera=camera, **options)
+        text = export_calibration(cal, args.format, **options)
     except ValueError as err:
-        raise InputError(f"{path}: {err}") from err
+        raise InputError(f"{args.calibration}: {err}") from None
     if args.out:
-        atomic_write(Path(args.out), text)
-        print(f"wrote {args.out}")
+        print(f"wrote {write_file(Path(args.out), text)}")
     else:
         sys.stdout.write(text)
     return 0
@@ -328,31 +239,37 @@ def _bag_args(sp: argparse.ArgumentParser) -> None:
     g.add_argument("--config", help="the bag's config (default: <bag>.yaml or config.yaml beside it)")
     g.add_argument("--lidar-topic", help="PointCloud2 topic (default: the only one)")
     g.add_argument("--image-topic", help="Image or CompressedImage topic (default: the only one)")
-    g.add_argument("--sync-tolerance", type=float, metavar="S", help="scan-image stamp difference (0.05)")
-    g.add_argument("--min-pause", type=float, metavar="S", help="shortest still pause giving a frame (1.0)")
+    g.add_argument("--sync-tolerance", type=POSITIVE, metavar="S", help="scan-image stamp difference (0.05)")
+    g.add_argument("--min-pause", type=NON_NEGATIVE, metavar="S", help="shortest pause giving a frame (1.0)")
     g.add_argument("--select", choices=("auto", "pauses", "all"), help="frames: one per pause, or all scans")
+
+
+def _frames_args(sp: argparse.ArgumentParser, jobs: int) -> None:
+    """--jobs and --strict: how the per-frame stages run."""
+    sp.add_argument("--jobs", type=COUNT, default=jobs, help=f"processes for the per-frame stages ({jobs})")
+    help = "stop at the first frame file that cannot be read (default: skip that frame, say why)"
+    sp.add_argument("--strict", action="store_true", help=help)
 
 
 def _solve_args(sp: argparse.ArgumentParser, jobs: int, studies: bool = False) -> None:
     sp.add_argument("--out", help="output folder (default: out/<timestamp>, linked as out/latest)")
-    sp.add_argument(
-        "--refine",
-        choices=("graph", "paper"),
-        default="graph",
-        help="graph: our factor graph with covariance (default); paper: the paper's refinement",
-    )
+    help = "graph: our factor graph with covariance (default); paper: the paper's refinement"
+    sp.add_argument("--refine", choices=("graph", "paper"), default="graph", help=help)
     sp.add_argument("--robust", choices=("huber", "cauchy"), help="robust kernel on the bearing factors")
     help = "refine the camera's intrinsics (prior: the config's values and camera.intrinsics_sigma)"
     sp.add_argument("--refine-intrinsics", action="store_true", help=help)
     help = "estimate the LiDAR's per-beam and dark-print range offsets from the boards' returns"
     sp.add_argument("--lidar-errors", action="store_true", help=help)
-    sp.add_argument("--jobs", type=int, default=jobs, help=f"processes for the per-frame stages ({jobs})")
+    _frames_args(sp, jobs)
     sp.add_argument("--no-report", dest="report", action="store_false", help="skip the report and clouds")
     help = "add frames-vs-accuracy and cross-validation to the report"
     sp.add_argument("--studies", action=argparse.BooleanOptionalAction, default=studies, help=help)
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ilcc_graph.cameras import camera_kinds
+    from ilcc_graph.lidars.tables import MODEL_NAMES as LIDAR_NAMES
+
     p = argparse.ArgumentParser(
         prog="ilcc-graph",
         description="Calibrate a 3D LiDAR against a camera (panoramic, pinhole, fisheye) with a printed "
@@ -360,11 +277,15 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=EXAMPLES,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("-v", "--verbose", action="store_true", help="log more detail")
+    common = argparse.ArgumentParser(add_help=False)  # -v and --debug, also after the command
+    for q, default in ((p, False), (common, argparse.SUPPRESS)):
+        q.add_argument("-v", "--verbose", action="store_true", default=default, help="log more detail")
+        help = "show an internal error's traceback here (it is always written to a log file)"
+        q.add_argument("--debug", action="store_true", default=default, help=help)
     sub = p.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     def add(name: str, fn: Callable[[argparse.Namespace], int], help: str) -> argparse.ArgumentParser:
-        sp = sub.add_parser(name, help=help, description=help)
+        sp = sub.add_parser(name, help=help, description=help, parents=[common])
         sp.set_defaults(fn=fn)
         return sp
 
@@ -378,17 +299,20 @@ def build_parser() -> argparse.ArgumentParser:
     g = sp.add_argument_group("several sessions (joint calibration)")
     help = "rigid: one extrinsic for all sessions; drift: one per session, tied by --drift-sigma"
     g.add_argument("--mode", choices=("rigid", "drift"), default="rigid", help=help)
-    g.add_argument("--drift-sigma", metavar="DEG,MM", help="drift mode: how far the mount may move (0.1,2)")
-    g.add_argument("--alpha", type=float, default=0.01, help="false-alarm rate of the moved-mount test")
-    g.add_argument("--repeatability", metavar="DEG,MM", help="extra per-session spread the test tolerates")
+    help = "drift mode: how far the mount may move (0.1,2)"
+    g.add_argument("--drift-sigma", type=DEG_MM, metavar="DEG,MM", help=help)
+    g.add_argument("--alpha", type=RATE, default=0.01, help="false-alarm rate of the moved-mount test")
+    help = "extra per-session spread the test tolerates"
+    g.add_argument("--repeatability", type=DEG_MM, metavar="DEG,MM", help=help)
     g.add_argument("--range-offset", action="store_true", help="estimate the LiDAR's range offset")
     g = sp.add_argument_group("incremental (iSAM2)")
-    g.add_argument("--target-sigma", metavar="DEG,MM", help="frame by frame until these 1-sigma values")
+    help = "frame by frame until these 1-sigma values"
+    g.add_argument("--target-sigma", type=DEG_MM, metavar="DEG,MM", help=help)
     g.add_argument("--stop-at-target", action="store_true", help="read no frame after the target is reached")
 
     sp = add("demo", cmd_demo, "simulate the standard panoramic set (or reuse it), calibrate, compare")
-    sp.add_argument("--width", type=int, default=8000, help="panorama width in pixels (default 8000)")
-    sp.add_argument("--seed", type=int, default=0)
+    sp.add_argument("--width", type=PIXELS, default=8000, help="panorama width in pixels (default 8000)")
+    sp.add_argument("--seed", type=SEED, default=0)
     sp.add_argument("--data", help="where the simulated set lives (default: under --cache)")
     cache = os.path.join(os.path.expanduser("~"), ".cache", "ilcc_graph")
     sp.add_argument("--cache", default=cache, help="folder for simulated data sets (~/.cache/ilcc_graph)")
@@ -400,28 +324,34 @@ def build_parser() -> argparse.ArgumentParser:
     help = "plain PCD; ouster: organised, ring 0 at the top, raw signal; velodyne-csv: hardware laser_id"
     sp.add_argument("--format", default="plain", choices=("plain", "ouster", "velodyne-csv"), help=help)
     sp.add_argument("--camera", default="equirectangular", choices=camera_kinds())
-    sp.add_argument("--frames", type=int, default=20)
-    sp.add_argument("--seed", type=int, default=0)
-    sp.add_argument("--noise-scale", type=float, default=1.0, help="multiplier on the baseline LiDAR noise")
-    sp.add_argument("--width", type=int, default=None, help="image width (default 8000 for panoramas)")
+    sp.add_argument("--frames", type=COUNT, default=20)
+    sp.add_argument("--seed", type=SEED, default=0)
+    sp.add_argument(
+        "--noise-scale", type=NON_NEGATIVE, default=1.0, help="multiplier on the baseline LiDAR noise"
+    )
+    sp.add_argument("--width", type=PIXELS, default=None, help="image width (default 8000 for panoramas)")
     wrong_k = "config.yaml states intrinsics off by SCALE x a typical error (0.5%% f, 2 px c); 0 = the truth"
-    sp.add_argument("--intrinsics-error", type=float, default=0.0, metavar="SCALE", help=wrong_k)
+    sp.add_argument("--intrinsics-error", type=NON_NEGATIVE, default=0.0, metavar="SCALE", help=wrong_k)
 
     for name, fn, help in (
-        ("lidar-corners", cmd_lidar_corners, "the LiDAR stage alone: board, pose, covariance, corners"),
-        ("image-corners", cmd_image_corners, "the image stage alone: corners, uncertainty, drawings"),
+        (
+            "lidar-corners",
+            partial(_stage_command, stage="lidar"),
+            "the LiDAR stage alone: board, pose, corners",
+        ),
+        ("image-corners", partial(_stage_command, stage="image"), "the image stage alone: corners, drawings"),
     ):
         sp = add(name, fn, help)
         sp.add_argument("data", metavar="DATA")
         sp.add_argument("--out", help="output folder (default: out/<timestamp>)")
-        sp.add_argument("--jobs", type=int, default=jobs)
+        _frames_args(sp, jobs)
         _bag_args(sp)
 
     sp = add("evaluate", cmd_evaluate, "the paper's re-projection metric and corner errors of a calibration")
     sp.add_argument("data", metavar="DATA", help="a data set (may hold frames the calibration did not use)")
     sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")
     sp.add_argument("--out", help="folder for evaluation.yaml (default: print only)")
-    sp.add_argument("--jobs", type=int, default=jobs)
+    _frames_args(sp, jobs)
     _bag_args(sp)
 
     sp = add("export", cmd_export, "write a calibration in another tool's format")
@@ -436,20 +366,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    level = logging.DEBUG if args.verbose else logging.INFO
-    logging.basicConfig(level=level, format="%(levelname)s: %(message)s")
-    try:
+    args = argparse.Namespace(debug="--debug" in (sys.argv[1:] if argv is None else argv))
+
+    def command() -> int:  # under the signal handlers from the first import on
+        nonlocal args
+        args = build_parser().parse_args(argv)
+        setup_logging(args.verbose)
         return args.fn(args)
-    except InputError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return EXIT_INPUT
-    except (CalibrationImpossible, IndeterminateSystem) as err:
-        print(f"calibration impossible: {err}", file=sys.stderr)
-        return EXIT_IMPOSSIBLE
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+
+    code = run_command(command, lambda: getattr(args, "out_dir", None), lambda: args.debug)
+    if signals.stop_requested() is not None:
+        signals.exit_now(code)  # after a stop: no interpreter teardown (signals.exit_now)
+    return code
 
 
 if __name__ == "__main__":

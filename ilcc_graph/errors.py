@@ -1,9 +1,9 @@
 """One exception tree for the whole toolkit.
 
-``InputError`` means the user's files or arguments are wrong (command line exit 2).
-``FrameError`` and its subclasses mean one frame cannot be used; the pipeline records the
-reason and skips the frame. ``CalibrationImpossible`` means no result can come from the data
-given (exit 3).
+``InputError`` means the user's files or arguments are wrong (command line exit 2; ``OutputError``:
+the output location). ``FrameError`` and its subclasses mean one frame cannot be used; the
+pipeline records the reason and skips the frame (``DamagedFile``: one of its files cannot be
+read). ``CalibrationImpossible`` means no result can come from the data given (exit 3).
 """
 
 from __future__ import annotations
@@ -17,8 +17,20 @@ class InputError(CalibrationError):
     """A file, a configuration key or an argument is wrong; the message names it."""
 
 
+class OutputError(InputError):
+    """The output location cannot be written (a file in the way, no permission, disk full)."""
+
+
 class FrameError(CalibrationError):
     """One frame cannot be used; the message is the reason recorded for it."""
+
+
+class DamagedFile(FrameError):
+    """A frame's scan or image cannot be read (truncated, undecodable, not the camera's size).
+
+    The frame is skipped with this reason (the file and the problem); with ``--strict`` the run
+    stops on it instead (an ``InputError``).
+    """
 
 
 class BoardNotFound(FrameError):
@@ -50,5 +62,6 @@ class IndeterminateSystem(CalibrationError):
 
 
 EXIT_OK = 0
+EXIT_BUG = 1
 EXIT_INPUT = 2
 EXIT_IMPOSSIBLE = 3

@@ -1,9 +1,11 @@
 """The per-frame stages over a frame source: the LiDAR and image stages, the print-colour check.
 
 ``observe`` runs both stages on every frame of a source (a ``FrameError`` skips the frame with its
-reason; an ``InputError`` propagates), on ``StageOptions.jobs`` processes, after checking the
-print's colour on the first images (their image results are kept, not computed twice). The worker
-functions take plain, picklable arguments. Only the source reads files.
+reason; a frame file that cannot be read is a ``DamagedFile``, which skips the frame too unless
+``StageOptions.strict``; other ``InputError`` propagate), on ``StageOptions.jobs`` processes
+(``workers.py``), after checking the images' size and the print's colour on the first images (their
+image results are kept, not computed twice). The worker functions take plain, picklable arguments.
+Only the source reads files.
 """
 
 from __future__ import annotations
@@ -11,14 +13,15 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
+from ilcc_graph import signals, workers
 from ilcc_graph.config import Config
+from ilcc_graph.damage import check_image, check_image_size, read_frame_file, warn_damaged
 from ilcc_graph.datasets import FrameRef, FrameSource
-from ilcc_graph.errors import BoardColourMismatch, FrameError, InputError
+from ilcc_graph.errors import BoardColourMismatch, DamagedFile, FrameError, InputError
 from ilcc_graph.image import ImageOptions, detect_corners
 from ilcc_graph.init import upnp
 from ilcc_graph.lidar import LidarOptions, estimate_board
@@ -40,6 +43,7 @@ __all__ = [
     "run_image_stage",
     "run_lidar_stage",
     "second_pass",
+    "stage_alone",
 ]
 
 Progress = Callable[[int, int], None]
@@ -47,11 +51,16 @@ Progress = Callable[[int, int], None]
 
 @dataclass(frozen=True)
 class StageOptions:
-    """The per-frame stages' options and the number of processes they run on."""
+    """The per-frame stages' options and the number of processes they run on.
+
+    strict: a frame file that cannot be read stops the run (``InputError``) instead of costing
+    that frame (``DamagedFile``).
+    """
 
     lidar: LidarOptions = LidarOptions()
     image: ImageOptions = ImageOptions()
     jobs: int = 1
+    strict: bool = False
 
 
 @dataclass(frozen=True)
@@ -70,15 +79,21 @@ def observe_lidar(
     config: Config,
     options: LidarOptions,
     expected: ExpectedBoard | None = None,
+    strict: bool = False,
 ) -> BoardFit:
     """The LiDAR stage on one frame's scan (near ``expected`` when given); FrameError says why not."""
-    scan = source.read_scan(ref, config)
-    return estimate_board(scan, config.board, config.lidar, config.roi, options, expected)
+    scan = read_frame_file(source.read_scan, ref, config, strict=strict)
+    return estimate_board(scan, config.board, config.lidar, config.roi, options, expected)  # type: ignore[arg-type]
 
 
-def observe_image(source: FrameSource, ref: FrameRef, config: Config, options: ImageOptions) -> ImageCorners:
-    """The image stage on one frame's image; raises FrameError with the reason."""
-    return detect_corners(source.read_image(ref), config.camera, config.board, options)
+def observe_image(
+    source: FrameSource, ref: FrameRef, config: Config, options: ImageOptions, strict: bool = False
+) -> ImageCorners:
+    """The image stage on one frame's image; raises FrameError with the reason (DamagedFile when the
+    image cannot be read or has not the camera's size)."""
+    image = read_frame_file(source.read_image, ref, strict=strict)
+    check_image(image, config, str(ref.image), strict)
+    return detect_corners(image, config.camera, config.board, options)  # type: ignore[arg-type]
 
 
 def _attempt(fn: Callable, *args: object) -> object:
@@ -96,8 +111,12 @@ def observe_frame(
     image: object = None,
 ) -> FrameResult:
     """Both stages on one frame (``image``: the image stage's result when already known)."""
-    board = _attempt(observe_lidar, source, ref, config, options.lidar)
-    corners = image if image is not None else _attempt(observe_image, source, ref, config, options.image)
+    board = _attempt(observe_lidar, source, ref, config, options.lidar, None, options.strict)
+    corners = (
+        image
+        if image is not None
+        else _attempt(observe_image, source, ref, config, options.image, options.strict)
+    )
     reasons = [
         f"{what}: {r}" for what, r in (("LiDAR", board), ("image", corners)) if isinstance(r, FrameError)
     ]
@@ -107,25 +126,13 @@ def observe_frame(
         reason="; ".join(reasons) or None,
         board=None if isinstance(board, FrameError) else board,  # type: ignore[arg-type]
         corners=None if isinstance(corners, FrameError) else corners,  # type: ignore[arg-type]
+        damaged=any(isinstance(r, DamagedFile) for r in (board, corners)),
     )
 
 
 def _map(fn: Callable, items: Sequence[tuple], jobs: int, progress: Progress | None) -> list:
-    """``fn(*item)`` over ``items``, in order, on ``jobs`` processes."""
-    out: list = []
-    if jobs <= 1 or len(items) <= 1:
-        for i, it in enumerate(items):
-            out.append(fn(*it))
-            if progress:
-                progress(i + 1, len(items))
-        return out
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = [pool.submit(fn, *it) for it in items]
-        for i, fut in enumerate(futures):
-            out.append(fut.result())
-            if progress:
-                progress(i + 1, len(items))
-    return out
+    """``fn(*item)`` over ``items``, in order, on ``jobs`` processes (``workers.map_processes``)."""
+    return workers.map_processes(fn, items, jobs, progress)
 
 
 def resolve_lidar(source: FrameSource, refs: Sequence[FrameRef], config: Config, look: int = 3) -> Config:
@@ -157,6 +164,7 @@ def check_board_colour(
     options: ImageOptions = ImageOptions(),
     needed: int = 2,
     look: int = 6,
+    strict: bool = False,
 ) -> tuple[Config, dict[str, object]]:
     """The config with ``board.lower_left`` as the images show it, and the image results computed.
 
@@ -175,7 +183,7 @@ def check_board_colour(
     for ref in refs[:look]:
         if ref.image is None:
             continue
-        res = _attempt(observe_image, source, ref, config, options)
+        res = _attempt(observe_image, source, ref, config, options, strict)
         seen[ref.name] = res
         if isinstance(res, BoardColourMismatch):
             disagree += 1
@@ -202,19 +210,28 @@ def check_board_colour(
 def observe(
     source: FrameSource, options: StageOptions = StageOptions(), progress: Progress | None = None
 ) -> Observation:
-    """Read a source's config, list its frames, check the print's colour, run both stages per frame."""
+    """Read a source's config, list its frames, check the images' size and the print's colour, run
+    both stages per frame (damaged frames skipped with a warning, or InputError with ``strict``)."""
+    if options.jobs > 1:
+        workers.prestart()  # the fork server imports the stages while this process checks the config
     config = source.config()  # the config's mistakes first, then the folders'
     refs = source.frames()
     config = resolve_lidar(source, refs, config)
-    config, known = check_board_colour(source, refs, config, options.image)
+    check_image_size(source, refs, config)
+    config, known = check_board_colour(source, refs, config, options.image, strict=options.strict)
+    signals.check()
     items = [(source, r, config, options, known.get(r.name)) for r in refs]
     frames = _map(observe_frame, items, options.jobs, progress)
+    warn_damaged(frames)
     frames += [FrameResult(name=n, used=False, reason=why) for n, why in source.skipped()]
     return Observation(source, config, frames)
 
 
-def _stage(fn: Callable, source: FrameSource, ref: FrameRef, config: Config, opts: object) -> object:
-    return _attempt(fn, source, ref, config, opts)
+def _stage(fn: Callable, source: FrameSource, ref: FrameRef, config: Config, opts: object,
+           strict: bool = False) -> object:  # fmt: skip
+    if fn is observe_lidar:
+        return _attempt(fn, source, ref, config, opts, None, strict)
+    return _attempt(fn, source, ref, config, opts, strict)
 
 
 def run_lidar_stage(
@@ -225,9 +242,8 @@ def run_lidar_stage(
     progress: Progress | None = None,
 ) -> list[BoardFit | FrameError]:
     """The LiDAR stage alone: a BoardFit or the FrameError per frame."""
-    return _map(
-        _stage, [(observe_lidar, source, r, config, options.lidar) for r in refs], options.jobs, progress
-    )
+    items = [(observe_lidar, source, r, config, options.lidar, options.strict) for r in refs]
+    return _map(_stage, items, options.jobs, progress)
 
 
 def run_image_stage(
@@ -238,9 +254,26 @@ def run_image_stage(
     progress: Progress | None = None,
 ) -> list[ImageCorners | FrameError]:
     """The image stage alone: ImageCorners or the FrameError per frame."""
-    return _map(
-        _stage, [(observe_image, source, r, config, options.image) for r in refs], options.jobs, progress
-    )
+    items = [(observe_image, source, r, config, options.image, options.strict) for r in refs]
+    return _map(_stage, items, options.jobs, progress)
+
+
+def stage_alone(
+    source: FrameSource, stage: str, options: StageOptions, progress: Progress | None = None
+) -> tuple[Config, list[FrameRef], list]:
+    """One stage (``lidar`` or ``image``) over every frame that has its file: (config used, refs,
+    per frame the stage's answer or its FrameError). The config is checked as for a calibration."""
+    if options.jobs > 1:
+        workers.prestart()
+    config = source.config()
+    refs = source.frames(require_image=stage == "image", require_scan=stage == "lidar")
+    config = resolve_lidar(source, refs, config)  # the beam table the scans show
+    if stage == "image":
+        check_image_size(source, refs, config)
+    config, _ = check_board_colour(source, refs, config, strict=options.strict)  # images where any
+    signals.check()
+    fn = run_lidar_stage if stage == "lidar" else run_image_stage
+    return config, refs, fn(source, refs, config, options, progress)
 
 
 def _expected_lidar(source: FrameSource, ref: FrameRef, config: Config, options: LidarOptions,

@@ -17,8 +17,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ilcc_graph import signals
 from ilcc_graph.config import Config
+from ilcc_graph.damage import check_image_size
 from ilcc_graph.datasets import FrameSource
+from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import NoiseOptions
 from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.batch import solve as solve_batch
@@ -38,6 +41,7 @@ from ilcc_graph.observe import (
     second_pass,
 )
 from ilcc_graph.prepare import Prepared, finish, permute_corners, prepare, rms_bearing_mrad
+from ilcc_graph.setup_mistakes import diagnose_failure, diagnose_result
 from ilcc_graph.types import Calibration, FrameResult
 
 log = logging.getLogger(__name__)
@@ -154,7 +158,10 @@ def _incremental(
     config = source.config()  # the config's mistakes first, then the folders'
     refs = source.frames()
     config = resolve_lidar(source, refs, config)
-    config, known = check_board_colour(source, refs, config, options.stages.image)
+    check_image_size(source, refs, config)
+    config, known = check_board_colour(
+        source, refs, config, options.stages.image, strict=options.stages.strict
+    )
     cal = IncrementalCalibrator(
         config.camera, config.board, target_sigma=options.target_sigma, noise=options.noise,
         lidar_errors=options.lidar_errors, intrinsics=options.intrinsics,
@@ -164,7 +171,10 @@ def _incremental(
 
     stream = (observe_frame(source, r, config, options.stages, known.get(r.name)) for r in refs)
     for fr in stream:
+        signals.check()
         observed.append(fr)
+        if fr.damaged:
+            log.warning("%s: skipped, %s", fr.name, fr.reason)
         if not fr.used or fr.board is None or fr.corners is None:
             continue
         u = cal.add_frame(fr)
@@ -290,7 +300,17 @@ def run(
     for name, src in zip(names, sources, strict=True):
         cb = None if progress is None else (lambda i, n, name=name: progress(name, i, n))
         observations.append(observe(src, options.stages, cb))
-    return solve_observations(observations, dataclasses.replace(options, mode=mode), names)
+    signals.check()
+    try:
+        result = solve_observations(observations, dataclasses.replace(options, mode=mode), names)
+    except CalibrationImpossible as err:  # say what set-up mistake explains it, when one does
+        if not (hints := diagnose_failure(observations, options.stages)):
+            raise
+        raise CalibrationImpossible(f"{err}\n" + "\n".join(f"  likely: {h}" for h in hints)) from None
+    for s in result.sessions:
+        for line in diagnose_result(s.observation, s.calibration):
+            log.warning("%s", line)
+    return result
 
 
 def solve_observations(
@@ -305,6 +325,7 @@ def solve_observations(
     names = list(names) if names is not None else session_names([o.source for o in observations])
     if options.mode == "incremental":
         raise ValueError("incremental mode observes frame by frame: use run()")
+    log.debug("estimating the extrinsic (%s) from %d source(s)", options.mode, len(observations))
     result = _solve_once(observations, options, names)
     if not options.second_pass:
         return result

@@ -188,6 +188,7 @@ class FrameResult:
     """What happened to one frame in a calibration.
 
     T_lidar_board_refined: (4, 4) the board pose the estimation core settled on (used frames).
+    damaged: a file of the frame could not be read (the reason names it and the problem).
     """
 
     name: str
@@ -197,6 +198,7 @@ class FrameResult:
     corners: ImageCorners | None = None
     rms_bearing_error_mrad: float | None = None
     T_lidar_board_refined: np.ndarray | None = None
+    damaged: bool = False
 
 
 @dataclass(frozen=True)

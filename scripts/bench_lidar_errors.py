@@ -1,4 +1,5 @@
-"""The LiDAR's own error terms in the graph (issue 11): Monte Carlo on simulated sets, timing, recorded halves.
+"""The LiDAR's own error terms in the graph (issue 11): Monte Carlo on simulated sets, timing, recorded
+halves.
 
 Monte Carlo: per rig, simulated sets with the simulator's default systematics on (per-beam range bias
 3 mm sigma, black print reading 4 mm long, dropouts):
@@ -295,9 +296,11 @@ def mc_tables(results: Sequence[SetResult]) -> list[str]:
             lines.append(
                 f"| {name} | {ne.mean():.2f} | {100 * np.mean(ne <= CHI2_6_95):.0f} % | "
                 f"{np.median(rot):.4f} / {np.percentile(rot, 90):.4f} | {np.median(tr):.2f} / "
-                f"{np.percentile(tr, 90):.2f} | {beams} | {_fmt(np.sqrt(np.mean(z**2)) if len(z) else np.nan)} | "
+                f"{np.percentile(tr, 90):.2f} | {beams} | "
+                f"{_fmt(np.sqrt(np.mean(z**2)) if len(z) else np.nan)} | "
                 f"{dark} | {np.median(rms):.2f} / {np.percentile(rms, 90):.2f} / {rms.max():.2f} | "
-                f"{100 * np.mean(rms <= target):.0f} % | {sum(m <= target for m in set_med)}/{len(set_med)} | "
+                f"{100 * np.mean(rms <= target):.0f} % | "
+                f"{sum(m <= target for m in set_med)}/{len(set_med)} | "
                 f"{np.mean([v.used for v in vs]):.1f}/{sets[0].n_frames} | "
                 f"{np.median([v.seconds for v in vs]):.2f} |" + (f" ({fails} sets failed)" if fails else "")
             )
@@ -306,7 +309,8 @@ def mc_tables(results: Sequence[SetResult]) -> list[str]:
         )
         lines += [
             "",
-            f"The LiDAR stage's own boards (intensity fit, before the graph), all distances: corner RMS median "
+            f"The LiDAR stage's own boards (intensity fit, before the graph), all distances: corner "
+            f"RMS median "
             f"{np.median(stage):.2f} mm, p90 {np.percentile(stage, 90):.2f} mm. Observation (stages) "
             f"{np.median([r.observe_s for r in sets]):.1f} s per set (median).",
             "",
@@ -369,7 +373,8 @@ def timing(obs: Observed, sizes: Sequence[int] = (20, 400), repeats: int = 3) ->
             k = int(np.argmin(walls))
             lines.append(
                 f"| {len(prep.frames)} | {name} | {walls[k]:.2f} ({cpus[k]:.2f}) | "
-                f"{sol.timings.get('marginals', float('nan')):.2f} | {eff or '-'} | {len(sol.T_lidar_board)} | "
+                f"{sol.timings.get('marginals', float('nan')):.2f} | {eff or '-'} | "
+                f"{len(sol.T_lidar_board)} | "
                 f"{sol.iterations} |"
             )
             print(lines[-1], flush=True)
@@ -425,7 +430,8 @@ def real_data(root: Path, jobs: int) -> list[str]:
             f"### {name}",
             "",
             "| variant | used | beams (left out) | dark mm | without the terms: deg, mm (sigma) | "
-            "halves: extrinsic chi2 (6 dof) | halves: beam offsets chi2 (dof, p) | halves: dark mm | solve s |",
+            "halves: extrinsic chi2 (6 dof) | halves: beam offsets chi2 (dof, p) | halves: dark mm "
+            "| solve s |",
             "|---|---|---|---|---|---|---|---|---|",
         ]
         parts = [replace(obs, frames=obs.frames[0::2]), replace(obs, frames=obs.frames[1::2])]
@@ -457,8 +463,10 @@ def real_data(root: Path, jobs: int) -> list[str]:
             beams_s = "-" if lo is None else f"{beams} ({len(le.get('left_out', []))})"
             bstr = "-" if dof == 0 else f"{b2:.1f} ({dof}, p = {chi2.sf(b2, dof):.3f})"
             lines.append(
-                f"| {vname} | {sum(f.used for f in cal.frames)}/{len(cal.frames)} | {beams_s} | {dark} | {eff_s} | "
-                f"{m2:.1f} ({used[0]} + {used[1]} frames, p = {chi2.sf(m2, 6):.3f}) | {bstr} | {dnote} | {dt:.1f} |"
+                f"| {vname} | {sum(f.used for f in cal.frames)}/{len(cal.frames)} | {beams_s} | "
+                f"{dark} | {eff_s} | "
+                f"{m2:.1f} ({used[0]} + {used[1]} frames, p = {chi2.sf(m2, 6):.3f}) | {bstr} | "
+                f"{dnote} | {dt:.1f} |"
             )
             print(lines[-1], flush=True)
         lines.append("")
@@ -609,7 +617,8 @@ def main() -> None:
         auto += [
             "## Timing",
             "",
-            f"One simulated HDL-32E set of 400 frames (seed 9000; observed in {time.perf_counter() - t0:.0f} s "
+            f"One simulated HDL-32E set of 400 frames (seed 9000; observed in "
+            f"{time.perf_counter() - t0:.0f} s "
             "wall or read from the cache); the core (`estimation.batch.solve`: gate, variance components, "
             "the observability check, marginals) on its first 20 and on all frames, best of 3 at 20.",
             "",

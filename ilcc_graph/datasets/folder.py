@@ -5,6 +5,7 @@ Frames pair by file stem (``io.list_frames``); scans are read by extension (``io
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,8 @@ from ilcc_graph.io.results import GROUND_TRUTH_FILE
 from ilcc_graph.types import Scan
 
 __all__ = ["FolderSource", "is_folder_source"]
+
+log = logging.getLogger(__name__)
 
 
 def is_folder_source(path: Path) -> bool:
@@ -36,12 +39,17 @@ class FolderSource(FrameSource):
         self.label = self.path.resolve().name or str(self.path)
         self.location = str(self.path)
         self._skipped: list[tuple[str, str]] = []
+        self._noted: set[str] = set()  # notes already said (frames() is called more than once)
 
     def config(self) -> Config:
         return load_config(self.path / "config.yaml")
 
     def frames(self, require_scan: bool = True, require_image: bool = True) -> list[FrameRef]:
         frames, self._skipped = list_frames(self.path, require_image=require_image, require_scan=require_scan)
+        for f in frames:
+            if f.note and f.note not in self._noted:
+                log.warning("%s: %s", self.path, f.note)
+                self._noted.add(f.note)
         return [FrameRef(f.name, f.scan, f.image) for f in frames]
 
     def skipped(self) -> list[tuple[str, str]]:

@@ -37,6 +37,8 @@ def _records(msg: Any, where: str) -> np.ndarray:
     """A PointCloud2's points as a structured array, from its own field list (any layout)."""
     end = ">" if msg.is_bigendian else "<"
     step, h, w = int(msg.point_step), int(msg.height), int(msg.width)
+    if step <= 0 or h < 0 or w < 0:
+        raise InputError(f"{where}: point_step {step}, height {h}, width {w}: not a point layout")
     names, formats, offsets = [], [], []
     for f in msg.fields:
         if f.datatype not in _PF:
@@ -55,7 +57,10 @@ def _records(msg: Any, where: str) -> np.ndarray:
         raise InputError(f"{where}: {data.size} data bytes do not hold {h} x {w} points of {step} bytes")
     rows = np.lib.stride_tricks.as_strided(data, (h, w * step), (row, 1)) if h else data[:0]
     dt = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
-    return np.ascontiguousarray(rows).reshape(-1).view(dt)
+    try:
+        return np.ascontiguousarray(rows).reshape(-1).view(dt)
+    except ValueError as err:  # fields that overlap or do not fit the record
+        raise InputError(f"{where}: the point fields do not make a record of {step} bytes ({err})") from None
 
 
 def _column(rec: np.ndarray, name: str) -> np.ndarray:

@@ -18,12 +18,19 @@ class FramePaths:
     """One frame: its name (the shared file stem), scan file and image file.
 
     ``scan`` / ``image`` are None only in frames listed with ``require_scan`` / ``require_image``
-    False.
+    False. ``note``: what a person should know about how the files were paired (a stem with two
+    scans, say), or None.
     """
 
     name: str
     scan: Path
     image: Path
+    note: str | None = None
+
+
+#: which file a frame uses when one stem has several (first wins): formats that name their fields
+#: and store intensity explicitly before headerless ones; lossless images before JPEG
+PREFERENCE = (".pcd", ".ply", ".csv", ".bin", ".png", ".tif", ".tiff", ".bmp", ".jpg", ".jpeg")
 
 
 def natural_key(s: str) -> tuple:
@@ -31,9 +38,19 @@ def natural_key(s: str) -> tuple:
     return tuple((0, int(t), "") if t.isdigit() else (1, 0, t.lower()) for t in re.split(r"(\d+)", s) if t)
 
 
+def _rank(p: Path) -> tuple[int, str]:
+    s = p.suffix.lower()
+    return (PREFERENCE.index(s) if s in PREFERENCE else len(PREFERENCE), p.name)
+
+
 def _by_stem(
-    folder: Path, suffixes: tuple[str, ...] | list[str], kind: str, skipped: list[tuple[str, str]]
+    folder: Path,
+    suffixes: tuple[str, ...] | list[str],
+    kind: str,
+    skipped: list[tuple[str, str]],
+    notes: dict[str, str],
 ) -> dict[str, Path]:
+    """stem -> the file of that stem (the preferred one when there are several, noted in ``notes``)."""
     out: dict[str, list[Path]] = {}
     for f in folder.iterdir():
         if f.name.startswith(".") or not f.is_file():
@@ -43,11 +60,16 @@ def _by_stem(
             continue
         out.setdefault(f.stem, []).append(f)
     single: dict[str, Path] = {}
+    what = "scans" if kind == "pcd" else "images"
     for stem, files in out.items():
+        files.sort(key=_rank)
+        single[stem] = files[0]
         if len(files) > 1:
-            skipped.append((stem, f"several {kind} files for one frame: {sorted(p.name for p in files)}"))
-        else:
-            single[stem] = files[0]
+            names = ", ".join(f"{kind}/{p.name}" for p in sorted(files))
+            notes[stem] = (
+                f"frame {stem} has {len(files)} {what} ({names}); using {files[0].name}; "
+                "remove the other(s) if they are not the same recording"
+            )
     return single
 
 
@@ -56,7 +78,8 @@ def list_frames(
 ) -> tuple[list[FramePaths], list[tuple[str, str]]]:
     """Pair ``data_dir/pcd/<stem>.*`` with ``data_dir/img/<stem>.*``.
 
-    Returns (frames in natural stem order, skipped [(stem, reason)]). A missing ``pcd`` or
+    Returns (frames in natural stem order, skipped [(stem, reason)]). A stem with several scans (or
+    images) uses the preferred file (``PREFERENCE``) and says so in the frame's ``note``. A missing ``pcd`` or
     ``img`` folder, or no frame at all, raises ``InputError``.
     require_image=False (LiDAR-only runs): every scan is a frame, ``image`` is None when it has
     no partner and ``img/`` may be absent. require_scan=False likewise for image-only runs.
@@ -68,14 +91,23 @@ def list_frames(
         if required and not (d / sub).is_dir():
             raise InputError(f"{d}: no '{sub}' folder (expected {d / 'pcd'} and {d / 'img'})")
     skipped: list[tuple[str, str]] = []
-    scans = _by_stem(d / "pcd", supported_scan_suffixes(), "pcd", skipped) if (d / "pcd").is_dir() else {}
-    images = _by_stem(d / "img", IMAGE_SUFFIXES, "img", skipped) if (d / "img").is_dir() else {}
+    notes: dict[str, str] = {}
+    scans = (
+        _by_stem(d / "pcd", supported_scan_suffixes(), "pcd", skipped, notes) if (d / "pcd").is_dir() else {}
+    )
+    img_notes: dict[str, str] = {}
+    images = _by_stem(d / "img", IMAGE_SUFFIXES, "img", skipped, img_notes) if (d / "img").is_dir() else {}
     stems = scans.keys() & images.keys()
     if not require_image:
         stems |= scans.keys()
     if not require_scan:
         stems |= images.keys()
-    frames = [FramePaths(s, scans.get(s), images.get(s)) for s in stems]  # type: ignore[arg-type]
+    frames = [
+        FramePaths(
+            s, scans.get(s), images.get(s), "; ".join(n[s] for n in (notes, img_notes) if s in n) or None
+        )
+        for s in stems
+    ]  # type: ignore[arg-type]
     skipped += [
         (s, f"scan {scans[s].name} has no image in img/") for s in scans.keys() - images.keys() - stems
     ]

@@ -14,6 +14,19 @@ __all__ = ["read_image", "write_image", "IMAGE_SUFFIXES"]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
+def _decode(cv2, buf: np.ndarray) -> np.ndarray | None:  # noqa: ANN001 - the cv2 module
+    """cv2.imdecode without OpenCV's own log lines on a damaged file (we say what is wrong)."""
+    log = getattr(getattr(cv2, "utils", None), "logging", None)
+    if log is None:
+        return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    level = log.getLogLevel()
+    log.setLogLevel(log.LOG_LEVEL_SILENT)
+    try:
+        return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    finally:
+        log.setLogLevel(level)
+
+
 def read_image(path: str | Path) -> np.ndarray:
     """Read an image as (H, W, 3) uint8 BGR.
 
@@ -31,7 +44,7 @@ def read_image(path: str | Path) -> np.ndarray:
         raise InputError(f"{p}: cannot read image ({e})") from None
     if buf.size == 0:
         raise InputError(f"{p}: empty image file")
-    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    img = _decode(cv2, buf)
     if img is None:
         raise InputError(f"{p}: cannot decode image (corrupt or not an image)")
     if img.dtype == np.uint16:

@@ -2,7 +2,8 @@
 
 calibration.yaml keys, in order: ``T_cam_lidar`` (4x4), ``covariance`` (6x6, GTSAM Pose3 tangent
 of T_cam_lidar, rotation first), ``sigma`` (square roots of the covariance diagonal in degrees and
-millimetres), ``frames`` (per frame: ``name``, ``used``, ``reason`` when dropped,
+millimetres), ``frames`` (per frame: ``name``, ``used``, ``reason`` when dropped, ``damaged: true``
+when a file of the frame could not be read,
 ``lidar_corners`` (K,3) LiDAR frame metres, ``image_corners`` (K,2) pixels,
 ``rms_bearing_error_mrad``, then ``T_lidar_board`` (4x4, the LiDAR stage's) and
 ``T_lidar_board_refined`` (4x4, the estimation core's) when known), then ``method``,
@@ -20,6 +21,7 @@ points, bearings, covariances) is not stored and is empty or NaN.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,6 +35,7 @@ from .files import read_yaml, write_yaml
 __all__ = [
     "write_calibration",
     "read_calibration",
+    "read_calibration_with_camera",
     "calibration_to_dict",
     "refined_corners",
     "GroundTruth",
@@ -60,6 +63,8 @@ def _frame_dict(f: FrameResult, refined: bool = False) -> dict[str, Any]:
     d: dict[str, Any] = {"name": str(f.name), "used": bool(f.used)}
     if f.reason is not None or not f.used:
         d["reason"] = f.reason or "not used"
+    if f.damaged:
+        d["damaged"] = True
     corners = refined_corners(f) if refined else None
     if corners is not None:
         d["lidar_corners"] = corners
@@ -264,6 +269,7 @@ def read_calibration(path: str | Path) -> Calibration:
                 corners=img,
                 rms_bearing_error_mrad=None if rms is None else float(rms),
                 T_lidar_board_refined=refined,
+                damaged=bool(fd.get("damaged", False)),
             )
         )
     diag = d.get("diagnostics") or {}
@@ -291,6 +297,19 @@ class GroundTruth:
     T_cam_lidar: np.ndarray
     T_lidar_board: dict[str, np.ndarray]
     extra: dict[str, Any] = field(default_factory=dict)
+
+
+def read_calibration_with_camera(path: str | Path) -> Calibration:
+    """``read_calibration``, with the camera from ``config.resolved.yaml`` beside the file when the file
+    has none (calibration.yaml of older versions), as ``export`` needs it."""
+    cal = read_calibration(path)
+    resolved = Path(path).parent / "config.resolved.yaml"
+    if cal.camera is None and resolved.is_file():
+        doc = read_yaml(resolved)
+        camera = doc.get("camera") if isinstance(doc, dict) else None
+        if camera is not None:
+            cal = dataclasses.replace(cal, camera=camera)
+    return cal
 
 
 def write_ground_truth(

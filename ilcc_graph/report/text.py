@@ -9,8 +9,25 @@ import numpy as np
 from ..estimation.incremental import FrameUpdate
 from ..estimation.sessions import JointSolution
 from ..types import Calibration, Estimate, sigmas_deg_mm
+from .sensors import sensors_text
 
-__all__ = ["format_joint", "format_table", "format_update", "frames_table", "summarise"]
+__all__ = [
+    "STAGE_HEADERS",
+    "evaluation_text",
+    "format_joint",
+    "format_table",
+    "format_update",
+    "frames_table",
+    "run_summary",
+    "stage_table",
+    "summarise",
+]
+
+#: the columns of the stage commands' tables (rows from ``outputs.write_stage``)
+STAGE_HEADERS = {
+    "lidar": ("frame", "found", "points", "reason"),
+    "image": ("frame", "found", "detector", "sigma px", "reason"),
+}
 
 
 def format_table(rows: Sequence[Sequence[object]], header: Sequence[str]) -> str:
@@ -132,3 +149,57 @@ def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = Non
     if target_sigma is not None:
         body += "  target reached" if u.reached_target else "  target not yet reached"
     return f"{head}  {body}"
+
+
+def run_summary(
+    cal: Calibration,
+    joint: JointSolution | None,
+    truth: np.ndarray | None,
+    out: object,
+    seconds: tuple[float, float],
+    report: bool,
+    notes: Sequence[str] = (),
+) -> str:
+    """What ``calibrate`` prints: the frames, the sessions' tests, the extrinsic, the sensors' own
+    error terms, the frame count
+    (and the damaged files), and where the result went. seconds: (calibrating, writing)."""
+    parts = [frames_table(cal), ""]
+    if joint is not None:
+        parts += [format_joint(joint), ""]
+    parts.append(summarise(cal.T_cam_lidar, cal.covariance, truth))
+    if sensor_lines := sensors_text(cal):
+        parts.append(sensor_lines)
+    if (vf := cal.diagnostics.get("variance_factor", 1.0)) > 1.0:
+        parts.append(
+            f"  (the residuals are {vf:.2f} x the stated noise variance: sigmas x {np.sqrt(vf):.2f})"
+        )
+    n_used = sum(f.used for f in cal.frames)
+    damaged = sum(f.damaged for f in cal.frames)
+    what = "calibration.yaml and the report" if report else "calibration.yaml"
+    hurt = f" ({damaged} skipped for damaged files)" if damaged else ""
+    parts.append(
+        f"\n{n_used} of {len(cal.frames)} frames used{hurt}; calibrated in {seconds[0]:.1f} s; "
+        f"wrote {what} to {out} ({seconds[1]:.1f} s)"
+    )
+    parts += list(notes)
+    return "\n".join(parts)
+
+
+def stage_table(
+    stage: str, rows: Sequence[Sequence[object]], skipped: Sequence[tuple[str, str]], out: object
+) -> str:
+    """What a stage command prints: its table, the frames skipped, where it wrote."""
+    lines = [format_table(rows, STAGE_HEADERS[stage])]
+    lines += [f"{name}: skipped ({why})" for name, why in skipped]
+    lines.append(f"wrote {out}")
+    return "\n".join(lines)
+
+
+def evaluation_text(
+    rows: tuple[Sequence[str], Sequence[Sequence[object]]], not_evaluated: Sequence[tuple[str, str]]
+) -> str:
+    """What ``evaluate`` prints: the frames not evaluated and why, then the metric's table."""
+    header, body = rows
+    lines = [f"{name}: not evaluated ({why})" for name, why in not_evaluated]
+    lines.append(format_table(body, header))
+    return "\n".join(lines)

@@ -15,13 +15,15 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from .. import signals
+from ..errors import InputError
 from ..io import write_image, write_pcd, write_yaml
 from ..io.scans import write_csv
 from .frames import ground_truth, simulate_frames
-from .intrinsics import stated_camera
-from .spec import SimulationSpec
+from .intrinsics import IntrinsicsError, stated_camera
+from .spec import SimulationSpec, standard_spec
 
-__all__ = ["simulate_dataset", "config_dict"]
+__all__ = ["simulate_dataset", "config_dict", "write_standard_set"]
 
 
 def config_dict(spec: SimulationSpec) -> dict:
@@ -49,6 +51,11 @@ def simulate_dataset(
         raise FileExistsError(f"{out}: exists and is not an empty folder")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    with signals.on_stop(lambda: shutil.rmtree(tmp, ignore_errors=True)):
+        return _write(out, tmp, spec, progress)
+
+
+def _write(out: Path, tmp: Path, spec: SimulationSpec, progress: Callable[[int, int], None] | None) -> Path:
     try:
         write_yaml(tmp / "config.yaml", config_dict(spec))
         names, poses = [], []
@@ -88,3 +95,29 @@ class _Pose:
 
     def __init__(self, name: str, T) -> None:
         self.name, self.T_lidar_board = name, T
+
+
+def write_standard_set(
+    out: Path | str,
+    progress: Callable[[int, int], None] | None = None,
+    intrinsics_error: float = 0.0,
+    **spec: object,
+) -> SimulationSpec:
+    """The standard set (``standard_spec(**spec)``, stated intrinsics off by ``intrinsics_error`` x a
+    typical error) written to ``out``; InputError naming the option or the folder when it cannot be."""
+    try:
+        s = standard_spec(intrinsics_error=IntrinsicsError.typical(intrinsics_error), **spec)  # type: ignore[arg-type]
+    except ValueError as err:
+        raise InputError(f"simulate: {err}") from None
+    parent = Path(out).parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(f"{out}: {parent} is a file, so the data set's folder cannot be made under it")
+    try:
+        simulate_dataset(Path(out), s, progress=progress)
+    except FileExistsError as err:
+        raise InputError(f"{err}; choose a new folder") from None
+    except OSError as err:
+        raise InputError(f"{out}: cannot write the data set ({err.strerror or err})") from None
+    return s

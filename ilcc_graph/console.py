@@ -1,0 +1,167 @@
+"""What the command line needs around a run: a progress bar, argument value types, the log of a bug.
+
+- ``Progress(desc)``: the one progress-bar helper, a ``(done, total)`` callback drawing on stderr.
+- value types for argparse (``COUNT``, ``PIXELS``, ``SEED``, ``NON_NEGATIVE``, ``POSITIVE``, ``RATE``,
+  ``DEG_MM``):
+  a wrong value is argparse's usage error (exit 2) naming the flag, e.g. ``simulate --frames 0``.
+- ``run_command(fn, out, debug)``: a command under ``signals.stop_on_signals`` with its
+  outcome as the exit code (interface.md): 0; 2 and one line for an ``InputError``; 3 for a
+  calibration the data cannot give; 130 / 143 / 129 and one line for SIGINT / SIGTERM / SIGHUP;
+  1 for an internal error (``report_bug``: one line, the traceback in a log file beside the output
+  folder, ``<out>.error.log``, since the output folder itself is complete or absent; or in the
+  temporary folder; and on stderr with ``--debug``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import sys
+import tempfile
+import traceback
+from collections.abc import Callable
+from pathlib import Path
+
+from ilcc_graph import signals
+from ilcc_graph.errors import (
+    EXIT_BUG,
+    EXIT_IMPOSSIBLE,
+    EXIT_INPUT,
+    CalibrationImpossible,
+    IndeterminateSystem,
+    InputError,
+)
+
+__all__ = [
+    "COUNT",
+    "DEG_MM",
+    "NON_NEGATIVE",
+    "PIXELS",
+    "POSITIVE",
+    "RATE",
+    "SEED",
+    "Progress",
+    "report_bug",
+    "run_command",
+    "setup_logging",
+]
+
+
+class Progress:
+    """One progress-bar helper: a callback (done, total) drawing a tqdm bar on stderr."""
+
+    def __init__(self, desc: str) -> None:
+        self.desc, self.bar = desc, None
+
+    def __call__(self, done: int, total: int) -> None:
+        if self.bar is None:
+            from tqdm import tqdm
+
+            self.bar = tqdm(
+                total=total, desc=self.desc, unit="frame", leave=False, file=sys.stderr, disable=None
+            )
+        self.bar.n = done
+        self.bar.refresh()
+        if done >= total:
+            self.bar.close()
+
+
+def _number(kind: type, lo: float, what: str, hi: float = math.inf) -> Callable[[str], float]:
+    """An argparse type: a ``kind`` in [lo, hi]; argparse names the flag in its message (exit 2)."""
+
+    def parse(text: str) -> float:
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if not (math.isfinite(v) and lo <= v <= hi):
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}")
+        return v
+
+    return parse
+
+
+COUNT = _number(int, 1, "a whole number >= 1")
+PIXELS = _number(int, 64, "a whole number of pixels >= 64")
+SEED = _number(int, 0, "a whole number >= 0")
+NON_NEGATIVE = _number(float, 0.0, "a number >= 0")
+POSITIVE = _number(float, 1e-12, "a number > 0")
+RATE = _number(float, 1e-12, "a number between 0 and 1", 1 - 1e-12)
+
+
+def DEG_MM(text: str) -> tuple[float, float]:  # noqa: N802 - an argparse type, named like the others
+    """'DEG,MM' -> (deg, mm), both positive (an argparse type)."""
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected DEG,MM (e.g. 0.05,1.0), got {text!r}") from None
+    if not (a > 0 and b > 0 and math.isfinite(a + b)):
+        raise argparse.ArgumentTypeError(f"expected two positive numbers DEG,MM, got {text!r}")
+    return a, b
+
+
+def setup_logging(verbose: bool) -> None:
+    """INFO on stderr; DEBUG for our own loggers with ``verbose`` (not every library's)."""
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(message)s")
+    logging.getLogger("ilcc_graph").setLevel(logging.DEBUG if verbose else logging.INFO)
+
+
+def report_bug(err: BaseException, out: Path | None, debug: bool, argv: list[str] | None = None) -> int:
+    """Say an internal error in one line, keep its traceback in a log file; returns exit code 1."""
+    text = "".join(traceback.format_exception(type(err), err, err.__traceback__))
+    command = "ilcc-graph " + " ".join(sys.argv[1:] if argv is None else argv)
+    candidates = [Path(f"{out}.error.log")] if out is not None else []
+    candidates.append(Path(tempfile.gettempdir()) / f"ilcc-graph-error-{os.getpid()}.log")
+    where = None
+    for path in candidates:
+        try:
+            path.write_text(f"{command}\n{text}", encoding="utf-8")
+        except OSError:
+            continue
+        where = path
+        break
+    if debug:
+        print(text, file=sys.stderr, end="")
+    note = f"; the traceback is in {where}" if where else ""
+    print(f"internal error (a bug, please report it): {type(err).__name__}: {err}{note}", file=sys.stderr)
+    return EXIT_BUG
+
+
+def run_command(
+    fn: Callable[[], int], out: Callable[[], Path | None], debug: Callable[[], bool] = lambda: False
+) -> int:
+    """``fn()`` with signals handled, its outcome as the exit code (module docstring).
+
+    out: where the command's output folder is (once it has decided), for an internal error's log;
+    debug: whether to show that error's traceback.
+    """
+    with signals.stop_on_signals():
+        try:
+            code = fn()
+            signals.check()  # a stop swallowed on its way (signals.py) still stops
+            return code
+        except signals.Stopped as err:
+            signals.announce(err)
+            return err.exit_code
+        except Exception as err:
+            if (signum := signals.stop_requested()) is None:
+                return _failure(err, out, debug)
+            stop = signals.Stopped(signum)  # what the stop broke on its way (the worker pool, say)
+            signals.announce(stop)
+            return stop.exit_code
+        except KeyboardInterrupt:  # outside the main thread: no handler of ours
+            print("interrupted", file=sys.stderr)
+            return 130
+
+
+def _failure(err: Exception, out: Callable[[], Path | None], debug: Callable[[], bool]) -> int:
+    """The exit code of an exception that is not a stop, its message printed."""
+    if isinstance(err, InputError):
+        print(f"error: {err}", file=sys.stderr)
+        return EXIT_INPUT
+    if isinstance(err, (CalibrationImpossible, IndeterminateSystem)):
+        print(f"calibration impossible: {err}", file=sys.stderr)
+        return EXIT_IMPOSSIBLE
+    return report_bug(err, out(), debug())  # a bug: a short message, the traceback in a log

@@ -1,0 +1,28 @@
+"""A calibration judged on a data set's frames (the ``evaluate`` command): observe, then the metric.
+
+The frames may be ones the calibration did not use (hold-out frames of another recording); the
+paper's intensity re-projection error and the corner errors come from ``report.metric``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ilcc_graph.datasets import FrameSource
+from ilcc_graph.observe import Progress, StageOptions, observe
+from ilcc_graph.report import Evaluation, eval_frames, evaluate
+
+__all__ = ["evaluate_on"]
+
+
+def evaluate_on(
+    source: FrameSource,
+    T_cam_lidar: np.ndarray,
+    stages: StageOptions = StageOptions(),
+    progress: Progress | None = None,
+) -> tuple[Evaluation, list[tuple[str, str]]]:
+    """(the metric of ``T_cam_lidar`` (4, 4) on the source's frames, [(frame, why not evaluated)])."""
+    obs = observe(source, stages, progress)
+    skipped = [(r.name, r.reason or "no board") for r in obs.frames if r.board is None or r.corners is None]
+    ev = evaluate(eval_frames(obs.frames), obs.config.camera, obs.config.board, np.asarray(T_cam_lidar))
+    return ev, skipped

@@ -1,0 +1,318 @@
+"""One-line diagnoses of the common set-up mistakes, from both sensors' evidence.
+
+A wrong ``board.square_size`` or ``board.squares`` does not make a frame fail in a way that names
+it: the LiDAR stage reports a board-shaped object whose pattern it cannot fit, or the image stage
+no chessboard, and the run ends with "no frame has the board" (or, worse, with a few frames that
+passed by chance). These checks look for the evidence and say what is likely wrong, in one line:
+
+- ``board.square_size``: the images say the board moved k times as far between two frames as the
+  scans say (``board_scale``: the distance between two poses of the board is the same in both
+  sensors' frames, no extrinsic needed; from the image it scales with the configured square size);
+  when no frame has the board in both sensors, the LiDAR stage is tried with scaled square sizes,
+  and the scale at which both sensors agree must show the board in the scans too.
+- ``board.squares``: beyond the detected corners the image shows the checker pattern going on (a
+  part of a bigger print was found); or, when the images show no board, the image stage finds one
+  with a square fewer on both sides (squares counted as inner corners), and so does the LiDAR stage.
+- the camera's intrinsics: most images' corners do not fit a board seen through them.
+
+The LiDAR model is checked when the scans are read (``observe.resolve_lidar`` warns when the
+measured beam table contradicts ``lidar.model``); the image size in ``damage.check_image_size``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Sequence
+
+import numpy as np
+
+from ilcc_graph.board import Board
+from ilcc_graph.config import Config
+from ilcc_graph.errors import FrameError, InputError
+from ilcc_graph.init import upnp
+from ilcc_graph.observe import Observation, StageOptions, observe_image, observe_lidar
+from ilcc_graph.types import Calibration, ImageCorners
+
+log = logging.getLogger(__name__)
+
+__all__ = ["board_scale", "diagnose_failure", "diagnose_result", "pattern_continues"]
+
+#: square-size factors tried when the configured board is found in no scan
+SCALES = (0.8, 0.85, 0.9, 0.95, 1.05, 1.1, 1.15, 1.2, 1.25)
+LOOK = 3  # frames looked at per check (each check runs a stage per frame)
+SCALE_TOL = 0.03  # board_scale within this of 1 is normal (the recorded sets: 1.003, 1.006)
+
+
+def _centre_image(corners: ImageCorners, board: Board) -> np.ndarray | None:
+    """(3,) the pattern's centre in the camera frame from the image corners and the board (UPnP)."""
+    b = corners.bearings / np.linalg.norm(corners.bearings, axis=1, keepdims=True)
+    ok = np.all(np.isfinite(b), axis=1)
+    if ok.sum() < 6:
+        return None
+    T = upnp(board.corners_board()[ok], b[ok], prefer_front=True)[0].T_cam_points
+    return T[:3, :3] @ board.pattern_centre + T[:3, 3]
+
+
+def board_scale(
+    pairs: Sequence[tuple[ImageCorners, np.ndarray]], board: Board, min_apart_m: float = 0.3
+) -> tuple[float, float, int] | None:
+    """How much bigger the images say the board's moves are than the scans: (median k, spread, pairs).
+
+    pairs: per frame the image corners and the LiDAR's (4, 4) ``T_lidar_board``. For two frames the
+    distance between the pattern's centres is the same in either sensor's frame (no extrinsic
+    needed); from the image it scales with the configured square size, from the scans it does not.
+    So k = s_configured / s_print (1 when the square size is right; the recorded sets give 1.003 and
+    1.006, a simulated square 6 % too small 0.940). Pairs closer than ``min_apart_m`` are left out.
+    spread: the median absolute deviation of the pairs' ratios. None with fewer than two frames.
+    """
+    cam, lid = [], []
+    for corners, T in pairs:
+        c = _centre_image(corners, board)
+        if c is not None:
+            cam.append(c)
+            lid.append(T[:3, :3] @ board.pattern_centre + T[:3, 3])
+    ratios = []
+    for i in range(len(cam)):
+        for j in range(i + 1, len(cam)):
+            d_cam, d_lid = float(np.linalg.norm(cam[i] - cam[j])), float(np.linalg.norm(lid[i] - lid[j]))
+            if d_cam >= min_apart_m and d_lid > 0:
+                ratios.append(d_cam / d_lid)
+    if not ratios:
+        return None
+    k = float(np.median(ratios))
+    return k, float(np.median(np.abs(np.asarray(ratios) - k))), len(ratios)
+
+
+def _square_size_line(board: Board, k: float, evidence: str) -> str:
+    """k: the print's square = k x the configured one."""
+    return (
+        f"board.square_size {board.square_size:g} m looks wrong: {evidence}; a square of this print is "
+        f"about {k * board.square_size:.4f} m (measure one and set board.square_size)"
+    )
+
+
+def pattern_continues(image: np.ndarray, config: Config, corners: ImageCorners) -> tuple[int, int]:
+    """(extra rows, extra cols) of squares the image shows beyond the board's pattern (0, 0 when none).
+
+    The pattern's pose comes from the image corners (UPnP); the grey level at the centre of each
+    square of the ring just outside the pattern is classed against the pattern's own black and white
+    squares. A side whose ring continues the checker colours (>= 85 % of its squares; a margin,
+    the board's edge or the background match about half) counts as one more row or column.
+    """
+    board, camera = config.board, config.camera
+    b = corners.bearings / np.linalg.norm(corners.bearings, axis=1, keepdims=True)
+    if not np.all(np.isfinite(b)):
+        return 0, 0
+    T = upnp(board.corners_board(), b, prefer_front=True)[0].T_cam_points
+    gray = image.mean(axis=2) if image.ndim == 3 else image.astype(np.float64)
+    s, R, C = board.square_size, board.rows, board.cols
+
+    def sample(rc: np.ndarray) -> np.ndarray:
+        xy = (rc[:, ::-1] + 0.5) * s  # square (r, c) centre: x along the columns, y along the rows
+        p = np.c_[xy, np.zeros(len(xy))] @ T[:3, :3].T + T[:3, 3]
+        uv = camera.project(p)
+        out = np.full(len(rc), np.nan)
+        ok = np.all(np.isfinite(uv), axis=1) & camera.in_image(uv)
+        if ok.any():
+            u, v = np.round(uv[ok]).astype(int).T
+            out[ok] = gray[np.clip(v, 0, gray.shape[0] - 1), np.clip(u, 0, gray.shape[1] - 1)]
+        return out
+
+    inside = np.array([(r, c) for r in range(R) for c in range(C)])
+    black = (inside.sum(axis=1) % 2 == 0) == (board.lower_left == "black")
+    level = sample(inside)
+    if not (np.isfinite(level).all() and np.nanmean(level[~black]) > np.nanmean(level[black]) + 20):
+        return 0, 0  # the pattern itself is not seen clearly enough to judge
+    split = 0.5 * (np.nanmean(level[~black]) + np.nanmean(level[black]))
+    sides = {
+        "top": np.array([(-1, c) for c in range(C)]),
+        "bottom": np.array([(R, c) for c in range(C)]),
+        "left": np.array([(r, -1) for r in range(R)]),
+        "right": np.array([(r, C) for r in range(R)]),
+    }
+    going_on = {}
+    for name, rc in sides.items():
+        g = sample(rc)
+        ok = np.isfinite(g)
+        want_black = (rc.sum(axis=1) % 2 == 0) == (board.lower_left == "black")
+        going_on[name] = ok.sum() >= 0.8 * len(rc) and np.mean((g[ok] < split) == want_black[ok]) >= 0.85
+    return int(going_on["top"]) + int(going_on["bottom"]), int(going_on["left"]) + int(going_on["right"])
+
+
+def _dims_line(board: Board, squares: tuple[int, int], evidence: str, at_least: bool = False) -> str:
+    return (
+        f"board.squares [{board.rows}, {board.cols}] looks wrong: {evidence}; the print has "
+        f"{'at least ' if at_least else ''}[{squares[0]}, {squares[1]}] squares (count the squares, not "
+        "the inner corners, along the short and the long side)"
+    )
+
+
+def diagnose_result(obs: Observation, cal: Calibration, images: int = 2) -> list[str]:
+    """Set-up mistakes a finished calibration shows (module docstring); one line each. Reads
+    ``images`` of the used frames' images again (the pattern check)."""
+    lines = []
+    board = obs.config.board
+    used = {f.name for f in cal.frames if f.used}
+    frames = [f for f in obs.frames if f.name in used]
+    both = [(f.corners, f.board.T_lidar_board) for f in obs.frames if f.corners is not None and f.board]
+    scale = board_scale(both, board)  # type: ignore[arg-type]
+    if (
+        scale is not None
+        and scale[2] >= 3
+        and abs(scale[0] - 1) > SCALE_TOL
+        and scale[1] < abs(scale[0] - 1) / 3
+    ):
+        k, _, n = scale
+        ev = f"the images make the board's moves between frames {k:.3f} x what the scans give ({n} pairs)"
+        lines.append(_square_size_line(board, 1 / k, ev))
+    refs = {r.name: r for r in obs.source.frames()}
+    extra = []
+    for f in frames[:images]:
+        if f.corners is None or f.name not in refs:
+            continue
+        try:
+            image = obs.source.read_image(refs[f.name])
+        except InputError:
+            continue
+        extra.append(pattern_continues(image, obs.config, f.corners))
+    if len(extra) >= 2:
+        e_rows, e_cols = (int(np.median([e[i] for e in extra])) for i in range(2))
+        if e_rows or e_cols:
+            n = sum(1 for e in extra if e != (0, 0))
+            ev = f"beyond the detected corners the checker pattern continues ({n} of {len(extra)} images)"
+            lines.append(_dims_line(board, (board.rows + e_rows, board.cols + e_cols), ev, at_least=True))
+    return lines
+
+
+def _found(results: Sequence[object]) -> int:
+    return sum(1 for r in results if not isinstance(r, FrameError))
+
+
+def _attempt(fn, *args):  # noqa: ANN001, ANN202 - a stage's result or its FrameError
+    try:
+        return fn(*args)
+    except FrameError as err:
+        return err
+
+
+def _with_board(config: Config, **changes: object) -> Config:
+    return dataclasses.replace(config, board=dataclasses.replace(config.board, **changes))
+
+
+def _scaled(config: Config, k: float) -> Config:
+    b = config.board
+    return _with_board(
+        config, square_size=b.square_size * k, margin_long=b.margin_long * k, margin_short=b.margin_short * k
+    )
+
+
+def _square_size_search(obs: Observation, stages: StageOptions, refs: dict) -> str | None:
+    """When the scans show no board: the LiDAR stage with scaled square sizes, checked by the images.
+
+    A scale at which the scans show the board gives its distances; the images' distances with the
+    configured board against them say the square size the print has (k_img); the scans must show
+    the board at that size too.
+    """
+    cfg, board = obs.config, obs.config.board
+    frames = [
+        f
+        for f in obs.frames
+        if f.corners is not None and f.board is None and not f.damaged and f.name in refs
+    ][:LOOK]
+    need = min(2, len(frames))
+    if not frames:
+        return None
+
+    def lidar(k: float) -> list:
+        return [
+            _attempt(observe_lidar, obs.source, refs[f.name], _scaled(cfg, k), stages.lidar) for f in frames
+        ]
+
+    found = next(
+        ((k, fits) for k in sorted(SCALES, key=lambda x: abs(x - 1)) if _found(fits := lidar(k)) >= need),
+        None,
+    )
+    if found is None:
+        return None
+    k, fits = found
+    pairs = [
+        (f.corners, fit.T_lidar_board)
+        for f, fit in zip(frames, fits, strict=True)
+        if not isinstance(fit, FrameError)
+    ]
+    scale = board_scale(pairs, _scaled(cfg, k).board)  # type: ignore[arg-type]
+    if scale is None:
+        return None
+    k_img = k / scale[0]  # with square size s k, the images' moves are scale[0] x the scans'
+    if abs(k_img - 1) <= SCALE_TOL or (n := _found(lidar(k_img))) < need:
+        return None
+    ev = (
+        f"the scans show the board in none of {len(frames)} frames with it, and in {n} with the square size "
+        "at which the images and the scans agree on how far the board moved between frames"
+    )
+    return _square_size_line(board, k_img, ev)
+
+
+def _board_dims_search(obs: Observation, stages: StageOptions, refs: dict) -> str | None:
+    """Other board dimensions (a square more or fewer on both sides) that both sensors prefer.
+
+    Image evidence: the image stage finds the other board where the configured one is not found,
+    or the checker pattern continues beyond the corners found (``pattern_continues``). LiDAR
+    evidence: the LiDAR stage finds the other board in more of the same frames.
+    """
+    cfg, board = obs.config, obs.config.board
+    usable = [f for f in obs.frames if not f.damaged and f.name in refs]
+    with_corners = [f for f in usable if f.corners is not None][:LOOK]
+    without = [f for f in usable if f.corners is None][:LOOK]
+    continues = []
+    for f in with_corners:
+        try:
+            image = obs.source.read_image(refs[f.name])
+        except InputError:
+            continue
+        continues.append(pattern_continues(image, cfg, f.corners) != (0, 0))  # type: ignore[arg-type]
+    for rows, cols in ((board.rows + 1, board.cols + 1), (board.rows - 1, board.cols - 1)):
+        if rows < 3:
+            continue
+        alt = _with_board(cfg, rows=rows, cols=cols)
+        img = _found([_attempt(observe_image, obs.source, refs[f.name], alt, stages.image) for f in without])
+        tried = len(without)
+        if rows > board.rows:
+            img, tried = img + sum(continues), tried + len(continues)
+        if img == 0 or img < min(2, tried):
+            continue
+        frames = (without + with_corners)[:LOOK]
+        given = sum(f.board is not None for f in frames)
+        lid = _found([_attempt(observe_lidar, obs.source, refs[f.name], alt, stages.lidar) for f in frames])
+        if lid <= given:
+            continue
+        ev = (
+            f"the images show a [{rows}, {cols}]-square chessboard in {img} of {tried} frames looked at, "
+            f"the scans a board of that size in {lid} of {len(frames)} ({given} with the value given)"
+        )
+        return _dims_line(board, (rows, cols), ev)
+    return None
+
+
+def diagnose_failure(observations: Sequence[Observation], stages: StageOptions = StageOptions()) -> list[str]:
+    """Set-up mistakes that explain a calibration the data cannot give; one line each (runs the
+    stages again on a few frames with other board settings: seconds)."""
+    lines: list[str] = []
+    for obs in observations:
+        refs = {r.name: r for r in obs.source.frames()}
+        for check in (_board_dims_search, _square_size_search):
+            line = check(obs, stages, refs)
+            if line:
+                lines.append(line)
+                break
+        else:
+            images = [f for f in obs.frames if f.reason and not f.damaged]
+            bad_fit = [f for f in images if "seen by a pinhole" in (f.reason or "")]
+            if len(bad_fit) >= max(2, len(images) // 2):
+                lines.append(
+                    f"the camera's intrinsics look wrong: in {len(bad_fit)} of {len(images)} images the "
+                    "corners do not fit a flat board seen through them (check camera.K, camera.dist, the "
+                    "model and the image size)"
+                )
+    return lines

@@ -1,0 +1,208 @@
+"""The per-frame stages' worker processes: started safely, stopped with the run.
+
+``map_processes(fn, items, jobs, progress)`` computes ``fn(*item)`` for every item, in order, on
+``jobs`` processes (in this process when ``jobs <= 1``).
+
+- Workers come from a ``forkserver``: a clean process that imports the stages once and forks each
+  worker from itself, never from the main process. The main process has threads by then (OpenBLAS's,
+  OpenCV's, the pool's own, a progress bar's); a fork copies the locks they hold and not the threads,
+  so a child can wait forever on a lock nobody will release (a ``--jobs 2`` run hung at the start of
+  its pool, issue 14). The server is started early (``prestart``) so that its imports overlap the
+  main process's work; docs/faults.md has the measured cost.
+- Workers ignore SIGINT (a terminal's Ctrl-C reaches the whole process group: the main process
+  decides, and ends them; the fork server too, from its first import) and end with the main
+  process (a thread waits on it) or their parent (Linux ``PR_SET_PDEATHSIG``), so even a run
+  killed with SIGKILL leaves none behind: the server ends when the last of them has.
+- When the main process leaves the map by an exception (a signal's ``Stopped``, an input error, a
+  bug) the queued work is cancelled and the workers are terminated at once instead of being waited for.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import multiprocessing
+import os
+import select
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from typing import Any
+
+from ilcc_graph import signals
+
+log = logging.getLogger(__name__)
+
+__all__ = ["START_METHOD", "map_processes", "prestart"]
+
+#: how worker processes are started (see the module docstring)
+START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+#: what the fork server imports once, so that a worker starts with the stages loaded
+PRELOAD = ["ilcc_graph._forkserver_preload", "ilcc_graph.observe"]
+
+Progress = Callable[[int, int], None]
+
+_PR_SET_PDEATHSIG = 1
+
+
+def _context() -> multiprocessing.context.BaseContext:
+    ctx = multiprocessing.get_context(START_METHOD)
+    if START_METHOD == "forkserver":
+        ctx.set_forkserver_preload(PRELOAD)
+    return ctx
+
+
+def prestart() -> None:
+    """Start the fork server now (it imports the stages while the caller goes on); cheap when running.
+
+    The server ignores SIGINT from its first import on (``_forkserver_preload``).
+    """
+    if START_METHOD != "forkserver":
+        return
+    _context()
+    from multiprocessing import forkserver
+
+    forkserver.ensure_running()
+    signals.at_stop(_stop_server)
+
+
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (Linux /proc; elsewhere none)."""
+    out = []
+    with contextlib.suppress(OSError):
+        for entry in os.scandir("/proc"):
+            if not entry.name.isdigit():
+                continue
+            try:
+                with open(f"/proc/{entry.name}/stat", "rb") as f:
+                    fields = f.read().rsplit(b")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                out.append(int(entry.name))
+    return out
+
+
+def _stop_server() -> None:
+    """End the fork server and every worker it forked, now (a stop). The server would end by itself
+    once this process has, but only after its imports (seconds); a worker still starting is in no
+    pool's list yet, and would fail on the pool's semaphores once they are released."""
+    from multiprocessing import forkserver
+
+    pid = getattr(getattr(forkserver, "_forkserver", None), "_forkserver_pid", None)  # no public accessor
+    if not pid:
+        return
+    with contextlib.suppress(OSError):
+        os.kill(pid, signal.SIGSTOP)  # no new worker from now on
+        for child in _children(pid):
+            with contextlib.suppress(OSError):
+                os.kill(child, signal.SIGKILL)
+        os.kill(pid, signal.SIGKILL)
+
+
+def _die_with_parent() -> None:
+    """Ask the kernel to kill this process when its parent ends (Linux; elsewhere nothing)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+    except (OSError, AttributeError):  # no libc symbol: the pool's own checks remain
+        return
+
+
+def _exit_with(pid: int) -> None:
+    """End this worker when process ``pid`` (the run's main process) ends, from a watching thread.
+
+    A fork server's worker is the server's child, not the main process's, and holds the server's
+    keep-alive pipe: without this a killed run's workers and server would wait for each other forever.
+    """
+
+    def wait() -> None:
+        try:
+            fd = os.pidfd_open(pid)  # Linux 5.3+: readable when the process ends
+        except (AttributeError, OSError):
+            fd = None
+        if fd is not None:
+            select.select([fd], [], [])
+        else:
+            while True:
+                time.sleep(0.5)
+                try:
+                    os.kill(pid, 0)
+                except ProcessLookupError:
+                    break
+                except PermissionError:
+                    continue
+        os._exit(1)
+
+    threading.Thread(target=wait, name="ilcc-graph-parent", daemon=True).start()
+
+
+def _init_worker(main_pid: int) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    _die_with_parent()
+    _exit_with(main_pid)
+
+
+def _terminate(pool: ProcessPoolExecutor) -> None:
+    """Cancel what is queued and end the workers now (not after their current frame)."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())  # no public accessor before 3.14
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.terminate()
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.join(timeout=1.0)
+            if p.is_alive():
+                p.kill()
+                p.join(timeout=1.0)
+
+
+@contextlib.contextmanager
+def _pool(jobs: int) -> Iterator[ProcessPoolExecutor]:
+    prestart()
+    pool = ProcessPoolExecutor(
+        max_workers=jobs, mp_context=_context(), initializer=_init_worker, initargs=(os.getpid(),)
+    )
+    with signals.on_stop(lambda: _terminate(pool)):
+        try:
+            yield pool
+        except BaseException:
+            _terminate(pool)
+            raise
+    pool.shutdown(wait=True)
+
+
+def map_processes(
+    fn: Callable[..., Any], items: Sequence[tuple], jobs: int, progress: Progress | None = None
+) -> list[Any]:
+    """``[fn(*item) for item in items]`` on ``jobs`` processes, in order; ``progress(done, total)``.
+
+    ``fn`` and the items must be picklable (``fn`` a module-level function). An exception ``fn``
+    raises in a worker is raised here, after the other workers have been terminated.
+    """
+    out: list[Any] = []
+    if jobs <= 1 or len(items) <= 1:
+        for i, it in enumerate(items):
+            signals.check()
+            out.append(fn(*it))
+            if progress:
+                progress(i + 1, len(items))
+        return out
+    with _pool(min(jobs, len(items))) as pool:
+        futures = [pool.submit(fn, *it) for it in items]
+        for i, fut in enumerate(futures):
+            out.append(fut.result())
+            signals.check()
+            if progress:
+                progress(i + 1, len(items))
+    log.debug("%d items on %d %s workers (pid %d)", len(items), jobs, START_METHOD, os.getpid())
+    return out

@@ -1,0 +1,141 @@
+"""Signals at several moments of a real command-line run (a subprocess on a small simulated set).
+
+SIGTERM (what ``timeout`` and schedulers send), Ctrl-C (SIGINT to the whole process group, as a
+terminal sends it) and SIGKILL, while starting, in the worker pool, while estimating and while
+writing: the run stops within a few seconds, prints one line, exits 130 / 143, leaves no process of
+its tree behind and no partial output (the folder complete or absent, no staging folder).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from ilcc_graph.cli import main
+
+pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("signals") / "sim"
+    assert main(["simulate", str(out), "--frames", "4", "--seed", "2", "--width", "2000"]) == 0
+    return out
+
+
+def _group(pgid: int) -> list[int]:
+    """Live processes of a process group."""
+    out = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            out.append(int(pid))
+    return out
+
+
+class Run:
+    """``ilcc-graph -v calibrate DATA --out OUT --jobs 2`` in its own process group, stderr collected."""
+
+    def __init__(self, data: Path, out: Path, ignore_sigint: bool = False, report: bool = False) -> None:
+        self.out = out
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+        cmd = [sys.executable, "-m", "ilcc_graph.cli", "-v", "calibrate", str(data), "--out", str(out)]
+        pre = (lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if ignore_sigint else None
+        cmd += ["--jobs", "2", *([] if report else ["--no-report"])]
+        self.p = subprocess.Popen(
+            cmd,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            env=env,
+            start_new_session=True,
+            preexec_fn=pre,
+        )
+        self.lines: list[str] = []
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self) -> None:
+        for raw in self.p.stderr:  # type: ignore[union-attr]
+            self.lines.append(raw.decode(errors="replace").rstrip())
+
+    def wait_for(self, what: str, ok, timeout: float = 120.0) -> None:  # noqa: ANN001
+        t0 = time.monotonic()
+        while not ok():
+            assert self.p.poll() is None, f"the run ended before {what}: {self.lines[-5:]}"
+            assert time.monotonic() - t0 < timeout, f"no {what} after {timeout} s"
+            time.sleep(0.01)
+
+    def workers_up(self) -> bool:
+        return len(_group(self.p.pid)) >= 4  # main, fork server, resource tracker, a worker
+
+    def stop(self, sig: int, group: bool = False) -> tuple[int, float]:
+        """Send ``sig``; (exit code, seconds until the whole process tree is gone)."""
+        t0 = time.monotonic()
+        (os.killpg if group else os.kill)(self.p.pid, sig)
+        rc = self.p.wait(timeout=30)
+        while _group(self.p.pid) and time.monotonic() - t0 < 10:
+            time.sleep(0.01)
+        left = _group(self.p.pid)
+        for pid in left:
+            os.kill(pid, signal.SIGKILL)
+        assert left == [], f"processes left behind: {left}"
+        self.reader.join(timeout=5)
+        return rc, time.monotonic() - t0
+
+    def check_stopped(self, rc: int, seconds: float, code: int) -> None:
+        assert rc == code, self.lines[-10:]
+        assert seconds < 3.0, f"took {seconds:.1f} s to stop"
+        assert not any("Traceback" in ln for ln in self.lines), self.lines
+        said = [ln for ln in self.lines if ln.startswith("ilcc-graph: ")]
+        assert len(said) == 1 and self.lines[-1] == said[0] and "stopped" in said[0], self.lines[-5:]
+        assert not self.out.exists()
+        assert not [p for p in self.out.parent.iterdir() if ".partial-" in p.name]
+
+
+def test_sigterm_while_starting(data, tmp_path):
+    run = Run(data, tmp_path / "run")
+    time.sleep(0.3)  # importing, reading the config
+    run.check_stopped(*run.stop(signal.SIGTERM), 143)
+
+
+def test_sigterm_in_the_worker_pool(data, tmp_path):
+    run = Run(data, tmp_path / "run")
+    run.wait_for("worker processes", run.workers_up)
+    run.check_stopped(*run.stop(signal.SIGTERM), 143)
+
+
+def test_ctrl_c_in_the_worker_pool_also_when_the_parent_ignores_sigint(data, tmp_path):
+    """Ctrl-C reaches the whole group (workers, fork server: no tracebacks); the run was started as a
+    script's background job is, with SIGINT ignored (such a SIGINT used to be swallowed: exit 0)."""
+    run = Run(data, tmp_path / "run", ignore_sigint=True)
+    run.wait_for("worker processes", run.workers_up)
+    run.check_stopped(*run.stop(signal.SIGINT, group=True), 130)
+
+
+def test_ctrl_c_while_estimating(data, tmp_path):
+    run = Run(data, tmp_path / "run")
+    run.wait_for("the estimation", lambda: any("estimating the extrinsic" in ln for ln in run.lines))
+    run.check_stopped(*run.stop(signal.SIGINT, group=True), 130)
+
+
+def test_sigterm_while_writing(data, tmp_path):
+    run = Run(data, tmp_path / "run", report=True)
+    run.wait_for("the staging folder", lambda: any(".partial-" in p.name for p in tmp_path.iterdir()))
+    run.check_stopped(*run.stop(signal.SIGTERM), 143)
+
+
+def test_sigkill_leaves_no_process_behind(data, tmp_path):
+    run = Run(data, tmp_path / "run")
+    run.wait_for("worker processes", run.workers_up)
+    rc, seconds = run.stop(signal.SIGKILL)  # asserts the tree is gone
+    assert rc == -signal.SIGKILL and seconds < 5.0
