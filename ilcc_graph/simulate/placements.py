@@ -2,13 +2,13 @@
 
 Default placements (LiDAR frame): frames are split over five horizontal directions (72 deg apart
 for a panoramic camera, whose columns wrap; spread over the horizontal field of view otherwise), four per
-direction for 20 frames. Each board sits 1.2-2.6 m away (``SceneOptions.board_distance_m``; the
-distances of one direction staggered over that range), its azimuth jittered by up to 12 deg, its centre
-at a height that keeps the whole board inside the LiDAR's vertical field of view; it faces the sensors
-(board z towards the point between LiDAR and camera), is turned 45 deg in its plane (a diamond; plus a
-random quarter turn and up to 8 deg jitter, so every corner of the pattern may end up lowest) and
-tilted by up to 15 deg (pitch) and 25 deg (yaw). A placement is redrawn until the board is fully
-inside the LiDAR's vertical field, inside the room and (not panoramic) inside the image with a 3 % border; after repeated
+direction for 20 frames. Each board sits 1.2-2.6 m away (``SceneOptions.board_distance_m``; the distances
+of one direction staggered over that range), its azimuth jittered by up to 12 deg, its centre at a height
+that keeps the whole board inside the LiDAR's vertical field of view; it faces the sensors (board z
+towards the point between LiDAR and camera), is turned 45 deg in its plane (a diamond; plus a random
+quarter turn and up to 8 deg jitter, so every corner of the pattern may end up lowest) and tilted by up to
+15 deg (pitch) and 25 deg (yaw). A placement is redrawn until the board is fully inside the LiDAR's
+vertical field, inside the room and (not panoramic) inside the image with a 3 % border; after repeated
 failures the draws move farther out (up to 1.5 m beyond the far distance) and, when not panoramic, towards
 the middle of the view (e.g. a VLP-16's +-15 deg field cannot hold a 0.75 m board at 1.2 m).
 A scanline-free lidar's field is a cone about x (``vertical_angles_deg`` = +-its half-angle): the
