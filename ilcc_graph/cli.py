@@ -43,6 +43,7 @@ examples:
   ilcc-graph image-corners DATA --out out/image     the image stage alone: corners drawn and numbered
   ilcc-graph evaluate DATA2 out/run1/calibration.yaml  the paper's metric on frames not used to calibrate
   ilcc-graph export out/latest/calibration.yaml --format ros-tf
+  ilcc-graph check DATA --watch --target-sigma 0.05,1   judge each frame while a recorder fills DATA
 
 exit codes: 0 success, 2 bad usage or bad input, 3 calibration impossible from the data given
 """
@@ -284,6 +285,22 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_check(args: argparse.Namespace) -> int:
+    """Per frame as it arrives: board in scan and image, new pose, running sigmas (``live``)."""
+    from ilcc_graph.live import CheckOptions, check_command
+    from ilcc_graph.observe import StageOptions
+
+    target = _pair(args.target_sigma, "--target-sigma")
+    options = CheckOptions(
+        target_sigma=target,
+        until=args.until,
+        watch=args.watch,
+        stop_at_target=target is not None,
+        stages=StageOptions(jobs=1),
+    )
+    return check_command(args.data, options, args.out, advise_live=args.advise)
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     from ilcc_graph.export import export_calibration
     from ilcc_graph.io import atomic_write, read_calibration, read_yaml
@@ -418,6 +435,14 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", help="folder for evaluation.yaml (default: print only)")
     sp.add_argument("--jobs", type=int, default=jobs)
     _bag_args(sp)
+
+    sp = add("check", cmd_check, "check frames as they are captured: board found, new pose, running sigmas")
+    sp.add_argument("data", metavar="DATA", help="a data set folder (with --watch: one being filled)")
+    sp.add_argument("--watch", action="store_true", help="follow the folder while it fills; Ctrl-C ends")
+    sp.add_argument("--until", type=int, metavar="N", help="stop after N frames")
+    sp.add_argument("--target-sigma", metavar="DEG,MM", help="stop when every sigma is within DEG / MM")
+    sp.add_argument("--advise", action="store_true", help="with --watch: the next board pose while waiting")
+    sp.add_argument("--out", help="folder for check.yaml and next_pose.png (default: print only)")
 
     sp = add("export", cmd_export, "write a calibration in another tool's format")
     sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")

@@ -36,7 +36,15 @@ from ilcc_graph.types import Estimate, sigma_dict
 
 log = logging.getLogger(__name__)
 
-__all__ = ["joint_summary", "options_dict", "resolved_config", "staged", "write_run", "write_stage"]
+__all__ = [
+    "joint_summary",
+    "options_dict",
+    "resolved_config",
+    "staged",
+    "write_check",
+    "write_run",
+    "write_stage",
+]
 
 
 def _plain(x: Any) -> Any:
@@ -285,3 +293,57 @@ def write_stage(out: Path, stage: str, source, refs, results) -> list[tuple]:  #
                 rows.append((ref.name, "yes", res.detector, f"{sigma:.3f}", ""))
             write_yaml(d / f"{ref.name}.yaml", doc)
     return rows
+
+
+def next_pose_png(proposal) -> bytes:  # noqa: ANN001 - next_pose.Proposal
+    """The rig from above and the side with the boards so far and the proposal (``report.rig``)."""
+    import textwrap
+
+    from ilcc_graph.report.rig import plot_next_pose
+
+    rig = proposal.rig
+    return plot_next_pose(
+        rig.board,
+        proposal.boards,
+        proposal.T_lidar_board,
+        rig.T_cam_lidar,
+        rig.camera,
+        rig.lidar.vertical_angles_deg,
+        "\n".join(textwrap.wrap(proposal.describe(), 150)),
+    )
+
+
+def write_check(out: Path, result, proposal=None) -> Path:  # noqa: ANN001 - live.CheckResult, next_pose.Proposal
+    """``check.yaml`` (every frame's verdict, the batch answer, why the check ended) and, with a
+    proposal, ``next_pose.png``, into ``out`` (staged like ``write_run``)."""
+    verdicts = []
+    for v in result.verdicts:
+        d: dict[str, Any] = {"frame": v.name, "scan": v.lidar or "found", "image": v.image or "found"}
+        if v.found:
+            d["pose"] = f"repeat of {v.repeat_of}" if v.repeat_of else "new"
+            d["accepted"] = bool(v.accepted)
+        if v.note:
+            d["note"] = v.note
+        if v.sigmas is not None:
+            d["sigma"] = dict(
+                zip(("rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm"), map(float, v.sigmas))
+            )
+        d["seconds"] = float(v.seconds)
+        if v.latency is not None:
+            d["latency_s"] = float(v.latency)
+        verdicts.append(d)
+    doc: dict[str, Any] = {"stopped": result.stopped, "frames": verdicts}
+    if result.final is not None:
+        doc["final"] = {
+            "T_cam_lidar": np.asarray(result.final.T_cam_lidar),
+            "covariance": result.final.covariance,
+            "sigma": sigma_dict(result.final.covariance),
+            "n_frames": int(result.final.n_frames),
+        }
+    if proposal is not None:
+        doc["next_pose"] = {"T_lidar_board": proposal.T_lidar_board, "advice": proposal.describe()}
+    with staged(out) as d:
+        write_yaml(d / "check.yaml", doc)
+        if proposal is not None:
+            atomic_write(d / "next_pose.png", next_pose_png(proposal))
+    return out

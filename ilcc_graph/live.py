@@ -1,0 +1,525 @@
+"""Calibrate while capturing: a verdict per frame as it arrives (``ilcc-graph check``).
+
+Per frame: is the board found in the scan and in the image, is its pose new (not a repeat of an
+earlier frame's, ``estimation.geometry``), and, once three or more distinct frames calibrate, the
+running sigmas (``estimation.incremental``, iSAM2, from the stated noise of the two stages) and
+their gap to a target. :class:`LiveCheck` does one frame at a time; :func:`run_check` feeds it a
+source's frames, or a folder being filled (``datasets.watch.GrowingFolder``), until the frames run
+out, ``until`` frames were seen, the target is reached or the user interrupts (Ctrl-C).
+
+Each frame's verdict is ready once both stages ran on it (a fraction of a second to a few seconds,
+docs/bench_live.md). The print's colour (``board.lower_left``) is checked on the way: when the first
+image that shows the board contradicts the config and the other colour works, the other colour is
+used from then on (with a warning), as ``observe.check_board_colour`` does for a whole data set.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import sys
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import TextIO
+
+import numpy as np
+
+from ilcc_graph.config import Config
+from ilcc_graph.datasets import FrameRef, FrameSource
+from ilcc_graph.errors import BoardColourMismatch, CalibrationError, FrameError
+from ilcc_graph.estimation import NoiseOptions
+from ilcc_graph.estimation.geometry import board_geometry
+from ilcc_graph.estimation.incremental import FrameUpdate, IncrementalCalibrator
+from ilcc_graph.observe import StageOptions, observe_image, observe_lidar, resolve_lidar
+from ilcc_graph.types import FrameResult, GraphFrame, sigmas_deg_mm
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "CheckOptions",
+    "CheckResult",
+    "LiveCheck",
+    "Verdict",
+    "format_progress",
+    "format_verdict",
+    "run_check",
+    "VERDICT_HEADER",
+]
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """What one frame gave.
+
+    lidar / image: None when the stage found the board, else its reason. repeat_of: the earlier
+    frame whose board pose this one repeats (then it is not offered to the calibrator). accepted:
+    the calibrator took it. note: why not (its gate), or what it waits for. n_frames: frames in the
+    calibrator's graph; n_distinct: distinct board poses so far. sigmas: (6,) deg, deg, deg, mm, mm,
+    mm after this frame (None before the first estimate). reached: every sigma within the target.
+    seconds: time spent on the frame; latency: from its arrival (its files complete) to the verdict.
+    """
+
+    name: str
+    lidar: str | None
+    image: str | None
+    repeat_of: str | None = None
+    accepted: bool = False
+    note: str | None = None
+    n_frames: int = 0
+    n_distinct: int = 0
+    sigmas: np.ndarray | None = None
+    reached: bool = False
+    seconds: float = 0.0
+    latency: float | None = None
+
+    @property
+    def found(self) -> bool:
+        """The board was found in both the scan and the image."""
+        return self.lidar is None and self.image is None
+
+
+@dataclass(frozen=True)
+class CheckOptions:
+    """How ``run_check`` runs.
+
+    target_sigma: (deg, mm) every sigma must reach; None: no target. until: stop after this many
+    frames; stop_at_target: stop when the target is reached. watch: follow a folder being filled
+    (poll every ``poll_s``; a file is complete once unchanged for ``settle_s``); idle_timeout_s: in
+    watch mode, stop after this long without a new frame (None: wait for Ctrl-C).
+    """
+
+    target_sigma: tuple[float, float] | None = None
+    until: int | None = None
+    stop_at_target: bool = True
+    watch: bool = False
+    poll_s: float = 0.1
+    settle_s: float = 0.3
+    idle_timeout_s: float | None = None
+    stages: StageOptions = StageOptions()
+    noise: NoiseOptions = NoiseOptions()
+
+
+@dataclass
+class CheckResult:
+    """The verdicts in arrival order, the batch answer over the frames offered (None when fewer
+    than three distinct poses calibrate), why the check ended, and the state for advice."""
+
+    verdicts: list[Verdict]
+    final: FrameUpdate | None
+    stopped: str
+    config: Config | None
+    frames: list[GraphFrame] = field(default_factory=list)
+    error: str | None = None
+
+
+class LiveCheck:
+    """One frame at a time: both stages, the repeat test, the incremental calibrator."""
+
+    def __init__(
+        self,
+        config: Config,
+        target_sigma: tuple[float, float] | None = None,
+        stages: StageOptions = StageOptions(),
+        noise: NoiseOptions = NoiseOptions(),
+    ) -> None:
+        self.config = config
+        self.target_sigma = target_sigma
+        self.stages = stages
+        self.noise = noise
+        self._lidar_resolved = False
+        self._colour_checked = not config.board.half_turn_symmetric
+        self._distinct: list[GraphFrame] = []
+        self._calibrator = self._new_calibrator()
+        self._last: FrameUpdate | None = None
+
+    def _new_calibrator(self) -> IncrementalCalibrator:
+        return IncrementalCalibrator(
+            self.config.camera, self.config.board, target_sigma=self.target_sigma, noise=self.noise
+        )
+
+    @property
+    def distinct(self) -> list[GraphFrame]:
+        """One frame per distinct board pose (the first of each), in arrival order."""
+        return list(self._distinct)
+
+    @property
+    def calibrator(self) -> IncrementalCalibrator:
+        return self._calibrator
+
+    @property
+    def last(self) -> FrameUpdate | None:
+        """The calibrator's last update with an estimate."""
+        return self._last
+
+    def _image(self, source: FrameSource, ref: FrameRef) -> object:
+        try:
+            return observe_image(source, ref, self.config, self.stages.image)
+        except BoardColourMismatch as err:
+            if self._colour_checked:
+                return err
+            board = self.config.board
+            other = "white" if board.lower_left == "black" else "black"
+            flipped = dataclasses.replace(self.config, board=dataclasses.replace(board, lower_left=other))
+            try:
+                res = observe_image(source, ref, flipped, self.stages.image)
+            except FrameError:
+                return err
+            log.warning(
+                "%s: board.lower_left is %s, but the print's lower-left square is %s in frame %s; using %s",
+                self.config.source,
+                board.lower_left,
+                other,
+                ref.name,
+                other,
+            )
+            self.config = flipped
+            self._colour_checked = True
+            self._calibrator = self._new_calibrator()  # nothing was offered yet: no image agreed before
+            return res
+        except FrameError as err:
+            return err
+
+    def add(self, source: FrameSource, ref: FrameRef, arrived: float | None = None) -> Verdict:
+        """Both stages on ``ref``, then the repeat test and the calibrator; ``arrived``: the frame's
+        arrival (``time.time()``) for the latency."""
+        t0 = time.perf_counter()
+        if not self._lidar_resolved:
+            self.config = resolve_lidar(source, [ref], self.config, look=1)
+            self._lidar_resolved = True
+            self._calibrator = self._new_calibrator()
+        try:
+            board = observe_lidar(source, ref, self.config, self.stages.lidar)
+        except FrameError as err:
+            board = err
+        corners = self._image(source, ref)
+        if not isinstance(corners, FrameError):
+            self._colour_checked = True
+        lidar_why = str(board) if isinstance(board, FrameError) else None
+        image_why = str(corners) if isinstance(corners, FrameError) else None
+        v = Verdict(
+            ref.name,
+            lidar_why,
+            image_why,
+            n_frames=len(self._calibrator.frames),
+            n_distinct=len(self._distinct),
+            sigmas=self._sigmas(self._last),
+        )
+        if v.found:
+            fr = FrameResult(ref.name, True, None, board, corners)  # type: ignore[arg-type]
+            v = self._offer(v, fr)
+        return self._done(v, t0, arrived)
+
+    def _done(self, v: Verdict, t0: float, arrived: float | None) -> Verdict:
+        latency = None if arrived is None else time.time() - arrived
+        return dataclasses.replace(v, seconds=time.perf_counter() - t0, latency=latency)
+
+    def _sigmas(self, u: FrameUpdate | None) -> np.ndarray | None:
+        return None if u is None or u.T_cam_lidar is None else sigmas_deg_mm(u.covariance)
+
+    def _offer(self, v: Verdict, fr: FrameResult) -> Verdict:
+        assert fr.board is not None and fr.corners is not None
+        gf = GraphFrame(
+            fr.name,
+            fr.board.T_lidar_board,
+            fr.board.covariance,
+            self.config.board.corners_board(),
+            fr.corners.bearings,
+            fr.corners.cov_px,
+            fr.board.returns,
+            fr.corners.uv,
+        )
+        geo = board_geometry([*self._distinct, gf])
+        if gf.name in geo.repeats:
+            return dataclasses.replace(v, repeat_of=geo.repeats[gf.name])
+        self._distinct.append(gf)
+        try:
+            u = self._calibrator.add_frame(fr)
+        except CalibrationError as err:  # e.g. no frame left to initialise
+            return dataclasses.replace(v, n_distinct=len(self._distinct), note=str(err))
+        if u.T_cam_lidar is not None and u.accepted:
+            self._last = u
+        note = u.reason
+        if geo.parallel and len(self._distinct) >= 3:
+            note = "the distinct boards all face one way: tilt the board"
+        return dataclasses.replace(
+            v,
+            accepted=u.accepted,
+            note=note,
+            n_frames=u.n_frames,
+            n_distinct=len(self._distinct),
+            sigmas=self._sigmas(self._last),
+            reached=bool(self._last is not None and self._last.reached_target),
+        )
+
+    def finish(self) -> FrameUpdate | None:
+        """The batch answer (the core's noise policy) on every frame offered; None when they cannot
+        calibrate (fewer than three distinct poses, or the solver refuses)."""
+        if len(self._distinct) < 3:
+            return None
+        try:
+            return self._calibrator.finish()
+        except CalibrationError as err:
+            log.warning("the frames so far do not calibrate: %s", err)
+            return None
+
+
+# ------------------------------------------------------------------------------- the loop
+def _frames(
+    source: FrameSource, options: CheckOptions, stop: Callable[[], str | None], idle: Callable[[float], None]
+) -> Iterable[tuple[FrameRef, float | None]]:
+    """(ref, arrival time) of each frame: all at once, or as a growing folder completes them."""
+    if not options.watch:
+        for ref in source.frames():
+            if stop() is not None:
+                return
+            yield ref, None
+        return
+    last = time.monotonic()
+    while stop() is None:
+        got = source.poll()  # type: ignore[attr-defined]
+        for a in got:
+            yield a.ref, a.arrived
+            last = time.monotonic()
+            if stop() is not None:
+                return
+        if not got:
+            waited = time.monotonic() - last
+            if options.idle_timeout_s is not None and waited > options.idle_timeout_s:
+                return
+            idle(waited)
+            time.sleep(options.poll_s)
+
+
+def run_check(
+    source: FrameSource,
+    options: CheckOptions = CheckOptions(),
+    on_verdict: Callable[[Verdict, LiveCheck], None] | None = None,
+    on_idle: Callable[[float, LiveCheck | None], None] | None = None,
+) -> CheckResult:
+    """Check ``source``'s frames one by one (module docstring); ``on_verdict`` after each frame,
+    ``on_idle(seconds waiting)`` while a watched folder has nothing new. Ctrl-C ends it cleanly.
+
+    In watch mode ``source`` must have ``poll()`` (``GrowingFolder``) and its ``config.yaml`` is
+    waited for. Raises InputError for a bad config.
+    """
+    verdicts: list[Verdict] = []
+    checker: LiveCheck | None = None
+    stopped = "no more frames"
+
+    def stop() -> str | None:
+        if options.until is not None and len(verdicts) >= options.until:
+            return f"{options.until} frames checked"
+        if options.stop_at_target and verdicts and verdicts[-1].reached:
+            return "target reached"
+        return None
+
+    try:
+        if options.watch:
+            while not source.has_config():  # type: ignore[attr-defined]
+                if on_idle is not None:
+                    on_idle(0.0, None)
+                time.sleep(options.poll_s)
+        checker = LiveCheck(source.config(), options.target_sigma, options.stages, options.noise)
+        for ref, arrived in _frames(source, options, stop, lambda w: on_idle and on_idle(w, checker)):
+            v = checker.add(source, ref, arrived)
+            verdicts.append(v)
+            if on_verdict is not None:
+                on_verdict(v, checker)
+        stopped = stop() or ("idle" if options.watch else "no more frames")
+    except KeyboardInterrupt:
+        stopped = "interrupted"
+    if checker is None:
+        return CheckResult(verdicts, None, stopped, None)
+    try:
+        final = checker.finish()
+    except KeyboardInterrupt:
+        final, stopped = None, "interrupted"
+    frames = checker.calibrator.offered if final is not None else checker.distinct
+    return CheckResult(verdicts, final, stopped, checker.config, frames)
+
+
+# ----------------------------------------------------------------------------- printing
+#: the columns of :func:`format_verdict`
+VERDICT_HEADER = (
+    f"{'frame':<10s} {'scan':<4s} {'image':<5s} {'pose':<10s} {'n':>3s} "
+    f"{'rot deg':>8s} {'trans mm':>8s} {'target':>13s} {'latency':>7s}  note"
+)
+
+
+def _gap(sig: np.ndarray, target: tuple[float, float] | None) -> str:
+    if target is None:
+        return ""
+    r, t = float(np.max(sig[:3])) / target[0], float(np.max(sig[3:])) / target[1]
+    return "reached" if max(r, t) <= 1.0 else f"x{r:.1f} x{t:.1f}"
+
+
+def _more(n_distinct: int) -> str:
+    k = max(0, 3 - n_distinct)
+    return "" if k == 0 else f"{k} more pose" + ("s" if k > 1 else "")
+
+
+def _short(text: str, n: int = 70) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def format_verdict(v: Verdict, target: tuple[float, float] | None = None) -> str:
+    """One table row (``VERDICT_HEADER``): found in scan / image, pose new or a repeat, frames in
+    the graph, worst rotation and translation sigma, gap to the target (sigma / target), latency."""
+    pose = "-" if not v.found else (f"= {v.repeat_of}" if v.repeat_of else "new")
+    rot = trans = gap = ""
+    if v.sigmas is not None:
+        rot, trans = f"{np.max(v.sigmas[:3]):.4f}", f"{np.max(v.sigmas[3:]):.3f}"
+        gap = _gap(v.sigmas, target)
+    elif v.found:
+        gap = _more(v.n_distinct)
+    notes = [f"scan: {v.lidar}" if v.lidar else "", f"image: {v.image}" if v.image else "", v.note or ""]
+    if v.repeat_of:
+        notes.append("same board pose as before: move or turn the board")
+    note = _short("; ".join(n for n in notes if n))
+    lat = "" if v.latency is None else f"{v.latency:.2f}s"
+    return (
+        f"{v.name:<10s} {'ok' if v.lidar is None else 'no':<4s} {'ok' if v.image is None else 'no':<5s} "
+        f"{pose:<10s} {v.n_frames:>3d} {rot:>8s} {trans:>8s} {gap:>13s} {lat:>7s}  {note}"
+    ).rstrip()
+
+
+def format_progress(
+    verdicts: list[Verdict], target: tuple[float, float] | None = None, waiting: float | None = None
+) -> str:
+    """One status line: frames seen, with the board in both, distinct, in the graph; the sigmas."""
+    n = len(verdicts)
+    both = sum(v.found for v in verdicts)
+    last = verdicts[-1] if verdicts else None
+    head = f"{n} frame(s): {both} with the board in both, {last.n_distinct if last else 0} distinct poses"
+    if last is not None and last.sigmas is not None:
+        s = last.sigmas
+        head += f"; sigma {np.max(s[:3]):.4f} deg, {np.max(s[3:]):.3f} mm"
+        if target is not None:
+            g = _gap(s, target)
+            head += (
+                "; target reached" if g == "reached" else f"; target {target[0]:g} deg, {target[1]:g} mm: {g}"
+            )
+    elif last is not None:
+        head += f"; {_more(last.n_distinct)} to calibrate"
+    if waiting is not None:
+        head += f"; waiting for frames ({waiting:.0f} s)"
+    return head
+
+
+class StatusLine:
+    """The progress line on a terminal, redrawn in place (elsewhere only ``final`` lines are written)."""
+
+    def __init__(self, stream: TextIO = sys.stderr) -> None:
+        self.stream = stream
+        self.tty = bool(getattr(stream, "isatty", lambda: False)())
+        self._shown = False
+
+    def clear(self) -> None:
+        if self.tty and self._shown:
+            self.stream.write("\r\033[K")
+            self.stream.flush()
+            self._shown = False
+
+    def show(self, text: str, final: bool = False) -> None:
+        if self.tty:
+            self.stream.write("\r\033[K" + text + ("\n" if final else ""))
+            self._shown = not final
+            self.stream.flush()
+        elif final:
+            self.stream.write(text + "\n")
+            self.stream.flush()
+
+
+# ------------------------------------------------------------------------------ advice
+class LiveAdvice:
+    """The next-board-pose advice of a check (``next_pose.Advisor``), refitted when the boards it
+    was fitted on are fewer than half of those now or the extrinsic moved (0.5 deg / 2 cm)."""
+
+    def __init__(self, target_sigma: tuple[float, float] | None = None) -> None:
+        self.target_sigma = target_sigma
+        self._advisor = None
+        self._fitted_on = 0
+
+    def propose(
+        self, config: Config, frames: list[GraphFrame], T_cam_lidar: np.ndarray, covariance: np.ndarray
+    ):  # noqa: ANN201 - next_pose.Proposal | None
+        from ilcc_graph import next_pose
+
+        if config.lidar is None or len(frames) < 3:
+            return None
+        adv, moved = self._advisor, False
+        if adv is not None:
+            d = np.linalg.inv(adv.rig.T_cam_lidar) @ T_cam_lidar
+            moved = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1))) > 0.5
+            moved = moved or np.linalg.norm(d[:3, 3]) > 0.02
+        if adv is None or moved or len(frames) >= 2 * self._fitted_on:
+            rig = next_pose.Rig(config.camera, np.asarray(T_cam_lidar), config.lidar, config.board)
+            adv = self._advisor = next_pose.Advisor(rig, frames)
+            self._fitted_on = len(frames)
+        adv.frames = list(frames)
+        return adv.propose(covariance, self.target_sigma)
+
+
+def check_command(data: str, options: CheckOptions, out: object = None, advise_live: bool = False) -> int:
+    """``ilcc-graph check``: the live table on standard output, the progress line on standard error,
+    then the batch answer and the next board pose; ``out`` (a folder): check.yaml and next_pose.png
+    there. Returns the exit code (0; bad input raises InputError)."""
+    from pathlib import Path
+
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.datasets.watch import GrowingFolder
+
+    source = GrowingFolder(data, options.settle_s) if options.watch else open_source(data)
+    target = options.target_sigma
+    status = StatusLine()
+    advice = LiveAdvice(target)
+    shown = {"advised": -1}
+    seen: list[Verdict] = []
+    print(VERDICT_HEADER, flush=True)
+
+    def on_verdict(v: Verdict, checker: LiveCheck) -> None:
+        seen.append(v)
+        status.clear()
+        print(format_verdict(v, target), flush=True)
+        status.show(format_progress(seen, target))
+
+    def on_idle(waited: float, checker: LiveCheck | None) -> None:
+        if checker is None:
+            if status.tty:
+                status.show(f"waiting for {Path(data) / 'config.yaml'}")
+            return
+        last = checker.last
+        if advise_live and last is not None and waited > 0.3 and shown["advised"] != last.n_frames:
+            shown["advised"] = last.n_frames
+            p = advice.propose(checker.config, checker.distinct, last.T_cam_lidar, last.covariance)
+            if p is not None:
+                status.clear()
+                print("  " + p.describe(), flush=True)
+        if status.tty:
+            status.show(format_progress(seen, target, waiting=waited))
+
+    result = run_check(source, options, on_verdict, on_idle)
+    status.clear()
+    print(f"\n{format_progress(result.verdicts, target)} ({result.stopped})")
+    proposal = None
+    if result.final is not None:
+        s = sigmas_deg_mm(result.final.covariance)
+        print(
+            f"all {result.final.n_frames} frames solved together (the noise policy of calibrate): sigma "
+            f"rot {s[0]:.4f} {s[1]:.4f} {s[2]:.4f} deg, trans {s[3]:.3f} {s[4]:.3f} {s[5]:.3f} mm"
+        )
+        proposal = advice.propose(
+            result.config, result.frames, result.final.T_cam_lidar, result.final.covariance
+        )
+    elif result.verdicts:
+        print("not calibrated yet: at least 3 distinct board poses with the board in both sensors are needed")
+    if proposal is not None:
+        print(proposal.describe())
+    if out is not None:
+        from ilcc_graph.outputs import write_check
+
+        write_check(Path(out), result, proposal)
+        print(f"wrote check.yaml{' and next_pose.png' if proposal is not None else ''} to {out}")
+    return 0
