@@ -145,14 +145,18 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
     sources = [open_source(d, **_bag_options(args)) for d in data]
     bars: dict[str, _Progress] = {}
     t0 = time.perf_counter()
-    result = run(
-        sources,
-        options,
-        progress=lambda name, i, n: bars.setdefault(name, _Progress(name))(i, n),
-        report=lambda u: print(format_update(u, options.target_sigma), flush=True),
-    )
-    t_cal = time.perf_counter() - t0
     out = _run_dir(args.out)
+    try:
+        result = run(
+            sources,
+            options,
+            progress=lambda name, i, n: bars.setdefault(name, _Progress(name))(i, n),
+            report=lambda u: print(format_update(u, options.target_sigma), flush=True),
+        )
+    except CalibrationImpossible as err:  # a short table and one line of advice; details in the folder
+        _explain_failure(err, out, args.out)
+        raise
+    t_cal = time.perf_counter() - t0
     t1 = time.perf_counter()
     write_run(
         out, result, report=args.report, studies=args.studies, truth=truth, command=" ".join(sys.argv[1:])
@@ -172,6 +176,19 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
         f"wrote {what} to {out} ({time.perf_counter() - t1:.1f} s)"
     )
     return 0
+
+
+def _explain_failure(err: CalibrationImpossible, out: Path, given: str | None) -> None:
+    from ilcc_graph.outputs import write_failure
+    from ilcc_graph.report.text import failure_table
+
+    if err.frames:
+        print(failure_table(err.frames), file=sys.stderr)
+    if err.advice:
+        print(f"advice: {err.advice}", file=sys.stderr)
+    write_failure(out, err)
+    _link_latest(out, given)
+    print(f"details: {out / 'failure.yaml'}", file=sys.stderr)
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:

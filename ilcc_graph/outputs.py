@@ -347,3 +347,12 @@ def write_check(out: Path, result, proposal=None) -> Path:  # noqa: ANN001 - liv
         if proposal is not None:
             atomic_write(d / "next_pose.png", next_pose_png(proposal))
     return out
+
+
+def write_failure(out: Path, error: Exception) -> Path:
+    """``failure.yaml`` in ``out``: the message, the advice and every frame's full reason (staged)."""
+    doc: dict[str, Any] = {"error": str(error), "advice": getattr(error, "advice", None)}
+    doc["frames"] = [{"frame": f, "stage": st, "reason": why} for f, st, why in getattr(error, "frames", ())]
+    with staged(out) as d:
+        write_yaml(d / "failure.yaml", doc)
+    return out

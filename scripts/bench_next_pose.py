@@ -289,7 +289,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--runs", type=int, default=50)
     ap.add_argument("--max-frames", type=int, default=40)
-    ap.add_argument("--target", default="0.006,0.15", help="DEG,MM every sigma must reach")
+    ap.add_argument("--target", default="0.003,0.06", help="DEG,MM every sigma must reach")
     ap.add_argument("--stage-data", type=Path, default=None, help="a simulated set to fit the noise model on")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "bench_next_pose_stage.pkl")
     ap.add_argument("--write", action="store_true")

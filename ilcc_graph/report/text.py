@@ -10,7 +10,15 @@ from ..estimation.incremental import FrameUpdate
 from ..estimation.sessions import JointSolution
 from ..types import Calibration, Estimate, sigmas_deg_mm
 
-__all__ = ["format_joint", "format_table", "format_update", "frames_table", "summarise"]
+__all__ = [
+    "failure_table",
+    "format_joint",
+    "format_table",
+    "format_update",
+    "frames_table",
+    "short_reason",
+    "summarise",
+]
 
 
 def format_table(rows: Sequence[Sequence[object]], header: Sequence[str]) -> str:
@@ -132,3 +140,25 @@ def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = Non
     if target_sigma is not None:
         body += "  target reached" if u.reached_target else "  target not yet reached"
     return f"{head}  {body}"
+
+
+def short_reason(text: str, limit: int = 90) -> str:
+    """A reason cut to its first clause (before the first ``"; "`` or ``". "``), at most ``limit``
+    characters."""
+    text = " ".join(str(text).split())
+    for sep in ("; ", ". "):
+        head = text.split(sep)[0]
+        if len(head) >= 20:
+            text = head
+            break
+    return text if len(text) <= limit else text[: limit - 3].rstrip() + "..."
+
+
+def failure_table(frames: Sequence[tuple[str, str, str]], limit: int = 90, max_rows: int = 40) -> str:
+    """(frame, stage, reason) rows as a table, each reason cut short (``short_reason``); at most
+    ``max_rows`` rows (then a line says how many more)."""
+    rows = [(f, stage, short_reason(why, limit)) for f, stage, why in frames[:max_rows]]
+    text = format_table(rows, ("frame", "stage", "reason"))
+    if len(frames) > max_rows:
+        text += f"\n... and {len(frames) - max_rows} more"
+    return text
