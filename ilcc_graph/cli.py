@@ -158,9 +158,11 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
         raise
     t_cal = time.perf_counter() - t0
     t1 = time.perf_counter()
+    proposal = _next_pose(result, options.target_sigma)
     write_run(
-        out, result, report=args.report, studies=args.studies, truth=truth, command=" ".join(sys.argv[1:])
-    )
+        out, result, report=args.report, studies=args.studies, truth=truth, command=" ".join(sys.argv[1:]),
+        next_pose=proposal, clouds=args.clouds, full_views=args.full_views,
+    )  # fmt: skip
     _link_latest(out, args.out)
     cal = result.calibration
     print(frames_table(cal), "", sep="\n")
@@ -169,6 +171,8 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
     print(summarise(cal.T_cam_lidar, cal.covariance, truth))
     if (vf := cal.diagnostics.get("variance_factor", 1.0)) > 1.0:
         print(f"  (the residuals are {vf:.2f} x the stated noise variance: sigmas x {np.sqrt(vf):.2f})")
+    if proposal is not None:
+        print(proposal.describe())
     n_used = sum(f.used for f in cal.frames)
     what = "calibration.yaml and the report" if args.report else "calibration.yaml"
     print(
@@ -176,6 +180,15 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
         f"wrote {what} to {out} ({time.perf_counter() - t1:.1f} s)"
     )
     return 0
+
+
+def _next_pose(result, target: tuple[float, float] | None):  # noqa: ANN001, ANN202 - RunResult -> Proposal
+    """Where to hold the board next (one session with a covariance), or None."""
+    from ilcc_graph.next_pose import from_calibration
+
+    if len(result.sessions) != 1 or not np.all(np.isfinite(result.calibration.covariance)):
+        return None
+    return from_calibration(result.calibration, result.sessions[0].observation.config, target)
 
 
 def _explain_failure(err: CalibrationImpossible, out: Path, given: str | None) -> None:
@@ -376,7 +389,9 @@ def _solve_args(sp: argparse.ArgumentParser, jobs: int, studies: bool = False) -
     help = "estimate the LiDAR's per-beam and dark-print range offsets from the boards' returns"
     sp.add_argument("--lidar-errors", action="store_true", help=help)
     sp.add_argument("--jobs", type=int, default=jobs, help=f"processes for the per-frame stages ({jobs})")
-    sp.add_argument("--no-report", dest="report", action="store_false", help="skip the report and clouds")
+    sp.add_argument("--no-report", dest="report", action="store_false", help="skip the report")
+    sp.add_argument("--clouds", action="store_true", help="with the report: coloured clouds (coloured/)")
+    sp.add_argument("--full-views", action="store_true", help="with the report: whole pictures at full size")
     help = "add frames-vs-accuracy and cross-validation to the report"
     sp.add_argument("--studies", action=argparse.BooleanOptionalAction, default=studies, help=help)
 

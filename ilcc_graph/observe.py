@@ -20,6 +20,7 @@ from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import BoardColourMismatch, FrameError, InputError
 from ilcc_graph.image import ImageOptions, detect_corners
+from ilcc_graph.image.previews import make_views
 from ilcc_graph.init import upnp
 from ilcc_graph.lidar import LidarOptions, estimate_board
 from ilcc_graph.lidars import choose_model, measure_beams
@@ -77,8 +78,11 @@ def observe_lidar(
 
 
 def observe_image(source: FrameSource, ref: FrameRef, config: Config, options: ImageOptions) -> ImageCorners:
-    """The image stage on one frame's image; raises FrameError with the reason."""
-    return detect_corners(source.read_image(ref), config.camera, config.board, options)
+    """The image stage on one frame's image, with the report's views of it (``image.previews``);
+    raises FrameError with the reason."""
+    image = source.read_image(ref)
+    corners = detect_corners(image, config.camera, config.board, options)
+    return dataclasses.replace(corners, views=make_views(image, corners.uv, config.camera))
 
 
 def _attempt(fn: Callable, *args: object) -> object:
@@ -199,16 +203,56 @@ def check_board_colour(
     return dataclasses.replace(config, board=dataclasses.replace(board, lower_left=other)), {}
 
 
+def _colour_verdict(
+    frames: Sequence[FrameResult], errors: dict[str, object], needed: int = 2, look: int = 6
+) -> bool:
+    """Whether the images contradict ``board.lower_left``: as ``check_board_colour`` decides, from the
+    image stage's results of the first ``look`` frames (until ``needed`` agree either way)."""
+    agree = disagree = 0
+    for f in frames[:look]:
+        err = errors.get(f.name)
+        if isinstance(err, BoardColourMismatch):
+            disagree += 1
+        elif f.corners is not None:
+            agree += 1
+        if max(agree, disagree) >= needed:
+            break
+    return disagree > agree
+
+
+def _observe_frame_errors(source: FrameSource, ref: FrameRef, config: Config, options: StageOptions,
+                          image: object = None) -> tuple[FrameResult, object]:  # fmt: skip
+    """``observe_frame`` and the image stage's error (or None), for the colour verdict."""
+    res = image if image is not None else _attempt(observe_image, source, ref, config, options.image)
+    fr = observe_frame(source, ref, config, options, res)
+    return fr, res if isinstance(res, FrameError) else None
+
+
 def observe(
     source: FrameSource, options: StageOptions = StageOptions(), progress: Progress | None = None
 ) -> Observation:
-    """Read a source's config, list its frames, check the print's colour, run both stages per frame."""
+    """Read a source's config, list its frames, run both stages per frame, check the print's colour.
+
+    The colour check (``check_board_colour``) judges the first frames' image results as they come
+    from the run over every frame, so no frame waits for it; when the images contradict the
+    config's ``board.lower_left``, the image stage runs again on every frame with the other colour.
+    """
     config = source.config()  # the config's mistakes first, then the folders'
     refs = source.frames()
     config = resolve_lidar(source, refs, config)
-    config, known = check_board_colour(source, refs, config, options.image)
-    items = [(source, r, config, options, known.get(r.name)) for r in refs]
-    frames = _map(observe_frame, items, options.jobs, progress)
+    items = [(source, r, config, options) for r in refs]
+    done = _map(_observe_frame_errors, items, options.jobs, progress)
+    frames = [fr for fr, _ in done]
+    if config.board.half_turn_symmetric and _colour_verdict(frames, {fr.name: e for fr, e in done}):
+        board = config.board
+        other = "white" if board.lower_left == "black" else "black"
+        log.warning(
+            "%s: board.lower_left is %s, but the print's lower-left square (seen from the front, long "
+            "side horizontal) is %s in the images checked; using %s", config.source, board.lower_left, other,
+            other,
+        )  # fmt: skip
+        config = dataclasses.replace(config, board=dataclasses.replace(board, lower_left=other))
+        frames = _map(observe_frame, [(source, r, config, options) for r in refs], options.jobs, progress)
     frames += [FrameResult(name=n, used=False, reason=why) for n, why in source.skipped()]
     return Observation(source, config, frames)
 

@@ -11,7 +11,10 @@ everything is written (so ``out`` is either the complete result or untouched):
   ``calibration.yaml`` and ``config.resolved.yaml``; incremental: ``incremental.yaml`` (the state
   after each frame);
 - unless ``report=False``: ``report/index.html`` (one per session under ``report/<name>/`` when
-  there are several) and the coloured clouds ``coloured/<frame>.ply``.
+  there are several), its pictures drawn on the views the image stage kept (no picture is read
+  again), on ``jobs`` processes; on request (``clouds``) the coloured clouds ``coloured/<frame>.ply``
+  and (``full_views``) the whole pictures at full resolution;
+- with a proposal: ``next_pose.png``; ``check``: ``check.yaml``; a failed run: ``failure.yaml``.
 """
 
 from __future__ import annotations
@@ -159,6 +162,35 @@ def staged(out: Path) -> Iterator[Path]:
         shutil.rmtree(old, ignore_errors=True)
 
 
+def _draw_frame(source, ref, config: Config, T: np.ndarray, result, options, ply: Path | None):  # noqa: ANN001, ANN202
+    """One frame's pictures (``report.frame_figures``; a worker process may run it): the scan is read,
+    the image only when the image stage kept no views of it or the options need it; with ``ply``
+    the coloured cloud is written there."""
+    from ilcc_graph.report import frame_figures
+
+    scan = source.read_scan(ref, config)
+    kept = result is not None and result.corners is not None and bool(result.corners.views)
+    image = source.read_image(ref) if (not kept or options.colours or options.full_views) else None
+    ff = frame_figures(ref.name, scan, image, config.camera, config.board, T, result, options=options)
+    if ply is not None and ff.coloured is not None:
+        write_ply(ply, scan, rgb=ff.coloured.rgb)
+    return dataclasses.replace(ff, coloured=None)
+
+
+def _frames_drawn(items: list[tuple], jobs: int) -> Iterator:
+    """``_draw_frame(*item)`` for each item, in order, on ``jobs`` processes."""
+    if jobs <= 1 or len(items) <= 1:
+        for it in items:
+            yield _draw_frame(*it)
+        return
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=min(jobs, len(items))) as pool:
+        futures = [pool.submit(_draw_frame, *it) for it in items]
+        for fut in futures:
+            yield fut.result()
+
+
 def _write_report(
     out: Path,
     coloured_dir: Path,
@@ -167,9 +199,11 @@ def _write_report(
     studies: bool,
     truth: np.ndarray | None,
     info: dict,
+    clouds: bool = False,
+    full_views: bool = False,
 ) -> None:
-    """``out/index.html`` with its figures for one session, and ``coloured_dir/<frame>.ply``."""
-    from ilcc_graph.report import build_report, cross_validate, frames_vs_accuracy
+    """``out/index.html`` with its figures for one session; with ``clouds`` ``coloured_dir/<frame>.ply``."""
+    from ilcc_graph.report import FigureOptions, build_report, cross_validate, frames_vs_accuracy
 
     obs, cal = session.observation, session.calibration
     config, source = obs.config, obs.source
@@ -192,21 +226,32 @@ def _write_report(
         finally:
             quiet.setLevel(level)
     refs = [r for r in source.frames() if r.scan is not None and r.image is not None]
-    frames = ((r.name, source.read_scan(r, config), source.read_image(r)) for r in refs)
-
-    def coloured(ff, scan) -> None:  # noqa: ANN001
-        write_ply(coloured_dir / f"{ff.name}.ply", scan, rgb=ff.coloured.rgb)
-
+    results = {f.name: f for f in cal.frames}
+    fig_opts = FigureOptions(colours=clouds, full_views=full_views)
+    if clouds:
+        coloured_dir.mkdir(parents=True, exist_ok=True)
+    T = np.asarray(cal.T_cam_lidar)
+    items = [
+        (
+            source,
+            r,
+            config,
+            T,
+            results.get(r.name),
+            fig_opts,
+            coloured_dir / f"{r.name}.ply" if clouds else None,
+        )
+        for r in refs
+    ]
     files = build_report(
         cal,
         config.camera,
         config.board,
-        frames,
+        figures=_frames_drawn(items, result.options.stages.jobs),
         curve=curve,
         cross_validation=cv,
         T_ground_truth=truth,
         info=info,
-        on_frame=coloured,
     )
     for rel, blob in files.items():
         atomic_write(out / rel, blob)
@@ -220,9 +265,16 @@ def write_run(
     studies: bool = False,
     truth: np.ndarray | None = None,
     command: str = "",
+    next_pose=None,  # noqa: ANN001 - next_pose.Proposal
+    clouds: bool = False,
+    full_views: bool = False,
 ) -> Path:
-    """Write every output of ``result`` to ``out`` (module docstring); returns ``out``."""
+    """Write every output of ``result`` to ``out`` (module docstring); returns ``out``. With a
+    ``next_pose`` proposal also ``next_pose.png`` (the rig, the boards, the proposal); ``clouds``:
+    the coloured clouds; ``full_views``: the report's whole pictures at full resolution too."""
     with staged(out) as d:
+        if next_pose is not None:
+            atomic_write(d / "next_pose.png", next_pose_png(next_pose))
         write_calibration(d / "calibration.yaml", result.calibration)
         first = result.sessions[0].observation.config
         write_yaml(d / "config.resolved.yaml", resolved_config(first, result.options))
@@ -246,8 +298,9 @@ def write_run(
                 }
                 sub = (s.name,) if several else ()
                 _write_report(
-                    d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, studies, truth, info
-                )
+                    d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, studies, truth, info,
+                    clouds, full_views,
+                )  # fmt: skip
     return out
 
 
