@@ -20,6 +20,7 @@ import logging
 import sys
 import time
 from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import TextIO
 
@@ -132,6 +133,7 @@ class LiveCheck:
         self._distinct: list[GraphFrame] = []
         self._calibrator = self._new_calibrator()
         self._last: FrameUpdate | None = None
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="image-stage")
 
     def _new_calibrator(self) -> IncrementalCalibrator:
         return IncrementalCalibrator(
@@ -154,7 +156,7 @@ class LiveCheck:
 
     def _image(self, source: FrameSource, ref: FrameRef) -> object:
         try:
-            return observe_image(source, ref, self.config, self.stages.image)
+            return observe_image(source, ref, self.config, self.stages.image, views=False)
         except BoardColourMismatch as err:
             if self._colour_checked:
                 return err
@@ -162,7 +164,7 @@ class LiveCheck:
             other = "white" if board.lower_left == "black" else "black"
             flipped = dataclasses.replace(self.config, board=dataclasses.replace(board, lower_left=other))
             try:
-                res = observe_image(source, ref, flipped, self.stages.image)
+                res = observe_image(source, ref, flipped, self.stages.image, views=False)
             except FrameError:
                 return err
             log.warning(
@@ -188,11 +190,12 @@ class LiveCheck:
             self.config = resolve_lidar(source, [ref], self.config, look=1)
             self._lidar_resolved = True
             self._calibrator = self._new_calibrator()
+        image = self._pool.submit(self._image, source, ref)  # decoding and detection release the GIL
         try:
             board = observe_lidar(source, ref, self.config, self.stages.lidar)
         except FrameError as err:
             board = err
-        corners = self._image(source, ref)
+        corners = image.result()
         if not isinstance(corners, FrameError):
             self._colour_checked = True
         lidar_why = str(board) if isinstance(board, FrameError) else None
@@ -458,8 +461,7 @@ class LiveAdvice:
             rig = next_pose.Rig(config.camera, np.asarray(T_cam_lidar), config.lidar, config.board)
             adv = self._advisor = next_pose.Advisor(rig, frames)
             self._fitted_on = len(frames)
-        adv.frames = list(frames)
-        return adv.propose(covariance, self.target_sigma)
+        return adv.propose(covariance, self.target_sigma, frames)
 
 
 def check_command(data: str, options: CheckOptions, out: object = None, advise_live: bool = False) -> int:

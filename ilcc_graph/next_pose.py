@@ -21,7 +21,8 @@ image otherwise) at 1.2-3.4 m and three heights inside the LiDAR's vertical fiel
 facing the rig, turned about the vertical and tilted up or down by up to 40 deg, held as a diamond
 (45 deg in its plane, as the paper's layout). A candidate counts only when every board corner
 lies in the image (3 % border) and in front of the camera, the whole board inside the LiDAR's
-vertical field, and at least 4 beams cross it. The score is the largest sigma after the frame,
+vertical field, at least 4 beams cross it, and it is not where a board was already (its centre
+15 cm and its face 10 deg from every earlier one's). The score is the largest sigma after the frame,
 each divided by the target (``target_sigma``; default 0.1 deg / 1 mm for the scale only): the
 proposal is the candidate with the smallest, then refined around it.
 
@@ -63,6 +64,8 @@ DEFAULT_SCALE = (0.1, 1.0)  # deg, mm: the normalisation of the score when no ta
 MIN_BEAMS = 4
 IMAGE_BORDER = 0.03
 ROLL_DEG = 45.0
+#: a proposal is a new pose: its centre this far from every board so far, or its face turned this much
+NEW_POSE_M, NEW_POSE_COS = 0.15, math.cos(math.radians(10.0))
 
 
 @dataclass(frozen=True)
@@ -477,11 +480,15 @@ class Advisor:
         return self._cache[key]
 
     def propose(
-        self, covariance: np.ndarray, target_sigma: tuple[float, float] | None = None
-    ) -> Proposal | None:
+        self, covariance: np.ndarray, target_sigma: tuple[float, float] | None = None,
+        frames: Sequence[GraphFrame] | None = None,
+    ) -> Proposal | None:  # fmt: skip
         """The candidate whose frame leaves the smallest largest sigma (each over the target), from
-        the extrinsic's ``covariance`` (6, 6) now; a coarse grid, then around its best. None when no
-        candidate is valid or the covariance is not finite."""
+        the extrinsic's ``covariance`` (6, 6) now; a coarse grid, then around its best. ``frames``:
+        the boards so far when there are more than the advisor was made with (no repeat of one is
+        proposed). None when no candidate is valid or the covariance is not finite."""
+        if frames is not None:
+            self.frames = list(frames)
         C = np.asarray(covariance, dtype=np.float64)
         if C.shape != (6, 6) or not np.all(np.isfinite(C)):
             return None
@@ -489,9 +496,18 @@ class Advisor:
         scale = _scale(target_sigma)
         scored: list[tuple[float, tuple, np.ndarray, np.ndarray]] = []
 
+        poses = [np.asarray(f.T_lidar_board, dtype=np.float64) for f in self.frames]
+        seen = [(T[:3, :3] @ self.rig.board.pattern_centre + T[:3, 3], T[:3, 2]) for T in poses]
+
+        def repeats(T: np.ndarray) -> bool:
+            c = T[:3, :3] @ self.rig.board.pattern_centre + T[:3, 3]
+            return any(
+                np.linalg.norm(c - c0) < NEW_POSE_M and T[:3, 2] @ n0 > NEW_POSE_COS for c0, n0 in seen
+            )
+
         def try_(centre: np.ndarray, yaw: float, pitch: float) -> None:
             got = self.candidate(centre, yaw, pitch)
-            if got is not None:
+            if got is not None and not repeats(got[0]):
                 after = np.linalg.inv(info + got[1])
                 scored.append((_score(after, scale), (yaw, pitch), got[0], after))
 

@@ -77,12 +77,16 @@ def observe_lidar(
     return estimate_board(scan, config.board, config.lidar, config.roi, options, expected)
 
 
-def observe_image(source: FrameSource, ref: FrameRef, config: Config, options: ImageOptions) -> ImageCorners:
-    """The image stage on one frame's image, with the report's views of it (``image.previews``);
-    raises FrameError with the reason."""
+def observe_image(
+    source: FrameSource, ref: FrameRef, config: Config, options: ImageOptions, views: bool = True
+) -> ImageCorners:
+    """The image stage on one frame's image, with (``views``) the report's views of it
+    (``image.previews``); raises FrameError with the reason."""
     image = source.read_image(ref)
     corners = detect_corners(image, config.camera, config.board, options)
-    return dataclasses.replace(corners, views=make_views(image, corners.uv, config.camera))
+    return (
+        dataclasses.replace(corners, views=make_views(image, corners.uv, config.camera)) if views else corners
+    )
 
 
 def _attempt(fn: Callable, *args: object) -> object:

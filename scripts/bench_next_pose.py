@@ -204,7 +204,7 @@ def run(
             t0 = time.perf_counter()
             if advisor is None:
                 advisor = nxp.Advisor(rig, cal.frames)
-            p = None if cov is None else advisor.propose(cov, target)
+            p = None if cov is None else advisor.propose(cov, target, cal.frames)
             t_advice += time.perf_counter() - t0
             T = held(world, p, rng) if p is not None else random_pose(world, rng)
         f = world.frame(f"{i:03d}", T, rng)
@@ -328,7 +328,7 @@ def main(argv: list[str] | None = None) -> int:
         u = cal.add_frame(world.frame(f"{i}", T, rng))
     adv = nxp.Advisor(rig, cal.frames)
     for i in range(3, 12):
-        p = adv.propose(u.covariance, target)
+        p = adv.propose(u.covariance, target, cal.frames)
         T = held(world, p, rng)
         poses.append(T)
         u = cal.add_frame(world.frame(f"{i}", T, rng))

@@ -102,9 +102,21 @@ def small_panoramic_set(tmp_path_factory) -> Path:
 
 def test_calibrate_writes_interface_schema(small_panoramic_set, tmp_path):
     out = tmp_path / "out"
-    assert main(["calibrate", str(small_panoramic_set), "--out", str(out), "--jobs", "1"]) == 0
+    args = [
+        "calibrate",
+        str(small_panoramic_set),
+        "--out",
+        str(out),
+        "--jobs",
+        "1",
+        "--clouds",
+        "--full-views",
+    ]
+    assert main(args) == 0
     assert (out / "report" / "index.html").is_file()
-    assert len(list((out / "coloured").glob("*.ply"))) >= 1
+    assert len(list((out / "coloured").glob("*.ply"))) >= 1  # on request
+    assert len(list((out / "report" / "figures" / "full").glob("*_full.jpg"))) >= 1
+    assert (out / "next_pose.png").is_file()
     cal = yaml.safe_load((out / "calibration.yaml").read_text())
     T = np.array(cal["T_cam_lidar"], float)
     assert T.shape == (4, 4) and np.allclose(T[3], [0, 0, 0, 1])

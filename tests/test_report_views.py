@@ -44,7 +44,9 @@ def test_views_keep_the_windows_the_report_cuts() -> None:
     p = tight.to_crop(uv[:1])[0]
     z = tight.zoom
     y, x = int(round(p[1])), int(round(p[0]))
-    patch = tight.image[y - int(z) : y + int(z) + 1, x - int(z) : x + int(z) + 1].astype(float).mean(axis=(0, 1))
+    patch = (
+        tight.image[y - int(z) : y + int(z) + 1, x - int(z) : x + int(z) + 1].astype(float).mean(axis=(0, 1))
+    )
     ref = image[79:82, 99:102].astype(float).mean(axis=(0, 1))
     assert np.abs(patch - ref).max() < 40  # JPEG at 95 and a 3x3 average
     whole = view_crop(views, "whole")
@@ -105,7 +107,9 @@ def test_report_page_is_well_formed_and_every_file_it_names_exists(tmp_path: Pat
 
 
 def _browser() -> str | None:
-    return next((b for b in ("chromium-headless-shell", "chromium", "google-chrome") if shutil.which(b)), None)
+    return next(
+        (b for b in ("chromium-headless-shell", "chromium", "google-chrome") if shutil.which(b)), None
+    )
 
 
 def test_a_real_browser_decodes_every_picture(tmp_path: Path) -> None:
