@@ -177,18 +177,44 @@ def _draw_frame(source, ref, config: Config, T: np.ndarray, result, options, ply
     return dataclasses.replace(ff, coloured=None)
 
 
-def _frames_drawn(items: list[tuple], jobs: int) -> Iterator:
-    """``_draw_frame(*item)`` for each item, in order, on ``jobs`` processes."""
+def _valley(cal, camera, board):  # noqa: ANN001, ANN202 - report.studies.Valley | None
+    """The report's valley study on the used frames (as ``report.build_report`` makes it), or None
+    when a used frame lacks its board points (the report then rebuilds them from the scans)."""
+    from ilcc_graph.report import eval_frame
+    from ilcc_graph.report.studies import valley
+
+    efs = [eval_frame(f) for f in cal.frames if f.used]
+    if not efs or any(e is None or not len(e.points_lidar) for e in efs):
+        return None
+    return valley(efs, camera, board, np.asarray(cal.T_cam_lidar), np.asarray(cal.covariance))
+
+
+def _drawn(items: list[tuple], jobs: int, cal, config: Config) -> tuple[Iterator, object]:  # noqa: ANN001
+    """(``_draw_frame(*item)`` for each item in order, a future of the valley study), on ``jobs``
+    processes; the valley study, the longest single job, goes first."""
     if jobs <= 1 or len(items) <= 1:
-        for it in items:
-            yield _draw_frame(*it)
-        return
+        return (_draw_frame(*it) for it in items), None
     from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(max_workers=min(jobs, len(items))) as pool:
-        futures = [pool.submit(_draw_frame, *it) for it in items]
-        for fut in futures:
-            yield fut.result()
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(items)))
+    slim = dataclasses.replace(
+        cal,
+        frames=tuple(
+            dataclasses.replace(f, corners=dataclasses.replace(f.corners, views=())) if f.corners else f
+            for f in cal.frames
+        ),
+    )
+    study = pool.submit(_valley, slim, config.camera, config.board)
+    futures = [pool.submit(_draw_frame, *it) for it in items]
+
+    def results() -> Iterator:
+        try:
+            for fut in futures:
+                yield fut.result()
+        finally:
+            pool.shutdown(wait=False, cancel_futures=True)
+
+    return results(), study
 
 
 def _write_report(
@@ -243,15 +269,17 @@ def _write_report(
         )
         for r in refs
     ]
+    figures, study = _drawn(items, result.options.stages.jobs, cal, config)
     files = build_report(
         cal,
         config.camera,
         config.board,
-        figures=_frames_drawn(items, result.options.stages.jobs),
+        figures=figures,
         curve=curve,
         cross_validation=cv,
         T_ground_truth=truth,
         info=info,
+        valley_study=None if study is None else study.result,
     )
     for rel, blob in files.items():
         atomic_write(out / rel, blob)

@@ -39,7 +39,7 @@ from .sections import (
     table,
     transform_section,
 )
-from .studies import CrossValidation, FramesCurve, valley
+from .studies import CrossValidation, FramesCurve, Valley, valley
 
 __all__ = ["FIGURES_DIR", "FigureOptions", "FrameFigures", "build_report", "frame_figures"]
 
@@ -61,6 +61,7 @@ def build_report(
     show_valley: bool = True,
     figures: Iterable[FrameFigures] = (),
     figure_options: FigureOptions = FigureOptions(),
+    valley_study: Valley | Callable[[], Valley | None] | None = None,
 ) -> dict[str, bytes]:
     """All files of the report: ``{"index.html": ..., "figures/<...>.webp|png": ...}``.
 
@@ -77,7 +78,9 @@ def build_report(
     T_ground_truth : (4, 4) for simulated data: the result is compared with it.
     info : extra key/value lines for the header (data folder, command, version...).
     on_frame : called with each frame's :class:`FrameFigures` and scan (e.g. to write the coloured PLY).
-    show_valley : draw the metrics with each parameter moved alone (:func:`.studies.valley`).
+    show_valley : draw the metrics with each parameter moved alone (:func:`.studies.valley`);
+        ``valley_study``: that study computed already, or a callable that gives it (e.g. a future's
+        ``result`` of another process; None: computed here).
     """
     T = np.asarray(calibration.T_cam_lidar, dtype=np.float64)
     files: dict[str, bytes] = {}
@@ -177,13 +180,13 @@ def build_report(
         )
     )
     used_efs = [e for e in efs if e.name in used_names and len(e.points_lidar)]
-    if show_valley and used_efs:
+    study = (valley_study() if callable(valley_study) else valley_study) if show_valley else None
+    if show_valley and study is None and used_efs:
+        study = valley(used_efs, camera, board, T, np.asarray(calibration.covariance))
+    if study is not None:
         body.append(
             figure(
-                add(
-                    "valley.png",
-                    plot_valley(valley(used_efs, camera, board, T, np.asarray(calibration.covariance))),
-                ),
+                add("valley.png", plot_valley(study)),
                 "Each of the six parameters moved alone away from the result (about / along the LiDAR "
                 "axes, the covariance's convention): on a right result both metrics bottom out at zero, "
                 "inside the gray 3-sigma band.",
