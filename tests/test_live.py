@@ -119,3 +119,15 @@ def test_cli_check_writes_verdicts_and_next_pose(sim: Path, tmp_path: Path, caps
     assert [f["frame"] for f in doc["frames"]] == ["0001", "0002", "0003", "0004", "0005", "0006"]
     assert doc["final"]["n_frames"] == 6 and "advice" in doc["next_pose"]
     assert (out / "next_pose.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_ctrl_c_ends_the_check_cleanly_with_the_frames_so_far(sim: Path) -> None:
+    def interrupt_after_four(v, _checker) -> None:  # noqa: ANN001
+        if v.name == "0004":
+            raise KeyboardInterrupt
+
+    result = run_check(GrowingFolder(sim), CheckOptions(), on_verdict=interrupt_after_four)
+    assert result.stopped == "interrupted"
+    assert [v.name for v in result.verdicts] == ["0001", "0002", "0003", "0004"]
+    assert result.final is not None and result.final.n_frames == 4  # the frames so far, solved together
+    assert run_check(GrowingFolder(sim), CheckOptions(until=2)).stopped == "2 frames checked"
