@@ -317,7 +317,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def cmd_check(args: argparse.Namespace) -> int:
     """Per frame as it arrives: board in scan and image, new pose, running sigmas (``live``)."""
-    from ilcc_graph.live import CheckOptions, check_command
+    from ilcc_graph.live import CheckOptions
+    from ilcc_graph.live_command import check_command
     from ilcc_graph.observe import StageOptions
 
     target = _pair(args.target_sigma, "--target-sigma")

@@ -98,13 +98,13 @@ class World:
 
     def valid(self, T: np.ndarray) -> bool:
         return (
-            nxp._in_view(self.rig, T) is not None
+            nxp.in_view(self.rig, T) is not None
             and self.model.covariance(T, self.rig.board, self.rig.lidar) is not None
         )
 
     def frame(self, name: str, T: np.ndarray, rng: np.random.Generator) -> GraphFrame | None:
         cov_b = self.model.covariance(T, self.rig.board, self.rig.lidar)
-        p_cam = nxp._in_view(self.rig, T)
+        p_cam = nxp.in_view(self.rig, T)
         if cov_b is None or p_cam is None:
             return None
         xi = rng.multivariate_normal(np.zeros(6), cov_b)
@@ -139,7 +139,7 @@ def paper_poses(seed: int, n: int) -> list[np.ndarray]:
 
 def random_pose(world: World, rng: np.random.Generator) -> np.ndarray:
     rig = world.rig
-    az_all = nxp._azimuths(rig, 5.0)
+    az_all = nxp.candidate_azimuths(rig, 5.0)
     x0, x1, y0, y1 = rig.board.extent()
     radius = 0.5 * math.hypot(x1 - x0, y1 - y0)
     va = np.radians(rig.lidar.vertical_angles_deg)
@@ -273,7 +273,7 @@ def plot(
     ax = axes[2]
     ax.set_title("one advice run from above (LiDAR frame)")
     for i, T in enumerate(example):
-        corners = nxp._outline(world.rig.board, 2) @ T[:3, :3].T + T[:3, 3]
+        corners = nxp.board_outline(world.rig.board, 2) @ T[:3, :3].T + T[:3, 3]
         ax.plot(corners[:, 0], corners[:, 1], color="C0" if i < 3 else "C2", lw=1.5)
         c = T[:3, :3] @ world.rig.board.pattern_centre + T[:3, 3]
         ax.text(c[0], c[1], str(i + 1), fontsize=7)
@@ -300,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
     config, frames = stage_observation(args.stage_data, args.cache)
     spec = standard_spec(width=8000, frames=20, seed=0)
     model = nxp.fit_noise_model(frames, config.board, config.lidar)
-    cov_px = nxp._median_cov_px(frames)
+    cov_px = nxp.median_pixel_cov(frames)
     rig = nxp.Rig(spec.camera, spec.T_cam_lidar, config.lidar, paper_board())
     world = World(rig, model, cov_px)
     quality = prediction_quality(frames, config.board, config.lidar, model)

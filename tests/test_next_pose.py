@@ -57,8 +57,8 @@ def test_beam_hits_lie_on_the_board_and_follow_the_beam_table() -> None:
 def test_the_noise_model_is_recovered_from_covariances_it_made() -> None:
     rig = _rig()
     truth = nxp.BoardNoiseModel((2.0e-4, 5.0e-6), (0.03, 0.5))
-    poses = [_pose(rig, az, d, yaw, pitch) for az, d, yaw, pitch in
-             ((0, 1.5, 0, 0), (70, 2.2, 30, 0), (150, 1.8, -20, 15), (-80, 2.8, 0, -20), (-150, 1.3, 35, 10))]  # fmt: skip
+    placed = ((0, 1.5, 0, 0), (70, 2.2, 30, 0), (150, 1.8, -20, 15), (-80, 2.8, 0, -20), (-150, 1.3, 35, 10))
+    poses = [_pose(rig, az, d, yaw, pitch) for az, d, yaw, pitch in placed]
     frames = _frames(rig, truth, poses, np.eye(2) * 0.0025)
     fitted = nxp.fit_noise_model(frames, BOARD, LIDAR)
     np.testing.assert_allclose(fitted.plane, truth.plane, rtol=1e-6)
@@ -104,7 +104,7 @@ def test_the_proposal_is_in_view_new_and_shrinks_the_worst_sigma(kind: str) -> N
     p = adv.propose(cov, (0.01, 0.2))
     assert p is not None and p.candidates > 20
     assert (
-        nxp._in_view(rig, p.T_lidar_board) is not None
+        nxp.in_view(rig, p.T_lidar_board) is not None
     )  # every corner in the image, board in the LiDAR's field
     c = p.T_lidar_board[:3, :3] @ BOARD.pattern_centre + p.T_lidar_board[:3, 3]
     for f in frames:  # not one of the boards so far
