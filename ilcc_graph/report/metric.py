@@ -220,8 +220,23 @@ def intensity_colour(intensity: np.ndarray, tau: tuple[float, float]) -> np.ndar
     return out
 
 
+_H_CACHE: dict[bytes, np.ndarray] = {}
+
+
 def _unit_square_homographies(quads: np.ndarray) -> np.ndarray:
-    """(C, 3, 3) homographies taking each quad (C, 4, 2) corners to (0,0), (1,0), (1,1), (0,1)."""
+    """(C, 3, 3) homographies taking each quad (C, 4, 2) corners to (0,0), (1,0), (1,1), (0,1).
+
+    Kept for the last few corner grids seen (a frame's grid is the same under every extrinsic the
+    valley study tries); a copy is returned."""
+    key = np.ascontiguousarray(quads, dtype=np.float64).tobytes()
+    if key not in _H_CACHE:
+        if len(_H_CACHE) >= 64:
+            _H_CACHE.pop(next(iter(_H_CACHE)))
+        _H_CACHE[key] = _homographies(quads)
+    return _H_CACHE[key].copy()
+
+
+def _homographies(quads: np.ndarray) -> np.ndarray:
     dst = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     C = quads.shape[0]
     A = np.zeros((C, 8, 8))
