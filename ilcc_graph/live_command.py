@@ -14,6 +14,7 @@ from typing import TextIO
 import numpy as np
 
 from ilcc_graph.config import Config
+from ilcc_graph.errors import InputError
 from ilcc_graph.live import CheckOptions, LiveCheck, Verdict, run_check
 from ilcc_graph.types import GraphFrame, sigmas_deg_mm
 
@@ -149,6 +150,8 @@ def check_command(data: str, options: CheckOptions, out: object = None, advise_l
     from ilcc_graph.datasets import open_source
     from ilcc_graph.datasets.watch import GrowingFolder
 
+    if options.watch and not Path(data).is_dir():
+        raise InputError(f"{data}: --watch follows a data-set folder (config.yaml, pcd/, img/) being filled")
     source = GrowingFolder(data, options.settle_s) if options.watch else open_source(data)
     target = options.target_sigma
     status = StatusLine()
