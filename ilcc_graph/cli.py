@@ -137,6 +137,7 @@ def _run_options(args: argparse.Namespace):  # noqa: ANN202 - pipeline.RunOption
 
 def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
     from ilcc_graph.datasets import open_source
+    from ilcc_graph.next_pose import for_run as next_pose_for_run
     from ilcc_graph.outputs import write_run
     from ilcc_graph.pipeline import run
     from ilcc_graph.report.text import format_joint, format_update, frames_table, summarise
@@ -158,7 +159,7 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
         raise
     t_cal = time.perf_counter() - t0
     t1 = time.perf_counter()
-    proposal = _next_pose(result, options.target_sigma)
+    proposal = next_pose_for_run(result, options.target_sigma)
     write_run(
         out, result, report=args.report, studies=args.studies, truth=truth, command=" ".join(sys.argv[1:]),
         next_pose=proposal, clouds=args.clouds, full_views=args.full_views,
@@ -180,15 +181,6 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
         f"wrote {what} to {out} ({time.perf_counter() - t1:.1f} s)"
     )
     return 0
-
-
-def _next_pose(result, target: tuple[float, float] | None):  # noqa: ANN001, ANN202 - RunResult -> Proposal
-    """Where to hold the board next (one session with a covariance), or None."""
-    from ilcc_graph.next_pose import from_calibration
-
-    if len(result.sessions) != 1 or not np.all(np.isfinite(result.calibration.covariance)):
-        return None
-    return from_calibration(result.calibration, result.sessions[0].observation.config, target)
 
 
 def _explain_failure(err: CalibrationImpossible, out: Path, given: str | None) -> None:

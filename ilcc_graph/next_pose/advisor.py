@@ -16,6 +16,7 @@ from ilcc_graph.types import Calibration, GraphFrame, sigmas_deg_mm
 
 __all__ = [
     "Advisor",
+    "for_run",
     "Proposal",
     "candidate_azimuths",
     "frame_information",
@@ -312,3 +313,11 @@ def from_calibration(
     rig = Rig(config.camera, calibration.T_cam_lidar, config.lidar, config.board)
     vf = float(calibration.diagnostics.get("variance_factor", 1.0))
     return Advisor(rig, frames, information_scale=max(vf, 1.0)).propose(calibration.covariance, target_sigma)
+
+
+def for_run(result, target_sigma: tuple[float, float] | None = None) -> Proposal | None:  # noqa: ANN001
+    """The next board pose after a run (``pipeline.RunResult``) of one session with a covariance;
+    None for several sessions, the paper's refinement (no covariance) or no valid candidate."""
+    if len(result.sessions) != 1 or not np.all(np.isfinite(result.calibration.covariance)):
+        return None
+    return from_calibration(result.calibration, result.sessions[0].observation.config, target_sigma)
