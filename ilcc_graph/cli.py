@@ -159,11 +159,17 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
         raise
     t_cal = time.perf_counter() - t0
     t1 = time.perf_counter()
-    proposal = next_pose_for_run(result, options.target_sigma)
+    advice: dict = {}
+
+    def propose():  # noqa: ANN202 - worked out while the report's pictures are drawn
+        advice["next"] = next_pose_for_run(result, options.target_sigma)
+        return advice["next"]
+
     write_run(
         out, result, report=args.report, studies=args.studies, truth=truth, command=" ".join(sys.argv[1:]),
-        next_pose=proposal, clouds=args.clouds, full_views=args.full_views,
+        next_pose=propose, clouds=args.clouds, full_views=args.full_views,
     )  # fmt: skip
+    proposal = advice.get("next")
     _link_latest(out, args.out)
     cal = result.calibration
     print(frames_table(cal), "", sep="\n")

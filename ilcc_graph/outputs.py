@@ -23,7 +23,7 @@ import dataclasses
 import logging
 import os
 import shutil
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -227,8 +227,10 @@ def _write_report(
     info: dict,
     clouds: bool = False,
     full_views: bool = False,
-) -> None:
-    """``out/index.html`` with its figures for one session; with ``clouds`` ``coloured_dir/<frame>.ply``."""
+    meanwhile: Callable[[], object] | None = None,
+) -> object:
+    """``out/index.html`` with its figures for one session; with ``clouds`` ``coloured_dir/<frame>.ply``.
+    ``meanwhile()`` runs here while the pictures are drawn on other processes; returns its result."""
     from ilcc_graph.report import FigureOptions, build_report, cross_validate, frames_vs_accuracy
 
     obs, cal = session.observation, session.calibration
@@ -270,6 +272,7 @@ def _write_report(
         for r in refs
     ]
     figures, study = _drawn(items, result.options.stages.jobs, cal, config)
+    got = meanwhile() if meanwhile is not None else None
     files = build_report(
         cal,
         config.camera,
@@ -281,8 +284,10 @@ def _write_report(
         info=info,
         valley_study=None if study is None else study.result,
     )
-    for rel, blob in files.items():
-        atomic_write(out / rel, blob)
+    for rel, blob in files.items():  # inside the staging folder: written plainly (no fsync each)
+        (out / rel).parent.mkdir(parents=True, exist_ok=True)
+        (out / rel).write_bytes(blob)
+    return got
 
 
 def write_run(
@@ -293,16 +298,16 @@ def write_run(
     studies: bool = False,
     truth: np.ndarray | None = None,
     command: str = "",
-    next_pose=None,  # noqa: ANN001 - next_pose.Proposal
+    next_pose=None,  # noqa: ANN001 - next_pose.Proposal, or a callable giving one
     clouds: bool = False,
     full_views: bool = False,
 ) -> Path:
     """Write every output of ``result`` to ``out`` (module docstring); returns ``out``. With a
-    ``next_pose`` proposal also ``next_pose.png`` (the rig, the boards, the proposal); ``clouds``:
-    the coloured clouds; ``full_views``: the report's whole pictures at full resolution too."""
+    ``next_pose`` proposal also ``next_pose.png`` (the rig, the boards, the proposal; a callable is
+    called while the report's pictures are drawn on other processes); ``clouds``: the coloured
+    clouds; ``full_views``: the report's whole pictures at full resolution too."""
+    later = next_pose if callable(next_pose) else None
     with staged(out) as d:
-        if next_pose is not None:
-            atomic_write(d / "next_pose.png", next_pose_png(next_pose))
         write_calibration(d / "calibration.yaml", result.calibration)
         first = result.sessions[0].observation.config
         write_yaml(d / "config.resolved.yaml", resolved_config(first, result.options))
@@ -325,10 +330,16 @@ def write_run(
                     "mode": result.mode,
                 }
                 sub = (s.name,) if several else ()
-                _write_report(
+                got = _write_report(
                     d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, studies, truth, info,
-                    clouds, full_views,
+                    clouds, full_views, later,
                 )  # fmt: skip
+                if later is not None:
+                    next_pose, later = got, None
+        if later is not None:
+            next_pose = later()
+        if next_pose is not None:
+            atomic_write(d / "next_pose.png", next_pose_png(next_pose))
     return out
 
 
