@@ -327,7 +327,10 @@ def cmd_check(args: argparse.Namespace) -> int:
         stop_at_target=target is not None,
         stages=StageOptions(jobs=1),
     )
-    return check_command(args.data, options, args.out, advise_live=args.advise)
+    out = _run_dir(args.out)
+    code = check_command(args.data, options, out, advise_live=args.advise)
+    _link_latest(out, args.out)
+    return code
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -473,7 +476,7 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--until", type=int, metavar="N", help="stop after N frames")
     sp.add_argument("--target-sigma", metavar="DEG,MM", help="stop when every sigma is within DEG / MM")
     sp.add_argument("--advise", action="store_true", help="with --watch: the next board pose while waiting")
-    sp.add_argument("--out", help="folder for check.yaml and next_pose.png (default: print only)")
+    sp.add_argument("--out", help="folder for check.yaml and next_pose.png (default: out/<timestamp>)")
 
     sp = add("export", cmd_export, "write a calibration in another tool's format")
     sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")
