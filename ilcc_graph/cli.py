@@ -29,7 +29,7 @@ from ilcc_graph.console import (
     run_command,
     setup_logging,
 )
-from ilcc_graph.errors import InputError
+from ilcc_graph.errors import CalibrationImpossible, InputError
 
 if TYPE_CHECKING:
     import numpy as np
@@ -51,6 +51,7 @@ examples:
   ilcc-graph image-corners DATA --out out/image     the image stage alone: corners drawn and numbered
   ilcc-graph evaluate DATA2 out/run1/calibration.yaml  the paper's metric on frames not used to calibrate
   ilcc-graph export out/latest/calibration.yaml --format ros-tf
+  ilcc-graph check DATA --watch --target-sigma 0.05,1   judge each frame while a recorder fills DATA
 
 exit codes: 0 success, 2 bad usage or bad input, 3 calibration impossible from the data given
 """
@@ -113,6 +114,7 @@ def _stage_options(args: argparse.Namespace):  # noqa: ANN202 - observe.StageOpt
 
 def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
     from ilcc_graph.datasets import open_source
+    from ilcc_graph.next_pose import for_run as next_pose_for_run
     from ilcc_graph.outputs import link_latest, write_run
     from ilcc_graph.pipeline import run
     from ilcc_graph.report.text import format_update, run_summary
@@ -122,21 +124,45 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
     sources = [open_source(d, **_bag_options(args)) for d in data]
     bars: dict[str, Progress] = {}
     t0 = time.perf_counter()
-    result = run(
-        sources,
-        options,
-        progress=lambda name, i, n: bars.setdefault(name, Progress(name))(i, n),
-        report=lambda u: print(format_update(u, options.target_sigma), flush=True),
-    )
+    try:
+        result = run(
+            sources,
+            options,
+            progress=lambda name, i, n: bars.setdefault(name, Progress(name))(i, n),
+            report=lambda u: print(format_update(u, options.target_sigma), flush=True),
+        )
+    except CalibrationImpossible as err:  # a short table and one line of advice; details in the folder
+        _explain_failure(err, out)
+        raise
     t1 = time.perf_counter()
+    advice: dict = {}
+
+    def propose():  # noqa: ANN202 - worked out while the report's pictures are drawn
+        advice["next"] = next_pose_for_run(result, options.target_sigma)
+        return advice["next"]
+
     write_run(
-        out, result, report=args.report, studies=args.studies, truth=truth, command=" ".join(sys.argv[1:])
-    )
+        out, result, report=args.report, studies=args.studies, truth=truth, command=" ".join(sys.argv[1:]),
+        next_pose=propose, clouds=args.clouds, full_views=args.full_views,
+    )  # fmt: skip
     if not args.out:
         link_latest(out)
     seconds = (t1 - t0, time.perf_counter() - t1)
-    print(run_summary(result.calibration, result.joint, truth, out, seconds, args.report))
+    notes = [advice["next"].describe()] if advice.get("next") is not None else []
+    print(run_summary(result.calibration, result.joint, truth, out, seconds, args.report, notes))
     return 0
+
+
+def _explain_failure(err: CalibrationImpossible, out: Path) -> None:
+    """A failed run: its frames as a short table and the advice on stderr, the details in a file."""
+    from ilcc_graph.outputs import write_failure
+    from ilcc_graph.report.text import failure_table
+
+    if err.frames:
+        print(failure_table(err.frames), file=sys.stderr)
+    if err.advice:
+        print(f"advice: {err.advice}", file=sys.stderr)
+    print(f"details: {write_failure(out, err)}", file=sys.stderr)
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
@@ -203,6 +229,28 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_check(args: argparse.Namespace) -> int:
+    """Per frame as it arrives: board in scan and image, new pose, running sigmas (``live``)."""
+    from ilcc_graph.live import CheckOptions
+    from ilcc_graph.live_command import check_command
+    from ilcc_graph.observe import StageOptions
+    from ilcc_graph.outputs import link_latest
+
+    target = args.target_sigma
+    options = CheckOptions(
+        target_sigma=target,
+        until=args.until,
+        watch=args.watch,
+        stop_at_target=target is not None,
+        stages=StageOptions(jobs=1),
+    )
+    out = _run_dir(args)
+    code = check_command(args.data, options, out, advise_live=args.advise)
+    if not args.out:
+        link_latest(out)
+    return code
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     from ilcc_graph.export import export_calibration
     from ilcc_graph.io import read_calibration_with_camera
@@ -261,7 +309,9 @@ def _solve_args(sp: argparse.ArgumentParser, jobs: int, studies: bool = False) -
     help = "estimate the LiDAR's per-beam and dark-print range offsets from the boards' returns"
     sp.add_argument("--lidar-errors", action="store_true", help=help)
     _frames_args(sp, jobs)
-    sp.add_argument("--no-report", dest="report", action="store_false", help="skip the report and clouds")
+    sp.add_argument("--no-report", dest="report", action="store_false", help="skip the report")
+    sp.add_argument("--clouds", action="store_true", help="with the report: coloured clouds (coloured/)")
+    sp.add_argument("--full-views", action="store_true", help="with the report: whole pictures at full size")
     help = "add frames-vs-accuracy and cross-validation to the report"
     sp.add_argument("--studies", action=argparse.BooleanOptionalAction, default=studies, help=help)
 
@@ -353,6 +403,15 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--out", help="folder for evaluation.yaml (default: print only)")
     _frames_args(sp, jobs)
     _bag_args(sp)
+
+    sp = add("check", cmd_check, "check frames as they are captured: board found, new pose, running sigmas")
+    sp.add_argument("data", metavar="DATA", help="a data set folder (with --watch: one being filled)")
+    sp.add_argument("--watch", action="store_true", help="follow the folder while it fills; Ctrl-C ends")
+    sp.add_argument("--until", type=COUNT, metavar="N", help="stop after N frames")
+    help = "stop when every sigma is within DEG / MM"
+    sp.add_argument("--target-sigma", type=DEG_MM, metavar="DEG,MM", help=help)
+    sp.add_argument("--advise", action="store_true", help="with --watch: the next board pose while waiting")
+    sp.add_argument("--out", help="folder for check.yaml and next_pose.png (default: out/<timestamp>)")
 
     sp = add("export", cmd_export, "write a calibration in another tool's format")
     sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")

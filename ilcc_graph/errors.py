@@ -54,7 +54,19 @@ class CorrespondenceError(FrameError):
 
 
 class CalibrationImpossible(CalibrationError):
-    """Too little usable data for any estimate (exit code 3)."""
+    """Too little usable data for any estimate (exit code 3).
+
+    The message is short; ``frames`` holds ``(frame, stage, reason)`` per frame that could not be
+    used (the command line prints them as a table and writes them in full), ``advice`` one line on
+    what to change or capture.
+    """
+
+    def __init__(
+        self, message: str, frames: tuple[tuple[str, str, str], ...] = (), advice: str | None = None
+    ):
+        super().__init__(message)
+        self.frames = tuple(frames)
+        self.advice = advice
 
 
 class IndeterminateSystem(CalibrationError):

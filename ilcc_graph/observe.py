@@ -23,6 +23,7 @@ from ilcc_graph.damage import check_image, check_image_size, read_frame_file, wa
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import BoardColourMismatch, DamagedFile, FrameError, InputError
 from ilcc_graph.image import ImageOptions, detect_corners
+from ilcc_graph.image.previews import make_views
 from ilcc_graph.init import upnp
 from ilcc_graph.lidar import LidarOptions, estimate_board
 from ilcc_graph.lidars import choose_model, measure_beams
@@ -87,13 +88,22 @@ def observe_lidar(
 
 
 def observe_image(
-    source: FrameSource, ref: FrameRef, config: Config, options: ImageOptions, strict: bool = False
+    source: FrameSource,
+    ref: FrameRef,
+    config: Config,
+    options: ImageOptions,
+    strict: bool = False,
+    views: bool = True,
 ) -> ImageCorners:
-    """The image stage on one frame's image; raises FrameError with the reason (DamagedFile when the
-    image cannot be read or has not the camera's size)."""
+    """The image stage on one frame's image, with (``views``) the report's views of it
+    (``image.previews``); raises FrameError with the reason (DamagedFile when the image cannot be
+    read or has not the camera's size)."""
     image = read_frame_file(source.read_image, ref, strict=strict)
     check_image(image, config, str(ref.image), strict)
-    return detect_corners(image, config.camera, config.board, options)  # type: ignore[arg-type]
+    corners = detect_corners(image, config.camera, config.board, options)  # type: ignore[arg-type]
+    return (
+        dataclasses.replace(corners, views=make_views(image, corners.uv, config.camera)) if views else corners
+    )
 
 
 def _attempt(fn: Callable, *args: object) -> object:
@@ -207,21 +217,63 @@ def check_board_colour(
     return dataclasses.replace(config, board=dataclasses.replace(board, lower_left=other)), {}
 
 
+def _colour_verdict(
+    frames: Sequence[FrameResult], errors: dict[str, object], needed: int = 2, look: int = 6
+) -> bool:
+    """Whether the images contradict ``board.lower_left``: as ``check_board_colour`` decides, from the
+    image stage's results of the first ``look`` frames (until ``needed`` agree either way)."""
+    agree = disagree = 0
+    for f in frames[:look]:
+        err = errors.get(f.name)
+        if isinstance(err, BoardColourMismatch):
+            disagree += 1
+        elif f.corners is not None:
+            agree += 1
+        if max(agree, disagree) >= needed:
+            break
+    return disagree > agree
+
+
+def _observe_frame_errors(source: FrameSource, ref: FrameRef, config: Config, options: StageOptions,
+                          image: object = None) -> tuple[FrameResult, object]:  # fmt: skip
+    """``observe_frame`` and the image stage's error (or None), for the colour verdict."""
+    res = image
+    if res is None:
+        res = _attempt(observe_image, source, ref, config, options.image, options.strict)
+    fr = observe_frame(source, ref, config, options, res)
+    return fr, res if isinstance(res, FrameError) else None
+
+
 def observe(
     source: FrameSource, options: StageOptions = StageOptions(), progress: Progress | None = None
 ) -> Observation:
-    """Read a source's config, list its frames, check the images' size and the print's colour, run
-    both stages per frame (damaged frames skipped with a warning, or InputError with ``strict``)."""
+    """Read a source's config, list its frames, check the images' size, run both stages per frame
+    (damaged frames skipped with a warning, or InputError with ``strict``), check the print's colour.
+
+    The colour check judges the first frames' image results as they come from the run over every
+    frame, so no frame waits for it; when the images contradict the config's ``board.lower_left``,
+    the stages run again on every frame with the other colour.
+    """
     if options.jobs > 1:
         workers.prestart()  # the fork server imports the stages while this process checks the config
     config = source.config()  # the config's mistakes first, then the folders'
     refs = source.frames()
     config = resolve_lidar(source, refs, config)
     check_image_size(source, refs, config)
-    config, known = check_board_colour(source, refs, config, options.image, strict=options.strict)
     signals.check()
-    items = [(source, r, config, options, known.get(r.name)) for r in refs]
-    frames = _map(observe_frame, items, options.jobs, progress)
+    items = [(source, r, config, options) for r in refs]
+    done = _map(_observe_frame_errors, items, options.jobs, progress)
+    frames = [fr for fr, _ in done]
+    if config.board.half_turn_symmetric and _colour_verdict(frames, {fr.name: e for fr, e in done}):
+        board = config.board
+        other = "white" if board.lower_left == "black" else "black"
+        log.warning(
+            "%s: board.lower_left is %s, but the print's lower-left square (seen from the front, long "
+            "side horizontal) is %s in the images checked; using %s", config.source, board.lower_left, other,
+            other,
+        )  # fmt: skip
+        config = dataclasses.replace(config, board=dataclasses.replace(board, lower_left=other))
+        frames = _map(observe_frame, [(source, r, config, options) for r in refs], options.jobs, progress)
     warn_damaged(frames)
     frames += [FrameResult(name=n, used=False, reason=why) for n, why in source.skipped()]
     return Observation(source, config, frames)

@@ -11,11 +11,15 @@ everything is written (so ``out`` is either the complete result or untouched):
   ``calibration.yaml`` and ``config.resolved.yaml``; incremental: ``incremental.yaml`` (the state
   after each frame);
 - unless ``report=False``: ``report/index.html`` (one per session under ``report/<name>/`` when
-  there are several) and the coloured clouds ``coloured/<frame>.ply``.
+  there are several), its pictures drawn on the views the image stage kept (no picture is read
+  again), on ``jobs`` processes; on request (``clouds``) the coloured clouds ``coloured/<frame>.ply``
+  and (``full_views``) the whole pictures at full resolution;
+- with a proposal: ``next_pose.png``; ``check``: ``check.yaml``; a failed run: ``failure.yaml``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import errno
 import logging
@@ -23,14 +27,14 @@ import os
 import shutil
 import sys
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ilcc_graph import signals
+from ilcc_graph import signals, workers
 from ilcc_graph.config import Config, config_to_dict
 from ilcc_graph.errors import OutputError
 from ilcc_graph.estimation.incremental import FrameUpdate
@@ -50,6 +54,7 @@ __all__ = [
     "options_dict",
     "resolved_config",
     "staged",
+    "write_check",
     "write_run",
     "write_stage",
 ]
@@ -283,6 +288,56 @@ def staged(out: Path) -> Iterator[Path]:
             raise
 
 
+def _draw_frame(source, ref, config: Config, T: np.ndarray, result, options, ply: Path | None):  # noqa: ANN001, ANN202
+    """One frame's pictures (``report.frame_figures``; a worker process may run it): the scan is read,
+    the image only when the image stage kept no views of it or the options need it; with ``ply``
+    the coloured cloud is written there."""
+    from ilcc_graph.report import frame_figures
+
+    scan = source.read_scan(ref, config)
+    kept = result is not None and result.corners is not None and bool(result.corners.views)
+    image = source.read_image(ref) if (not kept or options.colours or options.full_views) else None
+    ff = frame_figures(ref.name, scan, image, config.camera, config.board, T, result, options=options)
+    if ply is not None and ff.coloured is not None:
+        write_ply(ply, scan, rgb=ff.coloured.rgb)
+    return dataclasses.replace(ff, coloured=None)
+
+
+def _valley(cal, camera, board):  # noqa: ANN001, ANN202 - report.studies.Valley | None
+    """The report's valley study on the used frames (as ``report.build_report`` makes it), or None
+    when a used frame lacks its board points (the report then rebuilds them from the scans)."""
+    from ilcc_graph.report import eval_frame
+    from ilcc_graph.report.studies import valley
+
+    efs = [eval_frame(f) for f in cal.frames if f.used]
+    if not efs or any(e is None or not len(e.points_lidar) for e in efs):
+        return None
+    return valley(efs, camera, board, np.asarray(cal.T_cam_lidar), np.asarray(cal.covariance))
+
+
+def _drawn(items: list[tuple], pool, cal, config: Config) -> tuple[Iterator, object]:  # noqa: ANN001
+    """(``_draw_frame(*item)`` for each item in order, a future of the valley study), on ``pool``
+    (``workers.pool``; in this process when None); the valley study, the longest single job, goes first."""
+    if pool is None:
+        return (_draw_frame(*it) for it in items), None
+    slim = dataclasses.replace(
+        cal,
+        frames=tuple(
+            dataclasses.replace(f, corners=dataclasses.replace(f.corners, views=())) if f.corners else f
+            for f in cal.frames
+        ),
+    )
+    study = pool.submit(_valley, slim, config.camera, config.board)
+    futures = [pool.submit(_draw_frame, *it) for it in items]
+
+    def results() -> Iterator:
+        for fut in futures:
+            yield fut.result()
+            signals.check()
+
+    return results(), study
+
+
 def _write_report(
     out: Path,
     coloured_dir: Path,
@@ -291,9 +346,13 @@ def _write_report(
     studies: bool,
     truth: np.ndarray | None,
     info: dict,
-) -> None:
-    """``out/index.html`` with its figures for one session, and ``coloured_dir/<frame>.ply``."""
-    from ilcc_graph.report import build_report, cross_validate, frames_vs_accuracy
+    clouds: bool = False,
+    full_views: bool = False,
+    meanwhile: Callable[[], object] | None = None,
+) -> object:
+    """``out/index.html`` with its figures for one session; with ``clouds`` ``coloured_dir/<frame>.ply``.
+    ``meanwhile()`` runs here while the pictures are drawn on other processes; returns its result."""
+    from ilcc_graph.report import FigureOptions, build_report, cross_validate, frames_vs_accuracy
 
     obs, cal = session.observation, session.calibration
     config, source = obs.config, obs.source
@@ -319,24 +378,42 @@ def _write_report(
     refs = [
         r for r in source.frames() if r.scan is not None and r.image is not None and r.name not in damaged
     ]
-    frames = ((r.name, source.read_scan(r, config), source.read_image(r)) for r in refs)
-
-    def coloured(ff, scan) -> None:  # noqa: ANN001
-        write_ply(coloured_dir / f"{ff.name}.ply", scan, rgb=ff.coloured.rgb)
-
-    files = build_report(
-        cal,
-        config.camera,
-        config.board,
-        frames,
-        curve=curve,
-        cross_validation=cv,
-        T_ground_truth=truth,
-        info=info,
-        on_frame=coloured,
-    )
-    for rel, blob in files.items():
-        atomic_write(out / rel, blob)
+    results = {f.name: f for f in cal.frames}
+    fig_opts = FigureOptions(colours=clouds, full_views=full_views)
+    if clouds:
+        coloured_dir.mkdir(parents=True, exist_ok=True)
+    T = np.asarray(cal.T_cam_lidar)
+    items = [
+        (
+            source,
+            r,
+            config,
+            T,
+            results.get(r.name),
+            fig_opts,
+            coloured_dir / f"{r.name}.ply" if clouds else None,
+        )
+        for r in refs
+    ]
+    jobs = min(result.options.stages.jobs, len(items))
+    with workers.pool(jobs) if jobs > 1 else contextlib.nullcontext() as pool:
+        figures, study = _drawn(items, pool, cal, config)
+        got = meanwhile() if meanwhile is not None else None
+        files = build_report(
+            cal,
+            config.camera,
+            config.board,
+            figures=figures,
+            curve=curve,
+            cross_validation=cv,
+            T_ground_truth=truth,
+            info=info,
+            valley_study=None if study is None else study.result,
+        )
+    for rel, blob in files.items():  # inside the staging folder: written plainly (no fsync each)
+        (out / rel).parent.mkdir(parents=True, exist_ok=True)
+        (out / rel).write_bytes(blob)
+    return got
 
 
 def write_run(
@@ -347,8 +424,15 @@ def write_run(
     studies: bool = False,
     truth: np.ndarray | None = None,
     command: str = "",
+    next_pose=None,  # noqa: ANN001 - next_pose.Proposal, or a callable giving one
+    clouds: bool = False,
+    full_views: bool = False,
 ) -> Path:
-    """Write every output of ``result`` to ``out`` (module docstring); returns ``out``."""
+    """Write every output of ``result`` to ``out`` (module docstring); returns ``out``. With a
+    ``next_pose`` proposal also ``next_pose.png`` (the rig, the boards, the proposal; a callable is
+    called while the report's pictures are drawn on other processes); ``clouds``: the coloured
+    clouds; ``full_views``: the report's whole pictures at full resolution too."""
+    later = next_pose if callable(next_pose) else None
     with staged(out) as d:
         write_calibration(d / "calibration.yaml", result.calibration)
         first = result.sessions[0].observation.config
@@ -372,9 +456,16 @@ def write_run(
                     "mode": result.mode,
                 }
                 sub = (s.name,) if several else ()
-                _write_report(
-                    d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, studies, truth, info
-                )
+                got = _write_report(
+                    d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, studies, truth, info,
+                    clouds, full_views, later,
+                )  # fmt: skip
+                if later is not None:
+                    next_pose, later = got, None
+        if later is not None:
+            next_pose = later()
+        if next_pose is not None:
+            atomic_write(d / "next_pose.png", next_pose_png(next_pose))
     return out
 
 
@@ -420,3 +511,73 @@ def write_stage(out: Path, stage: str, source, refs, results) -> list[tuple]:  #
                 rows.append((ref.name, "yes", res.detector, f"{sigma:.3f}", ""))
             write_yaml(d / f"{ref.name}.yaml", doc)
     return rows
+
+
+def next_pose_png(proposal) -> bytes:  # noqa: ANN001 - next_pose.Proposal
+    """The rig from above and the side with the boards so far and the proposal (``report.rig``)."""
+    import textwrap
+
+    from ilcc_graph.report.rig import plot_next_pose
+
+    rig = proposal.rig
+    return plot_next_pose(
+        rig.board,
+        proposal.boards,
+        proposal.T_lidar_board,
+        rig.T_cam_lidar,
+        rig.camera,
+        rig.lidar.vertical_angles_deg,
+        "\n".join(textwrap.wrap(proposal.describe(), 150)),
+    )
+
+
+def write_check(out: Path, result, proposal=None) -> Path:  # noqa: ANN001 - live.CheckResult, next_pose.Proposal
+    """``check.yaml`` (every frame's verdict, the batch answer, why the check ended) and, with a
+    proposal, ``next_pose.png``, into ``out`` (staged like ``write_run``)."""
+    verdicts = []
+    for v in result.verdicts:
+        d: dict[str, Any] = {"frame": v.name, "scan": v.lidar or "found", "image": v.image or "found"}
+        if v.found:
+            d["pose"] = f"repeat of {v.repeat_of}" if v.repeat_of else "new"
+            d["accepted"] = bool(v.accepted)
+        if v.note:
+            d["note"] = v.note
+        if v.sigmas is not None:
+            d["sigma"] = dict(
+                zip(("rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm"), map(float, v.sigmas))
+            )
+        d["seconds"] = float(v.seconds)
+        if v.latency is not None:
+            d["latency_s"] = float(v.latency)
+        verdicts.append(d)
+    doc: dict[str, Any] = {"stopped": result.stopped, "frames": verdicts}
+    if result.final is not None:
+        doc["final"] = {
+            "T_cam_lidar": np.asarray(result.final.T_cam_lidar),
+            "covariance": result.final.covariance,
+            "sigma": sigma_dict(result.final.covariance),
+            "n_frames": int(result.final.n_frames),
+        }
+    if proposal is not None:
+        doc["next_pose"] = {"T_lidar_board": proposal.T_lidar_board, "advice": proposal.describe()}
+    with staged(out) as d:
+        write_yaml(d / "check.yaml", doc)
+        if proposal is not None:
+            atomic_write(d / "next_pose.png", next_pose_png(proposal))
+    return out
+
+
+def write_failure(out: Path, error: Exception) -> Path:
+    """The message, the advice and every frame's full reason of a failed run, as ``out/failure.yaml``
+    (staged), or as ``OUT.failure.yaml`` beside an ``out`` that holds an earlier result (kept).
+    Returns the file written."""
+    doc: dict[str, Any] = {"error": str(error), "advice": getattr(error, "advice", None)}
+    doc["frames"] = [{"frame": f, "stage": st, "reason": why} for f, st, why in getattr(error, "frames", ())]
+    out = Path(out)
+    if out.exists():
+        path = out.parent / f"{out.name}.failure.yaml"
+        write_yaml(path, doc)
+        return path
+    with staged(out) as d:
+        write_yaml(d / "failure.yaml", doc)
+    return out / "failure.yaml"

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -25,7 +26,16 @@ from ilcc_graph.types import Calibration, FrameResult, GraphFrame, ImageCorners,
 
 log = logging.getLogger(__name__)
 
-__all__ = ["Prepared", "drop", "finish", "graph_frame", "permute_corners", "prepare", "rms_bearing_mrad"]
+__all__ = [
+    "Prepared",
+    "drop",
+    "finish",
+    "frame_issues",
+    "graph_frame",
+    "permute_corners",
+    "prepare",
+    "rms_bearing_mrad",
+]
 
 
 @dataclass(frozen=True)
@@ -66,13 +76,26 @@ def prepare(observed: Sequence[FrameResult], config: Config) -> Prepared:
     results = {r.name: r for r in observed}
     usable = [r for r in observed if r.used and r.board is not None and r.corners is not None]
     if not usable:
-        reasons = "; ".join(f"{r.name}: {r.reason}" for r in observed) or "no frames"
-        raise CalibrationImpossible(f"no frame has the board in both the scan and the image ({reasons})")
+        issues = frame_issues(observed)
+        raise CalibrationImpossible(
+            f"no frame has the board in both the scan and the image ({_counts(observed, issues)})",
+            issues,
+            _stage_advice(issues),
+        )
     geometry = board_geometry([graph_frame(r, config) for r in usable])
     for name, first in geometry.repeats.items():
         drop(results, name, f"same board pose as {first}: one observation, not an independent one")
     if not geometry.ok:
-        raise CalibrationImpossible(f"{geometry.reason}. What to capture next: {geometry.advice}")
+        reason = re.sub(r" \([^)]*show one pose\)", "", geometry.reason or "too few distinct board poses")
+        issues = frame_issues([r for r in observed if not r.used or r.board is None or r.corners is None])
+        n = len(geometry.groups)
+        issues += tuple(
+            (r.name, "geometry", f"same board pose as {geometry.repeats[r.name]}")
+            if r.name in geometry.repeats
+            else (r.name, "geometry", f"usable: one of only {n} distinct board pose{'s' if n != 1 else ''}")
+            for r in usable
+        )
+        raise CalibrationImpossible(reason, issues, f"capture next: {geometry.advice}")
     if geometry.parallel:
         log.warning("%s: %s", config.source, geometry.parallel)
     usable = [r for r in usable if r.name not in geometry.repeats]
@@ -86,7 +109,9 @@ def prepare(observed: Sequence[FrameResult], config: Config) -> Prepared:
     )
     if order.ambiguous:
         raise CalibrationImpossible(
-            f"the corner order between image and scan cannot be decided: {order.ambiguous}"
+            "the corner order between image and scan cannot be decided",
+            tuple((r.name, "order", order.ambiguous) for r in usable[:1]),
+            "add frames with the board turned differently in its plane (not only half turns apart)",
         )
     for name, reason in order.dropped:
         drop(results, name, reason)
@@ -100,8 +125,9 @@ def prepare(observed: Sequence[FrameResult], config: Config) -> Prepared:
         kept.append(r)
     if not kept:
         raise CalibrationImpossible(
-            "no frame left after ordering the corners: "
-            + "; ".join(f"{n}: {why}" for n, why in order.dropped)
+            "no frame left after ordering the corners",
+            tuple((n, "order", why) for n, why in order.dropped),
+            "check board.squares and board.lower_left in config.yaml against the print",
         )
     frames = [graph_frame(r, config) for r in kept]
     T_init = order.T_cam_lidar
@@ -110,6 +136,62 @@ def prepare(observed: Sequence[FrameResult], config: Config) -> Prepared:
         F = np.vstack([r.corners.bearings for r in kept])  # type: ignore[union-attr]
         T_init = upnp(P, F, prefer_front=True)[0].T_cam_points  # corners lie ahead along their rays
     return Prepared(frames, np.asarray(T_init, dtype=np.float64), results)
+
+
+#: frame reasons as ``observe.observe_frame`` writes them: "LiDAR: ...; image: ..."
+_STAGE_PREFIXES = (("LiDAR: ", "lidar"), ("image: ", "image"))
+
+
+def frame_issues(frames: Sequence[FrameResult]) -> tuple[tuple[str, str, str], ...]:
+    """``(frame, stage, reason)`` of every frame not used: stage ``lidar`` or ``image`` (both when
+    both failed), ``pairing`` for a scan or image without its partner, ``frame`` otherwise."""
+    out: list[tuple[str, str, str]] = []
+    for f in frames:
+        if f.used:
+            continue
+        why = f.reason or "not used"
+        if why.startswith("LiDAR: ") or why.startswith("image: "):
+            head, sep, tail = why.partition("; image: ")
+            parts = [head] + ([f"image: {tail}"] if sep else [])
+            for part in parts:
+                for prefix, stage in _STAGE_PREFIXES:
+                    if part.startswith(prefix):
+                        out.append((f.name, stage, part[len(prefix) :]))
+        elif f.board is None and f.corners is None and ("has no scan" in why or "has no image" in why):
+            out.append((f.name, "pairing", why))
+        else:
+            out.append((f.name, "frame", why))
+    return tuple(out)
+
+
+def _counts(frames: Sequence[FrameResult], issues: Sequence[tuple[str, str, str]]) -> str:
+    n = len(frames)
+    by = {s: len({f for f, st, _ in issues if st == s}) for s in ("lidar", "image", "pairing")}
+    parts = [f"{n} frame{'s' if n != 1 else ''}"]
+    if by["lidar"]:
+        parts.append(f"no board in {by['lidar']} scan{'s' if by['lidar'] != 1 else ''}")
+    if by["image"]:
+        parts.append(f"no corners in {by['image']} image{'s' if by['image'] != 1 else ''}")
+    if by["pairing"]:
+        parts.append(f"{by['pairing']} without a partner")
+    return ", ".join(parts)
+
+
+def _stage_advice(issues: Sequence[tuple[str, str, str]]) -> str:
+    """One line on what to check, from which stage failed most."""
+    lidar = sum(1 for _, s, _ in issues if s == "lidar")
+    image = sum(1 for _, s, _ in issues if s == "image")
+    if not issues:
+        return "no frames: put scans in DATA/pcd and images with the same names in DATA/img"
+    if image >= lidar:
+        return (
+            "the image stage found no chessboard: check board.squares (squares, not inner corners) and the "
+            "camera section of config.yaml, and that the whole board is in the pictures"
+        )
+    return (
+        "the LiDAR stage found no board: check board.squares, board.square_size and lidar.model in "
+        "config.yaml; if the board is in view, narrow the search with board.roi"
+    )
 
 
 def finish(

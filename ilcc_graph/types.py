@@ -139,6 +139,25 @@ class BoardFit:
 
 
 @dataclass(frozen=True)
+class ImageView:
+    """A small view of a frame's picture, kept so that the report need not read the image again.
+
+    purpose: ``"tight"`` / ``"wide"`` (windows around the detected corners) or ``"whole"`` (the
+    picture scaled down). jpeg: the view's pixels (BGR, JPEG bytes). x0, y0: its window's first
+    full-image column and row; width_full: the picture's width; wrap: the window may cross a
+    panorama's seam; zoom: view pixels per full-image pixel (``image.previews.Crop``).
+    """
+
+    purpose: str
+    jpeg: bytes
+    x0: int
+    y0: int
+    width_full: int
+    wrap: bool
+    zoom: float
+
+
+@dataclass(frozen=True)
 class ImageCorners:
     """The image stage's answer for one frame.
 
@@ -149,6 +168,8 @@ class ImageCorners:
     diagnostics: free-form numbers for reports.
     detector: which detector found the grid (e.g. ``"sb"``, ``"classic"``, ``"cbdetect+gamma"``);
         empty when unknown (corners read back from a file).
+    views: small views of the picture around the corners for the report (``image.previews``);
+        empty when not made.
     """
 
     uv: np.ndarray
@@ -157,6 +178,7 @@ class ImageCorners:
     half_turn_ambiguous: bool
     diagnostics: dict[str, float] = field(default_factory=dict)
     detector: str = ""
+    views: tuple[ImageView, ...] = ()
 
 
 @dataclass(frozen=True)

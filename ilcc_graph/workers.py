@@ -36,7 +36,7 @@ from ilcc_graph import signals
 
 log = logging.getLogger(__name__)
 
-__all__ = ["START_METHOD", "map_processes", "prestart"]
+__all__ = ["START_METHOD", "map_processes", "pool", "prestart"]
 
 #: how worker processes are started (see the module docstring)
 START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
@@ -167,18 +167,21 @@ def _terminate(pool: ProcessPoolExecutor) -> None:
 
 
 @contextlib.contextmanager
-def _pool(jobs: int) -> Iterator[ProcessPoolExecutor]:
+def pool(jobs: int) -> Iterator[ProcessPoolExecutor]:
+    """A pool of ``jobs`` worker processes (module docstring) for work submitted as it comes
+    (``submit``); on leaving by an exception, or on a stop, its work is cancelled and the workers
+    end at once. Functions and arguments must be picklable."""
     prestart()
-    pool = ProcessPoolExecutor(
+    executor = ProcessPoolExecutor(
         max_workers=jobs, mp_context=_context(), initializer=_init_worker, initargs=(os.getpid(),)
     )
-    with signals.on_stop(lambda: _terminate(pool)):
+    with signals.on_stop(lambda: _terminate(executor)):
         try:
-            yield pool
+            yield executor
         except BaseException:
-            _terminate(pool)
+            _terminate(executor)
             raise
-    pool.shutdown(wait=True)
+    executor.shutdown(wait=True)
 
 
 def map_processes(
@@ -197,8 +200,8 @@ def map_processes(
             if progress:
                 progress(i + 1, len(items))
         return out
-    with _pool(min(jobs, len(items))) as pool:
-        futures = [pool.submit(fn, *it) for it in items]
+    with pool(min(jobs, len(items))) as executor:
+        futures = [executor.submit(fn, *it) for it in items]
         for i, fut in enumerate(futures):
             out.append(fut.result())
             signals.check()

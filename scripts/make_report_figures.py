@@ -30,6 +30,7 @@ from ilcc_graph.cameras import camera_kinds  # noqa: E402
 from ilcc_graph.config import load_config  # noqa: E402
 from ilcc_graph.io import atomic_write, list_frames, read_ground_truth, read_image, read_scan, write_ply  # noqa: E402
 from ilcc_graph.report import (  # noqa: E402
+    FigureOptions,
     build_report,
     cross_validate,
     eval_frames,
@@ -163,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
         T_ground_truth=gt.T_cam_lidar,
         info=info,
         on_frame=write_cloud,
+        figure_options=FigureOptions(colours=True),
     )
     for rel, blob in files.items():
         atomic_write(out / "report" / rel, blob)

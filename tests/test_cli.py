@@ -102,9 +102,21 @@ def small_panoramic_set(tmp_path_factory) -> Path:
 
 def test_calibrate_writes_interface_schema(small_panoramic_set, tmp_path):
     out = tmp_path / "out"
-    assert main(["calibrate", str(small_panoramic_set), "--out", str(out), "--jobs", "1"]) == 0
+    args = [
+        "calibrate",
+        str(small_panoramic_set),
+        "--out",
+        str(out),
+        "--jobs",
+        "1",
+        "--clouds",
+        "--full-views",
+    ]
+    assert main(args) == 0
     assert (out / "report" / "index.html").is_file()
-    assert len(list((out / "coloured").glob("*.ply"))) >= 1
+    assert len(list((out / "coloured").glob("*.ply"))) >= 1  # on request
+    assert len(list((out / "report" / "figures" / "full").glob("*_full.jpg"))) >= 1
+    assert (out / "next_pose.png").is_file()
     cal = yaml.safe_load((out / "calibration.yaml").read_text())
     T = np.array(cal["T_cam_lidar"], float)
     assert T.shape == (4, 4) and np.allclose(T[3], [0, 0, 0, 1])
@@ -142,7 +154,18 @@ def test_no_board_anywhere_is_exit_3(small_panoramic_set, tmp_path, capsys):
     for pcd in sorted((small_panoramic_set / "pcd").iterdir()):
         cv2.imwrite(str(data / "img" / f"{pcd.stem}.png"), blank)
     assert main(["calibrate", str(data), "--out", str(tmp_path / "out"), "--jobs", "1"]) == 3
-    assert "impossible" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "impossible" in err
+    # a short table (frame, stage, reason), one line of advice, the details in the output folder
+    lines = err.splitlines()
+    assert lines[0].split() == ["frame", "stage", "reason"]
+    n = len(list((small_panoramic_set / "pcd").iterdir()))
+    rows = [line for line in lines if line[:1].isdigit() and line.split()[1] == "image"]
+    assert len(rows) == n and all(len(line) < 120 for line in lines if not line.startswith("advice"))
+    assert sum(line.startswith("advice: ") for line in lines) == 1
+    doc = yaml.safe_load((tmp_path / "out" / "failure.yaml").read_text())
+    assert len(doc["frames"]) >= n and {f["stage"] for f in doc["frames"]} >= {"image"}
+    assert len(lines[-1]) < 200  # the message itself stays short
 
 
 def test_evaluate_and_export_a_calibration(small_panoramic_set, tmp_path, capsys):

@@ -207,12 +207,15 @@ def test_report_is_self_contained_and_has_the_table() -> None:
         if path.endswith(".png"):
             assert data[:8] == b"\x89PNG\r\n\x1a\n"
             assert path.startswith("figures/")
+        if path.endswith(".webp"):
+            assert data[:4] == b"RIFF" and data[8:12] == b"WEBP"
+            assert path.startswith("figures/")
     assert {
-        "figures/0001_corners.png",
-        "figures/0001_range.png",
-        "figures/0001_edges.png",
-        "figures/0001_metric.png",
-        "figures/0001_whole.png",
+        "figures/0001_corners.webp",
+        "figures/0001_range.webp",
+        "figures/0001_edges.webp",
+        "figures/0001_metric.webp",
+        "figures/0001_whole.webp",
         "figures/per_frame.png",
         "figures/valley.png",
     } <= set(files)
@@ -232,7 +235,7 @@ def test_report_of_a_calibration_file_rebuilds_the_board_points_from_the_scans(t
         image, scan = scene_image_and_scan(rng, f.board.T_lidar_board)
         srcs.append((f.name, scan, image))
     files = build_report(cal, CAM, BOARD, iter(srcs), show_valley=False)
-    assert "figures/0001_metric.png" in files
+    assert "figures/0001_metric.webp" in files
     page = files["index.html"].decode("utf-8")
     m = re.search(r"intensity error \(mrad\)</td><td>([0-9.]+)</td>", page)
     assert m is not None and float(m.group(1)) < 0.5, page[:2000]

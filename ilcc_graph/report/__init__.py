@@ -1,24 +1,22 @@
 """Is the result right? The paper's re-projection metric, studies, overlays, coloured clouds, report.
 
-- :mod:`.metric`: ``evaluate(frames, camera, board, T_cam_lidar) -> Evaluation`` (the paper's
-  intensity-based re-projection error, Eq. 14, and corner errors in px and mrad).
+- :mod:`.metric`: the paper's intensity-based re-projection error (Eq. 14) per point and frame;
+  :mod:`.evaluation`: ``evaluate(frames, camera, board, T_cam_lidar) -> Evaluation`` (per frame and
+  overall, with corner errors in px and mrad).
 - :mod:`.studies`: ``cross_validate`` and ``frames_vs_accuracy`` (take the observations and a
   solver callable ``solve(frames) -> (T, cov)``).
 - :mod:`.overlays`: corners, LiDAR points on images with occlusion, coloured points.
 - :mod:`.plots`: charts as PNG bytes.
-- :mod:`.html`: ``build_report(...) -> {relative path: bytes}`` (``index.html`` and ``figures/``).
+- :mod:`.figures`: a frame's pictures (on the image stage's kept views, compressed);
+  :mod:`.sections`: the page's parts; :mod:`.html`: ``build_report(...) -> {relative path: bytes}``
+  (``index.html`` and ``figures/``); :mod:`.rig`: the rig and the next board pose, from above and aside.
 
 Pure: nothing here reads or writes files; the command line writes what these return.
 """
 
 from __future__ import annotations
 
-from .html import FrameFigures, build_report, frame_figures
-from .metric import (
-    EPSILON_G,
-    EvalFrame,
-    Evaluation,
-    FrameEvaluation,
+from .evaluation import (
     board_points_from_scan,
     eval_frame,
     eval_frame_with_scan,
@@ -27,8 +25,10 @@ from .metric import (
     evaluate_calibration,
     evaluation_rows,
     evaluation_to_dict,
-    metric_points,
 )
+from .figures import FigureOptions, FrameFigures, frame_figures
+from .html import build_report
+from .metric import EPSILON_G, EvalFrame, Evaluation, FrameEvaluation, metric_points
 from .overlays import (
     OCCLUDED_RGB,
     OUTSIDE_RGB,
@@ -49,6 +49,7 @@ __all__ = [
     "CrossValidation",
     "EvalFrame",
     "Evaluation",
+    "FigureOptions",
     "FrameEvaluation",
     "FrameFigures",
     "FramesCurve",

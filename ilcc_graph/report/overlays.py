@@ -1,5 +1,7 @@
 """Pictures drawn on images: corners numbered, LiDAR points projected, occlusion, coloured clouds.
 
+Windows of a picture (``Crop``, ``crop_around``, ``downscale``) are ``image.previews``'s.
+
 Images are (H, W, 3) uint8 BGR (OpenCV's order); pixels follow interface.md (centres at integers).
 Everything here is pure: arrays in, new arrays out; nothing is read or written.
 """
@@ -13,8 +15,9 @@ import numpy as np
 
 from ..board import Board
 from ..cameras import CameraModel
+from ..image.previews import Crop, crop_around, downscale  # re-exported: the report's windows
 from ..types import Scan
-from .metric import MetricPoints, circular_mean_u, transform_points
+from .metric import MetricPoints, transform_points
 
 __all__ = [
     "crop_box",
@@ -94,95 +97,7 @@ def _draw_numbered(out: np.ndarray, p: np.ndarray, colour=(0, 0, 255), line=(0, 
         cv2.putText(out, str(k), org, font, size, c, th, cv2.LINE_AA)
 
 
-# ------------------------------------------------------------------------------ crops
-@dataclass(frozen=True)
-class Crop:
-    """A window of an image: ``image`` (h, w, 3) and the map from full-image pixels into it.
-
-    Full pixel (u, v) is at ``zoom * ((u - x0) mod W_full, v - y0)`` for panoramas that wrap
-    (``wrap``), else at ``zoom * (u - x0, v - y0)`` (pixel centres scale about -0.5).
-    """
-
-    image: np.ndarray
-    x0: int
-    y0: int
-    width_full: int
-    wrap: bool
-    zoom: float = 1.0
-
-    def to_crop(self, uv: np.ndarray) -> np.ndarray:
-        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-        out = uv - np.array([self.x0, self.y0])
-        if self.wrap:
-            out[:, 0] = np.mod(out[:, 0] + 0.5, self.width_full) - 0.5
-        return (out + 0.5) * self.zoom - 0.5
-
-    def zoomed(self, min_size: int = 600, max_zoom: int = 4, max_size: int | None = None) -> Crop:
-        """The same window enlarged by an integer factor (nearest neighbour) until its longer side
-        reaches ``min_size`` pixels (at most ``max_zoom`` times), so small boards stay legible; or
-        shrunk (area averaging) to ``max_size`` pixels when larger, so the report stays light."""
-        side = max(self.image.shape[:2]) if self.image.size else 0
-        if max_size is not None and side > max_size:
-            f = max_size / side
-            size = (max(1, round(self.image.shape[1] * f)), max(1, round(self.image.shape[0] * f)))
-            img = cv2.resize(self.image, size, interpolation=cv2.INTER_AREA)
-            f_eff = img.shape[1] / self.image.shape[1]
-            return Crop(img, self.x0, self.y0, self.width_full, self.wrap, self.zoom * f_eff)
-        z = int(min(max_zoom, max(1, np.ceil(min_size / max(side, 1)))))
-        if z == 1:
-            return self
-        img = cv2.resize(self.image, None, fx=z, fy=z, interpolation=cv2.INTER_NEAREST)
-        return Crop(img, self.x0, self.y0, self.width_full, self.wrap, self.zoom * z)
-
-
-def crop_around(
-    image: np.ndarray,
-    uv: np.ndarray,
-    camera: CameraModel | None = None,
-    pad: float = 0.6,
-    min_size: int = 240,
-) -> Crop:
-    """A crop around pixels ``uv`` (N, 2) padded by ``pad`` of their extent on every side.
-
-    For a ``camera`` whose columns wrap (a panorama) the window may cross the seam.
-    """
-    H, W = image.shape[:2]
-    uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    uv = uv[np.all(np.isfinite(uv), axis=1)]
-    wrap = camera is not None and camera.periodic_u
-    if uv.size == 0:
-        return Crop(np.ascontiguousarray(image[:0, :0]), 0, 0, W, wrap)
-    if wrap:
-        ref = circular_mean_u(uv[:, 0], W)
-        u = ref + (np.mod(uv[:, 0] - ref + W / 2, W) - W / 2)
-        uv = np.column_stack([u, uv[:, 1]])
-    lo, hi = uv.min(axis=0), uv.max(axis=0)
-    size = np.maximum(hi - lo, min_size)
-    c = (lo + hi) / 2
-    half = size * (0.5 + pad)
-    x0, y0 = (int(v) for v in np.floor(c - half))
-    x1, y1 = (int(v) for v in np.ceil(c + half))
-    y0, y1 = max(y0, 0), min(y1, H)
-    if wrap:
-        if x1 - x0 >= W:
-            x0, x1 = 0, W
-        cols = np.mod(np.arange(x0, x1), W)
-        img = np.ascontiguousarray(image[y0:y1][:, cols])
-        return Crop(img, int(np.mod(x0, W)), y0, W, True)
-    x0, x1 = max(x0, 0), min(x1, W)
-    return Crop(np.ascontiguousarray(image[y0:y1, x0:x1]).copy(), x0, y0, W, False)
-
-
-def downscale(image: np.ndarray, max_width: int = 1600) -> tuple[np.ndarray, float]:
-    """(image no wider than ``max_width``, factor applied to pixel coordinates)."""
-    W = image.shape[1]
-    if W <= max_width:
-        return image.copy(), 1.0
-    f = max_width / W
-    size = (max_width, max(1, int(round(image.shape[0] * f))))
-    return cv2.resize(image, size, interpolation=cv2.INTER_AREA), f
-
-
+# ------------------------------------------------------------------------------ encoding
 def encode_png(image: np.ndarray, bits: int = 8) -> bytes:
     """PNG bytes of a BGR or gray uint8 image, keeping the top ``bits`` of each channel.
 

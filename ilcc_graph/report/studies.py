@@ -21,7 +21,8 @@ from scipy.spatial.transform import Rotation
 from ..board import Board
 from ..cameras import CameraModel
 from ..types import FrameResult
-from .metric import EvalFrame, Evaluation, FrameEvaluation, eval_frame, evaluate
+from .evaluation import eval_frame, evaluate
+from .metric import EvalFrame, Evaluation, FrameEvaluation
 
 __all__ = [
     "Solver",

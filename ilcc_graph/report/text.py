@@ -14,11 +14,13 @@ from .sensors import sensors_text
 __all__ = [
     "STAGE_HEADERS",
     "evaluation_text",
+    "failure_table",
     "format_joint",
     "format_table",
     "format_update",
     "frames_table",
     "run_summary",
+    "short_reason",
     "stage_table",
     "summarise",
 ]
@@ -161,8 +163,8 @@ def run_summary(
     notes: Sequence[str] = (),
 ) -> str:
     """What ``calibrate`` prints: the frames, the sessions' tests, the extrinsic, the sensors' own
-    error terms, the frame count
-    (and the damaged files), and where the result went. seconds: (calibrating, writing)."""
+    error terms, the frame count (and the damaged files), and where the result went. seconds:
+    (calibrating, writing)."""
     parts = [frames_table(cal), ""]
     if joint is not None:
         parts += [format_joint(joint), ""]
@@ -203,3 +205,25 @@ def evaluation_text(
     lines = [f"{name}: not evaluated ({why})" for name, why in not_evaluated]
     lines.append(format_table(body, header))
     return "\n".join(lines)
+
+
+def short_reason(text: str, limit: int = 90) -> str:
+    """A reason cut to its first clause (before the first ``"; "`` or ``". "``), at most ``limit``
+    characters."""
+    text = " ".join(str(text).split())
+    for sep in ("; ", ". "):
+        head = text.split(sep)[0]
+        if len(head) >= 20:
+            text = head
+            break
+    return text if len(text) <= limit else text[: limit - 3].rstrip() + "..."
+
+
+def failure_table(frames: Sequence[tuple[str, str, str]], limit: int = 90, max_rows: int = 40) -> str:
+    """(frame, stage, reason) rows as a table, each reason cut short (``short_reason``); at most
+    ``max_rows`` rows (then a line says how many more)."""
+    rows = [(f, stage, short_reason(why, limit)) for f, stage, why in frames[:max_rows]]
+    text = format_table(rows, ("frame", "stage", "reason"))
+    if len(frames) > max_rows:
+        text += f"\n... and {len(frames) - max_rows} more"
+    return text

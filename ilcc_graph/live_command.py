@@ -1,0 +1,206 @@
+"""``ilcc-graph check``: the live table, the progress line, the advice, what is written.
+
+The check itself is ``live``; this module prints it (the table on standard output, the progress
+line on standard error, redrawn in place on a terminal) and writes ``check.yaml`` and
+``next_pose.png`` through ``outputs``.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import TextIO
+
+import numpy as np
+
+from ilcc_graph.config import Config
+from ilcc_graph.errors import InputError
+from ilcc_graph.live import CheckOptions, LiveCheck, Verdict, run_check
+from ilcc_graph.types import GraphFrame, sigmas_deg_mm
+
+__all__ = ["VERDICT_HEADER", "LiveAdvice", "StatusLine", "check_command", "format_progress", "format_verdict"]
+
+
+# ----------------------------------------------------------------------------- printing
+#: the columns of :func:`format_verdict`
+VERDICT_HEADER = (
+    f"{'frame':<10s} {'scan':<4s} {'image':<5s} {'pose':<10s} {'n':>3s} "
+    f"{'rot deg':>8s} {'trans mm':>8s} {'target':>13s} {'latency':>7s}  note"
+)
+
+
+def _gap(sig: np.ndarray, target: tuple[float, float] | None) -> str:
+    if target is None:
+        return ""
+    r, t = float(np.max(sig[:3])) / target[0], float(np.max(sig[3:])) / target[1]
+    return "reached" if max(r, t) <= 1.0 else f"x{r:.1f} x{t:.1f}"
+
+
+def _more(n_distinct: int) -> str:
+    k = max(0, 3 - n_distinct)
+    return "" if k == 0 else f"{k} more pose" + ("s" if k > 1 else "")
+
+
+def _short(text: str, n: int = 70) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def format_verdict(v: Verdict, target: tuple[float, float] | None = None) -> str:
+    """One table row (``VERDICT_HEADER``): found in scan / image, pose new or a repeat, frames in
+    the graph, worst rotation and translation sigma, gap to the target (sigma / target), latency."""
+    pose = "-" if not v.found else (f"= {v.repeat_of}" if v.repeat_of else "new")
+    rot = trans = gap = ""
+    if v.sigmas is not None:
+        rot, trans = f"{np.max(v.sigmas[:3]):.4f}", f"{np.max(v.sigmas[3:]):.3f}"
+        gap = _gap(v.sigmas, target)
+    elif v.found:
+        gap = _more(v.n_distinct)
+    notes = [f"scan: {v.lidar}" if v.lidar else "", f"image: {v.image}" if v.image else "", v.note or ""]
+    if v.repeat_of:
+        notes.append("same board pose as before: move or turn the board")
+    note = _short("; ".join(n for n in notes if n))
+    lat = "" if v.latency is None else f"{v.latency:.2f}s"
+    return (
+        f"{v.name:<10s} {'ok' if v.lidar is None else 'no':<4s} {'ok' if v.image is None else 'no':<5s} "
+        f"{pose:<10s} {v.n_frames:>3d} {rot:>8s} {trans:>8s} {gap:>13s} {lat:>7s}  {note}"
+    ).rstrip()
+
+
+def format_progress(
+    verdicts: list[Verdict], target: tuple[float, float] | None = None, waiting: float | None = None
+) -> str:
+    """One status line: frames seen, with the board in both, distinct, in the graph; the sigmas."""
+    n = len(verdicts)
+    both = sum(v.found for v in verdicts)
+    last = verdicts[-1] if verdicts else None
+    head = f"{n} frame(s): {both} with the board in both, {last.n_distinct if last else 0} distinct poses"
+    if last is not None and last.sigmas is not None:
+        s = last.sigmas
+        head += f"; sigma {np.max(s[:3]):.4f} deg, {np.max(s[3:]):.3f} mm"
+        if target is not None:
+            g = _gap(s, target)
+            head += (
+                "; target reached" if g == "reached" else f"; target {target[0]:g} deg, {target[1]:g} mm: {g}"
+            )
+    elif last is not None:
+        head += f"; {_more(last.n_distinct)} to calibrate"
+    if waiting is not None:
+        head += f"; waiting for frames ({waiting:.0f} s)"
+    return head
+
+
+class StatusLine:
+    """The progress line on a terminal, redrawn in place (elsewhere only ``final`` lines are written)."""
+
+    def __init__(self, stream: TextIO = sys.stderr) -> None:
+        self.stream = stream
+        self.tty = bool(getattr(stream, "isatty", lambda: False)())
+        self._shown = False
+
+    def clear(self) -> None:
+        if self.tty and self._shown:
+            self.stream.write("\r\033[K")
+            self.stream.flush()
+            self._shown = False
+
+    def show(self, text: str, final: bool = False) -> None:
+        if self.tty:
+            self.stream.write("\r\033[K" + text + ("\n" if final else ""))
+            self._shown = not final
+            self.stream.flush()
+        elif final:
+            self.stream.write(text + "\n")
+            self.stream.flush()
+
+
+# ------------------------------------------------------------------------------ advice
+class LiveAdvice:
+    """The next-board-pose advice of a check (``next_pose.Advisor``), refitted when the boards it
+    was fitted on are fewer than half of those now or the extrinsic moved (0.5 deg / 2 cm)."""
+
+    def __init__(self, target_sigma: tuple[float, float] | None = None) -> None:
+        self.target_sigma = target_sigma
+        self._advisor = None
+        self._fitted_on = 0
+
+    def propose(
+        self, config: Config, frames: list[GraphFrame], T_cam_lidar: np.ndarray, covariance: np.ndarray
+    ):  # noqa: ANN201 - next_pose.Proposal | None
+        from ilcc_graph import next_pose
+
+        if config.lidar is None or len(frames) < 3:
+            return None
+        adv, moved = self._advisor, False
+        if adv is not None:
+            d = np.linalg.inv(adv.rig.T_cam_lidar) @ T_cam_lidar
+            moved = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1))) > 0.5
+            moved = moved or np.linalg.norm(d[:3, 3]) > 0.02
+        if adv is None or moved or len(frames) >= 2 * self._fitted_on:
+            rig = next_pose.Rig(config.camera, np.asarray(T_cam_lidar), config.lidar, config.board)
+            adv = self._advisor = next_pose.Advisor(rig, frames)
+            self._fitted_on = len(frames)
+        return adv.propose(covariance, self.target_sigma, frames)
+
+
+def check_command(data: str, options: CheckOptions, out: object = None, advise_live: bool = False) -> int:
+    """``ilcc-graph check``: the live table on standard output, the progress line on standard error,
+    then the batch answer and the next board pose; ``out`` (a folder): check.yaml and next_pose.png
+    there. Returns the exit code (0; bad input raises InputError)."""
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.datasets.watch import GrowingFolder
+
+    if options.watch and not Path(data).is_dir():
+        raise InputError(f"{data}: --watch follows a data-set folder (config.yaml, pcd/, img/) being filled")
+    source = GrowingFolder(data, options.settle_s) if options.watch else open_source(data)
+    target = options.target_sigma
+    status = StatusLine()
+    advice = LiveAdvice(target)
+    shown = {"advised": -1}
+    seen: list[Verdict] = []
+    print(VERDICT_HEADER, flush=True)
+
+    def on_verdict(v: Verdict, checker: LiveCheck) -> None:
+        seen.append(v)
+        status.clear()
+        print(format_verdict(v, target), flush=True)
+        status.show(format_progress(seen, target))
+
+    def on_idle(waited: float, checker: LiveCheck | None) -> None:
+        if checker is None:
+            if status.tty:
+                status.show(f"waiting for {Path(data) / 'config.yaml'}")
+            return
+        last = checker.last
+        if advise_live and last is not None and waited > 0.3 and shown["advised"] != last.n_frames:
+            shown["advised"] = last.n_frames
+            p = advice.propose(checker.config, checker.distinct, last.T_cam_lidar, last.covariance)
+            if p is not None:
+                status.clear()
+                print("  " + p.describe(), flush=True)
+        if status.tty:
+            status.show(format_progress(seen, target, waiting=waited))
+
+    result = run_check(source, options, on_verdict, on_idle)
+    status.clear()
+    print(f"\n{format_progress(result.verdicts, target)} ({result.stopped})")
+    proposal = None
+    if result.final is not None:
+        s = sigmas_deg_mm(result.final.covariance)
+        print(
+            f"all {result.final.n_frames} frames solved together (the noise policy of calibrate): sigma "
+            f"rot {s[0]:.4f} {s[1]:.4f} {s[2]:.4f} deg, trans {s[3]:.3f} {s[4]:.3f} {s[5]:.3f} mm"
+        )
+        proposal = advice.propose(
+            result.config, result.frames, result.final.T_cam_lidar, result.final.covariance
+        )
+    elif result.verdicts:
+        print("not calibrated yet: at least 3 distinct board poses with the board in both sensors are needed")
+    if proposal is not None:
+        print(proposal.describe())
+    if out is not None:
+        from ilcc_graph.outputs import write_check
+
+        write_check(Path(out), result, proposal)
+        print(f"wrote check.yaml{' and next_pose.png' if proposal is not None else ''} to {out}")
+    return 0

@@ -1,0 +1,323 @@
+"""The advice itself: what a board adds to the extrinsic's information, the candidates, the proposal."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ilcc_graph.config import Config
+from ilcc_graph.estimation.graphs import frame_bearing_factor
+from ilcc_graph.next_pose.geometry import Rig, board_pose, in_view
+from ilcc_graph.next_pose.lidar_noise import BoardNoiseModel, fit_noise_model
+from ilcc_graph.types import Calibration, GraphFrame, sigmas_deg_mm
+
+__all__ = [
+    "Advisor",
+    "for_run",
+    "Proposal",
+    "candidate_azimuths",
+    "frame_information",
+    "from_calibration",
+    "median_pixel_cov",
+    "propose",
+]
+
+DEFAULT_SCALE = (0.1, 1.0)  # deg, mm: the normalisation of the score when no target is given
+#: a proposal is a new pose: its centre this far from every board so far, or its face turned this much
+NEW_POSE_M, NEW_POSE_COS = 0.15, math.cos(math.radians(10.0))
+
+
+def median_pixel_cov(frames: Sequence[GraphFrame]) -> np.ndarray:
+    covs = [np.asarray(f.cov_px, dtype=np.float64).reshape(-1, 2, 2) for f in frames]
+    c = np.concatenate(covs) if covs else np.zeros((0, 2, 2))
+    c = c[np.all(np.isfinite(c), axis=(1, 2))]
+    return np.median(c, axis=0) if len(c) else np.diag([0.25, 0.25])
+
+
+def frame_information(
+    rig: Rig,
+    T_lidar_board: np.ndarray,
+    board_cov: np.ndarray,
+    cov_px: np.ndarray,
+    p_cam: np.ndarray | None = None,
+) -> np.ndarray | None:
+    """(6, 6) information a board at ``T_lidar_board`` adds to ``T_cam_lidar`` (module docstring),
+    with the board's LiDAR covariance ``board_cov`` (6, 6) and pixel covariance ``cov_px`` (2, 2)
+    per corner; None when the board is out of view. ``p_cam``: its corners in the camera frame
+    when already known (``_in_view``)."""
+    import gtsam
+
+    p_cam = in_view(rig, T_lidar_board) if p_cam is None else p_cam
+    if p_cam is None:
+        return None
+    K = len(p_cam)
+    b = p_cam / np.linalg.norm(p_cam, axis=1, keepdims=True)
+    fac, _ = frame_bearing_factor(
+        0, 1, rig.board.corners_board(), b, np.broadcast_to(cov_px, (K, 2, 2)), rig.camera
+    )
+    if fac is None:
+        return None
+    T_cl = gtsam.Pose3(np.asarray(rig.T_cam_lidar, dtype=np.float64))
+    T_lb = gtsam.Pose3(np.asarray(T_lidar_board, dtype=np.float64))
+    _, Ax, Ab = fac.evaluate(T_cl, T_lb, True)
+    Hbb = Ab.T @ Ab + np.linalg.inv(board_cov)
+    dI = Ax.T @ Ax - Ax.T @ Ab @ np.linalg.solve(Hbb, Ab.T @ Ax)
+    return 0.5 * (dI + dI.T)
+
+
+# ---------------------------------------------------------------------------- proposal
+@dataclass(frozen=True)
+class Proposal:
+    """Where to hold the board next and what it should give.
+
+    T_lidar_board: (4, 4) the proposed pose. azimuth_deg: direction of its centre from the LiDAR
+    (atan2(y, x), positive to the left). distance_m: range of its centre. height_m: its centre above
+    the LiDAR's origin. yaw_deg / pitch_deg: turned about the vertical / tilted from facing the rig
+    (``board_pose``). sigmas_now / sigmas_after: (6,) deg, deg, deg, mm, mm, mm. worst: the axis
+    with the largest sigma relative to the target now. candidates: how many poses were valid.
+    """
+
+    T_lidar_board: np.ndarray
+    azimuth_deg: float
+    distance_m: float
+    height_m: float
+    yaw_deg: float
+    pitch_deg: float
+    sigmas_now: np.ndarray
+    sigmas_after: np.ndarray
+    worst: str
+    candidates: int
+    rig: Rig | None = None
+    boards: tuple[np.ndarray, ...] = ()  # (4, 4) T_lidar_board of the boards so far
+
+    def describe(self) -> str:
+        """One line for a person."""
+        left = "left" if self.azimuth_deg > 0 else "right"
+        way = f"{abs(self.azimuth_deg):.0f} deg {left} of the LiDAR's x axis"
+        if abs(self.azimuth_deg) < 2.5:
+            way = "straight ahead of the LiDAR (its x axis)"
+        elif abs(self.azimuth_deg) > 177.5:
+            way = "straight behind the LiDAR"
+        turn = []
+        if abs(self.yaw_deg) >= 1:
+            side = "right" if self.yaw_deg > 0 else "left"
+            turn.append(f"face turned {abs(self.yaw_deg):.0f} deg to the rig's {side}")
+        if abs(self.pitch_deg) >= 1:
+            turn.append(f"tilted {abs(self.pitch_deg):.0f} deg {'up' if self.pitch_deg > 0 else 'down'}")
+        h = f"{abs(self.height_m):.2f} m {'above' if self.height_m >= 0 else 'below'} the LiDAR"
+        now, after = self.sigmas_now, self.sigmas_after
+        return (
+            f"next board pose: {way}, {self.distance_m:.1f} m away, centre {h}, "
+            f"{', '.join(turn) or 'facing the rig'}; worst now {self.worst}; expected sigma "
+            f"{np.max(now[:3]):.4f} -> {np.max(after[:3]):.4f} deg, {np.max(now[3:]):.3f} -> "
+            f"{np.max(after[3:]):.3f} mm"
+        )
+
+
+_AXES = ("rx", "ry", "rz", "tx", "ty", "tz")
+
+
+def _score(cov: np.ndarray, scale: np.ndarray) -> float:
+    return float(np.max(np.sqrt(np.clip(np.diag(cov), 0.0, None)) / scale))
+
+
+def _scale(target: tuple[float, float] | None) -> np.ndarray:
+    deg, mm = target if target is not None else DEFAULT_SCALE
+    return np.array([math.radians(deg)] * 3 + [1e-3 * mm] * 3)
+
+
+def candidate_azimuths(rig: Rig, step_deg: float) -> np.ndarray:
+    if rig.camera.periodic_u:
+        return np.arange(-180.0, 180.0, step_deg)
+    cam = rig.camera
+    uv = np.column_stack([np.linspace(0, cam.width - 1, 41), np.full(41, (cam.height - 1) / 2)])
+    b = cam.bearing(uv)
+    d = b[np.all(np.isfinite(b), axis=1)] @ np.asarray(rig.T_cam_lidar)[:3, :3]
+    az = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    lo, hi = float(az.min()), float(az.max())
+    n = max(3, int(round((hi - lo) / (step_deg / 2))))
+    return np.linspace(lo, hi, n + 2)[1:-1]
+
+
+def _centres(rig: Rig, azimuths: np.ndarray, distances: Sequence[float], levels: int = 3) -> list[np.ndarray]:
+    x0, x1, y0, y1 = rig.board.extent()
+    radius = 0.5 * math.hypot(x1 - x0, y1 - y0)
+    va = np.radians(rig.lidar.vertical_angles_deg)
+    out = []
+    for d in distances:
+        a = math.asin(min(1.0, radius / d)) + math.radians(1.0)
+        lo, hi = va[0] + a, va[-1] - a
+        els = [0.5 * (lo + hi)] if hi <= lo else list(np.linspace(lo, hi, levels + 2)[1:-1])
+        for az in np.radians(azimuths):
+            for el in els:
+                out.append(
+                    d * np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+                )
+    return out
+
+
+class Advisor:
+    """Proposes the next board pose for one rig (module docstring).
+
+    The information a candidate pose would add depends on the rig, the noise model and the pixel
+    noise, not on the frames' current information: it is computed once per candidate and kept, so
+    that asking again after each new frame costs only the 6 x 6 updates.
+
+    frames: the boards so far (their pixel covariances; the LiDAR noise model unless ``noise``).
+    information_scale: divides each new frame's information (e.g. the run's variance factor).
+    """
+
+    def __init__(
+        self,
+        rig: Rig,
+        frames: Sequence[GraphFrame],
+        noise: BoardNoiseModel | None = None,
+        information_scale: float = 1.0,
+        distances: Sequence[float] = (1.3, 2.0, 3.0),
+    ) -> None:
+        self.rig = rig
+        self.frames = list(frames)
+        self.noise = noise or fit_noise_model(frames, rig.board, rig.lidar)
+        self.cov_px = median_pixel_cov(frames)
+        self.information_scale = float(information_scale)
+        self.distances = tuple(distances)
+        self._towards = 0.5 * rig.camera_centre
+        self._cache: dict[tuple, tuple[np.ndarray, np.ndarray] | None] = {}
+        self._coarse = [
+            (c, yaw, pitch)
+            for c in _centres(rig, candidate_azimuths(rig, 30.0), self.distances, levels=2)
+            for yaw, pitch in ((0.0, 0.0), (30.0, 0.0), (-30.0, 0.0), (0.0, 25.0), (0.0, -25.0))
+        ]
+
+    def candidate(self, centre: np.ndarray, yaw: float, pitch: float) -> tuple[np.ndarray, np.ndarray] | None:
+        """(T_lidar_board, information it adds) of a board centred at ``centre`` (LiDAR frame), turned
+        ``yaw`` and tilted ``pitch`` degrees from facing the rig; None when it is not valid."""
+        key = (*np.round(centre, 3), round(yaw, 1), round(pitch, 1))
+        if key not in self._cache:
+            T = board_pose(centre, self.rig.board, self._towards, yaw, pitch)
+            val = None
+            p_cam = in_view(self.rig, T)
+            if p_cam is not None:
+                cov_b = self.noise.covariance(T, self.rig.board, self.rig.lidar)
+                dI = None if cov_b is None else frame_information(self.rig, T, cov_b, self.cov_px, p_cam)
+                val = None if dI is None else (T, dI / self.information_scale)
+            self._cache[key] = val
+        return self._cache[key]
+
+    def propose(
+        self, covariance: np.ndarray, target_sigma: tuple[float, float] | None = None,
+        frames: Sequence[GraphFrame] | None = None,
+    ) -> Proposal | None:  # fmt: skip
+        """The candidate whose frame leaves the smallest largest sigma (each over the target), from
+        the extrinsic's ``covariance`` (6, 6) now; a coarse grid, then around its best. ``frames``:
+        the boards so far when there are more than the advisor was made with (no repeat of one is
+        proposed). None when no candidate is valid or the covariance is not finite."""
+        if frames is not None:
+            self.frames = list(frames)
+        C = np.asarray(covariance, dtype=np.float64)
+        if C.shape != (6, 6) or not np.all(np.isfinite(C)):
+            return None
+        info = np.linalg.inv(C)
+        scale = _scale(target_sigma)
+        scored: list[tuple[float, tuple, np.ndarray, np.ndarray]] = []
+
+        poses = [np.asarray(f.T_lidar_board, dtype=np.float64) for f in self.frames]
+        seen = [(T[:3, :3] @ self.rig.board.pattern_centre + T[:3, 3], T[:3, 2]) for T in poses]
+
+        def repeats(T: np.ndarray) -> bool:
+            c = T[:3, :3] @ self.rig.board.pattern_centre + T[:3, 3]
+            return any(
+                np.linalg.norm(c - c0) < NEW_POSE_M and T[:3, 2] @ n0 > NEW_POSE_COS for c0, n0 in seen
+            )
+
+        def try_(centre: np.ndarray, yaw: float, pitch: float) -> None:
+            got = self.candidate(centre, yaw, pitch)
+            if got is not None and not repeats(got[0]):
+                after = np.linalg.inv(info + got[1])
+                scored.append((_score(after, scale), (yaw, pitch), got[0], after))
+
+        for c, yaw, pitch in self._coarse:
+            try_(c, yaw, pitch)
+        if not scored:
+            return None
+        _, (yaw0, pitch0), T0, _ = min(scored, key=lambda v: v[0])
+        c0 = T0[:3, :3] @ self.rig.board.pattern_centre + T0[:3, 3]
+        az0, d0 = math.atan2(c0[1], c0[0]), float(np.linalg.norm(c0))
+        el0 = math.asin(c0[2] / d0)
+        for daz in (-12.0, 0.0, 12.0):
+            for dd in (-0.4, 0.0, 0.4):
+                d, az = d0 + dd, az0 + math.radians(daz)
+                if d < 1.0:
+                    continue
+                c = d * np.array([math.cos(el0) * math.cos(az), math.cos(el0) * math.sin(az), math.sin(el0)])
+                for yaw in (yaw0 - 15.0, yaw0, yaw0 + 15.0):
+                    for pitch in (pitch0 - 15.0, pitch0, pitch0 + 15.0):
+                        if abs(yaw) <= 50.0 and abs(pitch) <= 40.0:
+                            try_(c, yaw, pitch)
+        _, (yaw, pitch), T, after = min(scored, key=lambda v: v[0])
+        centre = T[:3, :3] @ self.rig.board.pattern_centre + T[:3, 3]
+        now = np.sqrt(np.clip(np.diag(C), 0.0, None)) / scale
+        return Proposal(
+            T_lidar_board=T,
+            azimuth_deg=math.degrees(math.atan2(centre[1], centre[0])),
+            distance_m=float(np.linalg.norm(centre)),
+            height_m=float(centre[2]),
+            yaw_deg=float(yaw),
+            pitch_deg=float(pitch),
+            sigmas_now=sigmas_deg_mm(C),
+            sigmas_after=sigmas_deg_mm(after),
+            worst=_AXES[int(np.argmax(now))],
+            candidates=len(scored),
+            rig=self.rig,
+            boards=tuple(np.asarray(f.T_lidar_board, dtype=np.float64) for f in self.frames),
+        )
+
+
+def propose(
+    covariance: np.ndarray,
+    rig: Rig,
+    frames: Sequence[GraphFrame],
+    target_sigma: tuple[float, float] | None = None,
+    noise: BoardNoiseModel | None = None,
+    information_scale: float = 1.0,
+) -> Proposal | None:
+    """``Advisor(rig, frames, noise, information_scale).propose(covariance, target_sigma)``."""
+    return Advisor(rig, frames, noise, information_scale).propose(covariance, target_sigma)
+
+
+def from_calibration(
+    calibration: Calibration, config: Config, target_sigma: tuple[float, float] | None = None
+) -> Proposal | None:
+    """The next board pose after a calibration (its used frames, its covariance divided into the
+    new frame's information by its variance factor); None without a covariance, a LiDAR beam
+    table or a valid candidate."""
+    if config.lidar is None:
+        return None
+    frames = [
+        GraphFrame(
+            f.name,
+            f.board.T_lidar_board,
+            f.board.covariance,
+            config.board.corners_board(),
+            f.corners.bearings,
+            f.corners.cov_px,
+        )
+        for f in calibration.frames
+        if f.used and f.board is not None and f.corners is not None
+    ]
+    if not frames:
+        return None
+    rig = Rig(config.camera, calibration.T_cam_lidar, config.lidar, config.board)
+    vf = float(calibration.diagnostics.get("variance_factor", 1.0))
+    return Advisor(rig, frames, information_scale=max(vf, 1.0)).propose(calibration.covariance, target_sigma)
+
+
+def for_run(result, target_sigma: tuple[float, float] | None = None) -> Proposal | None:  # noqa: ANN001
+    """The next board pose after a run (``pipeline.RunResult``) of one session with a covariance;
+    None for several sessions, the paper's refinement (no covariance) or no valid candidate."""
+    if len(result.sessions) != 1 or not np.all(np.isfinite(result.calibration.covariance)):
+        return None
+    return from_calibration(result.calibration, result.sessions[0].observation.config, target_sigma)
