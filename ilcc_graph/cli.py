@@ -160,8 +160,8 @@ def _explain_failure(err: CalibrationImpossible, out: Path) -> None:
 
     if err.frames:
         print(failure_table(err.frames), file=sys.stderr)
-    if err.advice:
-        print(f"advice: {err.advice}", file=sys.stderr)
+    if err.advice:  # one line of advice, or the likely set-up mistakes (``likely: ...`` lines)
+        print(err.advice if err.advice.startswith("likely: ") else f"advice: {err.advice}", file=sys.stderr)
     print(f"details: {write_failure(out, err)}", file=sys.stderr)
 
 

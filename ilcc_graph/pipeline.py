@@ -306,7 +306,7 @@ def run(
     except CalibrationImpossible as err:  # say what set-up mistake explains it, when one does
         if not (hints := diagnose_failure(observations, options.stages)):
             raise
-        advice = "likely: " + "; ".join(hints)  # the set-up mistake is the better advice
+        advice = "\n".join(f"likely: {h}" for h in hints)  # the set-up mistake is the better advice
         raise CalibrationImpossible(str(err), err.frames, advice) from None
     for s in result.sessions:
         for line in diagnose_result(s.observation, s.calibration):

@@ -86,8 +86,8 @@ def board_geometry(frames: Sequence[GraphFrame], same_mm: float = 30.0, same_deg
             names, normals, spread, False,
             f"{len(frames)} frame(s) show only {len(groups)} distinct board pose(s)"
             + (f" ({said})" if said else "")
-            + f"; at least {MIN_DISTINCT_POSES} are needed: with fewer, the extrinsic rests on one or two "
-            "placements whose errors (a bent print, a range bias) nothing in the data could reveal",
+            + f"; at least {MIN_DISTINCT_POSES} are needed: with fewer, nothing in the data could reveal "
+            "a placement's errors (a bent print, a range bias)",
             "capture the board in more places (left, right, near, far) and tilted differently "
             "(turned left/right and up/down by 20-40 degrees)",
         )  # fmt: skip
