@@ -15,32 +15,27 @@ everything is written (so ``out`` is either the complete result or untouched):
   again), on ``jobs`` processes; on request (``clouds``) the coloured clouds ``coloured/<frame>.ply``
   and (``full_views``) the whole pictures at full resolution;
 - with a proposal: ``next_pose.png``; ``check``: ``check.yaml``; a failed run: ``failure.yaml``.
+
+The folder mechanics (staging, the locked commit, ``check_output``) are ``folders``; the report's
+pictures and studies ``report_files``.
 """
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import errno
 import logging
-import os
-import shutil
-import sys
-import tempfile
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ilcc_graph import signals, workers
 from ilcc_graph.config import Config, config_to_dict
-from ilcc_graph.errors import OutputError
 from ilcc_graph.estimation.incremental import FrameUpdate
 from ilcc_graph.estimation.sessions import ConsistencyTest, JointSolution
-from ilcc_graph.io import atomic_write, write_calibration, write_ply, write_yaml
-from ilcc_graph.pipeline import RunOptions, RunResult, SessionResult, solve_observed
+from ilcc_graph.folders import check_output, link_latest, staged, write_file
+from ilcc_graph.io import atomic_write, write_calibration, write_yaml
+from ilcc_graph.pipeline import RunOptions, RunResult
+from ilcc_graph.report_files import write_report
 from ilcc_graph.types import Estimate, sigma_dict
 
 log = logging.getLogger(__name__)
@@ -146,31 +141,6 @@ def _update_dict(u: FrameUpdate) -> dict[str, Any]:
     return d
 
 
-def link_latest(path: Path) -> None:
-    """Point ``<parent>/latest`` at the run folder ``path`` (best effort: a link is a convenience)."""
-    latest = Path(path).parent / "latest"
-    try:
-        if latest.is_symlink() or latest.exists():
-            latest.unlink()
-        latest.symlink_to(Path(path).name)
-    except OSError:
-        pass
-
-
-def write_file(path: Path, data: str | bytes, flag: str = "--out") -> Path:
-    """One file written atomically; ``OutputError`` naming ``flag`` and the path when it cannot be."""
-    path = Path(path)
-    if path.is_dir():
-        raise OutputError(f"{flag} {path}: is a folder; give a file name")
-    if path.parent.exists() and not path.parent.is_dir():
-        raise OutputError(f"{flag} {path}: {path.parent} is a file, so nothing can be written under it")
-    check_output(path.parent, flag)
-    try:
-        return atomic_write(path, data)
-    except OSError as err:
-        raise OutputError(f"{flag} {path}: cannot write ({err.strerror or err})") from None
-
-
 def write_evaluation(out: Path, evaluation: Any, flag: str = "--out") -> Path:
     """``out/evaluation.yaml`` (``report.evaluation_to_dict``); returns its path."""
     from ilcc_graph.io import dump_yaml
@@ -179,241 +149,6 @@ def write_evaluation(out: Path, evaluation: Any, flag: str = "--out") -> Path:
     out = Path(out)
     check_output(out, flag)
     return write_file(out / "evaluation.yaml", dump_yaml(evaluation_to_dict(evaluation)), flag)
-
-
-def check_output(out: Path, flag: str = "--out") -> None:
-    """Raise ``OutputError`` now when ``out`` cannot become an output folder (before a long run).
-
-    ``out`` may be absent or a folder; it must not be a file or lie under a file, and its nearest
-    existing parent must be writable (tried with a probe folder, removed again: permission bits do
-    not stop root, a read-only file system does).
-    """
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise OutputError(f"{flag} {out}: is an existing file, not a folder; give a folder for the results")
-    parent = out.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise OutputError(f"{flag} {out}: {parent} is a file, so no folder can be made under it")
-    try:
-        probe = tempfile.mkdtemp(prefix=".ilcc-graph-probe-", dir=parent)
-        os.rmdir(probe)
-    except OSError as err:
-        raise OutputError(f"{flag} {out}: cannot write in {parent} ({err.strerror or err})") from None
-
-
-def _exchange(a: Path, b: Path) -> bool:
-    """Swap two paths in one step (Linux renameat2 RENAME_EXCHANGE); False where not available."""
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        fn = libc.renameat2
-    except (OSError, AttributeError):
-        return False
-    at_fdcwd, rename_exchange = -100, 2
-    if fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
-        return True
-    if ctypes.get_errno() in (errno.EINVAL, errno.ENOSYS, errno.EPERM):
-        return False  # a file system without the exchange: rename in two steps
-    raise OSError(ctypes.get_errno(), os.strerror(ctypes.get_errno()), str(b))
-
-
-@contextmanager
-def _locked(folder: Path) -> Iterator[None]:
-    """An exclusive lock on ``folder`` (flock on its descriptor; nothing where unsupported)."""
-    try:
-        import fcntl
-
-        fd = os.open(folder, os.O_RDONLY)
-    except (ImportError, OSError):
-        yield
-        return
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
-    finally:
-        os.close(fd)
-
-
-def _commit(stage: Path, out: Path) -> None:
-    """Put the complete ``stage`` at ``out`` (replacing an old ``out``); signals held, runs serialised.
-
-    Two runs writing to one folder at once each stage their own folder; the commits take turns
-    under a lock on the parent, so ``out`` is always one run's complete result (the last to commit).
-    """
-    with signals.held(), _locked(out.parent):
-        if out.exists() and not out.is_dir():
-            raise OutputError(f"{out}: is a file now (it was not when the run started); nothing written")
-        if not out.exists():
-            os.replace(stage, out)
-            return
-        if _exchange(stage, out):
-            shutil.rmtree(stage, ignore_errors=True)  # the old result, swapped out
-            return
-        old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
-        os.replace(out, old / "x")
-        os.replace(stage, out)
-        shutil.rmtree(old, ignore_errors=True)
-
-
-@contextmanager
-def staged(out: Path) -> Iterator[Path]:
-    """A staging folder beside ``out`` that becomes ``out`` when the block ends without an error.
-
-    An existing ``out`` is replaced only then, in one step where the system allows; on an error or a
-    signal the staging folder is removed and ``out`` is untouched. A write that fails (disk full,
-    read-only, permissions) raises ``OutputError`` naming the file.
-    """
-    out = Path(out)
-    check_output(out, "output folder")
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
-    except OSError as err:
-        raise OutputError(f"{out}: cannot create the output folder ({err.strerror or err})") from None
-    with signals.on_stop(lambda: shutil.rmtree(stage, ignore_errors=True)):
-        try:
-            yield stage
-            _commit(stage, out)
-        except OSError as err:
-            shutil.rmtree(stage, ignore_errors=True)
-            where = f" ({err.filename})" if err.filename else ""
-            raise OutputError(f"{out}: cannot write the results: {err.strerror or err}{where}") from None
-        except BaseException:
-            shutil.rmtree(stage, ignore_errors=True)
-            raise
-
-
-def _draw_frame(source, ref, config: Config, T: np.ndarray, result, options, ply: Path | None):  # noqa: ANN001, ANN202
-    """One frame's pictures (``report.frame_figures``; a worker process may run it): the scan is read,
-    the image only when the image stage kept no views of it or the options need it; with ``ply``
-    the coloured cloud is written there."""
-    from ilcc_graph.report import frame_figures
-
-    scan = source.read_scan(ref, config)
-    kept = result is not None and result.corners is not None and bool(result.corners.views)
-    image = source.read_image(ref) if (not kept or options.colours or options.full_views) else None
-    ff = frame_figures(ref.name, scan, image, config.camera, config.board, T, result, options=options)
-    if ply is not None and ff.coloured is not None:
-        write_ply(ply, scan, rgb=ff.coloured.rgb)
-    return dataclasses.replace(ff, coloured=None)
-
-
-def _valley(cal, camera, board):  # noqa: ANN001, ANN202 - report.studies.Valley | None
-    """The report's valley study on the used frames (as ``report.build_report`` makes it), or None
-    when a used frame lacks its board points (the report then rebuilds them from the scans)."""
-    from ilcc_graph.report import eval_frame
-    from ilcc_graph.report.studies import valley
-
-    efs = [eval_frame(f) for f in cal.frames if f.used]
-    if not efs or any(e is None or not len(e.points_lidar) for e in efs):
-        return None
-    return valley(efs, camera, board, np.asarray(cal.T_cam_lidar), np.asarray(cal.covariance))
-
-
-def _drawn(items: list[tuple], pool, cal, config: Config) -> tuple[Iterator, object]:  # noqa: ANN001
-    """(``_draw_frame(*item)`` for each item in order, a future of the valley study), on ``pool``
-    (``workers.pool``; in this process when None); the valley study, the longest single job, goes first."""
-    if pool is None:
-        return (_draw_frame(*it) for it in items), None
-    slim = dataclasses.replace(
-        cal,
-        frames=tuple(
-            dataclasses.replace(f, corners=dataclasses.replace(f.corners, views=())) if f.corners else f
-            for f in cal.frames
-        ),
-    )
-    study = pool.submit(_valley, slim, config.camera, config.board)
-    futures = [pool.submit(_draw_frame, *it) for it in items]
-
-    def results() -> Iterator:
-        for fut in futures:
-            yield fut.result()
-            signals.check()
-
-    return results(), study
-
-
-def _write_report(
-    out: Path,
-    coloured_dir: Path,
-    session: SessionResult,
-    result: RunResult,
-    studies: bool,
-    truth: np.ndarray | None,
-    info: dict,
-    clouds: bool = False,
-    full_views: bool = False,
-    meanwhile: Callable[[], object] | None = None,
-) -> object:
-    """``out/index.html`` with its figures for one session; with ``clouds`` ``coloured_dir/<frame>.ply``.
-    ``meanwhile()`` runs here while the pictures are drawn on other processes; returns its result."""
-    from ilcc_graph.report import FigureOptions, build_report, cross_validate, frames_vs_accuracy
-
-    obs, cal = session.observation, session.calibration
-    config, source = obs.config, obs.source
-    curve = cv = None
-    if studies and result.mode in ("graph", "incremental", "sessions"):
-        options = dataclasses.replace(result.options, mode="graph")
-
-        def solve(subset):  # noqa: ANN001, ANN202
-            c = solve_observed(subset, config, options)
-            return c.T_cam_lidar, c.covariance
-
-        quiet = logging.getLogger("ilcc_graph")
-        level = quiet.level
-        quiet.setLevel(logging.ERROR)  # subsets of few frames warn by design
-        try:
-            curve = frames_vs_accuracy(obs.frames, solve, config.camera, config.board, truth)
-            cv = cross_validate(
-                obs.frames, solve, config.camera, config.board, folds=5, T_all=cal.T_cam_lidar
-            )
-        finally:
-            quiet.setLevel(level)
-    damaged = {f.name for f in cal.frames if f.damaged}  # their files cannot be read
-    refs = [
-        r for r in source.frames() if r.scan is not None and r.image is not None and r.name not in damaged
-    ]
-    results = {f.name: f for f in cal.frames}
-    fig_opts = FigureOptions(colours=clouds, full_views=full_views)
-    if clouds:
-        coloured_dir.mkdir(parents=True, exist_ok=True)
-    T = np.asarray(cal.T_cam_lidar)
-    items = [
-        (
-            source,
-            r,
-            config,
-            T,
-            results.get(r.name),
-            fig_opts,
-            coloured_dir / f"{r.name}.ply" if clouds else None,
-        )
-        for r in refs
-    ]
-    jobs = min(result.options.stages.jobs, len(items))
-    with workers.pool(jobs) if jobs > 1 else contextlib.nullcontext() as pool:
-        figures, study = _drawn(items, pool, cal, config)
-        got = meanwhile() if meanwhile is not None else None
-        files = build_report(
-            cal,
-            config.camera,
-            config.board,
-            figures=figures,
-            curve=curve,
-            cross_validation=cv,
-            T_ground_truth=truth,
-            info=info,
-            valley_study=None if study is None else study.result,
-        )
-    for rel, blob in files.items():  # inside the staging folder: written plainly (no fsync each)
-        (out / rel).parent.mkdir(parents=True, exist_ok=True)
-        (out / rel).write_bytes(blob)
-    return got
 
 
 def write_run(
@@ -456,7 +191,7 @@ def write_run(
                     "mode": result.mode,
                 }
                 sub = (s.name,) if several else ()
-                got = _write_report(
+                got = write_report(
                     d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, studies, truth, info,
                     clouds, full_views, later,
                 )  # fmt: skip

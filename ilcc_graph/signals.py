@@ -3,7 +3,7 @@
 ``stop_on_signals()`` is the command line's context. Inside it the first of these signals raises
 ``Stopped`` (a ``KeyboardInterrupt``) in the main thread, so the clean-ups on the way out run: the
 worker pool terminates its processes (``workers.py``), a staged output folder is removed
-(``outputs.staged``). Two things make the stop certain:
+(``folders.staged``). Two things make the stop certain:
 
 - a watcher thread learns of the signal at once (``signal.set_wakeup_fd``), also while the main
   thread sits in a long C call where no Python handler runs (OpenCV's chessboard search on a

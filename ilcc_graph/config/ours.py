@@ -1,0 +1,146 @@
+"""Our schema of ``config.yaml`` (interface.md).
+
+Our schema (see interface.md)::
+
+    board:  squares [rows, cols] (rows <= cols), square_size m, margin m or [long, short],
+            lower_left black|white, roi (optional: azimuth_deg, elevation_deg, range_m as [min, max])
+    lidar:  model (optional: a name of ``lidars.MODEL_NAMES`` or generic; without it the scans'
+            own beam table is used), vertical_angles_deg, horizontal_resolution_deg (generic:
+            required; others: optional overrides), range_sigma_m (optional), calibration_file
+            (optional: the unit's Ouster metadata JSON, Velodyne db.xml / YAML or Hesai CSV, path
+            relative to the config file's folder), intensity_column (optional, CSV without header)
+    camera: model (one of ``cameras.camera_kinds()``), width, height and the model's own keys
+            (``cameras/<model>.py``, docs/config.md)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ..board import Board
+from ..cameras import camera_from_config
+from ..checks import MISSING, Checker
+from ..lidars import MODEL_NAMES, LidarModel, lidar_model, read_calibration_file
+from .model import Config, Roi
+
+__all__ = ["TOP_KEYS", "intensity_column", "parse_board", "parse_ours"]
+
+TOP_KEYS = ("board", "lidar", "camera")
+_BOARD_KEYS = ("squares", "square_size", "margin", "lower_left", "roi")
+_ROI_KEYS = ("azimuth_deg", "elevation_deg", "range_m")
+_LIDAR_KEYS = (
+    "model",
+    "vertical_angles_deg",
+    "horizontal_resolution_deg",
+    "range_sigma_m",
+    "calibration_file",
+    "intensity_column",
+)
+
+
+def parse_board(c: Checker, d: dict) -> tuple[Board, Roi | None]:
+    c.unknown(d, _BOARD_KEYS, "board")
+    sq = d.get("squares", MISSING)
+    if not isinstance(sq, (list, tuple)) or len(sq) != 2:
+        raise c.fail("board.squares", sq, "[rows, cols]: squares along the short and the long side")
+    rows, cols = (c.number(x, f"board.squares[{i}]", lo=2, hi=100, integer=True) for i, x in enumerate(sq))
+    if rows > cols:
+        raise c.fail("board.squares", sq, "[rows, cols] with rows <= cols (the short side first)")
+    s = c.number(d.get("square_size", MISSING), "board.square_size", lo=0.0, hi=1.0, lo_open=True)
+    m = d.get("margin", 0.0)
+    if isinstance(m, (list, tuple)):
+        m_long, m_short = c.numbers(m, "board.margin", 2, lo=0.0, hi=2.0)
+    else:
+        m_long = m_short = c.number(m, "board.margin", lo=0.0, hi=2.0)
+    lower_left = c.choice(d.get("lower_left", "black"), "board.lower_left", ("black", "white"))
+    roi = None
+    if d.get("roi") is not None:
+        r = c.section(d["roi"], "board.roi")
+        c.unknown(r, _ROI_KEYS, "board.roi")
+        roi = Roi(
+            azimuth_deg=None
+            if r.get("azimuth_deg") is None
+            else c.interval(r["azimuth_deg"], "board.roi.azimuth_deg", -180.0, 180.0, wrap=True),
+            elevation_deg=None
+            if r.get("elevation_deg") is None
+            else c.interval(r["elevation_deg"], "board.roi.elevation_deg", -90.0, 90.0),
+            range_m=None
+            if r.get("range_m") is None
+            else c.interval(r["range_m"], "board.roi.range_m", 0.0, 1000.0),
+        )
+        if roi.is_empty():
+            roi = None
+    return Board(rows, cols, s, m_long, m_short, lower_left), roi
+
+
+def _parse_lidar(c: Checker, d: dict, base: Path | None = None) -> tuple[LidarModel | None, int | None]:
+    c.unknown(d, _LIDAR_KEYS, "lidar")
+    raw_name = d.get("model")
+    name = None if raw_name is None else c.choice(raw_name, "lidar.model", MODEL_NAMES)
+    angles = d.get("vertical_angles_deg")
+    res = d.get("horizontal_resolution_deg")
+    if name == "generic":
+        if angles is None:
+            raise c.fail(
+                "lidar.vertical_angles_deg", MISSING, "a list of beam elevations in degrees (generic)"
+            )
+        if res is None:
+            raise c.fail("lidar.horizontal_resolution_deg", MISSING, "a number in (0, 10] degrees (generic)")
+    if angles is not None:
+        if not isinstance(angles, (list, tuple)) or len(angles) < 1:
+            raise c.fail(
+                "lidar.vertical_angles_deg", angles, "a non-empty list of numbers in (-90, 90) degrees"
+            )
+        a = c.numbers(angles, "lidar.vertical_angles_deg", None, lo=-89.999, hi=89.999)
+        if len(set(a)) != len(a):
+            raise c.fail("lidar.vertical_angles_deg", angles, "distinct beam elevations")
+        if name != "generic" and any(x >= y for x, y in zip(a, a[1:], strict=False)):
+            raise c.fail("lidar.vertical_angles_deg", angles, "ascending beam elevations (index = ring)")
+        angles = a
+    if res is not None:
+        res = c.number(res, "lidar.horizontal_resolution_deg", lo=0.0, hi=10.0, lo_open=True)
+    sigma = d.get("range_sigma_m")
+    if sigma is not None:
+        sigma = c.number(sigma, "lidar.range_sigma_m", lo=0.0, hi=1.0, lo_open=True)
+    col = d.get("intensity_column")
+    if col is not None:
+        col = intensity_column(c, col, "lidar.intensity_column")
+    calib = d.get("calibration_file")
+    if calib is not None and not isinstance(calib, str):
+        raise c.fail("lidar.calibration_file", calib, "a file path (relative to the config file's folder)")
+    if name is None and (angles is not None or res is not None) and calib is None:
+        raise c.fail(
+            "lidar.model",
+            MISSING,
+            "a model name (or generic) when vertical_angles_deg or horizontal_resolution_deg are given",
+        )
+    model = None if name is None else lidar_model(name, angles, res, sigma)
+    if calib is not None:
+        path = Path(calib) if base is None or Path(calib).is_absolute() else base / calib
+        ref = model
+        ref_res = 0.2 if ref is None else ref.horizontal_resolution_deg
+        model = read_calibration_file(
+            path,
+            name="measured" if ref is None else ref.name,
+            default_resolution_deg=res if res is not None else ref_res,
+            range_sigma_m=sigma if sigma is not None else (0.03 if ref is None else ref.range_sigma_m),
+            beam_divergence_rad=3e-3 if ref is None else ref.beam_divergence_rad,
+        )
+    return model, col
+
+
+def intensity_column(c: Checker, v: Any, key: str) -> int:
+    col = c.number(v, key, lo=0, hi=1000, integer=True)
+    if col < 3:
+        raise c.fail(key, v, "a column index >= 3 (columns 0, 1, 2 hold x, y, z)")
+    return int(col)
+
+
+def parse_ours(c: Checker, d: dict, source: str, base: Path | None = None) -> Config:
+    c.unknown(d, TOP_KEYS, "")
+    board, roi = parse_board(c, c.section(d.get("board", MISSING), "board"))
+    section = d.get("lidar")
+    lidar, col = _parse_lidar(c, {} if section is None else c.section(section, "lidar"), base)
+    camera = camera_from_config(d.get("camera", MISSING), source)
+    return Config(board, lidar, camera, roi, col, source, "ilcc_graph")

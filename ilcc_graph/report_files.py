@@ -1,0 +1,152 @@
+"""The report of one session of a run, written into a staging folder (``outputs.write_run``).
+
+The frames' pictures are drawn on the views the image stage kept (no picture is read again), on
+the run's worker processes (``workers.pool``) while the caller's ``meanwhile`` runs here; the
+report's studies (accuracy against frames, cross-validation) on request; the coloured clouds and
+full-resolution views on request.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import logging
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from ilcc_graph import signals, workers
+from ilcc_graph.config import Config
+from ilcc_graph.io import write_ply
+from ilcc_graph.pipeline import RunResult, SessionResult, solve_observed
+
+__all__ = ["write_report"]
+
+
+def _draw_frame(source, ref, config: Config, T: np.ndarray, result, options, ply: Path | None):  # noqa: ANN001, ANN202
+    """One frame's pictures (``report.frame_figures``; a worker process may run it): the scan is read,
+    the image only when the image stage kept no views of it or the options need it; with ``ply``
+    the coloured cloud is written there."""
+    from ilcc_graph.report import frame_figures
+
+    scan = source.read_scan(ref, config)
+    kept = result is not None and result.corners is not None and bool(result.corners.views)
+    image = source.read_image(ref) if (not kept or options.colours or options.full_views) else None
+    ff = frame_figures(ref.name, scan, image, config.camera, config.board, T, result, options=options)
+    if ply is not None and ff.coloured is not None:
+        write_ply(ply, scan, rgb=ff.coloured.rgb)
+    return dataclasses.replace(ff, coloured=None)
+
+
+def _valley(cal, camera, board):  # noqa: ANN001, ANN202 - report.studies.Valley | None
+    """The report's valley study on the used frames (as ``report.build_report`` makes it), or None
+    when a used frame lacks its board points (the report then rebuilds them from the scans)."""
+    from ilcc_graph.report import eval_frame
+    from ilcc_graph.report.studies import valley
+
+    efs = [eval_frame(f) for f in cal.frames if f.used]
+    if not efs or any(e is None or not len(e.points_lidar) for e in efs):
+        return None
+    return valley(efs, camera, board, np.asarray(cal.T_cam_lidar), np.asarray(cal.covariance))
+
+
+def _drawn(items: list[tuple], pool, cal, config: Config) -> tuple[Iterator, object]:  # noqa: ANN001
+    """(``_draw_frame(*item)`` for each item in order, a future of the valley study), on ``pool``
+    (``workers.pool``; in this process when None); the valley study, the longest single job, goes first."""
+    if pool is None:
+        return (_draw_frame(*it) for it in items), None
+    slim = dataclasses.replace(
+        cal,
+        frames=tuple(
+            dataclasses.replace(f, corners=dataclasses.replace(f.corners, views=())) if f.corners else f
+            for f in cal.frames
+        ),
+    )
+    study = pool.submit(_valley, slim, config.camera, config.board)
+    futures = [pool.submit(_draw_frame, *it) for it in items]
+
+    def results() -> Iterator:
+        for fut in futures:
+            yield fut.result()
+            signals.check()
+
+    return results(), study
+
+
+def write_report(
+    out: Path,
+    coloured_dir: Path,
+    session: SessionResult,
+    result: RunResult,
+    studies: bool,
+    truth: np.ndarray | None,
+    info: dict,
+    clouds: bool = False,
+    full_views: bool = False,
+    meanwhile: Callable[[], object] | None = None,
+) -> object:
+    """``out/index.html`` with its figures for one session; with ``clouds`` ``coloured_dir/<frame>.ply``.
+    ``meanwhile()`` runs here while the pictures are drawn on other processes; returns its result."""
+    from ilcc_graph.report import FigureOptions, build_report, cross_validate, frames_vs_accuracy
+
+    obs, cal = session.observation, session.calibration
+    config, source = obs.config, obs.source
+    curve = cv = None
+    if studies and result.mode in ("graph", "incremental", "sessions"):
+        options = dataclasses.replace(result.options, mode="graph")
+
+        def solve(subset):  # noqa: ANN001, ANN202
+            c = solve_observed(subset, config, options)
+            return c.T_cam_lidar, c.covariance
+
+        quiet = logging.getLogger("ilcc_graph")
+        level = quiet.level
+        quiet.setLevel(logging.ERROR)  # subsets of few frames warn by design
+        try:
+            curve = frames_vs_accuracy(obs.frames, solve, config.camera, config.board, truth)
+            cv = cross_validate(
+                obs.frames, solve, config.camera, config.board, folds=5, T_all=cal.T_cam_lidar
+            )
+        finally:
+            quiet.setLevel(level)
+    damaged = {f.name for f in cal.frames if f.damaged}  # their files cannot be read
+    refs = [
+        r for r in source.frames() if r.scan is not None and r.image is not None and r.name not in damaged
+    ]
+    results = {f.name: f for f in cal.frames}
+    fig_opts = FigureOptions(colours=clouds, full_views=full_views)
+    if clouds:
+        coloured_dir.mkdir(parents=True, exist_ok=True)
+    T = np.asarray(cal.T_cam_lidar)
+    items = [
+        (
+            source,
+            r,
+            config,
+            T,
+            results.get(r.name),
+            fig_opts,
+            coloured_dir / f"{r.name}.ply" if clouds else None,
+        )
+        for r in refs
+    ]
+    jobs = min(result.options.stages.jobs, len(items))
+    with workers.pool(jobs) if jobs > 1 else contextlib.nullcontext() as pool:
+        figures, study = _drawn(items, pool, cal, config)
+        got = meanwhile() if meanwhile is not None else None
+        files = build_report(
+            cal,
+            config.camera,
+            config.board,
+            figures=figures,
+            curve=curve,
+            cross_validation=cv,
+            T_ground_truth=truth,
+            info=info,
+            valley_study=None if study is None else study.result,
+        )
+    for rel, blob in files.items():  # inside the staging folder: written plainly (no fsync each)
+        (out / rel).parent.mkdir(parents=True, exist_ok=True)
+        (out / rel).write_bytes(blob)
+    return got
