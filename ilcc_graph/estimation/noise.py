@@ -343,7 +343,10 @@ def solve_problem(
     if any(v != 1.0 for v in comps.values()) and not fixed:
         log.info(
             "variance components (residuals against the stated noise): %s",
-            ", ".join(f"{k}{'/' + grp if grp else ''} x {v:.2f}" for (k, grp), v in sorted(comps.items())),
+            ", ".join(
+                f"{k}{'/' + grp.lstrip('|') if grp else ''} x {v:.2f}"
+                for (k, grp), v in sorted(comps.items())
+            ),
         )
     if vf > 1.0 and variance_factor is None:
         log.info("the residuals are %.2f times the stated noise variance; covariance scaled by it", vf)
