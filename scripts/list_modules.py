@@ -18,7 +18,8 @@ BEGIN, END = "<!-- modules:begin -->", "<!-- modules:end -->"
 
 def modules() -> list[Path]:
     """Every Python module of the two packages, relative to the repository root, sorted."""
-    return sorted(p.relative_to(ROOT) for pkg in ("factors", "ilcc_graph") for p in (ROOT / pkg).rglob("*.py"))
+    found = (p for pkg in ("factors", "ilcc_graph") for p in (ROOT / pkg).rglob("*.py"))
+    return sorted(p.relative_to(ROOT) for p in found)
 
 
 def summary(path: Path) -> str:
