@@ -128,3 +128,26 @@ def test_a_board_out_of_the_cameras_view_adds_nothing() -> None:
     rig = _rig("pinhole", 960)
     behind = _pose(rig, 180.0, 2.0)
     assert nxp.frame_information(rig, behind, np.eye(6) * 1e-6, np.eye(2) * 0.01) is None
+
+
+def test_after_a_run_the_advice_predicts_with_the_noise_the_run_found(tmp_path) -> None:
+    """from_calibration scales the boards' covariances by the run's variance components: with board
+    priors found 40 x noisier than stated, one more board promises much less."""
+    import dataclasses
+
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.next_pose import from_calibration
+    from ilcc_graph.observe import StageOptions, observe
+    from ilcc_graph.pipeline import solve_observed
+    from ilcc_graph.simulate import simulate_dataset, standard_spec
+
+    spec = standard_spec(lidar="hdl32", camera="pinhole", width=800, frames=6, seed=5)
+    obs = observe(open_source(simulate_dataset(tmp_path / "sim", spec)), StageOptions(jobs=1))
+    cal = solve_observed(obs.frames, obs.config)
+    stated = from_calibration(cal, obs.config)
+    noisy = dataclasses.replace(cal, diagnostics={**cal.diagnostics, "variance_component_board": 40.0})
+    found = from_calibration(noisy, obs.config)
+    assert stated is not None and found is not None
+    gain_stated = stated.sigmas_now / stated.sigmas_after
+    gain_found = found.sigmas_now / found.sigmas_after
+    assert np.all(gain_found >= 1.0 - 1e-9) and np.max(gain_found) < np.max(gain_stated)

@@ -291,19 +291,27 @@ def propose(
 def from_calibration(
     calibration: Calibration, config: Config, target_sigma: tuple[float, float] | None = None
 ) -> Proposal | None:
-    """The next board pose after a calibration (its used frames, its covariance divided into the
-    new frame's information by its variance factor); None without a covariance, a LiDAR beam
-    table or a valid candidate."""
+    """The next board pose after a calibration (its used frames, its covariance); None without a
+    covariance, a LiDAR beam table or a valid candidate.
+
+    A new frame is predicted with the noise the run found, not the stages' stated noise: the boards'
+    LiDAR covariances and the corners' pixel covariances scaled by the run's variance components
+    (on the recorded Ouster set the board priors' is about 37: unscaled, one more board promised
+    the translation's sigma 22 mm -> 0.8 mm), the new frame's information divided by the final
+    variance factor."""
     if config.lidar is None:
         return None
+    diag = calibration.diagnostics
+    k_board = max(float(diag.get("variance_component_board", 1.0)), 1e-12)
+    k_view = max(float(diag.get("variance_component_bearing", 1.0)), 1e-12)
     frames = [
         GraphFrame(
             f.name,
             f.board.T_lidar_board,
-            f.board.covariance,
+            k_board * f.board.covariance,
             config.board.corners_board(),
             f.corners.bearings,
-            f.corners.cov_px,
+            k_view * f.corners.cov_px,
         )
         for f in calibration.frames
         if f.used and f.board is not None and f.corners is not None
