@@ -29,31 +29,31 @@ for its sampling covariance and plane jackknife: here by elevation bands one spa
 (:func:`pseudo_rings`). The estimation core gets a single pseudo-beam 0 (:func:`one_pseudo_beam`:
 one laser, one range offset).
 
-Planes and clusters are pluggable (``plane_fn``, ``cluster_fn``) so that Open3D's
-``segment_plane`` and ``cluster_dbscan`` can be measured against these (scripts/bench_ringless.py,
-docs/lidar_ringless.md). Frames: the LiDAR frame, metres, radians.
+Testing, trimming, offering and splitting are search.py's, shared with the scanline search; this
+module gives it the pieces, counts, tests and trimming above. Planes and clusters are pluggable
+(``plane_fn``, ``cluster_fn``) so that Open3D's ``segment_plane`` and ``cluster_dbscan`` can be
+measured against these (scripts/bench_ringless.py, docs/lidar_ringless.md).
+Frames: the LiDAR frame, metres, radians.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from ..board import Board
-from ..errors import BoardNotFound
 from ..lidars import LidarModel
 from ..types import BoardFit
-from .board_tests import board_tests, intensity_contrast
-from .detection import Candidate, ransac_plane, roi_mask
+from .board_tests import board_tests
 from .options import LidarOptions
 from .pattern import area_weights, density_map, estimate_noise, link_components, pseudo_rings, trim_in_plane
+from .search import Candidate, PlaneFn, SearchInput, inlier_threshold, inside_mask, ransac_plane, search_board
 
 __all__ = ["find_ringless_candidates", "one_pseudo_beam", "pseudo_rings", "SEARCH_POINTS"]
 
-PlaneFn = Callable[[np.ndarray, float, np.random.Generator], tuple[np.ndarray, float, np.ndarray]]
 #: the search runs on at most this many returns (an even random draw: the pattern's angular density
 #: scales, nothing else changes); the fit gathers every return near a candidate's plane
 SEARCH_POINTS = 20_000
@@ -114,150 +114,67 @@ def find_ringless_candidates(
         keep[np.sort(rng.choice(np.flatnonzero(ok), SEARCH_POINTS, replace=False))] = True
         ok = keep
     dens = density_map(p_all[ok] / r_all[ok, None])
-    inside = ok & roi_mask(p_all, roi)
-    if mask is not None:
-        inside &= np.asarray(mask, bool)
-    if not inside.any():
-        where = "the region of interest (board.roi)" if mask is None else "the expected board's box"
-        raise BoardNotFound(f"no point of the scan lies inside {where}")
-    idx_all = np.flatnonzero(inside)
+    idx_all = np.flatnonzero(inside_mask(p_all, roi, mask, valid=ok))
     p, inten = p_all[idx_all], inten_all[idx_all]
     u = p / r_all[idx_all, None]
     delta = dens.spacing(u)
     sigma = estimate_noise(p, rng)
-    thr = max(options.ransac_threshold_m, 2.5 * sigma)
+    thr = inlier_threshold(options, sigma)
     allow = options.noise_sigmas * sigma
+    x0, x1, y0, y1 = board.extent()
+    short_side = y1 - y0
+    area = (x1 - x0) * short_side
 
-    def pieces(sub: np.ndarray) -> list[np.ndarray]:
+    def pieces(sub: np.ndarray, links: None = None) -> list[tuple[np.ndarray, None]]:
         """The connected pieces of the subset ``sub`` (indices), clustered on their own."""
         if sub.size < 12:
             return []
-        return [sub[g] for g in _groups(cluster_fn(p[sub], u[sub], delta[sub], options.jump_ratio, allow))]
+        labels = cluster_fn(p[sub], u[sub], delta[sub], options.jump_ratio, allow)
+        return [(sub[g], None) for g in _groups(labels)]
 
-    x0, x1, y0, y1 = board.extent()
-    short_side = y1 - y0
-    diag = float(np.hypot(x1 - x0, y1 - y0))
-    area = (x1 - x0) * short_side
+    def spacing(idx: np.ndarray) -> float:
+        """The pattern's spacing over the piece, ``sqrt(mean(delta_i^2))`` (rad): its mean density
+        over the piece's solid angle is ``M / sum_i delta_i^2`` (each return stands for ``delta_i^2`` sr)."""
+        return float(np.sqrt(np.mean(delta[idx] ** 2)))
 
-    passed: list[tuple[float, np.ndarray, float]] = []
-    misses: list[tuple[int, str, str]] = []
-    to_split: list[np.ndarray] = []
-    tested = 0
-
-    def n_theory(idx: np.ndarray) -> tuple[float, float]:
-        """(theoretical count of a frontal board at the piece's range, the spacing that gives it).
-
-        The pattern's mean density over the piece's solid angle is ``M / sum_i delta_i^2`` (each
-        return stands for ``delta_i^2`` sr), the spacing ``sqrt(mean(delta_i^2))``.
-        """
+    def n_theory(idx: np.ndarray) -> float:
+        """Returns of a frontal board at the piece's range: ``area / (d * spacing)^2``."""
         d = float(np.linalg.norm(p[idx].mean(axis=0)))
-        s = float(np.sqrt(np.mean(delta[idx] ** 2)))
-        return area / (d * s) ** 2, s
+        return area / (d * spacing(idx)) ** 2
 
-    def test(idx: np.ndarray, depth: int) -> None:
-        nonlocal tested
+    def tests(idx: np.ndarray) -> tuple[bool, float, str, str]:
+        """The paper's tests at the local spacing, each return weighted by the board area it stands for."""
         q = p[idx]
-        span = float(np.linalg.norm(np.ptp(q, axis=0)))
-        if span < options.size_ratio[0] * short_side or idx.size < max(12, options.min_points):
-            return
-        n_th, s = n_theory(idx)
-        if idx.size < options.count_ratio[0] * n_th:
-            return
-        tested += 1
+        s = spacing(idx)
         r_q = np.linalg.norm(q, axis=1)
         w_area = area_weights(q, float(np.linalg.norm(q.mean(axis=0))) * s)
         n_q = np.linalg.svd(q - q.mean(axis=0), full_matrices=False)[2][2]
         solid = w_area * np.abs(q @ n_q) / r_q**3  # each return's board area as a solid angle
-        ok_, uni, name, detail = board_tests(
-            q, board, _local_model(model, s), sigma, options, inten[idx], solid
-        )
-        if ok_:
-            n, d, inl = plane_fn(q, thr, rng)
-            if inl.mean() >= 0.9:
-                passed.append((uni, idx[inl], intensity_contrast(inten[idx[inl]])[0]))
-                return
-            name, detail = "plane", f"only {inl.mean():.0%} of its points on one plane; {detail}"
-        if depth >= 1 and name in ("size", "uniformity", "count", "plane", "contrast"):
-            n, d, inl = plane_fn(q, thr, rng)
-            dist = float(np.linalg.norm(q.mean(axis=0)))
-            cell = max(0.01, 1.5 * dist * s)
-            for strength in (1.0, 1.6):
-                kept = trim_in_plane(q[inl], n, cell, strength * short_side / 3.0)
-                if 12 <= kept.size < idx.size and depth < 3:
-                    n_pass = len(passed)
-                    test(idx[np.flatnonzero(inl)[kept]], 3)
-                    if len(passed) > n_pass:
-                        return
-        misses.append((idx.size, name, detail))
-        if depth == 0 and span >= options.size_ratio[0] * diag:
-            to_split.append(idx)
+        return board_tests(q, board, _local_model(model, s), sigma, options, inten[idx], solid)
 
-    budget = [options.max_planes * 6]
+    def trims(idx: np.ndarray, depth: int) -> Iterator[np.ndarray]:
+        """The piece trimmed in its own plane by an opening a third of the board's short side wide,
+        then a stronger one (the plane is fitted at any depth: the same random draws as ever)."""
+        q = p[idx]
+        n, _, inl = plane_fn(q, thr, rng)
+        cell = max(0.01, 1.5 * float(np.linalg.norm(q.mean(axis=0))) * spacing(idx))
+        for strength in (1.0, 1.6):
+            yield idx[np.flatnonzero(inl)[trim_in_plane(q[inl], n, cell, strength * short_side / 3.0)]]
 
-    def split(idx: np.ndarray) -> None:
-        queue = [np.sort(idx)]
-        own = options.max_planes * 3
-        n_before = len(passed)
-        while queue and budget[0] > 0 and own > 0 and len(passed) == n_before:
-            own -= 1
-            queue.sort(key=len, reverse=True)
-            cur = queue.pop()  # smallest first: a board with its stand before the room
-            if cur.size < 12:
-                continue
-            budget[0] -= 1
-            _, _, inl = plane_fn(p[cur], thr, rng)
-            if inl.sum() < 12:
-                continue
-            for piece in pieces(cur[inl]):
-                test(piece, 1)
-            for piece in pieces(cur[~inl]):
-                if piece.size < 12:
-                    continue
-                size = float(np.linalg.norm(np.ptp(p[piece], axis=0)))
-                if size < 2.0 * diag:
-                    test(piece, 1)
-                if size >= options.size_ratio[0] * diag and piece.size >= max(
-                    options.count_ratio[0] * n_theory(piece)[0], options.min_points
-                ):
-                    queue.append(piece)
-
-    out: list[Candidate] = []
-
-    def offer() -> bool:
-        new: list[Candidate] = []
-        for uni, members, sep in passed[len(out) :]:
-            loc = np.unique(members)
-            q = p[loc]
-            n, d, _ = plane_fn(q, thr, rng)
-            if n @ q.mean(axis=0) > 0:  # normal towards the sensor
-                n, d = -n, -d
-            new.append(Candidate(idx_all[loc], n, float(d), float(uni), sigma, tested, float(sep)))
-        out.extend(new)
-        if not new:
-            return False
-        return True if accept is None else bool(accept(new))
-
-    for obj in pieces(np.arange(p.shape[0])):
-        test(obj, 0)
-    done = offer()
-    for obj in sorted(to_split, key=len):
-        if done:
-            break
-        split(obj)
-        done = offer()
-
-    if not out:
-        if not misses:
-            raise BoardNotFound(
-                f"no object of board size ({x1 - x0:.2f} x {short_side:.2f} m) in the scan"
-                + (" inside the region of interest" if roi is not None else "")
-            )
-        misses.sort(key=lambda t: -t[0])
-        near = "; ".join(f"{name}: {detail}" for _, name, detail in misses[:3])
-        raise BoardNotFound(
-            f"no segment passed the chessboard tests ({tested} board-sized candidates, scan without "
-            f"scanlines); largest: {near}. If the board is in view, narrow the search with board.roi "
-            "(azimuth_deg, elevation_deg, range_m), and accumulate the scan longer (a non-repetitive "
-            "pattern covers a board evenly after about 0.5 s)."
-        )
-    return out
+    scan = SearchInput(
+        points=p,
+        intensity=inten,
+        sigma=sigma,
+        threshold=thr,
+        objects=[obj for obj, _ in pieces(np.arange(p.shape[0]))],
+        n_theory=n_theory,
+        tests=tests,
+        trims=trims,
+        pieces=pieces,
+        plane_fn=plane_fn,
+        to_scan=idx_all,
+        note=", scan without scanlines",
+        hint=", and accumulate the scan longer (a non-repetitive pattern covers a board evenly after about "
+        "0.5 s)",
+    )
+    return search_board(scan, board, options, rng, accept, in_roi=roi is not None)

@@ -1,0 +1,300 @@
+"""The board search shared by scanline scans (detection.py) and scanline-free ones (ringless.py).
+
+:func:`search_board` tests each object as found with the paper's tests (detection.py's list),
+trims a piece that fails, offers what passes to the caller's ``accept`` and, only when that says
+no, splits the over-merged objects smallest first (peel a plane, cut inliers and rest into
+connected pieces, test those, queue the big ones). What differs between the two kinds of scan
+comes in as :class:`SearchInput`: how an object is cut into pieces, the theoretical point count,
+the tests' beam model, the trimming, the plane fit and the message's hint.
+Frames: the LiDAR frame, metres.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..board import Board
+from ..errors import BoardNotFound
+from .board_tests import intensity_contrast
+from .options import LidarOptions
+
+__all__ = ["Candidate", "SearchInput", "inside_mask", "inlier_threshold", "ransac_plane", "roi_mask",
+           "search_board"]  # fmt: skip
+
+PlaneFn = Callable[[np.ndarray, float, np.random.Generator], tuple[np.ndarray, float, np.ndarray]]
+#: failed tests after which a piece of a split object is trimmed and tested again
+TRIMMABLE = ("size", "uniformity", "count", "plane", "contrast")
+#: fewest returns of a piece worth a look
+MIN_PIECE = 12
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """The chessboard's points found in a scan.
+
+    indices: (M,) indices into the scan's points. normal: (3,) unit plane normal towards the sensor.
+    offset: plane offset d with ``normal @ p = d`` (metres, negative: the sensor is on the normal's side).
+    uniformity: the paper's quadrant uniformity. noise_sigma: range noise of the scan (m).
+    tested: number of candidates tested (so far). contrast: the black/white separation d'.
+    """
+
+    indices: np.ndarray
+    normal: np.ndarray
+    offset: float
+    uniformity: float
+    noise_sigma: float
+    tested: int
+    contrast: float = 0.0
+
+
+def roi_mask(points: np.ndarray, roi: Any | None) -> np.ndarray:
+    """(N,) bool: points inside the region of interest (config.Roi or None = everything).
+
+    Azimuth ``atan2(y, x)`` and elevation ``atan2(z, hypot(x, y))`` in degrees, range in metres;
+    an azimuth interval with lo > hi wraps through +-180 deg.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    if roi is None:
+        return np.ones(p.shape[0], bool)
+    if hasattr(roi, "contains"):
+        return np.asarray(roi.contains(p), bool)
+    keep = np.ones(p.shape[0], bool)
+    if getattr(roi, "azimuth_deg", None) is not None:
+        lo, hi = roi.azimuth_deg
+        az = np.degrees(np.arctan2(p[:, 1], p[:, 0]))
+        keep &= ((az >= lo) & (az <= hi)) if lo <= hi else ((az >= lo) | (az <= hi))
+    if getattr(roi, "elevation_deg", None) is not None:
+        lo, hi = roi.elevation_deg
+        el = np.degrees(np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])))
+        keep &= (el >= lo) & (el <= hi)
+    if getattr(roi, "range_m", None) is not None:
+        lo, hi = roi.range_m
+        r = np.linalg.norm(p, axis=1)
+        keep &= (r >= lo) & (r <= hi)
+    return keep
+
+
+def inside_mask(
+    points: np.ndarray, roi: Any | None, mask: np.ndarray | None, valid: np.ndarray | None = None
+) -> np.ndarray:
+    """(N,) bool: the points (N, 3) the search may use: ``valid`` (None: all), inside ``roi`` and
+    ``mask`` (the expected board's box, None: everywhere); BoardNotFound when there is none."""
+    inside = roi_mask(points, roi) if valid is None else valid & roi_mask(points, roi)
+    if mask is not None:
+        inside &= np.asarray(mask, bool)
+    if not inside.any():
+        where = "the region of interest (board.roi)" if mask is None else "the expected board's box"
+        raise BoardNotFound(f"no point of the scan lies inside {where}")
+    return inside
+
+
+def ransac_plane(
+    p: np.ndarray, threshold: float, rng: np.random.Generator, n_hyp: int = 96, max_score: int = 1500
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """Vectorised RANSAC plane, refined by least squares on the inliers.
+
+    p: (M, 3). Returns (normal (3,), offset d with normal @ x = d, inlier mask (M,)).
+    """
+    m = p.shape[0]
+    sub = p if m <= max_score else p[rng.choice(m, max_score, replace=False)]
+    tri = rng.integers(0, m, size=(n_hyp, 3))
+    a, b, c = p[tri[:, 0]], p[tri[:, 1]], p[tri[:, 2]]
+    nrm = np.cross(b - a, c - a)
+    ln = np.linalg.norm(nrm, axis=1)
+    good = ln > 1e-9
+    nrm = nrm[good] / ln[good, None]
+    d = np.einsum("ij,ij->i", nrm, a[good])
+    if nrm.shape[0] == 0:
+        return np.array([0.0, 0.0, 1.0]), 0.0, np.zeros(m, bool)
+    score = (np.abs(sub @ nrm.T - d) < threshold).sum(axis=0)
+    best = int(np.argmax(score))
+    n, dd = nrm[best], d[best]
+    for _ in range(2):
+        inl = np.abs(p @ n - dd) < threshold
+        if inl.sum() < 3:
+            break
+        q = p[inl]
+        mu = q.mean(axis=0)
+        _, _, vt = np.linalg.svd(q - mu, full_matrices=False)
+        n, dd = vt[2], float(vt[2] @ mu)
+    inl = np.abs(p @ n - dd) < threshold
+    return n, float(dd), inl
+
+
+def inlier_threshold(options: LidarOptions, sigma: float) -> float:
+    """RANSAC inlier distance (m) for a scan with range noise ``sigma`` (m)."""
+    return max(options.ransac_threshold_m, 2.5 * sigma)
+
+
+@dataclass(frozen=True)
+class SearchInput:
+    """One scan as the search sees it, and what its kind of scan does its own way.
+
+    points: (M, 3) the returns searched, LiDAR frame, metres; intensity: (M,). Indices below are
+    into these. to_scan: (M,) each one's index in the scan (None: the same).
+    sigma: range noise (m); threshold: RANSAC inlier distance (m).
+    objects: the segments as found (ascending index arrays).
+    n_theory(idx): returns a frontal board would give at the piece's range.
+    admit(idx): any further condition for testing a piece (the scanline search: enough rings).
+    tests(idx): ``board_tests`` on the piece: (passed, uniformity, failed test, detail).
+    trims(idx, depth): trimmed pieces of a piece that failed, lazily (depth 1: a piece of a split
+        object, 2: a trimmed piece; only those of depth-1 pieces are tested).
+    pieces(sub, links): the connected pieces of ``sub`` within ``links``, each with its own links.
+    links(idx): what ``pieces`` needs to cut the object ``idx`` (scanline: its links; default None).
+    plane_fn(p, threshold, rng) -> (normal, offset, inliers). note, hint: the failure message's
+    extra words after the count of tested candidates and after the advice.
+    """
+
+    points: np.ndarray
+    intensity: np.ndarray
+    sigma: float
+    threshold: float
+    objects: list[np.ndarray]
+    n_theory: Callable[[np.ndarray], float]
+    tests: Callable[[np.ndarray], tuple[bool, float, str, str]]
+    trims: Callable[[np.ndarray, int], Iterator[np.ndarray]]
+    pieces: Callable[[np.ndarray, Any], list[tuple[np.ndarray, Any]]]
+    links: Callable[[np.ndarray], Any] = lambda idx: None
+    plane_fn: PlaneFn = ransac_plane
+    admit: Callable[[np.ndarray], bool] = lambda idx: True
+    to_scan: np.ndarray | None = None
+    note: str = ""
+    hint: str = ""
+
+
+def search_board(
+    scan: SearchInput,
+    board: Board,
+    options: LidarOptions,
+    rng: np.random.Generator,
+    accept: Callable[[list[Candidate]], bool] | None = None,
+    in_roi: bool = False,
+) -> list[Candidate]:
+    """Every piece that passes the chessboard tests; raise BoardNotFound with the reason if none.
+
+    The objects are tested as they are; only when ``accept`` (given the new candidates) says no, the
+    over-merged ones are split, smallest first, and ``accept`` is asked again after each. Without
+    ``accept`` the first candidates found are taken. in_roi: the search was limited to board.roi.
+    """
+    p, inten, thr, sigma = scan.points, scan.intensity, scan.threshold, scan.sigma
+    x0, x1, y0, y1 = board.extent()
+    short_side = y1 - y0
+    diag = float(np.hypot(x1 - x0, y1 - y0))
+    passed: list[tuple[float, np.ndarray, float]] = []
+    misses: list[tuple[int, str, str]] = []  # (size, test, detail)
+    to_split: list[np.ndarray] = []
+    tested = 0
+
+    def min_count(idx: np.ndarray) -> float:
+        return options.count_ratio[0] * scan.n_theory(idx)
+
+    def test(idx: np.ndarray, depth: int) -> None:
+        nonlocal tested
+        span = float(np.linalg.norm(np.ptp(p[idx], axis=0)))
+        if span < options.size_ratio[0] * short_side or idx.size < max(MIN_PIECE, options.min_points):
+            return
+        if idx.size < min_count(idx) or not scan.admit(idx):
+            return
+        tested += 1
+        ok, uni, name, detail = scan.tests(idx)
+        if ok:
+            _, _, inl = scan.plane_fn(p[idx], thr, rng)
+            if inl.mean() >= 0.9:
+                passed.append((uni, idx[inl], intensity_contrast(inten[idx[inl]])[0]))
+                return
+            name, detail = "plane", f"only {inl.mean():.0%} of its points on one plane; {detail}"
+        if depth >= 1 and name in TRIMMABLE:
+            for kept in scan.trims(idx, depth):
+                if depth == 1 and MIN_PIECE <= kept.size < idx.size:
+                    n_pass = len(passed)
+                    test(kept, 2)
+                    if len(passed) > n_pass:
+                        return
+        misses.append((idx.size, name, detail))
+        if depth == 0 and span >= options.size_ratio[0] * diag:
+            to_split.append(idx)
+
+    budget = [options.max_planes * 6]  # plane fits for the whole scan
+
+    def split(idx: np.ndarray) -> None:
+        # peel planes off an over-merged object: each plane's inliers are cut into connected pieces
+        # and tested; what is left is cut into connected pieces again (the ground gone, a board on a
+        # pole comes apart from it) and those are tested or split in turn
+        idx = np.sort(idx)
+        queue = [(idx, scan.links(idx))]
+        own = options.max_planes * 3
+        n_before = len(passed)
+        while queue and budget[0] > 0 and own > 0 and len(passed) == n_before:
+            own -= 1
+            # smallest first: the floor and walls are big, a board with a pole or an arm is not
+            queue.sort(key=lambda t: -len(t[0]))
+            cur, links = queue.pop()
+            if cur.size < MIN_PIECE:
+                continue
+            budget[0] -= 1
+            _, _, inl = scan.plane_fn(p[cur], thr, rng)
+            if inl.sum() < MIN_PIECE:
+                continue
+            for piece, _ in scan.pieces(cur[inl], links):
+                test(piece, 1)
+            rest = cur[~inl]
+            if rest.size < MIN_PIECE:
+                continue
+            for piece, piece_links in scan.pieces(rest, links):
+                if piece.size < MIN_PIECE:
+                    continue
+                size = float(np.linalg.norm(np.ptp(p[piece], axis=0)))
+                if size < 2.0 * diag:
+                    test(piece, 1)  # small enough to be judged (and trimmed) directly
+                if size >= options.size_ratio[0] * diag and piece.size >= max(
+                    min_count(piece), options.min_points
+                ):
+                    queue.append((piece, piece_links))  # big enough, with returns enough, for a board
+
+    out: list[Candidate] = []
+
+    def offer() -> bool:
+        """Turn the new passes into Candidates; True when the caller accepts them (stop searching)."""
+        new: list[Candidate] = []
+        for uni, members, sep in passed[len(out) :]:
+            loc = np.unique(members)
+            q = p[loc]
+            n, d, _ = scan.plane_fn(q, thr, rng)
+            if n @ q.mean(axis=0) > 0:  # normal towards the sensor
+                n, d = -n, -d
+            idx = loc if scan.to_scan is None else scan.to_scan[loc]
+            new.append(Candidate(idx, n, float(d), float(uni), sigma, tested, float(sep)))
+        out.extend(new)
+        if not new:
+            return False
+        return True if accept is None else bool(accept(new))
+
+    for obj in scan.objects:
+        test(obj, 0)
+    # only when no object passed as it is (or none of them was accepted): split the over-merged
+    # ones, smallest first: a board merged with a hand or its stand is cheap to split; the room last
+    done = offer()
+    for obj in sorted(to_split, key=len):
+        if done:
+            break
+        split(obj)
+        done = offer()
+
+    if not out:
+        if not misses:
+            raise BoardNotFound(
+                f"no object of board size ({x1 - x0:.2f} x {short_side:.2f} m) in the scan"
+                + (" inside the region of interest" if in_roi else "")
+            )
+        misses.sort(key=lambda t: -t[0])
+        near = "; ".join(f"{name}: {detail}" for _, name, detail in misses[:3])
+        raise BoardNotFound(
+            f"no segment passed the chessboard tests ({tested} board-sized candidates{scan.note}); "
+            f"largest: {near}. If the board is in view, narrow the search with board.roi "
+            f"(azimuth_deg, elevation_deg, range_m){scan.hint}."
+        )
+    return out
