@@ -22,7 +22,6 @@ pictures and studies ``report_files``.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from pathlib import Path
 from typing import Any
@@ -36,7 +35,7 @@ from ilcc_graph.folders import check_output, link_latest, staged, write_file
 from ilcc_graph.io import atomic_write, write_calibration, write_yaml
 from ilcc_graph.pipeline import RunOptions, RunResult
 from ilcc_graph.report_files import write_report
-from ilcc_graph.types import Estimate, sigma_dict
+from ilcc_graph.types import Estimate, sigma_dict, to_plain
 
 log = logging.getLogger(__name__)
 
@@ -55,23 +54,9 @@ __all__ = [
 ]
 
 
-def _plain(x: Any) -> Any:
-    if dataclasses.is_dataclass(x) and not isinstance(x, type):
-        return {f.name: _plain(getattr(x, f.name)) for f in dataclasses.fields(x)}
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
-    return x
-
-
 def options_dict(options: RunOptions) -> dict[str, Any]:
     """Every option of a run as plain data (stages, noise policy, joint settings, mode)."""
-    return _plain(options)
+    return to_plain(options)
 
 
 def resolved_config(config: Config, options: RunOptions) -> dict[str, Any]:

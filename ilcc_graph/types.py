@@ -8,7 +8,9 @@ Covariances of poses are 6x6 in GTSAM's Pose3 tangent convention
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import os
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -273,3 +275,27 @@ class ExpectedBoard:
         if not (self.position_tol_m > 0 and 0 < self.angle_tol_deg <= 180):
             raise ValueError("position_tol_m must be > 0 and angle_tol_deg in (0, 180]")
         object.__setattr__(self, "T_lidar_board", T)
+
+
+def to_plain(x: Any) -> Any:
+    """Dataclasses, numpy arrays and scalars, tuples and paths -> plain dicts, lists, floats, ints,
+    str (recursively), as YAML and JSON writers take them; TypeError for anything else."""
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        return {f.name: to_plain(getattr(x, f.name)) for f in dataclasses.fields(x)}
+    if isinstance(x, dict):
+        return {str(k) if not isinstance(k, (int, float, bool)) else k: to_plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [to_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return to_plain(x.tolist())
+    if isinstance(x, np.bool_):
+        return bool(x)
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.floating):
+        return float(x)
+    if isinstance(x, os.PathLike):
+        return os.fspath(x)
+    if x is None or isinstance(x, (bool, int, float, str)):
+        return x
+    raise TypeError(f"cannot write a {type(x).__name__} as plain data: {x!r}")

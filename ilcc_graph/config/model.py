@@ -16,6 +16,7 @@ import numpy as np
 from ..board import Board
 from ..cameras import CameraModel
 from ..lidars import LidarModel
+from ..types import to_plain
 
 __all__ = ["Config", "Roi", "config_to_dict"]
 
@@ -104,19 +105,5 @@ def config_to_dict(cfg: Config) -> dict:
     lidar = {} if cfg.lidar is None else cfg.lidar.to_dict()
     if cfg.intensity_column is not None:
         lidar["intensity_column"] = int(cfg.intensity_column)
-    camera = _plain(cfg.camera.to_dict())
+    camera = to_plain(cfg.camera.to_dict())
     return {"board": board, "lidar": lidar, "camera": camera}
-
-
-def _plain(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _plain(x.tolist())
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.floating):
-        return float(x)
-    return x

@@ -8,10 +8,10 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 
 from ..errors import InputError
+from ..types import to_plain
 
 __all__ = ["atomic_write", "write_yaml", "read_yaml", "dump_yaml", "to_plain"]
 
@@ -40,27 +40,6 @@ def atomic_write(path: str | Path, data: bytes | str) -> Path:
             pass
         raise
     return p
-
-
-def to_plain(x: Any) -> Any:
-    """Numpy arrays/scalars, tuples and paths -> plain lists, floats, ints, str (recursively)."""
-    if isinstance(x, dict):
-        return {str(k) if not isinstance(k, (int, float, bool)) else k: to_plain(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [to_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return to_plain(x.tolist())
-    if isinstance(x, np.bool_):
-        return bool(x)
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.floating):
-        return float(x)
-    if isinstance(x, os.PathLike):
-        return os.fspath(x)
-    if x is None or isinstance(x, (bool, int, float, str)):
-        return x
-    raise TypeError(f"cannot write a {type(x).__name__} to YAML: {x!r}")
 
 
 class _Dumper(yaml.SafeDumper):
