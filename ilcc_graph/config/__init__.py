@@ -14,6 +14,7 @@ from typing import Any
 
 from ..checks import Checker
 from ..errors import InputError
+from ..io.files import read_yaml
 from .ilcc import is_ilcc, parse_ilcc
 from .model import Config, Roi, config_to_dict
 from .ours import TOP_KEYS, parse_ours
@@ -44,19 +45,8 @@ def parse_config(d: Any, source: str = "<config>", base_dir: Path | str | None =
 
 def load_config(path: str | Path) -> Config:
     """Read and validate ``config.yaml`` (ours or ILCC's). Raises ``InputError`` naming file and key."""
-    import yaml
-
     p = Path(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"{p}: config file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{p}: cannot read config file ({e})") from None
-    try:
-        d = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        raise InputError(f"{p}: not valid YAML ({' '.join(str(e).split())})") from None
+    d = read_yaml(p, "config file")
     if d is None:
         raise InputError(f"{p}: config file is empty; expected sections board, lidar, camera")
     return parse_config(d, str(p), p.parent)

@@ -79,15 +79,16 @@ def write_yaml(path: str | Path, obj: Any) -> Path:
     return atomic_write(path, dump_yaml(obj))
 
 
-def read_yaml(path: str | Path) -> Any:
-    """Load a YAML file (safe loader). Missing file or bad YAML -> ``InputError`` naming the file."""
+def read_yaml(path: str | Path, what: str = "file") -> Any:
+    """Load a YAML file (safe loader). Missing file or bad YAML -> ``InputError`` naming the file
+    (``what`` it is, e.g. ``config file``)."""
     p = Path(path)
     try:
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise InputError(f"{p}: file not found") from None
+        raise InputError(f"{p}: {what} not found") from None
     except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{p}: cannot read ({e})") from None
+        raise InputError(f"{p}: cannot read {what} ({e})") from None
     try:
         return yaml.safe_load(text)
     except yaml.YAMLError as e:
