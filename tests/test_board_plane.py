@@ -128,7 +128,7 @@ def test_few_boards_keep_the_configured_plane_sigma_and_say_so() -> None:
     assert not bp.estimated and (bp.offset_m, bp.tilt_rad) == opts.board_plane
     assert "fewer than 5" in bp.note, bp
     # fixed sigmas: the same solution as without the option
-    fixed = solve(frames, CAMERA, T_TRUE.matrix(), lidar_errors=LidarErrorOptions())
+    fixed = solve(frames, CAMERA, T_TRUE.matrix(), lidar_errors=LidarErrorOptions(board_plane_estimate=False))
     assert np.array_equal(fixed.T_cam_lidar, sol.T_cam_lidar)
     assert np.array_equal(fixed.covariance, sol.covariance)
     assert fixed.board_plane.note == "configured"
@@ -137,5 +137,22 @@ def test_few_boards_keep_the_configured_plane_sigma_and_say_so() -> None:
 def test_plane_estimate_options_are_checked() -> None:
     with pytest.raises(ValueError, match="board_plane_floor"):
         LidarErrorOptions(board_plane_estimate=True, board_plane_floor=(0.01, 0.0007))
-    with pytest.raises(ValueError, match="needs a board_plane"):
-        LidarErrorOptions(board_plane=None, board_plane_estimate=True)
+    with pytest.raises(ValueError, match="board_plane_max"):
+        LidarErrorOptions(board_plane=(0.05, 0.007))
+    assert LidarErrorOptions().board_plane_estimate  # the default (docs/bench_lidar_errors.md)
+    LidarErrorOptions(board_plane=None)  # no plane: nothing to estimate
+
+
+def test_cli_board_plane_maps_to_the_options() -> None:
+    from ilcc_graph.cli import _run_options, build_parser
+    from ilcc_graph.errors import InputError
+
+    def opts(*extra):
+        return _run_options(build_parser().parse_args(["calibrate", "data", *extra])).lidar_errors
+
+    assert opts() is None
+    assert opts("--lidar-errors") == LidarErrorOptions() and LidarErrorOptions().board_plane_estimate
+    assert opts("--lidar-errors", "--board-plane", "estimated").board_plane_estimate
+    assert not opts("--lidar-errors", "--board-plane", "fixed").board_plane_estimate
+    with pytest.raises(InputError, match="--board-plane"):
+        opts("--board-plane", "fixed")

@@ -50,6 +50,7 @@ class LidarErrorOptions:
         variance components of the random plane, ``estimation/plane.py``), starting from
         ``board_plane``, kept within [``board_plane_floor``, ``board_plane_max``]; with fewer than
         ``board_plane_min_boards`` boards the configured sigmas stay (and the solution says so).
+        False: ``board_plane`` fixed (docs/bench_lidar_errors.md compares the two).
     """
 
     beam_offsets: bool = True
@@ -66,7 +67,7 @@ class LidarErrorOptions:
     max_points_per_board: int = 1200
     board_plane: tuple[float, float] | None = (0.005, 0.007)
     observable_ratio: float = 0.5
-    board_plane_estimate: bool = False
+    board_plane_estimate: bool = True
     board_plane_floor: tuple[float, float] = (0.0005, 0.0007)
     board_plane_max: tuple[float, float] = (0.04, 0.028)
     board_plane_min_boards: int = 5
@@ -79,9 +80,7 @@ class LidarErrorOptions:
             raise ValueError(
                 f"LidarErrorOptions.board_plane must be two sigmas > 0 or None, got {self.board_plane!r}"
             )
-        if self.board_plane_estimate:
-            if self.board_plane is None:
-                raise ValueError("LidarErrorOptions.board_plane_estimate needs a board_plane to start from")
+        if self.board_plane_estimate and self.board_plane is not None:  # (no plane: nothing to estimate)
             lo, hi = self.board_plane_floor, self.board_plane_max
             if not all(0 < a <= b <= c for a, b, c in zip(lo, self.board_plane, hi, strict=True)):
                 raise ValueError(
