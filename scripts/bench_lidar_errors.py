@@ -12,8 +12,10 @@ Each set is simulated and observed once in memory (``estimate_board`` on the ren
 ``detect_corners`` on the rendered image: the pipeline's per-frame stages; a ``FrameError`` drops the
 frame) and solved from the same observations by the pipeline's ``solve_observed`` (corner order,
 UPnP start, the core's noise policy) with the LiDAR error terms off (each board a 6-dof LiDAR prior)
-and on (the boards' returns with per-beam offsets and the dark-print offset), and on with other
-``board_plane`` sigmas. Measured against the simulator's truth:
+and on (the boards' returns with per-beam offsets and the dark-print offset) with each board's own
+random plane at fixed ``board_plane`` sigmas (or none) and with those sigmas estimated from the
+boards (``board_plane_estimate``); "on" is the default ``LidarErrorOptions()``. Measured against the
+simulator's truth:
 
 - the extrinsic: NEES ``xi^T C^-1 xi`` (``T_true = T_est Expmap(xi)``), 95 % coverage (NEES <= 12.59),
   rotation (deg) and translation (mm) errors;
@@ -34,6 +36,9 @@ with the terms on; the beam offsets both halves estimate compared by ``d^T (C_a 
 
     nice python scripts/bench_lidar_errors.py --sets 50 --jobs 2 --sink /tmp/ble/mc.pkl
     python scripts/bench_lidar_errors.py --from-sink /tmp/ble/mc.pkl --timing --real --write
+
+``--obs-cache DIR`` keeps each observed set (``DIR/<rig>-<seed>.pkl``) so that solving the variants
+again skips the observation (~90 % of the time); ``--observe-only`` only fills it.
 """
 
 from __future__ import annotations

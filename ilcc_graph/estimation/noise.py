@@ -35,13 +35,8 @@ import numpy as np
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import plane
 from ilcc_graph.estimation.assembly import Assembly
-from ilcc_graph.estimation.gate import (
-    BoardStats,
-    board_stats,
-    gate_failures,
-    gate_scale,
-    graph_variance_factor,
-)
+from ilcc_graph.estimation.gate import BoardStats, board_stats, gate_failures, gate_scale
+from ilcc_graph.estimation.gate import graph_variance_factor as graph_factor
 from ilcc_graph.estimation.graphs import Scales
 from ilcc_graph.estimation.keys import POSE3_DOF, B, I, L, O, X
 from ilcc_graph.estimation.lidar_errors import LidarLayout
@@ -120,7 +115,7 @@ class Solution:
 
     def board_plane(self, group: str = "") -> plane.BoardPlane | None:
         """The boards' plane sigmas the solve used (estimated or configured), or None without them."""
-        n = sum(1 for i in self.boards if i in self.assembly.points)
+        n = sum(1 for i in self.boards if i in self.assembly.points and self.problem.boards[i].group == group)
         return plane.board_plane(self.problem.lidar_errors, self.scales, self.redundancy, n, group)
 
     @property
@@ -319,7 +314,7 @@ def solve_problem(
         planes = plane.estimated(problem.lidar_errors, asm, kept)  # the boards' planes' components
         history: dict = {}
         for _ in range(16 if planes else 8):
-            extra = plane.extra_rows(asm, comps) if planes else None
+            extra = plane.extra_rows(asm, comps, planes) if planes else None
             ratios = redundancies(g, res, terms, asm.dim, extra)
             ratios = plane.split_points(ratios) if planes else ratios
             new = dict(comps)
@@ -346,7 +341,7 @@ def solve_problem(
         st = stats_of(kept, comps, g, terms, res)
     dropped.extend(gone)
     if variance_factor is None:
-        vf = graph_variance_factor(g, terms, res, asm, st) if options.variance_components else 1.0
+        vf = graph_factor(g, terms, res, asm, st) if options.variance_components else 1.0
     else:
         vf = variance_factor
     timings["total"] = time.perf_counter() - t_start
@@ -371,10 +366,7 @@ def solve_problem(
                 for (k, grp), v in sorted(comps.items())
             ),
         )
-    bp = sol.board_plane() if problem.lidar_errors and problem.lidar_errors.board_plane_estimate else None
-    if bp is not None:
-        log.info("boards' plane sigmas: offset %.2f mm, tilt %.3f deg%s", 1e3 * bp.offset_m,
-                 math.degrees(bp.tilt_rad), f" ({bp.note})" if bp.note else "")  # fmt: skip
+    plane.log_sigmas(problem.lidar_errors, sol.board_plane())
     if vf > 1.0 and variance_factor is None:
         log.info("the residuals are %.2f times the stated noise variance; covariance scaled by it", vf)
     return sol

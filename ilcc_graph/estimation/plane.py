@@ -18,6 +18,7 @@ or a redundancy below one half, the configured sigmas stay, and ``BoardPlane.not
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -26,7 +27,18 @@ from ilcc_graph.estimation.assembly import Assembly
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.linear import Extra
 
-__all__ = ["KINDS", "BoardPlane", "board_plane", "components", "estimated", "extra_rows", "split_points"]
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "KINDS",
+    "BoardPlane",
+    "board_plane",
+    "components",
+    "estimated",
+    "extra_rows",
+    "log_sigmas",
+    "split_points",
+]
 
 #: the variance components of the boards' planes, per noise group
 KINDS = ("plane_offset", "plane_tilt")
@@ -46,18 +58,24 @@ class BoardPlane:
     note: str = ""
 
 
-def estimated(options: LidarErrorOptions | None, asm: Assembly, boards: Sequence[int]) -> bool:
-    """Whether the planes' components are estimated for these boards (enough boards with returns)."""
+def estimated(options: LidarErrorOptions | None, asm: Assembly, boards: Sequence[int]) -> set[str]:
+    """The noise groups whose planes' components are estimated for these boards (those with at least
+    ``board_plane_min_boards`` boards with returns; empty when not estimated)."""
     if options is None or not options.board_plane_estimate or options.board_plane is None:
-        return False
-    return sum(1 for i in boards if i in asm.points) >= options.board_plane_min_boards
+        return set()
+    count: dict[str, int] = {}
+    for i in boards:
+        if i in asm.points:
+            g = asm.problem.boards[i].group
+            count[g] = count.get(g, 0) + 1
+    return {g for g, n in count.items() if n >= options.board_plane_min_boards}
 
 
-def extra_rows(asm: Assembly, comps: Mapping[tuple[str, str], float]) -> Extra:
-    """``linear.Extra`` of the boards' planes in the graph ``asm.graph(boards, comps)``."""
+def extra_rows(asm: Assembly, comps: Mapping[tuple[str, str], float], groups: set[str]) -> Extra:
+    """``linear.Extra`` of the boards' planes of ``groups`` in the graph ``asm.graph(boards, comps)``."""
 
     def rows(k: int, t) -> tuple:  # noqa: ANN001 - assembly.Term
-        if t.board is None or t.board not in asm.points or not t.parts:
+        if t.board is None or t.board not in asm.points or not t.parts or t.group not in groups:
             return ()
         z = asm.points_factor(t.board, comps).plane_rows()
         if z is None:
@@ -148,3 +166,13 @@ def board_plane(
         if s <= lo * 1.0001 or s >= hi * 0.9999:
             notes.append(f"{('offset', 'tilt')[j]} at its {'floor' if s <= lo * 1.0001 else 'maximum'}")
     return BoardPlane(sig[0], sig[1], sds[0], sds[1], True, "; ".join(notes))
+
+
+def log_sigmas(options: LidarErrorOptions | None, bp: BoardPlane | None) -> None:
+    """Say the boards' plane sigmas when they were to be estimated (found, or why configured)."""
+    if bp is None or options is None or not options.board_plane_estimate:
+        return
+    log.info(
+        "boards' plane sigmas: offset %.2f mm, tilt %.3f deg%s",
+        1e3 * bp.offset_m, math.degrees(bp.tilt_rad), f" ({bp.note})" if bp.note else "",
+    )  # fmt: skip
