@@ -72,7 +72,8 @@ def test_plane_rows_give_the_explicit_random_effects_chi2_and_redundancy() -> No
         return (("off", 0, m, z[0]), ("tilt", 0, m, z[1])) if k == 0 else ()
 
     dims = {B(0): 6, L(0): 4}
-    got = redundancies(graph, values, terms, dims.__getitem__, extra)
+    info: dict = {}
+    got = redundancies(graph, values, terms, dims.__getitem__, extra, info)
     # explicit: rows e = A x + G p + n (n ~ I), pseudo-observations 0 = p + m (m ~ Sigma), prior on l
     e, A_T, A_l = plain.evaluate(values.atPose3(B(0)), values.atVector(L(0)), True)
     A = np.hstack([A_T[:m], A_l[:m]])
@@ -91,12 +92,15 @@ def test_plane_rows_give_the_explicit_random_effects_chi2_and_redundancy() -> No
     N[:6, :6] += H.T @ H / 0.003**2
     N[10:, 10:] += np.linalg.inv(Sig)
     C_p = np.linalg.inv(N)[10:, 10:]
+    ZPZ = np.eye(3) - np.diag(Sig.diagonal() ** -0.5) @ C_p @ np.diag(Sig.diagonal() ** -0.5)
     for name, idx in (("off", [0]), ("tilt", [1, 2])):
         chi2 = float(p_hat[idx] @ np.linalg.solve(Sig[np.ix_(idx, idx)], p_hat[idx]))
         red = len(idx) - float(np.trace(np.linalg.solve(Sig[np.ix_(idx, idx)], C_p[np.ix_(idx, idx)])))
         assert got[(name, "")][0] == pytest.approx(chi2, rel=1e-6)
         assert got[(name, "")][1] == pytest.approx(red, rel=1e-6)
         assert 0.0 < red < len(idx)
+        # the scoring step's information: ||Z^T P Z||^2 of the explicit model's block
+        assert info[(name, "")] == pytest.approx(float(np.sum(ZPZ[np.ix_(idx, idx)] ** 2)), rel=1e-6)
 
 
 def test_estimated_plane_sigma_recovers_bent_boards_and_falls_to_the_floor_on_ideal_ones() -> None:

@@ -32,8 +32,8 @@ def _linear_blocks(
     extra: Extra | None = None,
 ):  # fmt: skip
     """Per factor and row kind: (kind, group, board key or None, A_board, global keys, A_globals, b,
-    count) of its whitened linearisation; count is None for its own rows, ``trace(Z^T Z)`` for the
-    virtual rows ``Z^T`` of ``extra``."""
+    count) of its whitened linearisation; count is None for its own rows, ``Z^T Z`` for the virtual
+    rows ``Z^T`` of ``extra``."""
     out = []
     for k, t in enumerate(terms):
         A, b = graph.at(k).linearize(values).jacobian()
@@ -66,7 +66,7 @@ def _linear_blocks(
             rows = slice(r0, r1)
             out.append(
                 (kind, t.group, board_key, None if A_b is None else Z.T @ A_b[rows], g_keys, Z.T @ A_g[rows],
-                 Z.T @ b[rows], float(np.sum(Z * Z)))
+                 Z.T @ b[rows], Z.T @ Z)
             )  # fmt: skip
     return out
 
@@ -125,7 +125,7 @@ def reduce(
 
 def redundancies(
     graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim=key_dim,
-    extra: Extra | None = None,
+    extra: Extra | None = None, information: dict[tuple[str, str], float] | None = None,
 ) -> dict[tuple[str, str], tuple[float, float]]:  # fmt: skip
     """Per (kind, group): (whitened chi-square, redundancy ``m_g - trace(N^-1 N_g)``) at ``values``.
 
@@ -135,6 +135,9 @@ def redundancies(
     ``Z^T`` of a random effect marginalised in some rows (``Extra``): their chi-square is
     ``|Z^T r|^2`` and their redundancy ``trace(Z^T Z) - trace(N^-1 A^T Z Z^T A)`` (the random
     effect made explicit with its prior as pseudo-observations gives the same numbers).
+    ``information``: filled, per kind of virtual rows, with ``sum ||Z^T P Z||_F^2`` over the factors
+    (P the residuals' projector; each factor's own block, the couplings between boards left out):
+    twice the expected information of the random effect's variance scale (Fisher scoring).
     """
     red = reduce(graph, values, terms, dim, extra=extra)
     G = len(red.S)
@@ -155,7 +158,13 @@ def redundancies(
             A, Sig = A_g, S_inv[np.ix_(c, c)]
         acc = out.setdefault((kind, group), [0.0, 0.0])
         acc[0] += float(b @ b)
-        acc[1] += (len(b) if count is None else count) - float(np.sum(Sig * (A.T @ A)))
+        if count is None:
+            acc[1] += len(b) - float(np.sum(Sig * (A.T @ A)))
+            continue
+        ZPZ = count - A @ Sig @ A.T
+        acc[1] += float(np.trace(ZPZ))
+        if information is not None:
+            information[(kind, group)] = information.get((kind, group), 0.0) + float(np.sum(ZPZ * ZPZ))
     return {k: (v[0], v[1]) for k, v in out.items()}
 
 

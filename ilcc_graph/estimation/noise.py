@@ -312,17 +312,16 @@ def solve_problem(
     def with_components(kept: Sequence[int], comps: dict[tuple[str, str], float]):
         g, terms, res = fit(kept, comps)
         planes = plane.estimated(problem.lidar_errors, asm, kept)  # the boards' planes' components
-        history: dict = {}
         for _ in range(16 if planes else 8):
-            extra = plane.extra_rows(asm, comps, planes) if planes else None
-            ratios = redundancies(g, res, terms, asm.dim, extra)
+            extra, info = (plane.extra_rows(asm, comps, planes), {}) if planes else (None, None)
+            ratios = redundancies(g, res, terms, asm.dim, extra, info)
             ratios = plane.split_points(ratios) if planes else ratios
             new = dict(comps)
             for key, (c2, r) in ratios.items():
                 if key[0] in COMPONENT_KINDS:
                     new[key] = max(1.0, comps.get(key, 1.0) * (c2 / r if r > 0.5 else 1.0))
             if planes:
-                new.update(plane.components(ratios, comps, problem.lidar_errors, history))  # type: ignore[arg-type]
+                new.update(plane.components(ratios, comps, problem.lidar_errors, info))  # type: ignore[arg-type]
             redundancy.update({k: r for k, (_, r) in ratios.items()})
             if all(abs(new[k] / comps.get(k, 1.0) - 1.0) < 0.02 for k in new):
                 break

@@ -10,9 +10,9 @@ marginalised form the same numbers come from the virtual rows ``Z^T`` of
 ``BoardPointsFactor.plane_rows`` (``linear.redundancies``, ``extra``): the offsets' chi-square is
 ``sum |Z_o^T r|^2`` over the boards, their redundancy ``sum trace(Z_o^T Z_o) - trace(N^-1 A^T Z_o
 Z_o^T A)``; the returns' own component then takes the remainder of the rows' chi-square and
-redundancy. Each update ``s <- s chi2 / r`` runs with the other components; the scale stays between
-the floor (a plane never taken as ideal: near zero the estimate is ill-posed, the steps vanish) and
-the maximum, relative to the configured sigmas. With fewer than ``board_plane_min_boards`` boards,
+redundancy. Each update (a Fisher-scoring step, ``components``) runs with the other components; the
+scale stays between the floor (a plane never taken as ideal: near zero the estimate is ill-posed)
+and the maximum, relative to the configured sigmas. With fewer than ``board_plane_min_boards`` boards,
 or a redundancy below one half, the configured sigmas stay, and ``BoardPlane.note`` says so.
 """
 
@@ -101,35 +101,29 @@ def components(
     ratios: Mapping[tuple[str, str], tuple[float, float]],
     comps: Mapping[tuple[str, str], float],
     options: LidarErrorOptions,
-    history: dict[tuple[str, str], list[float]] | None = None,
+    information: Mapping[tuple[str, str], float] | None = None,
 ) -> dict[tuple[str, str], float]:
-    """The updated plane components ``s chi2 / r`` within their bounds (``r <= 0.5``: unchanged).
+    """The updated plane components within their bounds (``r <= 0.5``: unchanged).
 
-    history: per component the log-scales of the updates so far (appended to). The update converges
-    geometrically, and slowly where the boards tell the plane weakly (an EM step: the step shrinks
-    with the plane's share of the information); three updates the same way with shrinking steps
-    are extrapolated to their limit (Aitken's delta-squared on the log-scales, at most 10x)."""
+    A Fisher-scoring step of the REML likelihood in the scale t (now 1): ``t = 1 + (chi2 - r) / I``
+    with ``I = sum ||Z^T P Z||^2`` (``linear.redundancies``, ``information``), at most 10x either
+    way. Foerstner's ``s chi2 / r`` is the same step where each board's plane is well determined
+    (``Z^T P Z`` near 1), and creeps where the boards tell it weakly (an EM step); without
+    ``information`` that step is taken."""
     out = {}
     for (kind, g), (c2, r) in ratios.items():
         if kind not in KINDS:
             continue
         j = KINDS.index(kind)
-        lo = math.log((options.board_plane_floor[j] / options.board_plane[j]) ** 2)  # type: ignore[index]
-        hi = math.log((options.board_plane_max[j] / options.board_plane[j]) ** 2)  # type: ignore[index]
+        lo = (options.board_plane_floor[j] / options.board_plane[j]) ** 2  # type: ignore[index]
+        hi = (options.board_plane_max[j] / options.board_plane[j]) ** 2  # type: ignore[index]
         s = comps.get((kind, g), 1.0)
         if r <= 0.5:
             out[(kind, g)] = s
             continue
-        x = min(hi, max(lo, math.log(s * max(c2, 1e-12) / r)))
-        past = history.setdefault((kind, g), [math.log(s)]) if history is not None else [math.log(s)]
-        if len(past) >= 2:
-            d0, d1 = past[-1] - past[-2], x - past[-1]
-            rho = d1 / d0 if d0 != 0.0 else 0.0
-            if 0.0 < rho < 0.95:
-                x += max(-math.log(10.0), min(math.log(10.0), d1 * rho / (1.0 - rho)))
-                x = min(hi, max(lo, x))
-        past.append(x)
-        out[(kind, g)] = math.exp(x)
+        info = (information or {}).get((kind, g), 0.0)
+        t = 1.0 + (c2 - r) / info if info > 0.0 else c2 / r
+        out[(kind, g)] = min(hi, max(lo, s * min(10.0, max(0.1, t))))
     return out
 
 
