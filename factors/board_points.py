@@ -25,6 +25,8 @@ whole. With ``plane_sigma = (offset_m, tilt_rad)`` each board's heights carry a 
 whitening: the rows are whitened by ``(I + G Sigma G^T)^(-1/2)`` (G the whitened Jacobian of the
 plane's three parameters), computed in the 3-dimensional span of G. The returns then determine a
 board's plane no better than that, while the LiDAR's shared terms still average over the boards.
+``scaled`` multiplies the plane's offset and tilt variances by factors (their variance components,
+estimated by the core from ``plane_rows``: the plane's predicted parameters in whitened rows).
 """
 
 from __future__ import annotations
@@ -116,7 +118,9 @@ class BoardPointsFactor(GroupedFactor):
         self.weight = 1.0 / (s * np.maximum(np.abs(self.u @ n0), 0.05))  # 1 / plane-height sigma
         self.scale = 1.0  # variance scale of the point rows (``scaled``)
         self.inplane_scale = 1.0
-        self._plane: tuple[np.ndarray, np.ndarray] | None = None  # (Q (M, 3), R Sigma R^T (3, 3))
+        self.plane_scale = (1.0, 1.0)  # variance scales of the plane's offset and tilt
+        # (G (M, 3) the plane's whitened Jacobian, Q (M, 3), R (3, 3) with G = Q R, variances (3,))
+        self._plane: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
         if plane_sigma is not None:
             so, st = (float(v) for v in plane_sigma)
             if not (so > 0 and st > 0):
@@ -125,7 +129,7 @@ class BoardPointsFactor(GroupedFactor):
             xy = ((p - t0) @ R0)[:, :2]
             G = self.weight[:, None] * np.column_stack([np.ones(M), xy])
             Q, Rg = np.linalg.qr(G)
-            self._plane = (Q, Rg @ np.diag([so**2, st**2, st**2]) @ Rg.T)
+            self._plane = (G, Q, Rg, np.array([so**2, st**2, st**2]))
         self._whiten = self._plane_whitening()
 
     @property
@@ -137,22 +141,47 @@ class BoardPointsFactor(GroupedFactor):
         """Error dimension: one row per return, then three for the in-plane prior."""
         return self.n_points + 3
 
-    def scaled(self, points_scale: float, inplane_scale: float) -> BoardPointsFactor:
-        """The same data with the point and in-plane variances multiplied by the given factors."""
+    def scaled(
+        self, points_scale: float, inplane_scale: float, plane_scale: tuple[float, float] = (1.0, 1.0)
+    ) -> BoardPointsFactor:
+        """The same data with the point, in-plane and plane (offset, tilt) variances multiplied by
+        the given factors."""
         import copy
 
         other = copy.copy(self)
         other.scale, other.inplane_scale = self.scale * points_scale, self.inplane_scale * inplane_scale
+        other.plane_scale = (self.plane_scale[0] * plane_scale[0], self.plane_scale[1] * plane_scale[1])
         other._whiten = other._plane_whitening()
         return other
+
+    def plane_variances(self) -> np.ndarray | None:
+        """(3,) the variances of the board's plane (offset m^2, tilt rad^2 twice) as scaled, or None."""
+        if self._plane is None:
+            return None
+        so, st = self.plane_scale
+        return self._plane[3] * np.array([so, st, st])
 
     def _plane_whitening(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(U (M, 3), c (3,)): the point rows' whitening is ``r + U (c * (U^T r))``."""
         if self._plane is None:
             return None
-        Q, A = self._plane
+        _, Q, Rg, _ = self._plane
+        A = Rg @ np.diag(self.plane_variances()) @ Rg.T
         lam, V = np.linalg.eigh(A / self.scale)
         return Q @ V, 1.0 / np.sqrt(1.0 + np.maximum(lam, 0.0)) - 1.0
+
+    def plane_rows(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(Z_offset (M, 1), Z_tilt (M, 2)): the plane's parameters as seen in the whitened point rows,
+        ``Z = V^(-1/2) G Sigma^(1/2)`` (V the rows' covariance with the plane, G its Jacobian, Sigma
+        its covariance; all in the rows' current whitening). With whitened residuals r, ``Z^T r``
+        are the plane's predicted parameters over their sigmas (their chi-square is ``|Z^T r|^2``)
+        and ``trace(Z^T Z)`` minus what the graph's other variables explain of them is their
+        redundancy (variance components of a random effect). None without a plane."""
+        if self._plane is None:
+            return None
+        G = self._plane[0] / np.sqrt(self.scale)
+        Z = self._plane_apply(G) * np.sqrt(self.plane_variances())
+        return Z[:, :1], Z[:, 1:]
 
     def _plane_apply(self, r: np.ndarray) -> np.ndarray:
         """The board-plane whitening applied to point rows ``r`` (M,) or (M, k)."""

@@ -60,7 +60,7 @@ def _run_options(args: argparse.Namespace):  # noqa: ANN202 - pipeline.RunOption
     if mode != "graph" and (len(getattr(args, "data", [None])) > 1 or joint["range_offset"]):
         raise InputError("--refine paper and --target-sigma calibrate one data set without a range offset")
     return RunOptions(
-        lidar_errors=LidarErrorOptions() if getattr(args, "lidar_errors", False) else None,
+        lidar_errors=_lidar_errors(args, LidarErrorOptions),
         intrinsics=IntrinsicsOptions(refine=bool(getattr(args, "refine_intrinsics", False))),
         mode=mode,
         noise=NoiseOptions(robust=getattr(args, "robust", None)),
@@ -69,6 +69,16 @@ def _run_options(args: argparse.Namespace):  # noqa: ANN202 - pipeline.RunOption
         target_sigma=target,
         stop_at_target=stop,
     )
+
+
+def _lidar_errors(args: argparse.Namespace, options: type):  # noqa: ANN202 - LidarErrorOptions | None
+    """``--lidar-errors`` (and ``--board-plane``) as options, or None without them."""
+    plane = getattr(args, "board_plane", None)
+    if not getattr(args, "lidar_errors", False):
+        if plane is not None:
+            raise InputError("--board-plane applies to --lidar-errors only")
+        return None
+    return options() if plane is None else options(board_plane_estimate=plane == "estimated")
 
 
 def _stage_options(args: argparse.Namespace):  # noqa: ANN202 - observe.StageOptions

@@ -250,6 +250,8 @@ def _sensors(sol: BatchSolution, config: Config) -> dict:
         out["lidar_errors"] = {"names": list(names), "values": values, "sigmas": sigmas, "left_out": left}
         if sol.lidar_covariance is not None:
             out["lidar_errors"]["covariance"] = sol.lidar_covariance
+        if getattr(sol, "board_plane", None) is not None:
+            out["lidar_errors"]["board_plane"] = dataclasses.asdict(sol.board_plane)
         if config.lidar is not None:  # each beam's nominal elevation (beam index 0 = lowest)
             el = config.lidar.vertical_angles_deg
             beams = {n: int(n[n.index("[") + 1 : -1]) for n in names if "[" in n}

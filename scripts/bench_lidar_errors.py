@@ -12,8 +12,10 @@ Each set is simulated and observed once in memory (``estimate_board`` on the ren
 ``detect_corners`` on the rendered image: the pipeline's per-frame stages; a ``FrameError`` drops the
 frame) and solved from the same observations by the pipeline's ``solve_observed`` (corner order,
 UPnP start, the core's noise policy) with the LiDAR error terms off (each board a 6-dof LiDAR prior)
-and on (the boards' returns with per-beam offsets and the dark-print offset), and on with other
-``board_plane`` sigmas. Measured against the simulator's truth:
+and on (the boards' returns with per-beam offsets and the dark-print offset) with each board's own
+random plane at fixed ``board_plane`` sigmas (or none) and with those sigmas estimated from the
+boards (``board_plane_estimate``); "on" is the default ``LidarErrorOptions()``. Measured against the
+simulator's truth:
 
 - the extrinsic: NEES ``xi^T C^-1 xi`` (``T_true = T_est Expmap(xi)``), 95 % coverage (NEES <= 12.59),
   rotation (deg) and translation (mm) errors;
@@ -34,6 +36,9 @@ with the terms on; the beam offsets both halves estimate compared by ``d^T (C_a 
 
     nice python scripts/bench_lidar_errors.py --sets 50 --jobs 2 --sink /tmp/ble/mc.pkl
     python scripts/bench_lidar_errors.py --from-sink /tmp/ble/mc.pkl --timing --real --write
+
+``--obs-cache DIR`` keeps each observed set (``DIR/<rig>-<seed>.pkl``) so that solving the variants
+again skips the observation (~90 % of the time); ``--observe-only`` only fills it.
 """
 
 from __future__ import annotations
@@ -79,14 +84,23 @@ ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "bench_lidar_errors.md"
 CHI2_6_95 = float(chi2.ppf(0.95, 6))
 DEG = np.pi / 180.0
+#: the two ways of the board plane's sigmas: fixed at the configured 5 mm / 0.4 deg, or estimated
+FIXED, ESTIMATED = "on, plane 5 mm / 0.4 deg (fixed)", "on, plane estimated"
 #: the variants solved from the same observations: name -> LidarErrorOptions (None: terms off)
 VARIANTS: dict[str, LidarErrorOptions | None] = {
     "off": None,
-    "on": LidarErrorOptions(),
-    "on, no board plane": LidarErrorOptions(board_plane=None),
-    "on, plane 2 mm / 0.15 deg": LidarErrorOptions(board_plane=(0.002, 0.15 * DEG)),
-    "on, plane 10 mm / 0.8 deg": LidarErrorOptions(board_plane=(0.010, 0.8 * DEG)),
+    FIXED: LidarErrorOptions(board_plane_estimate=False),
+    "on, no board plane": LidarErrorOptions(board_plane=None, board_plane_estimate=False),
+    "on, plane 2 mm / 0.15 deg": LidarErrorOptions(
+        board_plane=(0.002, 0.15 * DEG), board_plane_estimate=False
+    ),
+    "on, plane 10 mm / 0.8 deg": LidarErrorOptions(
+        board_plane=(0.010, 0.8 * DEG), board_plane_estimate=False
+    ),
+    ESTIMATED: LidarErrorOptions(board_plane_estimate=True),
 }
+#: "on" is the default ``LidarErrorOptions()`` (what ``--lidar-errors`` does): one of the two above
+DEFAULT_ON = ESTIMATED if LidarErrorOptions().board_plane_estimate else FIXED
 #: corner RMS targets (mm) and the distance up to which each applies (m)
 CORNER_TARGET = {"hdl32": (1.0, 3.0), "vlp16": (1.5, 5.0)}
 RIGS = ("hdl32", "vlp16")
@@ -139,6 +153,7 @@ class Variant:
     stage_rms_mm: list[float] = field(default_factory=list)  # per used board, the LiDAR stage's pose
     distance_m: list[float] = field(default_factory=list)  # per used board, its centre's range
     failure: str | None = None
+    plane: dict | None = None  # the boards' plane sigmas used (``plane.BoardPlane`` as a dict)
 
 
 @dataclass
@@ -219,6 +234,7 @@ def measure(obs: Observed, cal: Calibration, seconds: float) -> Variant:
             elif n == "dark":
                 v.dark = (1e3 * float(val), 1e3 * float(s))
         v.left_out = [tuple(x) for x in le["left_out"]]
+        v.plane = le.get("board_plane")
     board = obs.config.board
     for f in cal.frames:
         if not f.used or f.T_lidar_board_refined is None:
@@ -230,10 +246,29 @@ def measure(obs: Observed, cal: Calibration, seconds: float) -> Variant:
     return v
 
 
-def run_set(rig: str, seed: int) -> SetResult:
-    """Observe set ``seed`` of ``rig`` once and solve every variant from the same observations."""
-    logging.getLogger("ilcc_graph").setLevel(logging.ERROR)
+def cached_observation(rig: str, seed: int, cache: str | None) -> Observed:
+    """Set ``seed`` of ``rig`` observed, read from ``cache/<rig>-<seed>.pkl`` when there (else written)."""
+    path = Path(cache) / f"{rig}-{seed}.pkl" if cache else None
+    if path is not None and path.is_file():
+        with open(path, "rb") as fh:
+            return pickle.load(fh)
     obs = observe_set(rig, seed)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        with open(tmp, "wb") as fh:
+            pickle.dump(obs, fh)
+        tmp.replace(path)
+    return obs
+
+
+def run_set(rig: str, seed: int, cache: str | None = None, observe_only: bool = False) -> SetResult:
+    """Observe set ``seed`` of ``rig`` once (or read it from ``cache``) and solve every variant from
+    the same observations (none with ``observe_only``)."""
+    logging.getLogger("ilcc_graph").setLevel(logging.ERROR)
+    obs = cached_observation(rig, seed, cache)
+    if observe_only:
+        return SetResult(rig, seed, len(obs.frames), obs.seconds, {})
     out: dict[str, Variant] = {}
     for name, lo in VARIANTS.items():
         t0 = time.perf_counter()
@@ -243,6 +278,7 @@ def run_set(rig: str, seed: int) -> SetResult:
             out[name] = Variant(failure=str(err))
             continue
         out[name] = measure(obs, cal, time.perf_counter() - t0)
+    out["on"] = out[DEFAULT_ON]
     return SetResult(rig, seed, len(obs.frames), obs.seconds, out)
 
 
@@ -304,6 +340,23 @@ def mc_tables(results: Sequence[SetResult]) -> list[str]:
                 f"{np.mean([v.used for v in vs]):.1f}/{sets[0].n_frames} | "
                 f"{np.median([v.seconds for v in vs]):.2f} |" + (f" ({fails} sets failed)" if fails else "")
             )
+        est = [r.variants[n].plane for r in sets for n in r.variants if n.endswith("estimated")]
+        est = [p for p in est if p is not None and p.get("estimated")]
+        if est:
+            off = 1e3 * np.array([p["offset_m"] for p in est])
+            tilt = np.degrees([p["tilt_rad"] for p in est])
+            n_off = sum("offset at its floor" in p["note"] for p in est)
+            n_tilt = sum("tilt at its floor" in p["note"] for p in est)
+            sd_off = np.nanmean([1e3 * p["offset_sd"] for p in est])
+            sd_tilt = np.nanmean(np.degrees([p["tilt_sd"] for p in est]))
+            lines += [
+                "",
+                f"Estimated board-plane sigmas (on, plane estimated; {len(est)} sets): offset median "
+                f"{np.median(off):.2f} mm (p90 {np.percentile(off, 90):.2f}; at the floor in {n_off}), "
+                f"tilt median {np.median(tilt):.3f} deg (p90 {np.percentile(tilt, 90):.3f}; at the floor "
+                f"in {n_tilt}); mean stated sd {sd_off:.2f} mm / {sd_tilt:.3f} deg.",
+            ]
+        lines += ["", f'The default (`--lidar-errors`, `LidarErrorOptions()`) is "{DEFAULT_ON}".']
         stage = np.concatenate(
             [np.asarray(r.variants["off"].stage_rms_mm) for r in sets if "off" in r.variants]
         )
@@ -358,7 +411,7 @@ def timing(obs: Observed, sizes: Sequence[int] = (20, 400), repeats: int = 3) ->
     for n in sizes:
         prep = prepare(obs.frames[:n], obs.config)
         for name in ("off", "on"):
-            lo = VARIANTS[name]
+            lo = None if name == "off" else LidarErrorOptions()
             walls, cpus = [], []
             for _ in range(repeats if n <= 50 else 1):
                 t0, c0 = time.perf_counter(), time.process_time()
@@ -412,6 +465,19 @@ def _halves_test(a: Calibration, b: Calibration) -> tuple[float, int, float, int
     return m2, 6, b2, len(common), note
 
 
+def _plane_note(cal: Calibration, halves: Sequence[Calibration]) -> str:
+    """The boards' plane sigmas of a solve and its halves, when estimated ('-' otherwise)."""
+
+    def one(c: Calibration) -> str:
+        p = c.sensors.get("lidar_errors", {}).get("board_plane")
+        if p is None or not p.get("estimated"):
+            return "-"
+        off = f"{1e3 * p['offset_m']:.1f} +- {1e3 * p['offset_sd']:.1f}"
+        return f"{off}, {np.degrees(p['tilt_rad']):.2f} +- {np.degrees(p['tilt_sd']):.2f}"
+
+    return f"{one(cal)} ({one(halves[0])}; {one(halves[1])})"
+
+
 def real_data(root: Path, jobs: int) -> list[str]:
     """Per recorded set and variant: frames used, dark offset, beams, the halves' agreement."""
     from ilcc_graph.datasets import open_source
@@ -431,8 +497,8 @@ def real_data(root: Path, jobs: int) -> list[str]:
             "",
             "| variant | used | beams (left out) | dark mm | without the terms: deg, mm (sigma) | "
             "halves: extrinsic chi2 (6 dof) | halves: beam offsets chi2 (dof, p) | halves: dark mm "
-            "| solve s |",
-            "|---|---|---|---|---|---|---|---|---|",
+            "| solve s | board plane: offset mm, tilt deg (halves) |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
         parts = [replace(obs, frames=obs.frames[0::2]), replace(obs, frames=obs.frames[1::2])]
         for vname, lo in VARIANTS.items():
@@ -466,7 +532,7 @@ def real_data(root: Path, jobs: int) -> list[str]:
                 f"| {vname} | {sum(f.used for f in cal.frames)}/{len(cal.frames)} | {beams_s} | "
                 f"{dark} | {eff_s} | "
                 f"{m2:.1f} ({used[0]} + {used[1]} frames, p = {chi2.sf(m2, 6):.3f}) | {bstr} | "
-                f"{dnote} | {dt:.1f} |"
+                f"{dnote} | {dt:.1f} | {_plane_note(cal, halves)} |"
             )
             print(lines[-1], flush=True)
         lines.append("")
@@ -564,6 +630,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--sink", help="append every finished set to this pickle")
     ap.add_argument("--from-sink", help="tables from a sink written before")
+    ap.add_argument("--obs-cache", help="folder of observed sets (read when there, written when not)")
+    ap.add_argument("--observe-only", action="store_true", help="only fill --obs-cache, solve nothing")
     ap.add_argument("--timing", action="store_true", help="time the core on 20 and 400 frames")
     ap.add_argument("--timing-cache", help="pickle of the 400 observed frames (made when absent)")
     ap.add_argument("--real", action="store_true", help="the recorded sets' halves")
@@ -580,12 +648,17 @@ def main() -> None:
                     results.append(pickle.load(fh))
                 except EOFError:
                     break
+        for r in results:  # "on": the default as the code has it now
+            if DEFAULT_ON in r.variants:
+                r.variants["on"] = r.variants[DEFAULT_ON]
     jobs = [(rig, args.first_seed + k) for k in range(args.sets) for rig in args.rigs.split(",")]
     if jobs:
         sink = open(args.sink, "ab") if args.sink else None  # noqa: SIM115
         t0 = time.perf_counter()
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-            futures = [pool.submit(run_set, rig, seed) for rig, seed in jobs]
+            futures = [
+                pool.submit(run_set, rig, seed, args.obs_cache, args.observe_only) for rig, seed in jobs
+            ]
             for k, fut in enumerate(futures):
                 r = fut.result()
                 results.append(r)
@@ -601,6 +674,8 @@ def main() -> None:
                 )
         if sink is not None:
             sink.close()
+        if args.observe_only:
+            return
     auto = [
         f"Generated by `python scripts/bench_lidar_errors.py {' '.join(sys.argv[1:])}` on "
         f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; load average at the start of the tables "

@@ -169,9 +169,12 @@ def board_returns(
     sigma_m: float = 0.01,
     step_deg: float = 0.2,
     inplane_sigmas: tuple[float, float, float] = (2e-3, 1.5e-3, 1.5e-3),
+    bend: tuple[float, float, float] = (0.0, 0.0, 0.0),
 ):
     """A spinning LiDAR's returns from the board's face, with per-beam range offsets and a dark-print
     offset (measured minus true range), and the in-plane pose an intensity fit would report.
+    bend: (delta m, alpha, beta rad) the real face's height ``delta + alpha x + beta y`` above the
+    board frame's plane (board-frame x, y): a bent or tilted print.
 
     Returns (BoardReturns, T_measured (4, 4), covariance (6, 6)): T_measured is the truth moved by
     an in-plane error drawn from ``inplane_sigmas`` (rz, tx, ty) and by the plane of the biased
@@ -200,7 +203,8 @@ def board_returns(
         p, pb, dd = p[inside], pb[inside], d[ok][inside]
         w = 1.0 - board.colour_at(pb[:, :2])
         noise = rng.normal(0, sigma_m, len(p))
-        rng_m = np.linalg.norm(p, axis=1) + beam_offsets_m[b] + w * dark_offset_m + noise
+        h = bend[0] + bend[1] * pb[:, 0] + bend[2] * pb[:, 1]  # the real face, along the ray
+        rng_m = np.linalg.norm(p, axis=1) + h / (dd @ n) + beam_offsets_m[b] + w * dark_offset_m + noise
         pts.append(dd * rng_m[:, None])
         ring.append(np.full(len(p), b))
         dark.append(w)

@@ -187,7 +187,7 @@ class Assembly:
         for i in order:
             if i in self.points:
                 g = pr.boards[i].group
-                f = self.points[i].scaled(scales.get(("points", g), 1.0), scales.get(("inplane", g), 1.0))
+                f = self.points_factor(i, scales)
                 graph.add(f.factor())
                 m = f.n_points
                 terms.append(Term("board", g, i, f.dim, (("points", 0, m), ("inplane", m, m + 3))))
@@ -217,6 +217,13 @@ class Assembly:
         graph.push_back(intrinsics_prior_graph({c: self.intrinsics_prior(c) for c in cams}))
         terms += [Term("intrinsics", "", None, len(self.cameras[c].intrinsic_names)) for c in cams]
         return graph, terms
+
+    def points_factor(self, i: int, scales: Scales) -> BoardPointsFactor:
+        """Board ``i``'s returns factor under the variance scales (points, in-plane, its plane's
+        offset and tilt: ``plane.KINDS``)."""
+        g = self.problem.boards[i].group
+        plane = (scales.get(("plane_offset", g), 1.0), scales.get(("plane_tilt", g), 1.0))
+        return self.points[i].scaled(scales.get(("points", g), 1.0), scales.get(("inplane", g), 1.0), plane)
 
     def view_cameras(self, boards: Sequence[int]) -> list[int]:
         """Refined cameras whose intrinsics ``I(c)`` the views of ``boards`` enter."""

@@ -18,6 +18,7 @@ from ilcc_graph.estimation.effects import Effect, sensor_effects
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions, LidarLayout
 from ilcc_graph.estimation.noise import BoardStats, NoiseOptions, Solution, solve_problem
+from ilcc_graph.estimation.plane import BoardPlane
 from ilcc_graph.estimation.problem import frames_problem
 from ilcc_graph.estimation.solver import check_pose
 from ilcc_graph.types import Estimate, GraphFrame
@@ -36,7 +37,8 @@ class BatchSolution:
     entered and which were left out (``layout.excluded``); lidar_covariance: their (n, n) marginal
     covariance. intrinsics: the camera's refined intrinsics (names, values, sigmas) when refined.
     effects: per group of sensor terms what holding it at the stated values moves the extrinsic
-    (``effects.sensor_effects``).
+    (``effects.sensor_effects``). board_plane: the boards' plane sigmas used (estimated or
+    configured; ``plane.BoardPlane``), None without the board-plane term.
     """
 
     T_cam_lidar: np.ndarray
@@ -53,6 +55,7 @@ class BatchSolution:
     intrinsics: tuple[list[str], np.ndarray, np.ndarray] | None = None
     lidar_covariance: np.ndarray | None = None
     effects: dict[str, Effect] = field(default_factory=dict)
+    board_plane: BoardPlane | None = None
 
     @property
     def extrinsic(self) -> Estimate:
@@ -85,6 +88,7 @@ def batch_solution(
         intrinsics=sol.intrinsics(0),
         lidar_covariance=sol.lidar_covariance(0),
         effects=dict(effects or {}),
+        board_plane=sol.board_plane(group) if sol.assembly.point_lidars(sol.boards) else None,
     )
 
 

@@ -4,7 +4,8 @@ A solved problem is solved once more with a group of terms taken back to what th
 same boards (no gate), its variance components estimated again (the residuals change with the terms):
 
 - ``lidar_errors``: the LiDAR's own errors (``L(l)``: per-beam offsets, dark print, ...) held at zero
-  (their prior tightened to ``HOLD_SIGMA``), the boards' returns still in the graph;
+  (their prior tightened to ``HOLD_SIGMA``), the boards' returns still in the graph, each board's
+  plane at the sigmas the solution used (estimated ones held: else they would absorb the terms);
 - ``camera_intrinsics``: the refined cameras' intrinsics at the config's values (the views as bearings
   through the stated camera).
 
@@ -78,7 +79,10 @@ def sensor_effects(sol: Solution, options: NoiseOptions = NoiseOptions(), e: int
             lid: replace(lay, priors=(HOLD_SIGMA,) * 4) if lid in lidars else lay
             for lid, lay in sol.assembly.layouts.items()
         }
-        variants["lidar_errors"] = (problem, held)
+        bp, lo = sol.board_plane(), problem.lidar_errors
+        if bp is not None and lo is not None and lo.board_plane_estimate:
+            lo = replace(lo, board_plane=(bp.offset_m, bp.tilt_rad), board_plane_estimate=False)
+        variants["lidar_errors"] = (replace(problem, lidar_errors=lo), held)
     if sol.assembly.view_cameras(sol.boards):
         stated = replace(problem, intrinsics=IntrinsicsOptions(refine=False, propagate=False))
         variants["camera_intrinsics"] = (stated, dict(sol.assembly.layouts))

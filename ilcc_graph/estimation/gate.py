@@ -9,9 +9,17 @@ import gtsam
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
-from ilcc_graph.estimation.assembly import Term
+from ilcc_graph.estimation.assembly import Assembly, Term
 
-__all__ = ["PRIOR_MAX_RATIO", "RETURNS_MAX_RATIO", "BoardStats", "board_stats", "gate_failures", "gate_scale"]
+__all__ = [
+    "PRIOR_MAX_RATIO",
+    "RETURNS_MAX_RATIO",
+    "BoardStats",
+    "board_stats",
+    "gate_failures",
+    "gate_scale",
+    "graph_variance_factor",
+]
 
 #: a board's returns fail the gate only above this multiple of their dof (after the median scale)
 RETURNS_MAX_RATIO = 2.0
@@ -153,3 +161,17 @@ def gate_failures(
         if worst is not None:
             failing.append(worst)
     return sorted(failing)
+
+
+def graph_variance_factor(
+    g: gtsam.NonlinearFactorGraph, terms: Sequence[Term], values: gtsam.Values, asm: Assembly,
+    st: Mapping[int, BoardStats],
+) -> float:  # fmt: skip
+    """``chi2 / (m - n)`` over the whole graph, at least 1 (bearings without their robust kernel)."""
+    chi2 = sum(s.chi2 + (s.returns[0] if s.returns else 0.0) for s in st.values())
+    chi2 += sum(
+        2.0 * g.at(k).error(values) for k, t in enumerate(terms) if t.kind in ("tie", "offset", "lidar")
+    )
+    m = sum(t.dim for t in terms)
+    n = sum(asm.dim(k) for k in values.keys())
+    return max(1.0, chi2 / (m - n)) if m > n else 1.0

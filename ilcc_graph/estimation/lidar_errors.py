@@ -46,6 +46,11 @@ class LidarErrorOptions:
         (``factors.BoardPointsFactor``, plane_sigma).
     observable_ratio: a term is left out when the boards shrink its prior variance to no less than
         this fraction of it (the data hardly tell it).
+    board_plane_estimate: estimate the board plane's offset and tilt sigmas from the boards (two
+        variance components of the random plane, ``estimation/plane.py``), starting from
+        ``board_plane``, kept within [``board_plane_floor``, ``board_plane_max``]; with fewer than
+        ``board_plane_min_boards`` boards the configured sigmas stay (and the solution says so).
+        False: ``board_plane`` fixed (docs/bench_lidar_errors.md compares the two).
     """
 
     beam_offsets: bool = True
@@ -62,6 +67,10 @@ class LidarErrorOptions:
     max_points_per_board: int = 1200
     board_plane: tuple[float, float] | None = (0.005, 0.007)
     observable_ratio: float = 0.5
+    board_plane_estimate: bool = True
+    board_plane_floor: tuple[float, float] = (0.0005, 0.0007)
+    board_plane_max: tuple[float, float] = (0.04, 0.028)
+    board_plane_min_boards: int = 5
 
     def __post_init__(self) -> None:
         for name in ("prior_offset_m", "prior_dark_m", "prior_scale", "prior_elevation_rad"):
@@ -71,6 +80,13 @@ class LidarErrorOptions:
             raise ValueError(
                 f"LidarErrorOptions.board_plane must be two sigmas > 0 or None, got {self.board_plane!r}"
             )
+        if self.board_plane_estimate and self.board_plane is not None:  # (no plane: nothing to estimate)
+            lo, hi = self.board_plane_floor, self.board_plane_max
+            if not all(0 < a <= b <= c for a, b, c in zip(lo, self.board_plane, hi, strict=True)):
+                raise ValueError(
+                    "LidarErrorOptions: need 0 < board_plane_floor <= board_plane <= board_plane_max, got "
+                    f"{lo!r}, {self.board_plane!r}, {hi!r}"
+                )
         if not 0.0 < self.observable_ratio < 1.0:
             raise ValueError(
                 f"LidarErrorOptions.observable_ratio must be in (0, 1), got {self.observable_ratio!r}"

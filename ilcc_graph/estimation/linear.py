@@ -8,7 +8,7 @@ plus one dense inverse over the globals.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import gtsam
@@ -21,9 +21,19 @@ from ilcc_graph.estimation.keys import POSE3_DOF, I, X, is_board, key_dim
 __all__ = ["Reduced", "consider_covariance", "reduce", "redundancies"]
 
 
-def _linear_blocks(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim):
-    """Per factor and row kind: (kind, group, board key or None, A_board, global keys, A_globals, b)
-    of its whitened linearisation."""
+#: ``extra(k, term)``: virtual rows of factor k as [(kind, first row, end row, Z (rows, n))]: the rows
+#: ``Z^T`` of its rows first..end (e.g. a random effect marginalised in their whitening,
+#: ``BoardPointsFactor.plane_rows``); they enter no information, only the chi-squares and redundancies
+Extra = Callable[[int, Term], Sequence[tuple[str, int, int, np.ndarray]]]
+
+
+def _linear_blocks(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim,
+    extra: Extra | None = None,
+):  # fmt: skip
+    """Per factor and row kind: (kind, group, board key or None, A_board, global keys, A_globals, b,
+    count) of its whitened linearisation; count is None for its own rows, ``Z^T Z`` for the virtual
+    rows ``Z^T`` of ``extra``."""
     out = []
     for k, t in enumerate(terms):
         A, b = graph.at(k).linearize(values).jacobian()
@@ -41,8 +51,23 @@ def _linear_blocks(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, term
         for kind, r0, r1 in t.parts or ((t.kind, 0, len(b)),):
             rows = slice(r0, r1)
             out.append(
-                (kind, t.group, board_key, None if A_b is None else A_b[rows], g_keys, A_g[rows], b[rows])
+                (
+                    kind,
+                    t.group,
+                    board_key,
+                    None if A_b is None else A_b[rows],
+                    g_keys,
+                    A_g[rows],
+                    b[rows],
+                    None,
+                )
             )
+        for kind, r0, r1, Z in extra(k, t) if extra is not None else ():
+            rows = slice(r0, r1)
+            out.append(
+                (kind, t.group, board_key, None if A_b is None else Z.T @ A_b[rows], g_keys, Z.T @ A_g[rows],
+                 Z.T @ b[rows], Z.T @ Z)
+            )  # fmt: skip
     return out
 
 
@@ -67,22 +92,25 @@ class Reduced:
 
 def reduce(
     graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim=key_dim,
-    skip: Sequence[str] = (),
+    skip: Sequence[str] = (), extra: Extra | None = None,
 ) -> Reduced:  # fmt: skip
     """Linearise ``graph`` at ``values`` (whitened) and eliminate the boards; rows of the kinds in
-    ``skip`` are left out (e.g. a prior, to get the data's information alone)."""
-    blocks = [b for b in _linear_blocks(graph, values, terms, dim) if b[0] not in skip]
+    ``skip`` are left out (e.g. a prior, to get the data's information alone); ``extra``: virtual
+    rows kept in ``blocks`` (no information)."""
+    blocks = [b for b in _linear_blocks(graph, values, terms, dim, extra) if b[0] not in skip]
     index: dict[int, int] = {}
     dims: dict[int, int] = {}
     G = 0
-    for *_, g_keys, _, _ in blocks:
+    for *_, g_keys, _, _, _ in blocks:
         for key in g_keys:
             if key not in index:
                 index[key], dims[key] = G, dim(key)
                 G += dims[key]
     red = Reduced(blocks, index, dims, {}, {}, np.zeros((G, G)))
     D: dict[int, np.ndarray] = {}
-    for _, _, board_key, A_b, g_keys, A_g, _ in blocks:
+    for _, _, board_key, A_b, g_keys, A_g, _, count in blocks:
+        if count is not None:
+            continue  # virtual rows: no information of their own
         c = red.cols(g_keys)
         if board_key is not None:
             D[board_key] = D.get(board_key, np.zeros((POSE3_DOF, POSE3_DOF))) + A_b.T @ A_b
@@ -96,22 +124,29 @@ def reduce(
 
 
 def redundancies(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim=key_dim
-) -> dict[tuple[str, str], tuple[float, float]]:
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim=key_dim,
+    extra: Extra | None = None, information: dict[tuple[str, str], float] | None = None,
+) -> dict[tuple[str, str], tuple[float, float]]:  # fmt: skip
     """Per (kind, group): (whitened chi-square, redundancy ``m_g - trace(N^-1 N_g)``) at ``values``.
 
     N is the information matrix of the whitened linear system. Boards are eliminated first (each
     factor touches at most one), so the cost is O(boards) plus a dense inverse over the globals.
-    ``dim(key)``: the tangent dimension of a variable (``Assembly.dim``).
+    ``dim(key)``: the tangent dimension of a variable (``Assembly.dim``). ``extra``: virtual rows
+    ``Z^T`` of a random effect marginalised in some rows (``Extra``): their chi-square is
+    ``|Z^T r|^2`` and their redundancy ``trace(Z^T Z) - trace(N^-1 A^T Z Z^T A)`` (the random
+    effect made explicit with its prior as pseudo-observations gives the same numbers).
+    ``information``: filled, per kind of virtual rows, with ``sum ||Z^T P Z||_F^2`` over the factors
+    (P the residuals' projector; each factor's own block, the couplings between boards left out):
+    twice the expected information of the random effect's variance scale (Fisher scoring).
     """
-    red = reduce(graph, values, terms, dim)
+    red = reduce(graph, values, terms, dim, extra=extra)
     G = len(red.S)
     try:
         S_inv = np.linalg.inv(red.S) if G else red.S
     except np.linalg.LinAlgError:
         raise IndeterminateSystem("the graph does not determine its global variables") from None
     out: dict[tuple[str, str], list[float]] = {}
-    for kind, group, board_key, A_b, g_keys, A_g, b in red.blocks:
+    for kind, group, board_key, A_b, g_keys, A_g, b, count in red.blocks:
         c = red.cols(g_keys)
         if board_key is not None:
             di, ci = red.Dinv[board_key], red.C[board_key]
@@ -123,7 +158,13 @@ def redundancies(
             A, Sig = A_g, S_inv[np.ix_(c, c)]
         acc = out.setdefault((kind, group), [0.0, 0.0])
         acc[0] += float(b @ b)
-        acc[1] += len(b) - float(np.sum(Sig * (A.T @ A)))
+        if count is None:
+            acc[1] += len(b) - float(np.sum(Sig * (A.T @ A)))
+            continue
+        ZPZ = count - A @ Sig @ A.T
+        acc[1] += float(np.trace(ZPZ))
+        if information is not None:
+            information[(kind, group)] = information.get((kind, group), 0.0) + float(np.sum(ZPZ * ZPZ))
     return {k: (v[0], v[1]) for k, v in out.items()}
 
 

@@ -33,8 +33,10 @@ import gtsam
 import numpy as np
 
 from ilcc_graph.errors import CalibrationImpossible
-from ilcc_graph.estimation.assembly import Assembly, Term
+from ilcc_graph.estimation import plane
+from ilcc_graph.estimation.assembly import Assembly
 from ilcc_graph.estimation.gate import BoardStats, board_stats, gate_failures, gate_scale
+from ilcc_graph.estimation.gate import graph_variance_factor as graph_factor
 from ilcc_graph.estimation.graphs import Scales
 from ilcc_graph.estimation.keys import POSE3_DOF, B, I, L, O, X
 from ilcc_graph.estimation.lidar_errors import LidarLayout
@@ -93,7 +95,8 @@ class Solution:
 
     boards: indices of the kept boards. dropped: ``(name, reason)`` of the others, in the order
     dropped. scales: variance component per (kind, group). variance_factor: the final factor (every
-    covariance returned is multiplied by it).
+    covariance returned is multiplied by it). redundancy: per (kind, group) with a component, its
+    redundancy at the last estimate.
     """
 
     problem: Problem
@@ -107,7 +110,13 @@ class Solution:
     variance_factor: float
     iterations: int
     timings: dict[str, float] = field(default_factory=dict)
+    redundancy: dict[tuple[str, str], float] = field(default_factory=dict)
     _marginals: MarginalCovariances | None = None
+
+    def board_plane(self, group: str = "") -> plane.BoardPlane | None:
+        """The boards' plane sigmas the solve used (estimated or configured), or None without them."""
+        n = sum(1 for i in self.boards if i in self.assembly.points and self.problem.boards[i].group == group)
+        return plane.board_plane(self.problem.lidar_errors, self.scales, self.redundancy, n, group)
 
     @property
     def marginals(self) -> MarginalCovariances:
@@ -298,14 +307,22 @@ def solve_problem(
             kept = [i for i in kept if i != worst]
         return kept, gone, g, terms, res, st
 
+    redundancy: dict[tuple[str, str], float] = {}
+
     def with_components(kept: Sequence[int], comps: dict[tuple[str, str], float]):
         g, terms, res = fit(kept, comps)
-        for _ in range(8):
-            ratios = redundancies(g, res, terms, asm.dim)
+        planes = plane.estimated(problem.lidar_errors, asm, kept)  # the boards' planes' components
+        for _ in range(16 if planes else 8):
+            extra, info = (plane.extra_rows(asm, comps, planes), {}) if planes else (None, None)
+            ratios = redundancies(g, res, terms, asm.dim, extra, info)
+            ratios = plane.split_points(ratios) if planes else ratios
             new = dict(comps)
             for key, (c2, r) in ratios.items():
                 if key[0] in COMPONENT_KINDS:
                     new[key] = max(1.0, comps.get(key, 1.0) * (c2 / r if r > 0.5 else 1.0))
+            if planes:
+                new.update(plane.components(ratios, comps, problem.lidar_errors, info))  # type: ignore[arg-type]
+            redundancy.update({k: r for k, (_, r) in ratios.items()})
             if all(abs(new[k] / comps.get(k, 1.0) - 1.0) < 0.02 for k in new):
                 break
             comps = new
@@ -323,11 +340,11 @@ def solve_problem(
         st = stats_of(kept, comps, g, terms, res)
     dropped.extend(gone)
     if variance_factor is None:
-        vf = _variance_factor(g, terms, res, asm, st) if options.variance_components else 1.0
+        vf = graph_factor(g, terms, res, asm, st) if options.variance_components else 1.0
     else:
         vf = variance_factor
     timings["total"] = time.perf_counter() - t_start
-    sol = Solution(problem, asm, kept, g, res, st, dropped, comps, float(vf), iterations, timings)
+    sol = Solution(problem, asm, kept, g, res, st, dropped, comps, float(vf), iterations, timings, redundancy)
     weak = _unobservable(sol) if layouts is None else {}
     if weak:
         for lid, (terms_out, why) in weak.items():
@@ -348,6 +365,7 @@ def solve_problem(
                 for (k, grp), v in sorted(comps.items())
             ),
         )
+    plane.log_sigmas(problem.lidar_errors, sol.board_plane())
     if vf > 1.0 and variance_factor is None:
         log.info("the residuals are %.2f times the stated noise variance; covariance scaled by it", vf)
     return sol
@@ -370,19 +388,9 @@ def _unobservable(sol: Solution) -> dict[int, tuple[list[str], str]]:
     return out
 
 
-def _variance_factor(g, terms: Sequence[Term], values, asm: Assembly, st: Mapping[int, BoardStats]) -> float:
-    """``chi2 / (m - n)`` over the whole graph, at least 1 (bearings without their robust kernel)."""
-    chi2 = sum(s.chi2 + (s.returns[0] if s.returns else 0.0) for s in st.values())
-    chi2 += sum(
-        2.0 * g.at(k).error(values) for k, t in enumerate(terms) if t.kind in ("tie", "offset", "lidar")
-    )
-    m = sum(t.dim for t in terms)
-    n = sum(asm.dim(k) for k in values.keys())
-    return max(1.0, chi2 / (m - n)) if m > n else 1.0
-
-
 def replace_scales(sol: Solution, factor: float) -> dict[tuple[str, str], float]:
     """The solution's components with its final variance factor folded in (for sub-problem solves)."""
     groups = {(k, b.group) for b in sol.problem.boards for k in COMPONENT_KINDS if k != "bearing"}
     groups |= {("bearing", sol.assembly.view_group(j)) for j in range(len(sol.problem.views))}
+    groups |= {key for key in sol.scales if key[0] in plane.KINDS}
     return {key: sol.scales.get(key, 1.0) * factor for key in groups}

@@ -22,6 +22,7 @@ points, bearings, covariances) is not stored and is empty or NaN.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -119,6 +120,16 @@ def _sensors_dict(sensors: dict[str, Any]) -> dict[str, Any]:
             if n in lid.get("elevation_deg", {}):
                 terms[n]["elevation_deg"] = float(lid["elevation_deg"][n])
         out["lidar"] = {"terms": terms, "left_out": [{"term": t, "reason": r} for t, r in lid["left_out"]]}
+        bp = lid.get("board_plane")
+        if bp is not None:  # each board's own plane: sigmas used (estimated or configured)
+            out["lidar"]["board_plane"] = {
+                "offset_mm": 1e3 * float(bp["offset_m"]),
+                "offset_sd_mm": 1e3 * float(bp["offset_sd"]),
+                "tilt_deg": math.degrees(float(bp["tilt_rad"])),
+                "tilt_sd_deg": math.degrees(float(bp["tilt_sd"])),
+                "estimated": bool(bp["estimated"]),
+                "note": str(bp["note"]),
+            }
     cam = sensors.get("camera_intrinsics")
     if cam is not None:
         out["camera_intrinsics"] = {
@@ -160,6 +171,16 @@ def _sensors_from_dict(src: str, d: Any) -> dict[str, Any]:
                 "left_out": [[str(x["term"]), str(x["reason"])] for x in lid.get("left_out") or []],
                 **({"elevation_deg": elev} if elev else {}),
             }  # fmt: skip
+            bp = lid.get("board_plane")
+            if bp is not None:
+                out["lidar_errors"]["board_plane"] = {
+                    "offset_m": 1e-3 * float(bp["offset_mm"]),
+                    "offset_sd": 1e-3 * float(bp["offset_sd_mm"]),
+                    "tilt_rad": math.radians(float(bp["tilt_deg"])),
+                    "tilt_sd": math.radians(float(bp["tilt_sd_deg"])),
+                    "estimated": bool(bp["estimated"]),
+                    "note": str(bp["note"]),
+                }
         cam = d.get("camera_intrinsics")
         if cam is not None:
             out["camera_intrinsics"] = {

@@ -74,6 +74,8 @@ def sensors_html(cal: Calibration) -> str:
                 "those of the boards the graph settled on.</p>"
             )
             parts.append(_html_table(("term", "beam elevation (deg)", "value", "sigma"), _term_rows(lid)))
+        if lid.get("board_plane"):
+            parts.append(f"<p>{_e(board_plane_text(lid['board_plane']))}</p>")
         if lid.get("left_out"):
             parts.append("<p>Left out (not estimated, so that they do not absorb noise):</p><ul>")
             parts += [f"<li><b>{_e(t)}</b>: {_e(r)}</li>" for t, r in lid["left_out"]]
@@ -100,6 +102,21 @@ def sensors_html(cal: Calibration) -> str:
     return "\n".join(parts)
 
 
+def board_plane_text(bp: dict) -> str:
+    """One line on each board's own plane (``plane.BoardPlane`` as a dict): its sigmas and how set."""
+    how = "estimated from the boards" if bp["estimated"] else "as configured"
+    sd = (
+        f" (+- {1e3 * bp['offset_sd']:.1f} mm, +- {np.degrees(bp['tilt_sd']):.2f} deg)"
+        if bp["estimated"] and np.isfinite(bp["offset_sd"]) and np.isfinite(bp["tilt_sd"])
+        else ""
+    )
+    note = f"; {bp['note']}" if bp["note"] and bp["note"] != "configured" else ""
+    return (
+        f"each board's own plane (bend, tilt of the print against its returns), {how}: offset "
+        f"{1e3 * bp['offset_m']:.1f} mm, tilt {np.degrees(bp['tilt_rad']):.2f} deg{sd}{note}"
+    )
+
+
 def sensors_text(cal: Calibration) -> str:
     """A few lines for the terminal ("" when the graph estimated none)."""
     sensors = cal.sensors or {}
@@ -122,6 +139,8 @@ def sensors_text(cal: Calibration) -> str:
                 lines.append(f"LiDAR {n}: {1e3 * v[i]:+.2f} mm, sigma {1e3 * s[i]:.2f} mm")
             else:
                 lines.append(f"LiDAR {n}: {v[i]:+.3g}, sigma {s[i]:.2g}")
+    if lid is not None and lid.get("board_plane"):
+        lines.append(board_plane_text(lid["board_plane"]))
     if lid is not None and lid.get("left_out"):
         lines.append(f"left out: {', '.join(t for t, _ in lid['left_out'])}")
     for k, e in (sensors.get("effects") or {}).items():
