@@ -10,9 +10,15 @@ from ilcc_graph.config import Roi
 from ilcc_graph.errors import BoardNotFound, InputError
 from ilcc_graph.lidar import estimate_board
 from ilcc_graph.lidar._synthetic import SynthScene, synth_scan
-from ilcc_graph.lidar.detection import find_board, intensity_contrast, roi_mask
+from ilcc_graph.lidar.detection import find_candidates, intensity_contrast, roi_mask
 from ilcc_graph.lidars import lidar_model
 from ilcc_graph.types import Scan
+
+
+def find_board(points, ring, intensity, board, model):  # noqa: ANN001, ANN201
+    """The most uniform of the candidates that pass the chessboard tests."""
+    return max(find_candidates(points, ring, intensity, board, model), key=lambda c: c.uniformity)
+
 
 BOARD = Board(6, 8, 0.075)
 HDL32 = lidar_model("hdl32")

@@ -16,12 +16,18 @@ from ilcc_graph.errors import BoardNotFound
 from ilcc_graph.io import read_scan
 from ilcc_graph.lidar import ExpectedBoard, estimate_board
 from ilcc_graph.lidar._synthetic import SynthScene, synth_scan
-from ilcc_graph.lidar.detection import find_board, find_candidates
+from ilcc_graph.lidar.detection import find_candidates
 from ilcc_graph.lidars import lidar_model
 from ilcc_graph.observe import resolve_lidar
 from ilcc_graph.pipeline import run
 from ilcc_graph.simulate import SimulationSpec, Systematics, default_camera, simulate_dataset
 from ilcc_graph.types import Scan
+
+
+def find_board(points, ring, intensity, board, model):  # noqa: ANN001, ANN201
+    """The most uniform of the candidates that pass the chessboard tests."""
+    return max(find_candidates(points, ring, intensity, board, model), key=lambda c: c.uniformity)
+
 
 BOARD = Board(6, 8, 0.075)
 HDL32 = lidar_model("hdl32")

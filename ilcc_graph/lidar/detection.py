@@ -42,7 +42,7 @@ from .search import (
 from .segmentation import Segmentation, components_of, segment_scan
 
 __all__ = [
-    "Candidate", "find_board", "find_candidates", "roi_mask", "board_tests", "intensity_contrast",
+    "Candidate", "find_candidates", "roi_mask", "board_tests", "intensity_contrast",
     "ransac_plane",
 ]  # fmt: skip
 
@@ -80,24 +80,6 @@ def trim_attachments(
     big = np.argmax(np.bincount(lab.ravel())[1:]) + 1
     keep = ndimage.binary_dilation(lab == big, structure=box)
     return np.flatnonzero(keep[row + 1, col + width])
-
-
-def find_board(
-    points: np.ndarray,
-    ring: np.ndarray,
-    intensity: np.ndarray,
-    board: Board,
-    model: LidarModel,
-    roi: Any | None = None,
-    options: LidarOptions = LidarOptions(),
-    rng: np.random.Generator | None = None,
-) -> Candidate:
-    """Segment the scan and return the most uniform candidate; raise BoardNotFound with the reason.
-
-    points: (N, 3) LiDAR frame. ring: (N,) beam index. intensity: (N,).
-    """
-    cands = find_candidates(points, ring, intensity, board, model, roi, options, rng)
-    return max(cands, key=lambda c: c.uniformity)
 
 
 def find_candidates(
