@@ -37,9 +37,9 @@ def read_frame_file(fn: Callable[..., Any], *args: object, strict: bool = False)
         raise DamagedFile(f"damaged file: {err}") from None
 
 
-def size_problem(image: np.ndarray, config: Config, where: str) -> str | None:
-    """Why an image (H, W[, 3]) cannot be of the config's camera (its size), or None."""
-    h, w = image.shape[:2]
+def size_problem(size: tuple[int, int], config: Config, where: str) -> str | None:
+    """Why an image of ``size`` (width, height) px cannot be of the config's camera, or None."""
+    w, h = size
     cam = config.camera
     if (w, h) == (cam.width, cam.height):
         return None
@@ -57,7 +57,7 @@ def size_problem(image: np.ndarray, config: Config, where: str) -> str | None:
 
 def check_image(image: np.ndarray, config: Config, where: str, strict: bool = False) -> None:
     """DamagedFile (InputError with ``strict``) when the image has not the camera's size."""
-    problem = size_problem(image, config, where)
+    problem = size_problem((image.shape[1], image.shape[0]), config, where)
     if problem is None:
         return
     if strict:
@@ -74,10 +74,10 @@ def check_image_size(source: FrameSource, refs: Sequence[FrameRef], config: Conf
     problems = []
     for ref in [r for r in refs if r.image is not None][:look]:
         try:
-            image = source.read_image(ref)
+            w, h = source.image_size(ref)
         except InputError:
             continue  # a damaged image: the stage says so for its frame
-        problem = size_problem(image, config, str(ref.image))
+        problem = size_problem((w, h), config, str(ref.image))
         if problem is None:
             return
         problems.append(problem)

@@ -27,6 +27,8 @@ from ilcc_graph.image.previews import make_views
 from ilcc_graph.init import upnp
 from ilcc_graph.lidar import LidarOptions, estimate_board
 from ilcc_graph.lidars import choose_model, measure_beams
+from ilcc_graph.pattern_check import KEYS as PATTERN_KEYS
+from ilcc_graph.pattern_check import pattern_continues
 from ilcc_graph.types import BoardFit, Calibration, ExpectedBoard, FrameResult, ImageCorners
 
 log = logging.getLogger(__name__)
@@ -101,9 +103,9 @@ def observe_image(
     image = read_frame_file(source.read_image, ref, strict=strict)
     check_image(image, config, str(ref.image), strict)
     corners = detect_corners(image, config.camera, config.board, options)  # type: ignore[arg-type]
-    return (
-        dataclasses.replace(corners, views=make_views(image, corners.uv, config.camera)) if views else corners
-    )
+    extra = dict(zip(PATTERN_KEYS, pattern_continues(image, config, corners)))  # for setup_mistakes
+    kept = make_views(image, corners.uv, config.camera) if views else corners.views
+    return dataclasses.replace(corners, diagnostics={**corners.diagnostics, **extra}, views=kept)
 
 
 def _attempt(fn: Callable, *args: object) -> object:

@@ -32,6 +32,7 @@ from ilcc_graph.config import Config
 from ilcc_graph.errors import FrameError, InputError
 from ilcc_graph.init import upnp
 from ilcc_graph.observe import Observation, StageOptions, observe_image, observe_lidar
+from ilcc_graph.pattern_check import extra_squares, pattern_continues
 from ilcc_graph.types import Calibration, ImageCorners
 
 log = logging.getLogger(__name__)
@@ -92,54 +93,6 @@ def _square_size_line(board: Board, k: float, evidence: str) -> str:
     )
 
 
-def pattern_continues(image: np.ndarray, config: Config, corners: ImageCorners) -> tuple[int, int]:
-    """(extra rows, extra cols) of squares the image shows beyond the board's pattern (0, 0 when none).
-
-    The pattern's pose comes from the image corners (UPnP); the grey level at the centre of each
-    square of the ring just outside the pattern is classed against the pattern's own black and white
-    squares. A side whose ring continues the checker colours (>= 85 % of its squares; a margin,
-    the board's edge or the background match about half) counts as one more row or column.
-    """
-    board, camera = config.board, config.camera
-    b = corners.bearings / np.linalg.norm(corners.bearings, axis=1, keepdims=True)
-    if not np.all(np.isfinite(b)):
-        return 0, 0
-    T = upnp(board.corners_board(), b, prefer_front=True)[0].T_cam_points
-    gray = image.mean(axis=2) if image.ndim == 3 else image.astype(np.float64)
-    s, R, C = board.square_size, board.rows, board.cols
-
-    def sample(rc: np.ndarray) -> np.ndarray:
-        xy = (rc[:, ::-1] + 0.5) * s  # square (r, c) centre: x along the columns, y along the rows
-        p = np.c_[xy, np.zeros(len(xy))] @ T[:3, :3].T + T[:3, 3]
-        uv = camera.project(p)
-        out = np.full(len(rc), np.nan)
-        ok = np.all(np.isfinite(uv), axis=1) & camera.in_image(uv)
-        if ok.any():
-            u, v = np.round(uv[ok]).astype(int).T
-            out[ok] = gray[np.clip(v, 0, gray.shape[0] - 1), np.clip(u, 0, gray.shape[1] - 1)]
-        return out
-
-    inside = np.array([(r, c) for r in range(R) for c in range(C)])
-    black = (inside.sum(axis=1) % 2 == 0) == (board.lower_left == "black")
-    level = sample(inside)
-    if not (np.isfinite(level).all() and np.nanmean(level[~black]) > np.nanmean(level[black]) + 20):
-        return 0, 0  # the pattern itself is not seen clearly enough to judge
-    split = 0.5 * (np.nanmean(level[~black]) + np.nanmean(level[black]))
-    sides = {
-        "top": np.array([(-1, c) for c in range(C)]),
-        "bottom": np.array([(R, c) for c in range(C)]),
-        "left": np.array([(r, -1) for r in range(R)]),
-        "right": np.array([(r, C) for r in range(R)]),
-    }
-    going_on = {}
-    for name, rc in sides.items():
-        g = sample(rc)
-        ok = np.isfinite(g)
-        want_black = (rc.sum(axis=1) % 2 == 0) == (board.lower_left == "black")
-        going_on[name] = ok.sum() >= 0.8 * len(rc) and np.mean((g[ok] < split) == want_black[ok]) >= 0.85
-    return int(going_on["top"]) + int(going_on["bottom"]), int(going_on["left"]) + int(going_on["right"])
-
-
 def _dims_line(board: Board, squares: tuple[int, int], evidence: str, at_least: bool = False) -> str:
     return (
         f"board.squares [{board.rows}, {board.cols}] looks wrong: {evidence}; the print has "
@@ -166,10 +119,16 @@ def diagnose_result(obs: Observation, cal: Calibration, images: int = 2) -> list
         k, _, n = scale
         ev = f"the images make the board's moves between frames {k:.3f} x what the scans give ({n} pairs)"
         lines.append(_square_size_line(board, 1 / k, ev))
-    refs = {r.name: r for r in obs.source.frames()}
     extra = []
+    refs: dict | None = None
     for f in frames[:images]:
-        if f.corners is None or f.name not in refs:
+        if f.corners is None:
+            continue
+        if (kept := extra_squares(f.corners)) is not None:  # the image stage looked already
+            extra.append(kept)
+            continue
+        refs = {r.name: r for r in obs.source.frames()} if refs is None else refs
+        if f.name not in refs:
             continue
         try:
             image = obs.source.read_image(refs[f.name])
@@ -267,6 +226,9 @@ def _board_dims_search(obs: Observation, stages: StageOptions, refs: dict) -> st
     without = [f for f in usable if f.corners is None][:LOOK]
     continues = []
     for f in with_corners:
+        if (kept := extra_squares(f.corners)) is not None:  # type: ignore[arg-type]
+            continues.append(kept != (0, 0))
+            continue
         try:
             image = obs.source.read_image(refs[f.name])
         except InputError:

@@ -62,6 +62,12 @@ class FrameSource(ABC):
     def read_image(self, ref: FrameRef) -> np.ndarray:
         """The frame's image, (H, W, 3) BGR uint8; InputError naming the file and the problem."""
 
+    def image_size(self, ref: FrameRef) -> tuple[int, int]:
+        """(width, height) of the frame's image in pixels; here from ``read_image`` (sources that can
+        read it from a header alone do so)."""
+        h, w = self.read_image(ref).shape[:2]
+        return int(w), int(h)
+
     def ground_truth(self) -> Any | None:
         """A simulated source's ``io.GroundTruth``, else None."""
         return None

@@ -61,5 +61,16 @@ class FolderSource(FrameSource):
     def read_image(self, ref: FrameRef) -> np.ndarray:
         return read_image(ref.image)
 
+    def image_size(self, ref: FrameRef) -> tuple[int, int]:
+        """(width, height) from the image file's header (Pillow opens lazily: no pixel is decoded);
+        a file Pillow cannot open is decoded as ``read_image`` does (InputError when damaged)."""
+        from PIL import Image, UnidentifiedImageError
+
+        try:
+            with Image.open(ref.image) as im:
+                return int(im.width), int(im.height)
+        except (OSError, UnidentifiedImageError, ValueError):
+            return super().image_size(ref)
+
     def ground_truth(self):  # noqa: ANN201 - io.GroundTruth | None
         return read_ground_truth(self.path) if (self.path / GROUND_TRUTH_FILE).is_file() else None

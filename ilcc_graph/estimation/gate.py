@@ -7,9 +7,10 @@ from dataclasses import dataclass
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from ilcc_graph.estimation.assembly import Assembly, Term
+
+from . import chi2 as chi2_dist
 
 __all__ = [
     "PRIOR_MAX_RATIO",

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from factors import FrameBearingFactor
 from ilcc_graph.types import GraphFrame
+
+from . import chi2 as chi2_dist
 
 __all__ = ["innovation_chi2", "innovation_gate"]
 

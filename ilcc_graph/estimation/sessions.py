@@ -19,7 +19,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import CameraModel
@@ -32,6 +31,8 @@ from ilcc_graph.estimation.noise import NoiseOptions, Solution, replace_scales, 
 from ilcc_graph.estimation.problem import Problem, Tie, frames_problem, merge_problems
 from ilcc_graph.estimation.solver import check_pose
 from ilcc_graph.types import Estimate, GraphFrame
+
+from . import chi2 as chi2_dist
 
 __all__ = [
     "ConsistencyTest",
