@@ -54,20 +54,13 @@ def _cpu_machine() -> float:
 def calibrate(src: Path, data: Path, out: Path, extra: list[str]) -> dict:
     shutil.rmtree(out, ignore_errors=True)
     env = dict(os.environ, PYTHONPATH=str(src))
-    cmd = [
-        sys.executable,
-        "-m",
-        "ilcc_graph.cli",
-        "calibrate",
-        str(data),
-        "--out",
-        str(out),
-        "--jobs",
-        "2",
-        *extra,
-    ]
+    link = out.parent / "DATA"  # run beside it with relative names: the report (and its screenshot)
+    if not link.exists():  # shows "DATA" and "OUT", not this machine's folders
+        link.symlink_to(Path(data).resolve())
+    cmd = [sys.executable, "-m", "ilcc_graph.cli", "calibrate", "DATA", "--out", out.name, "--jobs", "2"]
+    cmd += extra
     c0, t0 = _cpu_machine(), time.perf_counter()
-    p = subprocess.run(cmd, cwd=src, env=env, capture_output=True, text=True)
+    p = subprocess.run(cmd, cwd=out.parent, env=env, capture_output=True, text=True)
     wall, cpu = time.perf_counter() - t0, _cpu_machine() - c0
     if p.returncode != 0:
         raise RuntimeError(f"{cmd} failed:\n{p.stdout[-3000:]}\n{p.stderr[-3000:]}")
