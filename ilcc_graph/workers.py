@@ -48,7 +48,15 @@ Progress = Callable[[int, int], None]
 _PR_SET_PDEATHSIG = 1
 
 
+#: the resource tracker's warnings (a process of its own, started with this process's -W options):
+#: after a stop it warns that it cannot unlink a semaphore the stop has already removed, a line
+#: after the run's one line; leaks are measured instead (scripts/soak.py counts the semaphores)
+QUIET_TRACKER = "ignore::UserWarning:multiprocessing.resource_tracker"
+
+
 def _context() -> multiprocessing.context.BaseContext:
+    if QUIET_TRACKER not in sys.warnoptions:  # before the tracker starts (with the first pool)
+        sys.warnoptions.append(QUIET_TRACKER)
     ctx = multiprocessing.get_context(START_METHOD)
     if START_METHOD == "forkserver":
         ctx.set_forkserver_preload(PRELOAD)
