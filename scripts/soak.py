@@ -26,6 +26,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from _shared import processes_where, write_between  # noqa: E402
+
 from ilcc_graph.cli import main  # noqa: E402
 
 MARK_BEGIN, MARK_END = "<!-- soak:begin -->", "<!-- soak:end -->"
@@ -39,27 +41,11 @@ def _status(key: str) -> int:
 
 
 def _children(pid: int) -> list[int]:
-    out = []
-    for d in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            fields = Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid and fields[0] != "Z":
-            out.append(int(d))
-    return out
+    return processes_where(1, pid)
 
 
 def _group(pgid: int) -> list[int]:
-    out = []
-    for d in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            fields = Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[2]) == pgid and fields[0] != "Z":
-            out.append(int(d))
-    return out
+    return processes_where(2, pgid)
 
 
 def _semaphores() -> int:
@@ -170,15 +156,7 @@ def table(rows: list[dict], sub: list[tuple[int, int, float, float]], args: argp
 
 
 def write_docs(text: str) -> None:
-    doc = ROOT / "docs" / "faults.md"
-    body = doc.read_text() if doc.is_file() else ""
-    block = f"{MARK_BEGIN}\n{text}\n{MARK_END}"
-    if MARK_BEGIN in body and MARK_END in body:
-        head, rest = body.split(MARK_BEGIN, 1)
-        body = head + block + rest.split(MARK_END, 1)[1]
-    else:
-        body = body.rstrip() + "\n\n" + block + "\n"
-    doc.write_text(body)
+    write_between(ROOT / "docs" / "faults.md", MARK_BEGIN, MARK_END, text)
 
 
 def parse() -> argparse.Namespace:
