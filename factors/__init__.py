@@ -3,6 +3,7 @@
 ``factors.bearing``: spherical bearing factors on the tangent plane of the measured bearing.
 ``factors.pixel``: pixel reprojection factor of a view, with the camera intrinsics as a variable.
 ``factors.board_points``: a board's LiDAR returns with the LiDAR's own errors as variables.
+``factors.board_moments``: the same returns' cost from their moments (few rows), for optimising.
 ``factors.range_offset``: the board-pose prior with a LiDAR range offset.
 ``factors.grouped``: what the grouped factors share (the CustomFactor wrapper, per-corner whitening
 and m-estimator, the pose chain).

@@ -110,7 +110,25 @@ class BoardPointsFactor(GroupedFactor):
             ec = np.asarray(elevation_coef, dtype=np.float64)
             if ei.shape != ec.shape or ei.ndim != 2 or ei.shape[0] != M:
                 raise ValueError("BoardPointsFactor: elevation_index/coef must be (M, k)")
+            if ei.size and (ei.min() < 0 or ei.max() >= n_params):
+                raise ValueError(f"BoardPointsFactor: elevation_index outside 0..{n_params - 1}")
             self.elev = (ei, ec, elevation_directions(self.u))
+        # the parameters these returns depend on, and the dense (M, n_active) coefficients of a_j and
+        # rho_j b_j on them: the corrections and Jacobians are then two small matrix products
+        used = [ri[rc != 0]] + ([] if self.elev is None else [self.elev[0][self.elev[1] != 0]])
+        self.active = np.unique(np.concatenate(used)).astype(np.int64)
+        col = np.searchsorted(self.active, ri)
+        self._A_range = np.zeros((M, len(self.active)))
+        rows = np.repeat(np.arange(M), ri.shape[1])
+        if len(self.active):
+            np.add.at(self._A_range, (rows, np.minimum(col, len(self.active) - 1).ravel()), rc.ravel())
+        self._A_elev = None
+        if self.elev is not None and len(self.active):
+            ei, ec, _ = self.elev
+            self._A_elev = np.zeros((M, len(self.active)))
+            rows_e = np.repeat(np.arange(M), ei.shape[1])
+            cols_e = np.minimum(np.searchsorted(self.active, ei), len(self.active) - 1).ravel()
+            np.add.at(self._A_elev, (rows_e, cols_e), (self.rho[:, None] * ec).ravel())
         self.T_measured = T_measured if isinstance(T_measured, gtsam.Pose3) else gtsam.Pose3(T_measured)
         self.S = np.asarray(inplane_select, dtype=np.float64).reshape(3, POSE3_DOF)
         self.W = np.asarray(inplane_sqrt_info, dtype=np.float64).reshape(3, 3)
@@ -193,11 +211,10 @@ class BoardPointsFactor(GroupedFactor):
 
     def corrected(self, lidar: np.ndarray) -> np.ndarray:
         """(M, 3) the returns corrected by the LiDAR parameters ``lidar`` (n_params,)."""
-        dr = np.sum(self.range_coef * lidar[self.range_index], axis=1)
-        q = self.points - self.u * dr[:, None]
-        if self.elev is not None:
-            ei, ec, e = self.elev
-            q = q + (self.rho * np.sum(ec * lidar[ei], axis=1))[:, None] * e
+        la = np.asarray(lidar, dtype=np.float64)[self.active]
+        q = self.points - self.u * (self._A_range @ la)[:, None]
+        if self._A_elev is not None:
+            q = q + (self._A_elev @ la)[:, None] * self.elev[2]  # type: ignore[index]
         return q
 
     def evaluate(
@@ -207,38 +224,35 @@ class BoardPointsFactor(GroupedFactor):
         lidar = np.asarray(lidar, dtype=np.float64).reshape(self.n_params)
         R, t = T.rotation().matrix(), T.translation()
         n = R[:, 2]
-        q = self.corrected(lidar)
-        pb = (q - t) @ R  # board frame
-        nu = self.u @ n
+        pb = (self.corrected(lidar) - t) @ R  # board frame
         w = self.weight / np.sqrt(self.scale)
-        r_pts = self._plane_apply(w * pb[:, 2])
         H_log = np.zeros((POSE3_DOF, POSE3_DOF), order="F") if jacobians else None
         H_btw = np.zeros((POSE3_DOF, POSE3_DOF), order="F") if jacobians else None
         rel = self.T_measured.between(T, None, H_btw)
         xi = np.asarray(gtsam.Pose3.Logmap(rel, H_log) if jacobians else gtsam.Pose3.Logmap(rel))
         Wi = self.W / np.sqrt(self.inplane_scale)
         r_in = Wi @ (self.S @ xi)
-        err = np.concatenate([r_pts, r_in])
+        M, k = self.n_points, len(self.active)
         if not jacobians:
-            return err, None, None
-        M = self.n_points
-        H_T = np.zeros((M + 3, POSE3_DOF), order="F")
+            return np.concatenate([self._plane_apply(w * pb[:, 2]), r_in]), None, None
+        # the point rows' [error | d/d T | d/d l_active], whitened together by the board plane
+        rows = np.empty((M, 1 + POSE3_DOF + k))
+        rows[:, 0] = w * pb[:, 2]
         # z of Exp(xi)^-1 p_b: d/d omega = -(p_b x e_z) = (-y, x, 0), d/d v = (0, 0, -1)
-        H_T[:M, 0] = -w * pb[:, 1]
-        H_T[:M, 1] = w * pb[:, 0]
-        H_T[:M, 5] = -w
+        rows[:, 1] = -w * pb[:, 1]
+        rows[:, 2] = w * pb[:, 0]
+        rows[:, 3:6] = 0.0
+        rows[:, 6] = -w
+        rows[:, 7:] = -(w * (self.u @ n))[:, None] * self._A_range
+        if self._A_elev is not None:
+            rows[:, 7:] += (w * (self.elev[2] @ n))[:, None] * self._A_elev  # type: ignore[index]
+        rows = self._plane_apply(rows)
+        err = np.concatenate([rows[:, 0], r_in])
+        H_T = np.empty((M + 3, POSE3_DOF), order="F")
+        H_T[:M] = rows[:, 1:7]
         H_T[M:] = Wi @ self.S @ H_log @ H_btw
         H_l = np.zeros((M + 3, self.n_params), order="F")
-        rows = np.repeat(np.arange(M), self.range_index.shape[1])
-        np.add.at(H_l, (rows, self.range_index.ravel()), (-(w * nu)[:, None] * self.range_coef).ravel())
-        if self.elev is not None:
-            ei, ec, e = self.elev
-            ne = e @ n
-            rows_e = np.repeat(np.arange(M), ei.shape[1])
-            np.add.at(H_l, (rows_e, ei.ravel()), ((w * self.rho * ne)[:, None] * ec).ravel())
-        if self._whiten is not None:
-            H_T[:M] = self._plane_apply(H_T[:M])
-            H_l[:M] = self._plane_apply(H_l[:M])
+        H_l[:M, self.active] = rows[:, 7:]
         return err, H_T, H_l
 
     def _variables(self, values: gtsam.Values, keys: Sequence[int]) -> tuple[gtsam.Pose3, np.ndarray]:

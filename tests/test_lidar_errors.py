@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from synthetic_graph import board_returns, observe, random_board_pose
 
+from factors.board_moments import CompactBoardPoints, moments_of
 from factors.board_points import BoardPointsFactor
 from factors.testing import factor_jacobian_error, random_pose
 from ilcc_graph.board import Board
@@ -21,9 +22,9 @@ VLP16 = np.arange(-15.0, 15.1, 2.0)
 T_TRUE = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.03, -0.05, 0.07), np.array([0.05, -0.03, -0.25]))
 
 
-@pytest.mark.parametrize(("elevation", "plane"), [(False, None), (True, None), (False, (0.003, 0.004))])
-def test_board_points_factor_jacobians(elevation: bool, plane: tuple[float, float] | None) -> None:
-    rng = np.random.default_rng(0)
+def _returns_factor(rng, elevation: bool, plane: tuple[float, float] | None):  # noqa: ANN202
+    """A board's returns factor (VLP-16-like rings, dark print, range scale, optional elevation terms
+    and board plane) near ``T``, and values near the truth."""
     T = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.3, -1.2, 2.0), np.array([2.0, 0.5, 0.1]))
     m, nb = 150, 16
     pb = np.column_stack([rng.uniform(0, 0.8, m), rng.uniform(0, 0.6, m), rng.normal(0, 0.01, m)])
@@ -41,8 +42,43 @@ def test_board_points_factor_jacobians(elevation: bool, plane: tuple[float, floa
     values = gtsam.Values()
     values.insert(1, T.compose(random_pose(rng, 0.02, 0.02)))
     values.insert(2, rng.normal(0, 0.01, n))
-    assert f.factor().dim() == m + 3
+    return f, values
+
+
+CASES = [(False, None), (True, None), (False, (0.003, 0.004)), (True, (0.003, 0.004))]
+
+
+@pytest.mark.parametrize(("elevation", "plane"), CASES[:3])
+def test_board_points_factor_jacobians(elevation: bool, plane: tuple[float, float] | None) -> None:
+    f, values = _returns_factor(np.random.default_rng(0), elevation, plane)
+    assert f.factor().dim() == f.n_points + 3
     assert factor_jacobian_error(f.factor(), values) < 1e-6
+
+
+@pytest.mark.parametrize(("elevation", "plane"), CASES)
+def test_compact_returns_factor_is_the_same_cost_and_system(
+    elevation: bool, plane: tuple[float, float] | None
+) -> None:
+    """CompactBoardPoints: the full factor's cost, J^T J and J^T r from n_theta + 3 rows, under any
+    scaling, at values far from and near the measured pose; its own Jacobians check out."""
+    rng = np.random.default_rng(1)
+    f, values = _returns_factor(rng, elevation, plane)
+    moments = moments_of(f)
+    for scales in ((1.0, 1.0, (1.0, 1.0)), (2.5, 0.4, (0.3, 3.0))):
+        full = f.scaled(*scales)
+        comp = CompactBoardPoints(full, moments)
+        assert comp.dim < full.dim
+        for spread in (0.05, 1e-4):
+            T = values.atPose3(1).compose(random_pose(rng, spread, spread))
+            lidar = rng.normal(0, 0.01, f.n_params)
+            e1, *J1 = full.evaluate(T, lidar, True)
+            e2, *J2 = comp.evaluate(T, lidar, True)
+            A1, A2 = np.hstack(J1), np.hstack(J2)
+            assert e2 @ e2 == pytest.approx(e1 @ e1, rel=1e-10)
+            assert comp.evaluate(T, lidar, False)[0] @ e2 == pytest.approx(e2 @ e2, rel=1e-12)
+            assert np.abs(A2.T @ A2 - A1.T @ A1).max() <= 1e-10 * np.abs(A1.T @ A1).max()
+            assert np.abs(A2.T @ e2 - A1.T @ e1).max() <= 1e-9 * np.abs(A1.T @ e1).max()
+        assert factor_jacobian_error(comp.factor(), values) < 1e-6
 
 
 def test_board_plane_whitening_is_the_dense_covariance() -> None:

@@ -18,6 +18,7 @@ import gtsam
 import numpy as np
 
 from factors import FrameBearingFactor, FramePixelFactor
+from factors.board_moments import CompactBoardPoints, Moments, moments_of
 from factors.board_points import BoardPointsFactor
 from ilcc_graph.cameras import CameraModel
 from ilcc_graph.estimation.graphs import (
@@ -139,6 +140,9 @@ class Assembly:
                     self.samples[i] = samples_from_corners(pts)
         self.layouts: dict[int, LidarLayout] = {}
         self.points: dict[int, BoardPointsFactor] = {}
+        self._moments: dict[int, Moments] = {}  # the returns' moments per board (compact factors)
+        # per board its latest scaling: (scales, factor, its compact form or None)
+        self._scaled: dict[int, tuple[tuple[float, ...], BoardPointsFactor, CompactBoardPoints | None]] = {}
         opts = problem.lidar_errors
         if opts is not None and opts.any:
             by_lidar: dict[int, list[int]] = {}
@@ -166,11 +170,13 @@ class Assembly:
         return [i for i in range(len(self.problem.boards)) if i not in self.unusable]
 
     def graph(
-        self, boards: Sequence[int], scales: Scales | None = None, plain: bool = False
+        self, boards: Sequence[int], scales: Scales | None = None, plain: bool = False, compact: bool = False
     ) -> tuple[gtsam.NonlinearFactorGraph, list[Term]]:
         """The graph of ``boards`` (their priors and views, the ties, the offset priors) and its terms.
 
         scales: variance scale per (kind, group). plain: without the robust kernel (least squares).
+        compact: each board's returns as ``CompactBoardPoints`` where that has fewer rows (the same
+        cost and Gauss-Newton system: for optimising; the terms then describe the full graph's rows).
         """
         pr = self.problem
         scales = scales or {}
@@ -188,7 +194,7 @@ class Assembly:
             if i in self.points:
                 g = pr.boards[i].group
                 f = self.points_factor(i, scales)
-                graph.add(f.factor())
+                graph.add(self.compact_factor(i, f).factor() if compact else f.factor())
                 m = f.n_points
                 terms.append(Term("board", g, i, f.dim, (("points", 0, m), ("inplane", m, m + 3))))
         facs = []
@@ -223,7 +229,26 @@ class Assembly:
         offset and tilt: ``plane.KINDS``)."""
         g = self.problem.boards[i].group
         plane = (scales.get(("plane_offset", g), 1.0), scales.get(("plane_tilt", g), 1.0))
-        return self.points[i].scaled(scales.get(("points", g), 1.0), scales.get(("inplane", g), 1.0), plane)
+        key = (scales.get(("points", g), 1.0), scales.get(("inplane", g), 1.0), *plane)
+        last = self._scaled.get(i)
+        if last is None or last[0] != key:  # the noise policy builds each scaling twice in a row
+            f = self.points[i].scaled(key[0], key[1], plane)
+            last = self._scaled[i] = (key, f, None)
+        return last[1]
+
+    def compact_factor(self, i: int, f: BoardPointsFactor) -> BoardPointsFactor | CompactBoardPoints:
+        """Board ``i``'s returns factor ``f`` (any scaling) in compact form when that has fewer rows."""
+        m = self._moments.get(i)
+        if m is None:
+            m = self._moments[i] = moments_of(self.points[i])
+        if m.n_theta >= f.n_points:
+            return f
+        last = self._scaled.get(i)
+        if last is not None and last[1] is f:
+            if last[2] is None:
+                last = self._scaled[i] = (last[0], f, CompactBoardPoints(f, m))
+            return last[2]
+        return CompactBoardPoints(f, m)
 
     def view_cameras(self, boards: Sequence[int]) -> list[int]:
         """Refined cameras whose intrinsics ``I(c)`` the views of ``boards`` enter."""

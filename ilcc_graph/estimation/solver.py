@@ -97,30 +97,84 @@ def gaussian(cov: np.ndarray) -> gtsam.noiseModel.Base:
 
 @dataclass(frozen=True)
 class SolverOptions:
-    """Levenberg-Marquardt stopping rules."""
+    """Levenberg-Marquardt stopping rules and damping (GTSAM's ``LevenbergMarquardtParams`` defaults)."""
 
     max_iterations: int = 100
     relative_error_tol: float = 1e-10
     absolute_error_tol: float = 1e-12
+    lambda_initial: float = 1e-5
+    lambda_factor: float = 10.0
+    lambda_upper_bound: float = 1e5
+    min_model_fidelity: float = 1e-3
+
+
+def _converged(options: SolverOptions, current: float, new: float) -> bool:
+    """GTSAM's ``checkConvergence`` (error tolerance 0): the decrease is below either tolerance."""
+    decrease = current - new
+    return (
+        new <= 0.0
+        or decrease <= options.absolute_error_tol
+        or decrease / current <= options.relative_error_tol
+    )
 
 
 def optimize(
     graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, options: SolverOptions = SolverOptions()
 ) -> tuple[gtsam.Values, int]:
-    """Levenberg-Marquardt from ``values``: (result, iterations). IndeterminateSystem when it cannot run."""
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(int(options.max_iterations))
-    params.setRelativeErrorTol(float(options.relative_error_tol))
-    params.setAbsoluteErrorTol(float(options.absolute_error_tol))
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-    try:
-        result = optimizer.optimize()
-    except RuntimeError as exc:
-        raise IndeterminateSystem(f"Levenberg-Marquardt failed on an indeterminate system: {exc}") from None
-    n_it = int(optimizer.iterations())
-    if n_it >= options.max_iterations:
-        log.warning("Levenberg-Marquardt stopped at the iteration limit (%d) before converging", n_it)
-    return result, n_it
+    """Levenberg-Marquardt from ``values``: (result, steps taken). IndeterminateSystem when it cannot run.
+
+    GTSAM's algorithm and defaults (``LevenbergMarquardtOptimizer``: damping ``lambda I`` on every
+    variable, a fixed lambda factor, a step taken when the cost falls by more than
+    ``min_model_fidelity`` of what the linearisation promised; the same result and step count),
+    driven from Python so that every linearisation and cost runs on a ``Values`` that Python owns:
+    inside GTSAM's own optimizer each Python ``CustomFactor`` callback gets a copy of the optimizer's
+    whole ``Values`` (docs/factors.md), an iteration O(factors x variables).
+    """
+    current = float(graph.error(values))
+    if not math.isfinite(current):
+        raise IndeterminateSystem("Levenberg-Marquardt cannot start: the graph's error is not finite")
+    damping = [(int(k), int(d)) for k, d in values.dims().items()]
+    unit = {d: gtsam.noiseModel.Unit.Create(d) for _, d in damping}
+    ordering = gtsam.Ordering.ColamdNonlinearFactorGraph(graph)
+    lam, steps, solved = float(options.lambda_initial), 0, False
+    while steps < options.max_iterations and current > 0.0:
+        linear = graph.linearize(values)
+        step: tuple[gtsam.Values, float] | None = None
+        while step is None:
+            damped = linear.clone()
+            for key, dim in damping:
+                damped.add(key, math.sqrt(lam) * np.eye(dim), np.zeros(dim), unit[dim])
+            try:
+                delta = damped.optimize(ordering)
+            except RuntimeError:  # indeterminate even with this damping: damp more
+                delta = None
+            small = False
+            if delta is not None:
+                solved = True
+                promised = current - float(linear.error(delta))
+                if promised >= 0.0:
+                    trial = values.retract(delta)
+                    new = float(graph.error(trial))
+                    fidelity = (current - new) / promised if promised > 1e-15 * current else 1.0
+                    if math.isfinite(new) and fidelity > options.min_model_fidelity:
+                        step = (trial, new)
+                        lam /= options.lambda_factor
+                        break
+                    small = abs(current - new) < options.relative_error_tol * current
+            lam *= options.lambda_factor
+            if small or lam >= options.lambda_upper_bound:
+                break  # no damping lowers the cost by more than the tolerance: converged
+        if not solved:
+            raise IndeterminateSystem("Levenberg-Marquardt failed on an indeterminate system")
+        if step is None:
+            break
+        previous, (values, current) = current, step
+        steps += 1
+        if _converged(options, previous, current):
+            break
+    if steps >= options.max_iterations:
+        log.warning("Levenberg-Marquardt stopped at the iteration limit (%d) before converging", steps)
+    return values, steps
 
 
 class MarginalCovariances:
