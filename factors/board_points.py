@@ -25,8 +25,12 @@ whole. With ``plane_sigma = (offset_m, tilt_rad)`` each board's heights carry a 
 whitening: the rows are whitened by ``(I + G Sigma G^T)^(-1/2)`` (G the whitened Jacobian of the
 plane's three parameters), computed in the 3-dimensional span of G. The returns then determine a
 board's plane no better than that, while the LiDAR's shared terms still average over the boards.
-``scaled`` multiplies the plane's offset and tilt variances by factors (their variance components,
-estimated by the core from ``plane_rows``: the plane's predicted parameters in whitened rows).
+With ``beam_sigma`` (and each return's beam in ``beams``) each beam's returns on the board also share
+a random range offset of that sigma: a beam's error that changes from board to board (with range,
+incidence, the print under it), which the shared per-beam offsets cannot hold. Its columns join G.
+``scaled`` multiplies the plane's offset and tilt variances and the beams' variance by factors (their
+variance components, estimated by the core from ``plane_rows``: the random effects' predicted values
+in whitened rows).
 """
 
 from __future__ import annotations
@@ -65,6 +69,8 @@ class BoardPointsFactor(GroupedFactor):
     T_measured : the LiDAR stage's board pose (4, 4) or Pose3.
     inplane_select : (3, 6) S, inplane_sqrt_info : (3, 3) W of the in-plane prior.
     plane_sigma : (offset m, tilt rad) of each board's own random plane, or None (ideal plane).
+    beam_sigma, beams : sigma (m) of a random range offset per beam on this board, and the beam of
+        each return (M,) (None: none).
     """
 
     def __init__(
@@ -82,6 +88,8 @@ class BoardPointsFactor(GroupedFactor):
         elevation_index: np.ndarray | None = None,
         elevation_coef: np.ndarray | None = None,
         plane_sigma: tuple[float, float] | None = None,
+        beam_sigma: float | None = None,
+        beams: np.ndarray | None = None,
     ) -> None:
         p = np.asarray(points, dtype=np.float64)
         M = len(p)
@@ -136,18 +144,34 @@ class BoardPointsFactor(GroupedFactor):
         self.weight = 1.0 / (s * np.maximum(np.abs(self.u @ n0), 0.05))  # 1 / plane-height sigma
         self.scale = 1.0  # variance scale of the point rows (``scaled``)
         self.inplane_scale = 1.0
-        self.plane_scale = (1.0, 1.0)  # variance scales of the plane's offset and tilt
-        # (G (M, 3) the plane's whitened Jacobian, Q (M, 3), R (3, 3) with G = Q R, variances (3,))
-        self._plane: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        self.plane_scale = (1.0, 1.0, 1.0)  # variance scales of the plane's offset, tilt and the beams
+        # the random effects: (G (M, q) their whitened Jacobian, Q (M, q), R (q, q) with G = Q R,
+        # variances (q,), kind of each column (q,): 0 the plane's offset, 1 its tilts, 2 a beam's offset)
+        self._plane: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        cols, var, kind = [], [], []
         if plane_sigma is not None:
             so, st = (float(v) for v in plane_sigma)
             if not (so > 0 and st > 0):
                 raise ValueError(f"BoardPointsFactor: plane_sigma must be > 0, got {plane_sigma!r}")
             R0, t0 = self.T_measured.rotation().matrix(), self.T_measured.translation()
             xy = ((p - t0) @ R0)[:, :2]
-            G = self.weight[:, None] * np.column_stack([np.ones(M), xy])
+            cols.append(np.column_stack([np.ones(M), xy]))
+            var += [so**2, st**2, st**2]
+            kind += [0, 1, 1]
+        if beam_sigma is not None:
+            if not float(beam_sigma) > 0:
+                raise ValueError(f"BoardPointsFactor: beam_sigma must be > 0, got {beam_sigma!r}")
+            bm = np.asarray(beams).reshape(-1) if beams is not None else None
+            if bm is None or bm.shape != (M,):
+                raise ValueError("BoardPointsFactor: beam_sigma needs the beam of each return (M,)")
+            ids = np.unique(bm)
+            cols.append((bm[:, None] == ids[None, :]) * np.abs(self.u @ n0)[:, None])
+            var += [float(beam_sigma) ** 2] * len(ids)
+            kind += [2] * len(ids)
+        if cols:
+            G = self.weight[:, None] * np.hstack(cols)
             Q, Rg = np.linalg.qr(G)
-            self._plane = (G, Q, Rg, np.array([so**2, st**2, st**2]))
+            self._plane = (G, Q, Rg, np.array(var), np.array(kind))
         self._whiten = self._plane_whitening()
 
     @property
@@ -160,46 +184,54 @@ class BoardPointsFactor(GroupedFactor):
         return self.n_points + 3
 
     def scaled(
-        self, points_scale: float, inplane_scale: float, plane_scale: tuple[float, float] = (1.0, 1.0)
+        self,
+        points_scale: float,
+        inplane_scale: float,
+        plane_scale: tuple[float, float] = (1.0, 1.0),
+        beam_scale: float = 1.0,
     ) -> BoardPointsFactor:
-        """The same data with the point, in-plane and plane (offset, tilt) variances multiplied by
-        the given factors."""
+        """The same data with the point, in-plane, plane (offset, tilt) and beam variances multiplied
+        by the given factors."""
         import copy
 
         other = copy.copy(self)
         other.scale, other.inplane_scale = self.scale * points_scale, self.inplane_scale * inplane_scale
-        other.plane_scale = (self.plane_scale[0] * plane_scale[0], self.plane_scale[1] * plane_scale[1])
+        po, pt, pb = self.plane_scale
+        other.plane_scale = (po * plane_scale[0], pt * plane_scale[1], pb * beam_scale)
         other._whiten = other._plane_whitening()
         return other
 
     def plane_variances(self) -> np.ndarray | None:
-        """(3,) the variances of the board's plane (offset m^2, tilt rad^2 twice) as scaled, or None."""
+        """(q,) the random effects' variances as scaled (the plane's offset m^2 and tilt rad^2 twice,
+        then each beam's offset m^2), or None without any."""
         if self._plane is None:
             return None
-        so, st = self.plane_scale
-        return self._plane[3] * np.array([so, st, st])
+        return self._plane[3] * np.asarray(self.plane_scale)[self._plane[4]]
 
     def _plane_whitening(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(U (M, 3), c (3,)): the point rows' whitening is ``r + U (c * (U^T r))``."""
+        """(U (M, q), c (q,)): the point rows' whitening is ``r + U (c * (U^T r))``."""
         if self._plane is None:
             return None
-        _, Q, Rg, _ = self._plane
+        _, Q, Rg, _, _ = self._plane
         A = Rg @ np.diag(self.plane_variances()) @ Rg.T
         lam, V = np.linalg.eigh(A / self.scale)
         return Q @ V, 1.0 / np.sqrt(1.0 + np.maximum(lam, 0.0)) - 1.0
 
-    def plane_rows(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(Z_offset (M, 1), Z_tilt (M, 2)): the plane's parameters as seen in the whitened point rows,
-        ``Z = V^(-1/2) G Sigma^(1/2)`` (V the rows' covariance with the plane, G its Jacobian, Sigma
-        its covariance; all in the rows' current whitening). With whitened residuals r, ``Z^T r``
-        are the plane's predicted parameters over their sigmas (their chi-square is ``|Z^T r|^2``)
-        and ``trace(Z^T Z)`` minus what the graph's other variables explain of them is their
-        redundancy (variance components of a random effect). None without a plane."""
+    def plane_rows(self) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None] | None:
+        """(Z_offset (M, 1), Z_tilt (M, 2), Z_beams (M, beams)), each None when that effect is
+        absent: the random effects as seen in the whitened point rows, ``Z = V^(-1/2) G Sigma^(1/2)``
+        (V the rows' covariance with the effects, G their Jacobian, Sigma their covariance; all in the
+        rows' current whitening). With whitened residuals r, ``Z^T r`` are the effects' predicted
+        values over their sigmas (their chi-square is ``|Z^T r|^2``) and ``trace(Z^T Z)`` minus what
+        the graph's other variables explain of them is their redundancy (variance components of a
+        random effect). None without any."""
         if self._plane is None:
             return None
         G = self._plane[0] / np.sqrt(self.scale)
         Z = self._plane_apply(G) * np.sqrt(self.plane_variances())
-        return Z[:, :1], Z[:, 1:]
+        kind = self._plane[4]
+        parts = [Z[:, kind == k] for k in range(3)]
+        return tuple(z if z.shape[1] else None for z in parts)  # type: ignore[return-value]
 
     def _plane_apply(self, r: np.ndarray) -> np.ndarray:
         """The board-plane whitening applied to point rows ``r`` (M,) or (M, k)."""

@@ -65,7 +65,10 @@ def _solve_args(sp: argparse.ArgumentParser, jobs: int, studies: bool = False) -
     sp.add_argument("--refine-intrinsics", action="store_true", help=help)
     help = "estimate the LiDAR's per-beam and dark-print range offsets from the boards' returns"
     sp.add_argument("--lidar-errors", action="store_true", help=help)
-    help = "with --lidar-errors: each board's own plane sigmas estimated, or fixed at 5 mm / 0.4 deg"
+    help = (
+        "with --lidar-errors: each board's own plane and beam offsets' sigmas estimated, or fixed "
+        "(5 mm / 0.4 deg, 2 mm)"
+    )
     sp.add_argument("--board-plane", choices=("estimated", "fixed"), help=help)
     _frames_args(sp, jobs)
     sp.add_argument("--no-report", dest="report", action="store_false", help="skip the report")

@@ -84,19 +84,23 @@ ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "bench_lidar_errors.md"
 CHI2_6_95 = float(chi2.ppf(0.95, 6))
 DEG = np.pi / 180.0
-#: the two ways of the board plane's sigmas: fixed at the configured 5 mm / 0.4 deg, or estimated
-FIXED, ESTIMATED = "on, plane 5 mm / 0.4 deg (fixed)", "on, plane estimated"
+#: the two ways of the boards' random effects' sigmas: fixed at the configured 5 mm / 0.4 deg (plane)
+#: and 2 mm (each beam's offset on a board), or estimated
+FIXED, ESTIMATED = "on, plane 5 mm / 0.4 deg, beams 2 mm (fixed)", "on, plane and beams estimated"
 #: the variants solved from the same observations: name -> LidarErrorOptions (None: terms off)
 VARIANTS: dict[str, LidarErrorOptions | None] = {
     "off": None,
     FIXED: LidarErrorOptions(board_plane_estimate=False),
-    "on, no board plane": LidarErrorOptions(board_plane=None, board_plane_estimate=False),
-    "on, plane 2 mm / 0.15 deg": LidarErrorOptions(
-        board_plane=(0.002, 0.15 * DEG), board_plane_estimate=False
+    "on, no board plane, no beam term": LidarErrorOptions(
+        board_plane=None, board_beam=None, board_plane_estimate=False
     ),
-    "on, plane 10 mm / 0.8 deg": LidarErrorOptions(
-        board_plane=(0.010, 0.8 * DEG), board_plane_estimate=False
+    "on, plane 2 mm / 0.15 deg, no beam term": LidarErrorOptions(
+        board_plane=(0.002, 0.15 * DEG), board_beam=None, board_plane_estimate=False
     ),
+    "on, plane 10 mm / 0.8 deg, no beam term": LidarErrorOptions(
+        board_plane=(0.010, 0.8 * DEG), board_beam=None, board_plane_estimate=False
+    ),
+    "on, plane estimated, no beam term": LidarErrorOptions(board_beam=None),
     ESTIMATED: LidarErrorOptions(board_plane_estimate=True),
 }
 #: "on" is the default ``LidarErrorOptions()`` (what ``--lidar-errors`` does): one of the two above
@@ -340,7 +344,7 @@ def mc_tables(results: Sequence[SetResult]) -> list[str]:
                 f"{np.mean([v.used for v in vs]):.1f}/{sets[0].n_frames} | "
                 f"{np.median([v.seconds for v in vs]):.2f} |" + (f" ({fails} sets failed)" if fails else "")
             )
-        est = [r.variants[n].plane for r in sets for n in r.variants if n.endswith("estimated")]
+        est = [r.variants[ESTIMATED].plane for r in sets if ESTIMATED in r.variants]
         est = [p for p in est if p is not None and p.get("estimated")]
         if est:
             off = 1e3 * np.array([p["offset_m"] for p in est])
@@ -349,12 +353,16 @@ def mc_tables(results: Sequence[SetResult]) -> list[str]:
             n_tilt = sum("tilt at its floor" in p["note"] for p in est)
             sd_off = np.nanmean([1e3 * p["offset_sd"] for p in est])
             sd_tilt = np.nanmean(np.degrees([p["tilt_sd"] for p in est]))
+            beam = 1e3 * np.array([p.get("beam_m", np.nan) for p in est])
+            n_beam = sum("beams at its floor" in p["note"] for p in est)
             lines += [
                 "",
-                f"Estimated board-plane sigmas (on, plane estimated; {len(est)} sets): offset median "
+                f"Estimated sigmas ({ESTIMATED}; {len(est)} sets): plane offset median "
                 f"{np.median(off):.2f} mm (p90 {np.percentile(off, 90):.2f}; at the floor in {n_off}), "
                 f"tilt median {np.median(tilt):.3f} deg (p90 {np.percentile(tilt, 90):.3f}; at the floor "
-                f"in {n_tilt}); mean stated sd {sd_off:.2f} mm / {sd_tilt:.3f} deg.",
+                f"in {n_tilt}); mean stated sd {sd_off:.2f} mm / {sd_tilt:.3f} deg; each beam's offset on "
+                f"a board median {np.nanmedian(beam):.2f} mm (p90 {np.nanpercentile(beam, 90):.2f}; at "
+                f"the floor in {n_beam}).",
             ]
         lines += ["", f'The default (`--lidar-errors`, `LidarErrorOptions()`) is "{DEFAULT_ON}".']
         stage = np.concatenate(

@@ -170,11 +170,13 @@ def board_returns(
     step_deg: float = 0.2,
     inplane_sigmas: tuple[float, float, float] = (2e-3, 1.5e-3, 1.5e-3),
     bend: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    beam_jitter_m: float = 0.0,
 ):
     """A spinning LiDAR's returns from the board's face, with per-beam range offsets and a dark-print
     offset (measured minus true range), and the in-plane pose an intensity fit would report.
     bend: (delta m, alpha, beta rad) the real face's height ``delta + alpha x + beta y`` above the
-    board frame's plane (board-frame x, y): a bent or tilted print.
+    board frame's plane (board-frame x, y): a bent or tilted print. beam_jitter_m: sigma of an extra
+    range offset of each beam on this board (drawn per beam).
 
     Returns (BoardReturns, T_measured (4, 4), covariance (6, 6)): T_measured is the truth moved by
     an in-plane error drawn from ``inplane_sigmas`` (rz, tx, ty) and by the plane of the biased
@@ -204,7 +206,10 @@ def board_returns(
         w = 1.0 - board.colour_at(pb[:, :2])
         noise = rng.normal(0, sigma_m, len(p))
         h = bend[0] + bend[1] * pb[:, 0] + bend[2] * pb[:, 1]  # the real face, along the ray
-        rng_m = np.linalg.norm(p, axis=1) + h / (dd @ n) + beam_offsets_m[b] + w * dark_offset_m + noise
+        jitter = rng.normal(0, beam_jitter_m) if beam_jitter_m > 0 else 0.0
+        rng_m = (
+            np.linalg.norm(p, axis=1) + h / (dd @ n) + beam_offsets_m[b] + jitter + w * dark_offset_m + noise
+        )
         pts.append(dd * rng_m[:, None])
         ring.append(np.full(len(p), b))
         dark.append(w)

@@ -24,8 +24,9 @@ VLP16 = np.arange(-15.0, 15.1, 2.0)
 T_TRUE = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.03, -0.05, 0.07), np.array([0.05, -0.03, -0.25]))
 
 
-def bent_frames(rng, n_frames, bend_sigmas, sigma_m=0.01, beam_sigma=0.003):
-    """Frames whose boards each carry their own random plane of ``bend_sigmas`` (offset m, tilt rad)."""
+def bent_frames(rng, n_frames, bend_sigmas, sigma_m=0.01, beam_sigma=0.003, beam_jitter=0.0):
+    """Frames whose boards each carry their own random plane of ``bend_sigmas`` (offset m, tilt rad)
+    and, per beam and board, a random range offset of ``beam_jitter`` (m)."""
     frames = []
     offsets = rng.normal(0.0, beam_sigma, len(VLP16))
     while len(frames) < n_frames:
@@ -34,7 +35,9 @@ def bent_frames(rng, n_frames, bend_sigmas, sigma_m=0.01, beam_sigma=0.003):
         if obs is None:
             continue
         bend = (rng.normal(0, bend_sigmas[0]), *rng.normal(0, bend_sigmas[1], 2))
-        returns, T_meas, cov = board_returns(rng, T_lb, BOARD, VLP16, offsets, 0.004, sigma_m, bend=bend)
+        returns, T_meas, cov = board_returns(
+            rng, T_lb, BOARD, VLP16, offsets, 0.004, sigma_m, bend=bend, beam_jitter_m=beam_jitter
+        )
         if len(np.unique(returns.ring)) < 4:
             continue
         frames.append(
@@ -67,6 +70,7 @@ def test_plane_rows_give_the_explicit_random_effects_chi2_and_redundancy() -> No
     parts = (("points", 0, m), ("inplane", m, m + 3))
     terms = [Term("board", "", 0, m + 3, parts), Term("lidar", "", None, 4), Term("bearing", "", 0, 6)]
     z = f.plane_rows()
+    assert z[2] is None  # no beam term
 
     def extra(k, t):
         return (("off", 0, m, z[0]), ("tilt", 0, m, z[1])) if k == 0 else ()
@@ -121,6 +125,30 @@ def test_estimated_plane_sigma_recovers_bent_boards_and_falls_to_the_floor_on_id
     assert bp.estimated and "at its floor" in bp.note, bp
     assert bp.offset_m < opts.board_plane_floor[0] + 3 * bp.offset_sd < true[0] / 2, bp
     assert bp.tilt_rad < opts.board_plane_floor[1] + 3 * bp.tilt_sd < true[1] / 2, bp
+
+
+def test_estimated_beam_sigma_recovers_board_to_board_beam_offsets() -> None:
+    """Each beam's range offset changing from board to board (2.5 mm): the third component finds it
+    within its sd (the plane's components stay near their floor), and falls to its floor without;
+    the shared beam offsets then carry that extra uncertainty."""
+    rng = np.random.default_rng(31)
+    true = 0.0025
+    frames = bent_frames(rng, 24, (0.0, 0.0), beam_jitter=true)
+    T0 = T_TRUE.compose(gtsam.Pose3.Expmap(rng.normal(0, 0.01, 6))).matrix()
+    opts = LidarErrorOptions(board_beam=0.001)  # start 2.5x too small
+    sol = solve(frames, CAMERA, T0, lidar_errors=opts)
+    bp = sol.board_plane
+    assert bp is not None and bp.estimated, bp
+    assert abs(bp.beam_m - true) < 3 * bp.beam_sd and bp.beam_sd < 0.3 * true, bp
+    without = solve(frames, CAMERA, T0, lidar_errors=LidarErrorOptions(board_beam=None))
+    beams = [k for k, n in enumerate(sol.lidar_layout.names) if n.startswith("offset[")]
+    assert without.lidar_layout.names == sol.lidar_layout.names and len(beams) >= 10
+    assert np.all(np.diag(sol.lidar_covariance)[beams] > 1.3 * np.diag(without.lidar_covariance)[beams])
+    flat = bent_frames(np.random.default_rng(32), 24, (0.0, 0.0))
+    bp = solve(flat, CAMERA, T0, lidar_errors=opts).board_plane
+    assert "beams at its floor" in bp.note or bp.beam_m < opts.board_beam_floor + 3 * bp.beam_sd < true / 2, (
+        bp
+    )
 
 
 def test_few_boards_keep_the_configured_plane_sigma_and_say_so() -> None:

@@ -156,7 +156,12 @@ class Assembly:
                     continue  # nothing left to estimate: the boards enter through their priors
                 for i in idx:
                     self.points[i] = board_points_factor(
-                        i, problem.boards[i], lay, opts.max_points_per_board, opts.board_plane
+                        i,
+                        problem.boards[i],
+                        lay,
+                        opts.max_points_per_board,
+                        opts.board_plane,
+                        opts.board_beam,
                     )
 
     def view_group(self, j: int) -> str:
@@ -226,13 +231,14 @@ class Assembly:
 
     def points_factor(self, i: int, scales: Scales) -> BoardPointsFactor:
         """Board ``i``'s returns factor under the variance scales (points, in-plane, its plane's
-        offset and tilt: ``plane.KINDS``)."""
+        offset and tilt, its beams' offsets: ``plane.KINDS``)."""
         g = self.problem.boards[i].group
         plane = (scales.get(("plane_offset", g), 1.0), scales.get(("plane_tilt", g), 1.0))
-        key = (scales.get(("points", g), 1.0), scales.get(("inplane", g), 1.0), *plane)
+        beam = scales.get(("board_beam", g), 1.0)
+        key = (scales.get(("points", g), 1.0), scales.get(("inplane", g), 1.0), *plane, beam)
         last = self._scaled.get(i)
         if last is None or last[0] != key:  # the noise policy builds each scaling twice in a row
-            f = self.points[i].scaled(key[0], key[1], plane)
+            f = self.points[i].scaled(key[0], key[1], plane, beam)
             last = self._scaled[i] = (key, f, None)
         return last[1]
 

@@ -81,7 +81,12 @@ def sensor_effects(sol: Solution, options: NoiseOptions = NoiseOptions(), e: int
         }
         bp, lo = sol.board_plane(), problem.lidar_errors
         if bp is not None and lo is not None and lo.board_plane_estimate:
-            lo = replace(lo, board_plane=(bp.offset_m, bp.tilt_rad), board_plane_estimate=False)
+            lo = replace(
+                lo,
+                board_plane=None if lo.board_plane is None else (bp.offset_m, bp.tilt_rad),
+                board_beam=None if lo.board_beam is None else bp.beam_m,
+                board_plane_estimate=False,
+            )
         variants["lidar_errors"] = (replace(problem, lidar_errors=lo), held)
     if sol.assembly.view_cameras(sol.boards):
         stated = replace(problem, intrinsics=IntrinsicsOptions(refine=False, propagate=False))

@@ -209,9 +209,11 @@ def board_points_factor(
     layout: LidarLayout,
     max_points: int,
     plane_sigma: tuple[float, float] | None = None,
+    beam_sigma: float | None = None,
 ) -> BoardPointsFactor:
     """The board's returns on (``B(index)``, ``L(board.lidar)``) with the terms of ``layout`` (and
-    the board's own random plane of ``plane_sigma``, see ``BoardPointsFactor``).
+    the board's own random plane of ``plane_sigma`` and beam offsets of ``beam_sigma``, see
+    ``BoardPointsFactor``).
 
     At most ``max_points`` returns (evenly spread over the list) enter. The in-plane prior is the
     LiDAR stage's intensity fit: ``W (xi_in - K xi_out)``, ``xi = Logmap(T_measured^-1 T)``.
@@ -227,7 +229,7 @@ def board_points_factor(
     return BoardPointsFactor(
         B(index), L(board.lidar), P[keep], float(r.sigma_m), range_index, range_coef, layout.dim,
         board.T_lidar_board, S, sqrt_information(np.asarray(r.inplane_cov, dtype=np.float64)), e_idx, e_coef,
-        plane_sigma,
+        plane_sigma, beam_sigma, np.asarray(r.ring)[keep] if beam_sigma is not None else None,
     )  # fmt: skip
 
 

@@ -51,6 +51,9 @@ class LidarErrorOptions:
         ``board_plane``, kept within [``board_plane_floor``, ``board_plane_max``]; with fewer than
         ``board_plane_min_boards`` boards the configured sigmas stay (and the solution says so).
         False: ``board_plane`` fixed (docs/bench_lidar_errors.md compares the two).
+    board_beam: one sigma (m) of a random range offset of each beam on each board (a beam's error
+        that changes from board to board), or None for none; estimated with the plane's (a third
+        variance component, within [``board_beam_floor``, ``board_beam_max``]) or fixed likewise.
     """
 
     beam_offsets: bool = True
@@ -71,6 +74,9 @@ class LidarErrorOptions:
     board_plane_floor: tuple[float, float] = (0.0005, 0.0007)
     board_plane_max: tuple[float, float] = (0.04, 0.028)
     board_plane_min_boards: int = 5
+    board_beam: float | None = 0.002
+    board_beam_floor: float = 0.0002
+    board_beam_max: float = 0.02
 
     def __post_init__(self) -> None:
         for name in ("prior_offset_m", "prior_dark_m", "prior_scale", "prior_elevation_rad"):
@@ -87,6 +93,13 @@ class LidarErrorOptions:
                     "LidarErrorOptions: need 0 < board_plane_floor <= board_plane <= board_plane_max, got "
                     f"{lo!r}, {self.board_plane!r}, {hi!r}"
                 )
+        if self.board_beam is not None and not (
+            0 < self.board_beam_floor <= self.board_beam <= self.board_beam_max
+        ):
+            raise ValueError(
+                "LidarErrorOptions: need 0 < board_beam_floor <= board_beam <= board_beam_max, got "
+                f"{self.board_beam_floor!r}, {self.board_beam!r}, {self.board_beam_max!r}"
+            )
         if not 0.0 < self.observable_ratio < 1.0:
             raise ValueError(
                 f"LidarErrorOptions.observable_ratio must be in (0, 1), got {self.observable_ratio!r}"

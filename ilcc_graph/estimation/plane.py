@@ -1,4 +1,4 @@
-"""Variance components of the boards' random planes (``LidarErrorOptions.board_plane_estimate``).
+"""Variance components of the boards' random planes and beam offsets (``board_plane_estimate``).
 
 Each board's returns carry a random plane (offset, two tilts; sigmas ``board_plane``) marginalised in
 their whitening (``factors.BoardPointsFactor``). Made explicit, the plane is three parameters per
@@ -13,7 +13,9 @@ Z_o^T A)``; the returns' own component then takes the remainder of the rows' chi
 redundancy. Each update (a Fisher-scoring step, ``components``) runs with the other components; the
 scale stays between the floor (a plane never taken as ideal: near zero the estimate is ill-posed)
 and the maximum, relative to the configured sigmas. With fewer than ``board_plane_min_boards`` boards,
-or a redundancy below one half, the configured sigmas stay, and ``BoardPlane.note`` says so.
+or a redundancy below one half, the configured sigmas stay, and ``BoardPlane.note`` says so. The
+random range offset of each beam on each board (``LidarErrorOptions.board_beam``) is a third random
+effect in the same whitening and gets its component the same way.
 """
 
 from __future__ import annotations
@@ -40,15 +42,16 @@ __all__ = [
     "split_points",
 ]
 
-#: the variance components of the boards' planes, per noise group
-KINDS = ("plane_offset", "plane_tilt")
+#: the variance components of the boards' planes (offset, tilt) and beams' offsets, per noise group
+KINDS = ("plane_offset", "plane_tilt", "board_beam")
 
 
 @dataclass(frozen=True)
 class BoardPlane:
-    """The boards' plane sigmas the solve used: offset (m) and tilt (rad), each with its standard
-    deviation when estimated (``sigma / sqrt(2 r)``, r the redundancy; nan when not), ``estimated``
-    and a note (why the configured value stayed, or that a bound held it)."""
+    """The boards' plane sigmas the solve used: offset (m) and tilt (rad), and the beams' offset on
+    each board (m, nan without that term), each with its standard deviation when estimated (``sigma
+    / sqrt(2 r)``, r the redundancy; nan when not), ``estimated`` and a note (why the configured
+    value stayed, or that a bound held it)."""
 
     offset_m: float
     tilt_rad: float
@@ -56,12 +59,27 @@ class BoardPlane:
     tilt_sd: float = math.nan
     estimated: bool = False
     note: str = ""
+    beam_m: float = math.nan
+    beam_sd: float = math.nan
+
+
+def _bounds(options: LidarErrorOptions, j: int) -> tuple[float, float, float] | None:
+    """(configured, floor, maximum) sigma of random effect ``KINDS[j]``, or None when it is off."""
+    if j < 2:
+        if options.board_plane is None:
+            return None
+        return options.board_plane[j], options.board_plane_floor[j], options.board_plane_max[j]
+    if options.board_beam is None:
+        return None
+    return options.board_beam, options.board_beam_floor, options.board_beam_max
 
 
 def estimated(options: LidarErrorOptions | None, asm: Assembly, boards: Sequence[int]) -> set[str]:
     """The noise groups whose planes' components are estimated for these boards (those with at least
     ``board_plane_min_boards`` boards with returns; empty when not estimated)."""
-    if options is None or not options.board_plane_estimate or options.board_plane is None:
+    if options is None or not options.board_plane_estimate:
+        return set()
+    if options.board_plane is None and options.board_beam is None:
         return set()
     count: dict[str, int] = {}
     for i in boards:
@@ -81,7 +99,7 @@ def extra_rows(asm: Assembly, comps: Mapping[tuple[str, str], float], groups: se
         if z is None:
             return ()
         _, a0, a1 = t.parts[0]
-        return ((KINDS[0], a0, a1, z[0]), (KINDS[1], a0, a1, z[1]))
+        return tuple((kind, a0, a1, zk) for kind, zk in zip(KINDS, z, strict=True) if zk is not None)
 
     return rows
 
@@ -114,9 +132,8 @@ def components(
     for (kind, g), (c2, r) in ratios.items():
         if kind not in KINDS:
             continue
-        j = KINDS.index(kind)
-        lo = (options.board_plane_floor[j] / options.board_plane[j]) ** 2  # type: ignore[index]
-        hi = (options.board_plane_max[j] / options.board_plane[j]) ** 2  # type: ignore[index]
+        s0, floor, top = _bounds(options, KINDS.index(kind))  # type: ignore[misc]
+        lo, hi = (floor / s0) ** 2, (top / s0) ** 2
         s = comps.get((kind, g), 1.0)
         if r <= 0.5:
             out[(kind, g)] = s
@@ -134,32 +151,35 @@ def board_plane(
     n_boards: int,
     group: str = "",
 ) -> BoardPlane | None:
-    """The plane sigmas of ``group``'s boards (``n_boards`` with returns in the graph), or None
-    without a board plane."""
-    if options is None or options.board_plane is None:
+    """The plane (and beam) sigmas of ``group``'s boards (``n_boards`` with returns in the graph), or
+    None without a board plane or beam term."""
+    if options is None or (options.board_plane is None and options.board_beam is None):
         return None
-    so, st = options.board_plane
+    so, st = options.board_plane if options.board_plane is not None else (math.nan, math.nan)
+    sb = options.board_beam if options.board_beam is not None else math.nan
     if not options.board_plane_estimate:
-        return BoardPlane(so, st, note="configured")
-    keys = [(k, group) for k in KINDS]
-    if not all(k in scales for k in keys):
+        return BoardPlane(so, st, note="configured", beam_m=sb)
+    on = [j for j in range(len(KINDS)) if _bounds(options, j) is not None]
+    if not all((KINDS[j], group) in scales for j in on):
         why = (
             f"{n_boards} board(s) with returns, fewer than {options.board_plane_min_boards}"
             if n_boards < options.board_plane_min_boards
             else "the boards hardly tell it (redundancy <= 0.5)"
         )
-        return BoardPlane(so, st, note=f"configured sigmas kept: {why}")
-    sig, sds, notes = [], [], []
-    for j, (k, s0) in enumerate(zip(keys, (so, st), strict=True)):
-        s = scales[k]
-        r = redundancy.get(k, 0.0)
-        sig.append(s0 * math.sqrt(s))
-        sds.append(sig[-1] / math.sqrt(2.0 * r) if r > 0.5 else math.nan)
-        lo = (options.board_plane_floor[j] / s0) ** 2
-        hi = (options.board_plane_max[j] / s0) ** 2
+        return BoardPlane(so, st, note=f"configured sigmas kept: {why}", beam_m=sb)
+    sig, sds, notes = [so, st, sb], [math.nan] * 3, []
+    for j in on:
+        s0, floor, top = _bounds(options, j)  # type: ignore[misc]
+        s = scales[(KINDS[j], group)]
+        r = redundancy.get((KINDS[j], group), 0.0)
+        sig[j] = s0 * math.sqrt(s)
+        sds[j] = sig[j] / math.sqrt(2.0 * r) if r > 0.5 else math.nan
+        lo, hi = (floor / s0) ** 2, (top / s0) ** 2
         if s <= lo * 1.0001 or s >= hi * 0.9999:
-            notes.append(f"{('offset', 'tilt')[j]} at its {'floor' if s <= lo * 1.0001 else 'maximum'}")
-    return BoardPlane(sig[0], sig[1], sds[0], sds[1], True, "; ".join(notes))
+            notes.append(
+                f"{('offset', 'tilt', 'beams')[j]} at its {'floor' if s <= lo * 1.0001 else 'maximum'}"
+            )
+    return BoardPlane(sig[0], sig[1], sds[0], sds[1], True, "; ".join(notes), sig[2], sds[2])
 
 
 def log_sigmas(options: LidarErrorOptions | None, bp: BoardPlane | None) -> None:
@@ -167,6 +187,6 @@ def log_sigmas(options: LidarErrorOptions | None, bp: BoardPlane | None) -> None
     if bp is None or options is None or not options.board_plane_estimate:
         return
     log.info(
-        "boards' plane sigmas: offset %.2f mm, tilt %.3f deg%s",
-        1e3 * bp.offset_m, math.degrees(bp.tilt_rad), f" ({bp.note})" if bp.note else "",
+        "boards' plane sigmas: offset %.2f mm, tilt %.3f deg, beams %.2f mm%s",
+        1e3 * bp.offset_m, math.degrees(bp.tilt_rad), 1e3 * bp.beam_m, f" ({bp.note})" if bp.note else "",
     )  # fmt: skip

@@ -103,18 +103,30 @@ def sensors_html(cal: Calibration) -> str:
 
 
 def board_plane_text(bp: dict) -> str:
-    """One line on each board's own plane (``plane.BoardPlane`` as a dict): its sigmas and how set."""
+    """One line on each board's own plane and beam offsets (``plane.BoardPlane`` as a dict): their
+    sigmas and how set."""
     how = "estimated from the boards" if bp["estimated"] else "as configured"
-    sd = (
-        f" (+- {1e3 * bp['offset_sd']:.1f} mm, +- {np.degrees(bp['tilt_sd']):.2f} deg)"
-        if bp["estimated"] and np.isfinite(bp["offset_sd"]) and np.isfinite(bp["tilt_sd"])
-        else ""
-    )
+    parts = []
+    if np.isfinite(bp["offset_m"]):
+        sd = (
+            f" (+- {1e3 * bp['offset_sd']:.1f} mm, +- {np.degrees(bp['tilt_sd']):.2f} deg)"
+            if bp["estimated"] and np.isfinite(bp["offset_sd"]) and np.isfinite(bp["tilt_sd"])
+            else ""
+        )
+        parts.append(
+            f"each board's own plane (bend, tilt of the print against its returns): offset "
+            f"{1e3 * bp['offset_m']:.1f} mm, tilt {np.degrees(bp['tilt_rad']):.2f} deg{sd}"
+        )
+    beam = bp.get("beam_m", float("nan"))
+    if np.isfinite(beam):
+        sd = (
+            f" +- {1e3 * bp['beam_sd']:.2f}"
+            if bp["estimated"] and np.isfinite(bp.get("beam_sd", np.nan))
+            else ""
+        )
+        parts.append(f"each beam's range offset changing from board to board: {1e3 * beam:.2f}{sd} mm")
     note = f"; {bp['note']}" if bp["note"] and bp["note"] != "configured" else ""
-    return (
-        f"each board's own plane (bend, tilt of the print against its returns), {how}: offset "
-        f"{1e3 * bp['offset_m']:.1f} mm, tilt {np.degrees(bp['tilt_rad']):.2f} deg{sd}{note}"
-    )
+    return f"{'; '.join(parts)} ({how}){note}"
 
 
 def sensors_text(cal: Calibration) -> str:
