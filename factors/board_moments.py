@@ -118,7 +118,9 @@ class CompactBoardPoints(GroupedFactor):
         D[3, :3] = (self.moments.centre - t) @ dn
         D[3, 3:6] = -n @ R
         D[4:, :3] = (dn[:, None, :] * la[None, :, None]).reshape(3 * k, 3)
-        D[4:, 6:].reshape(3, k, k)[:, np.arange(k), np.arange(k)] = n[:, None]  # n_a on each l_i
+        i = np.arange(k)
+        for a in range(3):
+            D[4 + a * k + i, POSE3_DOF + i] = n[a]  # d (n_a l_i) / d l_i
         LD = self.L @ D
         nt = self.moments.n_theta
         H_T = np.empty((nt + 3, POSE3_DOF), order="F")

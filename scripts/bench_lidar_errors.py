@@ -481,7 +481,12 @@ def _plane_note(cal: Calibration, halves: Sequence[Calibration]) -> str:
         if p is None or not p.get("estimated"):
             return "-"
         off = f"{1e3 * p['offset_m']:.1f} +- {1e3 * p['offset_sd']:.1f}"
-        return f"{off}, {np.degrees(p['tilt_rad']):.2f} +- {np.degrees(p['tilt_sd']):.2f}"
+        beam = (
+            ""
+            if not np.isfinite(p.get("beam_m", np.nan))
+            else f", {1e3 * p['beam_m']:.2f} +- {1e3 * p['beam_sd']:.2f}"
+        )
+        return f"{off}, {np.degrees(p['tilt_rad']):.2f} +- {np.degrees(p['tilt_sd']):.2f}{beam}"
 
     return f"{one(cal)} ({one(halves[0])}; {one(halves[1])})"
 
@@ -505,7 +510,7 @@ def real_data(root: Path, jobs: int) -> list[str]:
             "",
             "| variant | used | beams (left out) | dark mm | without the terms: deg, mm (sigma) | "
             "halves: extrinsic chi2 (6 dof) | halves: beam offsets chi2 (dof, p) | halves: dark mm "
-            "| solve s | board plane: offset mm, tilt deg (halves) |",
+            "| solve s | estimated: plane offset mm, tilt deg, beams mm (halves) |",
             "|---|---|---|---|---|---|---|---|---|---|",
         ]
         parts = [replace(obs, frames=obs.frames[0::2]), replace(obs, frames=obs.frames[1::2])]
