@@ -507,6 +507,10 @@ def _with_lidar_errors() -> Calibration:
             "sigmas": np.array([0.0004, 0.0005, 0.0002]),
             "left_out": [["beam 9", "12 returns on 1 board(s): too few to estimate its terms"]],
             "elevation_deg": {"offset[3]": -9.0, "offset[4]": 7.0},
+            "board_plane": {
+                "offset_m": 0.0068, "tilt_rad": 0.0079, "offset_sd": 0.0012, "tilt_sd": 0.001,
+                "estimated": True, "note": "", "beam_m": 0.0024, "beam_sd": 0.00017,
+            },
         },
         "camera_intrinsics": {
             "names": ["fx", "fy"], "stated": np.array([900.0, 901.0]),
@@ -539,6 +543,9 @@ def test_sensor_errors_round_trip_and_refined_corners(tmp_path: Path) -> None:
     assert back.sensors["lidar_errors"]["names"] == cal.sensors["lidar_errors"]["names"]
     assert back.sensors["lidar_errors"]["left_out"] == cal.sensors["lidar_errors"]["left_out"]
     assert back.sensors["effects"] == cal.sensors["effects"]
+    assert d["sensor_errors"]["lidar"]["board_plane"]["beam_mm"] == pytest.approx(2.4)
+    bp_in, bp_back = cal.sensors["lidar_errors"]["board_plane"], back.sensors["lidar_errors"]["board_plane"]
+    assert bp_back == {k: pytest.approx(v) if isinstance(v, float) else v for k, v in bp_in.items()}
     again = yaml.safe_load(write_calibration(tmp_path / "again.yaml", back).read_text())
     assert again["frames"] == d["frames"]  # written again: the same corners, not moved twice
     # without the LiDAR's terms the stage's corners are reported, as before

@@ -239,6 +239,7 @@ def test_calibrate_with_lidar_errors_writes_terms_refined_corners_and_exports_th
     assert "lidar_errors" in cal["sensor_errors"]["effect_on_extrinsic"]
     bp = lid["board_plane"]  # 6 frames: more than the 5 boards the plane's estimate needs
     assert bp["estimated"] and 0.5 <= bp["offset_mm"] <= 40.0 and bp["offset_sd_mm"] > 0, bp
+    assert 0.2 <= bp["beam_mm"] <= 20.0 and bp["beam_sd_mm"] > 0, bp  # each beam's offset on a board
     used = [f for f in cal["frames"] if f["used"]]
     assert used and all("lidar_corners_stage" in f for f in used)
     assert (

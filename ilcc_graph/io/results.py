@@ -130,6 +130,9 @@ def _sensors_dict(sensors: dict[str, Any]) -> dict[str, Any]:
                 "estimated": bool(bp["estimated"]),
                 "note": str(bp["note"]),
             }
+            if math.isfinite(float(bp.get("beam_m", math.nan))):  # each beam's offset on a board
+                out["lidar"]["board_plane"]["beam_mm"] = 1e3 * float(bp["beam_m"])
+                out["lidar"]["board_plane"]["beam_sd_mm"] = 1e3 * float(bp["beam_sd"])
     cam = sensors.get("camera_intrinsics")
     if cam is not None:
         out["camera_intrinsics"] = {
@@ -180,6 +183,8 @@ def _sensors_from_dict(src: str, d: Any) -> dict[str, Any]:
                     "tilt_sd": math.radians(float(bp["tilt_sd_deg"])),
                     "estimated": bool(bp["estimated"]),
                     "note": str(bp["note"]),
+                    "beam_m": 1e-3 * float(bp.get("beam_mm", math.nan)),
+                    "beam_sd": 1e-3 * float(bp.get("beam_sd_mm", math.nan)),
                 }
         cam = d.get("camera_intrinsics")
         if cam is not None:
