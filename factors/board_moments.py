@@ -10,11 +10,12 @@ variables: with the board normal ``n = R e_z``, its translation ``t``, the activ
 (``A_ji`` the return's range coefficients, ``E_ji`` its elevation coefficients times its range, see
 board_points.py), i.e. ``h = F theta`` with fixed features ``F`` (M x (4 + 3k)) and ``theta = (n,
 n . (c - t), n (x) l)``. The point rows' cost is ``|P diag(w) F theta|^2 / s`` (w the rows' weights,
-P the board plane's whitening, s the points' variance scale) = ``theta^T G theta``, and ``G`` comes
-from ``F_w^T F_w`` and ``Q^T F_w`` (Q the plane Jacobian's orthonormal basis), computed once per
-board. This factor's error is ``L theta`` with ``L^T L = G`` (4 + 3k rows) plus the three in-plane
-prior rows: the same cost and the same Gauss-Newton system (``J^T J``, ``J^T r``) as the full factor,
-to rounding, at any value of the variables. It is for the optimiser only: the core's per-row
+P the whitening of the board's random effects: its plane, its beams' offsets; s the points' variance
+scale) = ``theta^T G theta``, and ``G`` comes from ``F_w^T F_w`` and ``Q^T F_w`` (Q the orthonormal
+basis of the random effects' Jacobian), computed once per board. This factor's error is
+``L theta`` with ``L^T L = G`` (4 + 3k rows) plus the three in-plane prior rows: the same cost and
+the same Gauss-Newton system (``J^T J``, ``J^T r``) as the full factor, to rounding, at any value of
+the variables. It is for the optimiser only: the core's per-row
 statistics (redundancies, the gate, the plane's rows) use the full factor.
 """
 
@@ -35,7 +36,7 @@ __all__ = ["CompactBoardPoints", "Moments", "moments_of"]
 @dataclass(frozen=True)
 class Moments:
     """What the compact factor keeps of a board's returns: the centre ``c`` (3,) in the LiDAR frame
-    (m), ``FtF`` = F_w^T F_w and ``QtF`` = Q^T F_w (None without a board plane), unscaled."""
+    (m), ``FtF`` = F_w^T F_w and ``QtF`` = Q^T F_w (None without random effects), unscaled."""
 
     centre: np.ndarray
     FtF: np.ndarray

@@ -186,7 +186,9 @@ def log_sigmas(options: LidarErrorOptions | None, bp: BoardPlane | None) -> None
     """Say the boards' plane sigmas when they were to be estimated (found, or why configured)."""
     if bp is None or options is None or not options.board_plane_estimate:
         return
-    log.info(
-        "boards' plane sigmas: offset %.2f mm, tilt %.3f deg, beams %.2f mm%s",
-        1e3 * bp.offset_m, math.degrees(bp.tilt_rad), 1e3 * bp.beam_m, f" ({bp.note})" if bp.note else "",
-    )  # fmt: skip
+    parts = []
+    if math.isfinite(bp.offset_m):
+        parts.append(f"plane offset {1e3 * bp.offset_m:.2f} mm, tilt {math.degrees(bp.tilt_rad):.3f} deg")
+    if math.isfinite(bp.beam_m):
+        parts.append(f"beams {1e3 * bp.beam_m:.2f} mm")
+    log.info("boards' random effects' sigmas: %s%s", ", ".join(parts), f" ({bp.note})" if bp.note else "")
