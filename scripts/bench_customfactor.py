@@ -5,7 +5,9 @@ For N trivial factors (a Point3 prior written as a CustomFactor, one per variabl
 - one Gauss-Newton iteration inside ``GaussNewtonOptimizer`` (whose ``Values`` live in C++),
 - the same two numbers for the built-in ``PriorFactorPoint3``,
 - the time to copy a ``Values`` of N entries, and how many distinct ``Values`` objects the
-  callbacks see (one per call means pybind11 copied the whole ``Values`` for each callback).
+  callbacks see (one per call means pybind11 copied the whole ``Values`` for each callback),
+- one Levenberg-Marquardt step of ``ilcc_graph.estimation.solver.optimize`` (GTSAM's algorithm
+  driven from Python on a Python-owned ``Values``: linearise, damped solve, cost).
 
 Run: ``python3 scripts/bench_customfactor.py`` (prints a markdown table; ``--write`` appends it to
 docs/bench_graph.md between markers).
@@ -72,12 +74,23 @@ def _gn_iteration(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> fl
     return time.perf_counter() - t0
 
 
+def _our_step(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> float:
+    import logging
+
+    from ilcc_graph.estimation.solver import SolverOptions, optimize
+
+    logging.getLogger("ilcc_graph").setLevel(logging.ERROR)  # one step is the limit on purpose
+    t0 = time.perf_counter()
+    optimize(graph, values, SolverOptions(max_iterations=1))
+    return time.perf_counter() - t0
+
+
 def run(sizes: tuple[int, ...] = SIZES) -> str:
     rows = [
         "| factors N | linearize, Python Values (ms) | GN iteration, CustomFactor (ms) | "
         "GN iteration, PriorFactorPoint3 (ms) | copy of Values(N) (us) | distinct Values seen in one "
-        "GN iteration |",
-        "|---:|---:|---:|---:|---:|---:|",
+        "GN iteration | one LM step of `solver.optimize`, CustomFactor (ms) |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for n in sizes:
         values = _values(n)
@@ -86,6 +99,7 @@ def run(sizes: tuple[int, ...] = SIZES) -> str:
         t_lin = _best_of(lambda custom=custom, values=values: custom.linearize(values))
         t_gn_custom = min(_gn_iteration(custom, values) for _ in range(2))
         t_gn_builtin = min(_gn_iteration(builtin, values) for _ in range(3))
+        t_ours = min(_our_step(custom, values) for _ in range(3))
         t_copy = _best_of(lambda values=values: gtsam.Values(values), repeat=20)
         # keep every Values the callbacks receive alive, so that ids of freed copies are not reused
         kept: list[gtsam.Values] = []
@@ -104,7 +118,7 @@ def run(sizes: tuple[int, ...] = SIZES) -> str:
         kept.clear()
         rows.append(
             f"| {n} | {1e3 * t_lin:.1f} | {1e3 * t_gn_custom:.1f} | {1e3 * t_gn_builtin:.1f} | "
-            f"{1e6 * t_copy:.0f} | {distinct} |"
+            f"{1e6 * t_copy:.0f} | {distinct} | {1e3 * t_ours:.1f} |"
         )
     return "\n".join(rows)
 
