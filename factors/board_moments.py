@@ -56,7 +56,7 @@ def moments_of(f: BoardPointsFactor) -> Moments:
     F[:, 3] = 1.0
     g = -f.u[:, :, None] * f._A_range[:, None, :]  # (M, 3, k): d h / d (n_a l_i)
     if f._A_elev is not None:
-        g += f.elev[2][:, :, None] * f._A_elev[:, None, :]  # type: ignore[index]
+        g += f._elev_dir[:, :, None] * f._A_elev[:, None, :]  # type: ignore[index]
     F[:, 4:] = g.reshape(M, 3 * k)
     Fw = f.weight[:, None] * F
     QtF = None if f._plane is None else f._plane[1].T @ Fw

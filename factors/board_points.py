@@ -54,6 +54,16 @@ def elevation_directions(u: np.ndarray) -> np.ndarray:
     return np.column_stack([-np.sin(el) * np.cos(az), -np.sin(el) * np.sin(az), np.cos(el)])
 
 
+def _dense_coefficients(index: np.ndarray, coef: np.ndarray, active: np.ndarray) -> np.ndarray:
+    """(M, len(active)) the sparse (M, k) ``index`` / ``coef`` pairs as dense rows over ``active``
+    (sorted; entries with coefficient 0 may name any index)."""
+    out = np.zeros((len(index), len(active)))
+    if len(active):
+        col = np.minimum(np.searchsorted(active, index), len(active) - 1)
+        np.add.at(out, (np.repeat(np.arange(len(index)), index.shape[1]), col.ravel()), coef.ravel())
+    return out
+
+
 class BoardPointsFactor(GroupedFactor):
     """One board's returns and in-plane prior on (``T_lidar_board``, LiDAR parameters ``l``).
 
@@ -110,9 +120,8 @@ class BoardPointsFactor(GroupedFactor):
         self.rho = np.linalg.norm(p, axis=1)
         self.u = p / self.rho[:, None]
         self.sigma = s
-        self.range_index, self.range_coef = ri, rc
         self.n_params = int(n_params)
-        self.elev = None
+        ei = ec = None
         if elevation_index is not None:
             ei = np.asarray(elevation_index, dtype=np.int64)
             ec = np.asarray(elevation_coef, dtype=np.float64)
@@ -120,23 +129,13 @@ class BoardPointsFactor(GroupedFactor):
                 raise ValueError("BoardPointsFactor: elevation_index/coef must be (M, k)")
             if ei.size and (ei.min() < 0 or ei.max() >= n_params):
                 raise ValueError(f"BoardPointsFactor: elevation_index outside 0..{n_params - 1}")
-            self.elev = (ei, ec, elevation_directions(self.u))
         # the parameters these returns depend on, and the dense (M, n_active) coefficients of a_j and
         # rho_j b_j on them: the corrections and Jacobians are then two small matrix products
-        used = [ri[rc != 0]] + ([] if self.elev is None else [self.elev[0][self.elev[1] != 0]])
+        used = [ri[rc != 0]] + ([] if ei is None else [ei[ec != 0]])
         self.active = np.unique(np.concatenate(used)).astype(np.int64)
-        col = np.searchsorted(self.active, ri)
-        self._A_range = np.zeros((M, len(self.active)))
-        rows = np.repeat(np.arange(M), ri.shape[1])
-        if len(self.active):
-            np.add.at(self._A_range, (rows, np.minimum(col, len(self.active) - 1).ravel()), rc.ravel())
-        self._A_elev = None
-        if self.elev is not None and len(self.active):
-            ei, ec, _ = self.elev
-            self._A_elev = np.zeros((M, len(self.active)))
-            rows_e = np.repeat(np.arange(M), ei.shape[1])
-            cols_e = np.minimum(np.searchsorted(self.active, ei), len(self.active) - 1).ravel()
-            np.add.at(self._A_elev, (rows_e, cols_e), (self.rho[:, None] * ec).ravel())
+        self._A_range = _dense_coefficients(ri, rc, self.active)
+        self._A_elev = None if ei is None else _dense_coefficients(ei, self.rho[:, None] * ec, self.active)
+        self._elev_dir = None if ei is None else elevation_directions(self.u)  # e_j (M, 3)
         self.T_measured = T_measured if isinstance(T_measured, gtsam.Pose3) else gtsam.Pose3(T_measured)
         self.S = np.asarray(inplane_select, dtype=np.float64).reshape(3, POSE3_DOF)
         self.W = np.asarray(inplane_sqrt_info, dtype=np.float64).reshape(3, 3)
@@ -246,7 +245,7 @@ class BoardPointsFactor(GroupedFactor):
         la = np.asarray(lidar, dtype=np.float64)[self.active]
         q = self.points - self.u * (self._A_range @ la)[:, None]
         if self._A_elev is not None:
-            q = q + (self._A_elev @ la)[:, None] * self.elev[2]  # type: ignore[index]
+            q = q + (self._A_elev @ la)[:, None] * self._elev_dir
         return q
 
     def evaluate(
@@ -277,7 +276,7 @@ class BoardPointsFactor(GroupedFactor):
         rows[:, 6] = -w
         rows[:, 7:] = -(w * (self.u @ n))[:, None] * self._A_range
         if self._A_elev is not None:
-            rows[:, 7:] += (w * (self.elev[2] @ n))[:, None] * self._A_elev  # type: ignore[index]
+            rows[:, 7:] += (w * (self._elev_dir @ n))[:, None] * self._A_elev
         rows = self._plane_apply(rows)
         err = np.concatenate([rows[:, 0], r_in])
         H_T = np.empty((M + 3, POSE3_DOF), order="F")
