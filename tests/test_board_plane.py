@@ -151,6 +151,31 @@ def test_estimated_beam_sigma_recovers_board_to_board_beam_offsets() -> None:
     )
 
 
+@pytest.mark.xfail(
+    strict=True,
+    reason="known (docs/bench_lidar_errors.md finding 10): with bent boards the beams' common level "
+    "is biased and, with the plane's sigmas estimated, runs off in 4 of 13 seeds",
+)
+def test_bent_boards_leave_the_beams_common_level_unbiased() -> None:
+    """Boards bent 4 mm / 0.4 deg: over several sets the beams' mean offset stays within 3 sigma of the
+    truth's and the plane's offset sigma within 3 sd of 4 mm. Fails today (the xfail says why)."""
+    misses = []
+    for seed in (1, 2, 3, 5, 10, 13):
+        truth = np.random.default_rng(seed).normal(0.0, 0.003, len(VLP16))  # bent_frames' first draw
+        rng = np.random.default_rng(seed)
+        frames = bent_frames(rng, 24, (0.004, np.radians(0.4)))
+        T0 = T_TRUE.compose(gtsam.Pose3.Expmap(rng.normal(0, 0.01, 6))).matrix()
+        sol = solve(frames, CAMERA, T0, lidar_errors=LidarErrorOptions(board_beam=None))
+        beams = [k for k, n in enumerate(sol.lidar_layout.names) if n.startswith("offset[")]
+        ids = [int(sol.lidar_layout.names[k][7:-1]) for k in beams]
+        err = float(np.mean(np.asarray(sol.lidar[1])[beams]) - np.mean(truth[ids]))
+        sd = float(np.sqrt(np.mean(sol.lidar_covariance[np.ix_(beams, beams)])))
+        bp = sol.board_plane
+        if abs(err) > 3 * sd or abs(bp.offset_m - 0.004) > 3 * bp.offset_sd:
+            misses.append((seed, round(1e3 * err, 1), round(1e3 * sd, 2), round(1e3 * bp.offset_m, 1)))
+    assert not misses, misses
+
+
 def test_few_boards_keep_the_configured_plane_sigma_and_say_so() -> None:
     rng = np.random.default_rng(12)
     frames = bent_frames(rng, 4, (0.004, 0.007))
