@@ -21,7 +21,8 @@ analytic; one factor per board (see docs/factors.md for why few, large Python fa
 A real board is not the ideal plane of its LiDAR returns: the print and its backing bend, and the
 LiDAR's errors that no term models (incidence, mixed edge returns) move a board's returns as a
 whole. With ``plane_sigma = (offset_m, tilt_rad)`` each board's heights carry a random plane
-``delta + alpha x + beta y`` (board-frame x, y of each return) of those sigmas, marginalised in the
+``delta |n . u| + alpha x + beta y`` (board-frame x, y of each return; the offset ``delta`` a range
+offset of the board's returns, along their rays) of those sigmas, marginalised in the
 whitening: the rows are whitened by ``(I + G Sigma G^T)^(-1/2)`` (G the whitened Jacobian of the
 plane's three parameters), computed in the 3-dimensional span of G. The returns then determine a
 board's plane no better than that, while the LiDAR's shared terms still average over the boards.
@@ -154,7 +155,11 @@ class BoardPointsFactor(GroupedFactor):
                 raise ValueError(f"BoardPointsFactor: plane_sigma must be > 0, got {plane_sigma!r}")
             R0, t0 = self.T_measured.rotation().matrix(), self.T_measured.translation()
             xy = ((p - t0) @ R0)[:, :2]
-            cols.append(np.column_stack([np.ones(M), xy]))
+            # the offset as a range offset of all the board's returns (along their rays, as a
+            # common range offset of the beams moves them): the boards' zero-mean offsets then
+            # fix the beams' common level; along the normal, only the incidence's variation across
+            # each board would tell the two apart, and the common level ran off (bench finding 10)
+            cols.append(np.column_stack([np.abs(self.u @ n0), xy]))
             var += [so**2, st**2, st**2]
             kind += [0, 1, 1]
         if beam_sigma is not None:

@@ -96,7 +96,9 @@ def test_board_plane_whitening_is_the_dense_covariance() -> None:
     r_plane = plane.evaluate(T_eval, np.zeros(1), False)[0][:m]
     h = r_plain / plain.weight * np.sqrt(2.0)  # the plane heights (m)
     sig_h = 1.0 / plain.weight
-    G = np.column_stack([np.ones(m), pb[:, 0], pb[:, 1]])
+    # the plane: its offset a range offset of the returns (height |n . u| per metre), two tilts
+    along_rays = np.abs((P / np.linalg.norm(P, axis=1, keepdims=True)) @ T.rotation().matrix()[:, 2])
+    G = np.column_stack([along_rays, pb[:, 0], pb[:, 1]])
     C = 2.0 * np.diag(sig_h**2) + G @ np.diag([0.004**2, 0.006**2, 0.006**2]) @ G.T
     assert r_plane @ r_plane == pytest.approx(h @ np.linalg.solve(C, h), rel=1e-9)
     assert r_plane @ r_plane < r_plain @ r_plain
