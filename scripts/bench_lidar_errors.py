@@ -6,7 +6,9 @@ Monte Carlo: per rig, simulated sets with the simulator's default systematics on
 
 - ``hdl32``: HDL-32E + equirectangular panorama (3000 x 1500 px), 20 boards 1.2-2.6 m (``standard_spec``);
 - ``vlp16``: VLP-16 + pinhole (1920 x 1200 px), 12 boards 2.9-5 m (``SceneOptions.board_distance_m``,
-  a larger room so that the far boards fit).
+  a larger room so that the far boards fit);
+- ``hdl32-bent``, ``vlp16-bent`` (``--rigs``): the same with bent boards, each frame's board returns
+  off the print by a random plane of 5 mm / 0.4 deg (``Systematics.board_plane_sigma``).
 
 Each set is simulated and observed once in memory (``estimate_board`` on the rendered scan,
 ``detect_corners`` on the rendered image: the pipeline's per-frame stages; a ``FrameError`` drops the
@@ -19,7 +21,8 @@ simulator's truth:
 
 - the extrinsic: NEES ``xi^T C^-1 xi`` (``T_true = T_est Expmap(xi)``), 95 % coverage (NEES <= 12.59),
   rotation (deg) and translation (mm) errors;
-- every estimated beam offset against the beam's true bias: ``z = (est - true) / sigma``;
+- every estimated beam offset against the beam's true bias: ``z = (est - true) / sigma``, and the
+  beams' mean error per set (their common level);
 - every used board's corner RMS after the joint solve (``FrameResult.T_lidar_board_refined``) against
   the true corners, taking the closer of the two half turns of a symmetric board.
 
@@ -108,10 +111,16 @@ DEFAULT_ON = ESTIMATED if LidarErrorOptions().board_plane_estimate else FIXED
 #: corner RMS targets (mm) and the distance up to which each applies (m)
 CORNER_TARGET = {"hdl32": (1.0, 3.0), "vlp16": (1.5, 5.0)}
 RIGS = ("hdl32", "vlp16")
+#: the same rigs with bent boards: each board's returns off its print by a random plane per frame
+BENT = (0.005, 0.4 * DEG)
+ALL_RIGS = (*RIGS, *(f"{r}-bent" for r in RIGS))
 
 
 def rig_spec(rig: str, seed: int, frames: int | None = None):  # noqa: ANN201 - SimulationSpec
     """The simulated set of ``rig`` with ``seed`` (module docstring)."""
+    if rig.endswith("-bent"):
+        spec = rig_spec(rig[: -len("-bent")], seed, frames)
+        return spec.with_(systematics=replace(spec.systematics, board_plane_sigma=BENT))
     if rig == "hdl32":
         return standard_spec("hdl32", "equirectangular", width=3000, frames=frames or 20, seed=seed)
     if rig == "vlp16":
@@ -316,19 +325,20 @@ def _paired(sets: Sequence[SetResult]) -> str:
 def mc_tables(results: Sequence[SetResult]) -> list[str]:
     """The Monte Carlo tables (markdown lines)."""
     lines: list[str] = []
-    for rig in RIGS:
+    for rig in ALL_RIGS:
         sets = [r for r in results if r.rig == rig]
         if not sets:
             continue
-        target, dmax = CORNER_TARGET[rig]
+        target, dmax = CORNER_TARGET[rig.removesuffix("-bent")]
         lines += [
             f"### {rig}: {len(sets)} sets (seeds {min(r.seed for r in sets)}-{max(r.seed for r in sets)})",
             "",
             "| variant | mean NEES | coverage 95 % | rot. median / p90 deg | trans. median / p90 mm | "
-            "beams within 3 sigma | beam z RMS | dark mm (mean est. +- sd over sets; mean sigma) | "
+            "beams within 3 sigma | beam z RMS | beams' mean error mm (mean +- sd over sets) | "
+            "dark mm (mean est. +- sd over sets; mean sigma) | "
             f"corner RMS mm, boards <= {dmax:g} m: median / p90 / max | boards <= {target} mm | "
             "set medians <= target | used | solve s (median) |",
-            "|" + "---|" * 13,
+            "|" + "---|" * 14,
         ]
         for name in VARIANTS:
             vs = [r.variants[name] for r in sets if name in r.variants and r.variants[name].failure is None]
@@ -347,6 +357,8 @@ def mc_tables(results: Sequence[SetResult]) -> list[str]:
                 if np.any(np.asarray(v.distance_m) <= dmax)
             ]
             beams = f"{100 * np.mean(np.abs(z) < 3):.1f} % of {len(z)}" if len(z) else "-"
+            level = np.array([np.mean(v.beam_err_mm) for v in vs if v.beam_err_mm])
+            level_s = f"{level.mean():+.2f} +- {level.std():.2f}" if len(level) else "-"
             dark = (
                 f"{darks[:, 0].mean():.2f} +- {darks[:, 0].std():.2f}; {darks[:, 1].mean():.2f}"
                 if len(darks)
@@ -356,7 +368,7 @@ def mc_tables(results: Sequence[SetResult]) -> list[str]:
                 f"| {name} | {ne.mean():.2f} | {100 * np.mean(ne <= CHI2_6_95):.0f} % | "
                 f"{np.median(rot):.4f} / {np.percentile(rot, 90):.4f} | {np.median(tr):.2f} / "
                 f"{np.percentile(tr, 90):.2f} | {beams} | "
-                f"{_fmt(np.sqrt(np.mean(z**2)) if len(z) else np.nan)} | "
+                f"{_fmt(np.sqrt(np.mean(z**2)) if len(z) else np.nan)} | {level_s} | "
                 f"{dark} | {np.median(rms):.2f} / {np.percentile(rms, 90):.2f} / {rms.max():.2f} | "
                 f"{100 * np.mean(rms <= target):.0f} % | "
                 f"{sum(m <= target for m in set_med)}/{len(set_med)} | "

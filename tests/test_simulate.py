@@ -364,3 +364,30 @@ def test_board_distance_option_moves_the_placements_out() -> None:
     assert min(d) >= 2.85 and max(d) <= 5.0 + 1.5
     with pytest.raises(ValueError, match="board_distance_m"):
         SceneOptions(board_distance_m=(3.0, 2.0))
+
+
+def test_board_plane_systematic_puts_each_frames_returns_on_a_plane_off_the_print():
+    """``Systematics.board_plane_sigma``: noise-free board returns lie on a plane off the board's face
+    (heights ``delta + alpha x + beta y`` towards the sensor, drawn per frame); off it, the scan is the
+    same as before to the bit."""
+    import dataclasses
+
+    base = standard_spec(width=400, frames=20, seed=2, noise_scale=0.0, systematics=Systematics.off())
+    bent = base.with_(systematics=dataclasses.replace(Systematics.off(), board_plane_sigma=(0.005, 0.01)))
+    x0, x1, y0, y1 = base.board.extent()
+    fits = []
+    for i in (1, 4, 9):
+        flat, T = _scan(base, i)
+        again, _ = _scan(base.with_(systematics=Systematics.off()), i)
+        np.testing.assert_array_equal(flat.points, again.points)
+        moved, _ = _scan(bent, i)
+        q0, q1 = _board_frame(flat, T), _board_frame(moved, T)
+        on = (np.abs(q0[:, 2]) < 1e-9) & (q0[:, 0] > x0) & (q0[:, 0] < x1) & (q0[:, 1] > y0) & (q0[:, 1] < y1)
+        assert on.sum() > 300 and np.allclose(q1[~on], q0[~on])
+        A = np.column_stack([np.ones(on.sum()), q0[on, 0], q0[on, 1]])  # at where each ray hit the print
+        coef, *_ = np.linalg.lstsq(A, q1[on, 2], rcond=None)
+        assert np.abs(q1[on, 2] - A @ coef).max() < 1e-9  # a plane
+        fits.append(coef)
+    fits = np.array(fits)
+    assert np.all(np.abs(fits[:, 0]) < 0.03) and np.ptp(fits[:, 0]) > 1e-3  # offsets differ by frame
+    assert np.all(np.abs(fits[:, 1:]) < 0.05) and np.ptp(fits[:, 1]) > 1e-3

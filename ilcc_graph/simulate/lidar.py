@@ -22,7 +22,8 @@ Measurement model (all geometric sigmas times ``spec.noise_scale``):
 - systematics (:class:`~ilcc_graph.simulate.spec.Systematics`), each along the beam: a constant
   bias per beam, an extra range on black print ``dark_range_offset_m * (1 - colour)``, a global
   ``range_offset_m``; dropped returns with probability ``dropout`` (``dropout_black`` on black print);
-  a relative intensity gain per beam (``beam_intensity_gain_sigma``).
+  a relative intensity gain per beam (``beam_intensity_gain_sigma``); the board's returns from a
+  random plane off its print, per frame (``board_plane_sigma``, off by default).
 
 Sensor formats (``spec.sensor_format``), how a real driver writes the same returns:
 
@@ -168,6 +169,15 @@ def simulate_scan(spec: SimulationSpec, scene: Scene, frame: int, biases: np.nda
     # systematics along the beam
     b = beam_biases(spec) if biases is None else biases
     extra = b[ring] + sy.range_offset_m + np.where(board, sy.dark_range_offset_m * (1.0 - colour), 0.0)
+    so, st = sy.board_plane_sigma
+    if board.any() and (so > 0 or st > 0):  # the board's returns from a face off its print
+        z = frame_rng(spec.seed, PURPOSE_FRAME, frame, 1, 5).standard_normal(3)
+        delta, alpha, beta = z * np.array([so, st, st])
+        xy = hits.board_xy[board] - np.array(
+            [np.mean(scene.board.extent()[:2]), np.mean(scene.board.extent()[2:])]
+        )
+        height = delta + alpha * xy[:, 0] + beta * xy[:, 1]
+        extra[board] -= height / np.maximum(cos_inc[board], 0.05)
     p += d * extra[:, None]
 
     # intensity

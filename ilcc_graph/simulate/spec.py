@@ -67,6 +67,10 @@ class Systematics:
     range_offset_m: constant added to every range (a global offset, e.g. a LiDAR zero error).
     beam_intensity_gain_sigma: sigma of a relative intensity gain per beam (uneven per-laser
         intensity calibration; drawn once per data set).
+    board_plane_sigma: (offset m, tilt rad) sigmas of a random plane per frame between the board's
+        LiDAR returns and its printed face (a bent print or backing, the LiDAR's errors that move a
+        board's returns as a whole): the returns come from a face ``delta + alpha x + beta y``
+        nearer the sensor (board-frame x, y from the pattern's centre); the camera sees the print.
     """
 
     beam_bias_sigma_m: float = 0.003
@@ -75,6 +79,7 @@ class Systematics:
     dropout_black: float = 0.02
     range_offset_m: float = 0.0
     beam_intensity_gain_sigma: float = 0.0
+    board_plane_sigma: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         for name in ("beam_bias_sigma_m", "dark_range_offset_m", "beam_intensity_gain_sigma"):
@@ -83,6 +88,9 @@ class Systematics:
         for name in ("dropout", "dropout_black"):
             if not 0.0 <= getattr(self, name) < 1.0:
                 raise ValueError(f"Systematics: {name} must be in [0, 1), got {getattr(self, name)!r}")
+        bp = tuple(self.board_plane_sigma)
+        if len(bp) != 2 or not all(np.isfinite(v) and v >= 0 for v in bp):
+            raise ValueError(f"Systematics: board_plane_sigma must be two sigmas >= 0, got {bp!r}")
         if not np.isfinite(self.range_offset_m):
             raise ValueError(f"Systematics: range_offset_m must be finite, got {self.range_offset_m!r}")
 
@@ -282,6 +290,7 @@ class SimulationSpec:
                 "dropout_black": s.dropout_black,
                 "range_offset_m": s.range_offset_m,
                 "beam_intensity_gain_sigma": s.beam_intensity_gain_sigma,
+                "board_plane_sigma": [float(v) for v in s.board_plane_sigma],
             },
             "image": {
                 "supersample": int(self.image.supersample),
