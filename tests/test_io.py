@@ -11,6 +11,7 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from sensor_examples import lidar_errors_example
 
 from ilcc_graph.errors import InputError
 from ilcc_graph.io import (
@@ -501,17 +502,7 @@ def _with_lidar_errors() -> Calibration:
     T_ref[:3, 3] += [0.002, -0.001, 0.003]
     f0 = dataclasses.replace(cal.frames[0], T_lidar_board_refined=T_ref)
     sensors = {
-        "lidar_errors": {
-            "names": ["offset[3]", "offset[4]", "dark"],
-            "values": np.array([0.0021, -0.0013, 0.0123]),
-            "sigmas": np.array([0.0004, 0.0005, 0.0002]),
-            "left_out": [["beam 9", "12 returns on 1 board(s): too few to estimate its terms"]],
-            "elevation_deg": {"offset[3]": -9.0, "offset[4]": 7.0},
-            "board_plane": {
-                "offset_m": 0.0068, "tilt_rad": 0.0079, "offset_sd": 0.0012, "tilt_sd": 0.001,
-                "estimated": True, "note": "", "beam_m": 0.0024, "beam_sd": 0.00017,
-            },
-        },
+        "lidar_errors": lidar_errors_example(),
         "camera_intrinsics": {
             "names": ["fx", "fy"], "stated": np.array([900.0, 901.0]),
             "values": np.array([903.0, 899.5]), "sigmas": np.array([1.5, 1.4]),

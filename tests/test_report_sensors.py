@@ -3,18 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+from sensor_examples import lidar_errors_example
 
 from ilcc_graph.report.sensors import sensors_html, sensors_text
 from ilcc_graph.types import Calibration
 
 SENSORS = {
-    "lidar_errors": {
-        "names": ["offset[3]", "offset[4]", "dark"],
-        "values": np.array([0.0021, -0.0013, 0.0123]),
-        "sigmas": np.array([0.0004, 0.0005, 0.0002]),
-        "left_out": [["beam 9", "12 returns on 1 board(s): too few to estimate its terms"]],
-        "elevation_deg": {"offset[3]": -9.0, "offset[4]": 7.0},
-    },
+    "lidar_errors": lidar_errors_example(),
     "camera_intrinsics": {
         "names": ["fx", "cx"],
         "stated": np.array([900.0, 640.0]),
@@ -40,6 +35,8 @@ def test_sections_show_terms_sigmas_left_out_and_effects() -> None:
     lines = sensors_text(_cal(SENSORS))
     assert "2 beams, -1.3 .. +2.1 mm" in lines and "dark: +12.30 mm, sigma 0.20 mm" in lines
     assert "left out: beam 9" in lines and "1.25 mm (2.5 sigma)" in lines
+    assert "offset 6.8 mm, tilt 0.45 deg (+- 1.2 mm, +- 0.06 deg)" in lines
+    assert "each beam's range offset changing from board to board: 2.40 +- 0.17 mm" in lines
 
 
 def test_nothing_without_sensor_terms() -> None:
