@@ -118,6 +118,7 @@ def test_estimated_plane_sigma_recovers_bent_boards_and_falls_to_the_floor_on_id
     assert abs(bp.offset_m - true[0]) < 3 * bp.offset_sd, bp
     assert abs(bp.tilt_rad - true[1]) < 3 * bp.tilt_sd, bp
     assert bp.offset_sd < 0.4 * bp.offset_m and bp.tilt_sd < 0.4 * bp.tilt_rad, bp  # it tells something
+    assert "more than a bent print" not in bp.note, bp
     # the same boards ideal (flat): the sigmas fall to the floor (within the estimate's sd: an REML
     # estimate of a zero variance lands at the bound or just above it)
     flat = bent_frames(np.random.default_rng(22), 24, (0.0, 0.0))
@@ -175,6 +176,17 @@ def test_bent_boards_leave_the_beams_common_level_unbiased() -> None:
         if abs(err) > 3 * sd or abs(bp.offset_m - 0.004) > 3 * bp.offset_sd:
             misses.append((seed, round(1e3 * err, 1), round(1e3 * sd, 2), round(1e3 * bp.offset_m, 1)))
     assert not misses, misses
+
+
+def test_boards_far_off_their_returns_are_called_out() -> None:
+    """Returns 30 mm off their boards (as on the recorded Ouster set): more than a bent print, and
+    the solution says so (calibration.yaml's note, the text output, a warning)."""
+    rng = np.random.default_rng(11)
+    frames = bent_frames(rng, 24, (0.03, np.radians(0.4)))
+    T0 = T_TRUE.compose(gtsam.Pose3.Expmap(rng.normal(0, 0.01, 6))).matrix()
+    bp = solve(frames, CAMERA, T0, lidar_errors=LidarErrorOptions()).board_plane
+    assert bp.estimated and bp.offset_m > 0.015, bp
+    assert "more than a bent print" in bp.note and "without --lidar-errors" in bp.note, bp
 
 
 def test_few_boards_keep_the_configured_plane_sigma_and_say_so() -> None:

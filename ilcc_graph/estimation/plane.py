@@ -44,6 +44,15 @@ __all__ = [
 
 #: the variance components of the boards' planes (offset, tilt) and beams' offsets, per noise group
 KINDS = ("plane_offset", "plane_tilt", "board_beam")
+#: an estimated plane offset sigma above this (m) is more than a bent print: the boards' returns sit
+#: off where the images put the boards (a range error per board, the camera's intrinsics; see
+#: docs/bench_lidar_errors.md finding 9), and the solution says so
+SUSPECT_OFFSET_M = 0.015
+SUSPECT_NOTE = (
+    "offset {mm:.0f} mm is more than a bent print: the boards' returns sit off where the images put "
+    "them (a range error per board, or the camera's intrinsics); compare with the result without "
+    "--lidar-errors"
+)
 
 
 @dataclass(frozen=True)
@@ -179,6 +188,8 @@ def board_plane(
             notes.append(
                 f"{('offset', 'tilt', 'beams')[j]} at its {'floor' if s <= lo * 1.0001 else 'maximum'}"
             )
+    if math.isfinite(sig[0]) and sig[0] > SUSPECT_OFFSET_M and 0 in on:
+        notes.append(SUSPECT_NOTE.format(mm=1e3 * sig[0]))
     return BoardPlane(sig[0], sig[1], sds[0], sds[1], True, "; ".join(notes), sig[2], sds[2])
 
 
@@ -192,3 +203,5 @@ def log_sigmas(options: LidarErrorOptions | None, bp: BoardPlane | None) -> None
     if math.isfinite(bp.beam_m):
         parts.append(f"beams {1e3 * bp.beam_m:.2f} mm")
     log.info("boards' random effects' sigmas: %s%s", ", ".join(parts), f" ({bp.note})" if bp.note else "")
+    if bp.estimated and math.isfinite(bp.offset_m) and bp.offset_m > SUSPECT_OFFSET_M:
+        log.warning("each board's plane: %s", SUSPECT_NOTE.format(mm=1e3 * bp.offset_m))
