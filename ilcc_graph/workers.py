@@ -36,7 +36,7 @@ from ilcc_graph import signals
 
 log = logging.getLogger(__name__)
 
-__all__ = ["START_METHOD", "map_processes", "pool", "prestart"]
+__all__ = ["START_METHOD", "map_processes", "pool", "prestart", "processes_where"]
 
 #: how worker processes are started (see the module docstring)
 START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
@@ -77,8 +77,10 @@ def prestart() -> None:
     signals.at_stop(_stop_server)
 
 
-def _children(pid: int) -> list[int]:
-    """Processes whose parent is ``pid`` (Linux /proc; elsewhere none)."""
+def processes_where(field: int, value: int, live: bool = True) -> list[int]:
+    """PIDs of the processes whose /proc/<pid>/stat field ``field`` (after the command name: 0 state,
+    1 parent, 2 process group) equals ``value``; ``live``: zombies left out. Linux /proc; elsewhere
+    none."""
     out = []
     with contextlib.suppress(OSError):
         for entry in os.scandir("/proc"):
@@ -89,7 +91,7 @@ def _children(pid: int) -> list[int]:
                     fields = f.read().rsplit(b")", 1)[1].split()
             except OSError:
                 continue
-            if int(fields[1]) == pid:
+            if int(fields[field]) == value and not (live and fields[0] == b"Z"):
                 out.append(int(entry.name))
     return out
 
@@ -105,7 +107,7 @@ def _stop_server() -> None:
         return
     with contextlib.suppress(OSError):
         os.kill(pid, signal.SIGSTOP)  # no new worker from now on
-        for child in _children(pid):
+        for child in processes_where(1, pid, live=False):
             with contextlib.suppress(OSError):
                 os.kill(child, signal.SIGKILL)
         os.kill(pid, signal.SIGKILL)

@@ -1,23 +1,13 @@
-"""What several benchmark scripts share: processes from /proc, and a block of a doc between markers."""
+"""What several benchmark scripts share: processes from /proc (the package's), and a block of a doc
+between markers."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
+from ilcc_graph.workers import processes_where
 
-def processes_where(field: int, value: int) -> list[int]:
-    """PIDs of the live (not zombie) processes whose /proc/<pid>/stat field ``field`` (after the
-    command name: 0 state, 1 parent, 2 process group) equals ``value``. Linux only."""
-    out = []
-    for d in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            fields = Path(f"/proc/{d}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[field]) == value and fields[0] != "Z":
-            out.append(int(d))
-    return out
+__all__ = ["processes_where", "write_between"]
 
 
 def write_between(doc: Path, begin: str, end: str, text: str) -> None:

@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from ilcc_graph.cli import main
+from ilcc_graph.workers import processes_where
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
 
@@ -32,15 +33,7 @@ def data(tmp_path_factory) -> Path:
 
 def _group(pgid: int) -> list[int]:
     """Live processes of a process group."""
-    out = []
-    for pid in filter(str.isdigit, os.listdir("/proc")):
-        try:
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[2]) == pgid and fields[0] != "Z":
-            out.append(int(pid))
-    return out
+    return processes_where(2, pgid)
 
 
 class Run:
