@@ -175,13 +175,11 @@ class Assembly:
         return [i for i in range(len(self.problem.boards)) if i not in self.unusable]
 
     def graph(
-        self, boards: Sequence[int], scales: Scales | None = None, plain: bool = False, compact: bool = False
+        self, boards: Sequence[int], scales: Scales | None = None, plain: bool = False
     ) -> tuple[gtsam.NonlinearFactorGraph, list[Term]]:
         """The graph of ``boards`` (their priors and views, the ties, the offset priors) and its terms.
 
         scales: variance scale per (kind, group). plain: without the robust kernel (least squares).
-        compact: each board's returns as ``CompactBoardPoints`` where that has fewer rows (the same
-        cost and Gauss-Newton system: for optimising; the terms then describe the full graph's rows).
         """
         pr = self.problem
         scales = scales or {}
@@ -199,7 +197,7 @@ class Assembly:
             if i in self.points:
                 g = pr.boards[i].group
                 f = self.points_factor(i, scales)
-                graph.add(self.compact_factor(i, f).factor() if compact else f.factor())
+                graph.add(f.factor())
                 m = f.n_points
                 terms.append(Term("board", g, i, f.dim, (("points", 0, m), ("inplane", m, m + 3))))
         facs = []
@@ -241,6 +239,22 @@ class Assembly:
             f = self.points[i].scaled(key[0], key[1], plane, beam)
             last = self._scaled[i] = (key, f, None)
         return last[1]
+
+    def compact(
+        self, graph: gtsam.NonlinearFactorGraph, terms: Sequence[Term], scales: Scales | None = None
+    ) -> gtsam.NonlinearFactorGraph:
+        """``graph`` (``graph(boards, scales)``, its ``terms``) with each board's returns as
+        ``CompactBoardPoints`` where that has fewer rows: the same cost and Gauss-Newton system, for
+        optimising; every other factor shared."""
+        out = gtsam.NonlinearFactorGraph()
+        out.push_back(graph)
+        for k, t in enumerate(terms):
+            if t.parts and t.board in self.points:  # a board's returns
+                f = self.points_factor(t.board, scales or {})
+                c = self.compact_factor(t.board, f)
+                if c is not f:
+                    out.replace(k, c.factor())
+        return out
 
     def compact_factor(self, i: int, f: BoardPointsFactor) -> BoardPointsFactor | CompactBoardPoints:
         """Board ``i``'s returns factor ``f`` (any scaling) in compact form when that has fewer rows."""

@@ -249,7 +249,7 @@ def solve_problem(
         g, terms = asm.graph(kept, comps, plain)
         values = asm.values(kept, ext, board_est, offsets, lidar_est, intr_est)
         t1 = time.perf_counter()
-        res, n_it = optimize(asm.graph(kept, comps, plain, compact=True)[0], values, options.solver)
+        res, n_it = optimize(asm.compact(g, terms, comps), values, options.solver)
         timings["build"] += t1 - t0
         timings["optimize"] += time.perf_counter() - t1
         iterations += n_it
