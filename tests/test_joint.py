@@ -76,9 +76,16 @@ def test_alone_is_the_session_under_the_joint_noise() -> None:
             if g == s.name or g.startswith(s.name + "|")
         }
         assert ("board", s.name) in comps and sum(k[0] == "bearing" for k in comps) == len(s.frames)
+        uncertain = {
+            (k, g.replace(f"{s.name}|{s.name}/", f"{s.name}|")): r
+            for (k, g), r in sol.uncertain.items()
+            if g == s.name or g.startswith(s.name + "|")
+        }
         problem = frames_problem(s.frames, s.camera, sol.alone[s.name].T, group=s.name)
         kept = [f.name for f in s.frames if f.name not in dict(sol.dropped[s.name])]
-        ref = solve_problem(problem, boards=kept, scales=comps, variance_factor=1.0, gate=False).extrinsic(0)
+        ref = solve_problem(
+            problem, boards=kept, scales=comps, variance_factor=1.0, gate=False, uncertain=uncertain
+        ).extrinsic(0)
         assert np.abs(ref.T - sol.alone[s.name].T).max() < 1e-9
         d = np.sqrt(np.diag(ref.covariance))
         assert np.abs(ref.covariance - sol.alone[s.name].covariance).max() < 1e-6 * d.max() ** 2

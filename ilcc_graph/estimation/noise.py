@@ -14,7 +14,14 @@
    residual count less ``trace(N^-1 N_g)``), iterated until they settle, never below 1; computed on
    the kept boards, then every board is gated again under that noise and the components re-estimated;
 4. **final factor**: covariances are multiplied by ``chi2 / (m - n)`` over the whole graph when it
-   exceeds 1 (m residuals, n parameters).
+   exceeds 1 (m residuals, n parameters);
+5. **the components' own uncertainty** (``components.component_uncertainty``): a component estimated from a
+   redundancy r is itself uncertain (sd of its log ``sqrt(2 / r)``: with 5 boards the in-plane
+   priors' component has r ~ 9). The covariances use each estimated component's posterior mean
+   ``s r / (r - 2)`` (Jeffreys prior) instead of s, and add what the components' uncertainty moves
+   the estimate: ``sum_k (2 / r_k) d_k d_k^T``, ``d_k`` the globals' shift per unit of ``log s_k``
+   (one Gauss-Newton step of the graph with ``s_k`` perturbed). The estimate itself is that of the
+   components found. Components held at their floor are not estimated and left as they are.
 
 The systems are arrow-shaped: each factor touches at most one board (``B(i)``), every other variable
 (extrinsics, range offsets) is global, so traces and marginals of boards cost O(boards) through the
@@ -35,6 +42,7 @@ import numpy as np
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import plane
 from ilcc_graph.estimation.assembly import Assembly
+from ilcc_graph.estimation.components import component_uncertainty, estimated_components
 from ilcc_graph.estimation.gate import BoardStats, board_stats, gate_failures, gate_scale
 from ilcc_graph.estimation.gate import graph_variance_factor as graph_factor
 from ilcc_graph.estimation.graphs import Scales
@@ -47,7 +55,13 @@ from ilcc_graph.types import Estimate
 
 log = logging.getLogger(__name__)
 
-__all__ = ["BoardStats", "NoiseOptions", "Solution", "replace_scales", "solve_problem"]
+__all__ = [
+    "BoardStats",
+    "NoiseOptions",
+    "Solution",
+    "replace_scales",
+    "solve_problem",
+]
 
 MIN_BOARDS_ADVISED = 4
 #: kinds of residual rows with a variance component each (per noise group)
@@ -96,7 +110,11 @@ class Solution:
     boards: indices of the kept boards. dropped: ``(name, reason)`` of the others, in the order
     dropped. scales: variance component per (kind, group). variance_factor: the final factor (every
     covariance returned is multiplied by it). redundancy: per (kind, group) with a component, its
-    redundancy at the last estimate.
+    redundancy at the last estimate. covariance_scales: the components the covariances use (their
+    posterior means, module docstring step 5; None: ``scales``). spread: per estimated component
+    ``(var of log s, shift of each global variable per unit of log s)``, what its uncertainty adds
+    to the globals' covariances. uncertain: the estimated components (key: redundancy) those two
+    come from.
     """
 
     problem: Problem
@@ -111,6 +129,9 @@ class Solution:
     iterations: int
     timings: dict[str, float] = field(default_factory=dict)
     redundancy: dict[tuple[str, str], float] = field(default_factory=dict)
+    covariance_scales: dict[tuple[str, str], float] | None = None
+    spread: list[tuple[float, dict[int, np.ndarray]]] = field(default_factory=list)
+    uncertain: dict[tuple[str, str], float] = field(default_factory=dict)
     _marginals: MarginalCovariances | None = None
 
     def board_plane(self, group: str = "") -> plane.BoardPlane | None:
@@ -122,7 +143,10 @@ class Solution:
     def marginals(self) -> MarginalCovariances:
         if self._marginals is None:
             t0 = time.perf_counter()
-            self._marginals = MarginalCovariances(self.graph, self.values, self.variance_factor)
+            graph = self.graph
+            if self.covariance_scales is not None:
+                graph = self.assembly.graph(self.boards, self.covariance_scales)[0]
+            self._marginals = MarginalCovariances(graph, self.values, self.variance_factor)
             self.timings["marginals"] = self.timings.get("marginals", 0.0) + time.perf_counter() - t0
         return self._marginals
 
@@ -131,7 +155,16 @@ class Solution:
         uncertainty of intrinsics that were not refined, ``intrinsics.IntrinsicsOptions.propagate``)."""
         T = np.asarray(self.values.atPose3(X(e)).matrix(), dtype=np.float64)
         C = self.marginals.covariance(X(e), f"T_cam_lidar (X({e}))")
-        return Estimate(T, C + self.consider(e))
+        return Estimate(T, C + self.spread_of([X(e)], [POSE3_DOF]) + self.consider(e))
+
+    def spread_of(self, keys: Sequence[int], dims: Sequence[int]) -> np.ndarray:
+        """What the components' uncertainty adds to the joint covariance of the global ``keys`` (of
+        dimensions ``dims``), in that order (module docstring step 5; zeros when none was estimated)."""
+        out = np.zeros((sum(dims), sum(dims)))
+        for w, d in self.spread:
+            v = np.concatenate([d.get(k, np.zeros(n)) for k, n in zip(keys, dims, strict=True)])
+            out += w * np.outer(v, v)
+        return out
 
     def consider(self, e: int = 0) -> np.ndarray:
         """(6, 6) what the stated sigmas of the cameras' unrefined intrinsics add to extrinsic ``e``'s
@@ -147,11 +180,13 @@ class Solution:
             return None
         v = np.asarray(self.values.atVector(I(c)), dtype=np.float64)
         C = self.marginals.covariance(I(c), f"the intrinsics of camera {c}")
+        C = C + self.spread_of([I(c)], [len(v)])
         return list(self.assembly.cameras[c].intrinsic_names), v, np.sqrt(np.diag(C))
 
     def joint_covariance(self, extrinsics: Sequence[int]) -> np.ndarray:
         """(6n, 6n) joint marginal covariance of the extrinsics, in the order given."""
-        return self.marginals.joint([X(e) for e in extrinsics], [POSE3_DOF] * len(extrinsics))
+        keys, dims = [X(e) for e in extrinsics], [POSE3_DOF] * len(extrinsics)
+        return self.marginals.joint(keys, dims) + self.spread_of(keys, dims)
 
     def board_pose(self, i: int) -> np.ndarray:
         """(4, 4) the solved ``T_lidar_board`` of board ``i``."""
@@ -160,7 +195,8 @@ class Solution:
     def offset(self, lidar: int) -> tuple[float, float]:
         """(value, sigma) of LiDAR ``lidar``'s range offset, metres."""
         v = float(self.values.atVector(O(lidar))[0])
-        return v, float(np.sqrt(self.marginals.covariance(O(lidar), f"range offset O({lidar})")[0, 0]))
+        C = self.marginals.covariance(O(lidar), f"range offset O({lidar})") + self.spread_of([O(lidar)], [1])
+        return v, float(np.sqrt(C[0, 0]))
 
     def components(self, group: str = "") -> tuple[float, float]:
         """(board priors, bearings) variance components of ``group`` (with the boards' returns in the
@@ -194,7 +230,8 @@ class Solution:
         lay = self.assembly.layouts.get(lidar)
         if lay is None or lidar not in self.assembly.point_lidars(self.boards):
             return None
-        return self.marginals.covariance(L(lidar), f"the errors of LiDAR {lidar}")
+        C = self.marginals.covariance(L(lidar), f"the errors of LiDAR {lidar}")
+        return C + self.spread_of([L(lidar)], [len(C)])
 
 
 # ------------------------------------------------------------------------------- the solve
@@ -208,6 +245,7 @@ def solve_problem(
     gate: bool = True,
     start: Mapping[int, gtsam.Pose3] | None = None,
     layouts: Mapping[int, LidarLayout] | None = None,
+    uncertain: Mapping[tuple[str, str], float] | None = None,
 ) -> Solution:
     """Solve ``problem`` under the noise policy of this module.
 
@@ -217,6 +255,8 @@ def solve_problem(
     index (else ``problem.T_init``). layouts: the LiDAR errors' layouts per LiDAR (default: from
     the returns); with ``problem.lidar_errors``, terms the boards cannot determine are left out
     (``Solution.assembly.layouts[l].excluded`` says which and why) and the problem solved again.
+    uncertain: with fixed ``scales`` that another solve estimated, its ``Solution.uncertain`` (their
+    uncertainty then enters the covariances as there, step 5).
 
     Raises CalibrationImpossible (no usable board), IndeterminateSystem (the data do not determine
     the variables), ValueError (malformed input, the message names the board).
@@ -343,15 +383,21 @@ def solve_problem(
         vf = graph_factor(g, terms, res, asm, st) if options.variance_components else 1.0
     else:
         vf = variance_factor
+    if use_components:
+        uncertain = estimated_components(comps, redundancy, problem.lidar_errors)
+    t0 = time.perf_counter()
+    post, spread = component_uncertainty(asm, kept, comps, uncertain or {}, res)
+    timings["component_uncertainty"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
-    sol = Solution(problem, asm, kept, g, res, st, dropped, comps, float(vf), iterations, timings, redundancy)
+    sol = Solution(problem, asm, kept, g, res, st, dropped, comps, float(vf), iterations, timings, redundancy,
+                   post, spread, dict(uncertain or {}))  # fmt: skip
     weak = _unobservable(sol) if layouts is None else {}
     if weak:
         for lid, (terms_out, why) in weak.items():
             log.info("LiDAR %d: %s left out: %s", lid, ", ".join(terms_out), why)
         again = {lid: lay.without(*weak[lid]) if lid in weak else lay for lid, lay in asm.layouts.items()}
         return solve_problem(problem, options, boards=boards, scales=scales, variance_factor=variance_factor,
-                             gate=gate, start=start, layouts=again)  # fmt: skip
+                             gate=gate, start=start, layouts=again, uncertain=uncertain)  # fmt: skip
     if len(kept) < MIN_BOARDS_ADVISED:
         log.warning(
             "only %d usable frame(s) in the graph; at least %d are advised for a reliable extrinsic",

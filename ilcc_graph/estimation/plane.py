@@ -34,6 +34,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "KINDS",
     "BoardPlane",
+    "at_floor",
     "board_plane",
     "components",
     "estimated",
@@ -81,6 +82,12 @@ def _bounds(options: LidarErrorOptions, j: int) -> tuple[float, float, float] | 
     if options.board_beam is None:
         return None
     return options.board_beam, options.board_beam_floor, options.board_beam_max
+
+
+def at_floor(options: LidarErrorOptions | None, key: tuple[str, str], scale: float) -> bool:
+    """Is the component ``key`` (a kind of ``KINDS``, a group) held at its floor (not estimated)?"""
+    b = None if options is None else _bounds(options, KINDS.index(key[0]))
+    return b is None or scale <= (b[1] / b[0]) ** 2 * 1.0001
 
 
 def estimated(options: LidarErrorOptions | None, asm: Assembly, boards: Sequence[int]) -> set[str]:

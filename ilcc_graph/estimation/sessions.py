@@ -160,7 +160,8 @@ class JointSolution:
     (when asked). dropped: per session the frames the gate dropped. components: per session the
     (board priors, bearings) variance components (bearings: the median over its views when each
     view has its own); scales: every variance component by (kind, noise group), the final factor
-    folded in. variance_factor: the final factor.
+    folded in. uncertain: the components estimated (key: redundancy), whose uncertainty the
+    covariances carry (``noise`` step 5). variance_factor: the final factor.
     T_lidar_board: per session the refined board poses of the kept frames. per_frame: per session
     the kept frames' residual statistics (``noise.BoardStats``). lidar_errors: per LiDAR label
     (names, values, sigmas) of its own errors when estimated; lidar_layouts: their layouts (what
@@ -181,6 +182,7 @@ class JointSolution:
     components: dict[str, tuple[float, float]] = field(default_factory=dict)
     variance_factor: float = 1.0
     scales: dict[tuple[str, str], float] = field(default_factory=dict)
+    uncertain: dict[tuple[str, str], float] = field(default_factory=dict)
     T_lidar_board: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     per_frame: dict[str, dict] = field(default_factory=dict)
     lidar_errors: dict[str, tuple] = field(default_factory=dict)
@@ -273,7 +275,8 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
     def sub(problem: Problem, boards: list[str], start: dict) -> Solution:
         nonlocal iterations
         s = solve_problem(problem, options.noise, boards=boards, scales=fixed, variance_factor=1.0,
-                          gate=False, start=start, layouts=noise_sol.assembly.layouts)  # fmt: skip
+                          gate=False, start=start, layouts=noise_sol.assembly.layouts,
+                          uncertain=noise_sol.uncertain)  # fmt: skip
         iterations += s.iterations
         return s
 
@@ -361,6 +364,7 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         components={n: sol.components(n) for n in names},
         variance_factor=sol.variance_factor,
         scales=dict(fixed),
+        uncertain=dict(noise_sol.uncertain),
         T_lidar_board=boards_out,
         per_frame=stats_out,
         lidar_errors={
