@@ -20,6 +20,7 @@ from ilcc_graph.config import Config
 from ilcc_graph.diagnose import dropped_frame_cause, fit_image_alone
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.batch import BatchSolution
+from ilcc_graph.estimation.effects import SQUARE_SIZE_KEY
 from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.init import resolve_half_turns, upnp
 from ilcc_graph.types import Calibration, FrameResult, GraphFrame, ImageCorners, rotation_angle_deg
@@ -219,6 +220,13 @@ def finish(
         "variance_component_bearing": sol.variance_components[1],
         "upnp_rotation_deg": rotation_angle_deg(prep.T_init[:3, :3].T @ sol.T_cam_lidar[:3, :3]),
     }
+    if sol.square_size is not None:  # what a print 0.1 % larger than board.square_size moves
+        e = sol.square_size.extrinsic
+        diagnostics[f"{SQUARE_SIZE_KEY}_rotation_deg"] = e.rotation_deg
+        diagnostics[f"{SQUARE_SIZE_KEY}_translation_mm"] = e.translation_mm
+        diagnostics[f"{SQUARE_SIZE_KEY}_sigmas"] = e.mahalanobis
+        if sol.square_size.beams_mm is not None:
+            diagnostics[f"{SQUARE_SIZE_KEY}_beams_mm"] = sol.square_size.beams_mm
     cam = config.camera.to_dict()
     return Calibration(
         sol.T_cam_lidar, sol.covariance, tuple(frames), method, diagnostics, cam, _sensors(sol, config)

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ilcc_graph.cameras import CameraModel
-from ilcc_graph.estimation.effects import Effect, sensor_effects
+from ilcc_graph.estimation.effects import Effect, ScaleEffect, sensor_effects, square_size_effect
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions, LidarLayout
 from ilcc_graph.estimation.noise import BoardStats, NoiseOptions, Solution, solve_problem
@@ -38,7 +38,8 @@ class BatchSolution:
     covariance. intrinsics: the camera's refined intrinsics (names, values, sigmas) when refined.
     effects: per group of sensor terms what holding it at the stated values moves the extrinsic
     (``effects.sensor_effects``). board_plane: the boards' plane sigmas used (estimated or
-    configured; ``plane.BoardPlane``), None without the board-plane term.
+    configured; ``plane.BoardPlane``), None without the board-plane term. square_size: what a print
+    0.1 % larger than the board's model would move (``effects.square_size_effect``; with ``effects``).
     """
 
     T_cam_lidar: np.ndarray
@@ -56,6 +57,7 @@ class BatchSolution:
     lidar_covariance: np.ndarray | None = None
     effects: dict[str, Effect] = field(default_factory=dict)
     board_plane: BoardPlane | None = None
+    square_size: ScaleEffect | None = None
 
     @property
     def extrinsic(self) -> Estimate:
@@ -68,7 +70,11 @@ class BatchSolution:
 
 
 def batch_solution(
-    sol: Solution, e: int = 0, group: str = "", effects: dict[str, Effect] | None = None
+    sol: Solution,
+    e: int = 0,
+    group: str = "",
+    effects: dict[str, Effect] | None = None,
+    square_size: ScaleEffect | None = None,
 ) -> BatchSolution:
     """The ``BatchSolution`` view of a solved problem (extrinsic ``e``, noise ``group``)."""
     est = sol.extrinsic(e)
@@ -88,6 +94,7 @@ def batch_solution(
         intrinsics=sol.intrinsics(0),
         lidar_covariance=sol.lidar_covariance(0),
         effects=dict(effects or {}),
+        square_size=square_size,
         board_plane=sol.board_plane(group) if sol.assembly.point_lidars(sol.boards) else None,
     )
 
@@ -106,11 +113,14 @@ def solve(
     frames: the frames (``types.GraphFrame``), bearings in the camera frame of ``camera``.
     lidar_errors: the LiDAR's own errors to estimate from the frames' returns (None: none).
     intrinsics: refine the camera's intrinsics (frames need ``uv``), or propagate their stated sigmas.
-    effects: also solve with the sensor terms taken back, to say what they moved (``BatchSolution.effects``).
+    effects: also solve with the sensor terms taken back, to say what they moved (``BatchSolution.effects``),
+        and say what the board's square size moves (``BatchSolution.square_size``).
     T_init: (4, 4) start (e.g. UPnP's). Raises CalibrationImpossible (no usable frame),
     IndeterminateSystem (the data do not determine ``T_cam_lidar``), ValueError (malformed input).
     """
     check_pose(T_init, "T_init")
     problem = frames_problem(frames, camera, T_init, lidar_errors=lidar_errors, intrinsics=intrinsics)
     sol = solve_problem(problem, options)
-    return batch_solution(sol, effects=sensor_effects(sol, options) if effects else None)
+    if not effects:
+        return batch_solution(sol)
+    return batch_solution(sol, effects=sensor_effects(sol, options), square_size=square_size_effect(sol))

@@ -12,6 +12,12 @@ same boards (no gate), its variance components estimated again (the residuals ch
 The difference ``T_with^-1 T_without`` of ``T_cam_lidar`` is reported as a rotation (deg), a
 translation (mm, of the camera's position in the LiDAR frame) and in sigmas of the estimate
 (Mahalanobis distance under its covariance).
+
+``square_size_effect``: what a print ``SCALE_STEP`` (0.1 %) larger than ``board.square_size`` would
+move, to first order: the views' board points scaled about the pattern's centre (the LiDAR stage
+centres the pattern in the returns, so its poses stay), one Gauss-Newton step of that graph from
+the solution. The extrinsic and the beams' common range level move with the print's scale
+(docs/bench_lidar_errors.md, finding 13: the LiDAR's range is measured against the print's size).
 """
 
 from __future__ import annotations
@@ -23,16 +29,29 @@ import gtsam
 import numpy as np
 
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
+from ilcc_graph.estimation.assembly import Assembly
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
-from ilcc_graph.estimation.keys import X
+from ilcc_graph.estimation.keys import L, X
 from ilcc_graph.estimation.noise import NoiseOptions, Solution, solve_problem
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HOLD_SIGMA", "Effect", "sensor_effects"]
+__all__ = [
+    "HOLD_SIGMA",
+    "SCALE_STEP",
+    "SQUARE_SIZE_KEY",
+    "Effect",
+    "ScaleEffect",
+    "sensor_effects",
+    "square_size_effect",
+]
 
 #: prior sigma that holds a LiDAR error term at zero (metres, -, rad as the term's unit)
 HOLD_SIGMA = 1e-8
+#: the relative error of the square size the sensitivity is given for (0.1 %)
+SCALE_STEP = 1e-3
+#: prefix of ``Calibration.diagnostics``' keys saying what such a print moves
+SQUARE_SIZE_KEY = "square_size_0p1pct"
 
 
 @dataclass(frozen=True)
@@ -103,3 +122,45 @@ def sensor_effects(sol: Solution, options: NoiseOptions = NoiseOptions(), e: int
             cov = sol.extrinsic(e).covariance
         out[group] = _effect(T, np.asarray(re.values.atPose3(X(e)).matrix(), dtype=np.float64), cov)
     return out
+
+
+@dataclass(frozen=True)
+class ScaleEffect:
+    """What a print ``SCALE_STEP`` larger than ``board.square_size`` would move (module docstring).
+
+    extrinsic: the extrinsic's move. beams_mm: the mean move of the beams' range offsets (their
+    common level), mm; None when the LiDAR's beam offsets are not estimated.
+    """
+
+    extrinsic: Effect
+    beams_mm: float | None = None
+
+
+def square_size_effect(sol: Solution, e: int = 0) -> ScaleEffect:
+    """What a print 0.1 % larger than the boards' model would move in ``sol`` (first order). The
+    pattern's centre is the middle of the corners the views saw (board frame)."""
+    problem = sol.problem
+    pts = np.concatenate([v.points_board for v in problem.views])
+    centre = 0.5 * (pts.min(axis=0) + pts.max(axis=0))
+    k = 1.0 + SCALE_STEP
+    views = tuple(replace(v, points_board=centre + k * (v.points_board - centre)) for v in problem.views)
+    asm = sol.assembly
+    bigger = Assembly(replace(problem, views=views), asm.robust, asm.layouts, per_view=asm.per_view)
+
+    def step(a: Assembly) -> gtsam.VectorValues:
+        g, terms = a.graph(sol.boards, sol.scales)
+        return a.compact(g, terms, sol.scales).linearize(sol.values).optimize()
+
+    base, moved = step(asm), step(bigger)
+    xi = np.asarray(moved.at(X(e)) - base.at(X(e)), dtype=np.float64)
+    T = sol.values.atPose3(X(e))
+    T_moved = np.asarray(T.retract(xi).matrix(), dtype=np.float64)
+    effect = _effect(np.asarray(T.matrix(), dtype=np.float64), T_moved, sol.extrinsic(e).covariance)
+    beams = None
+    for lid in asm.point_lidars(sol.boards):
+        idx = [k for k, n in enumerate(asm.layouts[lid].names) if n.startswith("offset")]
+        if idx:
+            d = np.asarray(moved.at(L(lid)) - base.at(L(lid)), dtype=np.float64)
+            beams = float(1e3 * np.mean(d[idx]))
+            break
+    return ScaleEffect(effect, beams)

@@ -39,7 +39,7 @@ from .sections import (
     table,
     transform_section,
 )
-from .sensors import sensors_html
+from .sensors import sensors_html, square_size_text
 from .studies import CrossValidation, FramesCurve, Valley, valley
 
 __all__ = ["FIGURES_DIR", "FigureOptions", "FrameFigures", "build_report", "frame_figures"]
@@ -133,6 +133,8 @@ def build_report(
         body.append(gt_verdict)
     body.append("<h2>The result</h2>")
     body.append(transform_html)
+    if scale_line := square_size_text(calibration):
+        body.append(f"<p>{esc(scale_line)}</p>")
     if sensor_html := sensors_html(calibration):
         body += ["<h2>The sensors' own errors</h2>", sensor_html]
 

@@ -2,8 +2,8 @@
 
 From ``Calibration.sensors`` (``pipeline._sensors``): the LiDAR's per-beam range offsets and its
 dark-print offset with their sigmas, the terms left out and why, the refined camera intrinsics
-against the stated ones, and what each group moved the extrinsic (``estimation.effects``). Pure:
-returns strings.
+against the stated ones, and what each group moved the extrinsic (``estimation.effects``); and
+what the board's printed scale would move (``square_size_text``). Pure: returns strings.
 """
 
 from __future__ import annotations
@@ -13,9 +13,10 @@ from typing import Any
 
 import numpy as np
 
+from ..estimation.effects import SQUARE_SIZE_KEY
 from ..types import Calibration
 
-__all__ = ["sensors_html", "sensors_text"]
+__all__ = ["sensors_html", "sensors_text", "square_size_text"]
 
 _GROUPS = {
     "lidar_errors": "LiDAR error terms (held at zero)",
@@ -161,3 +162,21 @@ def sensors_text(cal: Calibration) -> str:
             f"{e['translation_mm']:.2f} mm ({e['mahalanobis']:.1f} sigma)"
         )
     return "\n".join(lines)
+
+
+def square_size_text(cal: Calibration) -> str:
+    """One line: what a print 0.1 % larger than ``board.square_size`` would move ("" when not known;
+    from ``Calibration.diagnostics``, ``estimation.effects.square_size_effect``)."""
+    d = cal.diagnostics or {}
+    key = SQUARE_SIZE_KEY
+    if f"{key}_translation_mm" not in d:
+        return ""
+    beams = d.get(f"{key}_beams_mm")
+    also = "" if beams is None else f", the LiDAR's beam offsets {beams:+.2f} mm"
+    return (
+        f"a print 0.1 % larger than board.square_size would move the extrinsic "
+        f"{d[f'{key}_rotation_deg']:.4f} deg, {d[f'{key}_translation_mm']:.2f} mm "
+        f"({d[f'{key}_sigmas']:.2f} sigma){also}: the scans do not show a print's scale, so know "
+        f"the square size to {0.1 / max(d[f'{key}_sigmas'], 1e-9):.2g} % (1 sigma; measure the whole "
+        "pattern, not one square)"
+    )

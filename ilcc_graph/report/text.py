@@ -9,7 +9,7 @@ import numpy as np
 from ..estimation.incremental import FrameUpdate
 from ..estimation.sessions import JointSolution
 from ..types import Calibration, Estimate, sigmas_deg_mm
-from .sensors import sensors_text
+from .sensors import sensors_text, square_size_text
 
 __all__ = [
     "STAGE_HEADERS",
@@ -171,6 +171,8 @@ def run_summary(
     parts.append(summarise(cal.T_cam_lidar, cal.covariance, truth))
     if sensor_lines := sensors_text(cal):
         parts.append(sensor_lines)
+    if scale_line := square_size_text(cal):
+        parts.append(scale_line)
     if (vf := cal.diagnostics.get("variance_factor", 1.0)) > 1.0:
         parts.append(
             f"  (the residuals are {vf:.2f} x the stated noise variance: sigmas x {np.sqrt(vf):.2f})"
