@@ -15,6 +15,9 @@
   killed with SIGKILL leaves none behind: the server ends when the last of them has.
 - When the main process leaves the map by an exception (a signal's ``Stopped``, an input error, a
   bug) the queued work is cancelled and the workers are terminated at once instead of being waited for.
+- Every worker of a pool starts when the pool does, with a stop held over the spawns (``_started``):
+  a stop in the middle of one broke the fork server's and the new child's pipes, and they printed
+  tracebacks after the stop's line.
 """
 
 from __future__ import annotations
@@ -161,6 +164,12 @@ def _init_worker(main_pid: int) -> None:
     _exit_with(main_pid)
 
 
+def _started() -> None:
+    """A worker's first task. ``pool`` starts every worker at once with these, a stop held: a worker
+    spawned on demand is started by the main thread, and a stop in the middle of that broke the
+    pipes of the fork server and the new child, which printed tracebacks (1 SIGTERM in 30 under load)."""
+
+
 def _terminate(pool: ProcessPoolExecutor) -> None:
     """Cancel what is queued and end the workers now (not after their current frame)."""
     procs = list((getattr(pool, "_processes", None) or {}).values())  # no public accessor before 3.14
@@ -187,6 +196,9 @@ def pool(jobs: int) -> Iterator[ProcessPoolExecutor]:
     )
     with signals.on_stop(lambda: _terminate(executor)):
         try:
+            with signals.held():  # every worker started now, where a stop waits for the spawns
+                for _ in range(jobs):
+                    executor.submit(_started)
             yield executor
         except BaseException:
             _terminate(executor)
