@@ -1,12 +1,13 @@
 """The variance components' own uncertainty in the covariances (``noise`` step 5).
 
 A component s estimated from a redundancy r is itself uncertain: the sd of its log is
-``sqrt(2 / r)`` (with 5 boards the in-plane priors' component has r ~ 9). Two things follow, both
+``sqrt(psi'(r / 2))``, about ``sqrt(2 / r)`` (``psi'`` the trigamma function: s is a chi-square
+over its dof; with 5 boards the in-plane priors' component has r ~ 9). Two things follow, both
 for the covariances only (the estimate is that of the components found):
 
 - the covariances use each estimated component's posterior mean ``s r / (r - 2)`` (Jeffreys prior
   on the variance) instead of s;
-- what the components' uncertainty moves the estimate is added: ``sum_k (2 / r_k) d_k d_k^T``, with
+- what the components' uncertainty moves the estimate is added: ``sum_k psi'(r_k / 2) d_k d_k^T``, with
   ``d_k`` the global variables' shift per unit of ``log s_k``, one Gauss-Newton step of the graph
   with ``s_k`` moved (no re-solve; it matches re-solves, ``tests/test_component_uncertainty.py``).
 
@@ -20,6 +21,7 @@ from collections.abc import Mapping, Sequence
 
 import gtsam
 import numpy as np
+from scipy.special import polygamma
 
 from ilcc_graph.estimation import plane
 from ilcc_graph.estimation.assembly import Assembly
@@ -83,5 +85,6 @@ def component_uncertainty(
         base = step(comps)
         for key, r in shifts:
             moved = step({**comps, key: comps[key] * math.exp(LOG_STEP)})
-            spread.append((2.0 / r, {k: (moved[k] - base[k]) / LOG_STEP for k in globals_}))
+            var_log = float(polygamma(1, r / 2.0))  # of log s, s ~ chi2_r / r
+            spread.append((var_log, {k: (moved[k] - base[k]) / LOG_STEP for k in globals_}))
     return post, spread

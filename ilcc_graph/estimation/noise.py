@@ -15,12 +15,12 @@
    the kept boards, then every board is gated again under that noise and the components re-estimated;
 4. **final factor**: covariances are multiplied by ``chi2 / (m - n)`` over the whole graph when it
    exceeds 1 (m residuals, n parameters);
-5. **the components' own uncertainty** (``components.component_uncertainty``): a component estimated from a
-   redundancy r is itself uncertain (sd of its log ``sqrt(2 / r)``: with 5 boards the in-plane
-   priors' component has r ~ 9). The covariances use each estimated component's posterior mean
-   ``s r / (r - 2)`` (Jeffreys prior) instead of s, and add what the components' uncertainty moves
-   the estimate: ``sum_k (2 / r_k) d_k d_k^T``, ``d_k`` the globals' shift per unit of ``log s_k``
-   (one Gauss-Newton step of the graph with ``s_k`` perturbed). The estimate itself is that of the
+5. **the components' own uncertainty** (``components.component_uncertainty``): a component
+   estimated from a redundancy r is itself uncertain (sd of its log ``sqrt(psi'(r / 2))``, about
+   ``sqrt(2 / r)``). The covariances use each estimated component's posterior mean ``s r / (r - 2)``
+   (Jeffreys prior) instead of s, and add what the components' uncertainty moves the estimate:
+   ``sum_k psi'(r_k / 2) d_k d_k^T``, ``d_k`` the globals' shift per unit of ``log s_k`` (one
+   Gauss-Newton step of the graph with ``s_k`` perturbed). The estimate itself is that of the
    components found. Components held at their floor are not estimated and left as they are.
 
 The systems are arrow-shaped: each factor touches at most one board (``B(i)``), every other variable
