@@ -55,13 +55,7 @@ from ilcc_graph.types import Estimate
 
 log = logging.getLogger(__name__)
 
-__all__ = [
-    "BoardStats",
-    "NoiseOptions",
-    "Solution",
-    "replace_scales",
-    "solve_problem",
-]
+__all__ = ["BoardStats", "NoiseOptions", "Solution", "replace_scales", "solve_problem"]
 
 MIN_BOARDS_ADVISED = 4
 #: kinds of residual rows with a variance component each (per noise group)
