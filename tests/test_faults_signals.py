@@ -132,3 +132,15 @@ def test_sigkill_leaves_no_process_behind(data, tmp_path):
     run.wait_for("worker processes", run.workers_up)
     rc, seconds = run.stop(signal.SIGKILL)  # asserts the tree is gone
     assert rc == -signal.SIGKILL and seconds < 5.0
+
+
+def test_a_pool_starts_all_its_workers_at_once():
+    """No worker is spawned on demand later, where a stop in the middle of a spawn left the fork
+    server and the child with broken pipes (tracebacks after the stop's line)."""
+    from ilcc_graph.workers import pool
+
+    with pool(2) as ex:
+        procs = dict(ex._processes)  # no public accessor
+        assert len(procs) == 2 and all(p.is_alive() for p in procs.values())
+        assert [f.result(timeout=60) for f in [ex.submit(abs, -k) for k in range(6)]] == list(range(6))
+        assert dict(ex._processes).keys() == procs.keys()  # the same two did the work
