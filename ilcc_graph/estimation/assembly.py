@@ -256,6 +256,12 @@ class Assembly:
                     out.replace(k, c.factor())
         return out
 
+    def newton_step(self, boards: Sequence[int], scales: Scales, values: gtsam.Values) -> gtsam.VectorValues:
+        """One Gauss-Newton step from ``values`` of the graph of ``boards`` under ``scales`` (compact
+        form); differences of such steps are an estimate's first-order sensitivities."""
+        g, terms = self.graph(boards, scales)
+        return self.compact(g, terms, scales).linearize(values).optimize()
+
     def compact_factor(self, i: int, f: BoardPointsFactor) -> BoardPointsFactor | CompactBoardPoints:
         """Board ``i``'s returns factor ``f`` (any scaling) in compact form when that has fewer rows."""
         m = self._moments.get(i)

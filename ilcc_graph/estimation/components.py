@@ -75,8 +75,7 @@ def component_uncertainty(
     globals_ = [k for k in globals_ if values.exists(k)]
 
     def step(c: Mapping[tuple[str, str], float]) -> dict[int, np.ndarray]:
-        g, terms = asm.graph(kept, c)
-        delta = asm.compact(g, terms, c).linearize(values).optimize()
+        delta = asm.newton_step(kept, c, values)
         return {k: np.asarray(delta.at(k), dtype=np.float64) for k in globals_}
 
     shifts = [(key, r) for key, r in estimated.items() if not (key[0] == "bearing" and asm.per_view)]

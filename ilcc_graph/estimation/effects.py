@@ -147,11 +147,8 @@ def square_size_effect(sol: Solution, e: int = 0) -> ScaleEffect:
     asm = sol.assembly
     bigger = Assembly(replace(problem, views=views), asm.robust, asm.layouts, per_view=asm.per_view)
 
-    def step(a: Assembly) -> gtsam.VectorValues:
-        g, terms = a.graph(sol.boards, sol.scales)
-        return a.compact(g, terms, sol.scales).linearize(sol.values).optimize()
-
-    base, moved = step(asm), step(bigger)
+    base = asm.newton_step(sol.boards, sol.scales, sol.values)
+    moved = bigger.newton_step(sol.boards, sol.scales, sol.values)
     xi = np.asarray(moved.at(X(e)) - base.at(X(e)), dtype=np.float64)
     T = sol.values.atPose3(X(e))
     T_moved = np.asarray(T.retract(xi).matrix(), dtype=np.float64)
