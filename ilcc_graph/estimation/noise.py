@@ -104,11 +104,9 @@ class Solution:
     boards: indices of the kept boards. dropped: ``(name, reason)`` of the others, in the order
     dropped. scales: variance component per (kind, group). variance_factor: the final factor (every
     covariance returned is multiplied by it). redundancy: per (kind, group) with a component, its
-    redundancy at the last estimate. covariance_scales: the components the covariances use (their
-    posterior means, module docstring step 5; None: ``scales``). spread: per estimated component
-    ``(var of log s, shift of each global variable per unit of log s)``, what its uncertainty adds
-    to the globals' covariances. uncertain: the estimated components (key: redundancy) those two
-    come from.
+    redundancy at the last estimate. uncertain: the estimated components (key: redundancy) whose
+    uncertainty the covariances carry (module docstring step 5): ``covariance_scales`` and
+    ``spread``, computed with the first covariance asked for.
     """
 
     problem: Problem
@@ -123,10 +121,27 @@ class Solution:
     iterations: int
     timings: dict[str, float] = field(default_factory=dict)
     redundancy: dict[tuple[str, str], float] = field(default_factory=dict)
-    covariance_scales: dict[tuple[str, str], float] | None = None
-    spread: list[tuple[float, dict[int, np.ndarray]]] = field(default_factory=list)
     uncertain: dict[tuple[str, str], float] = field(default_factory=dict)
     _marginals: MarginalCovariances | None = None
+    _uncertainty: tuple[dict[tuple[str, str], float] | None, list] | None = None
+
+    def _component_uncertainty(self) -> tuple[dict[tuple[str, str], float] | None, list]:
+        if self._uncertainty is None:
+            t0 = time.perf_counter()
+            self._uncertainty = component_uncertainty(self.assembly, self.boards, self.scales, self.uncertain,
+                                                      self.values)  # fmt: skip
+            self.timings["component_uncertainty"] = time.perf_counter() - t0
+        return self._uncertainty
+
+    @property
+    def covariance_scales(self) -> dict[tuple[str, str], float] | None:
+        """The components the covariances use: the estimated ones' posterior means (None: ``scales``)."""
+        return self._component_uncertainty()[0]
+
+    @property
+    def spread(self) -> list[tuple[float, dict[int, np.ndarray]]]:
+        """Per estimated component (var of log s, each global's shift per unit of log s)."""
+        return self._component_uncertainty()[1]
 
     def board_plane(self, group: str = "") -> plane.BoardPlane | None:
         """The boards' plane sigmas the solve used (estimated or configured), or None without them."""
@@ -379,12 +394,9 @@ def solve_problem(
         vf = variance_factor
     if use_components:
         uncertain = estimated_components(comps, redundancy, problem.lidar_errors)
-    t0 = time.perf_counter()
-    post, spread = component_uncertainty(asm, kept, comps, uncertain or {}, res)
-    timings["component_uncertainty"] = time.perf_counter() - t0
     timings["total"] = time.perf_counter() - t_start
     sol = Solution(problem, asm, kept, g, res, st, dropped, comps, float(vf), iterations, timings, redundancy,
-                   post, spread, dict(uncertain or {}))  # fmt: skip
+                   dict(uncertain or {}))  # fmt: skip
     weak = _unobservable(sol) if layouts is None else {}
     if weak:
         for lid, (terms_out, why) in weak.items():
