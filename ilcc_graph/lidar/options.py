@@ -36,7 +36,8 @@ class LidarOptions:
         (margin included).
     uniformity_min: ``1 - (n_max - n_min) / n_all`` over the four quadrants must reach this.
     contrast_min: the board's intensities must split in two levels at least this many pooled
-        sigmas apart (our addition: a plain board-sized surface is not the chessboard).
+        sigmas apart (our addition: a plain board-sized surface is not the chessboard); None: no
+        contrast test (the search for a board whose print the LiDAR does not show).
     min_points, min_rings: fewest returns and scanlines a candidate may have (a few returns at long
         range pass the paper's tests by chance and cannot give corners anyway).
     ransac_threshold_m: plane inlier distance floor (grown with the noise estimate).
@@ -65,6 +66,28 @@ class LidarOptions:
     min_agreement: after the fit, the share of black/white returns (away from the edges) whose
         colour matches the fitted pattern must reach this, else BoardNotFound.
     covariance_inflation: multiplies the final covariance (1 = the derivation as documented).
+
+    The board's outline (shape.py, outline.py)
+    ------------------------------------------
+    shape: what the outline's evidence does when the print shows: ``"fuse"`` checks the intensity
+        fit against it and combines the two, ``"check"`` only checks, ``"off"`` ignores it. Without a
+        visible print the outline is the in-plane evidence whatever this says.
+    outline_blur: the blur of the board's edge as the beams see it, in footprint radii (a return
+        straddling the edge is the board's or the background's depending on how much of the
+        footprint each holds).
+    shape_gate_p: the intensity fit and the outline disagree when the chi-square of their
+        difference (3 dof) is beyond this quantile: the pattern slid; it is moved by whole squares
+        (or half-turned) to where the outline allows, or the fit is refused.
+    slide_squares: a disagreement beyond the gate is a slid fit only when it moves the board's
+        corners by more than this many squares (less: a print off the centre of its backing, or
+        covariances a few times too small; the two are then not combined, nothing is refused).
+    min_shape_agreement: share of the samples near the outline (returns on the board's plane,
+        rays passing it) the fitted board must explain, else it is not the board's outline.
+    quarter_turn_score, quarter_turn_odds: without a visible print, a quarter-turned outline whose
+        start scores at least ``quarter_turn_score`` of the best is fitted too, and the board is
+        refused when neither is ``quarter_turn_odds`` times likelier.
+    max_inplane_2sigma_squares: a fit whose in-plane uncertainty (2 sigma at the board's corners)
+        exceeds this many squares is refused.
     """
 
     min_range_m: float = 0.3
@@ -76,7 +99,7 @@ class LidarOptions:
     planarity_ratio: float = 0.01
     size_ratio: tuple[float, float] = (0.8, 1.6)
     uniformity_min: float = 0.85
-    contrast_min: float = 3.0
+    contrast_min: float | None = 3.0
     min_points: int = 30
     min_rings: int = 4
     ransac_threshold_m: float = 0.03
@@ -94,3 +117,11 @@ class LidarOptions:
     min_fit_score: float = 0.5
     min_agreement: float = 0.8
     covariance_inflation: float = 1.0
+    shape: str = "fuse"
+    outline_blur: float = 0.25
+    shape_gate_p: float = 0.999
+    slide_squares: float = 0.5
+    min_shape_agreement: float = 0.9
+    quarter_turn_score: float = 0.85
+    quarter_turn_odds: float = 20.0
+    max_inplane_2sigma_squares: float = 1.0

@@ -19,6 +19,7 @@ __all__ = [
     "format_table",
     "format_update",
     "frames_table",
+    "lidar_view_lines",
     "run_summary",
     "short_reason",
     "stage_table",
@@ -173,6 +174,7 @@ def run_summary(
         parts.append(sensor_lines)
     if scale_line := square_size_text(cal):
         parts.append(scale_line)
+    parts += lidar_view_lines(cal)
     if (vf := cal.diagnostics.get("variance_factor", 1.0)) > 1.0:
         parts.append(
             f"  (the residuals are {vf:.2f} x the stated noise variance: sigmas x {np.sqrt(vf):.2f})"
@@ -187,6 +189,24 @@ def run_summary(
     )
     parts += list(notes)
     return "\n".join(parts)
+
+
+def _names(names: Sequence[str], limit: int = 6) -> str:
+    return ", ".join(names[:limit]) + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
+def lidar_view_lines(cal: Calibration, beyond: float = 0.02) -> list[str]:
+    """Lines on how the LiDAR saw the used boards: fitted by their outline alone (no print in its
+    intensity), partly beyond its field of view (more than ``beyond`` of the board's area)."""
+    used = [f for f in cal.frames if f.used and f.board is not None]
+    plain = [f.name for f in used if f.board.diagnostics.get("no_contrast")]  # type: ignore[union-attr]
+    out = [f.name for f in used if f.board.diagnostics.get("outside_fov_share", 0.0) > beyond]  # type: ignore[union-attr]
+    lines = []
+    if plain:
+        lines.append(f"  boards placed by their outline (no print in the LiDAR intensity): {_names(plain)}")
+    if out:
+        lines.append(f"  boards partly beyond the LiDAR's field of view (that part unused): {_names(out)}")
+    return lines
 
 
 def stage_table(
