@@ -134,9 +134,7 @@ def estimate_board(
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"{scan.source or 'scan'}: points must be (N, 3), got {pts.shape}")
     inten = np.zeros(len(pts)) if scan.intensity is None else np.asarray(scan.intensity, np.float64)
-    valid = np.isfinite(pts).all(axis=1) & (pts != 0).any(
-        axis=1
-    )  # (0, 0, 0): an organised cloud's "no return"
+    valid = np.isfinite(pts).all(axis=1) & (pts != 0).any(axis=1)  # (0, 0, 0): an organised "no return"
     if not valid.all():
         ring_v = None if scan.ring is None else np.asarray(scan.ring)[valid]
         scan = Scan(pts[valid], inten[valid], ring_v, scan.source, scan.columns)
@@ -152,7 +150,7 @@ def estimate_board(
         except BoardNotFound as e:
             why = str(e)
     if found is None:  # the board by its shape and size, fitted by its outline
-        try:  # (a candidate that shows a print was fitted by it above, or refused)
+        try:  # (a candidate with a print was fitted by it above, or refused: its pattern is not a chessboard)
             found = _search(
                 *inputs, replace(options, contrast_min=None), False, None if unusable else options
             )
@@ -181,8 +179,9 @@ def _search(
 ) -> tuple[float, Candidate, BoardFit, int, int]:  # fmt: skip
     """The candidates that pass the board tests, the chessboard fitted to the best few, the best fit:
     (score, candidate, fit, candidates passed, candidates fitted); BoardNotFound with the reasons.
-    contrast: as ``fit_board_points`` takes it. skip_printed: candidates whose intensities show a
-    print (with these options' contrast test) are not fitted."""
+    contrast: as ``fit_board_points`` takes it; an outline fit must score ``good_fit_score``.
+    skip_printed: candidates whose intensities show a print (``board_tests.print_visible`` with these
+    options' contrast threshold) are not fitted."""
     rng = np.random.default_rng(0)
     mask = None if expected is None else expected_mask(pts, board, expected)
     fits: list[tuple[float, Candidate, BoardFit]] = []
@@ -197,8 +196,14 @@ def _search(
             budget[0] -= 1
             if (
                 skip_printed is not None
-                and print_visible(inten[cand.indices], pts[cand.indices], skip_printed.contrast_min or 0.0)[0]
+                and print_visible(
+                    inten[cand.indices],
+                    pts[cand.indices],
+                    skip_printed.contrast_min or 0.0,
+                    ring[cand.indices],
+                )[0]
             ):
+                refused.append("its intensities show a print that is not the chessboard")
                 continue
             try:
                 fit = _fit_candidate(cand, pts, inten, ring, board, model, options, rng, contrast)
@@ -208,7 +213,9 @@ def _search(
             score = fit_score(fit, board, expected)
             if not np.isfinite(score):
                 refused.append("the fitted board lies beyond the expected board's tolerances")
-            elif score < options.min_fit_score:
+            elif score < (
+                options.good_fit_score if fit.diagnostics.get("no_contrast") else options.min_fit_score
+            ):
                 refused.append(_poor_fit(fit, board))
             else:
                 fits.append((score, cand, fit))
@@ -234,7 +241,7 @@ def _poor_fit(fit: BoardFit, board: Board) -> str:
             f"a board-sized object at {d['range_m']:.2f} m, but its outline explains only "
             f"{d.get('shape_agreement', 0.0):.0%} of the returns and rays about it"
         )
-    off = fit.cost / max(d["n_points"], 1.0) / board.square_size
+    off = np.nan_to_num(fit.cost) / max(d["n_points"], 1.0) / board.square_size
     return (
         f"a board-shaped object at {d['range_m']:.2f} m, but the fitted chessboard explains it poorly "
         f"(colour agreement {d['colour_agreement']:.0%}, returns {off:.2f} squares off the pattern on "

@@ -52,11 +52,14 @@ def intensity_contrast(intensity: np.ndarray) -> tuple[float, float]:
     return float((hi.mean() - lo.mean()) / max(pooled, 1e-9 * spread)), float(min(lo.size, hi.size) / m)
 
 
-def print_visible(intensity: np.ndarray, points: np.ndarray, contrast_min: float) -> tuple[bool, str]:
-    """Whether a board's returns (intensities (M,), points (M, 3) LiDAR frame) show a two-tone print,
-    and if not, why: Otsu's two levels at least ``contrast_min`` pooled sigmas apart with both
-    holding 10 % (``intensity_contrast``), and intensities that do not follow the beams' elevation
-    (a ring number written as intensity splits into two "levels" too)."""
+def print_visible(
+    intensity: np.ndarray, points: np.ndarray, contrast_min: float, ring: np.ndarray | None = None
+) -> tuple[bool, str]:
+    """Whether a board's returns (intensities (M,), points (M, 3) LiDAR frame, beam index (M,)) show
+    a two-tone print, and if not, why: Otsu's two levels at least ``contrast_min`` pooled sigmas apart
+    with both holding 10 % (``intensity_contrast``), and intensities that do not follow the beams
+    (the elevation: a ring number written as intensity; or each beam's own level: uneven per-laser
+    intensity calibration splits a plain board into "levels" by beam, a print splits every beam)."""
     r = np.asarray(intensity, dtype=np.float64)
     ok = np.isfinite(r)
     if ok.sum() < 10:
@@ -73,6 +76,13 @@ def print_visible(intensity: np.ndarray, points: np.ndarray, contrast_min: float
                 False,
                 f"the intensity follows the beams' elevation (correlation {corr:+.2f}): no print in it",
             )
+    if ring is not None:
+        _, g = np.unique(np.asarray(ring)[ok], return_inverse=True)
+        x = r[ok] - r[ok].mean()
+        n = np.bincount(g)
+        between = float((np.bincount(g, x) ** 2 / n).sum())
+        if between > 0.7 * float((x * x).sum()):
+            return False, "the intensity differs by beam, not across each beam: no print in it"
     return True, ""
 
 

@@ -85,7 +85,9 @@ def fit_score(fit: BoardFit, board: Board, expected: ExpectedBoard | None) -> fl
         share = d.get("shape_n_out", 0.0) / max(d.get("shape_n_in", 0.0) + d.get("shape_n_out", 0.0), 1.0)
         score = d.get("shape_agreement", 0.0) * min(1.0, 3.0 * share)
     else:
-        score = fit.diagnostics.get("colour_agreement", 0.0) - fit.cost / (n * board.square_size)
+        # (no cost when the pattern was moved to where the outline is: Powell's was at the slid pose)
+        cost = 0.0 if not np.isfinite(fit.cost) else fit.cost
+        score = d.get("colour_agreement", 0.0) - cost / (n * board.square_size)
     if expected is not None:
         T = fit.T_lidar_board
         d, a = prediction_error(T[:3, :3] @ _centre_board(board) + T[:3, 3], T[:3, 2], board, expected)

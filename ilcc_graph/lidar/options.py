@@ -74,7 +74,10 @@ class LidarOptions:
         visible print the outline is the in-plane evidence whatever this says.
     outline_blur: the blur of the board's edge as the beams see it, in footprint radii (a return
         straddling the edge is the board's or the background's depending on how much of the
-        footprint each holds).
+        footprint each holds; its systematic part, the board looking larger or smaller, is the
+        outline's growth, estimated). The simulator's edges are sharp (0 would be exact there); a
+        real one's a little blurred; a board prior too optimistic is scaled up by the graph's
+        variance components, a pessimistic one is not scaled down.
     shape_gate_p: the intensity fit and the outline disagree when the chi-square of their
         difference (3 dof) is beyond this quantile: the pattern slid; it is moved by whole squares
         (or half-turned) to where the outline allows, or the fit is refused.
@@ -118,7 +121,7 @@ class LidarOptions:
     min_agreement: float = 0.8
     covariance_inflation: float = 1.0
     shape: str = "fuse"
-    outline_blur: float = 0.25
+    outline_blur: float = 0.1
     shape_gate_p: float = 0.999
     slide_squares: float = 0.5
     min_shape_agreement: float = 0.9

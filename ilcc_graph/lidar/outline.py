@@ -195,7 +195,8 @@ def shape_check(
 
 def lattice_moves(board: Board, check: ShapeCheck, cov_int: np.ndarray, gate: float) -> list[np.ndarray]:
     """In-plane corrections (3,) moving the pattern by whole squares (up to two along each side)
-    and/or half-turning it, that the outline allows (chi-square below ``gate``), most likely first."""
+    and/or half-turning it, that the outline allows (chi-square below ``gate``; a half-turned board
+    has the same outline), most likely first."""
     s = board.square_size
     out = []
     S = check.fit.cov + cov_int
@@ -209,8 +210,7 @@ def lattice_moves(board: Board, check: ShapeCheck, cov_int: np.ndarray, gate: fl
                 if turn:
                     H = H @ _half_turn_2d(board)
                 xi = se2_log(H)
-                d = xi - check.fit.xi
-                d[0] = (d[0] + np.pi) % (2 * np.pi) - np.pi
+                d = _nearest_turn(xi, board) - check.fit.xi  # the outline looks the same half-turned
                 c2 = float(d @ np.linalg.solve(S, d))
                 if c2 <= gate:
                     out.append((c2, xi))
@@ -243,7 +243,8 @@ def slid_message(check: ShapeCheck) -> str:
 def refuse_outline(shape: ShapeFit, range_m: float, board: Board, options: LidarOptions) -> None:
     """BoardNotFound when an outline fit (no print) is not the board's: returns on its plane outside
     it or rays through it (``min_shape_agreement``), a size the footprints do not explain
-    (``ShapeFit.size_ok``), or a posterior that did not settle."""
+    (``ShapeFit.size_ok``), no edge seen along one of its axes (a tall object cut by the beams'
+    field looks board-sized), or a posterior that did not settle."""
     x0, x1, y0, y1 = board.extent()
     what = (
         f"a board-sized object at {range_m:.2f} m without a print the LiDAR shows, but its outline is "
@@ -258,6 +259,12 @@ def refuse_outline(shape: ShapeFit, range_m: float, board: Board, options: Lidar
         raise BoardNotFound(
             f"{what}: it is {1e3 * abs(shape.growth):.0f} mm {'larger' if shape.growth > 0 else 'smaller'} "
             "on every side (check board.squares, square_size and margin)"
+        )
+    if not shape.opposite_edges_seen:
+        raise BoardNotFound(
+            f"a board-sized object at {range_m:.2f} m without a print the LiDAR shows, whose outline the "
+            "scan does not show on two opposite sides (beyond the beams or with nothing behind): its size "
+            "and place cannot be told from its shape"
         )
     if shape.ess < 30:
         raise BoardNotFound(
@@ -276,6 +283,7 @@ def shape_diagnostics(shape: ShapeFit, check: ShapeCheck | None = None) -> dict[
         "sigma_shape_rz_deg": float(np.degrees(sd[0])),
         "sigma_shape_txy_mm": 1e3 * float(np.hypot(sd[1], sd[2])),
         "shape_growth_mm": 1e3 * shape.growth, "sigma_shape_growth_mm": 1e3 * shape.growth_sd,
+        "shape_edges_seen": float(sum(n > 0 for n in shape.edges_seen)),
     }  # fmt: skip
     if check is not None:
         d = check.fit.xi

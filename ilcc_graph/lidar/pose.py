@@ -232,8 +232,16 @@ def _pattern(P, inten, ring, normal, offset, board, model, options, rng, scan_pt
                 continue
             alt_chk = shape_check(scan_pts, alt.T, alt.cov, board, model, s_z, options, rng)
             if not alt_chk.slid:
-                moved = 1e3 * float(np.linalg.norm(xi[1:]))
-                res, chk = alt, alt_chk
+                moved = (
+                    float(np.linalg.norm(se2_exp(xi)[:2, 2] - _centre_shift(xi, board))) / board.square_size
+                )
+                alt.diag.update(
+                    {
+                        k: res.diag[k]
+                        for k in ("powell_evals", "time_powell_s", "intensity_low", "intensity_high")
+                    }
+                )
+                res, chk = alt, alt_chk  # (the paper's cost was Powell's, at the slid pose: not carried)
                 break
         else:
             raise BoardNotFound(slid_message(chk))
@@ -245,6 +253,15 @@ def _pattern(P, inten, ring, normal, offset, board, model, options, rng, scan_pt
         xi, res.cov, res.K = fuse(res.cov, res.K, chk, K_s)
         res.T = apply_xi(res.T, xi)
     return res
+
+
+def _centre_shift(xi: np.ndarray, board: Board) -> np.ndarray:
+    """(2,) where the in-plane correction xi's turn alone moves the board origin, for a turn about
+    the pattern's centre (so a half turn in place counts as no move)."""
+    c = board.pattern_centre[:2]
+    w = float(xi[0])
+    R = np.array([[np.cos(w), -np.sin(w)], [np.sin(w), np.cos(w)]])
+    return c - R @ c
 
 
 def _outline(P, inten, ring, normal, offset, board, model, options, rng, scan_pts) -> _InPlane:  # noqa: ANN001
@@ -307,7 +324,9 @@ def fit_board_points(
     inten = np.asarray(intensity, dtype=np.float64)
     ring = lidar_model.ring_from_points(P) if ring is None else np.asarray(ring)
     scan_pts = P if scan_points is None else np.asarray(scan_points, dtype=np.float64)
-    visible = print_visible(inten, P, options.contrast_min or 0.0)[0] if contrast is None else bool(contrast)
+    visible = (
+        print_visible(inten, P, options.contrast_min or 0.0, ring)[0] if contrast is None else bool(contrast)
+    )
     how = _pattern if visible else _outline
     res = how(P, inten, ring, normal, offset, board, lidar_model, options, rng, scan_pts)
     return _finish(res, board, lidar_model, options, not visible, t0, c0)

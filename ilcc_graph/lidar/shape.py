@@ -28,6 +28,7 @@ Frames: the board frame of the pose the samples were taken in, metres, radians.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 from scipy.special import ndtr
@@ -212,7 +213,8 @@ class ShapeFit:
     likelihood under the proposal (for comparing orientations). ess: effective sample size of the
     last round. n_in, n_out: samples that took part (near the outline). bad_in, bad_out: returns on
     the plane clearly outside the board, rays that passed clearly inside it (3 sigma and 1 cm
-    beyond the outline), at the mean.
+    beyond the outline), at the mean. edges_seen: rays passing just outside each edge (x0, x1, y0,
+    y1 of ``Board.extent``): an edge without any was not seen (beyond the beams, empty background).
     """
 
     xi: np.ndarray
@@ -226,11 +228,18 @@ class ShapeFit:
     n_out: int
     bad_in: int
     bad_out: int
+    edges_seen: tuple[int, int, int, int] = (0, 0, 0, 0)
 
     @property
     def size_ok(self) -> bool:
         """The outline's growth within what footprints explain (3 prior sigmas, and 2 of its own)."""
         return abs(self.growth) <= 3.0 * self.growth_prior + 2.0 * self.growth_sd
+
+    @property
+    def opposite_edges_seen(self) -> bool:
+        """At least one edge seen along each of the board's two axes."""
+        e = self.edges_seen
+        return (e[0] > 0 or e[1] > 0) and (e[2] > 0 or e[3] > 0)
 
     @property
     def agreement(self) -> float:
@@ -307,7 +316,7 @@ def _importance(  # noqa: ANN001 - fun: (M, n) -> (M,)
 ) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Moments of the density ``exp(fun)`` by importance sampling from a Student-t about (mu, C),
     twice as wide, each round about the last's weighted moments (when few draws carry the weight,
-    the proposal shrinks by at most 16 in variance per round), until a fifth of the draws carry it
+    the proposal shrinks by at most 4 in variance per round), until a fifth of the draws carry it
     (at least two rounds). Returns (mean, covariance, log of the mean weight, effective sample size
     of the last round)."""
     n = len(mu)
@@ -330,7 +339,7 @@ def _importance(  # noqa: ANN001 - fun: (M, n) -> (M,)
         if r >= 1 and ess >= 0.2 * n_draws:
             C = C_w
             break
-        C = C_w + C / 16.0
+        C = C_w + C / 4.0
     log_ev = float(np.log(np.mean(np.exp(lw - lw.max()))) + lw.max())
     return mu, C, log_ev, ess
 
@@ -338,6 +347,20 @@ def _importance(  # noqa: ANN001 - fun: (M, n) -> (M,)
 def growth_prior(s: OutlineSamples) -> float:
     """Prior sigma of the outline's growth (m): the samples' median footprint radius, at least 2 mm."""
     return max(0.002, float(np.median(s.foot))) if len(s.foot) else 0.002
+
+
+def _edges_seen(
+    xi: np.ndarray, s: OutlineSamples, board: Board, band: float = 0.05
+) -> tuple[int, int, int, int]:
+    """Rays that passed within ``band`` (m) outside each edge (x0, x1, y0, y1) at the correction xi,
+    and not beyond the neighbouring edges."""
+    x, y = (v[0] for v in _moved(xi, s.b[~s.inside]))
+    x0, x1, y0, y1 = board.extent()
+    along_x, along_y = (x > x0) & (x < x1), (y > y0) & (y < y1)
+    return (
+        int((along_y & (x < x0) & (x > x0 - band)).sum()), int((along_y & (x > x1) & (x < x1 + band)).sum()),
+        int((along_x & (y < y0) & (y > y0 - band)).sum()), int((along_x & (y > y1) & (y < y1 + band)).sum()),
+    )  # fmt: skip
 
 
 def outline_mode(
@@ -378,14 +401,21 @@ def outline_posterior(
 
     The mode and curvature (:func:`outline_mode`, from ``xi0``) give the proposal of importance
     sampling (:func:`_importance`): on a flat-topped posterior (an edge between two samples) the
-    moments are the top's, which the curvature at the mode is not.
+    moments are the top's, which the curvature at the mode is not. When few draws carry the weight
+    (the mass lies away from that mode), the mode is sought again from the weighted mean (twice).
 
     growth_sd: the prior sigma of the outline's growth (m; None: ``growth_prior``). Only samples
     within reach of the outline take part (the others' likelihood does not change over the
     proposal's range).
     """
-    mu, S, sub, g_sd = outline_mode(s, board, xi0, scale0, growth_sd)
-    mu, C, log_ev, ess = _importance(lambda X: outline_loglik(X, sub, board, g_sd), mu, S, rng, n_draws)
+    start = xi0
+    for _ in range(3):  # when the mass lies away from the mode found (a far corner of a flat top), again
+        mu, S, sub, g_sd = outline_mode(s, board, start, scale0, growth_sd)
+        fun = partial(outline_loglik, s=sub, board=board, growth_sd=g_sd)
+        mu, C, log_ev, ess = _importance(fun, mu, S, rng, n_draws)
+        if ess >= 0.1 * n_draws:
+            break
+        start = mu[:3]
     dm = signed_distance(mu[:3], sub.b, board)[0] + mu[3]
     margin = 3.0 * sub.sigma.max(axis=1) + 0.01
     return ShapeFit(
@@ -400,4 +430,5 @@ def outline_posterior(
         n_out=int((~sub.inside).sum()),
         bad_in=int((sub.inside & (dm < -margin)).sum()),
         bad_out=int((~sub.inside & (dm > margin)).sum()),
+        edges_seen=_edges_seen(mu[:3], sub, board),
     )
