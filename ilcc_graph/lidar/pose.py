@@ -246,7 +246,7 @@ def _pattern(P, inten, ring, normal, offset, board, model, options, rng, scan_pt
         else:
             raise BoardNotFound(slid_message(chk))
     res.diag.update(
-        shape_diagnostics(chk.fit, first) | {"shape_chi2_final": chk.chi2, "pattern_moved_mm": moved}
+        shape_diagnostics(chk.fit, first) | {"shape_chi2_final": chk.chi2, "pattern_moved_squares": moved}
     )
     if options.shape == "fuse" and chk.consistent:
         K_s = outline_coupling(chk.samples, chk.fit, board)
