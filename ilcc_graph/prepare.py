@@ -23,6 +23,7 @@ from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.effects import SQUARE_SIZE_KEY
 from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.init import resolve_half_turns, upnp
+from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
 from ilcc_graph.types import Calibration, FrameResult, GraphFrame, ImageCorners, rotation_angle_deg
 
 log = logging.getLogger(__name__)
@@ -237,10 +238,6 @@ def finish(
     return Calibration(
         sol.T_cam_lidar, sol.covariance, tuple(frames), method, diagnostics, cam, _sensors(sol, config)
     )
-
-
-#: a board beyond the LiDAR's field of view by more than this share of its area is reported
-BEYOND_FOV_SHARE = 0.02
 
 
 def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:

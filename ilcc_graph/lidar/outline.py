@@ -41,6 +41,7 @@ from .shape import (
 from .soft_edge import se2_exp, se2_log
 
 __all__ = [
+    "BEYOND_FOV_SHARE",
     "ShapeCheck",
     "apply_xi",
     "fov_share",
@@ -96,6 +97,10 @@ def outline_coupling(s: OutlineSamples, shape: ShapeFit, board: Board) -> np.nda
     u = s.u.copy()
     u[:, :2] = u[:, :2] @ H[:2, :2].T
     return ray_coupling(b, u, info)
+
+
+#: a board more than this share of whose area lies beyond the beams is reported as leaving the field of view
+BEYOND_FOV_SHARE = 0.02
 
 
 def fov_share(T: np.ndarray, board: Board, model: LidarModel, n: int = 24) -> float:

@@ -25,6 +25,7 @@ from .covariance import assemble_covariance, plane_fit, ray_coupling, sampling_c
 from .fit import InPlaneFit, fit_in_plane, plane_frame, pose_from_in_plane, project_on_plane
 from .options import LidarOptions
 from .outline import (
+    ShapeCheck,
     apply_xi,
     fov_share,
     fuse,
@@ -138,7 +139,6 @@ def _plane_passes(P: np.ndarray, ring: np.ndarray, T: np.ndarray, board: Board, 
                   black_of=None) -> tuple[np.ndarray, float]:  # fmt: skip  # noqa: ANN001
     """The plane refitted twice on the returns well inside the board at T (the white print's plane
     when ``black_of(mask)`` says which are black), T aligned to it; and the plane noise."""
-    x0, x1, y0, y1 = board.extent()
     s_z = 0.02
     for _ in range(2):
         b = _to_board(P, T, options.projection)
@@ -164,6 +164,10 @@ def _refine(P, inten, ring, T0, s_z, board, model, fit: InPlaneFit, options) -> 
     coupling; BoardNotFound when the fitted pattern does not explain the intensities."""
     b = _to_board(P, T0, options.projection)
     on = _on_board(b, board)
+    if on.sum() < 30:
+        raise BoardNotFound(
+            f"only {int(on.sum())} points fall on the fitted board; the fit is not trustworthy"
+        )
     dist = float(np.linalg.norm(P[on].mean(axis=0)))
     blur0 = 0.5 * dist * max(model.beam_divergence_rad, np.deg2rad(model.horizontal_resolution_deg))
     soft = soft_edge_refine(b[on, :2], inten[on], board, fit.levels, blur0)
@@ -221,30 +225,10 @@ def _pattern(P, inten, ring, normal, offset, board, model, options, rng, scan_pt
                      "intensity_low": fit.levels[0], "intensity_high": fit.levels[1]})  # fmt: skip
     if options.shape == "off":
         return res
-    chk = shape_check(scan_pts, res.T, res.cov, board, model, s_z, options, rng)
-    first, moved = chk, 0.0
-    if chk.slid:  # try the pattern moved by whole squares (or half-turned) to where the outline is
-        gate = float(chi2_dist.ppf(options.shape_gate_p, 3))
-        for xi in lattice_moves(board, chk, res.cov, gate)[:4]:
-            try:
-                alt = _refine(P, inten, ring, apply_xi(res.T, xi), s_z, board, model, fit, options)
-            except BoardNotFound:
-                continue
-            alt_chk = shape_check(scan_pts, alt.T, alt.cov, board, model, s_z, options, rng)
-            if not alt_chk.slid:
-                moved = (
-                    float(np.linalg.norm(se2_exp(xi)[:2, 2] - _centre_shift(xi, board))) / board.square_size
-                )
-                alt.diag.update(
-                    {
-                        k: res.diag[k]
-                        for k in ("powell_evals", "time_powell_s", "intensity_low", "intensity_high")
-                    }
-                )
-                res, chk = alt, alt_chk  # (the paper's cost was Powell's, at the slid pose: not carried)
-                break
-        else:
-            raise BoardNotFound(slid_message(chk))
+    first = chk = shape_check(scan_pts, res.T, res.cov, board, model, s_z, options, rng)
+    moved = 0.0
+    if chk.slid:  # the pattern moved by whole squares (or half-turned) to where the outline is
+        res, chk, moved = _moved_to_outline(res, chk, fit, scan_pts, board, model, options, rng)
     res.diag.update(
         shape_diagnostics(chk.fit, first) | {"shape_chi2_final": chk.chi2, "pattern_moved_squares": moved}
     )
@@ -262,6 +246,31 @@ def _centre_shift(xi: np.ndarray, board: Board) -> np.ndarray:
     w = float(xi[0])
     R = np.array([[np.cos(w), -np.sin(w)], [np.sin(w), np.cos(w)]])
     return c - R @ c
+
+
+def _moved_to_outline(
+    res: _InPlane, chk: ShapeCheck, fit: InPlaneFit, scan_pts: np.ndarray, board: Board, model: LidarModel,
+    options: LidarOptions, rng: np.random.Generator,
+) -> tuple[_InPlane, ShapeCheck, float]:  # fmt: skip
+    """A slid pattern fit moved by the whole squares (up to two along each side) and/or the half turn
+    the outline allows, refined again there: the first that agrees with the outline, its check and
+    the move in squares; BoardNotFound when none does."""
+    gate = float(chi2_dist.ppf(options.shape_gate_p, 3))
+    keep = ("powell_evals", "time_powell_s", "intensity_low", "intensity_high")
+    for xi in lattice_moves(board, chk, res.cov, gate)[:4]:
+        try:
+            alt = _refine(
+                res.P, res.inten, res.ring, apply_xi(res.T, xi), res.s_z, board, model, fit, options
+            )
+        except BoardNotFound:
+            continue
+        alt_chk = shape_check(scan_pts, alt.T, alt.cov, board, model, res.s_z, options, rng)
+        if not alt_chk.slid:
+            # (the paper's cost was Powell's, at the slid pose: not carried over)
+            alt.diag.update({k: res.diag[k] for k in keep})
+            shift = se2_exp(xi)[:2, 2] - _centre_shift(xi, board)
+            return alt, alt_chk, float(np.linalg.norm(shift)) / board.square_size
+    raise BoardNotFound(slid_message(chk))
 
 
 def _outline(P, inten, ring, normal, offset, board, model, options, rng, scan_pts) -> _InPlane:  # noqa: ANN001

@@ -97,7 +97,7 @@ def outline_samples(
     board: Board,
     model: LidarModel,
     sigma_z: float,
-    blur: float = 0.5,
+    blur: float = 0.1,
     grow: float | None = None,
 ) -> OutlineSamples:
     """The in/out samples of the scan's points (N, 3) (LiDAR frame) about the board at ``T`` (4, 4).
@@ -106,7 +106,7 @@ def outline_samples(
     (``thr_in = max(3 cm, 3 sigma_z)``, ``thr_out = max(6 cm, 2 thr_in)``) and, seen through the
     incidence angle, the in-plane noise of a return on the plane. blur: the footprint's share
     of the edge's blur, in footprint radii. grow: how far beyond the board's outline rays are
-    taken (m; None: 2.5 ring spacings at the board's range, at least 15 cm).
+    taken (m; None: 2.5 ring spacings at the board's range, 15-60 cm).
     """
     R, t = T[:3, :3], T[:3, 3]
     P = np.asarray(points, dtype=np.float64)
@@ -121,10 +121,10 @@ def outline_samples(
     c = ob[:2] + lam[:, None] * ub[:, :2]
     x0, x1, y0, y1 = board.extent()
     dist = float(np.linalg.norm(R @ board.pattern_centre + t))
-    if grow is None:
+    if grow is None:  # (a scanline-free pattern is dense everywhere: its table is its field's cone)
         el = np.sort(model.vertical_angles_rad)
-        gap = float(np.median(np.diff(el))) if el.size > 1 else np.deg2rad(1.0)
-        grow = max(0.15, 2.5 * dist * gap)
+        gap = float(np.median(np.diff(el))) if el.size > 1 and not model.ringless else np.deg2rad(0.5)
+        grow = min(max(0.15, 2.5 * dist * gap), 0.6)
     near = (lam > 0.3) & (c[:, 0] > x0 - grow) & (c[:, 0] < x1 + grow) & (c[:, 1] > y0 - grow)
     near &= c[:, 1] < y1 + grow
     thr_in = max(0.03, 3.0 * sigma_z)

@@ -8,7 +8,8 @@ import numpy as np
 
 from ..estimation.incremental import FrameUpdate
 from ..estimation.sessions import JointSolution
-from ..types import Calibration, Estimate, sigmas_deg_mm
+from ..lidar.outline import BEYOND_FOV_SHARE
+from ..types import BoardFit, Calibration, Estimate, sigmas_deg_mm
 from .sensors import sensors_text, square_size_text
 
 __all__ = [
@@ -19,6 +20,7 @@ __all__ = [
     "format_table",
     "format_update",
     "frames_table",
+    "lidar_frame_note",
     "lidar_view_lines",
     "run_summary",
     "short_reason",
@@ -195,7 +197,19 @@ def _names(names: Sequence[str], limit: int = 6) -> str:
     return ", ".join(names[:limit]) + (f" and {len(names) - limit} more" if len(names) > limit else "")
 
 
-def lidar_view_lines(cal: Calibration, beyond: float = 0.02) -> list[str]:
+def lidar_frame_note(board: BoardFit | None, beyond: float = BEYOND_FOV_SHARE) -> str | None:
+    """How the LiDAR saw one frame's board, when worth a note in the report: placed by its outline
+    (no print in the intensity), partly beyond the beams' field."""
+    if board is None:
+        return None
+    d = board.diagnostics
+    notes = ["placed by its outline (no print in the LiDAR intensity)"] * bool(d.get("no_contrast"))
+    if (share := d.get("outside_fov_share", 0.0)) > beyond:
+        notes.append(f"{share:.0%} of the board beyond the LiDAR's field of view (not used)")
+    return "; ".join(notes) or None
+
+
+def lidar_view_lines(cal: Calibration, beyond: float = BEYOND_FOV_SHARE) -> list[str]:
     """Lines on how the LiDAR saw the used boards: fitted by their outline alone (no print in its
     intensity), partly beyond its field of view (more than ``beyond`` of the board's area)."""
     used = [f for f in cal.frames if f.used and f.board is not None]
