@@ -20,7 +20,8 @@ Per run: frames used, the extrinsic's errors (rotation deg, translation mm) and 
 (6 dof, the nearer half turn) and its in-plane part (rz, tx, ty; 3 dof).
 
     nice python3 scripts/bench_shape.py --sets 50 --sink /tmp/bench_shape.jsonl   # ~2-3 min a set
-    python3 scripts/bench_shape.py --from-sink /tmp/bench_shape.jsonl --write      # docs/bench_shape.md
+    python3 scripts/bench_shape.py --from-sink /tmp/bench_shape.jsonl --write \
+        --recorded ../shared/data                                                 # docs/bench_shape.md
 
 Each finished set is appended to the sink at once (a JSON line), so a run can be stopped and resumed
 (sets already in the sink are skipped). The cache (two data sets at a time) is removed after each set.
@@ -35,6 +36,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -46,9 +48,10 @@ from ilcc_graph.board import Board
 from ilcc_graph.cameras.pinhole import Pinhole
 from ilcc_graph.datasets import open_source
 from ilcc_graph.errors import CalibrationError
+from ilcc_graph.io import read_scan, write_pcd
 from ilcc_graph.lidar import LidarOptions
-from ilcc_graph.observe import StageOptions
-from ilcc_graph.pipeline import RunOptions, run
+from ilcc_graph.observe import StageOptions, observe
+from ilcc_graph.pipeline import RunOptions, run, solve_observations
 from ilcc_graph.simulate import SceneOptions, SimulationSpec, board_placements, simulate_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -138,6 +141,74 @@ def run_set(seed: int, cache: Path) -> dict:
         }
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def zeroed_copy(src: Path, dst: Path) -> Path:
+    """A copy of a recorded set with every intensity 0 (a rig whose LiDAR shows no print; rows of an
+    organised cloud kept as its ring field)."""
+    shutil.copytree(src, dst, ignore=shutil.ignore_patterns("pcd"))
+    (dst / "pcd").mkdir()
+    for p in sorted((src / "pcd").glob("*.pcd")):
+        scan = read_scan(p)
+        write_pcd(
+            dst / "pcd" / p.name, replace(scan, intensity=np.zeros(len(scan)), columns=None), data="binary"
+        )
+    return dst
+
+
+def camera_place(cal) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001 - Calibration
+    """The camera's position in the LiDAR frame (m) and its covariance (first order through the inverse)."""
+    T_lc = np.linalg.inv(cal.T_cam_lidar)
+    J = -gtsam.Pose3(cal.T_cam_lidar).inverse().AdjointMap()
+    C = (J @ cal.covariance @ J.T)[3:, 3:]
+    return T_lc[:3, 3], T_lc[:3, :3] @ C @ T_lc[:3, :3].T
+
+
+def recorded(data: Path, cache: Path) -> str:
+    """The recorded sets as shipped and with their intensities zeroed: frames used, the camera's place in
+    the LiDAR frame, how far the two results lie apart in their sigmas, the halves of the zeroed one."""
+    from bench_real import halves  # (scripts/ is the running script's folder)
+
+    rows = []
+    for name in ("acfr-vlp16-fisheye", "acfr-os1-fisheye"):
+        if not (data / name / "config.yaml").is_file():
+            continue
+        tmp = Path(tempfile.mkdtemp(prefix="bench_shape_rec_", dir=cache))
+        try:
+            res = {}
+            for label, folder in (("print", data / name), ("zeroed", zeroed_copy(data / name, tmp / name))):
+                obs = observe(open_source(folder))
+                cal = solve_observations([obs], RunOptions()).calibration
+                m2, note = halves(obs, RunOptions())
+                res[label] = (cal, m2, note)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        (a, _, _), (b, m2, note) = res["print"], res["zeroed"]
+        (pa, Ca), (pb, Cb) = camera_place(a), camera_place(b)
+        d = 1e3 * (pb - pa)
+        z = (pb - pa) / np.sqrt(np.diag(Ca + Cb))
+        used = sum(f.used for f in b.frames)
+        no_print = int(b.diagnostics.get("lidar_boards_no_print", 0))
+        rows.append(
+            f"| {name} | {sum(f.used for f in a.frames)}/{len(a.frames)} | {used}/{len(b.frames)} "
+            f"({no_print} by outline) | {', '.join(f'{1e3 * v:.1f}' for v in pb)} | "
+            f"{', '.join(f'{v:+.1f}' for v in d)} | "
+            f"{', '.join(f'{v:+.1f}' for v in z)} | {m2:.1f} ({note}) |"
+        )
+    return "\n".join([
+        "## The recorded sets without their print",
+        "",
+        "Each ACFR set as shipped (print) and again with every intensity set to 0 (its boards placed by "
+        "their outline, the LiDAR's per-beam errors estimated), default options: frames used, the camera's "
+        "place in the LiDAR frame (mm) with the intensities zeroed, its difference from the shipped set's "
+        "(mm, and in sigmas of the two results), and the zeroed set's halves (chi-square 6 dof).",
+        "",
+        "| set | used (print) | used (zeroed) | camera x, y, z mm (zeroed) | minus print, mm | in sigmas | "
+        "halves (zeroed) |",
+        "|---|---|---|---|---|---|---|",
+        *rows,
+        "",
+    ])  # fmt: skip
 
 
 def load(path: Path) -> list[dict]:
@@ -262,6 +333,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--cache", default=tempfile.gettempdir())
     ap.add_argument("--from-sink", action="store_true", help="only summarise the sink")
     ap.add_argument("--write", action="store_true", help="write docs/bench_shape.md")
+    ap.add_argument(
+        "--recorded", help="also the recorded sets in this folder, shipped and with intensities zeroed"
+    )
     args = ap.parse_args(argv)
     sink = Path(args.sink)
     if not args.from_sink:
@@ -280,6 +354,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"set {seed}: {time.perf_counter() - t0:.0f} s {brief}", flush=True)
     sets = [s for s in load(sink) if args.seed0 <= s["seed"] < args.seed0 + args.sets]
     text = report(sets, argv)
+    if args.recorded:
+        text += "\n" + recorded(Path(args.recorded), Path(args.cache))
     print(text)
     if args.write:
         DOC.write_text(text)

@@ -12,6 +12,7 @@ from ilcc_graph.board import Board
 from ilcc_graph.errors import BoardNotFound
 from ilcc_graph.lidar import estimate_board
 from ilcc_graph.lidar._synthetic import SynthScene, synth_scan
+from ilcc_graph.lidar._synthetic import board_pose as board_pose_for
 from ilcc_graph.lidars import lidar_model
 from ilcc_graph.simulate import SimulationSpec, default_camera, frame_scene, simulate_scan
 from ilcc_graph.types import Scan
@@ -150,3 +151,24 @@ def test_a_board_partly_above_the_top_beam(printed: bool, in_plane: float) -> No
     e = _error(fit, T, board)
     assert np.linalg.norm(e[3:5]) < 0.5 * board.square_size
     assert _nees(e, fit.covariance) < 22.5  # chi2(6) at 0.999
+
+
+def test_the_camera_guided_search_works_without_a_print() -> None:
+    """Two plain board-sized panels, the board and a twin, neither printed as the LiDAR sees it: the
+    search near the place the image puts the board (``ExpectedBoard``) finds that one."""
+    from ilcc_graph.types import ExpectedBoard
+
+    board = Board(6, 8, 0.075, 0.03, 0.03)
+    sc = SynthScene(distance=2.5, in_plane_deg=30, decoy_azimuth_deg=35.0, azimuth_window_deg=80,
+                    black=40.0, white=40.0)  # fmt: skip
+    scan, T = synth_scan(board, HDL32, sc, np.random.default_rng(2))
+    inten = np.where(np.isfinite(scan.intensity), 40.0, 0.0) + np.random.default_rng(3).normal(
+        0, 2, len(scan)
+    )
+    plain = Scan(scan.points, inten, scan.ring)  # the twin painted two-tone in _synthetic: made plain here
+    T_twin = board_pose_for(board, SynthScene(distance=2.5, azimuth_deg=35.0))
+    for target in (T, T_twin):
+        fit = estimate_board(plain, board, HDL32, expected=ExpectedBoard(target, 0.3, 30.0))
+        assert fit.diagnostics["no_contrast"] == 1.0
+        centre = fit.T_lidar_board[:3, :3] @ board.pattern_centre + fit.T_lidar_board[:3, 3]
+        assert np.linalg.norm(centre - (target[:3, :3] @ board.pattern_centre + target[:3, 3])) < 0.05

@@ -110,11 +110,15 @@ def outline_samples(
     """
     R, t = T[:3, :3], T[:3, 3]
     P = np.asarray(points, dtype=np.float64)
-    r = np.linalg.norm(P, axis=1)
+    # the beams leave from their own origin (an Ouster's lies ~36 mm above its points' origin): a ray
+    # that passed the board and returned from a wall metres behind crosses the board's plane where
+    # that origin's ray does, not the points' origin's
+    o = np.array([0.0, 0.0, float(model.beam_origin_z_m)])
+    r = np.linalg.norm(P - o, axis=1)
     ok = r > 1e-6
     P, r = P[ok], r[ok]
-    ub = (P / r[:, None]) @ R  # ray directions in the board frame
-    ob = -t @ R  # the sensor's origin in the board frame (z > 0: in front)
+    ub = ((P - o) / r[:, None]) @ R  # ray directions in the board frame
+    ob = (o - t) @ R  # the beams' origin in the board frame (z > 0: in front)
     pz = P @ R[:, 2] - t @ R[:, 2]  # height of each return above the plane
     with np.errstate(divide="ignore", invalid="ignore"):
         lam = np.where(ub[:, 2] < -0.1, -ob[2] / ub[:, 2], -1.0)
