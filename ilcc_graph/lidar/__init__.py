@@ -181,7 +181,7 @@ def _search(
     (score, candidate, fit, candidates passed, candidates fitted); BoardNotFound with the reasons.
     contrast: as ``fit_board_points`` takes it; an outline fit must score ``good_fit_score``.
     skip_printed: candidates whose intensities show a print (``board_tests.print_visible`` with these
-    options' contrast threshold) are not fitted."""
+    options' ``print_contrast_min``) are not fitted."""
     rng = np.random.default_rng(0)
     mask = None if expected is None else expected_mask(pts, board, expected)
     fits: list[tuple[float, Candidate, BoardFit]] = []
@@ -199,7 +199,7 @@ def _search(
                 and print_visible(
                     inten[cand.indices],
                     pts[cand.indices],
-                    skip_printed.contrast_min or 0.0,
+                    skip_printed.print_contrast_min,
                     ring[cand.indices],
                 )[0]
             ):

@@ -38,6 +38,10 @@ class LidarOptions:
     contrast_min: the board's intensities must split in two levels at least this many pooled
         sigmas apart (our addition: a plain board-sized surface is not the chessboard); None: no
         contrast test (the search for a board whose print the LiDAR does not show).
+    print_contrast_min: a board's intensities show a print (not only for the test above: to be
+        fitted by its pattern rather than its outline) when their two levels are at least this
+        many pooled sigmas apart, within each beam (a uniform spread of intensities, e.g. by the
+        incidence angle, already splits 3.5 apart; printed boards split 5 to 30 apart).
     min_points, min_rings: fewest returns and scanlines a candidate may have (a few returns at long
         range pass the paper's tests by chance and cannot give corners anyway).
     ransac_threshold_m: plane inlier distance floor (grown with the noise estimate).
@@ -103,6 +107,7 @@ class LidarOptions:
     size_ratio: tuple[float, float] = (0.8, 1.6)
     uniformity_min: float = 0.85
     contrast_min: float | None = 3.0
+    print_contrast_min: float = 5.0
     min_points: int = 30
     min_rings: int = 4
     ransac_threshold_m: float = 0.03

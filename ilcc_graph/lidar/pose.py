@@ -334,7 +334,7 @@ def fit_board_points(
     ring = lidar_model.ring_from_points(P) if ring is None else np.asarray(ring)
     scan_pts = P if scan_points is None else np.asarray(scan_points, dtype=np.float64)
     visible = (
-        print_visible(inten, P, options.contrast_min or 0.0, ring)[0] if contrast is None else bool(contrast)
+        print_visible(inten, P, options.print_contrast_min, ring)[0] if contrast is None else bool(contrast)
     )
     how = _pattern if visible else _outline
     res = how(P, inten, ring, normal, offset, board, lidar_model, options, rng, scan_pts)
