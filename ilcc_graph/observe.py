@@ -292,6 +292,8 @@ def warn_no_print(frames: Sequence[FrameResult], config: Config) -> str | None:
         return None
     codes = sorted({b.diagnostics.get("intensity_unusable", 0.0) for b in plain} - {0.0})
     why = "; ".join(INTENSITY_UNUSABLE.get(c, "") for c in codes) or "no black/white contrast on the board"
+    if codes:
+        why += "; for CSV scans check lidar.intensity_column"
     msg = (
         f"{config.source}: {len(plain)} of {len(boards)} boards show no print in the LiDAR intensity "
         f"({why}); their position in their plane comes from the board's outline (its size and margin as "
