@@ -211,10 +211,14 @@ def _search(
                 refused.append(str(e))
                 continue
             score = fit_score(fit, board, expected)
+            # an outline fit must itself be good (its distance from the prediction only ranks it)
+            plain = fit.diagnostics.get("no_contrast")
             if not np.isfinite(score):
                 refused.append("the fitted board lies beyond the expected board's tolerances")
-            elif score < (
-                options.good_fit_score if fit.diagnostics.get("no_contrast") else options.min_fit_score
+            elif (
+                (fit_score(fit, board, None) < options.good_fit_score)
+                if plain
+                else score < options.min_fit_score
             ):
                 refused.append(_poor_fit(fit, board))
             else:
