@@ -13,6 +13,7 @@ from __future__ import annotations
 import shutil
 import tempfile
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from .. import signals
@@ -101,12 +102,16 @@ def write_standard_set(
     out: Path | str,
     progress: Callable[[int, int], None] | None = None,
     intrinsics_error: float = 0.0,
+    range_offset_mm: float = 0.0,
     **spec: object,
 ) -> SimulationSpec:
     """The standard set (``standard_spec(**spec)``, stated intrinsics off by ``intrinsics_error`` x a
-    typical error) written to ``out``; InputError naming the option or the folder when it cannot be."""
+    typical error, every range ``range_offset_mm`` long on top of the default systematics) written
+    to ``out``; InputError naming the option or the folder when it cannot be."""
     try:
         s = standard_spec(intrinsics_error=IntrinsicsError.typical(intrinsics_error), **spec)  # type: ignore[arg-type]
+        if range_offset_mm:
+            s = s.with_(systematics=replace(s.systematics, range_offset_m=1e-3 * float(range_offset_mm)))
     except ValueError as err:
         raise InputError(f"simulate: {err}") from None
     parent = Path(out).parent
