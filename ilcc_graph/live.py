@@ -37,9 +37,16 @@ from ilcc_graph.estimation.batch import solve as solve_batch
 from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.estimation.incremental import FrameUpdate
 from ilcc_graph.estimation.selection import AUTO
-from ilcc_graph.observe import StageOptions, observe_image, observe_lidar, resolve_lidar
+from ilcc_graph.observe import (
+    Observation,
+    StageOptions,
+    observe_image,
+    observe_lidar,
+    resolve_lidar,
+    second_pass,
+)
 from ilcc_graph.prepare import graph_frame, prepare
-from ilcc_graph.types import FrameResult, GraphFrame, sigmas_deg_mm
+from ilcc_graph.types import Calibration, FrameResult, GraphFrame, sigmas_deg_mm
 
 log = logging.getLogger(__name__)
 
@@ -108,7 +115,8 @@ class CheckOptions:
 @dataclass
 class CheckResult:
     """The verdicts in arrival order, the batch answer over the frames offered (None when fewer
-    than three distinct poses calibrate), why the check ended, and the state for advice."""
+    than three distinct poses calibrate), why the check ended, the state for advice, and the frames
+    whose board the final second look found (``LiveCheck.finish``)."""
 
     verdicts: list[Verdict]
     final: FrameUpdate | None
@@ -116,6 +124,7 @@ class CheckResult:
     config: Config | None
     frames: list[GraphFrame] = field(default_factory=list)
     error: str | None = None
+    second_look: list[str] = field(default_factory=list)
 
 
 class LiveCheck:
@@ -141,6 +150,10 @@ class LiveCheck:
         self._found: list[FrameResult] = []  # the distinct frames as the stages gave them
         self._last: FrameUpdate | None = None
         self._used: list[GraphFrame] = []  # the frames the last solve used (corner order chosen)
+        self._image_only: list[FrameResult] = []  # image corners but no LiDAR board: a second look
+        self._order: dict[str, int] = {}  # arrival order of every frame
+        self._source: FrameSource | None = None
+        self.second_look: list[str] = []  # frames whose board the second look found (``finish``)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="image-stage")
 
     @property
@@ -202,6 +215,10 @@ class LiveCheck:
             self._colour_checked = True
         lidar_why = str(board) if isinstance(board, FrameError) else None
         image_why = str(corners) if isinstance(corners, FrameError) else None
+        self._source = source
+        self._order.setdefault(ref.name, len(self._order))
+        if lidar_why and not image_why:
+            self._image_only.append(FrameResult(ref.name, False, f"LiDAR: {lidar_why}", None, corners))  # type: ignore[arg-type]
         last = self._last
         v = Verdict(
             ref.name,
@@ -284,10 +301,36 @@ class LiveCheck:
         return update, why
 
     def finish(self) -> FrameUpdate | None:
-        """The solve of every distinct frame (the last one; ``calibrate``'s noise policy); None when
-        they cannot calibrate (fewer than three distinct poses, or the solver refuses)."""
-        if len(self._distinct) < 3 or self._last is None:
+        """The solve of every distinct frame (``calibrate``'s noise policy), after ``calibrate``'s
+        second look (``observe.second_pass``: the boards the LiDAR stage missed, or saw far from
+        where the image and the extrinsic put them, searched there; those found are solved with the
+        rest); None when they cannot calibrate (fewer than three distinct poses, or the solver
+        refuses)."""
+        if len(self._distinct) < 3 or self._last is None or self._source is None:
             return None
+        sol = self._last.solution
+        assert sol is not None
+        frames = sorted([*self._found, *self._image_only], key=lambda f: self._order.get(f.name, 0))
+        fates = tuple(dataclasses.replace(f, used=f.name in sol.per_frame) for f in frames)
+        cal = Calibration(sol.T_cam_lidar, sol.covariance, fates)
+        again = second_pass(Observation(self._source, self.config, frames), cal, self.stages)
+        if again is None:
+            return self._last
+        found = {f.name: f for f in again.frames if f.board is not None}
+        for f in self._image_only:
+            g = found.get(f.name)
+            if g is None:
+                continue
+            gf = graph_frame(g, self.config)
+            if gf.name in board_geometry([*self._distinct, gf]).repeats:
+                continue
+            self._distinct.append(gf)
+            self._found.append(dataclasses.replace(g, used=True, reason=None))
+            self.second_look.append(f.name)
+        self._found = [found.get(f.name, f) if f.name not in self.second_look else f for f in self._found]
+        self._found.sort(key=lambda f: self._order.get(f.name, 0))
+        if isinstance(self._solve(), str):
+            log.warning("the frames with the second look's boards do not calibrate")
         return self._last
 
 
@@ -369,4 +412,6 @@ def run_check(
     except KeyboardInterrupt:
         final, stopped = None, "interrupted"
     frames = checker.used if final is not None else checker.distinct
-    return CheckResult(verdicts, final, stopped, checker.config, frames)
+    return CheckResult(
+        verdicts, final, stopped, checker.config, frames, second_look=list(checker.second_look)
+    )

@@ -202,6 +202,8 @@ def check_command(data: str, options: CheckOptions, out: object = None, advise_l
             f"all {result.final.n_frames} frames solved together (as calibrate solves them): sigma "
             f"rot {s[0]:.4f} {s[1]:.4f} {s[2]:.4f} deg, trans {s[3]:.3f} {s[4]:.3f} {s[5]:.3f} mm"
         )
+        if result.second_look:
+            print(f"second look, as calibrate's: the board found in {', '.join(result.second_look)}")
         sol = result.final.solution
         if sol is not None and sol.selection is not None:
             print(sol.selection.summary())
