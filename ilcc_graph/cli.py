@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -292,6 +293,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    # one BLAS thread unless the user says otherwise: the sensor models' many small dense products
+    # run 3-8x slower in wall time with OpenBLAS's threads on a loaded machine (docs/bench_live.md)
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     args = argparse.Namespace(debug="--debug" in (sys.argv[1:] if argv is None else argv))
 
     def command() -> int:  # under the signal handlers from the first import on
