@@ -19,11 +19,12 @@ from .. import signals
 from ..errors import InputError
 from ..io import write_image, write_pcd, write_yaml
 from ..io.scans import write_csv
+from ..types import Scan
 from .frames import ground_truth, simulate_frames
 from .intrinsics import IntrinsicsError, stated_camera
 from .spec import SimulationSpec, standard_spec
 
-__all__ = ["simulate_dataset", "config_dict", "write_standard_set"]
+__all__ = ["simulate_dataset", "config_dict", "write_scan", "write_standard_set"]
 
 
 def config_dict(spec: SimulationSpec) -> dict:
@@ -61,19 +62,7 @@ def _write(out: Path, tmp: Path, spec: SimulationSpec, progress: Callable[[int, 
         names, poses = [], []
         total = int(spec.n_frames)
         for k, frame in enumerate(simulate_frames(spec)):
-            scan = frame.scan
-            if spec.sensor_format == "velodyne-csv":
-                write_csv(tmp / "pcd" / f"{frame.name}.csv", scan)
-            elif spec.sensor_format == "ouster":
-                rows = len(scan) // int(scan.columns)  # type: ignore[arg-type]
-                write_pcd(
-                    tmp / "pcd" / f"{frame.name}.pcd",
-                    scan,
-                    data="binary",
-                    organised=(rows, int(scan.columns)),
-                )  # type: ignore[arg-type]
-            else:
-                write_pcd(tmp / "pcd" / f"{frame.name}.pcd", scan, data="binary")
+            write_scan(tmp / "pcd", frame.name, frame.scan, spec.sensor_format)
             write_image(tmp / "img" / f"{frame.name}.png", frame.image)
             names.append(frame.name)
             poses.append(frame.T_lidar_board)
@@ -88,6 +77,17 @@ def _write(out: Path, tmp: Path, spec: SimulationSpec, progress: Callable[[int, 
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out
+
+
+def write_scan(folder: Path, stem: str, scan: Scan, sensor_format: str) -> Path:
+    """Write a simulated scan as ``folder/<stem>.pcd`` (binary; organised for ``"ouster"``) or
+    ``.csv`` (``"velodyne-csv"``), as ``spec.sensor_format`` says a driver would; returns the path."""
+    if sensor_format == "velodyne-csv":
+        return write_csv(folder / f"{stem}.csv", scan)
+    if sensor_format == "ouster":
+        rows = len(scan) // int(scan.columns)  # type: ignore[arg-type]
+        return write_pcd(folder / f"{stem}.pcd", scan, data="binary", organised=(rows, int(scan.columns)))  # type: ignore[arg-type]
+    return write_pcd(folder / f"{stem}.pcd", scan, data="binary")
 
 
 class _Pose:
