@@ -14,8 +14,10 @@ from ilcc_graph.datasets import FolderSource, RigSource, open_source
 from ilcc_graph.errors import DamagedFile, InputError
 from ilcc_graph.image import detect_corners
 from ilcc_graph.simulate import ImageOptions, Systematics, simulate_dataset, standard_spec
-from ilcc_graph.simulate.rig import Mount, backpack_rig, ring_rig, simulate_moments
+from ilcc_graph.simulate.bag import WalkAndPause
+from ilcc_graph.simulate.rig import Mount, RigSpec, backpack_rig, ring_rig, simulate_moments
 from ilcc_graph.simulate.rig_export import write_rig_bag, write_rig_set
+from ilcc_graph.simulate.rig_placements import rig_placements
 
 
 @pytest.fixture(scope="module")
@@ -219,3 +221,26 @@ def test_damaged_and_wrong_input_name_the_file(ring, tmp_path) -> None:
         + topics,
     ):
         open_source(bag, rig=True).moments()
+
+
+def test_a_walk_and_pause_rig_bag_gives_one_moment_per_pause(tmp_path) -> None:
+    # a VLP-16 and two fisheye cameras; the board is held still 1.3 s at each of 3 placements
+    full = ring_rig("fisheye", 320, lidar="vlp16", seed=4)
+    spec = RigSpec(
+        (full.sensor("lidar"), full.sensor("front"), full.sensor("left")), "lidar",
+        (("front", "lidar"), ("front", "left", "lidar"), ("left", "lidar")), n_moments=3, seed=4,
+    )  # fmt: skip
+    bag = write_rig_bag(tmp_path / "walk", spec, timeline=WalkAndPause(pause_s=1.3, move_s=0.5))
+    src = open_source(bag, rig=True)
+    moments, gt = src.moments(), src.ground_truth()
+    assert len(gt.T_ref_board) == 3 * 13 + 2 * 5  # every message time is in the truth
+    assert len(moments) == 3 and len(gt.extra["pauses"]) == 3
+    boards = rig_placements(spec, spec.poses())
+    for m, (first, last), T in zip(moments, gt.extra["pauses"], boards, strict=True):
+        assert first < m.name < last  # inside the pause, not at its ends
+        np.testing.assert_allclose(gt.T_ref_board[m.name], T, atol=1e-12)  # the board as placed, still
+        assert set(m.sensors) == {"lidar", "front", "left"}
+    d = yaml.safe_load((bag / "rig.yaml").read_text())
+    d["data"]["select"] = "all"
+    (bag / "rig.yaml").write_text(yaml.safe_dump(d))
+    assert len(open_source(bag, rig=True).moments()) == len(gt.T_ref_board)  # every scan with its images

@@ -6,8 +6,9 @@ first LiDAR): each of its messages is a candidate moment, named by its bag time 
 bag source names frames (``t0012.345``). Every other sensor's message joins the anchor's when each is
 the other's nearest in time and they are at most ``data.sync_tolerance`` apart (header stamps, or bag
 times when the stamps are zero or do not pair, as the single-pair source decides). Moments are chosen
-by the single-pair source's rule: one per still pause of a walk-and-pause recording (motion measured
-on the first camera, else on the anchor), else every candidate up to ``data.max_moments``.
+by the single-pair source's rule: one per still pause of a walk-and-pause recording, else every
+candidate up to ``data.max_moments``. Motion is measured on every camera (else on the anchor): the
+rig is still where no camera sees anything move (``timeline.common_still_runs``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,14 @@ import numpy as np
 from ilcc_graph.config import RigConfig
 from ilcc_graph.datasets.ros_messages import CLOUD, COMPRESSED, IMAGE
 from ilcc_graph.datasets.rosbag import BagSource
-from ilcc_graph.datasets.timeline import IMAGE_STILL, LIDAR_STILL, Stream, nearest, pair_by_time
+from ilcc_graph.datasets.timeline import (
+    IMAGE_STILL,
+    LIDAR_STILL,
+    Stream,
+    common_still_runs,
+    nearest,
+    pair_by_time,
+)
 from ilcc_graph.errors import InputError
 
 __all__ = ["RigBag"]
@@ -41,7 +49,7 @@ class RigBag(BagSource):
                          max_frames=d.max_moments)  # fmt: skip
         self.rig = rig
         self.sensor_topics: dict[str, str] = {}
-        self._motion = ""
+        self._motion: list[str] = []
 
     def _sensor_topics(self) -> dict[str, str]:
         """sensor -> its topic; InputError naming the rig file's key and listing the bag's topics."""
@@ -80,7 +88,7 @@ class RigBag(BagSource):
         return rig.data.anchor or (rig.lidars[0] if rig.lidars else rig.names[0])
 
     def survey_rig(self) -> dict[str, Stream]:
-        """Read the bag once: every sensor's stamps, and the motion on the first camera (else the anchor)."""
+        """Read the bag once: every sensor's stamps, and the motion seen by every camera (else the anchor)."""
         if self.streams:
             return self.streams
         self.sensor_topics = topics = self._sensor_topics()
@@ -90,8 +98,8 @@ class RigBag(BagSource):
         streams = {
             topics[n]: Stream(topics[n], LIDAR_STILL if kinds[n] == "lidar" else IMAGE_STILL) for n in order
         }
-        self._motion = topics[self.rig.cameras[0] if self.rig.cameras else anchor]
-        self._record(streams, {topics[n] for n in self.rig.lidars}, self._motion, self._ring_model)
+        self._motion = [topics[n] for n in (self.rig.cameras or (anchor,))]
+        self._record(streams, {topics[n] for n in self.rig.lidars}, set(self._motion), self._ring_model)
         if not streams[topics[anchor]].bag_ns:
             raise InputError(f"{self.path}: no message on {topics[anchor]} (sensor {anchor}, the anchor)")
         for n in order:
@@ -148,8 +156,7 @@ class RigBag(BagSource):
         pairs: dict[str, dict[int, int]],
     ) -> tuple[list[int], list[tuple[str, str]]]:
         """Anchor indices chosen by the single-pair source's rule (docs/datasets.md), and skipped pauses."""
-        motion = self.streams[self._motion]
-        runs, moving = motion.runs(), max(motion.changes, default=0.0) > motion.still
+        runs, moving = common_still_runs([self.streams[t] for t in self._motion])
         pauses = [(a, b) for a, b in runs if b - a >= self.min_pause]
         if not (self.select == "pauses" or (self.select == "auto" and moving and pauses)):
             if len(paired) > self.max_frames:

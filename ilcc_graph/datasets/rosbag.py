@@ -222,7 +222,7 @@ class BagSource(FrameSource):
         self.topics.update(lidar=lidar, image=image)
         streams = {lidar: Stream(lidar, LIDAR_STILL)} | ({image: Stream(image, IMAGE_STILL)} if image else {})
         motion = image or lidar  # the camera decides when there is one (docs/datasets.md)
-        self._record(streams, {lidar}, motion, lambda: self.config().lidar)
+        self._record(streams, {lidar}, {motion}, lambda: self.config().lidar)
         if not streams[lidar].bag_ns:
             raise InputError(f"{self.path}: no message on {lidar}")
         self._set_time_base(list(streams.values()), "no scan has an image")
@@ -230,17 +230,18 @@ class BagSource(FrameSource):
         self.streams = streams
         return streams
 
-    def _record(self, streams: dict[str, Stream], clouds: set[str], motion: str, model: Any) -> None:
+    def _record(self, streams: dict[str, Stream], clouds: set[str], motion: set[str], model: Any) -> None:
         """Fill ``streams`` (topic -> Stream) in one pass over the bag: every message's bag time, header
-        stamp and sweep offset (``clouds``: PointCloud2 topics), and the motion between samples of the
+        stamp and sweep offset (``clouds``: PointCloud2 topics), and the motion between samples of each
         ``motion`` topic (``model()``: the LiDAR model giving rings to a cloud without them)."""
-        last: tuple[int, Any] | None = None
+        lasts: dict[str, tuple[int, Any]] = {}
         for topic, t, msg in self._messages(list(streams)):
             s, where = streams[topic], f"{self.path}:{topic}"
             s.bag_ns.append(t)
             s.stamp_ns.append(int(msg.header.stamp.sec) * 10**9 + int(msg.header.stamp.nanosec))
             s.offset_s.append(sweep_offset(msg, where) if topic in clouds else 0.0)
-            if topic != motion or (last is not None and t - last[0] < MOTION_STEP_S * 1e9):
+            last = lasts.get(topic)
+            if topic not in motion or (last is not None and t - last[0] < MOTION_STEP_S * 1e9):
                 continue
             if topic in clouds:
                 scan = decode_cloud(msg, where)
@@ -251,7 +252,7 @@ class BagSource(FrameSource):
             if last is not None:
                 s.changes.append((lidar_change if topic in clouds else image_change)(last[1], sig))
             s.samples.append(len(s.bag_ns) - 1)
-            last = (t, sig)
+            lasts[topic] = (t, sig)
 
     def _set_time_base(self, streams: list[Stream], what: str) -> None:
         """Header stamps, or bag times when stamps are zero or when no other stream pairs with the first

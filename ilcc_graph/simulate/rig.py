@@ -13,7 +13,7 @@ same for every camera. Boards are placed by ``rig_placements.py`` so that the se
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -229,24 +229,28 @@ class RigMoment:
     images: dict[str, np.ndarray]
 
 
-def simulate_moments(spec: RigSpec) -> Iterator[RigMoment]:
+def simulate_moments(spec: RigSpec, scene_keys: Sequence[int] | None = None) -> Iterator[RigMoment]:
     """Yield the moments of ``spec`` one at a time (each camera's empty room rendered once).
 
     The boards are placed for the unmoved rig, so a capture with ``moved`` has the same boards as
-    the one without (the same seed)."""
+    the one without (the same seed). scene_keys: per moment, the key of the scene's random draws
+    (the person); default the moment's index (a walk keeps one key per placement)."""
     poses = spec.poses()
     boards = rig_placements(spec, spec.with_(moved=None).poses())
     first_cam = next((s.name for s in spec.sensors if s.camera is not None), spec.sensors[0].name)
     scene_spec = spec.sensor_spec(first_cam).with_(seed=int(spec.seed))
     specs = {n: spec.sensor_spec(n) for n in spec.names}
-    texture = ImageRenderer(scene_spec).texture  # one room for every camera
-    renderers = {s.name: ImageRenderer(specs[s.name]) for s in spec.sensors if s.camera is not None}
+    texture = ImageRenderer(scene_spec).texture  # one room for every camera (made once)
+    flat = replace(spec.image, textured_background=False)
+    renderers = {
+        s.name: ImageRenderer(specs[s.name].with_(image=flat)) for s in spec.sensors if s.camera is not None
+    }
     for r in renderers.values():
         r.texture = texture
     biases = {s.name: beam_biases(specs[s.name]) for s in spec.sensors if s.lidar is not None}
     origins = [T[:3, 3] for T in poses.values()]
     for i, T in enumerate(boards):
-        scene = frame_scene(scene_spec, T, i)
+        scene = frame_scene(scene_spec, T, i if scene_keys is None else int(scene_keys[i]))
         targets = np.vstack(
             [scene.board_outline_samples(16), T[:3, :3] @ spec.board.pattern_centre + T[:3, 3]]
         )

@@ -25,12 +25,12 @@ from .. import signals
 from ..config import rig_config_to_dict
 from ..io import write_image, write_yaml
 from ..io.rig_truth import write_rig_ground_truth
-from .bag import START_NS, RosMessages, bag_frame_name
+from .bag import START_NS, RosMessages, WalkAndPause, bag_frame_name, walk_poses
 from .export import write_scan
 from .frames import SimFrame
 from .rig import RigMoment, RigSpec, rig_ground_truth, simulate_moments
 
-__all__ = ["write_rig_bag", "write_rig_set"]
+__all__ = ["rig_walk", "write_rig_bag", "write_rig_set"]
 
 Progress = Callable[[int, int], None] | None
 CLOUD_T, IMAGE_T, COMPRESSED_T = (f"sensor_msgs/msg/{t}" for t in ("PointCloud2", "Image", "CompressedImage"))
@@ -80,6 +80,19 @@ def write_rig_set(
     return _assemble(Path(out), fill)
 
 
+def rig_walk(
+    spec: RigSpec, walk: WalkAndPause, rate_hz: float = 10.0
+) -> tuple[RigSpec, list[int], list[bool]]:
+    """A walk-and-pause recording of ``spec``'s boards (``bag.walk_poses``): the spec with one moment
+    per message time (``placements``), the scene key of each (its placement: the person stays) and
+    whether the board is still."""
+    from .rig_placements import rig_placements
+
+    steps = walk_poses(rig_placements(spec, spec.with_(moved=None).poses()), walk, rate_hz)
+    walk_spec = spec.with_(placements=tuple(T for T, _, _ in steps))
+    return walk_spec, [k for _, k, _ in steps], [still for _, _, still in steps]
+
+
 def write_rig_bag(
     out: Path | str,
     spec: RigSpec,
@@ -88,12 +101,15 @@ def write_rig_bag(
     storage: str = "ros1",
     image_format: str = "bgr8",
     rate_hz: float = 10.0,
+    timeline: WalkAndPause | None = None,
     moments: Sequence[RigMoment] | None = None,
 ) -> Path:
     """Simulate ``spec`` and write it as one bag with a topic per sensor, in the folder ``out`` (created;
     must be empty or absent) beside ``rig.yaml`` and ``rig_ground_truth.yaml``. storage: ``ros1``,
-    ``sqlite3`` or ``mcap``; image_format: ``bgr8``, ``png`` or ``jpeg``; moments: as :func:`write_rig_set`'s.
-    Returns ``out``."""
+    ``sqlite3`` or ``mcap``; image_format: ``bgr8``, ``png`` or ``jpeg``. timeline: a walk-and-pause
+    recording (:func:`rig_walk`; the truth's ``pauses`` lists each pause's first and last moment).
+    moments: ``simulate_moments`` of the spec (of ``rig_walk``'s with a timeline) when already
+    simulated. Returns ``out``."""
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import StoragePlugin
     from rosbags.rosbag2 import Writer as Writer2
@@ -110,6 +126,11 @@ def write_rig_bag(
     }
     latency_ns = {n: round((0.030 if n in lidars else 0.020) * 1e9) for n in spec.names}
     bag_name = "rig.bag" if storage == "ros1" else "rig"
+
+    still = None
+    if timeline is not None:
+        spec, keys, still = rig_walk(spec, timeline, rate_hz)
+        moments = list(simulate_moments(spec, keys)) if moments is None else moments
 
     def fill(tmp: Path) -> None:
         m = RosMessages(storage == "ros1")
@@ -146,6 +167,11 @@ def write_rig_bag(
         names = [bag_frame_name(t, start) for t in anchor_ns]
         write_yaml(tmp / "rig.yaml", rig_config_to_dict(spec.rig_config(topics, bag_name)))
         truth = rig_ground_truth(spec, [(nm, T, seen) for nm, (T, seen) in zip(names, done, strict=True)])
+        if still is not None:
+            edges = np.flatnonzero(np.diff(np.r_[0, np.asarray(still, dtype=int), 0]))
+            truth.extra["pauses"] = [
+                [names[a], names[b - 1]] for a, b in zip(edges[::2], edges[1::2], strict=True)
+            ]
         write_rig_ground_truth(tmp, truth)
 
     return _assemble(Path(out), fill)
