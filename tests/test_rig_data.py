@@ -15,7 +15,7 @@ from ilcc_graph.errors import DamagedFile, InputError
 from ilcc_graph.image import detect_corners
 from ilcc_graph.simulate import ImageOptions, Systematics, simulate_dataset, standard_spec
 from ilcc_graph.simulate.bag import WalkAndPause
-from ilcc_graph.simulate.rig import Mount, RigSpec, backpack_rig, ring_rig, simulate_moments
+from ilcc_graph.simulate.rig import RIG_PRESETS, Mount, RigSpec, backpack_rig, ring_rig, simulate_moments
 from ilcc_graph.simulate.rig_export import write_rig_bag, write_rig_set
 from ilcc_graph.simulate.rig_placements import rig_placements
 
@@ -244,3 +244,13 @@ def test_a_walk_and_pause_rig_bag_gives_one_moment_per_pause(tmp_path) -> None:
     d["data"]["select"] = "all"
     (bag / "rig.yaml").write_text(yaml.safe_dump(d))
     assert len(open_source(bag, rig=True).moments()) == len(gt.T_ref_board)  # every scan with its images
+
+
+def test_a_rig_set_stopped_half_way_leaves_nothing(tmp_path) -> None:
+    def stop(done: int, total: int) -> None:
+        raise KeyboardInterrupt
+
+    for name, make in RIG_PRESETS.items():
+        with pytest.raises(KeyboardInterrupt):
+            write_rig_set(tmp_path / name, make(width=160, n_moments=2), progress=stop)
+    assert list(tmp_path.iterdir()) == []

@@ -24,7 +24,7 @@ from .frames import ground_truth, simulate_frames
 from .intrinsics import IntrinsicsError, stated_camera
 from .spec import SimulationSpec, standard_spec
 
-__all__ = ["simulate_dataset", "config_dict", "write_scan", "write_standard_set"]
+__all__ = ["assemble", "simulate_dataset", "config_dict", "write_scan", "write_standard_set"]
 
 
 def config_dict(spec: SimulationSpec) -> dict:
@@ -47,36 +47,41 @@ def simulate_dataset(
     progress: called as ``progress(done, total)`` after each frame. Returns ``out_dir``.
     Raises ``FileExistsError`` when ``out_dir`` exists and is not empty.
     """
-    out = Path(out_dir)
+    return assemble(Path(out_dir), lambda tmp: _write(tmp, spec, progress))
+
+
+def assemble(out: Path, fill: Callable[[Path], None]) -> Path:
+    """Run ``fill(tmp)`` on a sibling temporary folder and rename it to ``out`` (absent or empty), so
+    ``out`` holds the whole data set or is left as it was. FileExistsError when ``out`` is not empty."""
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise FileExistsError(f"{out}: exists and is not an empty folder")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     with signals.on_stop(lambda: shutil.rmtree(tmp, ignore_errors=True)):
-        return _write(out, tmp, spec, progress)
-
-
-def _write(out: Path, tmp: Path, spec: SimulationSpec, progress: Callable[[int, int], None] | None) -> Path:
-    try:
-        write_yaml(tmp / "config.yaml", config_dict(spec))
-        names, poses = [], []
-        total = int(spec.n_frames)
-        for k, frame in enumerate(simulate_frames(spec)):
-            write_scan(tmp / "pcd", frame.name, frame.scan, spec.sensor_format)
-            write_image(tmp / "img" / f"{frame.name}.png", frame.image)
-            names.append(frame.name)
-            poses.append(frame.T_lidar_board)
-            if progress is not None:
-                progress(k + 1, total)
-        gt = ground_truth(spec, [_Pose(n, T) for n, T in zip(names, poses, strict=True)])
-        write_yaml(tmp / "ground_truth.yaml", gt)
-        if out.exists():
-            out.rmdir()
-        tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        try:
+            fill(tmp)
+            if out.exists():
+                out.rmdir()
+            tmp.rename(out)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
     return out
+
+
+def _write(tmp: Path, spec: SimulationSpec, progress: Callable[[int, int], None] | None) -> None:
+    write_yaml(tmp / "config.yaml", config_dict(spec))
+    names, poses = [], []
+    total = int(spec.n_frames)
+    for k, frame in enumerate(simulate_frames(spec)):
+        write_scan(tmp / "pcd", frame.name, frame.scan, spec.sensor_format)
+        write_image(tmp / "img" / f"{frame.name}.png", frame.image)
+        names.append(frame.name)
+        poses.append(frame.T_lidar_board)
+        if progress is not None:
+            progress(k + 1, total)
+    gt = ground_truth(spec, [_Pose(n, T) for n, T in zip(names, poses, strict=True)])
+    write_yaml(tmp / "ground_truth.yaml", gt)
 
 
 def write_scan(folder: Path, stem: str, scan: Scan, sensor_format: str) -> Path:

@@ -13,7 +13,7 @@ same for every camera. Boards are placed by ``rig_placements.py`` so that the se
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -34,8 +34,8 @@ from .scene import SURF_PERSON
 from .spec import ImageOptions, SceneOptions, SimulationSpec, Systematics, default_camera, paper_board
 
 __all__ = [
-    "Mount", "RigMoment", "RigSensorSpec", "RigSpec", "backpack_rig", "mount", "rig_ground_truth", "ring_rig",
-    "simulate_moments",
+    "RIG_PRESETS", "Mount", "RigMoment", "RigSensorSpec", "RigSpec", "backpack_rig", "mount",
+    "rig_ground_truth", "ring_rig", "simulate_moments",
 ]  # fmt: skip
 
 PURPOSE_RIG_SENSOR = 7  # stream key of the per-sensor seeds (placements.py: 0-2, intrinsics.py: 9)
@@ -351,3 +351,11 @@ def rig_ground_truth(
         "systematics": spec.sensor_spec(spec.reference).summary()["systematics"],
     }  # fmt: skip
     return RigGroundTruth(spec.reference, T_ref, boards, seen, extra)
+
+
+#: the preset rigs by name (``ring_rig`` with its camera kind, ``backpack_rig``), each ``f(**kw) -> RigSpec``
+RIG_PRESETS: dict[str, Callable[..., RigSpec]] = {
+    "ring-pinhole": lambda **kw: ring_rig("pinhole", **kw),
+    "ring-fisheye": lambda **kw: ring_rig("fisheye", **kw),
+    "backpack": backpack_rig,
+}

@@ -14,19 +14,16 @@ place, so ``OUT`` holds a whole set or is left as it was.
 
 from __future__ import annotations
 
-import shutil
-import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
-from .. import signals
 from ..config import rig_config_to_dict
 from ..io import write_image, write_yaml
 from ..io.rig_truth import write_rig_ground_truth
 from .bag import START_NS, RosMessages, WalkAndPause, bag_frame_name, walk_poses
-from .export import write_scan
+from .export import assemble, write_scan
 from .frames import SimFrame
 from .rig import RigMoment, RigSpec, rig_ground_truth, simulate_moments
 
@@ -34,24 +31,6 @@ __all__ = ["rig_walk", "write_rig_bag", "write_rig_set"]
 
 Progress = Callable[[int, int], None] | None
 CLOUD_T, IMAGE_T, COMPRESSED_T = (f"sensor_msgs/msg/{t}" for t in ("PointCloud2", "Image", "CompressedImage"))
-
-
-def _assemble(out: Path, fill: Callable[[Path], None]) -> Path:
-    """Run ``fill(tmp)`` on a sibling temporary folder and rename it to ``out`` (absent or empty)."""
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise FileExistsError(f"{out}: exists and is not an empty folder")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-    with signals.on_stop(lambda: shutil.rmtree(tmp, ignore_errors=True)):
-        try:
-            fill(tmp)
-            if out.exists():
-                out.rmdir()
-            tmp.rename(out)
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-    return out
 
 
 def write_rig_set(
@@ -77,7 +56,7 @@ def write_rig_set(
                 progress(k + 1, int(spec.n_moments))
         write_rig_ground_truth(tmp, rig_ground_truth(spec, done))
 
-    return _assemble(Path(out), fill)
+    return assemble(Path(out), fill)
 
 
 def rig_walk(
@@ -174,4 +153,4 @@ def write_rig_bag(
             ]
         write_rig_ground_truth(tmp, truth)
 
-    return _assemble(Path(out), fill)
+    return assemble(Path(out), fill)
