@@ -1,8 +1,9 @@
 """Write a simulated data set (the simulator's only file I/O, through ``ilcc_graph.io`` writers).
 
 Layout (interface.md): ``config.yaml`` (our schema), ``pcd/<stem>.pcd`` (binary, x y z intensity
-ring; organised HEIGHT x WIDTH for ``sensor_format="ouster"``) or ``pcd/<stem>.csv`` (ILCC's CSV
-with the hardware ``laser_id`` for ``"velodyne-csv"``), ``img/<stem>.png``, ``ground_truth.yaml``.
+ring; organised HEIGHT x WIDTH for ``sensor_format="ouster"``; header and fields as another tool
+writes them with ``pcd_style``, e.g. MATLAB's) or ``pcd/<stem>.csv`` (ILCC's CSV with the hardware
+``laser_id`` for ``"velodyne-csv"``), ``img/<stem>.png``, ``ground_truth.yaml``.
 Every file is written atomically; the data set
 is assembled in a sibling temporary folder and renamed into place at the end, so ``out_dir``
 either holds a complete data set or is left as it was.
@@ -17,7 +18,7 @@ from pathlib import Path
 
 from .. import signals
 from ..errors import InputError
-from ..io import write_image, write_pcd, write_yaml
+from ..io import PCD_STYLES, write_image, write_pcd, write_yaml
 from ..io.scans import write_csv
 from .frames import ground_truth, simulate_frames
 from .intrinsics import IntrinsicsError, stated_camera
@@ -40,22 +41,30 @@ def simulate_dataset(
     out_dir: Path | str,
     spec: SimulationSpec,
     progress: Callable[[int, int], None] | None = None,
+    pcd_style: str = "plain",
 ) -> Path:
     """Simulate ``spec`` and write the data set to ``out_dir`` (created; must be empty or absent).
 
-    progress: called as ``progress(done, total)`` after each frame. Returns ``out_dir``.
+    progress: called as ``progress(done, total)`` after each frame. pcd_style: how the PCD files
+    look (``io.write_pcd``'s ``style``: ``plain``, ``pcl``, ``open3d``, ``matlab``). Returns ``out_dir``.
     Raises ``FileExistsError`` when ``out_dir`` exists and is not empty.
     """
+    if pcd_style not in PCD_STYLES:
+        raise ValueError(f"pcd_style must be one of {PCD_STYLES}, got {pcd_style!r}")
+    if pcd_style != "plain" and spec.sensor_format == "velodyne-csv":
+        raise ValueError(f"pcd_style {pcd_style!r} needs PCD output; sensor_format 'velodyne-csv' writes CSV")
     out = Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise FileExistsError(f"{out}: exists and is not an empty folder")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     with signals.on_stop(lambda: shutil.rmtree(tmp, ignore_errors=True)):
-        return _write(out, tmp, spec, progress)
+        return _write(out, tmp, spec, progress, pcd_style)
 
 
-def _write(out: Path, tmp: Path, spec: SimulationSpec, progress: Callable[[int, int], None] | None) -> Path:
+def _write(
+    out: Path, tmp: Path, spec: SimulationSpec, progress: Callable[[int, int], None] | None, pcd_style: str
+) -> Path:
     try:
         write_yaml(tmp / "config.yaml", config_dict(spec))
         names, poses = [], []
@@ -71,9 +80,10 @@ def _write(out: Path, tmp: Path, spec: SimulationSpec, progress: Callable[[int, 
                     scan,
                     data="binary",
                     organised=(rows, int(scan.columns)),
+                    style=pcd_style,
                 )  # type: ignore[arg-type]
             else:
-                write_pcd(tmp / "pcd" / f"{frame.name}.pcd", scan, data="binary")
+                write_pcd(tmp / "pcd" / f"{frame.name}.pcd", scan, data="binary", style=pcd_style)
             write_image(tmp / "img" / f"{frame.name}.png", frame.image)
             names.append(frame.name)
             poses.append(frame.T_lidar_board)
@@ -101,12 +111,16 @@ def write_standard_set(
     out: Path | str,
     progress: Callable[[int, int], None] | None = None,
     intrinsics_error: float = 0.0,
+    pcd_style: str = "plain",
     **spec: object,
 ) -> SimulationSpec:
     """The standard set (``standard_spec(**spec)``, stated intrinsics off by ``intrinsics_error`` x a
-    typical error) written to ``out``; InputError naming the option or the folder when it cannot be."""
+    typical error) written to ``out`` with PCD files in ``pcd_style``; InputError naming the option
+    or the folder when it cannot be."""
     try:
         s = standard_spec(intrinsics_error=IntrinsicsError.typical(intrinsics_error), **spec)  # type: ignore[arg-type]
+        if pcd_style != "plain" and s.sensor_format == "velodyne-csv":
+            raise ValueError(f"--pcd-style {pcd_style} needs PCD files; --format velodyne-csv writes CSV")
     except ValueError as err:
         raise InputError(f"simulate: {err}") from None
     parent = Path(out).parent
@@ -115,7 +129,7 @@ def write_standard_set(
     if not parent.is_dir():
         raise InputError(f"{out}: {parent} is a file, so the data set's folder cannot be made under it")
     try:
-        simulate_dataset(Path(out), s, progress=progress)
+        simulate_dataset(Path(out), s, progress=progress, pcd_style=pcd_style)
     except FileExistsError as err:
         raise InputError(f"{err}; choose a new folder") from None
     except OSError as err:
