@@ -74,8 +74,6 @@ def _header_lines(path: Path, raw: bytes) -> tuple[list[tuple[int, str]], int]:
 
 def _header(path: Path, raw: bytes) -> tuple[str, list[tuple[str, int, list[tuple[str, str]], bool]], int]:
     """(format, elements [(name, count, [(prop, type)], has_list)], data offset)."""
-    if not raw.startswith(b"ply"):
-        raise InputError(f"{path}: not a PLY file (does not start with 'ply')")
     lines, start = _header_lines(path, raw)
     fmt = ""
     elements: list[tuple[str, int, list[tuple[str, str]], bool]] = []

@@ -208,9 +208,8 @@ def read_csv(path: Path, intensity_column: int | None = None) -> Scan:
     x y z first, intensity at ``intensity_column`` (a 4-column file needs none)."""
     lines = path.read_bytes().decode("utf-8-sig", errors="replace").splitlines()
     head, body_lines, sep = _csv_layout(path, lines)
-    ncols = len(_split(body_lines[0], sep)) if body_lines else len(head or [])
+    ncols = len(head) if head is not None else len(_split(body_lines[0], sep))
     if head is not None:
-        ncols = len(head)
         cols = find_fields(path, head, need_intensity=intensity_column is None)
         if cols["intensity"] is None:  # header without an intensity name: use the configured column
             if not 3 <= int(intensity_column) < ncols:  # type: ignore[arg-type]
