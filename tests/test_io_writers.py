@@ -295,21 +295,27 @@ def test_ring_and_time_fields_of_any_type(tmp_path: Path, code: str) -> None:
 
 
 # --------------------------------------------------------------------------- Open3D's own writers
-@pytest.mark.parametrize("kind", ["ascii", "binary", "binary_compressed"])
-def test_open3d_tensor_writer(tmp_path: Path, kind: str) -> None:
-    """Open3D's tensor writer: packed ``rgb`` (U4), ``t`` (U4), ``ring`` (U2), ``intensity`` (F4)."""
-    o3d = pytest.importorskip("open3d")
-    n = 30
-    pts = _rng_points(n, 7)
-    rng = np.random.default_rng(7)
+def o3d_cloud(o3d, n: int, seed: int):  # noqa: ANN001, ANN201 - the open3d module, its PointCloud
+    """An Open3D tensor cloud with float32 positions, colours, intensity and a uint16 ring; and the
+    (n, 3) points, (n, 1) intensity and (n, 1) ring it holds."""
+    rng = np.random.default_rng(seed)
+    pts = _rng_points(n, seed)
     inten = rng.uniform(0, 255, (n, 1)).astype(np.float32)
     ring = rng.integers(0, 128, (n, 1)).astype(np.uint16)
     pc = o3d.t.geometry.PointCloud()
     pc.point.positions = o3d.core.Tensor(pts)
+    pc.point.colors = o3d.core.Tensor(rng.uniform(0, 1, (n, 3)).astype(np.float32))
     pc.point.intensity = o3d.core.Tensor(inten)
     pc.point.ring = o3d.core.Tensor(ring)
-    pc.point.t = o3d.core.Tensor(np.arange(n, dtype=np.uint32)[:, None])
-    pc.point.colors = o3d.core.Tensor(rng.uniform(0, 1, (n, 3)).astype(np.float32))
+    return pc, pts, inten, ring
+
+
+@pytest.mark.parametrize("kind", ["ascii", "binary", "binary_compressed"])
+def test_open3d_tensor_writer(tmp_path: Path, kind: str) -> None:
+    """Open3D's tensor writer: packed ``rgb`` (U4), ``t`` (U4), ``ring`` (U2), ``intensity`` (F4)."""
+    o3d = pytest.importorskip("open3d")
+    pc, pts, inten, ring = o3d_cloud(o3d, 30, 7)
+    pc.point.t = o3d.core.Tensor(np.arange(30, dtype=np.uint32)[:, None])
     path = tmp_path / f"o3d_{kind}.pcd"
     assert o3d.t.io.write_point_cloud(
         str(path), pc, write_ascii=kind == "ascii", compressed=kind == "binary_compressed"

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_io_writers import _cross_check, _rng_points
+from test_io_writers import _cross_check, _rng_points, o3d_cloud
 
 from ilcc_graph.errors import InputError
 from ilcc_graph.io import read_scan
@@ -185,16 +185,7 @@ def test_open3d_ply_writers(tmp_path: Path, ascii_: bool) -> None:
     """Open3D's tensor writer (float x y z, float colours, intensity, ``uint16`` ring) is read
     value for value; its legacy writer (double x y z, no intensity) is refused naming the fields."""
     o3d = pytest.importorskip("open3d")
-    n = 20
-    pts = _rng_points(n, 23)
-    rng = np.random.default_rng(23)
-    inten = rng.uniform(0, 100, (n, 1)).astype(np.float32)
-    ring = rng.integers(0, 64, (n, 1)).astype(np.uint16)
-    pc = o3d.t.geometry.PointCloud()
-    pc.point.positions = o3d.core.Tensor(pts)
-    pc.point.colors = o3d.core.Tensor(rng.uniform(0, 1, (n, 3)).astype(np.float32))
-    pc.point.intensity = o3d.core.Tensor(inten)
-    pc.point.ring = o3d.core.Tensor(ring)
+    pc, pts, inten, ring = o3d_cloud(o3d, 20, 23)
     path = tmp_path / "t.ply"
     assert o3d.t.io.write_point_cloud(str(path), pc, write_ascii=ascii_)
     assert b"comment Created by Open3D" in path.read_bytes()[:100]
