@@ -254,3 +254,16 @@ def test_a_rig_set_stopped_half_way_leaves_nothing(tmp_path) -> None:
         with pytest.raises(KeyboardInterrupt):
             write_rig_set(tmp_path / name, make(width=160, n_moments=2), progress=stop)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_single_pair_set_seen_as_a_rig_calibrates_to_todays_result(tmp_path) -> None:
+    from ilcc_graph.pipeline import run
+
+    spec = standard_spec(lidar="hdl32", camera="pinhole", width=800, frames=6, seed=5)
+    data = simulate_dataset(tmp_path / "pair", spec)
+    base = run([FolderSource(data)]).calibration
+    cal = run([open_source(data, rig=True).pair("camera", "lidar")]).calibration
+    assert sum(f.used for f in base.frames) == 6
+    assert [(f.name, f.used) for f in cal.frames] == [(f.name, f.used) for f in base.frames]
+    np.testing.assert_array_equal(cal.T_cam_lidar, base.T_cam_lidar)
+    np.testing.assert_array_equal(cal.covariance, base.covariance)
