@@ -3,6 +3,7 @@ the same moments and arrays from a folder per sensor and from one bag."""
 
 from __future__ import annotations
 
+import pickle
 import shutil
 
 import numpy as np
@@ -61,6 +62,9 @@ def test_folder_and_bags_give_the_same_moments_and_data(ring) -> None:
             for cam in a.sensors[1:]:
                 np.testing.assert_array_equal(folder.read_image(a, cam), bag.read_image(b, cam))
                 assert folder.image_size(a, cam) == bag.image_size(b, cam) == (480, 300)
+        again = pickle.loads(pickle.dumps(bag))  # a worker process gets the source pickled
+        cam = got[0].sensors[1]
+        np.testing.assert_array_equal(again.read_image(got[0], cam), folder.read_image(ref[0], cam))
         ga, gb = folder.ground_truth(), bag.ground_truth()
         assert list(gb.T_ref_board) == [m.name for m in got]
         for a, b in zip(ref, got, strict=True):
@@ -190,6 +194,8 @@ def test_a_single_pair_data_set_opens_as_a_rig_of_two(tmp_path) -> None:
     np.testing.assert_array_equal(src.read_image(refs[0].name, "camera"), folder.read_image(refs[0]))
     gt = src.ground_truth()
     np.testing.assert_allclose(gt.T_a_b("camera", "lidar"), spec.T_cam_lidar, atol=1e-12)
+    by_file = open_source(data / "config.yaml", rig=True)  # the config file itself
+    assert [m.name for m in by_file.moments()] == [r.name for r in refs]
 
 
 def test_damaged_and_wrong_input_name_the_file(ring, tmp_path) -> None:

@@ -72,8 +72,8 @@ def _open_rig(p: Path, given: dict[str, object]) -> RigSource:
         raise InputError(
             f"{p}: {', '.join(sorted(given))}: options of a ROS bag, not of a rig or folder data set"
         )
-    if is_rig_source(p):
-        return RigSource(p)
+    if is_rig_source(p) or (p.is_file() and p.suffix.lower() in (".yaml", ".yml")):
+        return RigSource(p)  # a rig file, or a single-pair config file (the rig of two beside it)
     if is_folder_source(p):
         return RigSource(p, rig_from_config(load_config(p / "config.yaml"), p))
     if not p.exists():

@@ -105,28 +105,32 @@ class RigSource:
         return self._rig
 
     # -- moments ---------------------------------------------------------------------------------
+    def _load(self) -> None:
+        """List the moments once (folders or the bag); the ones of fewer than two sensors are skipped."""
+        if self._moments is not None:
+            return
+        rig = self.config()
+        found = self._bag_reader().moments() if rig.data.bag is not None else self._folder_moments(rig)
+        self._all, self._files_skipped = found[0], list(found[1])
+        self._moments = [m for m in self._all if len(m.files) >= 2]
+        self._skipped = list(self._files_skipped)
+        for m in self._all:
+            if len(m.files) < 2:
+                only = f"only {m.sensors[0]} has a file" if m.files else "no sensor has a file"
+                self._skipped.append((m.name, f"{only} at this moment; a moment relates two or more sensors"))
+
     def moments(self) -> list[Moment]:
-        """The moments with files of at least two sensors, in order (the others are ``skipped``)."""
-        if self._moments is None:
-            rig = self.config()
-            found = self._bag_reader().moments() if rig.data.bag is not None else self._folder_moments(rig)
-            self._all, self._files_skipped = found[0], list(found[1])
-            self._moments = [m for m in self._all if len(m.files) >= 2]
-            self._skipped = list(self._files_skipped)
-            for m in self._all:
-                if len(m.files) < 2:
-                    only = f"only {m.sensors[0]} has a file" if m.files else "no sensor has a file"
-                    self._skipped.append(
-                        (m.name, f"{only} at this moment; a moment relates two or more sensors")
-                    )
-            if not self._moments:
-                detail = "; ".join(f"{n}: {r}" for n, r in self._skipped[:4])
-                raise InputError(f"{self.location}: no moment with files of two or more sensors ({detail})")
+        """The moments with files of at least two sensors, in order (the others are ``skipped``);
+        InputError when there is none."""
+        self._load()
+        if not self._moments:
+            detail = "; ".join(f"{n}: {r}" for n, r in self._skipped[:4]) or "no files"
+            raise InputError(f"{self.location}: no moment with files of two or more sensors ({detail})")
         return list(self._moments)
 
     def all_moments(self) -> list[Moment]:
         """Every moment, also those with one sensor's file only (a LiDAR-only or camera-only look)."""
-        self.moments()
+        self._load()
         return list(self._all)
 
     def skipped(self) -> list[tuple[str, str]]:
@@ -135,7 +139,7 @@ class RigSource:
 
     def skipped_files(self) -> list[tuple[str, str]]:
         """(name, reason) of files (bag: messages, pauses) that could not become part of a moment."""
-        self.moments()
+        self._load()
         return list(self._files_skipped)
 
     def moment(self, name: str) -> Moment:
@@ -273,7 +277,6 @@ class RigPair(FrameSource):
 
     def frames(self, require_scan: bool = True, require_image: bool = True) -> list[FrameRef]:
         refs, self._skipped = [], []
-        self.rig.moments()  # InputError when the rig has no moment at all
         for m in self.rig.all_moments():
             scan, image = m.files.get(self.lidar), m.files.get(self.camera)
             parts = ((self.lidar, require_scan, scan), (self.camera, require_image, image))
@@ -284,6 +287,11 @@ class RigPair(FrameSource):
                 )
             elif scan is not None or image is not None:
                 refs.append(FrameRef(m.name, scan, image))
+        if not refs:
+            detail = "; ".join(f"{n}: {r}" for n, r in self._skipped[:3]) or "no files"
+            raise InputError(
+                f"{self.rig.location}: no moment has files of {self.camera} and {self.lidar} ({detail})"
+            )
         return refs
 
     def skipped(self) -> list[tuple[str, str]]:
