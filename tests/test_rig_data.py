@@ -10,15 +10,24 @@ import numpy as np
 import pytest
 import yaml
 
+from ilcc_graph.cameras import camera_class, camera_kinds
 from ilcc_graph.damage import check_image_size, read_frame_file
 from ilcc_graph.datasets import FolderSource, RigSource, open_source
 from ilcc_graph.errors import DamagedFile, InputError
 from ilcc_graph.image import detect_corners
 from ilcc_graph.simulate import ImageOptions, Systematics, simulate_dataset, standard_spec
 from ilcc_graph.simulate.bag import WalkAndPause
-from ilcc_graph.simulate.rig import RIG_PRESETS, Mount, RigSpec, backpack_rig, ring_rig, simulate_moments
+from ilcc_graph.simulate.rig import (
+    RIG_PRESETS,
+    Mount,
+    RigSpec,
+    backpack_rig,
+    horizontal_fov_deg,
+    ring_rig,
+    simulate_moments,
+)
 from ilcc_graph.simulate.rig_export import write_rig_bag, write_rig_set
-from ilcc_graph.simulate.rig_placements import rig_placements
+from ilcc_graph.simulate.rig_placements import rig_placements, sees
 
 
 @pytest.fixture(scope="module")
@@ -273,3 +282,21 @@ def test_a_single_pair_set_seen_as_a_rig_calibrates_to_todays_result(tmp_path) -
     assert [(f.name, f.used) for f in cal.frames] == [(f.name, f.used) for f in base.frames]
     np.testing.assert_array_equal(cal.T_cam_lidar, base.T_cam_lidar)
     np.testing.assert_array_equal(cal.covariance, base.covariance)
+
+
+@pytest.mark.parametrize("kind", [k for k in camera_kinds() if not camera_class(k).periodic_u])
+def test_each_board_is_seen_whole_by_its_views_cameras_alone(kind) -> None:
+    spec = ring_rig(kind, 320, n_moments=8, seed=6)
+    poses = spec.poses()
+    shared: dict[frozenset, int] = {}
+    for i, T in enumerate(rig_placements(spec, poses)):
+        view = set(spec.views[i % len(spec.views)])
+        seeing = {n for n in spec.names if sees(spec.sensor(n), poses[n], T, spec)}
+        assert seeing == view, (i, seeing, view)
+        cams = frozenset(view - {"lidar"})
+        shared[cams] = shared.get(cams, 0) + 1
+    pairs = {tuple(sorted(c)): n for c, n in shared.items() if len(c) == 2}
+    wide = horizontal_fov_deg(spec.sensor("front").camera) > 100
+    assert pairs == (
+        {("front", "left"): 2, ("back", "left"): 1} if wide else {}
+    )  # back+right, right+front: none

@@ -136,10 +136,10 @@ class RigConfig:
 
     def pair_config(self, camera: str, lidar: str) -> Config:
         """The single-pair :class:`Config` of one camera and one LiDAR of the rig (the stages' input)."""
-        cam, lid = self.sensor(camera), self.sensor(lidar)
-        if cam.kind != "camera" or lid.kind != "lidar":
+        sc, sl = self.sensor(camera), self.sensor(lidar)
+        if sc.camera is None or sl.kind != "lidar":
             raise ValueError(f"pair_config: {camera!r} must be a camera and {lidar!r} a LiDAR")
-        return Config(self.board, lid.lidar, cam.camera, lid.roi, lid.intensity_column, self.source)  # type: ignore[arg-type]
+        return Config(self.board, sl.lidar, sc.camera, sl.roi, sl.intensity_column, self.source)
 
 
 def rig_from_config(

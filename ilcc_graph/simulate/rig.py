@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from ..board import Board
 from ..cameras import CameraModel, Equirectangular
-from ..config import RigConfig, RigSensor
+from ..config import RigConfig, RigData, RigSensor
 from ..io.rig_truth import RigGroundTruth
 from ..lidars import LidarModel, lidar_model
 from ..types import Scan
@@ -34,8 +34,8 @@ from .scene import SURF_PERSON
 from .spec import ImageOptions, SceneOptions, SimulationSpec, Systematics, default_camera, paper_board
 
 __all__ = [
-    "RIG_PRESETS", "Mount", "RigMoment", "RigSensorSpec", "RigSpec", "backpack_rig", "mount",
-    "rig_ground_truth", "ring_rig", "simulate_moments",
+    "RIG_PRESETS", "Mount", "RigMoment", "RigSensorSpec", "RigSpec", "backpack_rig", "horizontal_fov_deg",
+    "mount", "rig_ground_truth", "ring_rig", "simulate_moments",
 ]  # fmt: skip
 
 PURPOSE_RIG_SENSOR = 7  # stream key of the per-sensor seeds (placements.py: 0-2, intrinsics.py: 9)
@@ -195,8 +195,6 @@ class RigSpec:
     def rig_config(self, topics: dict[str, str] | None = None, bag: str | None = None) -> RigConfig:
         """The rig.yaml this set is written with: the true sensor models, nominal mounts as guesses,
         a folder per sensor named after it (or ``topics`` of ``bag``)."""
-        from ..config import RigData
-
         poses = {s.name: s.nominal for s in self.sensors}
         ref = poses[self.reference]
         sensors = tuple(
@@ -271,26 +269,44 @@ def _mounted(name: str, xyz: Any, ypr: Any, tweak: Any, **kw: Any) -> RigSensorS
     return RigSensorSpec(name, mount(xyz, ypr, R_flu, tweak), nominal=mount(xyz, ypr, R_flu), **kw)
 
 
+def horizontal_fov_deg(cam: CameraModel) -> float:
+    """Degrees between the bearings of the middle row's first and last pixel (360 when it wraps)."""
+    mid = (cam.height - 1) / 2
+    b = cam.bearing(np.array([[0.0, mid], [cam.width - 1.0, mid]])) @ np.asarray(cam.R_flu_cam).T
+    az = np.degrees(np.arctan2(b[:, 1], b[:, 0]))
+    return float(az[0] - az[1]) if np.all(np.isfinite(az)) and not cam.periodic_u else 360.0
+
+
+def _narrowed(cam: CameraModel, max_deg: float) -> CameraModel:
+    """``cam`` with fx and fy raised in 5 % steps until its horizontal field is at most ``max_deg``."""
+    if cam.intrinsic_names[:2] != ("fx", "fy"):
+        return cam
+    theta = cam.intrinsics().copy()
+    while horizontal_fov_deg(cam) > max_deg:
+        theta[:2] *= 1.05
+        cam = cam.with_intrinsics(theta)
+    return cam
+
+
 def ring_rig(
     camera: str = "pinhole", width: int | None = 640, lidar: str = "hdl32", n_moments: int = 12, **kw: Any
 ) -> RigSpec:
-    """One LiDAR (the reference) and four cameras of one kind at 90 deg yaw steps (front, left, back,
-    right), 12 cm out from the LiDAR's axis and 20 cm above it, each off its drawn mount by a known
-    small rotation. Pinhole (90 deg wide): each board is seen by one camera, so no camera pair shares
-    a board. Fisheye: front+left share most boards, left+back a few, back+right and right+front none."""
-    kind, names = camera, ("front", "left", "back", "right")
+    """One LiDAR (the reference) and four lens cameras of one kind at 90 deg yaw steps (front, left,
+    back, right), 12 cm out from the LiDAR's axis and 20 cm above it, each off its drawn mount by a
+    known small rotation. A camera wider than 140 deg is narrowed to 140 deg (fx, fy raised), so that a
+    board can be seen by one camera alone. Up to 100 deg wide (pinhole: 90): each board is seen by one
+    camera, so no camera pair shares a board. Wider (fisheye): per 8 boards front+left share 2,
+    left+back 1, back+right and right+front none."""
+    names = ("front", "left", "back", "right")
     sensors = [RigSensorSpec("lidar", np.eye(4), lidar=lidar, nominal=np.eye(4))]
+    cam = _narrowed(default_camera(camera, width), 140.0)
     for k, name in enumerate(names):
         yaw = 90.0 * k
-        cam = default_camera(kind, width)
-        if kind == "fisheye":  # f = 0.42 W: about 140 deg across, so that boards can be seen by one camera
-            theta = cam.intrinsics()
-            cam = cam.with_intrinsics(np.r_[0.42 * cam.width, 0.42 * cam.width, theta[2:]])
         xyz = [0.12 * np.cos(np.deg2rad(yaw)), 0.12 * np.sin(np.deg2rad(yaw)), 0.20]
         tweak = np.array([1.0, -1.5, 2.0]) * (1.0 if k % 2 == 0 else -0.7)
         sensors.append(_mounted(name, xyz, (yaw, 0.0, 0.0), tweak, camera=cam))
     F, L, B, R = names
-    if kind == "fisheye":
+    if horizontal_fov_deg(cam) > 100.0:
         views = ((F,), (F, L), (L,), (L, B), (B,), (R,), (F, L), (R,))
     else:
         views = ((F,), (L,), (B,), (R,))
