@@ -192,6 +192,7 @@ def build_parser(commands: Mapping[str, Callable[[argparse.Namespace], int]]) ->
     sp.add_argument("--out", help="file to write (default: standard output)")
     sp.add_argument("--parent", choices=("lidar", "camera"), help="ros-tf: the parent frame (default lidar)")
     sp.add_argument("--lidar-frame", help="ros-tf: the LiDAR's frame id (default lidar)")
-    sp.add_argument("--camera-frame", help="ros-tf: the camera's frame id (default camera)")
+    help = "ros-tf: the camera's frame id (default camera_optical for a lens camera, camera for a panorama)"
+    sp.add_argument("--camera-frame", help=help)
     sp.add_argument("--ros", choices=("both", "ros1", "ros2"), help="ros-tf: which ROS (default both)")
     return p

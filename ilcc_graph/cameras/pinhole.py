@@ -249,17 +249,17 @@ class Pinhole(LensModel):
         return (D + [0.0] * 5)[: max(5, len(D))]
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
-        fields: dict[str, Any] = {"camera_model": "pinhole", "intrinsics": self._kalibr_fxfycxcy()}
-        if np.all(self.dist[4:] == 0.0):
-            fields["distortion_model"] = "radtan"
-            fields["distortion_coeffs"] = np.pad(self.dist, (0, max(0, 4 - self.dist.size)))[:4].tolist()
-            return fields, []
-        fields["opencv_dist"] = self.dist.tolist()
-        notes = [
-            "OpenCV distortion with k3.. non-zero has no Kalibr model: "
-            "opencv_dist holds (k1, k2, p1, p2, k3, ...) and no distortion_model is written."
-        ]
-        return fields, notes
+        if np.any(self.dist[4:] != 0.0):
+            raise ValueError(
+                "Kalibr's radtan distortion has 4 coefficients (k1, k2, p1, p2); this camera's "
+                f"k3.. = {self.dist[4:].tolist()} are not zero, so Kalibr cannot hold it"
+            )
+        return {
+            "camera_model": "pinhole",
+            "intrinsics": self._kalibr_fxfycxcy(),
+            "distortion_model": "radtan",
+            "distortion_coeffs": np.pad(self.dist, (0, max(0, 4 - self.dist.size)))[:4].tolist(),
+        }, []
 
     @classmethod
     def default(cls, width: int | None = None) -> Pinhole:
