@@ -76,6 +76,16 @@ def test_every_kind_honours_the_interface(kind: str) -> None:
     assert (R @ forward_cam)[0] > 0.99  # LiDAR forward is the camera's forward (FLU x) up to 5 deg
 
 
+@pytest.mark.parametrize("kind", KINDS)
+def test_the_principal_point_sees_straight_ahead(kind) -> None:
+    """The pixel at the principal point (a panorama's centre) sees along the camera's forward axis
+    (a fisheye once turned it 90 degrees: its root-finder stepped away from a root at zero)."""
+    cam = default_camera(kind, 640)
+    d = cam.to_dict()
+    c = [d["K"][0][2], d["K"][1][2]] if "K" in d else [(cam.width - 1) / 2, (cam.height - 1) / 2]
+    np.testing.assert_allclose(cam.R_flu_cam @ cam.bearing(np.array(c)), [1.0, 0.0, 0.0], atol=1e-15)
+
+
 def test_cli_camera_choices_come_from_the_registry() -> None:
     from ilcc_graph.cli import build_parser
 
