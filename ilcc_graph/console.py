@@ -103,9 +103,12 @@ def DEG_MM(text: str) -> tuple[float, float]:  # noqa: N802 - an argparse type, 
 
 
 def setup_logging(verbose: bool) -> None:
-    """INFO on stderr; DEBUG for our own loggers with ``verbose`` (not every library's)."""
+    """INFO on stderr; DEBUG for our own loggers with ``verbose`` (not every library's). The estimation
+    core's notes on its way (each frame the gate drops as it goes, the variance components) only with
+    ``verbose``: the closing summary says what came of them, once."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(message)s")
     logging.getLogger("ilcc_graph").setLevel(logging.DEBUG if verbose else logging.INFO)
+    logging.getLogger("ilcc_graph.estimation").setLevel(logging.DEBUG if verbose else logging.WARNING)
 
 
 def report_bug(err: BaseException, out: Path | None, debug: bool, argv: list[str] | None = None) -> int:
