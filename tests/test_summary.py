@@ -4,6 +4,8 @@
 from __future__ import annotations
 
 import math
+import os
+import re
 import shlex
 import shutil
 import subprocess
@@ -101,11 +103,11 @@ def test_the_verdict_rule():
     assert verdict(paper)[0] == "NO UNCERTAINTY"
 
 
-# ------------------------------------------------------------------------------ a real terminal
-def _tmux(cwd: Path, command: str, timeout: float = 240.0) -> list[str]:
+# ------------------------------------------------------------------ a real terminal, a real browser
+def _tmux(cwd: Path, command: str, timeout: float = 300.0) -> list[str]:
     """Run ``command`` in a detached tmux session 80 columns wide; every line it showed (wrapped
     rows joined back, so a line longer than the window shows as such)."""
-    name = f"ilcc-summary-{id(cwd)}"
+    name = f"ilcc-summary-{os.getpid()}"
     log = cwd / "exit_code"
     shell = f"cd {shlex.quote(str(cwd))} && {command}; echo $? > {shlex.quote(str(log))}; sleep 600"
     subprocess.run(["tmux", "new-session", "-d", "-s", name, "-x", "80", "-y", "50", shell], check=True)
@@ -114,42 +116,99 @@ def _tmux(cwd: Path, command: str, timeout: float = 240.0) -> list[str]:
         while not log.exists() or not log.read_text().strip():
             assert time.monotonic() - t0 < timeout, "the command did not finish in the terminal"
             time.sleep(0.5)
-        assert subprocess.run(["tmux", "display", "-p", "-t", name, "#{window_width}"], capture_output=True,
-                              text=True, check=True).stdout.strip() == "80"  # fmt: skip
+        width = subprocess.run(["tmux", "display", "-p", "-t", name, "#{window_width}"], capture_output=True,
+                               text=True, check=True).stdout.strip()  # fmt: skip
         capture = ["tmux", "capture-pane", "-p", "-J", "-S", "-", "-t", name]
         pane = subprocess.run(capture, capture_output=True, text=True, check=True).stdout
     finally:
         subprocess.run(["tmux", "kill-session", "-t", name], check=False)
-    assert log.read_text().strip() == "0", pane
+    assert width == "80" and log.read_text().strip() == "0", pane
     return pane.rstrip("\n").splitlines()
 
 
-@pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed (apt-get install tmux)")
-def test_the_summary_in_an_80_column_terminal(simulated, tmp_path):
-    """``ilcc-graph calibrate`` in tmux at 80 columns, one frame's image blank: the verdict first,
-    the poses, the report's path, the frame not used on one line, nothing wider than the window,
-    no warning or log line from the run's inside."""
-    data = tmp_path / "data"
-    shutil.copytree(simulated("pinhole", frames=6), data)
-    blank = np.full_like(cv2.imread(str(data / "img" / "0003.png")), 128)
-    cv2.imwrite(str(data / "img" / "0003.png"), blank)
-    cli = f"{shlex.quote(sys.executable)} -m ilcc_graph.cli"
-    lines = _tmux(tmp_path, f"{cli} calibrate data --out out --jobs 1")
+@pytest.fixture(scope="module")
+def run(simulated, tmp_path_factory) -> tuple[Path, list[str] | None]:
+    """``ilcc-graph calibrate data --out out --studies`` on a small pinhole set whose frame 0003 has a
+    blank image, in tmux at 80 columns: (the folder holding ``out``, the lines shown; None without tmux,
+    then run without a terminal)."""
+    cwd = tmp_path_factory.mktemp("terminal")
+    shutil.copytree(simulated("pinhole", frames=6), cwd / "data")
+    blank = np.full_like(cv2.imread(str(cwd / "data/img/0003.png")), 128)
+    cv2.imwrite(str(cwd / "data/img/0003.png"), blank)
+    argv = ["calibrate", "data", "--out", "out", "--jobs", "1", "--studies"]
+    if shutil.which("tmux") is None:
+        subprocess.run(
+            [sys.executable, "-m", "ilcc_graph.cli", *argv], cwd=cwd, check=True, capture_output=True
+        )
+        return cwd, None
+    return cwd, _tmux(cwd, " ".join(shlex.quote(a) for a in [sys.executable, "-m", "ilcc_graph.cli", *argv]))
+
+
+def test_the_summary_in_an_80_column_terminal(run):
+    """The verdict first, the poses, the report's path, the frame not used on one line, nothing
+    wider than the window, no warning or log line from the run's inside."""
+    cwd, lines = run
+    if lines is None:
+        pytest.skip("tmux is not installed (apt-get install tmux): the terminal is not checked")
     text = "\n".join(lines)
     assert all(len(line) <= 80 for line in lines), max(lines, key=len)
-    first = next(i for i, line in enumerate(lines) if line.strip())
-    assert lines[first].split(":")[0] in ("GOOD", "FAIR", "POOR"), text
-    assert lines[first].startswith("GOOD: 5 of 6 frames agree"), text
+    first = next(line for line in lines if line.strip())
+    assert first.startswith("GOOD: 5 of 6 frames agree with the result within their noise"), text
     assert sum("0003" in line for line in lines) == 1 and any(
         line.startswith("not used 0003") for line in lines
     )
     for needed in ("camera in the LiDAR frame", "LiDAR in the camera frame", "position mm", "optical axis"):
         assert needed in text
-    assert "report:  out/report/index.html" in lines and (tmp_path / "out/report/index.html").is_file()
+    assert "report:  out/report/index.html" in lines and (cwd / "out/report/index.html").is_file()
     assert any(line.startswith("time:    calibrated in ") for line in lines)
     for unwanted in ("Warning", "Traceback", "INFO", "DEBUG"):
         assert unwanted not in text
     # the numbers printed are the file's
-    T = np.array(yaml.safe_load((tmp_path / "out/calibration.yaml").read_text())["T_cam_lidar"])
+    T = np.array(yaml.safe_load((cwd / "out/calibration.yaml").read_text())["T_cam_lidar"])
     x = float(next(line for line in lines if line.startswith("  position mm")).split()[3])
     assert x == pytest.approx(1e3 * (-T[:3, :3].T @ T[:3, 3])[0], abs=0.06)
+
+
+CHROMIUM = next((c for c in ("chromium", "chromium-browser", "google-chrome") if shutil.which(c)), None)
+
+
+def _chromium(url: str, profile: Path, *flags: str) -> subprocess.CompletedProcess:
+    argv = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+            "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={profile}",
+            "--enable-logging=stderr", "--v=0", *flags, url]  # fmt: skip
+    return subprocess.run(argv, capture_output=True, text=True, timeout=120, check=True)
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="headless Chromium is not installed (apt-get install chromium)")
+def test_the_report_in_a_browser(run, tmp_path):
+    """The report of that run in headless Chromium: no console message, and every picture it shows
+    loads and decodes (a page beside it loads each one and says so)."""
+    report = run[0] / "out" / "report"
+    page = (report / "index.html").read_text()
+    got = _chromium(
+        (report / "index.html").as_uri(), tmp_path / "profile", "--dump-dom", "--virtual-time-budget=5000"
+    )
+    assert "CONSOLE" not in got.stderr, got.stderr
+    assert "Where to hold the board next" in got.stdout and "Stability" in got.stdout
+    assert "CalibrationImpossible" not in got.stdout and "3 sigma</th>" not in got.stdout
+    images = re.findall(r'<img src="([^"]+)"', page)
+    assert len(images) >= 20 and "figures/next_pose.png" in images
+    assert any(i.endswith("_range.webp") for i in images) and any(i.endswith("_edges.webp") for i in images)
+    check = report / "_check.html"
+    check.write_text(
+        "<!DOCTYPE html><html><body>"
+        + "".join(f'<img src="{i}">' for i in images)
+        + '<pre id="r"></pre><script>'
+        'addEventListener("load",()=>{document.getElementById("r").textContent=[...document.images].map('
+        'i=>i.getAttribute("src")+" "+(i.complete&&i.naturalWidth>0?"ok":"broken")).join("\\n")})'
+        "</script></body></html>"
+    )  # fmt: skip
+    try:
+        dom = _chromium(
+            check.as_uri(), tmp_path / "profile2", "--dump-dom", "--virtual-time-budget=10000"
+        ).stdout
+    finally:
+        check.unlink()
+    shown = re.search(r'<pre id="r">(.*?)</pre>', dom, re.S).group(1).splitlines()
+    assert [line.rsplit(" ", 1)[0] for line in shown] == images
+    assert [line for line in shown if not line.endswith(" ok")] == []
