@@ -190,6 +190,12 @@ def test_kalibr_round_trip():
     k3 = dict(PINHOLE, dist=[-0.2, 0.05, 0.001, -0.002, 0.01])
     with pytest.raises(ValueError, match=r"k3\.\. = \[0\.01\]"):
         export_calibration((T, cov), "kalibr", camera=k3)
+    tiny = dict(PINHOLE, dist=[-0.2, 0.05, 0.001, -0.002, 1e-6])  # moves no pixel by 0.001 px: left out
+    text = export_calibration((T, cov), "kalibr", camera=tiny)
+    assert (
+        yaml.safe_load(text)["cam0"]["distortion_coeffs"] == tiny["dist"][:4]
+        and "# k3.. = [1e-06] left out" in text
+    )
     skew = dict(PINHOLE, K=[[900.0, 0.5, 640.5], [0.0, 905.0, 360.25], [0.0, 0.0, 1.0]])
     with pytest.raises(ValueError, match="no skew"):
         export_calibration((T, cov), "kalibr", camera=skew)

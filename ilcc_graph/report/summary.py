@@ -180,18 +180,26 @@ def lidar_in_camera(
     return 1e3 * T[:3, 3], t_sigma, math.degrees(angle), axis, r_sigma
 
 
+def _decimals(sigmas: np.ndarray, lo: int, hi: int) -> int:
+    """Decimals that show the smallest finite sigma with two significant digits, within [lo, hi]."""
+    s = np.asarray(sigmas, dtype=np.float64)
+    s = s[np.isfinite(s) & (s > 0)]
+    return lo if not s.size else int(np.clip(1 - math.floor(math.log10(s.min())), lo, hi))
+
+
 def _pm(value: float, sigma: float, fmt: str, sfmt: str) -> str:
     return f"{value:{fmt}}" + ("" if not math.isfinite(sigma) else f" +- {sigma:{sfmt}}")
 
 
-def _side(value: float, sigma: float, plus: str, minus: str) -> str:
+def _side(value: float, sigma: float, plus: str, minus: str, dec: int) -> str:
     """``4.51 +- 0.05 deg left`` for an angle whose sign says the side."""
-    text = f"{abs(value):.2f}" + ("" if not math.isfinite(sigma) else f" +- {sigma:.2f}") + " deg "
+    text = f"{abs(value):.{dec}f}" + ("" if not math.isfinite(sigma) else f" +- {sigma:.{dec}f}") + " deg "
     return text + (plus if value >= 0 else minus)
 
 
 def _xyz(v: np.ndarray, s: np.ndarray) -> str:
-    return "   ".join(f"{a} {_pm(x, e, '+7.1f', '.1f')}" for a, x, e in zip("xyz", v, s))
+    d = _decimals(s, 1, 2)
+    return "  ".join(f"{a} {_pm(x, e, f'+{7 + d}.{d}f', f'.{d}f')}" for a, x, e in zip("xyz", v, s))
 
 
 def _pose_lines(cal: Calibration, camera: CameraModel | None) -> list[str]:
@@ -204,15 +212,16 @@ def _pose_lines(cal: Calibration, camera: CameraModel | None) -> list[str]:
         "camera in the LiDAR frame (x forward, y left, z up), +- 1 sigma:",
         f"  position mm   {_xyz(p, ps)}",
     ]
+    d = _decimals(angs, 2, 4)
     if abs(ang[1]) < STEEP_DEG:
         lines.append(
-            f"  {forward:<12s}  {_side(ang[0], angs[0], 'left', 'right')} of x, "
-            f"{_side(ang[1], angs[1], 'up', 'down')},"
+            f"  {forward:<12s}  {_side(ang[0], angs[0], 'left', 'right', d)} of x, "
+            f"{_side(ang[1], angs[1], 'up', 'down', d)},"
         )
-        roll = _side(ang[2], angs[2], "clockwise", "anticlockwise")
+        roll = _side(ang[2], angs[2], "clockwise", "anticlockwise", d)
         lines.append(f"                rolled {roll} (seen from behind)")
     else:
-        lines.append(f"  {forward:<12s}  {_side(ang[1], angs[1], 'up', 'down')} (near vertical)")
+        lines.append(f"  {forward:<12s}  {_side(ang[1], angs[1], 'up', 'down', d)} (near vertical)")
     q, qs, angle, axis, rs = lidar_in_camera(T, C)
     lines += [
         f"LiDAR in the camera frame ({axes}), +- 1 sigma:",
@@ -220,7 +229,8 @@ def _pose_lines(cal: Calibration, camera: CameraModel | None) -> list[str]:
         f"  rotation      {angle:.3f} deg about ({axis[0]:+.3f}, {axis[1]:+.3f}, {axis[2]:+.3f})",
     ]
     if np.all(np.isfinite(rs)):
-        lines.append(f"                +- {rs[0]:.3f} {rs[1]:.3f} {rs[2]:.3f} deg about x y z")
+        d = _decimals(rs, 3, 5)
+        lines.append(f"                +- {rs[0]:.{d}f} {rs[1]:.{d}f} {rs[2]:.{d}f} deg about x y z")
     lines.append("T_cam_lidar (p_cam = R p_lidar + t, metres):")
     lines += ["  [" + "  ".join(f"{v:+.6f}" for v in row) + "]" for row in T]
     return lines
