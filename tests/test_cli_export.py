@@ -27,6 +27,7 @@ import gtsam
 import numpy as np
 import pytest
 import yaml
+from test_export import quat_to_matrix, rigid  # Hamilton (x, y, z, w) read as ROS reads it
 
 from ilcc_graph.cameras import camera_kinds, make_camera
 from ilcc_graph.cli import main
@@ -63,25 +64,6 @@ def runs(simulated, calibrated) -> dict[str, Path]:
 def _export(cal: Path, fmt: str, out: Path, *flags: str) -> Path:
     assert main(["export", str(cal), "--format", fmt, "--out", str(out), *flags]) == 0
     return out
-
-
-def _rigid(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, t
-    return T
-
-
-def _quat_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
-    """Rotation of a unit Hamilton quaternion (x, y, z, w), as ROS and Eigen read it."""
-    n = np.sqrt(x * x + y * y + z * z + w * w)
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
 
 
 def optical_from_camera(section: dict) -> np.ndarray:
@@ -173,7 +155,7 @@ def _ros2(text: str) -> tuple[np.ndarray, str, str]:
     q = [float(a[k]) for k in ("qx", "qy", "qz", "qw")]
     assert abs(np.linalg.norm(q) - 1) < 1e-12 and q[3] >= 0
     return (
-        _rigid(_quat_matrix(*q), np.array([float(a[k]) for k in "xyz"])),
+        rigid(quat_to_matrix(*q), np.array([float(a[k]) for k in "xyz"])),
         a["frame-id"],
         a["child-frame-id"],
     )
@@ -187,7 +169,7 @@ def _ros1(text: str) -> tuple[np.ndarray, str, str]:
     )
     a = node.get("args").split()  # x y z qx qy qz qw frame_id child_frame_id
     assert len(a) == 9
-    return _rigid(_quat_matrix(*map(float, a[3:7])), np.array(a[:3], float)), a[7], a[8]
+    return rigid(quat_to_matrix(*map(float, a[3:7])), np.array(a[:3], float)), a[7], a[8]
 
 
 @pytest.mark.parametrize("kind", KINDS)

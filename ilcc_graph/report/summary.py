@@ -72,7 +72,13 @@ def verdict(
     disagree = [f for f in seen if not f.used]
     n, k, d = len(cal.frames), len(used), len(disagree)
     rot, mm = _worst(cal.covariance)
-    agree = f"{k} of {n} frames agree with the result within their noise"
+    missing = n - k - d
+    why = [f"{d} dropped by the test"] * bool(d) + [f"{missing} without the board in both sensors"] * bool(
+        missing
+    )
+    agree = f"{k} of {n} frames agree with the result within their noise" + (
+        f" ({', '.join(why)})" if why else ""
+    )
     if not math.isfinite(rot):
         return "NO UNCERTAINTY", (
             f"NO UNCERTAINTY: {k} of {n} frames used; this method gives no covariance, so nothing says "
