@@ -104,7 +104,10 @@ def verdict(
     if level == "GOOD":
         head = f"GOOD: {agree}; {sigma} (needed: {need[0]:g} deg, {need[1]:g} mm)."
     else:
-        head = f"{level}: {'; '.join(problems)}." + (" More board poses would help." if not poor else "")
+        more = k < MIN_FRAMES or not (rot <= need[0] and mm <= need[1])  # frames or sigma: more poses help
+        head = f"{level}: {'; '.join(problems)}." + (
+            " More board poses would help (see below)." if more else ""
+        )
     basis = (
         "each frame's residuals pass a chi-square test"
         + ("" if gate_prob is None else f" ({100 * gate_prob:g} %)")
