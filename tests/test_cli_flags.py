@@ -12,31 +12,25 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
-import gtsam
 import numpy as np
 import pytest
 import yaml
+from accuracy import NEES_BOUND, pose_nees
 from scipy.stats import chi2
 
 from ilcc_graph.cameras import camera_kinds, make_camera
 from ilcc_graph.cli import main
 
 #: NEES bound: chi-square, 6 dof, 99.9 %
-NEES_BOUND = float(chi2.ppf(0.999, 6))
 
 
 def _yaml(path: Path) -> dict:
     return yaml.safe_load(path.read_text())
 
 
-def _nees(T: np.ndarray, C: np.ndarray, T_true: np.ndarray) -> float:
-    xi = gtsam.Pose3(np.asarray(T)).localCoordinates(gtsam.Pose3(np.asarray(T_true)))  # T_true = T Exp(xi)
-    return float(xi @ np.linalg.solve(np.asarray(C, dtype=np.float64), xi))
-
-
-def _run_nees(out: Path, data: Path) -> float:
+def _runpose_nees(out: Path, data: Path) -> float:
     cal = _yaml(out / "calibration.yaml")
-    return _nees(cal["T_cam_lidar"], cal["covariance"], _yaml(data / "ground_truth.yaml")["T_cam_lidar"])
+    return pose_nees(cal["T_cam_lidar"], cal["covariance"], _yaml(data / "ground_truth.yaml")["T_cam_lidar"])
 
 
 @pytest.fixture(scope="module")
@@ -48,7 +42,7 @@ def pano(simulated) -> Path:
 def test_calibrate_is_as_accurate_as_it_says(kind, simulated, calibrated):
     data = simulated(kind)
     out = calibrated(data)
-    assert _run_nees(out, data) < NEES_BOUND
+    assert _runpose_nees(out, data) < NEES_BOUND
     assert sum(f["used"] for f in _yaml(out / "calibration.yaml")["frames"]) >= 3
 
 
@@ -66,13 +60,13 @@ def test_refine_paper(pano, calibrated, capsys):
     # refinement holds the boards fixed: ~1.5 x the graph's error, docs/bench_graph.md section 4)
     graph = _yaml(calibrated(pano) / "calibration.yaml")
     truth = _yaml(pano / "ground_truth.yaml")["T_cam_lidar"]
-    assert _nees(cal["T_cam_lidar"], 1.5**2 * np.array(graph["covariance"]), truth) < NEES_BOUND
+    assert pose_nees(cal["T_cam_lidar"], 1.5**2 * np.array(graph["covariance"]), truth) < NEES_BOUND
 
 
 def test_robust(pano, calibrated):
     out = calibrated(pano, "--robust", "huber")
     assert _yaml(out / "config.resolved.yaml")["options"]["noise"]["robust"] == "huber"
-    assert _run_nees(out, pano) < NEES_BOUND
+    assert _runpose_nees(out, pano) < NEES_BOUND
 
 
 def test_refine_intrinsics(simulated, calibrated, tmp_path):
@@ -90,7 +84,7 @@ def test_refine_intrinsics(simulated, calibrated, tmp_path):
     assert max(abs(z) for z in z_refined) < 4.0, z_refined
     assert max(abs(z) for z in z_stated) > 2.0  # the stated values were off: the test can fail
     assert _yaml(out / "config.resolved.yaml")["options"]["intrinsics"]["refine"] is True
-    assert _run_nees(out, data) < NEES_BOUND
+    assert _runpose_nees(out, data) < NEES_BOUND
     assert (
         main(["export", str(out / "calibration.yaml"), "--format", "kalibr", "--out", str(tmp_path / "k")])
         == 0
@@ -109,7 +103,7 @@ def test_range_offset(pano, calibrated):
     # the simulated HDL-32 has no global offset; its per-beam biases and 4 mm on black print average out
     assert 0 < sigma < 5 and abs(value) < 4 * sigma
     assert _yaml(out / "config.resolved.yaml")["options"]["joint"]["range_offset"] is True
-    assert _run_nees(out, pano) < NEES_BOUND
+    assert _runpose_nees(out, pano) < NEES_BOUND
 
 
 @pytest.fixture(scope="module")
@@ -126,7 +120,7 @@ def test_mode_rigid_with_several_data(sessions, calibrated):
     for d in sessions:
         assert (out / "sessions" / d.name / "calibration.yaml").is_file()
     assert len(_yaml(out / "calibration.yaml")["frames"]) == 10
-    assert _run_nees(out, sessions[0]) < NEES_BOUND
+    assert _runpose_nees(out, sessions[0]) < NEES_BOUND
 
 
 def test_mode_drift_with_its_options(sessions, calibrated):
@@ -139,7 +133,7 @@ def test_mode_drift_with_its_options(sessions, calibrated):
     assert (options["repeatability_deg"], options["repeatability_mm"]) == (0.01, 0.5)
     truth = _yaml(sessions[0] / "ground_truth.yaml")["T_cam_lidar"]
     for e in joint["sessions"].values():  # each session's own extrinsic, within its own covariance
-        assert _nees(e["T_cam_lidar"], e["covariance"], truth) < NEES_BOUND
+        assert pose_nees(e["T_cam_lidar"], e["covariance"], truth) < NEES_BOUND
 
 
 def test_target_sigma_and_stop_at_target(pano, calibrated):
@@ -147,7 +141,7 @@ def test_target_sigma_and_stop_at_target(pano, calibrated):
     updates = _yaml(out / "incremental.yaml")["updates"]
     read = [u for u in updates if u["frame"] != "(final)"]
     assert read[-1]["reached_target"] and len(read) < 5  # the last two frames were never read
-    assert _run_nees(out, pano) < NEES_BOUND
+    assert _runpose_nees(out, pano) < NEES_BOUND
 
 
 def test_demo_on_a_given_small_set_verbose(pano, tmp_path, capsys, caplog):
@@ -171,7 +165,7 @@ def test_demo_on_a_given_small_set_verbose(pano, tmp_path, capsys, caplog):
     text = capsys.readouterr().out
     assert "against the truth: rotation off by" in text and "NEES" in text
     assert "simulating" not in text  # the set was there
-    assert _run_nees(out, pano) < NEES_BOUND
+    assert _runpose_nees(out, pano) < NEES_BOUND
     assert any(r.name.startswith("ilcc_graph.estimation") and r.levelname == "INFO" for r in caplog.records)
 
 
@@ -197,7 +191,7 @@ def test_lidar_corners(pano, tmp_path, capsys):
         doc = _yaml(out / f"{name}.yaml")
         T, C = np.array(doc["T_lidar_board"]), np.array(doc["covariance"])
         candidates = [T_true, np.array(T_true) @ H] if doc["half_turn_ambiguous"] else [T_true]
-        assert min(_nees(T, C, t) for t in candidates) < NEES_BOUND, name
+        assert min(pose_nees(T, C, t) for t in candidates) < NEES_BOUND, name
         assert (out / f"{name}_board.pcd").stat().st_size > 1000 and doc["n_points"] > 100
 
 
