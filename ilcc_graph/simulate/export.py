@@ -20,11 +20,12 @@ from .. import signals
 from ..errors import InputError
 from ..io import PCD_STYLES, write_image, write_pcd, write_yaml
 from ..io.scans import write_csv
+from ..types import Scan
 from .frames import ground_truth, simulate_frames
 from .intrinsics import IntrinsicsError, stated_camera
 from .spec import SimulationSpec, standard_spec
 
-__all__ = ["simulate_dataset", "config_dict", "write_standard_set"]
+__all__ = ["assemble", "simulate_dataset", "config_dict", "write_scan", "write_standard_set"]
 
 
 def config_dict(spec: SimulationSpec) -> dict:
@@ -53,51 +54,56 @@ def simulate_dataset(
         raise ValueError(f"pcd_style must be one of {PCD_STYLES}, got {pcd_style!r}")
     if pcd_style != "plain" and spec.sensor_format == "velodyne-csv":
         raise ValueError(f"pcd_style {pcd_style!r} needs PCD output; sensor_format 'velodyne-csv' writes CSV")
-    out = Path(out_dir)
+    return assemble(Path(out_dir), lambda tmp: _write(tmp, spec, progress, pcd_style))
+
+
+def assemble(out: Path, fill: Callable[[Path], None]) -> Path:
+    """Run ``fill(tmp)`` on a sibling temporary folder and rename it to ``out`` (absent or empty), so
+    ``out`` holds the whole data set or is left as it was. FileExistsError when ``out`` is not empty."""
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise FileExistsError(f"{out}: exists and is not an empty folder")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     with signals.on_stop(lambda: shutil.rmtree(tmp, ignore_errors=True)):
-        return _write(out, tmp, spec, progress, pcd_style)
+        try:
+            fill(tmp)
+            if out.exists():
+                out.rmdir()
+            tmp.rename(out)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    return out
 
 
 def _write(
-    out: Path, tmp: Path, spec: SimulationSpec, progress: Callable[[int, int], None] | None, pcd_style: str
-) -> Path:
-    try:
-        write_yaml(tmp / "config.yaml", config_dict(spec))
-        names, poses = [], []
-        total = int(spec.n_frames)
-        for k, frame in enumerate(simulate_frames(spec)):
-            scan = frame.scan
-            if spec.sensor_format == "velodyne-csv":
-                write_csv(tmp / "pcd" / f"{frame.name}.csv", scan)
-            elif spec.sensor_format == "ouster":
-                rows = len(scan) // int(scan.columns)  # type: ignore[arg-type]
-                write_pcd(
-                    tmp / "pcd" / f"{frame.name}.pcd",
-                    scan,
-                    data="binary",
-                    organised=(rows, int(scan.columns)),
-                    style=pcd_style,
-                )  # type: ignore[arg-type]
-            else:
-                write_pcd(tmp / "pcd" / f"{frame.name}.pcd", scan, data="binary", style=pcd_style)
-            write_image(tmp / "img" / f"{frame.name}.png", frame.image)
-            names.append(frame.name)
-            poses.append(frame.T_lidar_board)
-            if progress is not None:
-                progress(k + 1, total)
-        gt = ground_truth(spec, [_Pose(n, T) for n, T in zip(names, poses, strict=True)])
-        write_yaml(tmp / "ground_truth.yaml", gt)
-        if out.exists():
-            out.rmdir()
-        tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return out
+    tmp: Path, spec: SimulationSpec, progress: Callable[[int, int], None] | None, pcd_style: str
+) -> None:
+    write_yaml(tmp / "config.yaml", config_dict(spec))
+    names, poses = [], []
+    total = int(spec.n_frames)
+    for k, frame in enumerate(simulate_frames(spec)):
+        write_scan(tmp / "pcd", frame.name, frame.scan, spec.sensor_format, pcd_style)
+        write_image(tmp / "img" / f"{frame.name}.png", frame.image)
+        names.append(frame.name)
+        poses.append(frame.T_lidar_board)
+        if progress is not None:
+            progress(k + 1, total)
+    gt = ground_truth(spec, [_Pose(n, T) for n, T in zip(names, poses, strict=True)])
+    write_yaml(tmp / "ground_truth.yaml", gt)
+
+
+def write_scan(folder: Path, stem: str, scan: Scan, sensor_format: str, pcd_style: str = "plain") -> Path:
+    """Write a simulated scan as ``folder/<stem>.pcd`` (binary; organised for ``"ouster"``; header and
+    fields in ``pcd_style``) or ``.csv`` (``"velodyne-csv"``), as ``spec.sensor_format`` says a driver
+    would; returns the path."""
+    if sensor_format == "velodyne-csv":
+        return write_csv(folder / f"{stem}.csv", scan)
+    path = folder / f"{stem}.pcd"
+    if sensor_format == "ouster":
+        rows = len(scan) // int(scan.columns)  # type: ignore[arg-type]
+        return write_pcd(path, scan, data="binary", organised=(rows, int(scan.columns)), style=pcd_style)  # type: ignore[arg-type]
+    return write_pcd(path, scan, data="binary", style=pcd_style)
 
 
 class _Pose:
