@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -59,7 +60,11 @@ def _run_options(args: argparse.Namespace):  # noqa: ANN202 - pipeline.RunOption
     mode = "incremental" if target is not None or stop else getattr(args, "refine", "graph")
     if mode != "graph" and (len(getattr(args, "data", [None])) > 1 or joint["range_offset"]):
         raise InputError("--refine paper and --target-sigma calibrate one data set without a range offset")
+    model = getattr(args, "sensor_model", "auto")
+    if getattr(args, "lidar_errors", False) and model not in ("auto", "beams"):
+        raise InputError(f"--lidar-errors is the beams model; it contradicts --sensor-model {model}")
     return RunOptions(
+        sensor_model=model,
         lidar_errors=_lidar_errors(args, LidarErrorOptions),
         intrinsics=IntrinsicsOptions(refine=bool(getattr(args, "refine_intrinsics", False))),
         mode=mode,
@@ -169,7 +174,17 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from ilcc_graph.simulate.export import write_standard_set
 
-    names = ("lidar", "camera", "width", "frames", "seed", "noise_scale", "intrinsics_error", "pcd_style")
+    names = (
+        "lidar",
+        "camera",
+        "width",
+        "frames",
+        "seed",
+        "noise_scale",
+        "intrinsics_error",
+        "pcd_style",
+        "range_offset_mm",
+    )
     spec = write_standard_set(
         args.out, Progress("simulate"), sensor_format=args.format, **{k: getattr(args, k) for k in names}
     )
@@ -216,6 +231,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def cmd_check(args: argparse.Namespace) -> int:
     """Per frame as it arrives: board in scan and image, new pose, running sigmas (``live``)."""
+    from ilcc_graph.estimation.selection import AUTO
     from ilcc_graph.live import CheckOptions
     from ilcc_graph.live_command import check_command
     from ilcc_graph.observe import StageOptions
@@ -228,6 +244,7 @@ def cmd_check(args: argparse.Namespace) -> int:
         watch=args.watch,
         stop_at_target=target is not None,
         stages=StageOptions(jobs=1),
+        models=AUTO if args.sensor_model == "auto" else (args.sensor_model,),
     )
     out = _run_dir(args)
     code = check_command(args.data, options, out, advise_live=args.advise)
@@ -283,6 +300,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    # one BLAS thread unless the user says otherwise: the sensor models' many small dense products
+    # run 3-8x slower in wall time with OpenBLAS's threads on a loaded machine (docs/bench_live.md)
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     args = argparse.Namespace(debug="--debug" in (sys.argv[1:] if argv is None else argv))
 
     def command() -> int:  # under the signal handlers from the first import on

@@ -24,6 +24,7 @@ examples:
   ilcc-graph calibrate DATA --refine paper          the paper's refinement (no covariance), for comparison
   ilcc-graph calibrate MON/ TUE/ WED/ --mode rigid  three sessions jointly; tells if the mount moved
   ilcc-graph calibrate DATA --range-offset          also estimate the LiDAR's range offset
+  ilcc-graph calibrate DATA --sensor-model none     no sensor-error terms (default auto: chosen per run)
   ilcc-graph calibrate DATA --target-sigma 0.05,1   frame by frame (iSAM2) until 0.05 deg / 1 mm
   ilcc-graph lidar-corners DATA --out out/lidar     the LiDAR stage alone: board points, pose, corners
   ilcc-graph image-corners DATA --out out/image     the image stage alone: corners drawn and numbered
@@ -57,12 +58,27 @@ def _frames_args(sp: argparse.ArgumentParser, jobs: int) -> None:
     sp.add_argument("--strict", action="store_true", help=help)
 
 
+SENSOR_MODEL_HELP = (
+    "the model of the sensors' own errors: auto (default) chooses among none, range and beams by "
+    "how well each predicts every board's image from the other boards; none: each board the LiDAR "
+    "stage's pose; range: one range offset and the dark-print offset from the returns; beams: "
+    "per-beam offsets (as --lidar-errors); offset: one range offset on the boards' poses"
+)
+
+
+def _model_args(sp: argparse.ArgumentParser) -> None:
+    """--sensor-model (``estimation.selection``)."""
+    choices = ("auto", "none", "range", "beams", "offset")
+    sp.add_argument("--sensor-model", choices=choices, default="auto", help=SENSOR_MODEL_HELP)
+
+
 def _solve_args(sp: argparse.ArgumentParser, jobs: int, studies: bool = False) -> None:
     sp.add_argument("--out", help="output folder (default: out/<timestamp>, linked as out/latest)")
     help = "graph: our factor graph with covariance (default); paper: the paper's refinement"
     sp.add_argument("--refine", choices=("graph", "paper"), default="graph", help=help)
     help = "robust kernel on the bearing factors (default: none, least squares with the chi-square gate)"
     sp.add_argument("--robust", choices=("huber", "cauchy"), help=help)
+    _model_args(sp)
     help = "refine the camera's intrinsics (prior: the config's values and camera.intrinsics_sigma)"
     sp.add_argument("--refine-intrinsics", action="store_true", help=help)
     help = "estimate the LiDAR's per-beam and dark-print range offsets from the boards' returns"
@@ -175,6 +191,8 @@ def build_parser(commands: Mapping[str, Callable[[argparse.Namespace], int]]) ->
     )
     wrong_k = "config.yaml states intrinsics off by SCALE x a typical error (0.5%% f, 2 px c); 0 = the truth"
     sp.add_argument("--intrinsics-error", type=NON_NEGATIVE, default=0.0, metavar="SCALE", help=wrong_k)
+    help = "every range reads MM long (a LiDAR's zero error), on top of the per-beam and dark-print offsets"
+    sp.add_argument("--range-offset-mm", type=float, default=0.0, metavar="MM", help=help)
 
     for name, fn, help in (
         (
@@ -210,6 +228,7 @@ def build_parser(commands: Mapping[str, Callable[[argparse.Namespace], int]]) ->
     help = "stop when every sigma is within DEG / MM"
     sp.add_argument("--target-sigma", type=DEG_MM, metavar="DEG,MM", help=help)
     sp.add_argument("--advise", action="store_true", help="with --watch: the next board pose while waiting")
+    _model_args(sp)
     sp.add_argument("--out", help="folder for check.yaml and next_pose.png (default: out/<timestamp>)")
 
     sp = add("export", commands["export"], "write a calibration in another tool's format")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import shutil
 import tempfile
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 
 from .. import signals
@@ -118,13 +119,17 @@ def write_standard_set(
     progress: Callable[[int, int], None] | None = None,
     intrinsics_error: float = 0.0,
     pcd_style: str = "plain",
+    range_offset_mm: float = 0.0,
     **spec: object,
 ) -> SimulationSpec:
     """The standard set (``standard_spec(**spec)``, stated intrinsics off by ``intrinsics_error`` x a
-    typical error) written to ``out`` with PCD files in ``pcd_style``; InputError naming the option
-    or the folder when it cannot be."""
+    typical error, every range ``range_offset_mm`` long on top of the default systematics) written
+    to ``out`` with PCD files in ``pcd_style``; InputError naming the option or the folder when it
+    cannot be."""
     try:
         s = standard_spec(intrinsics_error=IntrinsicsError.typical(intrinsics_error), **spec)  # type: ignore[arg-type]
+        if range_offset_mm:
+            s = s.with_(systematics=replace(s.systematics, range_offset_m=1e-3 * float(range_offset_mm)))
         if pcd_style != "plain" and s.sensor_format == "velodyne-csv":
             raise ValueError(f"--pcd-style {pcd_style} needs PCD files; --format velodyne-csv writes CSV")
     except ValueError as err:
