@@ -2,28 +2,29 @@
 
 Layout (interface.md): ``config.yaml`` (our schema), ``pcd/<stem>.pcd`` (binary, x y z intensity
 ring; organised HEIGHT x WIDTH for ``sensor_format="ouster"``) or ``pcd/<stem>.csv`` (ILCC's CSV
-with the hardware ``laser_id`` for ``"velodyne-csv"``), ``img/<stem>.png``, ``ground_truth.yaml``.
-Every file is written atomically; the data set
-is assembled in a sibling temporary folder and renamed into place at the end, so ``out_dir``
-either holds a complete data set or is left as it was.
+with the hardware ``laser_id`` for ``"velodyne-csv"``), ``img/<stem>.png`` (or ``.jpg``),
+``ground_truth.yaml``. The data set is assembled in a staging folder beside ``out_dir`` that becomes
+``out_dir`` at the end (``folders.staged``), so ``out_dir`` either holds a complete data set or is
+left as it was; it must be new, empty or an earlier simulated set (docs/faults.md).
 """
 
 from __future__ import annotations
 
-import shutil
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-from .. import signals
 from ..errors import InputError
+from ..folders import DATA_SET, claim_output, staged
 from ..io import write_image, write_pcd, write_yaml
 from ..io.scans import write_csv
 from .frames import ground_truth, simulate_frames
 from .intrinsics import IntrinsicsError, stated_camera
 from .spec import SimulationSpec, standard_spec
 
-__all__ = ["simulate_dataset", "config_dict", "write_standard_set"]
+__all__ = ["IMAGE_FORMATS", "simulate_dataset", "config_dict", "write_standard_set"]
+
+#: how the images are stored: PNG (lossless) or JPEG (OpenCV's quality 95: a sixth of the bytes)
+IMAGE_FORMATS = ("png", "jpg")
 
 
 def config_dict(spec: SimulationSpec) -> dict:
@@ -40,23 +41,20 @@ def simulate_dataset(
     out_dir: Path | str,
     spec: SimulationSpec,
     progress: Callable[[int, int], None] | None = None,
+    image_format: str = "png",
+    command: str = "",
 ) -> Path:
-    """Simulate ``spec`` and write the data set to ``out_dir`` (created; must be empty or absent).
+    """Simulate ``spec`` and write the data set to ``out_dir`` (new, empty, or an earlier simulated
+    set, replaced whole; ``OutputError`` naming the folder otherwise), the images as ``image_format``
+    (``IMAGE_FORMATS``).
 
-    progress: called as ``progress(done, total)`` after each frame. Returns ``out_dir``.
-    Raises ``FileExistsError`` when ``out_dir`` exists and is not empty.
+    progress: called as ``progress(done, total)`` after each frame; command: the command line that
+    asked (recorded in the folder's marker). Returns ``out_dir`` (the target of a link).
     """
-    out = Path(out_dir)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise FileExistsError(f"{out}: exists and is not an empty folder")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-    with signals.on_stop(lambda: shutil.rmtree(tmp, ignore_errors=True)):
-        return _write(out, tmp, spec, progress)
-
-
-def _write(out: Path, tmp: Path, spec: SimulationSpec, progress: Callable[[int, int], None] | None) -> Path:
-    try:
+    if image_format not in IMAGE_FORMATS:
+        raise ValueError(f"image_format must be one of {IMAGE_FORMATS}, not {image_format!r}")
+    out = claim_output(out_dir, "simulate", DATA_SET)
+    with staged(out, DATA_SET, "simulate", command) as tmp:
         write_yaml(tmp / "config.yaml", config_dict(spec))
         names, poses = [], []
         total = int(spec.n_frames)
@@ -74,19 +72,13 @@ def _write(out: Path, tmp: Path, spec: SimulationSpec, progress: Callable[[int, 
                 )  # type: ignore[arg-type]
             else:
                 write_pcd(tmp / "pcd" / f"{frame.name}.pcd", scan, data="binary")
-            write_image(tmp / "img" / f"{frame.name}.png", frame.image)
+            write_image(tmp / "img" / f"{frame.name}.{image_format}", frame.image)
             names.append(frame.name)
             poses.append(frame.T_lidar_board)
             if progress is not None:
                 progress(k + 1, total)
         gt = ground_truth(spec, [_Pose(n, T) for n, T in zip(names, poses, strict=True)])
         write_yaml(tmp / "ground_truth.yaml", gt)
-        if out.exists():
-            out.rmdir()
-        tmp.rename(out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return out
 
 
@@ -101,23 +93,16 @@ def write_standard_set(
     out: Path | str,
     progress: Callable[[int, int], None] | None = None,
     intrinsics_error: float = 0.0,
+    image_format: str = "png",
+    command: str = "",
     **spec: object,
 ) -> SimulationSpec:
     """The standard set (``standard_spec(**spec)``, stated intrinsics off by ``intrinsics_error`` x a
-    typical error) written to ``out``; InputError naming the option or the folder when it cannot be."""
+    typical error) written to ``out`` with ``image_format`` images; InputError naming the option,
+    OutputError the folder when it cannot be."""
     try:
         s = standard_spec(intrinsics_error=IntrinsicsError.typical(intrinsics_error), **spec)  # type: ignore[arg-type]
     except ValueError as err:
         raise InputError(f"simulate: {err}") from None
-    parent = Path(out).parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise InputError(f"{out}: {parent} is a file, so the data set's folder cannot be made under it")
-    try:
-        simulate_dataset(Path(out), s, progress=progress)
-    except FileExistsError as err:
-        raise InputError(f"{err}; choose a new folder") from None
-    except OSError as err:
-        raise InputError(f"{out}: cannot write the data set ({err.strerror or err})") from None
+    simulate_dataset(Path(out), s, progress=progress, image_format=image_format, command=command)
     return s
