@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -125,7 +126,7 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
 
     write_run(
         out, result, report=args.report, studies=args.studies, truth=truth, command=args.command_line,
-        next_pose=propose, clouds=args.clouds, full_views=args.full_views,
+        next_pose=propose, clouds=args.clouds, full_views=args.full_views, progress=Progress,
     )  # fmt: skip
     if not args.out:
         link_latest(out)
@@ -152,8 +153,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return _calibrate(args.data, args)
 
 
-def _megabytes(folder: Path) -> float:
-    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
+def _stored(folder: Path, cache: bool = True) -> str:
+    """'~/.cache/.../name (155 MB; delete at will)': where a folder is (home as ~) and its size (a
+    folder in the cache may go: the demo makes it again)."""
+    size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
+    home, where = str(Path.home()), str(folder)
+    where = "~" + where[len(home) :] if where.startswith(home + os.sep) else where
+    return f"{where} ({size:.0f} MB{'; delete at will' if cache else ''})"
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -165,16 +171,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     data = Path(args.data or Path(args.cache) / f"demo-hdl32-equirect{args.width}-seed{args.seed}")
     _run_dir(args, [data])  # the output folder, claimed before the simulation
     if (data / "ground_truth.yaml").is_file():
-        print(f"demo data: {data} ({_megabytes(data):.0f} MB, kept from an earlier demo; safe to delete)")
+        print(f"reusing: {_stored(data, not args.data)}")
     else:
         print(
-            f"simulating the standard panoramic set (HDL-32E, {args.width} px wide, 20 frames) into {data}",
-            flush=True,
+            f"simulating HDL-32E scans and {args.width} px panoramas, 20 frames (a minute or so)", flush=True
         )
         kw = {"lidar": "hdl32", "camera": "equirectangular", "frames": 20, "image_format": "jpg"}
         kw["command"] = args.command_line
         write_standard_set(data, Progress("simulate"), width=args.width, seed=args.seed, **kw)
-        print(f"demo data: {data} ({_megabytes(data):.0f} MB, kept for the next demo; safe to delete)")
+        print(f"stored: {_stored(data, not args.data)}")
     return _calibrate([str(data)], args, read_ground_truth(data).T_cam_lidar)
 
 

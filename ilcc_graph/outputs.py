@@ -25,6 +25,7 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -160,11 +161,13 @@ def write_run(
     next_pose=None,  # noqa: ANN001 - next_pose.Proposal, or a callable giving one
     clouds: bool = False,
     full_views: bool = False,
+    progress: Callable[[str], Callable[[int, int], None]] | None = None,
 ) -> Path:
     """Write every output of ``result`` to ``out`` (module docstring); returns ``out``. With a
     ``next_pose`` proposal also ``next_pose.png`` (the rig, the boards, the proposal; a callable is
     called while the report's pictures are drawn on other processes); ``clouds``: the coloured
-    clouds; ``full_views``: the report's whole pictures at full resolution too."""
+    clouds; ``full_views``: the report's whole pictures at full resolution too; ``progress(name)``:
+    a ``(done, total)`` callback for each session's report (``console.Progress``)."""
     later = next_pose if callable(next_pose) else None
     with staged(out, command=command) as d:
         write_calibration(d / "calibration.yaml", result.calibration)
@@ -189,9 +192,10 @@ def write_run(
                     "mode": result.mode,
                 }
                 sub = (s.name,) if several else ()
+                bar = progress and progress(f"report {s.name}" if several else "report")
                 got = write_report(
                     d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, studies, truth, info,
-                    clouds, full_views, later,
+                    clouds, full_views, later, bar,
                 )  # fmt: skip
                 if later is not None:
                     next_pose, later = got, None

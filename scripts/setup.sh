@@ -37,10 +37,36 @@ if [ ! -x .venv/bin/python ]; then
 fi
 stamp=.venv/.ilcc_graph-installed
 want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+# pip's output as a few progress lines (its full output in .venv/pip.log, shown on failure):
+# every 10th package collected, then the install; on a terminal one line redrawn in place.
+pip_quietly() {
+  local what=$1; shift
+  local log=.venv/pip.log tty=0
+  [ -t 1 ] && tty=1
+  if ! .venv/bin/python -u -m pip install --progress-bar off "$@" 2>&1 | tee -a "$log" | awk -v what="$what" -v tty="$tty" '
+    function show(s, final) {
+      if (tty) { printf "\r\033[K[setup]   %s%s", s, (final ? "\n" : "") }
+      else if (final) { printf "[setup]   %s\n", s }
+      fflush()
+    }
+    /^Collecting |^Requirement already satisfied: / {
+      n++; name = ($1 == "Collecting") ? $2 : $4; sub(/[<>=!~;[(].*/, "", name)
+      show(what ": " n " packages looked at (" name ")", !tty && n % 10 == 0)
+    }
+    /^ *Downloading / { show(what ": downloading " $2, 0) }
+    /^Installing collected packages/ { show(what ": " n " packages looked at", 1); show(what ": installing (a minute or two; the big ones are gtsam, opencv, open3d)", 1) }
+    /^Successfully installed/ { show(what ": installed " NF - 2 " packages", 1) }
+    END { if (tty) printf "\r\033[K" }'; then
+    say "pip failed; the end of its output (all of it in $log):" >&2
+    tail -n 30 "$log" >&2
+    exit 1
+  fi
+}
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   say "installing ilcc_graph and its dependencies into .venv (gtsam, opencv, open3d, ...; a few minutes the first time)"
-  .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -e '.[test,open3d]'
+  : > .venv/pip.log
+  pip_quietly "pip" --upgrade pip
+  pip_quietly "ilcc_graph" -e '.[test,open3d]'
   echo "$want" > "$stamp"
 else
   say "ilcc_graph already installed in .venv"
