@@ -117,6 +117,16 @@ def _foreign(folder: Path, kind: str) -> str | None:
     return None
 
 
+def _existing_parent(path: Path, say: str, what: str) -> Path:
+    """The nearest existing folder above ``path``; ``OutputError`` when it is a file."""
+    parent = path.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise OutputError(f"{say}: {parent} is a file, so {what} under it")
+    return parent
+
+
 def _under(a: Path, b: Path) -> bool:
     """``a`` is ``b`` or inside it (both resolved)."""
     return a == b or b in a.parents
@@ -142,11 +152,7 @@ def claim_output(
         raise OutputError(f"{say}: a link that leads to no folder (a loop of links)")
     if out.exists() and not out.is_dir():
         raise OutputError(f"{say}: is an existing file, not a folder; give a folder for the results")
-    parent = out.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise OutputError(f"{say}: {parent} is a file, so no folder can be made under it")
+    parent = _existing_parent(out, say, "no folder can be made")
     if out.is_dir():
         real = out.resolve()
         for data in reads:
@@ -198,11 +204,7 @@ def write_file(path: Path | str, data: str | bytes, flag: str = "--out") -> Path
         path = Path(os.path.realpath(path))
     if path.is_dir():
         raise OutputError(f"{flag} {path}: is a folder; give a file name")
-    parent = path.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise OutputError(f"{flag} {path}: {parent} is a file, so nothing can be written under it")
+    _existing_parent(path, f"{flag} {path}", "nothing can be written")
     try:
         return atomic_write(path, data)
     except OSError as err:

@@ -195,24 +195,6 @@ def test_bad_values_are_usage_errors_naming_the_flag(argv, flag, capsys):
     assert flag in err and "Traceback" not in err
 
 
-@pytest.fixture
-def readonly_dir(tmp_path) -> Path:
-    """A folder nobody can write into: a read-only tmpfs as root (permission bits do not stop root)."""
-    d = tmp_path / "ro"
-    d.mkdir()
-    if os.geteuid() != 0:
-        d.chmod(0o555)
-        yield d
-        d.chmod(0o755)
-        return
-    if subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(d)], capture_output=True
-    ).returncode:
-        pytest.skip("cannot mount a read-only tmpfs here")
-    yield d
-    subprocess.run(["umount", str(d)], check=False)
-
-
 def _calibration_file(path: Path) -> Path:
     write_calibration(path, Calibration(np.eye(4), 1e-6 * np.eye(6), ()))
     return path

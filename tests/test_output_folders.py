@@ -159,24 +159,6 @@ def test_an_empty_folder_is_taken(sim, tmp_path, capsys):
     capsys.readouterr()
 
 
-@pytest.fixture
-def readonly_dir(tmp_path) -> Path:
-    """A folder nobody can write into: a read-only tmpfs as root (permission bits do not stop root)."""
-    d = tmp_path / "ro"
-    d.mkdir()
-    if os.geteuid() != 0:
-        d.chmod(0o555)
-        yield d
-        d.chmod(0o755)
-        return
-    if subprocess.run(
-        ["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(d)], capture_output=True
-    ).returncode:
-        pytest.skip("cannot mount a read-only tmpfs here")
-    yield d
-    subprocess.run(["umount", str(d)], check=False)
-
-
 def test_an_unwritable_place_is_refused_before_any_work(
     sim, earlier, tmp_path, readonly_dir, no_work, capsys
 ):
