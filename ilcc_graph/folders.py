@@ -54,6 +54,7 @@ MARKER = ".ilcc-graph-run"
 RESULT, DATA_SET = "result", "data set"
 #: the first line of a file written beside an output folder (failure file, error log)
 OURS = "# written by ilcc-graph"
+_MARKER_HEAD = f"{OURS} into this folder; a later run may replace it whole (it holds only these names)\n"
 
 
 def _version() -> str:
@@ -76,8 +77,7 @@ def _marker(stage: Path, kind: str, command: str) -> str:
         "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "names": sorted(p.name for p in stage.iterdir() if p.name != MARKER),
     }
-    head = f"{OURS} into this folder; a later run may replace it whole (it holds only these names)\n"
-    return head + dump_yaml(doc)
+    return _MARKER_HEAD + dump_yaml(doc)
 
 
 def _read_marker(folder: Path) -> dict | None:
@@ -223,11 +223,10 @@ def add_file(
             atomic_write(d / name, data)
         return folder / name
     try:
-        doc = _read_marker(folder) or {}
-        if name not in doc.get("names", []):
-            lines = (folder / MARKER).read_text(encoding="utf-8").splitlines(keepends=True)
+        doc = _read_marker(folder) or {"names": []}  # claimed above: an earlier result of ours
+        if name not in doc["names"]:
             doc["names"] = sorted([*doc["names"], name])
-            atomic_write(folder / MARKER, lines[0] + dump_yaml(doc))
+            atomic_write(folder / MARKER, _MARKER_HEAD + dump_yaml(doc))
         return atomic_write(folder / name, data)
     except OSError as err:
         raise OutputError(f"{flag} {folder / name}: cannot write ({err.strerror or err})") from None
