@@ -186,7 +186,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_simulate(args: argparse.Namespace) -> int:
     from ilcc_graph.simulate.export import write_standard_set
 
-    names = ("lidar", "camera", "width", "frames", "seed", "noise_scale", "intrinsics_error")
+    names = ("lidar", "camera", "width", "frames", "seed", "noise_scale", "intrinsics_error", "pcd_style")
     spec = write_standard_set(
         args.out,
         Progress("simulate"),

@@ -81,6 +81,7 @@ def _solve_args(sp: argparse.ArgumentParser, jobs: int, studies: bool = False) -
 def build_parser(commands: Mapping[str, Callable[[argparse.Namespace], int]]) -> argparse.ArgumentParser:
     """The parser; ``commands``: each command's function by name (``cli.COMMANDS``)."""
     from ilcc_graph.cameras import camera_kinds
+    from ilcc_graph.io.pcd import PCD_STYLES
     from ilcc_graph.lidars.tables import MODEL_NAMES as LIDAR_NAMES
 
     p = argparse.ArgumentParser(
@@ -140,6 +141,8 @@ def build_parser(commands: Mapping[str, Callable[[argparse.Namespace], int]]) ->
     sp.add_argument("--lidar", default="hdl32", choices=[m for m in LIDAR_NAMES if m != "generic"])
     help = "plain PCD; ouster: organised, ring 0 at the top, raw signal; velodyne-csv: hardware laser_id"
     sp.add_argument("--format", default="plain", choices=("plain", "ouster", "velodyne-csv"), help=help)
+    help = "PCD files as this tool writes them (matlab: pcwrite's header comment, no ring field)"
+    sp.add_argument("--pcd-style", default="plain", choices=PCD_STYLES, help=help)
     sp.add_argument("--camera", default="equirectangular", choices=camera_kinds())
     sp.add_argument("--frames", type=COUNT, default=20)
     sp.add_argument("--seed", type=SEED, default=0)

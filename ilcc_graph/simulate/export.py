@@ -1,11 +1,12 @@
 """Write a simulated data set (the simulator's only file I/O, through ``ilcc_graph.io`` writers).
 
 Layout (interface.md): ``config.yaml`` (our schema), ``pcd/<stem>.pcd`` (binary, x y z intensity
-ring; organised HEIGHT x WIDTH for ``sensor_format="ouster"``) or ``pcd/<stem>.csv`` (ILCC's CSV
-with the hardware ``laser_id`` for ``"velodyne-csv"``), ``img/<stem>.png`` (or ``.jpg``),
-``ground_truth.yaml``. The data set is assembled in a staging folder beside ``out_dir`` that becomes
-``out_dir`` at the end (``folders.staged``), so ``out_dir`` either holds a complete data set or is
-left as it was; it must be new, empty or an earlier simulated set (docs/faults.md).
+ring; organised HEIGHT x WIDTH for ``sensor_format="ouster"``; header and fields as another tool
+writes them with ``pcd_style``, e.g. MATLAB's) or ``pcd/<stem>.csv`` (ILCC's CSV with the hardware
+``laser_id`` for ``"velodyne-csv"``), ``img/<stem>.png`` (or ``.jpg``), ``ground_truth.yaml``. The
+data set is assembled in a staging folder beside ``out_dir`` that becomes ``out_dir`` at the end
+(``folders.staged``), so ``out_dir`` either holds a complete data set or is left as it was; it must
+be new, empty or an earlier simulated set (docs/faults.md).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..folders import DATA_SET, claim_output, staged
-from ..io import write_image, write_pcd, write_yaml
+from ..io import PCD_STYLES, write_image, write_pcd, write_yaml
 from ..io.scans import write_csv
 from .frames import ground_truth, simulate_frames
 from .intrinsics import IntrinsicsError, stated_camera
@@ -43,16 +44,22 @@ def simulate_dataset(
     progress: Callable[[int, int], None] | None = None,
     image_format: str = "png",
     command: str = "",
+    pcd_style: str = "plain",
 ) -> Path:
     """Simulate ``spec`` and write the data set to ``out_dir`` (new, empty, or an earlier simulated
     set, replaced whole; ``OutputError`` naming the folder otherwise), the images as ``image_format``
     (``IMAGE_FORMATS``).
 
     progress: called as ``progress(done, total)`` after each frame; command: the command line that
-    asked (recorded in the folder's marker). Returns ``out_dir`` (the target of a link).
+    asked (recorded in the folder's marker); pcd_style: how the PCD files look (``io.write_pcd``'s
+    ``style``: ``plain``, ``pcl``, ``open3d``, ``matlab``). Returns ``out_dir`` (the target of a link).
     """
     if image_format not in IMAGE_FORMATS:
         raise ValueError(f"image_format must be one of {IMAGE_FORMATS}, not {image_format!r}")
+    if pcd_style not in PCD_STYLES:
+        raise ValueError(f"pcd_style must be one of {PCD_STYLES}, got {pcd_style!r}")
+    if pcd_style != "plain" and spec.sensor_format == "velodyne-csv":
+        raise ValueError(f"pcd_style {pcd_style!r} needs PCD output; sensor_format 'velodyne-csv' writes CSV")
     out = claim_output(out_dir, "simulate", DATA_SET)
     with staged(out, DATA_SET, "simulate", command) as tmp:
         write_yaml(tmp / "config.yaml", config_dict(spec))
@@ -69,9 +76,10 @@ def simulate_dataset(
                     scan,
                     data="binary",
                     organised=(rows, int(scan.columns)),
+                    style=pcd_style,
                 )  # type: ignore[arg-type]
             else:
-                write_pcd(tmp / "pcd" / f"{frame.name}.pcd", scan, data="binary")
+                write_pcd(tmp / "pcd" / f"{frame.name}.pcd", scan, data="binary", style=pcd_style)
             write_image(tmp / "img" / f"{frame.name}.{image_format}", frame.image)
             names.append(frame.name)
             poses.append(frame.T_lidar_board)
@@ -95,14 +103,18 @@ def write_standard_set(
     intrinsics_error: float = 0.0,
     image_format: str = "png",
     command: str = "",
+    pcd_style: str = "plain",
     **spec: object,
 ) -> SimulationSpec:
     """The standard set (``standard_spec(**spec)``, stated intrinsics off by ``intrinsics_error`` x a
-    typical error) written to ``out`` with ``image_format`` images; InputError naming the option,
-    OutputError the folder when it cannot be."""
+    typical error) written to ``out`` with ``image_format`` images and PCD files in ``pcd_style``;
+    InputError naming the option, OutputError the folder when it cannot be."""
     try:
         s = standard_spec(intrinsics_error=IntrinsicsError.typical(intrinsics_error), **spec)  # type: ignore[arg-type]
+        if pcd_style != "plain" and s.sensor_format == "velodyne-csv":
+            raise ValueError(f"--pcd-style {pcd_style} needs PCD files; --format velodyne-csv writes CSV")
     except ValueError as err:
         raise InputError(f"simulate: {err}") from None
-    simulate_dataset(Path(out), s, progress=progress, image_format=image_format, command=command)
+    kw = {"image_format": image_format, "command": command, "pcd_style": pcd_style}
+    simulate_dataset(Path(out), s, progress=progress, **kw)
     return s
