@@ -40,10 +40,10 @@ want=$(sha256sum pyproject.toml | cut -d' ' -f1)
 # pip's output as a few progress lines (its full output in .venv/pip.log, shown on failure):
 # every 10th package collected, then the install; on a terminal one line redrawn in place.
 pip_quietly() {
-  local what=$1; shift
+  local what=$1 hint=$2; shift 2
   local log=.venv/pip.log tty=0
   [ -t 1 ] && tty=1
-  if ! .venv/bin/python -u -m pip install --progress-bar off "$@" 2>&1 | tee -a "$log" | awk -v what="$what" -v tty="$tty" '
+  if ! .venv/bin/python -u -m pip install --progress-bar off "$@" 2>&1 | tee -a "$log" | awk -v what="$what" -v hint="$hint" -v tty="$tty" '
     function show(s, final) {
       if (tty) { printf "\r\033[K[setup]   %s%s", s, (final ? "\n" : "") }
       else if (final) { printf "[setup]   %s\n", s }
@@ -51,11 +51,11 @@ pip_quietly() {
     }
     /^Collecting |^Requirement already satisfied: / {
       n++; name = ($1 == "Collecting") ? $2 : $4; sub(/[<>=!~;[(].*/, "", name)
-      show(what ": " n " packages looked at (" name ")", !tty && n % 10 == 0)
+      show(what ": " n " package(s) looked at (" name ")", !tty && n % 10 == 0)
     }
     /^ *Downloading / { show(what ": downloading " $2, 0) }
-    /^Installing collected packages/ { show(what ": " n " packages looked at", 1); show(what ": installing (a minute or two; the big ones are gtsam, opencv, open3d)", 1) }
-    /^Successfully installed/ { show(what ": installed " NF - 2 " packages", 1) }
+    /^Installing collected packages/ { show(what ": " n " package(s) looked at", 1); show(what ": installing" hint, 1) }
+    /^Successfully installed/ { show(what ": installed " NF - 2 " package(s)", 1) }
     END { if (tty) printf "\r\033[K" }'; then
     say "pip failed; the end of its output (all of it in $log):" >&2
     tail -n 30 "$log" >&2
@@ -65,8 +65,8 @@ pip_quietly() {
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   say "installing ilcc_graph and its dependencies into .venv (gtsam, opencv, open3d, ...; a few minutes the first time)"
   : > .venv/pip.log
-  pip_quietly "pip" --upgrade pip
-  pip_quietly "ilcc_graph" -e '.[test,open3d]'
+  pip_quietly "pip" "" --upgrade pip
+  pip_quietly "ilcc_graph" " (a minute or two; the big ones are gtsam, opencv, open3d)" -e '.[test,open3d]'
   echo "$want" > "$stamp"
 else
   say "ilcc_graph already installed in .venv"
