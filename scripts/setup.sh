@@ -49,8 +49,8 @@ pip_quietly() {
       else if (final) { printf "[setup]   %s\n", s }
       fflush()
     }
-    /^Collecting |^Requirement already satisfied: / {
-      n++; name = ($1 == "Collecting") ? $2 : $4; sub(/[<>=!~;[(].*/, "", name)
+    /^Collecting |^Processing |^Requirement already satisfied: / {
+      n++; name = ($1 == "Requirement") ? $4 : $2; sub(/.*\//, "", name); sub(/(-[0-9]|[<>=!~;[(]).*/, "", name)
       show(what ": " n " package(s) looked at (" name ")", !tty && n % 10 == 0)
     }
     /^ *Downloading / { show(what ": downloading " $2, 0) }
