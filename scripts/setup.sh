@@ -41,11 +41,11 @@ want=$(sha256sum pyproject.toml | cut -d' ' -f1)
 # every 10th package collected, then the install; on a terminal one line redrawn in place.
 pip_quietly() {
   local what=$1 hint=$2; shift 2
-  local log=.venv/pip.log tty=0
-  [ -t 1 ] && tty=1
-  if ! .venv/bin/python -u -m pip install --progress-bar off "$@" 2>&1 | tee -a "$log" | awk -v what="$what" -v hint="$hint" -v tty="$tty" '
-    function show(s, final) {
-      if (tty) { printf "\r\033[K[setup]   %s%s", s, (final ? "\n" : "") }
+  local log=.venv/pip.log tty=0 cols=80
+  [ -t 1 ] && tty=1 && cols=$(tput cols 2>/dev/null || echo 80)
+  if ! .venv/bin/python -u -m pip install --progress-bar off "$@" 2>&1 | tee -a "$log" | awk -v what="$what" -v hint="$hint" -v tty="$tty" -v cols="$cols" '
+    function show(s, final) {  # on a terminal: one line redrawn, cut to its width (a wrapped one would stay)
+      if (tty) { printf "\r\033[K[setup]   %s%s", substr(s, 1, cols - 11), (final ? "\n" : "") }
       else if (final) { printf "[setup]   %s\n", s }
       fflush()
     }
@@ -53,7 +53,7 @@ pip_quietly() {
       n++; name = ($1 == "Requirement") ? $4 : $2; sub(/.*\//, "", name); sub(/(-[0-9]|[<>=!~;[(]).*/, "", name)
       show(what ": " n " package(s) looked at (" name ")", !tty && n % 10 == 0)
     }
-    /^ *Downloading / { show(what ": downloading " $2, 0) }
+    /^ *Downloading / { name = $2; sub(/.*\//, "", name); sub(/-[0-9].*/, "", name); show(what ": downloading " name " " $(NF-1) " " $NF, 0) }
     /^Installing collected packages/ { show(what ": " n " package(s) looked at", 1); show(what ": installing" hint, 1) }
     /^Successfully installed/ { show(what ": installed " NF - 2 " package(s)", 1) }
     END { if (tty) printf "\r\033[K" }'; then
