@@ -44,8 +44,8 @@ pip_quietly() {
   local log=.venv/pip.log tty=0 cols=80
   [ -t 1 ] && tty=1 && cols=$(tput cols 2>/dev/null || echo 80)
   if ! .venv/bin/python -u -m pip install --progress-bar off "$@" 2>&1 | tee -a "$log" | awk -v what="$what" -v hint="$hint" -v tty="$tty" -v cols="$cols" '
-    function show(s, final) {  # on a terminal: one line redrawn, cut to its width (a wrapped one would stay)
-      if (tty) { printf "\r\033[K[setup]   %s%s", substr(s, 1, cols - 11), (final ? "\n" : "") }
+    function show(s, final) {  # on a terminal: one line redrawn, cut to its width (a wrapped one stays)
+      if (tty) { printf "\r\033[K[setup]   %s", (final ? s "\n" : substr(s, 1, cols - 11)) }
       else if (final) { printf "[setup]   %s\n", s }
       fflush()
     }
