@@ -100,7 +100,8 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
     from ilcc_graph.next_pose import for_run as next_pose_for_run
     from ilcc_graph.outputs import link_latest, write_run
     from ilcc_graph.pipeline import run
-    from ilcc_graph.report.text import format_update, run_summary
+    from ilcc_graph.report.summary import run_summary
+    from ilcc_graph.report.text import format_update
 
     options = _run_options(args)
     out = _run_dir(args, data)
@@ -132,7 +133,12 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
         link_latest(out)
     seconds = (t1 - t0, time.perf_counter() - t1)
     notes = [advice["next"].describe()] if advice.get("next") is not None else []
-    print(run_summary(result.calibration, result.joint, truth, out, seconds, args.report, notes))
+    reports = sorted((out / "report").glob("**/index.html"))
+    gate = options.noise.chi2_gate_prob
+    summary = run_summary(
+        result.calibration, result.joint, truth, out, seconds, reports, notes, options.target_sigma, gate
+    )
+    print(summary)
     return 0
 
 

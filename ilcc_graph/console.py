@@ -102,10 +102,22 @@ def DEG_MM(text: str) -> tuple[float, float]:  # noqa: N802 - an argparse type, 
     return a, b
 
 
+def _not_estimation_notes(record: logging.LogRecord) -> bool:
+    """False for the estimation core's notes below WARNING (each frame the gate drops on its way, the
+    variance components): the closing summary says what came of them, once."""
+    return record.levelno >= logging.WARNING or not record.name.startswith("ilcc_graph.estimation")
+
+
 def setup_logging(verbose: bool) -> None:
-    """INFO on stderr; DEBUG for our own loggers with ``verbose`` (not every library's)."""
+    """INFO on stderr; DEBUG for our own loggers with ``verbose`` (not every library's). The estimation
+    core's INFO notes only with ``verbose`` (a filter on the handlers: the loggers' levels stay theirs)."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(message)s")
     logging.getLogger("ilcc_graph").setLevel(logging.DEBUG if verbose else logging.INFO)
+    for handler in logging.getLogger().handlers:
+        if verbose:
+            handler.removeFilter(_not_estimation_notes)
+        elif _not_estimation_notes not in handler.filters:
+            handler.addFilter(_not_estimation_notes)
 
 
 def report_bug(err: BaseException, out: Path | None, debug: bool, argv: list[str] | None = None) -> int:

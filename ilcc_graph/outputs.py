@@ -47,6 +47,7 @@ from ilcc_graph.folders import (
 )
 from ilcc_graph.io import atomic_write, write_calibration, write_yaml
 from ilcc_graph.pipeline import RunOptions, RunResult
+from ilcc_graph.report.rig import next_pose_png
 from ilcc_graph.report_files import write_report
 from ilcc_graph.types import Estimate, sigma_dict, to_plain
 
@@ -165,10 +166,11 @@ def write_run(
 ) -> Path:
     """Write every output of ``result`` to ``out`` (module docstring); returns ``out``. With a
     ``next_pose`` proposal also ``next_pose.png`` (the rig, the boards, the proposal; a callable is
-    called while the report's pictures are drawn on other processes); ``clouds``: the coloured
-    clouds; ``full_views``: the report's whole pictures at full resolution too; ``progress(name)``:
-    a ``(done, total)`` callback for each session's report (``console.Progress``)."""
+    called while the report's pictures are drawn on other processes), shown in the report too;
+    ``clouds``: the coloured clouds; ``full_views``: the report's whole pictures at full resolution too;
+    ``progress(name)``: a ``(done, total)`` callback for each session's report (``console.Progress``)."""
     later = next_pose if callable(next_pose) else None
+    proposal, png = (None, None) if later is not None else (next_pose, None)
     with staged(out, command=command) as d:
         write_calibration(d / "calibration.yaml", result.calibration)
         first = result.sessions[0].observation.config
@@ -193,16 +195,15 @@ def write_run(
                 }
                 sub = (s.name,) if several else ()
                 bar = progress and progress(f"report {s.name}" if several else "report")
-                got = write_report(
+                proposal, png = write_report(
                     d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, studies, truth, info,
-                    clouds, full_views, later, bar,
+                    clouds, full_views, later, proposal, bar,
                 )  # fmt: skip
-                if later is not None:
-                    next_pose, later = got, None
+                later = None
         if later is not None:
-            next_pose = later()
-        if next_pose is not None:
-            atomic_write(d / "next_pose.png", next_pose_png(next_pose))
+            proposal = later()
+        if proposal is not None:
+            atomic_write(d / "next_pose.png", png if png is not None else next_pose_png(proposal))
     return out
 
 
@@ -248,24 +249,6 @@ def write_stage(out: Path, stage: str, source, refs, results, command: str = "")
                 rows.append((ref.name, "yes", res.detector, f"{sigma:.3f}", ""))
             write_yaml(d / f"{ref.name}.yaml", doc)
     return rows
-
-
-def next_pose_png(proposal) -> bytes:  # noqa: ANN001 - next_pose.Proposal
-    """The rig from above and the side with the boards so far and the proposal (``report.rig``)."""
-    import textwrap
-
-    from ilcc_graph.report.rig import plot_next_pose
-
-    rig = proposal.rig
-    return plot_next_pose(
-        rig.board,
-        proposal.boards,
-        proposal.T_lidar_board,
-        rig.T_cam_lidar,
-        rig.camera,
-        rig.lidar.vertical_angles_deg,
-        "\n".join(textwrap.wrap(proposal.describe(), 150)),
-    )
 
 
 def write_check(out: Path, result, proposal=None, command: str = "") -> Path:  # noqa: ANN001 - live.CheckResult, next_pose.Proposal

@@ -196,7 +196,8 @@ def test_bad_values_are_usage_errors_naming_the_flag(argv, flag, capsys):
 
 
 def _calibration_file(path: Path) -> Path:
-    write_calibration(path, Calibration(np.eye(4), 1e-6 * np.eye(6), ()))
+    camera = {"model": "equirectangular", "width": 2000, "height": 1000}  # kitti needs the camera's axes
+    write_calibration(path, Calibration(np.eye(4), 1e-6 * np.eye(6), (), camera=camera))
     return path
 
 
