@@ -274,9 +274,9 @@ set -e
 umask {mask:03o}
 cd {work}
 {cli} simulate sim --frames 4 --seed 1 --width 1000 > /dev/null
-{cli} calibrate sim --jobs 1 > /dev/null 2>&1
-{cli} export out/latest/calibration.yaml --format kalibr --out out/kalibr.yaml > /dev/null
-{cli} evaluate sim out/latest/calibration.yaml --out out/latest > /dev/null 2>&1
+{cli} calibrate sim --jobs 1 > /dev/null
+{cli} export out/latest/calibration.yaml --format ros-tf --out out/tf.launch > /dev/null
+{cli} evaluate sim out/latest/calibration.yaml --out out/latest > /dev/null
 """
 
 
@@ -286,7 +286,8 @@ def test_outputs_follow_the_umask(tmp_path, mask):
     cli = f"{sys.executable} -m ilcc_graph.cli"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     script = _UMASK_RUN.format(mask=mask, work=tmp_path, cli=cli)
-    subprocess.run(["bash", "-c", script], env=env, check=True, timeout=600)
+    done = subprocess.run(["bash", "-c", script], env=env, timeout=600, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-3000:]
     written = [p for p in tmp_path.rglob("*") if not p.is_symlink()]
     assert (tmp_path / "out" / "latest" / "report" / "index.html").is_file()
     assert any(p.suffix == ".png" for p in written) and len(written) > 30
