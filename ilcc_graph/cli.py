@@ -160,12 +160,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _stored(folder: Path, cache: bool = True) -> str:
-    """'~/.cache/.../name (155 MB; delete at will)': where a folder is (home as ~) and its size (a
-    folder in the cache may go: the demo makes it again)."""
+    """'~/.cache/.../name (161 MB; deletable)': where a folder is (home as ~) and its size (a folder
+    in the cache may go: the demo makes it again)."""
     size = sum(p.stat().st_size for p in folder.rglob("*") if p.is_file()) / 1e6
     home, where = str(Path.home()), str(folder)
     where = "~" + where[len(home) :] if where.startswith(home + os.sep) else where
-    return f"{where} ({size:.0f} MB{'; delete at will' if cache else ''})"
+    return f"{where} ({size:.0f} MB{'; deletable' if cache else ''})"
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -177,7 +177,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     data = Path(args.data or Path(args.cache) / f"demo-hdl32-equirect{args.width}-seed{args.seed}")
     _run_dir(args, [data])  # the output folder, claimed before the simulation
     if (data / "ground_truth.yaml").is_file():
-        print(f"reusing: {_stored(data, not args.data)}")
+        print(f"reusing {_stored(data, not args.data)}")
     else:
         print(
             f"simulating HDL-32E scans and {args.width} px panoramas, 20 frames (a minute or so)", flush=True
@@ -185,7 +185,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         kw = {"lidar": "hdl32", "camera": "equirectangular", "frames": 20, "image_format": "jpg"}
         kw["command"] = args.command_line
         write_standard_set(data, Progress("simulate"), width=args.width, seed=args.seed, **kw)
-        print(f"stored: {_stored(data, not args.data)}")
+        print(f"kept in {_stored(data, not args.data)}")
     return _calibrate([str(data)], args, read_ground_truth(data).T_cam_lidar)
 
 

@@ -18,8 +18,8 @@ def test_the_demo_says_what_it_stores(tmp_path, capsys):
     assert main(argv) == 0
     printed = capsys.readouterr().out
     data = cache / "demo-hdl32-equirect1000-seed0"
-    stored = [ln for ln in printed.splitlines() if ln.startswith("stored: ")]
-    assert len(stored) == 1 and str(data) in stored[0] and "delete at will" in stored[0], printed
+    stored = [ln for ln in printed.splitlines() if ln.startswith("kept in ")]
+    assert len(stored) == 1 and str(data) in stored[0] and "deletable" in stored[0], printed
     size = sum(p.stat().st_size for p in data.rglob("*") if p.is_file()) / 1e6
     assert re.search(r"\((\d+) MB", stored[0]).group(1) == f"{size:.0f}"
     images = sorted(p.name for p in (data / "img").iterdir())
