@@ -1,10 +1,10 @@
 """Output folders: claimed before a run, staged, committed in one step under a lock.
 
 A run writes only into a folder that is new, empty, or an earlier result of ours: one holding our
-marker file ``.ilcc-graph-run`` (the version, the command, what kind of folder it is and the names
-written) and nothing but those names. Anything else is refused before any work, and nothing in it
-is touched (docs/faults.md, "Output folders"). A link to a folder stands for its target: the run
-writes the target, the link stays.
+marker file ``.ilcc-graph-run`` (the version, the command, what kind of folder it is and the paths
+written, in subfolders too) and nothing but those paths. Anything else is refused before any work,
+and nothing in it is touched (docs/faults.md, "Output folders"). A link to a folder stands for its
+target: the run writes the target, the link stays.
 
 ``claim_output(out)`` says before a long run whether ``out`` may be written (``OutputError`` naming
 the path and the reason); ``staged(out)`` gives a staging folder beside it that replaces it only when
@@ -47,14 +47,15 @@ __all__ = [
     "write_file",
 ]
 
-#: the marker file of a folder we wrote (hidden; YAML: tool, version, kind, command, names)
+#: the marker file of a folder we wrote (hidden; YAML: tool, version, kind, command, names: every
+#: path written, relative, subfolders' too)
 MARKER = ".ilcc-graph-run"
 #: kinds of folder: a command's results (calibrate, check, the stage commands, evaluate) and a
 #: simulated data set; a run replaces only a folder of its own kind
 RESULT, DATA_SET = "result", "data set"
 #: the first line of a file written beside an output folder (failure file, error log)
 OURS = "# written by ilcc-graph"
-_MARKER_HEAD = f"{OURS} into this folder; a later run may replace it whole (it holds only these names)\n"
+_MARKER_HEAD = f"{OURS} into this folder; a later run may replace it whole (it holds only the paths listed)\n"
 
 
 def _version() -> str:
@@ -75,7 +76,7 @@ def _marker(stage: Path, kind: str, command: str) -> str:
         "kind": kind,
         "command": f"ilcc-graph {command}" if command else "(from Python)",
         "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        "names": sorted(p.name for p in stage.iterdir() if p.name != MARKER),
+        "names": [n for n in _entries(stage) if n != MARKER],
     }
     return _MARKER_HEAD + dump_yaml(doc)
 
@@ -88,6 +89,15 @@ def _read_marker(folder: Path) -> dict | None:
     if not isinstance(doc, dict) or doc.get("tool") != "ilcc-graph" or not isinstance(doc.get("names"), list):
         return None
     return doc
+
+
+def _entries(folder: Path) -> list[str]:
+    """Every path under ``folder`` (files and folders, relative, with ``/``), sorted; links not followed."""
+    got = []
+    for top, dirs, files in os.walk(folder):
+        rel = Path(top).relative_to(folder)
+        got += [(rel / n).as_posix() for n in dirs + files]
+    return sorted(got)
 
 
 def _foreign(folder: Path, kind: str) -> str | None:
@@ -108,7 +118,7 @@ def _foreign(folder: Path, kind: str) -> str | None:
             "a run never replaces it; give a new folder"
         )
     ours = set(doc["names"]) | {MARKER}
-    extra = [n for n in names if n.rstrip("/") not in ours]
+    extra = [n for n in _entries(folder) if n not in ours]
     if extra:
         return (
             f"an earlier result of ilcc-graph, but it now also holds {', '.join(extra[:6])}, which the "

@@ -5,24 +5,26 @@ ring; organised HEIGHT x WIDTH for ``sensor_format="ouster"``; header and fields
 writes them with ``pcd_style``, e.g. MATLAB's) or ``pcd/<stem>.csv`` (ILCC's CSV with the hardware
 ``laser_id`` for ``"velodyne-csv"``), ``img/<stem>.png`` (or ``.jpg``), ``ground_truth.yaml``. The
 data set is assembled in a staging folder beside ``out_dir`` that becomes ``out_dir`` at the end
-(``folders.staged``), so ``out_dir`` either holds a complete data set or is left as it was; it must
-be new, empty or an earlier simulated set (docs/faults.md).
+(``assemble``: ``folders.staged``), so ``out_dir`` either holds a complete data set or is left as it
+was; it must be new, empty or an earlier simulated set (docs/faults.md).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 from ..errors import InputError
-from ..folders import DATA_SET, claim_output, staged
+from ..folders import DATA_SET, staged
 from ..io import PCD_STYLES, write_image, write_pcd, write_yaml
 from ..io.scans import write_csv
+from ..types import Scan
 from .frames import ground_truth, simulate_frames
 from .intrinsics import IntrinsicsError, stated_camera
 from .spec import SimulationSpec, standard_spec
 
-__all__ = ["IMAGE_FORMATS", "simulate_dataset", "config_dict", "write_standard_set"]
+__all__ = ["IMAGE_FORMATS", "assemble", "simulate_dataset", "config_dict", "write_scan", "write_standard_set"]
 
 #: how the images are stored: PNG (lossless) or JPEG (OpenCV's quality 95: a sixth of the bytes)
 IMAGE_FORMATS = ("png", "jpg")
@@ -42,17 +44,17 @@ def simulate_dataset(
     out_dir: Path | str,
     spec: SimulationSpec,
     progress: Callable[[int, int], None] | None = None,
+    pcd_style: str = "plain",
     image_format: str = "png",
     command: str = "",
-    pcd_style: str = "plain",
 ) -> Path:
     """Simulate ``spec`` and write the data set to ``out_dir`` (new, empty, or an earlier simulated
     set, replaced whole; ``OutputError`` naming the folder otherwise), the images as ``image_format``
     (``IMAGE_FORMATS``).
 
-    progress: called as ``progress(done, total)`` after each frame; command: the command line that
-    asked (recorded in the folder's marker); pcd_style: how the PCD files look (``io.write_pcd``'s
-    ``style``: ``plain``, ``pcl``, ``open3d``, ``matlab``). Returns ``out_dir`` (the target of a link).
+    progress: called as ``progress(done, total)`` after each frame. pcd_style: how the PCD files
+    look (``io.write_pcd``'s ``style``: ``plain``, ``pcl``, ``open3d``, ``matlab``). command: the
+    command line that asked (recorded in the folder's marker). Returns ``out_dir`` (a link's target).
     """
     if image_format not in IMAGE_FORMATS:
         raise ValueError(f"image_format must be one of {IMAGE_FORMATS}, not {image_format!r}")
@@ -60,34 +62,48 @@ def simulate_dataset(
         raise ValueError(f"pcd_style must be one of {PCD_STYLES}, got {pcd_style!r}")
     if pcd_style != "plain" and spec.sensor_format == "velodyne-csv":
         raise ValueError(f"pcd_style {pcd_style!r} needs PCD output; sensor_format 'velodyne-csv' writes CSV")
-    out = claim_output(out_dir, "simulate", DATA_SET)
+    fill = partial(_write, spec=spec, progress=progress, pcd_style=pcd_style, image_format=image_format)
+    return assemble(Path(out_dir), fill, command)
+
+
+def assemble(out: Path, fill: Callable[[Path], None], command: str = "") -> Path:
+    """Run ``fill(tmp)`` on a staging folder that becomes ``out`` (``folders.staged``, a data set: new,
+    empty or an earlier simulated set; ``OutputError`` naming the folder otherwise), so ``out`` holds
+    the whole data set or is left as it was. Returns the folder written (a link's target)."""
     with staged(out, DATA_SET, "simulate", command) as tmp:
-        write_yaml(tmp / "config.yaml", config_dict(spec))
-        names, poses = [], []
-        total = int(spec.n_frames)
-        for k, frame in enumerate(simulate_frames(spec)):
-            scan = frame.scan
-            if spec.sensor_format == "velodyne-csv":
-                write_csv(tmp / "pcd" / f"{frame.name}.csv", scan)
-            elif spec.sensor_format == "ouster":
-                rows = len(scan) // int(scan.columns)  # type: ignore[arg-type]
-                write_pcd(
-                    tmp / "pcd" / f"{frame.name}.pcd",
-                    scan,
-                    data="binary",
-                    organised=(rows, int(scan.columns)),
-                    style=pcd_style,
-                )  # type: ignore[arg-type]
-            else:
-                write_pcd(tmp / "pcd" / f"{frame.name}.pcd", scan, data="binary", style=pcd_style)
-            write_image(tmp / "img" / f"{frame.name}.{image_format}", frame.image)
-            names.append(frame.name)
-            poses.append(frame.T_lidar_board)
-            if progress is not None:
-                progress(k + 1, total)
-        gt = ground_truth(spec, [_Pose(n, T) for n, T in zip(names, poses, strict=True)])
-        write_yaml(tmp / "ground_truth.yaml", gt)
-    return out
+        fill(tmp)
+    return Path(out).resolve() if Path(out).is_symlink() else Path(out)
+
+
+def _write(
+    tmp: Path, spec: SimulationSpec, progress: Callable[[int, int], None] | None, pcd_style: str,
+    image_format: str = "png",
+) -> None:  # fmt: skip
+    write_yaml(tmp / "config.yaml", config_dict(spec))
+    names, poses = [], []
+    total = int(spec.n_frames)
+    for k, frame in enumerate(simulate_frames(spec)):
+        write_scan(tmp / "pcd", frame.name, frame.scan, spec.sensor_format, pcd_style)
+        write_image(tmp / "img" / f"{frame.name}.{image_format}", frame.image)
+        names.append(frame.name)
+        poses.append(frame.T_lidar_board)
+        if progress is not None:
+            progress(k + 1, total)
+    gt = ground_truth(spec, [_Pose(n, T) for n, T in zip(names, poses, strict=True)])
+    write_yaml(tmp / "ground_truth.yaml", gt)
+
+
+def write_scan(folder: Path, stem: str, scan: Scan, sensor_format: str, pcd_style: str = "plain") -> Path:
+    """Write a simulated scan as ``folder/<stem>.pcd`` (binary; organised for ``"ouster"``; header and
+    fields in ``pcd_style``) or ``.csv`` (``"velodyne-csv"``), as ``spec.sensor_format`` says a driver
+    would; returns the path."""
+    if sensor_format == "velodyne-csv":
+        return write_csv(folder / f"{stem}.csv", scan)
+    path = folder / f"{stem}.pcd"
+    if sensor_format == "ouster":
+        rows = len(scan) // int(scan.columns)  # type: ignore[arg-type]
+        return write_pcd(path, scan, data="binary", organised=(rows, int(scan.columns)), style=pcd_style)  # type: ignore[arg-type]
+    return write_pcd(path, scan, data="binary", style=pcd_style)
 
 
 class _Pose:
@@ -101,9 +117,9 @@ def write_standard_set(
     out: Path | str,
     progress: Callable[[int, int], None] | None = None,
     intrinsics_error: float = 0.0,
+    pcd_style: str = "plain",
     image_format: str = "png",
     command: str = "",
-    pcd_style: str = "plain",
     **spec: object,
 ) -> SimulationSpec:
     """The standard set (``standard_spec(**spec)``, stated intrinsics off by ``intrinsics_error`` x a
@@ -115,6 +131,6 @@ def write_standard_set(
             raise ValueError(f"--pcd-style {pcd_style} needs PCD files; --format velodyne-csv writes CSV")
     except ValueError as err:
         raise InputError(f"simulate: {err}") from None
-    kw = {"image_format": image_format, "command": command, "pcd_style": pcd_style}
+    kw = {"pcd_style": pcd_style, "image_format": image_format, "command": command}
     simulate_dataset(Path(out), s, progress=progress, **kw)
     return s
