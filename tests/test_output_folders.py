@@ -128,6 +128,12 @@ def test_an_earlier_result_holding_a_users_file_is_refused(sim, earlier, tmp_pat
     _refused(["calibrate", str(sim), "--out", str(run)], capsys, "notes.txt", "would lose")
     _refused(["lidar-corners", str(sim), "--out", str(run)], capsys, "notes.txt")
     assert snapshot(run) == before
+    data = tmp_path / "data"  # an earlier simulated set with a file of the user's in a subfolder
+    shutil.copytree(sim, data)
+    (data / "img" / "notes.txt").write_text("0003 is blurred\n")
+    before = snapshot(data)
+    _refused(["simulate", str(data)], capsys, "img/notes.txt", "would lose")
+    assert snapshot(data) == before
 
 
 def test_an_earlier_result_is_replaced_whole(sim, earlier, tmp_path, capsys):
