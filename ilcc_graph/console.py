@@ -9,7 +9,7 @@
   calibration the data cannot give; 130 / 143 / 129 and one line for SIGINT / SIGTERM / SIGHUP;
   1 for an internal error (``report_bug``: one line, the traceback in a log file beside the output
   folder, ``<out>.error.log``, since the output folder itself is complete or absent; or in the
-  temporary folder; and on stderr with ``--debug``).
+  temporary folder when a file not ours has that name; and on stderr with ``--debug``).
 """
 
 from __future__ import annotations
@@ -122,18 +122,14 @@ def setup_logging(verbose: bool) -> None:
 
 def report_bug(err: BaseException, out: Path | None, debug: bool, argv: list[str] | None = None) -> int:
     """Say an internal error in one line, keep its traceback in a log file; returns exit code 1."""
+    from ilcc_graph.folders import OURS, write_beside
+
     text = "".join(traceback.format_exception(type(err), err, err.__traceback__))
     command = "ilcc-graph " + " ".join(sys.argv[1:] if argv is None else argv)
     candidates = [Path(f"{out}.error.log")] if out is not None else []
     candidates.append(Path(tempfile.gettempdir()) / f"ilcc-graph-error-{os.getpid()}.log")
-    where = None
-    for path in candidates:
-        try:
-            path.write_text(f"{command}\n{text}", encoding="utf-8")
-        except OSError:
-            continue
-        where = path
-        break
+    log = f"{OURS}: an internal error's traceback\n{command}\n{text}"
+    where = next((p for p in candidates if write_beside(p, log) is not None), None)
     if debug:
         print(text, file=sys.stderr, end="")
     note = f"; the traceback is in {where}" if where else ""

@@ -154,10 +154,13 @@ class LiveAdvice:
         return adv.propose(covariance, self.target_sigma, frames)
 
 
-def check_command(data: str, options: CheckOptions, out: object = None, advise_live: bool = False) -> int:
+def check_command(
+    data: str, options: CheckOptions, out: object = None, advise_live: bool = False, command: str = ""
+) -> int:
     """``ilcc-graph check``: the live table on standard output, the progress line on standard error,
     then the batch answer and the next board pose; ``out`` (a folder): check.yaml and next_pose.png
-    there. Returns the exit code (0; bad input raises InputError)."""
+    there (``command``: the command line, for the folder's marker). Returns the exit code (0; bad
+    input raises InputError)."""
     from ilcc_graph.datasets import open_source
     from ilcc_graph.datasets.watch import GrowingFolder
 
@@ -215,6 +218,6 @@ def check_command(data: str, options: CheckOptions, out: object = None, advise_l
     if out is not None:
         from ilcc_graph.outputs import write_check
 
-        write_check(Path(out), result, proposal)
+        write_check(Path(out), result, proposal, command)
         print(f"wrote check.yaml{' and next_pose.png' if proposal is not None else ''} to {out}")
     return 0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -34,6 +36,24 @@ def acfr_os1_fisheye() -> Path:
 def acfr_os1_pinhole() -> Path:
     """The recorded Ouster + pinhole set (6 frames) in ../shared; skip where it is absent."""
     return _shared_set("acfr-os1-pinhole")
+
+
+@pytest.fixture
+def readonly_dir(tmp_path) -> Path:
+    """A folder nobody can write into: a read-only tmpfs as root (permission bits do not stop root)."""
+    d = tmp_path / "ro"
+    d.mkdir()
+    if os.geteuid() != 0:
+        d.chmod(0o555)
+        yield d
+        d.chmod(0o755)
+        return
+    if subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(d)], capture_output=True
+    ).returncode:
+        pytest.skip("cannot mount a read-only tmpfs here")
+    yield d
+    subprocess.run(["umount", str(d)], check=False)
 
 
 #: image width of the small simulated sets per camera kind (a panorama needs more pixels per board)

@@ -8,8 +8,9 @@ Bag layout: ``OUT/rig.bag`` (ROS 1) or ``OUT/rig/`` (ROS 2, sqlite3 or mcap) wit
 single-pair bag writer (``bag.RosMessages``); moment k's messages are stamped ``k / rate_hz`` s after
 the start (cameras 12 ms after the LiDARs, each sensor 1 ms after the previous one of its kind) and
 received 30 ms (LiDARs) or 20 ms (cameras) later; the truth names moments as the rig source names them
-(the first LiDAR's bag time). Either set is assembled in a sibling temporary folder and renamed into
-place, so ``OUT`` holds a whole set or is left as it was.
+(the first LiDAR's bag time). Either set is assembled in a staging folder that becomes ``OUT``
+(``export.assemble``), so ``OUT`` holds a whole set or is left as it was; ``OUT`` must be new, empty or
+an earlier simulated set (docs/faults.md).
 """
 
 from __future__ import annotations
@@ -36,10 +37,11 @@ CLOUD_T, IMAGE_T, COMPRESSED_T = (f"sensor_msgs/msg/{t}" for t in ("PointCloud2"
 def write_rig_set(
     out: Path | str, spec: RigSpec, progress: Progress = None, moments: Sequence[RigMoment] | None = None
 ) -> Path:
-    """Simulate ``spec`` and write it as a folder per sensor to ``out`` (created; must be empty or absent).
+    """Simulate ``spec`` and write it as a folder per sensor to ``out`` (new, empty or an earlier
+    simulated set).
 
     progress: called as ``progress(done, total)`` after each moment. moments: ``simulate_moments(spec)``
-    when already simulated. Returns ``out``; FileExistsError when ``out`` exists and is not empty."""
+    when already simulated. Returns ``out``; OutputError naming it when it holds anything else."""
 
     def fill(tmp: Path) -> None:
         write_yaml(tmp / "rig.yaml", rig_config_to_dict(spec.rig_config()))
