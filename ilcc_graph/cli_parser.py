@@ -24,6 +24,7 @@ examples:
   ilcc-graph calibrate DATA --refine paper          the paper's refinement (no covariance), for comparison
   ilcc-graph calibrate MON/ TUE/ WED/ --mode rigid  three sessions jointly; tells if the mount moved
   ilcc-graph calibrate DATA --range-offset          also estimate the LiDAR's range offset
+  ilcc-graph calibrate DATA --sensor-model none     no sensor-error terms (default auto: chosen per run)
   ilcc-graph calibrate DATA --target-sigma 0.05,1   frame by frame (iSAM2) until 0.05 deg / 1 mm
   ilcc-graph lidar-corners DATA --out out/lidar     the LiDAR stage alone: board points, pose, corners
   ilcc-graph image-corners DATA --out out/image     the image stage alone: corners drawn and numbered
@@ -46,7 +47,8 @@ def _bag_args(sp: argparse.ArgumentParser) -> None:
     g.add_argument("--image-topic", help="Image or CompressedImage topic (default: the only one)")
     g.add_argument("--sync-tolerance", type=POSITIVE, metavar="S", help="scan-image stamp difference (0.05)")
     g.add_argument("--min-pause", type=NON_NEGATIVE, metavar="S", help="shortest pause giving a frame (1.0)")
-    g.add_argument("--select", choices=("auto", "pauses", "all"), help="frames: one per pause, or all scans")
+    help = "frames: one per still pause, or every scan (default auto: pauses when the recording has them)"
+    g.add_argument("--select", choices=("auto", "pauses", "all"), help=help)
 
 
 def _frames_args(sp: argparse.ArgumentParser, jobs: int) -> None:
@@ -56,31 +58,52 @@ def _frames_args(sp: argparse.ArgumentParser, jobs: int) -> None:
     sp.add_argument("--strict", action="store_true", help=help)
 
 
+SENSOR_MODEL_HELP = (
+    "the model of the sensors' own errors: auto (default) chooses among none, range and beams by "
+    "how well each predicts every board's image from the other boards; none: each board the LiDAR "
+    "stage's pose; range: one range offset and the dark-print offset from the returns; beams: "
+    "per-beam offsets (as --lidar-errors); offset: one range offset on the boards' poses"
+)
+
+
+def _model_args(sp: argparse.ArgumentParser) -> None:
+    """--sensor-model (``estimation.selection``)."""
+    choices = ("auto", "none", "range", "beams", "offset")
+    sp.add_argument("--sensor-model", choices=choices, default="auto", help=SENSOR_MODEL_HELP)
+
+
 def _solve_args(sp: argparse.ArgumentParser, jobs: int, studies: bool = False) -> None:
     sp.add_argument("--out", help="output folder (default: out/<timestamp>, linked as out/latest)")
     help = "graph: our factor graph with covariance (default); paper: the paper's refinement"
     sp.add_argument("--refine", choices=("graph", "paper"), default="graph", help=help)
-    sp.add_argument("--robust", choices=("huber", "cauchy"), help="robust kernel on the bearing factors")
+    help = "robust kernel on the bearing factors (default: none, least squares with the chi-square gate)"
+    sp.add_argument("--robust", choices=("huber", "cauchy"), help=help)
+    _model_args(sp)
     help = "refine the camera's intrinsics (prior: the config's values and camera.intrinsics_sigma)"
     sp.add_argument("--refine-intrinsics", action="store_true", help=help)
     help = "estimate the LiDAR's per-beam and dark-print range offsets from the boards' returns"
     sp.add_argument("--lidar-errors", action="store_true", help=help)
     help = (
-        "with --lidar-errors: each board's own plane and beam offsets' sigmas estimated, or fixed "
-        "(5 mm / 0.4 deg, 2 mm)"
+        "with --lidar-errors: each board's own plane and beam offsets' sigmas estimated (default), or "
+        "fixed (5 mm / 0.4 deg, 2 mm)"
     )
     sp.add_argument("--board-plane", choices=("estimated", "fixed"), help=help)
     _frames_args(sp, jobs)
     sp.add_argument("--no-report", dest="report", action="store_false", help="skip the report")
     sp.add_argument("--clouds", action="store_true", help="with the report: coloured clouds (coloured/)")
     sp.add_argument("--full-views", action="store_true", help="with the report: whole pictures at full size")
-    help = "add frames-vs-accuracy and cross-validation to the report"
+    help = (
+        f"add frames-vs-accuracy and cross-validation to the report (default: {'on' if studies else 'off'})"
+    )
     sp.add_argument("--studies", action=argparse.BooleanOptionalAction, default=studies, help=help)
+    help = "also estimate the LiDAR's range offset, one per LiDAR (docs/joint.md)"
+    sp.add_argument("--range-offset", action="store_true", help=help)
 
 
 def build_parser(commands: Mapping[str, Callable[[argparse.Namespace], int]]) -> argparse.ArgumentParser:
     """The parser; ``commands``: each command's function by name (``cli.COMMANDS``)."""
     from ilcc_graph.cameras import camera_kinds
+    from ilcc_graph.io.pcd import PCD_STYLES
     from ilcc_graph.lidars.tables import MODEL_NAMES as LIDAR_NAMES
 
     p = argparse.ArgumentParser(
@@ -112,14 +135,14 @@ def build_parser(commands: Mapping[str, Callable[[argparse.Namespace], int]]) ->
     _solve_args(sp, jobs)
     _bag_args(sp)
     g = sp.add_argument_group("several sessions (joint calibration)")
-    help = "rigid: one extrinsic for all sessions; drift: one per session, tied by --drift-sigma"
+    help = "rigid (default): one extrinsic for all sessions; drift: one per session, tied by --drift-sigma"
     g.add_argument("--mode", choices=("rigid", "drift"), default="rigid", help=help)
-    help = "drift mode: how far the mount may move (0.1,2)"
+    help = "drift mode: how far the mount may move (default 0.1,2)"
     g.add_argument("--drift-sigma", type=DEG_MM, metavar="DEG,MM", help=help)
-    g.add_argument("--alpha", type=RATE, default=0.01, help="false-alarm rate of the moved-mount test")
-    help = "extra per-session spread the test tolerates"
+    help = "false-alarm rate of the moved-mount test (default 0.01)"
+    g.add_argument("--alpha", type=RATE, default=0.01, help=help)
+    help = "extra per-session spread the test tolerates (default 0,0)"
     g.add_argument("--repeatability", type=DEG_MM, metavar="DEG,MM", help=help)
-    g.add_argument("--range-offset", action="store_true", help="estimate the LiDAR's range offset")
     g = sp.add_argument_group("incremental (iSAM2)")
     help = "frame by frame until these 1-sigma values"
     g.add_argument("--target-sigma", type=DEG_MM, metavar="DEG,MM", help=help)
@@ -129,7 +152,7 @@ def build_parser(commands: Mapping[str, Callable[[argparse.Namespace], int]]) ->
         "demo", commands["demo"], "simulate the standard panoramic set (or reuse it), calibrate, compare"
     )
     sp.add_argument("--width", type=PIXELS, default=8000, help="panorama width in pixels (default 8000)")
-    sp.add_argument("--seed", type=SEED, default=0)
+    sp.add_argument("--seed", type=SEED, default=0, help="the simulation's seed (default 0)")
     sp.add_argument("--data", help="where the simulated set lives (default: under --cache)")
     cache = os.path.join(os.path.expanduser("~"), ".cache", "ilcc_graph")
     sp.add_argument("--cache", default=cache, help="folder for simulated data sets (~/.cache/ilcc_graph)")
@@ -137,18 +160,39 @@ def build_parser(commands: Mapping[str, Callable[[argparse.Namespace], int]]) ->
 
     sp = add("simulate", commands["simulate"], "write a simulated data set with ground truth")
     sp.add_argument("out", metavar="OUT")
-    sp.add_argument("--lidar", default="hdl32", choices=[m for m in LIDAR_NAMES if m != "generic"])
-    help = "plain PCD; ouster: organised, ring 0 at the top, raw signal; velodyne-csv: hardware laser_id"
-    sp.add_argument("--format", default="plain", choices=("plain", "ouster", "velodyne-csv"), help=help)
-    sp.add_argument("--camera", default="equirectangular", choices=camera_kinds())
-    sp.add_argument("--frames", type=COUNT, default=20)
-    sp.add_argument("--seed", type=SEED, default=0)
+    lidars = [m for m in LIDAR_NAMES if m != "generic"]
     sp.add_argument(
-        "--noise-scale", type=NON_NEGATIVE, default=1.0, help="multiplier on the baseline LiDAR noise"
+        "--lidar",
+        default="hdl32",
+        choices=lidars,
+        metavar="MODEL",
+        help=f"{', '.join(lidars)} (default hdl32)",
     )
-    sp.add_argument("--width", type=PIXELS, default=None, help="image width (default 8000 for panoramas)")
+    help = "plain PCD (default); ouster: organised, ring 0 at the top, raw signal; velodyne-csv: laser_id"
+    sp.add_argument("--format", default="plain", choices=("plain", "ouster", "velodyne-csv"), help=help)
+    help = "PCD files as this tool writes them (default plain; matlab: pcwrite's header comment, no ring)"
+    sp.add_argument("--pcd-style", default="plain", choices=PCD_STYLES, help=help)
+    sp.add_argument(
+        "--camera", default="equirectangular", choices=camera_kinds(), help="(default equirectangular)"
+    )
+    sp.add_argument("--frames", type=COUNT, default=20, help="board poses (default 20)")
+    sp.add_argument("--seed", type=SEED, default=0, help="the simulation's seed (default 0)")
+    sp.add_argument(
+        "--noise-scale",
+        type=NON_NEGATIVE,
+        default=1.0,
+        help="multiplier on the baseline LiDAR noise (default 1)",
+    )
+    sp.add_argument(
+        "--width",
+        type=PIXELS,
+        default=None,
+        help="image width (default: the camera kind's, 8000 for a panorama)",
+    )
     wrong_k = "config.yaml states intrinsics off by SCALE x a typical error (0.5%% f, 2 px c); 0 = the truth"
     sp.add_argument("--intrinsics-error", type=NON_NEGATIVE, default=0.0, metavar="SCALE", help=wrong_k)
+    help = "every range reads MM long (a LiDAR's zero error), on top of the per-beam and dark-print offsets"
+    sp.add_argument("--range-offset-mm", type=float, default=0.0, metavar="MM", help=help)
 
     for name, fn, help in (
         (
@@ -184,6 +228,7 @@ def build_parser(commands: Mapping[str, Callable[[argparse.Namespace], int]]) ->
     help = "stop when every sigma is within DEG / MM"
     sp.add_argument("--target-sigma", type=DEG_MM, metavar="DEG,MM", help=help)
     sp.add_argument("--advise", action="store_true", help="with --watch: the next board pose while waiting")
+    _model_args(sp)
     sp.add_argument("--out", help="folder for check.yaml and next_pose.png (default: out/<timestamp>)")
 
     sp = add("export", commands["export"], "write a calibration in another tool's format")
@@ -192,6 +237,7 @@ def build_parser(commands: Mapping[str, Callable[[argparse.Namespace], int]]) ->
     sp.add_argument("--out", help="file to write (default: standard output)")
     sp.add_argument("--parent", choices=("lidar", "camera"), help="ros-tf: the parent frame (default lidar)")
     sp.add_argument("--lidar-frame", help="ros-tf: the LiDAR's frame id (default lidar)")
-    sp.add_argument("--camera-frame", help="ros-tf: the camera's frame id (default camera)")
+    help = "ros-tf: the camera's frame id (default camera_optical for a lens camera, camera for a panorama)"
+    sp.add_argument("--camera-frame", help=help)
     sp.add_argument("--ros", choices=("both", "ros1", "ros2"), help="ros-tf: which ROS (default both)")
     return p

@@ -9,7 +9,7 @@
   calibration the data cannot give; 130 / 143 / 129 and one line for SIGINT / SIGTERM / SIGHUP;
   1 for an internal error (``report_bug``: one line, the traceback in a log file beside the output
   folder, ``<out>.error.log``, since the output folder itself is complete or absent; or in the
-  temporary folder; and on stderr with ``--debug``).
+  temporary folder when a file not ours has that name; and on stderr with ``--debug``).
 """
 
 from __future__ import annotations
@@ -102,26 +102,34 @@ def DEG_MM(text: str) -> tuple[float, float]:  # noqa: N802 - an argparse type, 
     return a, b
 
 
+def _not_estimation_notes(record: logging.LogRecord) -> bool:
+    """False for the estimation core's notes below WARNING (each frame the gate drops on its way, the
+    variance components): the closing summary says what came of them, once."""
+    return record.levelno >= logging.WARNING or not record.name.startswith("ilcc_graph.estimation")
+
+
 def setup_logging(verbose: bool) -> None:
-    """INFO on stderr; DEBUG for our own loggers with ``verbose`` (not every library's)."""
+    """INFO on stderr; DEBUG for our own loggers with ``verbose`` (not every library's). The estimation
+    core's INFO notes only with ``verbose`` (a filter on the handlers: the loggers' levels stay theirs)."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(message)s")
     logging.getLogger("ilcc_graph").setLevel(logging.DEBUG if verbose else logging.INFO)
+    for handler in logging.getLogger().handlers:
+        if verbose:
+            handler.removeFilter(_not_estimation_notes)
+        elif _not_estimation_notes not in handler.filters:
+            handler.addFilter(_not_estimation_notes)
 
 
 def report_bug(err: BaseException, out: Path | None, debug: bool, argv: list[str] | None = None) -> int:
     """Say an internal error in one line, keep its traceback in a log file; returns exit code 1."""
+    from ilcc_graph.folders import OURS, write_beside
+
     text = "".join(traceback.format_exception(type(err), err, err.__traceback__))
     command = "ilcc-graph " + " ".join(sys.argv[1:] if argv is None else argv)
     candidates = [Path(f"{out}.error.log")] if out is not None else []
     candidates.append(Path(tempfile.gettempdir()) / f"ilcc-graph-error-{os.getpid()}.log")
-    where = None
-    for path in candidates:
-        try:
-            path.write_text(f"{command}\n{text}", encoding="utf-8")
-        except OSError:
-            continue
-        where = path
-        break
+    log = f"{OURS}: an internal error's traceback\n{command}\n{text}"
+    where = next((p for p in candidates if write_beside(p, log) is not None), None)
     if debug:
         print(text, file=sys.stderr, end="")
     note = f"; the traceback is in {where}" if where else ""

@@ -55,9 +55,13 @@ def size_problem(size: tuple[int, int], config: Config, where: str) -> str | Non
     )
 
 
-def check_image(image: np.ndarray, config: Config, where: str, strict: bool = False) -> None:
-    """DamagedFile (InputError with ``strict``) when the image has not the camera's size."""
-    problem = size_problem((image.shape[1], image.shape[0]), config, where)
+def check_image(
+    image: np.ndarray | tuple[int, int], config: Config, where: str, strict: bool = False
+) -> None:
+    """DamagedFile (InputError with ``strict``) when the image, or an image of size (width, height)
+    read from its header, has not the camera's size."""
+    size = image if isinstance(image, tuple) else (image.shape[1], image.shape[0])
+    problem = size_problem(size, config, where)
     if problem is None:
         return
     if strict:

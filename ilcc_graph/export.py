@@ -19,12 +19,7 @@ import gtsam
 import numpy as np
 
 from ilcc_graph.cameras import CameraModel, camera_class, make_camera
-from ilcc_graph.handoff import (
-    check_covariance,
-    check_rigid,
-    invert_with_covariance,
-    load_calibration,
-)
+from ilcc_graph.handoff import check_covariance, check_rigid, invert_with_covariance
 from ilcc_graph.types import Calibration, sigma_dict
 
 CONVENTION = (
@@ -39,12 +34,9 @@ CONVENTION = (
 CalibrationLike = Calibration | tuple[gtsam.Pose3 | np.ndarray, np.ndarray] | str | Path
 
 
-def _as_T_cov(cal: CalibrationLike) -> tuple[np.ndarray, np.ndarray | None]:
-    """(4, 4) ``T_cam_lidar`` and (6, 6) covariance from any accepted input, checked; the covariance
-    is None for a calibration that has none (the paper's refinement writes NaN)."""
-    if isinstance(cal, (str, Path)):
-        pose, cov = load_calibration(cal)
-        return pose.matrix(), cov
+def _as_T_cov(cal: Calibration | tuple) -> tuple[np.ndarray, np.ndarray | None]:
+    """(4, 4) ``T_cam_lidar`` and (6, 6) covariance of a Calibration or a pair, checked; the
+    covariance is None for a calibration that has none (the paper's refinement writes NaN)."""
     if isinstance(cal, Calibration):
         T, cov = cal.T_cam_lidar, cal.covariance
     else:
@@ -69,6 +61,24 @@ def _camera(camera: Any) -> CameraModel | None:
         d["model"] = d.pop("kind")
     camera_class(d.get("model", ""))  # an unknown model: say so plainly
     return make_camera(d)
+
+
+def calibration_camera(cal: Calibration) -> CameraModel | None:
+    """The camera a calibration was estimated with: its ``camera`` section, with the refined
+    intrinsics when the run refined them (``sensors["camera_intrinsics"]``); None when it holds none.
+
+    Raises ValueError when the refined intrinsics do not belong to that camera.
+    """
+    camera = _camera(cal.camera)
+    refined = (cal.sensors or {}).get("camera_intrinsics")
+    if camera is None or refined is None:
+        return camera
+    if tuple(refined["names"]) != camera.intrinsic_names:
+        raise ValueError(
+            f"the refined intrinsics ({', '.join(refined['names'])}) are not those of the "
+            f"{camera.kind} camera ({', '.join(camera.intrinsic_names)})"
+        )
+    return camera.with_intrinsics(np.asarray(refined["values"], dtype=np.float64))
 
 
 def _quat_xyzw(R: np.ndarray) -> np.ndarray:
@@ -118,15 +128,15 @@ def _export_json(T: np.ndarray, cov: np.ndarray | None, camera: CameraModel | No
 def _export_ros_tf(
     T: np.ndarray,
     cov: np.ndarray | None,
-    camera: CameraModel | None,
+    camera: CameraModel,
     *,
     parent: str = "lidar",
     lidar_frame: str = "lidar",
     camera_frame: str | None = None,
     ros: str = "both",
 ) -> str:
-    if camera_frame is None:
-        camera_frame = "camera_optical" if camera is not None and camera.optical else "camera"
+    if camera_frame is None:  # REP 103: an optical frame (z forward, x right, y down) is "<name>_optical"
+        camera_frame = "camera_optical" if camera.optical else "camera"
     if parent == "lidar":
         T_pc, parent_frame, child_frame = np.linalg.inv(T), lidar_frame, camera_frame
     elif parent == "camera":
@@ -137,9 +147,7 @@ def _export_ros_tf(
         raise ValueError(f"ros must be 'both', 'ros1' or 'ros2', got {ros!r}")
     x, y, z = (_num(v) for v in T_pc[:3, 3])
     qx, qy, qz, qw = (_num(v) for v in _quat_xyzw(T_pc[:3, :3]))
-    if camera is None:
-        axes = "unknown (pass the camera model)"
-    elif camera.optical:
+    if camera.optical:
         axes = "OpenCV optical (z forward, x right, y down)"
     else:
         axes = f"{camera.axes} ({camera.kind})"
@@ -173,14 +181,12 @@ def _export_ros_tf(
 def _export_kitti(
     T: np.ndarray,
     cov: np.ndarray | None,
-    camera: CameraModel | None,
+    camera: CameraModel,
     *,
     calib_time: _dt.datetime | str | None = None,
 ) -> str:
     T_out = T.copy()
-    if camera is None:
-        frame = "camera frame as calibrated (camera model not given; OpenCV axes assumed)"
-    elif camera.optical:
+    if camera.optical:
         frame = f"OpenCV camera frame (z forward, x right, y down) of the {camera.kind} camera"
     else:
         T_out[:3, :] = camera.R_opencv_cam @ T[:3, :]
@@ -211,7 +217,7 @@ def _yaml_row(v: np.ndarray) -> str:
 def _export_kalibr(
     T: np.ndarray,
     cov: np.ndarray | None,
-    camera: CameraModel | None,
+    camera: CameraModel,
     *,
     rostopic: str = "/camera/image_raw",
 ) -> str:
@@ -228,14 +234,11 @@ def _export_kalibr(
         body += [f"  - {_yaml_row(r)}" for r in cov]
     else:
         notes.append("no covariance: the calibration method gives none.")
-    if camera is not None:
-        fields, camera_notes = camera.kalibr()
-        notes += camera_notes
-        for key, value in fields.items():
-            body.append(f"  {key}: {value if isinstance(value, str) else _yaml_row(value)}")
-        body.append(f"  resolution: [{int(camera.width)}, {int(camera.height)}]")
-    else:
-        notes.append("camera intrinsics not given: only the extrinsic is written.")
+    fields, camera_notes = camera.kalibr()  # ValueError when Kalibr has no model for the camera
+    notes += camera_notes
+    for key, value in fields.items():
+        body.append(f"  {key}: {value if isinstance(value, str) else _yaml_row(value)}")
+    body.append(f"  resolution: [{int(camera.width)}, {int(camera.height)}]")
     body += ["  cam_overlaps: []", f"  rostopic: {rostopic}"]
     return "\n".join(out + [f"# {n}" for n in notes] + body) + "\n"
 
@@ -305,6 +308,8 @@ _EXPORTERS: dict[str, Callable[..., str]] = {
 #: formats that write the sensors' own errors rather than the extrinsic (they take the Calibration)
 _SENSOR_EXPORTERS: dict[str, Callable[..., str]] = {"lidar-offsets": _export_lidar_offsets}
 FORMATS: tuple[str, ...] = tuple(_EXPORTERS) + tuple(_SENSOR_EXPORTERS)
+#: formats whose content depends on the camera model (its axes, its intrinsics): never written without it
+NEEDS_CAMERA: tuple[str, ...] = ("ros-tf", "kitti", "kalibr")
 
 
 def export_calibration(cal: CalibrationLike, fmt: str, *, camera: Any = None, **options: Any) -> str:
@@ -318,14 +323,18 @@ def export_calibration(cal: CalibrationLike, fmt: str, *, camera: Any = None, **
         errors of a calibration with ``--lidar-errors``; needs a ``Calibration`` or a path).
     camera : the camera model (our config dict or a ``CameraModel``); tells the camera frame's axes
         (KITTI converts a camera without OpenCV axes, e.g. equirectangular, to OpenCV axes) and
-        gives Kalibr its intrinsics (``CameraModel.kalibr``).
+        gives Kalibr its intrinsics (``CameraModel.kalibr``). Default: the calibration's own
+        (``calibration_camera``: calibration.yaml's ``camera``, or ``config.resolved.yaml`` beside
+        it, with the intrinsics as refined when they were). ``ros-tf``, ``kitti`` and ``kalibr``
+        are never written without one (``NEEDS_CAMERA``).
     options : per format (see docs/exports.md):
         ros-tf: ``parent`` ("lidar" default | "camera"), ``lidar_frame`` ("lidar"),
-        ``camera_frame`` ("camera", or "camera_optical" for a camera with OpenCV axes), ``ros`` ("both" |
-        "ros1" | "ros2"); kitti: ``calib_time`` (datetime or text, default now, UTC);
-        kalibr: ``rostopic``; lidar-offsets: ``table`` ("yaml" default | "csv").
+        ``camera_frame`` ("camera_optical" for a camera with OpenCV axes, "camera" else: REP 103),
+        ``ros`` ("both" | "ros1" | "ros2"); kitti: ``calib_time`` (datetime or text, default now,
+        UTC); kalibr: ``rostopic``; lidar-offsets: ``table`` ("yaml" default | "csv").
 
-    Raises ``ValueError`` for an unknown format or option value, ``InputError`` for a bad file.
+    Raises ``ValueError`` for an unknown format or option value, a format that needs the camera
+    model without one, a camera Kalibr cannot hold; ``InputError`` for a bad file.
     """
     if fmt not in FORMATS:
         raise ValueError(f"unknown export format {fmt!r}; expected one of {', '.join(FORMATS)}")
@@ -338,13 +347,23 @@ def export_calibration(cal: CalibrationLike, fmt: str, *, camera: Any = None, **
     for name in options:
         if name not in allowed:
             raise ValueError(f"export format {fmt!r} has no option {name!r}; options: {allowed or 'none'}")
-    if fmt in _SENSOR_EXPORTERS:
-        if isinstance(cal, (str, Path)):
-            from ilcc_graph.io import read_calibration
+    if isinstance(cal, (str, Path)):
+        from ilcc_graph.io import read_calibration_with_camera
 
-            cal = read_calibration(cal)
+        cal = read_calibration_with_camera(cal)
+    if fmt in _SENSOR_EXPORTERS:
         if not isinstance(cal, Calibration):
             raise ValueError(f"export format {fmt!r} needs a Calibration or a calibration.yaml")
         return exporter(cal, **options)
     T, cov = _as_T_cov(cal)
-    return exporter(T, cov, _camera(camera), **options)
+    cam = _camera(camera)
+    if cam is None and isinstance(cal, Calibration):
+        cam = calibration_camera(cal)
+    if cam is None and fmt in NEEDS_CAMERA:
+        raise ValueError(
+            f"the {fmt} export needs the camera model (which axes its frame has"
+            + (", its intrinsics" if fmt == "kalibr" else "")
+            + "), and the calibration holds none: pass camera= (a config.yaml camera section), or add "
+            "the data set's `camera:` section to calibration.yaml"
+        )
+    return exporter(T, cov, cam, **options)

@@ -2,8 +2,12 @@
 
 Per frame: is the board found in the scan and in the image, is its pose new (not a repeat of an
 earlier frame's, ``estimation.geometry``), and, once three or more distinct frames calibrate, the
-running sigmas (``estimation.incremental``, iSAM2, from the stated noise of the two stages) and
-their gap to a target. :class:`LiveCheck` does one frame at a time; :func:`run_check` feeds it a
+running sigmas and their gap to a target. The frames so far are solved as ``calibrate`` solves
+them (``prepare`` and the batch strategy: the same gate, variance components and choice of the
+sensor model, ``estimation.selection``): a frame is accepted when that solve keeps it, and the
+sigmas are that solve's. With few boards the noise levels rest on few residuals: their own
+uncertainty widens the sigmas (``estimation.components``, the held-out factor of ``selection``),
+and the verdict says so. :class:`LiveCheck` does one frame at a time; :func:`run_check` feeds it a
 source's frames, or a folder being filled (``datasets.watch.GrowingFolder``), until the frames run
 out, ``until`` frames were seen, the target is reached or the user interrupts (Ctrl-C).
 
@@ -28,14 +32,28 @@ from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import BoardColourMismatch, CalibrationError, FrameError
 from ilcc_graph.estimation import NoiseOptions
+from ilcc_graph.estimation.batch import BatchSolution
+from ilcc_graph.estimation.batch import solve as solve_batch
 from ilcc_graph.estimation.geometry import board_geometry
-from ilcc_graph.estimation.incremental import FrameUpdate, IncrementalCalibrator
-from ilcc_graph.observe import StageOptions, observe_image, observe_lidar, resolve_lidar
-from ilcc_graph.types import FrameResult, GraphFrame, sigmas_deg_mm
+from ilcc_graph.estimation.incremental import FrameUpdate
+from ilcc_graph.estimation.selection import AUTO
+from ilcc_graph.observe import (
+    Observation,
+    StageOptions,
+    observe_image,
+    observe_lidar,
+    resolve_lidar,
+    second_pass,
+)
+from ilcc_graph.prepare import graph_frame, prepare
+from ilcc_graph.types import Calibration, FrameResult, GraphFrame, sigmas_deg_mm
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CheckOptions", "CheckResult", "LiveCheck", "Verdict", "run_check"]
+__all__ = ["FEW_BOARDS", "CheckOptions", "CheckResult", "LiveCheck", "Verdict", "run_check"]
+
+#: below this many boards in the solve, the verdict says that the noise rests on few boards
+FEW_BOARDS = 6
 
 
 @dataclass(frozen=True)
@@ -43,10 +61,11 @@ class Verdict:
     """What one frame gave.
 
     lidar / image: None when the stage found the board, else its reason. repeat_of: the earlier
-    frame whose board pose this one repeats (then it is not offered to the calibrator). accepted:
-    the calibrator took it. note: why not (its gate), or what it waits for. n_frames: frames in the
-    calibrator's graph; n_distinct: distinct board poses so far. sigmas: (6,) deg, deg, deg, mm, mm,
-    mm after this frame (None before the first estimate). reached: every sigma within the target.
+    frame whose board pose this one repeats (then it is not offered to the solve). accepted: the
+    solve of the frames so far keeps it. note: why not (its gate), what it waits for, or that the
+    noise rests on few boards. n_frames: frames the solve uses; n_distinct: distinct board poses so
+    far. sigmas: (6,) deg, deg, deg, mm, mm, mm after this frame (None before the first estimate).
+    model: the sensor model the solve chose. reached: every sigma within the target.
     seconds: time spent on the frame; latency: from its arrival (its files complete) to the verdict.
     """
 
@@ -59,6 +78,7 @@ class Verdict:
     n_frames: int = 0
     n_distinct: int = 0
     sigmas: np.ndarray | None = None
+    model: str | None = None
     reached: bool = False
     seconds: float = 0.0
     latency: float | None = None
@@ -76,7 +96,8 @@ class CheckOptions:
     target_sigma: (deg, mm) every sigma must reach; None: no target. until: stop after this many
     frames; stop_at_target: stop when the target is reached. watch: follow a folder being filled
     (poll every ``poll_s``; a file is complete once unchanged for ``settle_s``); idle_timeout_s: in
-    watch mode, stop after this long without a new frame (None: wait for Ctrl-C).
+    watch mode, stop after this long without a new frame (None: wait for Ctrl-C). models: the
+    sensor models the solves choose among (``calibrate``'s default: ``selection.AUTO``).
     """
 
     target_sigma: tuple[float, float] | None = None
@@ -88,12 +109,14 @@ class CheckOptions:
     idle_timeout_s: float | None = None
     stages: StageOptions = StageOptions()
     noise: NoiseOptions = NoiseOptions()
+    models: tuple[str, ...] = AUTO
 
 
 @dataclass
 class CheckResult:
     """The verdicts in arrival order, the batch answer over the frames offered (None when fewer
-    than three distinct poses calibrate), why the check ended, and the state for advice."""
+    than three distinct poses calibrate), why the check ended, the state for advice, and the frames
+    whose board the final second look found (``LiveCheck.finish``)."""
 
     verdicts: list[Verdict]
     final: FrameUpdate | None
@@ -101,10 +124,12 @@ class CheckResult:
     config: Config | None
     frames: list[GraphFrame] = field(default_factory=list)
     error: str | None = None
+    second_look: list[str] = field(default_factory=list)
 
 
 class LiveCheck:
-    """One frame at a time: both stages, the repeat test, the incremental calibrator."""
+    """One frame at a time: both stages, the repeat test, the frames so far solved as ``calibrate``
+    solves them."""
 
     def __init__(
         self,
@@ -112,22 +137,24 @@ class LiveCheck:
         target_sigma: tuple[float, float] | None = None,
         stages: StageOptions = StageOptions(),
         noise: NoiseOptions = NoiseOptions(),
+        models: tuple[str, ...] = AUTO,
     ) -> None:
         self.config = config
         self.target_sigma = target_sigma
         self.stages = stages
         self.noise = noise
+        self.models = models
         self._lidar_resolved = False
         self._colour_checked = not config.board.half_turn_symmetric
         self._distinct: list[GraphFrame] = []
-        self._calibrator = self._new_calibrator()
+        self._found: list[FrameResult] = []  # the distinct frames as the stages gave them
         self._last: FrameUpdate | None = None
+        self._used: list[GraphFrame] = []  # the frames the last solve used (corner order chosen)
+        self._image_only: list[FrameResult] = []  # image corners but no LiDAR board: a second look
+        self._order: dict[str, int] = {}  # arrival order of every frame
+        self._source: FrameSource | None = None
+        self.second_look: list[str] = []  # frames whose board the second look found (``finish``)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="image-stage")
-
-    def _new_calibrator(self) -> IncrementalCalibrator:
-        return IncrementalCalibrator(
-            self.config.camera, self.config.board, target_sigma=self.target_sigma, noise=self.noise
-        )
 
     @property
     def distinct(self) -> list[GraphFrame]:
@@ -135,12 +162,13 @@ class LiveCheck:
         return list(self._distinct)
 
     @property
-    def calibrator(self) -> IncrementalCalibrator:
-        return self._calibrator
+    def used(self) -> list[GraphFrame]:
+        """The frames the last solve used, in the corner order it chose."""
+        return list(self._used)
 
     @property
     def last(self) -> FrameUpdate | None:
-        """The calibrator's last update with an estimate."""
+        """The last solve with an estimate (``FrameUpdate.solution`` the batch answer)."""
         return self._last
 
     def _image(self, source: FrameSource, ref: FrameRef) -> object:
@@ -166,19 +194,17 @@ class LiveCheck:
             )
             self.config = flipped
             self._colour_checked = True
-            self._calibrator = self._new_calibrator()  # nothing was offered yet: no image agreed before
             return res
         except FrameError as err:
             return err
 
     def add(self, source: FrameSource, ref: FrameRef, arrived: float | None = None) -> Verdict:
-        """Both stages on ``ref``, then the repeat test and the calibrator; ``arrived``: the frame's
-        arrival (``time.time()``) for the latency."""
+        """Both stages on ``ref``, then the repeat test and the solve of the frames so far;
+        ``arrived``: the frame's arrival (``time.time()``) for the latency."""
         t0 = time.perf_counter()
         if not self._lidar_resolved:
             self.config = resolve_lidar(source, [ref], self.config, look=1)
             self._lidar_resolved = True
-            self._calibrator = self._new_calibrator()
         image = self._pool.submit(self._image, source, ref)  # decoding and detection release the GIL
         stated = self.config.board
         try:
@@ -195,13 +221,19 @@ class LiveCheck:
             self._colour_checked = True
         lidar_why = str(board) if isinstance(board, FrameError) else None
         image_why = str(corners) if isinstance(corners, FrameError) else None
+        self._source = source
+        self._order.setdefault(ref.name, len(self._order))
+        if lidar_why and not image_why:
+            self._image_only.append(FrameResult(ref.name, False, f"LiDAR: {lidar_why}", None, corners))  # type: ignore[arg-type]
+        last = self._last
         v = Verdict(
             ref.name,
             lidar_why,
             image_why,
-            n_frames=len(self._calibrator.frames),
+            n_frames=0 if last is None else last.n_frames,
             n_distinct=len(self._distinct),
-            sigmas=self._sigmas(self._last),
+            sigmas=self._sigmas(last),
+            model=None if last is None or last.solution is None else _model(last.solution),
         )
         if v.found:
             fr = FrameResult(ref.name, True, None, board, corners)  # type: ignore[arg-type]
@@ -216,50 +248,100 @@ class LiveCheck:
         return None if u is None or u.T_cam_lidar is None else sigmas_deg_mm(u.covariance)
 
     def _offer(self, v: Verdict, fr: FrameResult) -> Verdict:
-        assert fr.board is not None and fr.corners is not None
-        gf = GraphFrame(
-            fr.name,
-            fr.board.T_lidar_board,
-            fr.board.covariance,
-            self.config.board.corners_board(),
-            fr.corners.bearings,
-            fr.corners.cov_px,
-            fr.board.returns,
-            fr.corners.uv,
-        )
+        gf = graph_frame(fr, self.config)
         geo = board_geometry([*self._distinct, gf])
         if gf.name in geo.repeats:
             return dataclasses.replace(v, repeat_of=geo.repeats[gf.name])
         self._distinct.append(gf)
-        try:
-            u = self._calibrator.add_frame(fr)
-        except CalibrationError as err:  # e.g. no frame left to initialise
-            return dataclasses.replace(v, n_distinct=len(self._distinct), note=str(err))
-        if u.T_cam_lidar is not None and u.accepted:
-            self._last = u
-        note = u.reason
-        if geo.parallel and len(self._distinct) >= 3:
+        self._found.append(fr)
+        n = len(self._distinct)
+        got = self._solve()
+        if isinstance(got, str):
+            wait = n < 3
+            note = f"{3 - n} more pose{'s' if 3 - n > 1 else ''} to calibrate" if wait else got
+            return dataclasses.replace(v, n_distinct=n, note=note)
+        update, why = got
+        accepted = gf.name in update.solution.per_frame  # type: ignore[union-attr]
+        note = why.get(gf.name)
+        model = _model(update.solution)  # type: ignore[arg-type]
+        if accepted and update.n_frames < FEW_BOARDS:
+            note = f"{update.n_frames} boards: their noise levels rest on few boards (sigmas widened)"
+        elif accepted and v.model is not None and model != v.model:
+            note = f"sensor model now {model}"
+        if geo.parallel and n >= 3:
             note = "the distinct boards all face one way: tilt the board"
         return dataclasses.replace(
             v,
-            accepted=u.accepted,
+            accepted=accepted,
             note=note,
-            n_frames=u.n_frames,
-            n_distinct=len(self._distinct),
-            sigmas=self._sigmas(self._last),
-            reached=bool(self._last is not None and self._last.reached_target),
+            n_frames=update.n_frames,
+            n_distinct=n,
+            sigmas=self._sigmas(update),
+            model=model,
+            reached=update.reached_target,
         )
 
-    def finish(self) -> FrameUpdate | None:
-        """The batch answer (the core's noise policy) on every frame offered; None when they cannot
-        calibrate (fewer than three distinct poses, or the solver refuses)."""
-        if len(self._distinct) < 3:
-            return None
+    def _solve(self) -> tuple[FrameUpdate, dict[str, str]] | str:
+        """The frames so far solved as ``calibrate`` solves them: the update and why each frame not
+        used was left out; or why they do not calibrate."""
+        t0 = time.perf_counter()
         try:
-            return self._calibrator.finish()
+            prep = prepare(self._found, self.config)
+            choice = "auto" if self.models == AUTO else "stated"
+            sol = solve_batch(prep.frames, self.config.camera, prep.T_init, self.noise, models=self.models,
+                              intrinsics_choice=choice)  # fmt: skip
         except CalibrationError as err:
-            log.warning("the frames so far do not calibrate: %s", err)
+            return str(err)
+        why = {n: r.reason or "" for n, r in prep.results.items() if not r.used}
+        why.update(dict(sol.dropped))
+        sig = np.sqrt(np.diag(sol.covariance))
+        reached = False
+        if self.target_sigma is not None:
+            s = sigmas_deg_mm(sol.covariance)
+            reached = bool(s[:3].max() <= self.target_sigma[0] and s[3:].max() <= self.target_sigma[1])
+        n = len(sol.per_frame)
+        update = FrameUpdate(sol.T_cam_lidar, sig, reached, sol.covariance, "", True, None, n,
+                             time.perf_counter() - t0, sol)  # fmt: skip
+        self._last = update
+        self._used = [f for f in prep.frames if f.name in sol.per_frame]
+        return update, why
+
+    def finish(self) -> FrameUpdate | None:
+        """The solve of every distinct frame (``calibrate``'s noise policy), after ``calibrate``'s
+        second look (``observe.second_pass``: the boards the LiDAR stage missed, or saw far from
+        where the image and the extrinsic put them, searched there; those found are solved with the
+        rest); None when they cannot calibrate (fewer than three distinct poses, or the solver
+        refuses)."""
+        if len(self._distinct) < 3 or self._last is None or self._source is None:
             return None
+        sol = self._last.solution
+        assert sol is not None
+        frames = sorted([*self._found, *self._image_only], key=lambda f: self._order.get(f.name, 0))
+        fates = tuple(dataclasses.replace(f, used=f.name in sol.per_frame) for f in frames)
+        cal = Calibration(sol.T_cam_lidar, sol.covariance, fates)
+        again = second_pass(Observation(self._source, self.config, frames), cal, self.stages)
+        if again is None:
+            return self._last
+        found = {f.name: f for f in again.frames if f.board is not None}
+        for f in self._image_only:
+            g = found.get(f.name)
+            if g is None:
+                continue
+            gf = graph_frame(g, self.config)
+            if gf.name in board_geometry([*self._distinct, gf]).repeats:
+                continue
+            self._distinct.append(gf)
+            self._found.append(dataclasses.replace(g, used=True, reason=None))
+            self.second_look.append(f.name)
+        self._found = [found.get(f.name, f) if f.name not in self.second_look else f for f in self._found]
+        self._found.sort(key=lambda f: self._order.get(f.name, 0))
+        if isinstance(self._solve(), str):
+            log.warning("the frames with the second look's boards do not calibrate")
+        return self._last
+
+
+def _model(sol: BatchSolution) -> str | None:
+    return None if sol.selection is None else sol.selection.chosen
 
 
 # ------------------------------------------------------------------------------- the loop
@@ -318,7 +400,9 @@ def run_check(
                 if on_idle is not None:
                     on_idle(0.0, None)
                 time.sleep(options.poll_s)
-        checker = LiveCheck(source.config(), options.target_sigma, options.stages, options.noise)
+        checker = LiveCheck(
+            source.config(), options.target_sigma, options.stages, options.noise, options.models
+        )
         for ref, arrived in _frames(source, options, stop, lambda w: on_idle and on_idle(w, checker)):
             v = checker.add(source, ref, arrived)
             verdicts.append(v)
@@ -333,5 +417,7 @@ def run_check(
         final = checker.finish()
     except KeyboardInterrupt:
         final, stopped = None, "interrupted"
-    frames = checker.calibrator.offered if final is not None else checker.distinct
-    return CheckResult(verdicts, final, stopped, checker.config, frames)
+    frames = checker.used if final is not None else checker.distinct
+    return CheckResult(
+        verdicts, final, stopped, checker.config, frames, second_look=list(checker.second_look)
+    )

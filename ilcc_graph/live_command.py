@@ -15,6 +15,7 @@ import numpy as np
 
 from ilcc_graph.config import Config
 from ilcc_graph.errors import InputError
+from ilcc_graph.estimation.incremental import FrameUpdate
 from ilcc_graph.live import CheckOptions, LiveCheck, Verdict, run_check
 from ilcc_graph.types import GraphFrame, sigmas_deg_mm
 
@@ -117,36 +118,49 @@ class StatusLine:
 # ------------------------------------------------------------------------------ advice
 class LiveAdvice:
     """The next-board-pose advice of a check (``next_pose.Advisor``), refitted when the boards it
-    was fitted on are fewer than half of those now or the extrinsic moved (0.5 deg / 2 cm)."""
+    was fitted on are fewer than half of those now, the extrinsic moved (0.5 deg / 2 cm) or the
+    noise the solve found changed by more than a fifth."""
 
     def __init__(self, target_sigma: tuple[float, float] | None = None) -> None:
         self.target_sigma = target_sigma
         self._advisor = None
         self._fitted_on = 0
+        self._noise = np.ones(3)
 
-    def propose(
-        self, config: Config, frames: list[GraphFrame], T_cam_lidar: np.ndarray, covariance: np.ndarray
-    ):  # noqa: ANN201 - next_pose.Proposal | None
+    def propose(self, config: Config, frames: list[GraphFrame], update: FrameUpdate):  # noqa: ANN201 - next_pose.Proposal | None
+        """The proposal after a solve of the frames (``update.solution``): a new frame predicted with
+        the noise that solve found, as after ``calibrate`` (``next_pose.from_calibration``)."""
         from ilcc_graph import next_pose
 
-        if config.lidar is None or len(frames) < 3:
+        sol = update.solution
+        if config.lidar is None or len(frames) < 3 or sol is None:
             return None
+        T_cam_lidar, covariance = update.T_cam_lidar, update.covariance
+        factor = 1.0
+        if sol.selection is not None:
+            factor = next(c.factor for c in sol.selection.candidates if c.name == sol.selection.chosen)
+        noise = np.array([*sol.variance_components, max(sol.variance_factor, factor, 1.0)])
+        frames = next_pose.noise_scaled(frames, noise[0], noise[1])
         adv, moved = self._advisor, False
         if adv is not None:
             d = np.linalg.inv(adv.rig.T_cam_lidar) @ T_cam_lidar
             moved = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1))) > 0.5
             moved = moved or np.linalg.norm(d[:3, 3]) > 0.02
+            moved = moved or bool(np.any(np.abs(np.log(noise / self._noise)) > np.log(1.2)))
         if adv is None or moved or len(frames) >= 2 * self._fitted_on:
             rig = next_pose.Rig(config.camera, np.asarray(T_cam_lidar), config.lidar, config.board)
-            adv = self._advisor = next_pose.Advisor(rig, frames)
-            self._fitted_on = len(frames)
+            adv = self._advisor = next_pose.Advisor(rig, frames, information_scale=noise[2])
+            self._fitted_on, self._noise = len(frames), noise
         return adv.propose(covariance, self.target_sigma, frames)
 
 
-def check_command(data: str, options: CheckOptions, out: object = None, advise_live: bool = False) -> int:
+def check_command(
+    data: str, options: CheckOptions, out: object = None, advise_live: bool = False, command: str = ""
+) -> int:
     """``ilcc-graph check``: the live table on standard output, the progress line on standard error,
     then the batch answer and the next board pose; ``out`` (a folder): check.yaml and next_pose.png
-    there. Returns the exit code (0; bad input raises InputError)."""
+    there (``command``: the command line, for the folder's marker). Returns the exit code (0; bad
+    input raises InputError)."""
     from ilcc_graph.datasets import open_source
     from ilcc_graph.datasets.watch import GrowingFolder
 
@@ -174,7 +188,7 @@ def check_command(data: str, options: CheckOptions, out: object = None, advise_l
         last = checker.last
         if advise_live and last is not None and waited > 0.3 and shown["advised"] != last.n_frames:
             shown["advised"] = last.n_frames
-            p = advice.propose(checker.config, checker.distinct, last.T_cam_lidar, last.covariance)
+            p = advice.propose(checker.config, checker.used, last)
             if p is not None:
                 status.clear()
                 print("  " + p.describe(), flush=True)
@@ -188,12 +202,15 @@ def check_command(data: str, options: CheckOptions, out: object = None, advise_l
     if result.final is not None:
         s = sigmas_deg_mm(result.final.covariance)
         print(
-            f"all {result.final.n_frames} frames solved together (the noise policy of calibrate): sigma "
+            f"all {result.final.n_frames} frames solved together (as calibrate solves them): sigma "
             f"rot {s[0]:.4f} {s[1]:.4f} {s[2]:.4f} deg, trans {s[3]:.3f} {s[4]:.3f} {s[5]:.3f} mm"
         )
-        proposal = advice.propose(
-            result.config, result.frames, result.final.T_cam_lidar, result.final.covariance
-        )
+        if result.second_look:
+            print(f"second look, as calibrate's: the board found in {', '.join(result.second_look)}")
+        sol = result.final.solution
+        if sol is not None and sol.selection is not None:
+            print(sol.selection.summary())
+        proposal = advice.propose(result.config, result.frames, result.final)
     elif result.verdicts:
         print("not calibrated yet: at least 3 distinct board poses with the board in both sensors are needed")
     if proposal is not None:
@@ -201,6 +218,6 @@ def check_command(data: str, options: CheckOptions, out: object = None, advise_l
     if out is not None:
         from ilcc_graph.outputs import write_check
 
-        write_check(Path(out), result, proposal)
+        write_check(Path(out), result, proposal, command)
         print(f"wrote check.yaml{' and next_pose.png' if proposal is not None else ''} to {out}")
     return 0

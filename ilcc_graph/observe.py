@@ -100,7 +100,11 @@ def observe_image(
 ) -> ImageCorners:
     """The image stage on one frame's image, with (``views``) the report's views of it
     (``image.previews``); raises FrameError with the reason (DamagedFile when the image cannot be
-    read or has not the camera's size)."""
+    read or has not the camera's size: judged from the file's header before decoding where the
+    source can, so a forged size costs nothing)."""
+    size = read_frame_file(source.header_size, ref, strict=strict)
+    if size is not None:
+        check_image(size, config, str(ref.image), strict)
     image = read_frame_file(source.read_image, ref, strict=strict)
     check_image(image, config, str(ref.image), strict)
     corners = detect_corners(image, config.camera, config.board, options)  # type: ignore[arg-type]

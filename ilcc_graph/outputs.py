@@ -23,17 +23,31 @@ pictures and studies ``report_files``.
 from __future__ import annotations
 
 import logging
+import os
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ilcc_graph.config import Config, config_to_dict
+from ilcc_graph.errors import OutputError
 from ilcc_graph.estimation.incremental import FrameUpdate
 from ilcc_graph.estimation.sessions import ConsistencyTest, JointSolution
-from ilcc_graph.folders import check_output, link_latest, staged, write_file
+from ilcc_graph.folders import (
+    OURS,
+    add_file,
+    check_output,
+    claim_output,
+    link_latest,
+    staged,
+    write_beside,
+    write_file,
+)
 from ilcc_graph.io import atomic_write, write_calibration, write_yaml
 from ilcc_graph.pipeline import RunOptions, RunResult
+from ilcc_graph.report.rig import next_pose_png
 from ilcc_graph.report_files import write_report
 from ilcc_graph.types import Estimate, sigma_dict, to_plain
 
@@ -41,6 +55,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "check_output",
+    "claim_output",
     "link_latest",
     "write_evaluation",
     "write_file",
@@ -126,14 +141,14 @@ def _update_dict(u: FrameUpdate) -> dict[str, Any]:
     return d
 
 
-def write_evaluation(out: Path, evaluation: Any, flag: str = "--out") -> Path:
-    """``out/evaluation.yaml`` (``report.evaluation_to_dict``); returns its path."""
+def write_evaluation(out: Path, evaluation: Any, flag: str = "--out", command: str = "") -> Path:
+    """``out/evaluation.yaml`` (``report.evaluation_to_dict``) in a new or empty folder, or added to an
+    earlier result of ours (``folders.add_file``); returns its path."""
     from ilcc_graph.io import dump_yaml
     from ilcc_graph.report import evaluation_to_dict
 
-    out = Path(out)
-    check_output(out, flag)
-    return write_file(out / "evaluation.yaml", dump_yaml(evaluation_to_dict(evaluation)), flag)
+    text = dump_yaml(evaluation_to_dict(evaluation))
+    return add_file(Path(out), "evaluation.yaml", text, flag, command)
 
 
 def write_run(
@@ -147,13 +162,16 @@ def write_run(
     next_pose=None,  # noqa: ANN001 - next_pose.Proposal, or a callable giving one
     clouds: bool = False,
     full_views: bool = False,
+    progress: Callable[[str], Callable[[int, int], None]] | None = None,
 ) -> Path:
     """Write every output of ``result`` to ``out`` (module docstring); returns ``out``. With a
     ``next_pose`` proposal also ``next_pose.png`` (the rig, the boards, the proposal; a callable is
-    called while the report's pictures are drawn on other processes); ``clouds``: the coloured
-    clouds; ``full_views``: the report's whole pictures at full resolution too."""
+    called while the report's pictures are drawn on other processes), shown in the report too;
+    ``clouds``: the coloured clouds; ``full_views``: the report's whole pictures at full resolution too;
+    ``progress(name)``: a ``(done, total)`` callback for each session's report (``console.Progress``)."""
     later = next_pose if callable(next_pose) else None
-    with staged(out) as d:
+    proposal, png = (None, None) if later is not None else (next_pose, None)
+    with staged(out, command=command) as d:
         write_calibration(d / "calibration.yaml", result.calibration)
         first = result.sessions[0].observation.config
         write_yaml(d / "config.resolved.yaml", resolved_config(first, result.options))
@@ -176,20 +194,20 @@ def write_run(
                     "mode": result.mode,
                 }
                 sub = (s.name,) if several else ()
-                got = write_report(
+                bar = progress and progress(f"report {s.name}" if several else "report")
+                proposal, png = write_report(
                     d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, studies, truth, info,
-                    clouds, full_views, later,
+                    clouds, full_views, later, proposal, bar,
                 )  # fmt: skip
-                if later is not None:
-                    next_pose, later = got, None
+                later = None
         if later is not None:
-            next_pose = later()
-        if next_pose is not None:
-            atomic_write(d / "next_pose.png", next_pose_png(next_pose))
+            proposal = later()
+        if proposal is not None:
+            atomic_write(d / "next_pose.png", png if png is not None else next_pose_png(proposal))
     return out
 
 
-def write_stage(out: Path, stage: str, source, refs, results) -> list[tuple]:  # noqa: ANN001
+def write_stage(out: Path, stage: str, source, refs, results, command: str = "") -> list[tuple]:  # noqa: ANN001
     """One stage alone (``lidar`` or ``image``) over a source's frames: per frame ``<name>.yaml`` and
     ``<name>_board.pcd`` (LiDAR) or ``<name>_corners.png`` (image). Returns one table row per frame:
     (name, found, points, reason) or (name, found, detector, sigma px, reason)."""
@@ -198,7 +216,7 @@ def write_stage(out: Path, stage: str, source, refs, results) -> list[tuple]:  #
     from ilcc_graph.types import Scan
 
     rows = []
-    with staged(out) as d:
+    with staged(out, command=command) as d:
         for ref, res in zip(refs, results, strict=True):
             doc: dict[str, Any] = {"name": ref.name, "found": not isinstance(res, Exception)}
             if isinstance(res, Exception):
@@ -233,25 +251,7 @@ def write_stage(out: Path, stage: str, source, refs, results) -> list[tuple]:  #
     return rows
 
 
-def next_pose_png(proposal) -> bytes:  # noqa: ANN001 - next_pose.Proposal
-    """The rig from above and the side with the boards so far and the proposal (``report.rig``)."""
-    import textwrap
-
-    from ilcc_graph.report.rig import plot_next_pose
-
-    rig = proposal.rig
-    return plot_next_pose(
-        rig.board,
-        proposal.boards,
-        proposal.T_lidar_board,
-        rig.T_cam_lidar,
-        rig.camera,
-        rig.lidar.vertical_angles_deg,
-        "\n".join(textwrap.wrap(proposal.describe(), 150)),
-    )
-
-
-def write_check(out: Path, result, proposal=None) -> Path:  # noqa: ANN001 - live.CheckResult, next_pose.Proposal
+def write_check(out: Path, result, proposal=None, command: str = "") -> Path:  # noqa: ANN001 - live.CheckResult, next_pose.Proposal
     """``check.yaml`` (every frame's verdict, the batch answer, why the check ended) and, with a
     proposal, ``next_pose.png``, into ``out`` (staged like ``write_run``)."""
     verdicts = []
@@ -280,24 +280,33 @@ def write_check(out: Path, result, proposal=None) -> Path:  # noqa: ANN001 - liv
         }
     if proposal is not None:
         doc["next_pose"] = {"T_lidar_board": proposal.T_lidar_board, "advice": proposal.describe()}
-    with staged(out) as d:
+    with staged(out, command=command) as d:
         write_yaml(d / "check.yaml", doc)
         if proposal is not None:
             atomic_write(d / "next_pose.png", next_pose_png(proposal))
     return out
 
 
-def write_failure(out: Path, error: Exception) -> Path:
+def write_failure(out: Path, error: Exception, command: str = "") -> Path | None:
     """The message, the advice and every frame's full reason of a failed run, as ``out/failure.yaml``
-    (staged), or as ``OUT.failure.yaml`` beside an ``out`` that holds an earlier result (kept).
-    Returns the file written."""
+    (staged) in a new or empty ``out``, or as ``OUT.failure.yaml`` beside an ``out`` that holds an
+    earlier result (kept), unless a file not ours is there: then in the temporary folder. Returns
+    the file written (None when nothing could be)."""
+    from ilcc_graph.io import dump_yaml
+
     doc: dict[str, Any] = {"error": str(error), "advice": getattr(error, "advice", None)}
     doc["frames"] = [{"frame": f, "stage": st, "reason": why} for f, st, why in getattr(error, "frames", ())]
+    text = f"{OURS}: why the run gave no calibration\n" + dump_yaml(doc)
     out = Path(out)
-    if out.exists():
-        path = out.parent / f"{out.name}.failure.yaml"
-        write_yaml(path, doc)
-        return path
-    with staged(out) as d:
-        write_yaml(d / "failure.yaml", doc)
-    return out / "failure.yaml"
+    if not out.exists() or (out.is_dir() and not any(out.iterdir())):
+        try:
+            with staged(out, command=command) as d:
+                atomic_write(d / "failure.yaml", text)
+            return out / "failure.yaml"
+        except OutputError:
+            pass  # the folder cannot be ours now: beside it, or in the temporary folder
+    temp = Path(tempfile.gettempdir()) / f"ilcc-graph-failure-{os.getpid()}.yaml"
+    for path in (out.parent / f"{out.name}.failure.yaml", temp):
+        if write_beside(path, text) is not None:
+            return path
+    return None

@@ -30,6 +30,7 @@ from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.noise import BoardStats
 from ilcc_graph.estimation.paper import refine_paper
+from ilcc_graph.estimation.selection import AUTO, MODELS
 from ilcc_graph.estimation.sessions import JointOptions, JointSolution, Session, solve_sessions
 from ilcc_graph.observe import (
     Observation,
@@ -58,6 +59,8 @@ __all__ = [
 ]
 
 MODES = ("graph", "paper", "incremental", "sessions")
+#: ``RunOptions.sensor_model``: auto or one of ``estimation.selection.MODELS``
+SENSOR_MODELS = ("auto", *MODELS)
 
 
 @dataclass(frozen=True)
@@ -79,6 +82,11 @@ class RunOptions:
         (``LidarErrorOptions()``): the boards' planes then carry the translation, and every beam's
         range offset, common to all frames, biases them alike (docs/lidar_stage.md).
     intrinsics: refine the camera's intrinsics, or propagate their stated ``camera.intrinsics_sigma``.
+    sensor_model: ``auto`` (the default: the model of the sensors' own errors the boards support,
+        ``estimation.selection``, and the camera's intrinsics refined when the boards support it,
+        ``estimation.camera_choice``; ``beams`` when ``lidar_errors`` is given) or one LiDAR model
+        forced (``selection.MODELS``: ``none``, ``range``, ``beams``, ``offset``) with the intrinsics
+        as ``intrinsics`` says.
     """
 
     mode: str = "graph"
@@ -91,10 +99,27 @@ class RunOptions:
     lidar_errors: LidarErrorOptions | None = None
     lidar_errors_without_print: bool = True
     intrinsics: IntrinsicsOptions = IntrinsicsOptions()
+    sensor_model: str = "auto"
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise ValueError(f"RunOptions.mode must be one of {MODES}, got {self.mode!r}")
+        if self.sensor_model not in SENSOR_MODELS:
+            raise ValueError(
+                f"RunOptions.sensor_model must be one of {SENSOR_MODELS}, got {self.sensor_model!r}"
+            )
+
+    @property
+    def models(self) -> tuple[str, ...]:
+        """The sensor models the batch strategy chooses among (one: forced)."""
+        if self.sensor_model != "auto":
+            return (self.sensor_model,)
+        return ("beams",) if self.lidar_errors is not None else AUTO
+
+    @property
+    def intrinsics_choice(self) -> str:
+        """``auto`` (the camera's intrinsics refined when the boards support it) or ``stated``."""
+        return "auto" if self.sensor_model == "auto" and not self.intrinsics.refine else "stated"
 
 
 @dataclass(frozen=True)
@@ -147,7 +172,7 @@ def solve_observed(
         return finish(prep, observed, config, "paper", sol)
     sol = solve_batch(
         prep.frames, config.camera, prep.T_init, options.noise, options.lidar_errors, options.intrinsics,
-        effects=True,
+        effects=True, models=options.models, intrinsics_choice=options.intrinsics_choice,
     )  # fmt: skip
     return finish(prep, observed, config, "graph", sol)
 
@@ -169,7 +194,8 @@ def _incremental(
     )
     cal = IncrementalCalibrator(
         config.camera, config.board, target_sigma=options.target_sigma, noise=options.noise,
-        lidar_errors=options.lidar_errors, intrinsics=options.intrinsics,
+        lidar_errors=options.lidar_errors, intrinsics=options.intrinsics, models=options.models,
+        intrinsics_choice=options.intrinsics_choice,
     )  # fmt: skip
     observed: list[FrameResult] = []
     updates: list[FrameUpdate] = []

@@ -269,9 +269,11 @@ def _dropped_causes(
 
 
 def _sensors(sol: BatchSolution, config: Config) -> dict:
-    """``Calibration.sensors`` of a strategy's answer: the LiDAR's errors, the camera's intrinsics and
-    what each moved the extrinsic."""
+    """``Calibration.sensors`` of a strategy's answer: the sensor model chosen and the evidence, the
+    LiDAR's errors, the camera's intrinsics and what each moved the extrinsic."""
     out: dict = {}
+    if sol.selection is not None:
+        out["model"] = sol.selection.to_dict()
     lay = sol.lidar_layout
     if sol.lidar is not None or (lay is not None and lay.excluded):
         names, values, sigmas = sol.lidar if sol.lidar is not None else ([], np.zeros(0), np.zeros(0))

@@ -74,6 +74,13 @@ def _drawn(items: list[tuple], pool, cal, config: Config) -> tuple[Iterator, obj
     return results(), study
 
 
+def _counted(items: Iterator, total: int, progress: Callable[[int, int], None]) -> Iterator:
+    """``items`` with ``progress(k, total)`` after the k-th."""
+    for k, item in enumerate(items, 1):
+        yield item
+        progress(k, total)
+
+
 def write_report(
     out: Path,
     coloured_dir: Path,
@@ -85,10 +92,16 @@ def write_report(
     clouds: bool = False,
     full_views: bool = False,
     meanwhile: Callable[[], object] | None = None,
-) -> object:
+    next_pose: object | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> tuple[object, bytes | None]:
     """``out/index.html`` with its figures for one session; with ``clouds`` ``coloured_dir/<frame>.ply``.
-    ``meanwhile()`` runs here while the pictures are drawn on other processes; returns its result."""
+    ``meanwhile()`` runs here while the pictures are drawn on other processes and gives the next board
+    pose (``next_pose.Proposal`` or None; else ``next_pose`` is it), drawn in the report. Returns
+    (that proposal, its picture ``next_pose.png`` or None). ``progress(done, total)``: after each
+    frame's pictures, and once more when the page is built."""
     from ilcc_graph.report import FigureOptions, build_report, cross_validate, frames_vs_accuracy
+    from ilcc_graph.report.rig import next_pose_png
 
     obs, cal = session.observation, session.calibration
     config, source = obs.config, obs.source
@@ -134,7 +147,10 @@ def write_report(
     jobs = min(result.options.stages.jobs, len(items))
     with workers.pool(jobs) if jobs > 1 else contextlib.nullcontext() as pool:
         figures, study = _drawn(items, pool, cal, config)
-        got = meanwhile() if meanwhile is not None else None
+        if progress is not None:
+            figures = _counted(figures, len(items) + 1, progress)
+        got = meanwhile() if meanwhile is not None else next_pose
+        png = None if got is None else next_pose_png(got)
         files = build_report(
             cal,
             config.camera,
@@ -145,8 +161,11 @@ def write_report(
             T_ground_truth=truth,
             info=info,
             valley_study=None if study is None else study.result,
+            next_pose=None if got is None else (png, got.describe()),  # type: ignore[attr-defined]
         )
+    if progress is not None:
+        progress(len(items) + 1, len(items) + 1)
     for rel, blob in files.items():  # inside the staging folder: written plainly (no fsync each)
         (out / rel).parent.mkdir(parents=True, exist_ok=True)
         (out / rel).write_bytes(blob)
-    return got
+    return got, png

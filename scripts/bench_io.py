@@ -1,6 +1,7 @@
 """Benchmark: scan file formats, Open3D's PCD readers against ours, and bag sources against the folder.
 
-1. read/write times of every scan format for a 100k-point scan;
+1. read/write times of every scan format for a 100k-point scan (and two other tools' PCD layouts:
+   PCL's 32-byte records with ``_`` padding fields, MATLAB's header comment);
 2. ``open3d.io.read_point_cloud`` (legacy API: x y z only) and ``open3d.t.io.read_point_cloud``
    (tensor API: keeps intensity, and ring where its type is supported) against ``io.read_scan`` on
    the same PCDs and PLY;
@@ -56,6 +57,11 @@ def scan_formats(d: Path, scan: Scan) -> str:
         "pcd binary": (d / "a.pcd", lambda p: write_pcd(p, scan, "binary")),
         "pcd ascii": (d / "b.pcd", lambda p: write_pcd(p, scan, "ascii")),
         "pcd binary_compressed": (d / "c.pcd", lambda p: write_pcd(p, scan, "binary_compressed")),
+        "pcd binary, PCL's padded records": (
+            d / "g.pcd",
+            lambda p: write_pcd(p, scan, "binary", style="pcl"),
+        ),
+        "pcd ascii, MATLAB's header": (d / "h.pcd", lambda p: write_pcd(p, scan, "ascii", style="matlab")),
         "ply binary": (d / "d.ply", lambda p: write_ply(p, scan)),
         "kitti bin": (d / "e.bin", lambda p: np.column_stack([pts, scan.intensity]).astype("<f4").tofile(p)),
         "csv (header)": (
@@ -175,11 +181,14 @@ def main() -> None:
     text = (
         f"# Scan and frame-source I/O\n\nShared 2-core machine (load average {load} at the end of the run: "
         "figures from a busy machine vary by up to 2x between runs); `python3 scripts/bench_io.py`.\n\n"
-        f"## Scan formats, {N} points (x y z intensity ring), best of {REPEATS}\n\n{formats}\n"
+        f"## Scan formats, {N} points (x y z intensity ring; MATLAB's: no ring), best of {REPEATS}\n\n"
+        f"{formats}\n"
         f"## Open3D's point-cloud readers against ours (same files), best of {REPEATS}\n\n"
         "`open3d.io.read_point_cloud` (legacy) returns x y z only (no intensity: unusable for the LiDAR "
         "stage); `open3d.t.io.read_point_cloud` (tensor API) keeps intensity and the PCD's ring, but "
-        "skips a PLY's `ushort ring`; its column is the read plus the conversion to a `Scan`.\n\n"
+        "skips a PLY's `ushort ring`; its column is the read plus the conversion to a `Scan`. PCL's padded "
+        "records are left out: Open3D 0.20's tensor reader overruns its buffer on a `_` field with COUNT > 1 "
+        "(the process aborts); its legacy reader and ours read them.\n\n"
         f"{o3d}\n"
         f"## Bag sources against the folder source, {BAG_FRAMES} simulated frames (OS1-64, 130k points; "
         "1920 x 1200 pinhole), best of 3\n\n"

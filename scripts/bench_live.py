@@ -10,6 +10,12 @@ records it; it includes waiting until the files stop growing (0.3 s) and the pol
 Sets: a small one (pinhole 800 x 500, 8 frames), the 2000 x 1000 panoramic set (10 frames) and,
 with ``--standard DIR`` (e.g. the folder ``ilcc-graph demo`` simulates, 8000 x 4000), its frames.
 Run: ``python scripts/bench_live.py --write [--standard ~/.cache/ilcc_graph/demo-hdl32-equirect8000-seed0]``.
+
+``--agree`` (issue 21): ``check`` fed the frames of each recorded set in ../shared/data (and a
+simulated VLP-16 + pinhole set whose LiDAR reads 20 mm long) in order, in process, against
+``calibrate`` (``pipeline.run``) on the same folder: the frames each uses, every verdict against
+calibrate's fate of that frame, the final sigmas' ratio, and the running sigmas after 3, 5 and 8
+boards against the final ones.
 """
 
 from __future__ import annotations
@@ -21,12 +27,14 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from _shared import write_between
 
 from ilcc_graph.io import read_yaml
-from ilcc_graph.simulate import simulate_dataset, standard_spec
+from ilcc_graph.simulate import SceneOptions, simulate_dataset, standard_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "bench_live.md"
@@ -76,6 +84,78 @@ def summary(name: str, frames: list[dict], interval: float) -> list[str]:
     ]
 
 
+RECORDED = ("acfr-vlp16-fisheye", "acfr-os1-fisheye", "acfr-os1-pinhole")
+
+
+def agreement(name: str, data: Path) -> list[str]:
+    """One table row: ``check`` against ``calibrate`` on ``data`` (module docstring)."""
+    import logging
+
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.errors import CalibrationImpossible
+    from ilcc_graph.live import CheckOptions, run_check
+    from ilcc_graph.observe import StageOptions
+    from ilcc_graph.pipeline import RunOptions, run
+    from ilcc_graph.types import sigmas_deg_mm
+
+    logging.getLogger("ilcc_graph").setLevel(logging.ERROR)
+    t0 = time.perf_counter()
+    result = run_check(open_source(data), CheckOptions(stages=StageOptions(jobs=1)))
+    t_check = time.perf_counter() - t0
+    try:
+        cal = run([open_source(data)], RunOptions(stages=StageOptions(jobs=1))).calibration
+    except CalibrationImpossible as err:
+        final = "none" if result.final is None else f"{result.final.n_frames} frames"
+        return [name, f"calibrate: exit 3 ({str(err)[:60]}...)", f"check: {final}", "-", "-", "-", "-", "-"]
+    used = {f.name for f in cal.frames if f.used}
+    if result.final is None:
+        return [name, f"{len(used)}/{len(cal.frames)}", "check: not calibrated", "-", "-", "-", "-", "-"]
+    final = set(result.final.solution.per_frame)
+    judged = [v for v in result.verdicts if v.found and not v.repeat_of and v.sigmas is not None]
+    same = sum((v.accepted and v.name in used) or (not v.accepted and v.name not in used) for v in judged)
+    s_check, s_cal = sigmas_deg_mm(result.final.covariance), sigmas_deg_mm(cal.covariance)
+    ratio = s_check / s_cal
+    running = []
+    for n in (3, 5, 8):
+        v = next((v for v in result.verdicts if v.sigmas is not None and v.n_frames >= n), None)
+        if v is not None:
+            r = v.sigmas / s_cal
+            running.append(f"{n}: {r[:3].max():.1f} / {r[3:].max():.1f}")
+    model = result.final.solution.selection.chosen if result.final.solution.selection else "-"
+    return [
+        name,
+        f"{len(used)}/{len(cal.frames)}",
+        f"{len(final)}/{len(result.verdicts)}"
+        + ("" if final == used else f" (differ: {sorted(final ^ used)})"),
+        f"{same}/{len(judged)}",
+        f"{ratio.min():.3f} .. {ratio.max():.3f}",
+        f"{s_cal[:3].max():.4f} deg, {s_cal[3:].max():.2f} mm ({model})",
+        "; ".join(running) or "-",
+        f"{t_check:.0f}",
+    ]
+
+
+def agreement_table(work: Path, data_root: Path) -> str:
+    header = [
+        "set", "calibrate uses", "check's final uses", "verdicts as calibrate's",
+        "final sigmas check / calibrate", "calibrate's largest sigmas (model)",
+        "running sigmas / final after n boards (rot / trans, max)", "check s",
+    ]  # fmt: skip
+    rows = []
+    for name in RECORDED:
+        if (data_root / name / "config.yaml").is_file():
+            rows.append(agreement(name, data_root / name))
+            print(rows[-1], flush=True)
+    scene = SceneOptions(room=(-9.0, 9.0, -9.0, 9.0), ceiling_height_m=4.0, board_distance_m=(2.9, 5.0))
+    spec = standard_spec("vlp16", "pinhole", width=960, frames=12, seed=21, scene=scene)
+    spec = spec.with_(systematics=replace(spec.systematics, range_offset_m=0.02))
+    sim = simulate_dataset(work / "vlp16-offset", spec)
+    rows.append(agreement("simulated VLP-16 + pinhole 960 px, 12 frames, 20 mm range offset", sim))
+    print(rows[-1], flush=True)
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--interval", type=float, default=3.0, help="seconds between frames")
@@ -84,8 +164,26 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--frames", type=int, default=10, help="frames of the standard set to copy")
     ap.add_argument("--write", action="store_true")
+    ap.add_argument("--agree", action="store_true", help="only check against calibrate (issue 21)")
+    ap.add_argument("--data", type=Path, default=ROOT.parent / "shared" / "data", help="the recorded sets")
     args = ap.parse_args(argv)
     work = Path(tempfile.mkdtemp(prefix="bench_live_"))
+    if args.agree:
+        t0 = time.perf_counter()
+        table = agreement_table(work, args.data)
+        print(table)
+        if args.write:
+            when = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+            load = os.getloadavg()[0]
+            text = (
+                f"`python scripts/bench_live.py --agree --write` ({when}, "
+                f"{(time.perf_counter() - t0) / 60:.1f} min, "
+                f"load average {load:.1f} at the end; 2 cores, shared).\n\n" + table
+            )
+            write_between(DOC, "<!-- agree:begin -->", "<!-- agree:end -->", text)
+            print(f"wrote {DOC}")
+        shutil.rmtree(work, ignore_errors=True)
+        return 0
     sets = [
         ("pinhole 800 x 500, HDL-32E", standard_spec(camera="pinhole", width=800, frames=8, seed=5), 8),
         ("panorama 2000 x 1000, HDL-32E", standard_spec(width=2000, frames=10, seed=1), 10),
@@ -106,17 +204,18 @@ def main(argv: list[str] | None = None) -> int:
     print(table)
     if args.write:
         load = os.getloadavg()[0]
-        DOC.write_text(
-            "# `ilcc-graph check --watch`: latency from a frame's arrival to its verdict\n\n"
+        text = (
             "`scripts/bench_live.py` (issue 13; target: within 2 s). Frames of simulated sets are copied "
             f"one by one into an empty folder every {args.interval:g} s while `check --watch` runs as its "
             "own "
             "process; latency: from the end of the write of the frame's last file to its verdict (includes "
             "the 0.3 s the files must stay unchanged and the 0.1 s polling). The work per frame is both "
-            "stages (reading the files included), the repeat test and the iSAM2 update.\n\n"
+            "stages (reading the files included), the repeat test and the solve of the frames so far as "
+            "`calibrate` solves them (issue 21: gate, variance components, the sensor model's choice).\n\n"
             + table
-            + f"\n\nMachine: {os.cpu_count()} cores, load average {load:.1f} when it finished.\n"
+            + f"\n\nMachine: {os.cpu_count()} cores, load average {load:.1f} when it finished."
         )
+        write_between(DOC, "<!-- latency:begin -->", "<!-- latency:end -->", text)
         print(f"wrote {DOC}")
     shutil.rmtree(work, ignore_errors=True)
     return 0

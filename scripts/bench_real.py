@@ -1,7 +1,8 @@
 """The recorded data sets (../shared/data): what the tool makes of each, with the config as written.
 
-For every set present and every variant (the default; the camera's intrinsics refined; the LiDAR's
-own errors estimated; both) it prints and writes to docs/bench_real.md:
+For every set present and every variant (the default, which chooses the sensor model per run; no
+sensor terms; one range offset; the camera's intrinsics refined; the LiDAR's own errors estimated;
+both) it prints and writes to docs/bench_real.md:
 
 - frames used of the frames given, and why the others were left out;
 - the extrinsic (as the camera's position in the LiDAR frame, mm) with its 1-sigma;
@@ -41,9 +42,11 @@ from ilcc_graph.types import Calibration
 
 SETS = ("acfr-vlp16-fisheye", "acfr-os1-fisheye", "acfr-os1-pinhole")
 VARIANTS = {
-    "default": RunOptions(),
-    "refine intrinsics": RunOptions(intrinsics=IntrinsicsOptions(refine=True)),
-    "LiDAR errors": RunOptions(lidar_errors=LidarErrorOptions()),
+    "default (the model chosen per run)": RunOptions(),
+    "none (`--sensor-model none`)": RunOptions(sensor_model="none"),
+    "range (`--sensor-model range`)": RunOptions(sensor_model="range"),
+    "refine intrinsics": RunOptions(sensor_model="none", intrinsics=IntrinsicsOptions(refine=True)),
+    "LiDAR errors (`--lidar-errors`)": RunOptions(lidar_errors=LidarErrorOptions()),
     "both": RunOptions(lidar_errors=LidarErrorOptions(), intrinsics=IntrinsicsOptions(refine=True)),
 }
 
@@ -170,8 +173,16 @@ def main() -> None:
             s_rot = np.degrees(np.sqrt(np.diag(cal.covariance[:3, :3])))
             used = sum(f.used for f in cal.frames)
             m2, hnote = halves(obs, options)
+            model = cal.sensors.get("model", {})
+            if model and not model.get("forced"):
+                cam = model.get("camera") or {}
+                vname_shown = f"{vname}: {model['chosen']}" + (
+                    ", intrinsics refined" if cam.get("refined") else ""
+                )
+            else:
+                vname_shown = vname
             row = (
-                f"| {vname} | {used}/{len(cal.frames)} | "
+                f"| {vname_shown} | {used}/{len(cal.frames)} | "
                 + ", ".join(f"{1e3 * v:.1f} ({1e3 * s:.1f})" for v, s in zip(T_lc[:3, 3], s_pos))
                 + f" | {', '.join(f'{v:.3f}' for v in s_rot)} | {corner_rms_px(cal, obs):.2f} | "
                 f"{m2:.1f} ({hnote}) | {t_solve:.1f} |"

@@ -37,10 +37,36 @@ if [ ! -x .venv/bin/python ]; then
 fi
 stamp=.venv/.ilcc_graph-installed
 want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+# pip's output as a few progress lines (its full output in .venv/pip.log, shown on failure):
+# every 10th package collected, then the install; on a terminal one line redrawn in place.
+pip_quietly() {
+  local what=$1 hint=$2; shift 2
+  local log=.venv/pip.log tty=0 cols=80
+  [ -t 1 ] && tty=1 && cols=$(tput cols 2>/dev/null || echo 80)
+  if ! .venv/bin/python -u -m pip install --progress-bar off "$@" 2>&1 | tee -a "$log" | awk -v what="$what" -v hint="$hint" -v tty="$tty" -v cols="$cols" '
+    function show(s, final) {  # on a terminal: one line redrawn, cut to its width (a wrapped one stays)
+      if (tty) { printf "\r\033[K[setup]   %s", (final ? s "\n" : substr(s, 1, cols - 11)) }
+      else if (final) { printf "[setup]   %s\n", s }
+      fflush()
+    }
+    /^Collecting |^Processing |^Requirement already satisfied: / {
+      n++; name = ($1 == "Requirement") ? $4 : $2; sub(/.*\//, "", name); sub(/(-[0-9]|[<>=!~;[(]).*/, "", name)
+      show(what ": " n " package(s) looked at (" name ")", !tty && n % 10 == 0)
+    }
+    /^ *Downloading / { name = $2; sub(/.*\//, "", name); sub(/-[0-9].*/, "", name); show(what ": downloading " name " " $(NF-1) " " $NF, 0) }
+    /^Installing collected packages/ { show(what ": " n " package(s) looked at", 1); show(what ": installing" hint, 1) }
+    /^Successfully installed/ { show(what ": installed " NF - 2 " package(s)", 1) }
+    END { if (tty) printf "\r\033[K" }'; then
+    say "pip failed; the end of its output (all of it in $log):" >&2
+    tail -n 30 "$log" >&2
+    exit 1
+  fi
+}
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   say "installing ilcc_graph and its dependencies into .venv (gtsam, opencv, open3d, ...; a few minutes the first time)"
-  .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -e '.[test,open3d]'
+  : > .venv/pip.log
+  pip_quietly "pip" "" --upgrade pip
+  pip_quietly "ilcc_graph" " (a minute or two; the big ones are gtsam, opencv, open3d)" -e '.[test,open3d]'
   echo "$want" > "$stamp"
 else
   say "ilcc_graph already installed in .venv"

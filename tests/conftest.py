@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -34,3 +36,71 @@ def acfr_os1_fisheye() -> Path:
 def acfr_os1_pinhole() -> Path:
     """The recorded Ouster + pinhole set (6 frames) in ../shared; skip where it is absent."""
     return _shared_set("acfr-os1-pinhole")
+
+
+@pytest.fixture
+def readonly_dir(tmp_path) -> Path:
+    """A folder nobody can write into: a read-only tmpfs as root (permission bits do not stop root)."""
+    d = tmp_path / "ro"
+    d.mkdir()
+    if os.geteuid() != 0:
+        d.chmod(0o555)
+        yield d
+        d.chmod(0o755)
+        return
+    if subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "ro,size=64k", "tmpfs", str(d)], capture_output=True
+    ).returncode:
+        pytest.skip("cannot mount a read-only tmpfs here")
+    yield d
+    subprocess.run(["umount", str(d)], check=False)
+
+
+#: image width of the small simulated sets per camera kind (a panorama needs more pixels per board)
+SMALL_WIDTH = {"equirectangular": 1200}
+
+
+@pytest.fixture(scope="session")
+def simulated(tmp_path_factory):  # noqa: ANN201 - a factory
+    """``simulated(camera="equirectangular", *flags, frames=5, seed=1, width=None)``: a small data set
+    written by ``ilcc-graph simulate`` (HDL-32E unless ``--lidar`` is among the flags; 640 px wide,
+    1200 for a panorama), made once per session and arguments."""
+    from ilcc_graph.cli import main
+
+    made: dict[tuple, Path] = {}
+
+    def make(camera: str = "equirectangular", *flags: str, frames: int = 5, seed: int = 1,
+             width: int | None = None) -> Path:  # fmt: skip
+        width = width or SMALL_WIDTH.get(camera, 640)
+        key = (camera, flags, frames, seed, width)
+        if key not in made:
+            out = tmp_path_factory.mktemp("simulated") / f"{camera}-{seed}"
+            argv = ["simulate", str(out), "--camera", camera, "--frames", str(frames), "--seed", str(seed),
+                    "--width", str(width), *flags]  # fmt: skip
+            assert main(argv) == 0
+            made[key] = out
+        return made[key]
+
+    return make
+
+
+@pytest.fixture(scope="session")
+def calibrated(tmp_path_factory):  # noqa: ANN201 - a factory
+    """``calibrated(data, *flags, report=False)``: the output folder of ``ilcc-graph calibrate DATA
+    --jobs 1 *flags`` (``--no-report`` unless ``report``; ``data`` a folder or a list of them), run
+    once per session and arguments."""
+    from ilcc_graph.cli import main
+
+    made: dict[tuple, Path] = {}
+
+    def run(data: Path | list[Path], *flags: str, report: bool = False) -> Path:
+        datas = [str(d) for d in (data if isinstance(data, list) else [data])]
+        key = (tuple(datas), flags, report)
+        if key not in made:
+            out = tmp_path_factory.mktemp("calibrated") / "out"
+            argv = ["calibrate", *datas, "--out", str(out), "--jobs", "1", *flags]
+            assert main(argv if report else [*argv, "--no-report"]) == 0
+            made[key] = out
+        return made[key]
+
+    return run

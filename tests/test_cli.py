@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from accuracy import NEES_BOUND, pose_nees
 
 from ilcc_graph.cli import main
 
@@ -136,10 +137,7 @@ def test_calibrate_writes_interface_schema(small_panoramic_set, tmp_path):
             assert f["reason"]
     truth = yaml.safe_load((small_panoramic_set / "ground_truth.yaml").read_text())
     T_true = np.array(truth["T_cam_lidar"], float)
-    dR = T[:3, :3].T @ T_true[:3, :3]
-    angle = np.degrees(np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)))
-    assert angle < 0.2
-    assert np.linalg.norm(T[:3, 3] - T_true[:3, 3]) < 0.02
+    assert pose_nees(T, cov, T_true) < NEES_BOUND  # the error against the run's own covariance
     assert (out / "config.resolved.yaml").is_file()
 
 

@@ -129,13 +129,13 @@ def test_ros_tf_frame_order(seed):
 
 def test_ros_tf_single_flavours():
     T, cov = sample(4)
-    ros2 = export_calibration((T, cov), "ros-tf", ros="ros2")
+    ros2 = export_calibration((T, cov), "ros-tf", camera=FISHEYE, ros="ros2")
     assert "<launch>" not in ros2 and parse_ros2(ros2)[1] == "lidar"
-    ros1 = export_calibration((T, cov), "ros-tf", ros="ros1")
+    ros1 = export_calibration((T, cov), "ros-tf", camera=FISHEYE, ros="ros1")
     assert "ros2 run" not in ros1
     ET.fromstring(ros1)  # a whole, valid launch file
     with pytest.raises(ValueError, match="parent"):
-        export_calibration((T, cov), "ros-tf", parent="world")
+        export_calibration((T, cov), "ros-tf", camera=FISHEYE, parent="world")
 
 
 def parse_kitti(text: str) -> dict[str, str]:
@@ -186,13 +186,49 @@ def test_kalibr_round_trip():
     assert cam["distortion_model"] == "equidistant"
     assert cam["distortion_coeffs"] == FISHEYE["dist"]
 
+    # cameras Kalibr cannot hold exactly are refused, saying why, rather than written wrong
     k3 = dict(PINHOLE, dist=[-0.2, 0.05, 0.001, -0.002, 0.01])
-    cam = yaml.safe_load(export_calibration((T, cov), "kalibr", camera=k3))["cam0"]
-    assert "distortion_model" not in cam and cam["opencv_dist"] == k3["dist"]
+    with pytest.raises(ValueError, match=r"k3\.\. = \[0\.01\]"):
+        export_calibration((T, cov), "kalibr", camera=k3)
+    tiny = dict(PINHOLE, dist=[-0.2, 0.05, 0.001, -0.002, 1e-6])  # moves no pixel by 0.001 px: left out
+    text = export_calibration((T, cov), "kalibr", camera=tiny)
+    assert (
+        yaml.safe_load(text)["cam0"]["distortion_coeffs"] == tiny["dist"][:4]
+        and "# k3.. = [1e-06] left out" in text
+    )
+    skew = dict(PINHOLE, K=[[900.0, 0.5, 640.5], [0.0, 905.0, 360.25], [0.0, 0.0, 1.0]])
+    with pytest.raises(ValueError, match="no skew"):
+        export_calibration((T, cov), "kalibr", camera=skew)
+    with pytest.raises(ValueError, match="no equirectangular"):
+        export_calibration((T, cov), "kalibr", camera=EQUIRECT)
 
-    cam = yaml.safe_load(export_calibration((T, cov), "kalibr"))["cam0"]
-    assert "intrinsics" not in cam
-    np.testing.assert_allclose(cam["T_cam_lidar"], T, atol=1e-15)
+
+@pytest.mark.parametrize("fmt", ["ros-tf", "kitti", "kalibr"])
+def test_formats_that_depend_on_the_camera_need_it(fmt, tmp_path: Path):
+    T, cov = sample(10)
+    with pytest.raises(ValueError, match=f"the {fmt} export needs the camera model"):
+        export_calibration((T, cov), fmt)
+    # a calibration (or its file) carries its camera: nothing to pass
+    cal = Calibration(T_cam_lidar=T, covariance=cov, frames=(), camera=FISHEYE)
+    assert export_calibration(
+        cal, fmt, **({"calib_time": "x"} if fmt == "kitti" else {})
+    ) == export_calibration((T, cov), fmt, camera=FISHEYE, **({"calib_time": "x"} if fmt == "kitti" else {}))
+    json.loads(export_calibration((T, cov), "json"))  # the JSON says "camera": null instead
+
+
+def test_refined_intrinsics_are_exported_with_the_extrinsic():
+    T, cov = sample(11)
+    refined = [351.0, 352.5, 511.0, 385.0, 0.011, -0.0021, 0.00031, -0.00005]
+    sensors = {"camera_intrinsics": {"names": ["fx", "fy", "cx", "cy", "k1", "k2", "k3", "k4"],
+                                     "stated": np.zeros(8), "values": np.array(refined),
+                                     "sigmas": np.ones(8)}}  # fmt: skip
+    cal = Calibration(T_cam_lidar=T, covariance=cov, frames=(), camera=FISHEYE, sensors=sensors)
+    cam = yaml.safe_load(export_calibration(cal, "kalibr"))["cam0"]
+    assert cam["intrinsics"] == refined[:4] and cam["distortion_coeffs"] == refined[4:]
+    assert json.loads(export_calibration(cal, "json"))["camera"]["K"][0] == [351.0, 0.0, 511.0]
+    # given explicitly, the camera is taken as it is
+    cam = yaml.safe_load(export_calibration(cal, "kalibr", camera=FISHEYE))["cam0"]
+    assert cam["intrinsics"] == [350.0, 351.0, 512.0, 384.0]
 
 
 def test_inputs_calibration_pose_and_file(tmp_path: Path):

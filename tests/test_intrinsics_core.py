@@ -71,15 +71,22 @@ def test_effect_of_the_refined_intrinsics_is_the_difference_to_the_stated_camera
     a solve of the same frames with the stated camera."""
     from ilcc_graph.estimation import NoiseOptions
 
-    res = solve_observations(
-        [observed], RunOptions(intrinsics=IntrinsicsOptions(refine=True), second_pass=False)
+    res = solve_observations(  # the LiDAR model held at none: this is the camera's effect
+        [observed],
+        RunOptions(sensor_model="none", intrinsics=IntrinsicsOptions(refine=True), second_pass=False),
     ).calibration
     eff = res.sensors["effects"]["camera_intrinsics"]
     used = {f.name for f in res.frames if f.used}
     same = dataclasses.replace(observed, frames=[f for f in observed.frames if f.name in used])
     no_gate = NoiseOptions(chi2_gate_prob=None)
     stated = solve_observations(
-        [same], RunOptions(noise=no_gate, intrinsics=IntrinsicsOptions(propagate=False), second_pass=False)
+        [same],
+        RunOptions(
+            sensor_model="none",
+            noise=no_gate,
+            intrinsics=IntrinsicsOptions(propagate=False),
+            second_pass=False,
+        ),
     ).calibration
     c_ref = -res.T_cam_lidar[:3, :3].T @ res.T_cam_lidar[:3, 3]
     c_st = -stated.T_cam_lidar[:3, :3].T @ stated.T_cam_lidar[:3, 3]

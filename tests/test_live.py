@@ -132,3 +132,37 @@ def test_ctrl_c_ends_the_check_cleanly_with_the_frames_so_far(sim: Path) -> None
     assert [v.name for v in result.verdicts] == ["0001", "0002", "0003", "0004"]
     assert result.final is not None and result.final.n_frames == 4  # the frames so far, solved together
     assert run_check(GrowingFolder(sim), CheckOptions(until=2)).stopped == "2 frames checked"
+
+
+def _calibrate(data: Path):  # noqa: ANN202 - (used frame names, covariance) as calibrate gives them
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.observe import StageOptions
+    from ilcc_graph.pipeline import RunOptions, run
+
+    cal = run([open_source(data)], RunOptions(stages=StageOptions(jobs=1))).calibration
+    return {f.name for f in cal.frames if f.used}, cal.covariance
+
+
+def _agree(data: Path) -> None:
+    """``check`` fed the frames in order accepts what ``calibrate`` uses and ends at its sigmas; each
+    frame's verdict, once three poses calibrate, is the one ``calibrate`` gives it."""
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.types import sigmas_deg_mm
+
+    result = run_check(open_source(data), CheckOptions())
+    used, cov = _calibrate(data)
+    final = result.final
+    assert final is not None and set(final.solution.per_frame) == used
+    judged = [v for v in result.verdicts if v.found and not v.repeat_of and v.sigmas is not None]
+    assert {v.name for v in judged if v.accepted} <= used
+    assert {v.name for v in judged if not v.accepted} <= {v.name for v in result.verdicts} - used
+    np.testing.assert_allclose(sigmas_deg_mm(final.covariance), sigmas_deg_mm(cov), rtol=0.1)
+
+
+def test_check_accepts_what_calibrate_uses_and_ends_at_its_sigmas(sim: Path) -> None:
+    _agree(sim)
+
+
+@pytest.mark.slow
+def test_check_agrees_with_calibrate_on_the_recorded_ouster_set(acfr_os1_fisheye: Path) -> None:
+    _agree(acfr_os1_fisheye)

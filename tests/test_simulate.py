@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from ilcc_graph.board import Board
+from ilcc_graph.errors import OutputError
+from ilcc_graph.folders import MARKER
 from ilcc_graph.simulate import (
     ImageOptions,
     SimulationSpec,
@@ -305,15 +307,19 @@ def test_same_seed_same_bytes(tmp_path):
     b = simulate_dataset(tmp_path / "b", spec)
     c = simulate_dataset(tmp_path / "c", spec.with_(seed=8))
     assert seen == [(1, 2), (2, 2)]
-    files = sorted(p.relative_to(a).as_posix() for p in a.rglob("*") if p.is_file())
+    files = sorted(p.relative_to(a).as_posix() for p in a.rglob("*") if p.is_file() and p.name != MARKER)
     assert files == ["config.yaml", "ground_truth.yaml", "img/0001.png", "img/0002.png", "pcd/0001.pcd",
                      "pcd/0002.pcd"]  # fmt: skip
     for name in files:
         assert (a / name).read_bytes() == (b / name).read_bytes(), name
     assert (a / "pcd/0001.pcd").read_bytes() != (c / "pcd/0001.pcd").read_bytes()
     assert (a / "img/0001.png").read_bytes() != (c / "img/0001.png").read_bytes()
-    with pytest.raises(FileExistsError):
+    assert simulate_dataset(a, spec.with_(seed=8)) == a  # an earlier simulated set: replaced whole
+    assert (a / "pcd/0001.pcd").read_bytes() == (c / "pcd/0001.pcd").read_bytes()
+    (a / "notes.txt").write_text("mine")  # now it holds a file of the user's: refused, kept
+    with pytest.raises(OutputError, match="notes.txt"):
         simulate_dataset(a, spec)
+    assert (a / "notes.txt").read_text() == "mine"
 
 
 def test_written_dataset_reads_back(tmp_path):

@@ -250,7 +250,10 @@ class CameraModel(ABC):
     @abstractmethod
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
         """Kalibr camchain fields (``camera_model``, ``intrinsics``, ``distortion_model``,
-        ``distortion_coeffs``, in this order, as far as Kalibr has them) and notes for the reader."""
+        ``distortion_coeffs``, in this order, named as Kalibr names them) and notes for the reader.
+
+        Raises ValueError, saying why, when Kalibr has no model that holds this camera exactly (a
+        file Kalibr cannot load, or one that would change the camera, is worse than none)."""
 
     @classmethod
     @abstractmethod
@@ -298,6 +301,9 @@ class LensModel(CameraModel):
         return J
 
     def _kalibr_fxfycxcy(self) -> list[float]:
+        """Kalibr's [fu, fv, pu, pv]; ValueError for a K with skew (Kalibr has none)."""
+        if self.K[0, 1] != 0.0:
+            raise ValueError(f"Kalibr's camera models have no skew; this camera's K[0][1] = {self.K[0, 1]}")
         return [float(self.K[0, 0]), float(self.K[1, 1]), float(self.K[0, 2]), float(self.K[1, 2])]
 
     def _section(self) -> dict[str, Any]:

@@ -64,7 +64,7 @@ def solve_increasing(f, target: np.ndarray, hi: float, iters: int = 100) -> np.n
         with np.errstate(divide="ignore", invalid="ignore"):
             x_new = x - r / dfx
         bad = ~np.isfinite(x_new) | (x_new <= lo_b) | (x_new >= hi_b)
-        x_new = np.where(bad, 0.5 * (lo_b + hi_b), x_new)
+        x_new = np.where(r == 0, x, np.where(bad, 0.5 * (lo_b + hi_b), x_new))  # a root stays put
         done = np.abs(x_new - x) <= 1e-15 * np.maximum(1.0, np.abs(x))
         x = x_new
         if np.all(done | (r == 0)):

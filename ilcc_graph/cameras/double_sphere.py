@@ -147,6 +147,8 @@ class DoubleSphere(LensModel):
         return cls(width, height, K, xi, alpha)
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
+        if self.alpha >= 1.0:
+            raise ValueError(f"Kalibr's ds model needs alpha < 1; this camera's alpha = {self.alpha}")
         return {
             "camera_model": "ds",
             "intrinsics": [self.xi, self.alpha, *self._kalibr_fxfycxcy()],

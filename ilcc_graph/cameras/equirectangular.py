@@ -84,8 +84,10 @@ class Equirectangular(CameraModel):
         return cls(width, height)
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
-        notes = [f"Kalibr has no equirectangular model: camera frame {self.axes}."]
-        return {"camera_model": "equirectangular"}, notes
+        raise ValueError(
+            "Kalibr has no equirectangular (panoramic) camera model (its models: pinhole, omni, ds, "
+            "eucm), so a Kalibr camchain of this camera would not load"
+        )
 
     @classmethod
     def default(cls, width: int | None = None) -> Equirectangular:

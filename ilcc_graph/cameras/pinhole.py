@@ -19,6 +19,8 @@ from .common import config_dist, config_K, finite_vector, first_fold, solve_incr
 from .registry import register
 
 _THETA_HI = np.pi / 2 - 1e-6  # radii are searched as r = tan(theta) up to here
+#: k3.. that move no pixel by more than this are left out of a Kalibr camchain (Kalibr has no k3)
+KALIBR_PX = 0.01
 #: Names of OpenCV's distortion coefficients, in its order.
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
 
@@ -249,17 +251,35 @@ class Pinhole(LensModel):
         return (D + [0.0] * 5)[: max(5, len(D))]
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
-        fields: dict[str, Any] = {"camera_model": "pinhole", "intrinsics": self._kalibr_fxfycxcy()}
-        if np.all(self.dist[4:] == 0.0):
-            fields["distortion_model"] = "radtan"
-            fields["distortion_coeffs"] = np.pad(self.dist, (0, max(0, 4 - self.dist.size)))[:4].tolist()
-            return fields, []
-        fields["opencv_dist"] = self.dist.tolist()
-        notes = [
-            "OpenCV distortion with k3.. non-zero has no Kalibr model: "
-            "opencv_dist holds (k1, k2, p1, p2, k3, ...) and no distortion_model is written."
-        ]
-        return fields, notes
+        notes = []
+        if np.any(self.dist[4:] != 0.0):  # Kalibr's radtan has k1, k2, p1, p2 only
+            moved = self._pixels_moved_without_k3()
+            if not moved <= KALIBR_PX:
+                raise ValueError(
+                    "Kalibr's radtan distortion has 4 coefficients (k1, k2, p1, p2); this camera's "
+                    f"k3.. = {self.dist[4:].tolist()} move its pixels by up to {moved:.2g} px, so Kalibr "
+                    "cannot hold it"
+                )
+            notes.append(
+                f"k3.. = {self.dist[4:].tolist()} left out: they move no pixel by more than {moved:.2g} px."
+            )
+        return {
+            "camera_model": "pinhole",
+            "intrinsics": self._kalibr_fxfycxcy(),
+            "distortion_model": "radtan",
+            "distortion_coeffs": np.pad(self.dist, (0, max(0, 4 - self.dist.size)))[:4].tolist(),
+        }, notes
+
+    def _pixels_moved_without_k3(self) -> float:
+        """Largest pixel shift over the image (a 33 x 33 grid of its pixels) from dropping k3.."""
+        uv = np.stack(
+            np.meshgrid(np.linspace(-0.5, self.width - 0.5, 33), np.linspace(-0.5, self.height - 0.5, 33)), -1
+        )
+        rays = self.bearing(uv.reshape(-1, 2))
+        rays = rays[np.all(np.isfinite(rays), axis=1)]
+        four = replace(self, dist=np.pad(self.dist[:4], (0, self.dist.size - 4)))
+        d = np.linalg.norm(four.project(rays) - self.project(rays), axis=1)
+        return float(np.max(d)) if d.size and np.all(np.isfinite(d)) else float("inf")
 
     @classmethod
     def default(cls, width: int | None = None) -> Pinhole:

@@ -5,6 +5,8 @@
 message names the file, the key path (``board.squares``), the value found and what was expected.
 
 The schemas: ``ours`` (interface.md) and ``ilcc`` (mfxox/ILCC's); the resolved form: ``model``.
+A whole rig (several cameras and LiDARs): ``load_rig_config(path)`` -> :class:`RigConfig`
+(``rig_schema``, ``rig``; docs/rig.md).
 """
 
 from __future__ import annotations
@@ -18,8 +20,14 @@ from ..io.files import read_yaml
 from .ilcc import is_ilcc, parse_ilcc
 from .model import Config, Roi, config_to_dict
 from .ours import TOP_KEYS, parse_ours
+from .rig import RigConfig, RigData, RigSensor, rig_config_to_dict, rig_from_config
+from .rig_schema import load_rig_config, parse_rig_config
 
-__all__ = ["Roi", "Config", "load_config", "parse_config", "config_to_dict"]
+__all__ = [
+    "Roi", "Config", "load_config", "parse_config", "config_to_dict",
+    "RigConfig", "RigData", "RigSensor", "load_rig_config", "parse_rig_config", "rig_config_to_dict",
+    "rig_from_config",
+]  # fmt: skip
 
 
 def parse_config(d: Any, source: str = "<config>", base_dir: Path | str | None = None) -> Config:

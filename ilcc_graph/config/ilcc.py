@@ -73,16 +73,18 @@ def _ilcc_tuple(c: Checker, v: Any, key: str) -> Any:
 
 
 def _image_size_from_dir(img_dir: Path) -> tuple[int, int] | None:
-    """(width, height) of the first image in ``img_dir`` (natural order), or None."""
+    """(width, height) of the first image in ``img_dir`` (sorted by name) whose header can be read
+    (nothing decoded: ``io.image_size``), or None."""
+    from ..io.images import image_size
+
     if not img_dir.is_dir():
         return None
     files = sorted(p for p in img_dir.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg", ".bmp"))
     for p in files:
-        import cv2
-
-        img = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-        if img is not None:
-            return int(img.shape[1]), int(img.shape[0])
+        try:
+            return image_size(p)
+        except InputError:
+            continue
     return None
 
 

@@ -24,7 +24,7 @@ from ..checks import MISSING, Checker
 from ..lidars import MODEL_NAMES, LidarModel, lidar_model, read_calibration_file
 from .model import Config, Roi
 
-__all__ = ["TOP_KEYS", "intensity_column", "parse_board", "parse_ours"]
+__all__ = ["TOP_KEYS", "intensity_column", "parse_board", "parse_lidar", "parse_ours", "parse_roi"]
 
 TOP_KEYS = ("board", "lidar", "camera")
 _BOARD_KEYS = ("squares", "square_size", "margin", "lower_left", "roi")
@@ -54,27 +54,27 @@ def parse_board(c: Checker, d: dict) -> tuple[Board, Roi | None]:
     else:
         m_long = m_short = c.number(m, "board.margin", lo=0.0, hi=2.0)
     lower_left = c.choice(d.get("lower_left", "black"), "board.lower_left", ("black", "white"))
-    roi = None
-    if d.get("roi") is not None:
-        r = c.section(d["roi"], "board.roi")
-        c.unknown(r, _ROI_KEYS, "board.roi")
-        roi = Roi(
-            azimuth_deg=None
-            if r.get("azimuth_deg") is None
-            else c.interval(r["azimuth_deg"], "board.roi.azimuth_deg", -180.0, 180.0, wrap=True),
-            elevation_deg=None
-            if r.get("elevation_deg") is None
-            else c.interval(r["elevation_deg"], "board.roi.elevation_deg", -90.0, 90.0),
-            range_m=None
-            if r.get("range_m") is None
-            else c.interval(r["range_m"], "board.roi.range_m", 0.0, 1000.0),
-        )
-        if roi.is_empty():
-            roi = None
+    roi = None if d.get("roi") is None else parse_roi(c, d["roi"], "board.roi")
     return Board(rows, cols, s, m_long, m_short, lower_left), roi
 
 
-def _parse_lidar(c: Checker, d: dict, base: Path | None = None) -> tuple[LidarModel | None, int | None]:
+def parse_roi(c: Checker, v: Any, key: str) -> Roi | None:
+    """A ``roi`` section (azimuth_deg, elevation_deg, range_m as [min, max]) at ``key``; None when empty."""
+    r = c.section(v, key)
+    c.unknown(r, _ROI_KEYS, key)
+    roi = Roi(
+        azimuth_deg=None
+        if r.get("azimuth_deg") is None
+        else c.interval(r["azimuth_deg"], f"{key}.azimuth_deg", -180.0, 180.0, wrap=True),
+        elevation_deg=None
+        if r.get("elevation_deg") is None
+        else c.interval(r["elevation_deg"], f"{key}.elevation_deg", -90.0, 90.0),
+        range_m=None if r.get("range_m") is None else c.interval(r["range_m"], f"{key}.range_m", 0.0, 1000.0),
+    )
+    return None if roi.is_empty() else roi
+
+
+def parse_lidar(c: Checker, d: dict, base: Path | None = None) -> tuple[LidarModel | None, int | None]:
     c.unknown(d, _LIDAR_KEYS, "lidar")
     raw_name = d.get("model")
     name = None if raw_name is None else c.choice(raw_name, "lidar.model", MODEL_NAMES)
@@ -141,6 +141,6 @@ def parse_ours(c: Checker, d: dict, source: str, base: Path | None = None) -> Co
     c.unknown(d, TOP_KEYS, "")
     board, roi = parse_board(c, c.section(d.get("board", MISSING), "board"))
     section = d.get("lidar")
-    lidar, col = _parse_lidar(c, {} if section is None else c.section(section, "lidar"), base)
+    lidar, col = parse_lidar(c, {} if section is None else c.section(section, "lidar"), base)
     camera = camera_from_config(d.get("camera", MISSING), source)
     return Config(board, lidar, camera, roi, col, source, "ilcc_graph")

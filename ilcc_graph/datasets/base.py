@@ -62,9 +62,15 @@ class FrameSource(ABC):
     def read_image(self, ref: FrameRef) -> np.ndarray:
         """The frame's image, (H, W, 3) BGR uint8; InputError naming the file and the problem."""
 
+    def header_size(self, ref: FrameRef) -> tuple[int, int] | None:
+        """(width, height) of the frame's image from its header alone, nothing decoded; None where the
+        source cannot tell without decoding (InputError naming the file when it is damaged)."""
+        return None
+
     def image_size(self, ref: FrameRef) -> tuple[int, int]:
-        """(width, height) of the frame's image in pixels; here from ``read_image`` (sources that can
-        read it from a header alone do so)."""
+        """(width, height) of the frame's image in pixels: ``header_size``, else from ``read_image``."""
+        if (size := self.header_size(ref)) is not None:
+            return size
         h, w = self.read_image(ref).shape[:2]
         return int(w), int(h)
 

@@ -14,6 +14,8 @@ from ilcc_graph.config import Config, load_config
 from ilcc_graph.datasets.base import FrameRef, FrameSource
 from ilcc_graph.errors import InputError
 from ilcc_graph.io import list_frames, read_ground_truth, read_image, read_scan
+from ilcc_graph.io.files import broken_link
+from ilcc_graph.io.images import image_size
 from ilcc_graph.io.results import GROUND_TRUTH_FILE
 from ilcc_graph.types import Scan
 
@@ -56,21 +58,16 @@ class FolderSource(FrameSource):
         return list(self._skipped)
 
     def read_scan(self, ref: FrameRef, config: Config) -> Scan:
+        if why := broken_link(ref.scan):
+            raise InputError(why)
         return read_scan(ref.scan, config.intensity_column)
 
     def read_image(self, ref: FrameRef) -> np.ndarray:
         return read_image(ref.image)
 
-    def image_size(self, ref: FrameRef) -> tuple[int, int]:
-        """(width, height) from the image file's header (Pillow opens lazily: no pixel is decoded);
-        a file Pillow cannot open is decoded as ``read_image`` does (InputError when damaged)."""
-        from PIL import Image, UnidentifiedImageError
-
-        try:
-            with Image.open(ref.image) as im:
-                return int(im.width), int(im.height)
-        except (OSError, UnidentifiedImageError, ValueError):
-            return super().image_size(ref)
+    def header_size(self, ref: FrameRef) -> tuple[int, int]:
+        """(width, height) from the image file's header (``io.image_size``: no pixel is decoded)."""
+        return image_size(ref.image)
 
     def ground_truth(self):  # noqa: ANN201 - io.GroundTruth | None
         return read_ground_truth(self.path) if (self.path / GROUND_TRUTH_FILE).is_file() else None

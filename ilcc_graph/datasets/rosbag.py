@@ -222,42 +222,55 @@ class BagSource(FrameSource):
         self.topics.update(lidar=lidar, image=image)
         streams = {lidar: Stream(lidar, LIDAR_STILL)} | ({image: Stream(image, IMAGE_STILL)} if image else {})
         motion = image or lidar  # the camera decides when there is one (docs/datasets.md)
-        last: tuple[int, Any] | None = None
+        self._record(streams, {lidar}, {motion}, lambda: self.config().lidar)
+        if not streams[lidar].bag_ns:
+            raise InputError(f"{self.path}: no message on {lidar}")
+        self._set_time_base(list(streams.values()), "no scan has an image")
+        self._start_ns = int(self._guard(lambda: self._reader().start_time))
+        self.streams = streams
+        return streams
+
+    def _record(self, streams: dict[str, Stream], clouds: set[str], motion: set[str], model: Any) -> None:
+        """Fill ``streams`` (topic -> Stream) in one pass over the bag: every message's bag time, header
+        stamp and sweep offset (``clouds``: PointCloud2 topics), and the motion between samples of each
+        ``motion`` topic (``model()``: the LiDAR model giving rings to a cloud without them)."""
+        lasts: dict[str, tuple[int, Any]] = {}
         for topic, t, msg in self._messages(list(streams)):
             s, where = streams[topic], f"{self.path}:{topic}"
             s.bag_ns.append(t)
             s.stamp_ns.append(int(msg.header.stamp.sec) * 10**9 + int(msg.header.stamp.nanosec))
-            s.offset_s.append(sweep_offset(msg, where) if topic == lidar else 0.0)
-            if topic != motion or (last is not None and t - last[0] < MOTION_STEP_S * 1e9):
+            s.offset_s.append(sweep_offset(msg, where) if topic in clouds else 0.0)
+            last = lasts.get(topic)
+            if topic not in motion or (last is not None and t - last[0] < MOTION_STEP_S * 1e9):
                 continue
-            if topic == lidar:
+            if topic in clouds:
                 scan = decode_cloud(msg, where)
-                ring = self.config().lidar.ring_from_points(scan.points) if scan.ring is None else scan.ring
+                ring = model().ring_from_points(scan.points) if scan.ring is None else scan.ring
                 sig = range_image(scan.points, ring)
             else:
                 sig = motion_image(decode_image(msg, where))
             if last is not None:
-                s.changes.append((lidar_change if topic == lidar else image_change)(last[1], sig))
+                s.changes.append((lidar_change if topic in clouds else image_change)(last[1], sig))
             s.samples.append(len(s.bag_ns) - 1)
-            last = (t, sig)
-        if not streams[lidar].bag_ns:
-            raise InputError(f"{self.path}: no message on {lidar}")
+            lasts[topic] = (t, sig)
+
+    def _set_time_base(self, streams: list[Stream], what: str) -> None:
+        """Header stamps, or bag times when stamps are zero or when no other stream pairs with the first
+        by header stamps while some pair by bag time (``what``: the warning's wording)."""
         base, why = "header", ""
-        if any(min(s.stamp_ns) == 0 for s in streams.values() if s.stamp_ns):
+        others = [s for s in streams[1:] if s.bag_ns]
+        if any(min(s.stamp_ns) == 0 for s in streams if s.stamp_ns):
             base, why = "bag", "zero header stamps"
-        elif image and streams[image].bag_ns:
-            lid, img = streams[lidar], streams[image]
-            if not pair_by_time(lid.times(), img.times(), self.tolerance) and pair_by_time(
-                lid.times("bag"), img.times("bag"), self.tolerance
-            ):
-                base, why = "bag", f"no scan has an image within {self.tolerance} s by header stamps"
+        elif others:
+            first = streams[0]
+            pairs = {b: [pair_by_time(first.times(b), s.times(b), self.tolerance) for s in others]
+                     for b in ("header", "bag")}  # fmt: skip
+            if not any(pairs["header"]) and any(pairs["bag"]):
+                base, why = "bag", f"{what} within {self.tolerance} s by header stamps"
         if why:
             log.warning("%s: %s; scans and images pair by bag (receive) time", self.path, why)
-        for s in streams.values():
+        for s in streams:
             s.time_base = base
-        self._start_ns = int(self._guard(lambda: self._reader().start_time))
-        self.streams = streams
-        return streams
 
     def _name(self, t_ns: float) -> str:
         return f"t{(t_ns - self._start_ns) * 1e-9:010.3f}"

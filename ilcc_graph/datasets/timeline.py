@@ -9,6 +9,7 @@ import numpy as np
 
 __all__ = [
     "Stream",
+    "common_still_runs",
     "image_change",
     "lidar_change",
     "motion_image",
@@ -103,6 +104,28 @@ class Stream:
     def runs(self) -> list[tuple[float, float]]:
         """Still intervals of this stream (seconds, in its time base)."""
         return still_runs(self.times()[self.samples], np.asarray(self.changes), self.still)
+
+
+def common_still_runs(streams: list[Stream]) -> tuple[list[tuple[float, float]], bool]:
+    """Still intervals of several streams watched together (a rig's cameras): the span of their
+    samples minus every step over which some stream moved; and whether any stream moved. A stream
+    without samples over a while (a camera triggered only when it sees the board) says nothing there."""
+    moving, times = [], []
+    for s in streams:
+        t = s.times()[s.samples]
+        times.append(t)
+        moving += [(float(t[k]), float(t[k + 1])) for k, c in enumerate(s.changes) if c > s.still]
+    every = np.concatenate(times) if times else np.zeros(0)
+    if not every.size:
+        return [], False
+    runs, start = [], float(every.min())
+    for a, b in sorted(moving):
+        if a > start:
+            runs.append((start, a))
+        start = max(start, b)
+    if float(every.max()) > start:
+        runs.append((start, float(every.max())))
+    return runs, bool(moving)
 
 
 def nearest(ref: np.ndarray, q: np.ndarray) -> np.ndarray:

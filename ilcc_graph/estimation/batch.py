@@ -9,21 +9,23 @@ variance factor, in interface.md's convention.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from ilcc_graph.cameras import CameraModel
+from ilcc_graph.estimation.camera_choice import choose_intrinsics
 from ilcc_graph.estimation.effects import Effect, ScaleEffect, sensor_effects, square_size_effect
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions, LidarLayout
 from ilcc_graph.estimation.noise import BoardStats, NoiseOptions, Solution, solve_problem
 from ilcc_graph.estimation.plane import BoardPlane
 from ilcc_graph.estimation.problem import frames_problem
+from ilcc_graph.estimation.selection import MODELS, Selection, SensorModel, averaged_covariance, select_model
 from ilcc_graph.estimation.solver import check_pose
 from ilcc_graph.types import Estimate, GraphFrame
 
-__all__ = ["BatchSolution", "batch_solution", "solve"]
+__all__ = ["BatchSolution", "batch_solution", "sensor_models", "solve"]
 
 
 @dataclass(frozen=True)
@@ -40,6 +42,8 @@ class BatchSolution:
     (``effects.sensor_effects``). board_plane: the boards' plane sigmas used (estimated or
     configured; ``plane.BoardPlane``), None without the board-plane term. square_size: what a print
     0.1 % larger than the board's model would move (``effects.square_size_effect``; with ``effects``).
+    selection: which sensor model was chosen and the evidence (``selection.Selection``); with
+    candidates the boards could not tell apart, ``covariance`` is averaged over them.
     """
 
     T_cam_lidar: np.ndarray
@@ -58,6 +62,7 @@ class BatchSolution:
     effects: dict[str, Effect] = field(default_factory=dict)
     board_plane: BoardPlane | None = None
     square_size: ScaleEffect | None = None
+    selection: Selection | None = None
 
     @property
     def extrinsic(self) -> Estimate:
@@ -99,6 +104,22 @@ def batch_solution(
     )
 
 
+def sensor_models(names: Sequence[str] | None, lidar_errors: LidarErrorOptions | None) -> list[SensorModel]:
+    """The candidate models: ``names`` (``selection.MODELS``), the ``beams`` one with ``lidar_errors``
+    when given; None: ``beams`` alone with ``lidar_errors`` given, else ``none`` alone."""
+    if names is None:
+        names = ["beams"] if lidar_errors is not None else ["none"]
+    out = []
+    for n in names:
+        if n not in MODELS:
+            raise ValueError(f"unknown sensor model {n!r}; known: {', '.join(MODELS)}")
+        m = MODELS[n]
+        out.append(
+            replace(m, lidar_errors=lidar_errors) if m.lidar_errors is not None and lidar_errors else m
+        )
+    return out
+
+
 def solve(
     frames: Sequence[GraphFrame],
     camera: CameraModel,
@@ -107,20 +128,47 @@ def solve(
     lidar_errors: LidarErrorOptions | None = None,
     intrinsics: IntrinsicsOptions | None = None,
     effects: bool = False,
+    models: Sequence[str] | None = None,
+    intrinsics_choice: str = "stated",
 ) -> BatchSolution:
     """Refine ``T_cam_lidar`` over all frames and return it with its marginal covariance.
 
     frames: the frames (``types.GraphFrame``), bearings in the camera frame of ``camera``.
-    lidar_errors: the LiDAR's own errors to estimate from the frames' returns (None: none).
+    models: the sensor models to choose among (``selection.MODELS`` names, e.g. ``selection.AUTO``);
+        one name forces it. None: ``beams`` when ``lidar_errors`` is given, else ``none``.
+    lidar_errors: the options of the ``beams`` model (the LiDAR's own errors estimated from the
+        frames' returns).
     intrinsics: refine the camera's intrinsics (frames need ``uv``), or propagate their stated sigmas.
+    intrinsics_choice: ``stated`` (as ``intrinsics`` says) or ``auto``: with the LiDAR model chosen,
+        refine the intrinsics when the boards support it (``camera_choice``; not with
+        ``intrinsics.refine``).
     effects: also solve with the sensor terms taken back, to say what they moved (``BatchSolution.effects``),
         and say what the board's square size moves (``BatchSolution.square_size``).
     T_init: (4, 4) start (e.g. UPnP's). Raises CalibrationImpossible (no usable frame),
     IndeterminateSystem (the data do not determine ``T_cam_lidar``), ValueError (malformed input).
     """
     check_pose(T_init, "T_init")
-    problem = frames_problem(frames, camera, T_init, lidar_errors=lidar_errors, intrinsics=intrinsics)
-    sol = solve_problem(problem, options)
-    if not effects:
-        return batch_solution(sol)
-    return batch_solution(sol, effects=sensor_effects(sol, options), square_size=square_size_effect(sol))
+    cands = sensor_models(models, lidar_errors)
+    refine = intrinsics is not None and intrinsics.refine
+    # a choice among LiDAR models is made with the intrinsics as stated (the held-out images' poses
+    # need them); a forced model is solved as asked
+    stated = intrinsics if len(cands) == 1 or intrinsics is None else replace(intrinsics, refine=False)
+    sols, selection = select_model(frames_problem(frames, camera, T_init, intrinsics=stated), cands, options)
+    sol = sols[selection.chosen]
+    refined = None
+    if refine and len(cands) > 1:  # refined as asked, with the LiDAR model chosen
+        refined = solve_problem(replace(sol.problem, intrinsics=intrinsics), options)
+    elif intrinsics_choice == "auto" and not refine:
+        refined, choice = choose_intrinsics(sol.problem, options)
+        selection = replace(selection, camera=choice)
+    sol = refined or sol
+    extra = {}
+    if effects:
+        extra = {"effects": sensor_effects(sol, options), "square_size": square_size_effect(sol)}
+    out = replace(batch_solution(sol, **extra), selection=selection)
+    if refined is not None:  # refined: its covariance, times the model's held-out factor
+        factor = next(c.factor for c in selection.candidates if c.name == selection.chosen)
+        out = replace(out, covariance=factor * out.covariance)
+    elif not selection.forced:
+        out = replace(out, covariance=averaged_covariance(sols, selection))
+    return out

@@ -48,6 +48,7 @@ class BoardStats:
     chi2_robust: float | None = None
     returns: tuple[float, int] | None = None
     prior: tuple[float, int] | None = None
+    views: tuple[float, int] | None = None
 
 
 def board_stats(
@@ -57,7 +58,8 @@ def board_stats(
     in-plane prior of its returns) with their dof, that of its returns, the RMS bearing angle.
 
     facs: per board its view factors with, for a pixel factor, its camera (None for a bearing
-    factor), whose intrinsics at their current value give the measured pixels' rays."""
+    factor), whose intrinsics at their current value give the measured pixels' rays, and the
+    variance component the factor was scaled by (for ``BoardStats.views``; 1 when absent)."""
     prior: dict[int, float] = {}
     prior_dof: dict[int, int] = {}
     returns: dict[int, tuple[float, int]] = {}
@@ -76,15 +78,16 @@ def board_stats(
     out: dict[int, BoardStats] = {}
     for i, fs in facs.items():
         chi2 = prior[i]
-        robust = prior[i] if any(f.robust is not None for f, _ in fs) else None
-        dof, angles = 0, []
-        for f, bearings in fs:
+        robust = prior[i] if any(f[0].robust is not None for f in fs) else None
+        dof, angles, raw = 0, [], 0.0
+        for f, bearings, *scale in fs:
             T_cl, T_lb = values.atPose3(f.keys[0]), values.atPose3(f.keys[1])
             theta = values.atVector(f.keys[2]) if len(f.keys) == 3 else None
             args = (T_cl, T_lb) if bearings is None else (T_cl, T_lb, theta)
             e = f.unwhitened(*args)[0]
             r = np.einsum("kij,kj->ki", f.sqrt_info, e)
             chi2 += float(np.sum(r * r))
+            raw += float(np.sum(r * r)) * (scale[0] if scale else 1.0)
             if robust is not None:
                 robust += float(np.sum(f.evaluate(*args, False)[0] ** 2))
             dof += f.dim
@@ -98,7 +101,9 @@ def board_stats(
                 angles.append(np.arctan2(c, np.sum(p * bearings, axis=1)))
         a = np.concatenate(angles)
         rms = float(1e3 * np.sqrt(np.mean(a**2)))
-        out[i] = BoardStats(chi2, dof, rms, robust, returns.get(i), (prior[i], prior_dof.get(i, 0)))
+        out[i] = BoardStats(
+            chi2, dof, rms, robust, returns.get(i), (prior[i], prior_dof.get(i, 0)), (raw, dof)
+        )
     return out
 
 
@@ -112,6 +117,8 @@ def _part(s: BoardStats, part: str) -> tuple[float, int, str]:
     """(value the gate tests, its dof, its name) of the views or the returns of a board."""
     if part == "returns":
         return (s.returns[0], s.returns[1], "returns chi2") if s.returns else (0.0, 0, "")
+    if part == "own_views":  # the views' rows alone, at the stated noise
+        return (s.views[0], s.views[1], "views' chi2") if s.views else (0.0, 0, "")
     if part == "prior":
         if not s.prior:
             return (0.0, 0, "")
@@ -125,19 +132,22 @@ def gate_failures(
 ) -> list[tuple[float, int, str]]:
     """Boards failing the gate as (log survival probability, board, reason), worst first.
 
-    Views (bearings and the board's prior), the board's prior alone (where the views pulled the
-    board away from where the LiDAR saw it, as a wrong correspondence does) and, where they enter,
-    the board's LiDAR returns are tested apart, each against its own median scale; the returns only
+    The parts named in ``scales`` are tested apart, each against its own median scale: the views
+    (bearings and the board's prior, ``views``; or the views' rows alone at the stated noise,
+    ``own_views``), the board's prior alone (where the views pulled the board away from where the
+    LiDAR saw it, as a wrong correspondence does) and, where they enter, the board's LiDAR
+    returns; the returns only
     against a gross misfit
     (``RETURNS_MAX_RATIO`` times their dof: their residuals are heavy-tailed, a wrong object is not),
     the prior alone above ``PRIOR_MAX_RATIO`` times its dof (likewise),
     the views only above ``view_ratio`` times their dof when that is larger than the quantile (each
-    view then has its own variance component: only a view inconsistent as a whole is dropped).
+    view then has its own variance component: only a view whose noise is far beyond the typical
+    view's is dropped).
     """
     failing = []
     for i, s in stats.items():
         worst = None
-        for part in ("views", "prior", "returns"):
+        for part in scales:
             value, dof, what = _part(s, part)
             if dof <= 0:
                 continue

@@ -101,6 +101,9 @@ class IncrementalCalibrator:
     relinearize_threshold : iSAM2's per-variable relinearisation threshold (rad / m).
     gate_prob : chi-square quantile above which a frame is rejected; None: never.
     noise : the noise policy of ``finish()``'s batch solve; lidar_errors: the LiDAR's own errors it estimates.
+    models : the sensor models ``finish()`` chooses among (``estimation.selection``; None: as
+        ``batch.solve``, ``beams`` with ``lidar_errors``, else ``none``); intrinsics_choice: ``auto``
+        to refine the intrinsics when the boards support it (``batch.solve``).
     """
 
     camera: CameraModel
@@ -113,6 +116,8 @@ class IncrementalCalibrator:
     noise: NoiseOptions = NoiseOptions()
     lidar_errors: LidarErrorOptions | None = None
     intrinsics: IntrinsicsOptions | None = None
+    models: tuple[str, ...] | None = None
+    intrinsics_choice: str = "stated"
     _isam: gtsam.ISAM2 = field(init=False, repr=False)
     _pending: list[_Pending] = field(init=False, repr=False, default_factory=list)
     _frames: list[GraphFrame] = field(init=False, repr=False, default_factory=list)
@@ -314,7 +319,10 @@ class IncrementalCalibrator:
                 raise CalibrationImpossible("no frame was added")
             self._initialise(self._pending[-1].frame.name, t0)
         T = np.asarray(self._T.matrix())
-        sol = solve(self._offered, self.camera, T, self.noise, self.lidar_errors, self.intrinsics)
+        sol = solve(
+            self._offered, self.camera, T, self.noise, self.lidar_errors, self.intrinsics,
+            models=self.models, intrinsics_choice=self.intrinsics_choice,
+        )  # fmt: skip
         kept = [f for f in self._offered if f.name in sol.per_frame]
         self._isam = gtsam.ISAM2(self._isam.params())
         self._frames = []

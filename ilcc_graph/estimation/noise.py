@@ -60,8 +60,8 @@ __all__ = ["BoardStats", "NoiseOptions", "Solution", "replace_scales", "solve_pr
 MIN_BOARDS_ADVISED = 4
 #: kinds of residual rows with a variance component each (per noise group)
 COMPONENT_KINDS = ("board", "bearing", "points", "inplane")
-#: with a component per view, a view fails the gate only above this multiple of its dof
-VIEW_MAX_RATIO = 4.0
+#: with a component per view, a view fails only above this multiple of its dof (recorded views: to 5.5x)
+VIEW_MAX_RATIO = 8.0
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,7 @@ class NoiseOptions:
         (not with a robust kernel) and apply the final variance factor.
     view_components: every view gets its own bearing variance component (views differ in blur,
         viewing angle and how well the lens model fits where they sit), and the gate drops a view
-        only when its residuals exceed ``VIEW_MAX_RATIO`` times their dof (after the median scale).
+        only when its own rows' chi-square (stated noise, median scale) exceeds ``VIEW_MAX_RATIO`` x dof.
     solver: Levenberg-Marquardt stopping rules.
     """
 
@@ -322,7 +322,7 @@ def solve_problem(
             if v.board in facs:
                 s = comps.get(("bearing", asm.view_group(j)), 1.0)
                 facs[v.board].append(
-                    (fac.scaled(s) if s != 1.0 else fac, v.camera if j in asm.pixel_views else None)
+                    (fac.scaled(s) if s != 1.0 else fac, v.camera if j in asm.pixel_views else None, s)
                 )
         return board_stats(g, terms, facs, res)
 
@@ -339,8 +339,10 @@ def solve_problem(
             if not gate or options.chi2_gate_prob is None:
                 break
             on = options.variance_components
-            gate_scales = {p: gate_scale(st, p) if on else 1.0 for p in ("views", "prior", "returns")}
             view_ratio = VIEW_MAX_RATIO if options.view_components and on else 0.0
+            # per-view components: the views' own rows (their verdict not hung on the LiDAR's fit)
+            parts = ("own_views" if view_ratio and robust is None else "views", "prior", "returns")
+            gate_scales = {p: gate_scale(st, p) if on else 1.0 for p in parts}
             failing = gate_failures(st, options.chi2_gate_prob, gate_scales, view_ratio)
             if not failing:
                 break

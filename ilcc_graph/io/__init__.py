@@ -9,7 +9,7 @@ from .files import atomic_write, dump_yaml, read_yaml, to_plain, write_yaml
 from .frames import FramePaths, list_frames, natural_key
 from .images import IMAGE_SUFFIXES, read_image, write_image
 from .lzf import lzf_compress, lzf_decompress
-from .pcd import read_pcd, write_pcd
+from .pcd import PCD_STYLES, read_pcd, write_pcd
 from .ply import read_ply, write_ply
 from .results import (
     GroundTruth,
@@ -25,6 +25,7 @@ from .scans import FIELD_ALIASES, read_scan, reader, supported_scan_suffixes
 __all__ = [
     "FIELD_ALIASES",
     "IMAGE_SUFFIXES",
+    "PCD_STYLES",
     "FramePaths",
     "GroundTruth",
     "atomic_write",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import stat
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -13,22 +14,61 @@ import yaml
 from ..errors import InputError
 from ..types import to_plain
 
-__all__ = ["atomic_write", "write_yaml", "read_yaml", "dump_yaml", "to_plain"]
+__all__ = ["atomic_write", "broken_link", "new_mode", "write_yaml", "read_yaml", "dump_yaml", "to_plain"]
+
+
+def _umask() -> int:
+    """The process's umask: read from /proc on Linux (no change to it), else set and put back."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def new_mode(folder: bool = False) -> int:
+    """The permission bits a new file (0666) or folder (0777) gets under the umask, as ``open`` and
+    ``mkdir`` give them (``tempfile`` makes 0600 / 0700, which is why writers set these)."""
+    return (0o777 if folder else 0o666) & ~_umask()
+
+
+def broken_link(path: str | Path) -> str | None:
+    """'PATH: a broken link (to TARGET, which does not exist)' when ``path`` is one, else None."""
+    p = Path(path)
+    if not p.is_symlink() or p.exists():
+        return None
+    try:
+        target = os.readlink(p)
+    except OSError:
+        target = "?"
+    return f"{p}: a broken link (to {target}, which does not exist)"
 
 
 def atomic_write(path: str | Path, data: bytes | str) -> Path:
     """Write ``data`` to ``path`` so that readers see the old file or the whole new one.
 
     Writes a temporary file in the same folder, fsyncs it and renames it over ``path``
-    (``os.replace``). Creates missing parent folders. On any error the temporary file is removed
-    and ``path`` is left as it was. Returns ``path``.
+    (``os.replace``). Creates missing parent folders. The file gets the mode of the file it replaces,
+    or the umask's (``new_mode``). On any error the temporary file is removed and ``path`` is left as
+    it was. Returns ``path``.
     """
     p = Path(path)
     payload = data.encode("utf-8") if isinstance(data, str) else bytes(data)
     p.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        old = os.stat(p)
+        mode = stat.S_IMODE(old.st_mode) if stat.S_ISREG(old.st_mode) else new_mode()
+    except OSError:
+        mode = new_mode()
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
     try:
         with os.fdopen(fd, "wb") as f:
+            os.fchmod(f.fileno(), mode)
             f.write(payload)
             f.flush()
             os.fsync(f.fileno())

@@ -53,8 +53,8 @@ def _by_stem(
     """stem -> the file of that stem (the preferred one when there are several, noted in ``notes``)."""
     out: dict[str, list[Path]] = {}
     for f in folder.iterdir():
-        if f.name.startswith(".") or not f.is_file():
-            continue
+        if f.name.startswith(".") or not (f.is_file() or (f.is_symlink() and not f.exists())):
+            continue  # a broken link is kept: reading it says so, for its frame
         if f.suffix.lower() not in suffixes:
             skipped.append((f.stem, f"{kind}/{f.name}: unsupported file type {f.suffix!r}"))
             continue

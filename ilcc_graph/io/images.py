@@ -1,17 +1,131 @@
-"""Image reading and atomic writing with OpenCV (BGR, uint8)."""
+"""Image reading and atomic writing with OpenCV (BGR, uint8); image sizes from file headers.
+
+``image_size`` reads width and height from the header alone (PNG IHDR, JPEG SOF, BMP; Pillow's lazy
+open for the rest), so a file that declares an absurd size is refused before a byte of it is
+decoded: ``read_image`` checks it first (``MAX_PIXELS``).
+"""
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
-from .files import atomic_write
+from .files import atomic_write, broken_link
 
-__all__ = ["read_image", "write_image", "IMAGE_SUFFIXES"]
+__all__ = ["IMAGE_SUFFIXES", "MAX_PIXELS", "image_size", "read_image", "write_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+
+#: the most pixels an image may declare (2^28, e.g. 23000 x 11500: 805 MB as BGR); more is refused
+#: unread (a forged header would make the decoder allocate it; OpenCV's own limit is 2^30)
+MAX_PIXELS = 1 << 28
+
+_PNG = b"\x89PNG\r\n\x1a\n"
+#: JPEG start-of-frame markers (baseline, progressive, lossless, arithmetic; not DHT C4, JPG C8, DAC CC)
+_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+
+
+def _jpeg_size(f) -> tuple[int, int] | None:  # noqa: ANN001 - a binary file positioned after SOI
+    """(width, height) from the first SOF segment, walking the marker segments; None if none."""
+    while True:
+        b = f.read(1)
+        if b != b"\xff":
+            return None
+        while b == b"\xff":  # fill bytes before a marker
+            b = f.read(1)
+        if not b:
+            return None
+        marker = b[0]
+        if marker == 0x01 or 0xD0 <= marker <= 0xD8:  # no length field
+            continue
+        n = f.read(2)
+        if len(n) < 2 or marker == 0xD9:
+            return None
+        length = struct.unpack(">H", n)[0]
+        if marker in _SOF:
+            seg = f.read(5)
+            if len(seg) < 5:
+                return None
+            h, w = struct.unpack(">HH", seg[1:5])
+            return w, h
+        if length < 2:
+            return None
+        f.seek(length - 2, 1)
+
+
+def _header_size(p: Path) -> tuple[int, int] | None:
+    """(width, height) declared by the header of a PNG, JPEG or BMP file; None for other formats."""
+    with open(p, "rb") as f:
+        head = f.read(26)
+        if head.startswith(_PNG) and head[12:16] == b"IHDR" and len(head) >= 24:
+            return struct.unpack(">II", head[16:24])
+        if head.startswith(b"\xff\xd8"):
+            f.seek(2)
+            return _jpeg_size(f)
+        if head.startswith(b"BM") and len(head) >= 26:
+            w, h = struct.unpack("<ii", head[18:26])
+            return abs(w), abs(h)
+    return None
+
+
+def _declared(p: Path) -> tuple[int, int] | None:
+    """(width, height) the file's header declares (our parsers, else Pillow's lazy open); None when
+    neither can tell (the decoder then says what is wrong); ``InputError`` when Pillow refuses a size
+    over its decompression-bomb limit. Raises OSError when the file cannot be opened."""
+    try:
+        size = _header_size(p)
+    except struct.error:
+        size = None
+    if size is not None:
+        return int(size[0]), int(size[1])
+    import warnings
+
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(p) as im:
+                return int(im.width), int(im.height)
+    except Image.DecompressionBombError:
+        raise InputError(
+            f"{p}: the image's header declares more than {2 * Image.MAX_IMAGE_PIXELS / 1e6:.0f} Mpx; "
+            "not decoded (a damaged or forged file)"
+        ) from None
+    except (UnidentifiedImageError, ValueError, SyntaxError, struct.error, EOFError):
+        return None
+
+
+def _check_size(p: Path, size: tuple[int, int]) -> tuple[int, int]:
+    w, h = size
+    if w <= 0 or h <= 0:
+        raise InputError(f"{p}: the image's header declares {w}x{h} px (corrupt)")
+    if w * h > MAX_PIXELS:
+        raise InputError(
+            f"{p}: the image's header declares {w}x{h} px ({w * h / 1e6:.0f} Mpx), more than the "
+            f"{MAX_PIXELS / 1e6:.0f} Mpx an image may have; not decoded (a damaged or forged file)"
+        )
+    return size
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """(width, height) in pixels from the image file's header, nothing decoded; ``InputError`` naming
+    the file when it is missing, a broken link, not an image, or declares more than ``MAX_PIXELS``."""
+    p = Path(path)
+    if why := broken_link(p):
+        raise InputError(why)
+    try:
+        size = _declared(p)
+    except FileNotFoundError:
+        raise InputError(f"{p}: image file not found") from None
+    except OSError as e:
+        raise InputError(f"{p}: cannot read image ({e.strerror or e})") from None
+    if size is None:
+        raise InputError(f"{p}: cannot read the image's size (corrupt or not an image)")
+    return _check_size(p, size)
 
 
 def _decode(cv2, buf: np.ndarray) -> np.ndarray | None:  # noqa: ANN001 - the cv2 module
@@ -31,11 +145,20 @@ def read_image(path: str | Path) -> np.ndarray:
     """Read an image as (H, W, 3) uint8 BGR.
 
     Gray images are promoted to three channels, an alpha channel is dropped, 16-bit images are
-    scaled to 8 bits (value / 257). Missing, empty or undecodable files raise ``InputError``.
+    scaled to 8 bits (value / 257). Missing, empty or undecodable files, broken links and files
+    whose header declares more than ``MAX_PIXELS`` (checked before decoding) raise ``InputError``.
     """
     import cv2
 
     p = Path(path)
+    if why := broken_link(p):
+        raise InputError(why)
+    try:
+        size = _declared(p)
+    except OSError:
+        size = None  # the read below says why
+    if size is not None:
+        _check_size(p, size)
     try:
         buf = np.fromfile(p, dtype=np.uint8)
     except FileNotFoundError:

@@ -1,6 +1,9 @@
 """A small PLY reader/writer for point clouds: ``ascii``, ``binary_little_endian`` and
 ``binary_big_endian``; the ``vertex`` element's scalar properties x y z intensity [ring] (any
-order, extra properties ignored). Elements before ``vertex`` must have no list properties.
+order, any PLY type, extra properties ignored; names through ``io.scans``' aliases, e.g.
+CloudCompare's ``scalar_Intensity``). Elements before ``vertex`` must have no list properties;
+elements after it (faces, PCL's ``camera`` and ``range_grid``) are not read. Header comments may
+be in any encoding.
 The writer produces binary little-endian PLY with float x y z intensity, [ushort ring],
 [uchar red green blue].
 """
@@ -38,33 +41,52 @@ _PLY_TYPES = {
 }
 
 
+_MAX_LINE = 1 << 16  # bytes: no header line of a PLY file is longer
+
+
+def _header_lines(path: Path, raw: bytes) -> tuple[list[tuple[int, str]], int]:
+    """(line number, text) of the header lines between ``ply`` and ``end_header`` that are not
+    comments, and the data offset. Byte-safe: ``comment`` and ``obj_info`` lines (free text in any
+    encoding: CloudCompare, MATLAB, file names) are skipped before anything is decoded; CR line
+    ends, blank lines and runs of spaces or tabs are accepted."""
+    lines: list[tuple[int, str]] = []
+    pos, lineno = 0, 0
+    while True:
+        end = raw.find(b"\n", pos, pos + _MAX_LINE)
+        if end < 0:
+            raise InputError(f"{path}: PLY header has no end_header line (truncated?)")
+        lineno += 1
+        line = raw[pos:end].strip()
+        pos = end + 1
+        if lineno == 1:
+            if line != b"ply":
+                raise InputError(f"{path}: not a PLY file (does not start with 'ply')")
+            continue
+        if line == b"end_header":
+            return lines, pos
+        if not line or line.split(None, 1)[0] in (b"comment", b"obj_info"):
+            continue
+        try:
+            lines.append((lineno, line.decode("ascii")))
+        except UnicodeDecodeError:
+            raise InputError(f"{path}: PLY header line {lineno} is neither a comment nor text") from None
+
+
 def _header(path: Path, raw: bytes) -> tuple[str, list[tuple[str, int, list[tuple[str, str]], bool]], int]:
     """(format, elements [(name, count, [(prop, type)], has_list)], data offset)."""
-    if not raw.startswith(b"ply"):
-        raise InputError(f"{path}: not a PLY file (does not start with 'ply')")
-    end = raw.find(b"end_header")
-    if end < 0:
-        raise InputError(f"{path}: PLY header has no end_header line (truncated?)")
-    nl = raw.find(b"\n", end)
-    start = len(raw) if nl < 0 else nl + 1
-    try:
-        lines = raw[:end].decode("ascii").splitlines()
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: PLY header is not ASCII text") from None
+    lines, start = _header_lines(path, raw)
     fmt = ""
     elements: list[tuple[str, int, list[tuple[str, str]], bool]] = []
-    for ln in lines[1:]:
+    for lineno, ln in lines:
         tok = ln.split()
-        if not tok or tok[0] in ("comment", "obj_info"):
-            continue
         if tok[0] == "format" and len(tok) >= 2:
             fmt = tok[1]
         elif tok[0] == "element" and len(tok) == 3:
             try:
                 elements.append((tok[1], int(tok[2]), [], False))
             except ValueError:
-                raise InputError(f"{path}: bad PLY element line {ln!r}") from None
-        elif tok[0] == "property" and elements:
+                raise InputError(f"{path}: bad PLY element line {lineno} {ln!r}") from None
+        elif tok[0] == "property" and elements and len(tok) >= 3:
             name, count, props, has_list = elements[-1]
             if tok[1] == "list":
                 elements[-1] = (name, count, props, True)
@@ -72,9 +94,9 @@ def _header(path: Path, raw: bytes) -> tuple[str, list[tuple[str, int, list[tupl
             elif len(tok) == 3 and tok[1] in _PLY_TYPES:
                 props.append((tok[2], _PLY_TYPES[tok[1]]))
             else:
-                raise InputError(f"{path}: unsupported PLY property line {ln!r}")
+                raise InputError(f"{path}: unsupported PLY property line {lineno} {ln!r}")
         else:
-            raise InputError(f"{path}: unexpected PLY header line {ln!r}")
+            raise InputError(f"{path}: unexpected PLY header line {lineno} {ln!r}")
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise InputError(
             f"{path}: unsupported PLY format {fmt!r}; expected ascii or binary_little/big_endian"
@@ -117,8 +139,8 @@ def read_ply(path: Path, intensity_column: int | None = None) -> Scan:
         except ValueError as e:
             raise InputError(f"{path}: non-numeric value in ascii PLY data ({e})") from None
 
-        def col(k: str) -> np.ndarray:
-            return table[:, idx[k]]  # type: ignore[index]
+        def col(k: str) -> np.ndarray:  # the value as its declared type holds it (float text -> float32)
+            return table[:, idx[k]].astype(props[idx[k]][1])  # type: ignore[index]
     else:
         order = "<" if fmt == "binary_little_endian" else ">"
         offset = start

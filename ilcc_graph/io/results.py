@@ -8,7 +8,8 @@ when a file of the frame could not be read,
 ``rms_bearing_error_mrad``, then ``T_lidar_board`` (4x4, the LiDAR stage's) and
 ``T_lidar_board_refined`` (4x4, the estimation core's) when known), then ``method``,
 ``diagnostics``, ``camera`` (the camera model in our config schema, so that exports need nothing
-else) and, when the graph estimated the sensors' own errors, ``sensor_errors`` (``lidar``: per term
+else) and ``sensor_errors`` (``model``: the sensor model chosen, how, and each candidate's
+held-out score and weight; when the graph estimated the sensors' own errors, ``lidar``: per term
 its value and sigma, mm for range terms, and the terms left out with the reason;
 ``camera_intrinsics``: stated, refined, sigma; ``effect_on_extrinsic``: what each group moved the
 extrinsic). With the LiDAR's errors estimated, ``lidar_corners`` are the refined board's corners
@@ -107,6 +108,8 @@ def calibration_to_dict(cal: Calibration) -> dict[str, Any]:
 def _sensors_dict(sensors: dict[str, Any]) -> dict[str, Any]:
     """``sensor_errors`` of calibration.yaml: per term its value and sigma (mm for range terms)."""
     out: dict[str, Any] = {}
+    if sensors.get("model"):  # the sensor model chosen and the evidence (estimation.selection)
+        out["model"] = sensors["model"]
     lid = sensors.get("lidar_errors")
     if lid is not None:
         terms = {}
@@ -154,6 +157,10 @@ def _sensors_from_dict(src: str, d: Any) -> dict[str, Any]:
         raise InputError(f"{src}: sensor_errors must be a mapping")
     out: dict[str, Any] = {}
     try:
+        if d.get("model") is not None:
+            if not isinstance(d["model"], dict) or "chosen" not in d["model"]:
+                raise InputError(f"{src}: sensor_errors.model must be a mapping with 'chosen'")
+            out["model"] = d["model"]
         lid = d.get("lidar")
         if lid is not None:
             names, values, sigmas, elev = [], [], [], {}

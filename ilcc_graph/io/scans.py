@@ -1,9 +1,10 @@
 """Point-cloud readers picked by file extension, and the checks every reader shares.
 
 ``read_scan(path)`` dispatches on the suffix through a small registry (``@reader(".pcd")``).
-Formats are described in interface.md; field names are matched case-insensitively with a few
-common aliases (``laser_id`` for ``ring``, VeloView's ``Points:0`` for ``x``, CloudCompare's
-``scalar_Intensity`` for ``intensity``).
+Formats are described in interface.md; field names are matched case-insensitively, without a
+trailing unit in parentheses (ouster-cli's ``X1 (m)``), with a few common aliases (``laser_id``
+for ``ring``, VeloView's ``Points:0`` for ``x``, CloudCompare's ``scalar_Intensity`` for
+``intensity``).
 
 Rows whose x, y, z or intensity is not finite are dropped (Velodyne drivers write NaN for "no
 return"), and so are points exactly at the origin (Ouster's organised clouds write (0, 0, 0) for
@@ -13,6 +14,7 @@ return"), and so are points exactly at the origin (Ouster's organised clouds wri
 from __future__ import annotations
 
 import io
+import re
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -28,12 +30,22 @@ _READERS: dict[str, ReadFn] = {}
 
 #: canonical field -> accepted names (lower case)
 FIELD_ALIASES: dict[str, tuple[str, ...]] = {
-    "x": ("x", "points:0", "points_m_xyz:0", "point:0"),
-    "y": ("y", "points:1", "points_m_xyz:1", "point:1"),
-    "z": ("z", "points:2", "points_m_xyz:2", "point:2"),
-    "intensity": ("intensity", "scalar_intensity", "reflectance", "reflectivity", "signal", "i"),
-    "ring": ("ring", "laser_id", "scalar_ring", "scalar_laser_id", "ring_id"),
+    "x": ("x", "points:0", "points_m_xyz:0", "point:0", "x1"),
+    "y": ("y", "points:1", "points_m_xyz:1", "point:1", "y1"),
+    "z": ("z", "points:2", "points_m_xyz:2", "point:2", "z1"),
+    "intensity": (
+        "intensity",
+        "scalar_intensity",
+        "reflectance",
+        "scalar_reflectance",
+        "reflectivity",
+        "scalar_reflectivity",
+        "signal",
+        "i",
+    ),
+    "ring": ("ring", "laser_id", "scalar_ring", "scalar_laser_id", "ring_id", "row"),
 }
+_UNIT = re.compile(r"\s*\([^()]*\)$")  # a trailing unit, as in ouster-cli's "X1 (m)"
 
 
 def reader(*suffixes: str) -> Callable[[ReadFn], ReadFn]:
@@ -77,7 +89,7 @@ def read_scan(path: str | Path, intensity_column: int | None = None) -> Scan:
 
 def find_fields(path: Path, names: Sequence[str], need_intensity: bool = True) -> dict[str, int | None]:
     """Indices of x, y, z, intensity (and ring, or None) among ``names``; InputError if missing."""
-    low = [str(n).strip().strip('"').strip("'").lower() for n in names]
+    low = [_UNIT.sub("", str(n).strip().strip('"').strip("'")).lower() for n in names]
     found: dict[str, int | None] = {}
     for key, aliases in FIELD_ALIASES.items():
         idx = next((low.index(a) for a in aliases if a in low), None)
@@ -144,7 +156,7 @@ def read_kitti_bin(path: Path, intensity_column: int | None = None) -> Scan:
     return make_scan(path, a[:, :3], a[:, 3], None)
 
 
-# --------------------------------------------------------------------------- ILCC / VeloView CSV
+# --------------------------------------------------------------------------- CSV of many tools
 def _is_number(tok: str) -> bool:
     try:
         float(tok)
@@ -153,21 +165,51 @@ def _is_number(tok: str) -> bool:
     return True
 
 
+def _split(line: str, sep: str | None) -> list[str]:
+    return [t.strip() for t in line.split(sep)]
+
+
+def _csv_layout(path: Path, lines: list[str]) -> tuple[list[str] | None, list[str], str | None]:
+    """(header names or None, data lines, separator or None for spaces) of a CSV export.
+
+    Lines before the data that start with ``#`` or ``//`` are comments; the last of them names the
+    columns when the first data line is numeric and the names fit it (ouster-cli writes
+    ``# TIMESTAMP (ns), ROW, ...``, CloudCompare ``//X Y Z Intensity``, then optionally a line with
+    the point count). The separator is the first of ``,`` ``;`` tab found in the first data line,
+    else runs of spaces.
+    """
+    comments: list[str] = []
+    k = 0
+    while k < len(lines) and (not lines[k].strip() or lines[k].lstrip().startswith(("#", "//"))):
+        if lines[k].strip():
+            comments.append(lines[k].lstrip().lstrip("#/").strip())
+        k += 1
+    body = [ln for ln in lines[k:] if ln.strip()]
+    if not body:
+        raise InputError(f"{path}: the file holds no points")
+    sep = next((c for c in (",", ";", "\t") if c in body[min(1, len(body) - 1)]), None)
+    first = _split(body[0], sep)
+    if len(first) == 1 and first[0].isdigit() and len(body) > 1 and len(_split(body[1], sep)) > 1:
+        body, first = body[1:], _split(body[1], sep)  # CloudCompare's optional point-count line
+    if not all(_is_number(t) for t in first if t):
+        return first, body[1:], sep
+    if comments:
+        names = _split(comments[-1], sep)
+        if len(names) == len(first) and not all(_is_number(t) for t in names if t):
+            return names, body, sep
+    return None, body, sep
+
+
 @reader(".csv")
 def read_csv(path: Path, intensity_column: int | None = None) -> Scan:
-    """ILCC's CSV: comma-separated, a header row naming the columns (intensity found by name, else
-    at ``intensity_column``); or no header: x y z first, intensity at ``intensity_column`` (a
-    4-column file needs none)."""
-    text = path.read_text(encoding="utf-8-sig")
-    lines = text.splitlines()
-    first = next((i for i, ln in enumerate(lines) if ln.strip()), None)
-    if first is None:
-        raise InputError(f"{path}: the file holds no points")
-    head = [t.strip() for t in lines[first].split(",")]
-    has_header = not all(_is_number(t) for t in head if t)
-    body_lines = [ln for ln in lines[first + 1 if has_header else first :] if ln.strip()]
-    ncols = len(head)
-    if has_header:
+    """A CSV export: a header row naming the columns (ILCC's and VeloView's ``Points:0,...``,
+    LidarView's ``"Points_m_XYZ:0",...``, ouster-cli's commented ``X1 (m)``, CloudCompare's
+    ``//X,Y,Z,Intensity``; intensity found by name, else at ``intensity_column``), or no header:
+    x y z first, intensity at ``intensity_column`` (a 4-column file needs none)."""
+    lines = path.read_bytes().decode("utf-8-sig", errors="replace").splitlines()
+    head, body_lines, sep = _csv_layout(path, lines)
+    ncols = len(head) if head is not None else len(_split(body_lines[0], sep))
+    if head is not None:
         cols = find_fields(path, head, need_intensity=intensity_column is None)
         if cols["intensity"] is None:  # header without an intensity name: use the configured column
             if not 3 <= int(intensity_column) < ncols:  # type: ignore[arg-type]
@@ -195,11 +237,11 @@ def read_csv(path: Path, intensity_column: int | None = None) -> Scan:
         want.append(cols["ring"])
     try:
         data = np.loadtxt(
-            io.StringIO("\n".join(body_lines)), delimiter=",", usecols=want, ndmin=2, dtype=np.float64
+            io.StringIO("\n".join(body_lines)), delimiter=sep, usecols=want, ndmin=2, dtype=np.float64
         )
     except ValueError as e:
         raise InputError(f"{path}: bad CSV data ({' '.join(str(e).split())})") from None
-    widths = {len(ln.split(",")) for ln in body_lines[:: max(1, len(body_lines) // 1000)]}
+    widths = {len(ln.split(sep)) for ln in body_lines[:: max(1, len(body_lines) // 1000)]}
     if widths != {ncols}:
         raise InputError(f"{path}: rows have {sorted(widths)} values, the first row has {ncols}")
     ring = data[:, 4] if cols["ring"] is not None else None

@@ -202,7 +202,11 @@ def soft_edge_refine(
         # M-estimator sandwich: A = sum psi'(r) J J^T (psi' = 1 inside the Huber threshold, 0 beyond),
         # B = sum psi(r)^2 J J^T with psi(r) = w r
         inside = (np.abs(res) <= k).astype(np.float64)
-        Ainv = np.linalg.inv((J * inside[:, None]).T @ J)
+        A = (J * inside[:, None]).T @ J
+        d = np.sqrt(np.diag(A))  # a parameter the points do not determine: no covariance (no overflow)
+        if not (np.all(d > 0) and np.linalg.cond(A / np.outer(d, d)) < 1e12):
+            raise np.linalg.LinAlgError("the fit does not determine every parameter")
+        Ainv = np.linalg.inv(A)
         G = J * (W * res)[:, None]
         cov = (Ainv @ (G.T @ G) @ Ainv)[:3, :3]
     except np.linalg.LinAlgError:

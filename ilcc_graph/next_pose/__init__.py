@@ -26,7 +26,11 @@ vertical field, at least 4 beams cross it, and it is not where a board was alrea
 each divided by the target (``target_sigma``; default 0.1 deg / 1 mm for the scale only): the
 proposal is the candidate with the smallest, then refined around it.
 
-The LiDAR's own error terms (``--lidar-errors``) are not part of the prediction.
+The new frame's noise is the one the run found (``from_calibration``, and ``check``'s running solve):
+the boards' and corners' covariances times the variance components of the sensor model it chose,
+its information divided by the final variance factor or the model's held-out factor. The LiDAR's own
+error terms (``beams``, ``range``) are not part of the prediction: a new board is predicted as a
+6-dof LiDAR pose with the component of the in-plane priors.
 """
 
 from ilcc_graph.next_pose.advisor import (
@@ -36,7 +40,9 @@ from ilcc_graph.next_pose.advisor import (
     for_run,
     frame_information,
     from_calibration,
+    held_out_factor,
     median_pixel_cov,
+    noise_scaled,
     propose,
 )
 from ilcc_graph.next_pose.geometry import Rig, beam_hits, board_outline, board_pose, in_view
@@ -56,6 +62,8 @@ __all__ = [
     "frame_information",
     "from_calibration",
     "in_view",
+    "held_out_factor",
     "median_pixel_cov",
+    "noise_scaled",
     "propose",
 ]

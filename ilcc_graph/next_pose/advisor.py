@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -21,7 +21,9 @@ __all__ = [
     "candidate_azimuths",
     "frame_information",
     "from_calibration",
+    "held_out_factor",
     "median_pixel_cov",
+    "noise_scaled",
     "propose",
 ]
 
@@ -288,6 +290,24 @@ def propose(
     return Advisor(rig, frames, noise, information_scale).propose(covariance, target_sigma)
 
 
+def noise_scaled(frames: Sequence[GraphFrame], k_board: float, k_view: float) -> list[GraphFrame]:
+    """The frames with the noise a solve found: the boards' LiDAR covariances times its board
+    component ``k_board``, the corners' pixel covariances times its bearing component ``k_view``."""
+    kb, kv = max(float(k_board), 1e-12), max(float(k_view), 1e-12)
+    return [
+        replace(f, board_cov=kb * np.asarray(f.board_cov), cov_px=kv * np.asarray(f.cov_px)) for f in frames
+    ]
+
+
+def held_out_factor(calibration: Calibration) -> float:
+    """The chosen sensor model's held-out factor (``estimation.selection``; 1 without a choice)."""
+    model = (calibration.sensors or {}).get("model") or {}
+    for c in model.get("candidates", []):
+        if c.get("name") == model.get("chosen"):
+            return float(c.get("factor", 1.0))
+    return 1.0
+
+
 def from_calibration(
     calibration: Calibration, config: Config, target_sigma: tuple[float, float] | None = None
 ) -> Proposal | None:
@@ -298,29 +318,31 @@ def from_calibration(
     LiDAR covariances and the corners' pixel covariances scaled by the run's variance components
     (on the recorded Ouster set the board priors' is about 37: unscaled, one more board promised
     the translation's sigma 22 mm -> 0.8 mm), the new frame's information divided by the final
-    variance factor."""
+    variance factor or the chosen sensor model's held-out factor, whichever is larger (the covariance
+    is the one the run reports: its sensor model's, averaged over the models when they were close)."""
     if config.lidar is None:
         return None
     diag = calibration.diagnostics
-    k_board = max(float(diag.get("variance_component_board", 1.0)), 1e-12)
-    k_view = max(float(diag.get("variance_component_bearing", 1.0)), 1e-12)
     frames = [
         GraphFrame(
             f.name,
             f.board.T_lidar_board,
-            k_board * f.board.covariance,
+            f.board.covariance,
             config.board.corners_board(),
             f.corners.bearings,
-            k_view * f.corners.cov_px,
-        )
+            f.corners.cov_px,
+        )  # fmt: skip
         for f in calibration.frames
         if f.used and f.board is not None and f.corners is not None
     ]
     if not frames:
         return None
+    frames = noise_scaled(
+        frames, diag.get("variance_component_board", 1.0), diag.get("variance_component_bearing", 1.0)
+    )
     rig = Rig(config.camera, calibration.T_cam_lidar, config.lidar, config.board)
-    vf = float(calibration.diagnostics.get("variance_factor", 1.0))
-    return Advisor(rig, frames, information_scale=max(vf, 1.0)).propose(calibration.covariance, target_sigma)
+    scale = max(float(diag.get("variance_factor", 1.0)), held_out_factor(calibration), 1.0)
+    return Advisor(rig, frames, information_scale=scale).propose(calibration.covariance, target_sigma)
 
 
 def for_run(result, target_sigma: tuple[float, float] | None = None) -> Proposal | None:  # noqa: ANN001

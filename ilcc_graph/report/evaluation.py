@@ -215,7 +215,7 @@ def evaluate_calibration(
 
 
 def evaluation_rows(ev: Evaluation) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
-    """(header, rows) of a plain-text table: one row per frame, then mean and 3 sigma."""
+    """(header, rows) of a plain-text table: one row per frame, then the mean and 3 x the SD over frames."""
     header = ("frame", "intensity mrad", "corner px", "corner mrad", "attendance", "inside/points")
 
     def f(x: float, fmt: str = ".3f") -> str:
@@ -228,7 +228,7 @@ def evaluation_rows(ev: Evaluation) -> tuple[tuple[str, ...], list[tuple[str, ..
     ]  # fmt: skip
     (im, i3), (pm, p3), (cm, c3) = ev.intensity_mrad, ev.corner_px, ev.corner_mrad
     rows.append(("mean", f(im), f(pm), f(cm), "", ""))
-    rows.append(("3 sigma", f(i3), f(p3), f(c3), "", ""))
+    rows.append(("3 x SD", f(i3), f(p3), f(c3), "", ""))
     return header, rows
 
 

@@ -25,11 +25,13 @@ from .overlays import (
     Visibility,
     colour_map,
     colour_points,
+    colour_range,
     draw_metric,
     draw_points,
     draw_reprojection,
     edge_image,
     visible_points,
+    with_colour_bar,
 )
 
 __all__ = ["FIGURES_DIR", "FigureOptions", "FrameFigures", "encode_image", "frame_figures"]
@@ -201,28 +203,34 @@ def frame_figures(
         sel, uvc = far_first[inside], uvc[inside]
         r = 2 if crop.zoom > 1 else None
         if sel.size:
+            lo, hi = colour_range(rng_lidar[sel])
+            dots = draw_points(crop.image, uvc, colour_map(rng_lidar[sel], lo, hi, "turbo"), radius=r)
             put(
                 "range",
-                draw_points(crop.image, uvc, colour_map(rng_lidar[sel], name="turbo"), radius=r),
-                "Visible LiDAR points on the image, coloured by range (blue near, red far).",
+                with_colour_bar(dots, lo, hi, "turbo", "range (m)"),
+                "Visible LiDAR points on the image, coloured by range (scale below the picture).",
+            )
+            lo, hi = colour_range(scan.intensity[sel])
+            dots = draw_points(
+                edge_image(crop.image), uvc, colour_map(scan.intensity[sel], lo, hi, "jet"), radius=r
             )
             put(
                 "edges",
-                draw_points(
-                    edge_image(crop.image), uvc, colour_map(scan.intensity[sel], name="jet"), radius=r
-                ),
-                "Visible LiDAR points on the image's edges, coloured by intensity (blue low, red high).",
+                with_colour_bar(dots, lo, hi, "jet", "intensity"),
+                "Visible LiDAR points on the image's edges, coloured by intensity (scale below the picture).",
             )
-    colours = colour_map(rng_lidar[far_first], name="turbo")
+    lo, hi = colour_range(rng_lidar[far_first])
+    colours = colour_map(rng_lidar[far_first], lo, hi, "turbo")
     whole = _whole(result, image, max_width)
     if whole is not None:
         small, f = whole
         uv_small = (vis.uv[far_first] + 0.5) * f - 0.5
         # 3x3 dots where points are sparse on the picture, single pixels where they would cover it
         sparse = small.shape[0] * small.shape[1] > 40 * max(len(far_first), 1)
+        dots = draw_points(small, uv_small, colours, radius=int(sparse))
         put(
             "whole",
-            draw_points(small, uv_small, colours, radius=int(sparse)),
+            with_colour_bar(dots, lo, hi, "turbo", "range (m)"),
             f"The whole picture (scaled by {f:.2f}) with every visible LiDAR point, coloured by range.",
         )
     full = None

@@ -63,6 +63,7 @@ def build_report(
     figures: Iterable[FrameFigures] = (),
     figure_options: FigureOptions = FigureOptions(),
     valley_study: Valley | Callable[[], Valley | None] | None = None,
+    next_pose: tuple[bytes, str] | None = None,
 ) -> dict[str, bytes]:
     """All files of the report: ``{"index.html": ..., "figures/<...>.webp|png": ...}``.
 
@@ -82,6 +83,7 @@ def build_report(
     show_valley : draw the metrics with each parameter moved alone (:func:`.studies.valley`);
         ``valley_study``: that study computed already, or a callable that gives it (e.g. a future's
         ``result`` of another process; None: computed here).
+    next_pose : (``next_pose.png``'s bytes, its advice) of the next board pose to take, or None.
     """
     T = np.asarray(calibration.T_cam_lidar, dtype=np.float64)
     files: dict[str, bytes] = {}
@@ -173,9 +175,9 @@ def build_report(
     header = [
         "over frames",
         f"used ({len(ev_used.frames)}): mean",
-        "3 sigma",
+        "3 x SD over frames",
         f"all with board and corners ({len(ev.frames)}): mean",
-        "3 sigma",
+        "3 x SD over frames",
     ]
     body.append(table(header, stat_rows))
     body.append(
@@ -197,6 +199,15 @@ def build_report(
                 "inside the gray 3-sigma band.",
             )
         )
+
+    if next_pose is not None:
+        body.append("<h2>Where to hold the board next</h2>")
+        body.append(f"<p>{esc(next_pose[1])}</p>")
+        caption = (
+            "The rig from above and from the side (LiDAR frame): the boards so far (blue, numbered) and "
+            "the proposed next pose (red); next_pose.png beside calibration.yaml."
+        )
+        body.append(figure(add("next_pose.png", next_pose[0]), caption))
 
     if curve is not None or cross_validation is not None:
         body.append("<h2>Stability</h2>")

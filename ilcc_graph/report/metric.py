@@ -148,17 +148,17 @@ class Evaluation:
 
     @property
     def intensity_mrad(self) -> tuple[float, float]:
-        """(mean, 3 sigma) over frames of the paper's metric, mrad."""
+        """(mean, 3 x SD) over frames of the paper's metric, mrad."""
         return self._stat("intensity_mrad")
 
     @property
     def corner_px(self) -> tuple[float, float]:
-        """(mean, 3 sigma) over frames of the RMS corner error, pixels."""
+        """(mean, 3 x SD) over frames of the RMS corner error, pixels."""
         return self._stat("corner_rms_px")
 
     @property
     def corner_mrad(self) -> tuple[float, float]:
-        """(mean, 3 sigma) over frames of the RMS corner bearing error, mrad."""
+        """(mean, 3 x SD) over frames of the RMS corner bearing error, mrad."""
         return self._stat("corner_rms_mrad")
 
     def by_name(self) -> dict[str, FrameEvaluation]:

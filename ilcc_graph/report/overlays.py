@@ -27,6 +27,8 @@ __all__ = [
     "downscale",
     "encode_png",
     "colour_map",
+    "colour_range",
+    "with_colour_bar",
     "edge_image",
     "splat",
     "Visibility",
@@ -139,6 +141,42 @@ def colour_map(
     bgr = (255 * rgba[:, [2, 1, 0]]).astype(np.uint8)
     bgr[~fin] = 128
     return bgr
+
+
+def colour_range(values: np.ndarray) -> tuple[float, float]:
+    """The values ``colour_map`` spans by default: their 2nd and 98th percentiles ((0, 1) without any)."""
+    v = np.asarray(values, dtype=np.float64).ravel()
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return 0.0, 1.0
+    lo, hi = np.percentile(v, [2, 98])
+    return float(lo), float(hi)
+
+
+def with_colour_bar(
+    image: np.ndarray, lo: float, hi: float, name: str, label: str, span: tuple[float, float] = (0.1, 0.92)
+) -> np.ndarray:
+    """``image`` with its colour scale below it: ``colour_map``'s colours from ``lo`` to ``hi`` (values
+    beyond take the end colours) and the values at both ends and the middle, ``label`` before them."""
+    h, w = image.shape[:2]
+    scale = max(w / 600.0, 0.5)
+    bar_h, text_h = int(round(24 * scale)), int(round(34 * scale))
+    strip = np.full((bar_h + text_h, w, 3), 255, np.uint8)
+    x0, x1 = int(0.25 * w), int(0.97 * w)
+    ramp = colour_map(np.linspace(lo, hi, max(x1 - x0, 2)), lo, hi, name, span)
+    strip[4:bar_h, x0:x1] = ramp[None, : x1 - x0]
+    font, size, thick = cv2.FONT_HERSHEY_SIMPLEX, 0.8 * scale, max(1, int(round(1.5 * scale)))
+    y = bar_h + int(0.8 * text_h)
+    cv2.putText(
+        strip, label, (int(0.02 * w), int(0.75 * bar_h) + 4), font, size, (0, 0, 0), thick, cv2.LINE_AA
+    )
+    for frac in (0.0, 0.5, 1.0):
+        text = f"{lo + frac * (hi - lo):.3g}"
+        (tw, _), _ = cv2.getTextSize(text, font, size, thick)
+        x = int(np.clip(x0 + frac * (x1 - x0) - tw / 2, 0, w - tw))
+        cv2.putText(strip, text, (x, y), font, size, (0, 0, 0), thick, cv2.LINE_AA)
+    base = image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+    return np.vstack([base, strip])
 
 
 def edge_image(image: np.ndarray, low: int = 50, high: int = 150) -> np.ndarray:

@@ -53,9 +53,9 @@ def _finite(x: np.ndarray) -> np.ndarray:
 def plot_per_frame(evaluation: Evaluation, title: str = "", used: set[str] | None = None) -> bytes:
     """Bars per frame: the paper's intensity re-projection error and the RMS corner error.
 
-    Dashed line: the mean over frames; dotted: mean + 3 sigma. Frames where no board point fell
-    inside the detected corners are marked with an x at the top; frames not in ``used`` (when
-    given) are drawn gray.
+    Dashed line: the mean over frames; dotted: mean + 3 x the standard deviation over frames.
+    Frames where no board point fell inside the detected corners are marked with an x at the top;
+    frames not in ``used`` (when given) are drawn gray.
     """
     names = [f.name for f in evaluation.frames]
     x = np.arange(len(names))
@@ -81,7 +81,7 @@ def plot_per_frame(evaluation: Evaluation, title: str = "", used: set[str] | Non
             if np.isfinite(s3):
                 a.axhline(mean + s3, ls=":", color="k", lw=1)
             what = "" if used is None else " over the used frames (gray: not used)"
-            a.set_title(f"mean {mean:.3g}, 3 sigma {s3:.3g}{what}", fontsize=9, loc="right")
+            a.set_title(f"mean {mean:.3g}, 3 x SD over frames {s3:.3g}{what}", fontsize=9, loc="right")
         a.set_ylabel(label)
         a.set_xticks(x, names, rotation=90, fontsize=8)
         a.grid(axis="y", alpha=0.3)
@@ -131,7 +131,7 @@ def plot_frames_vs_accuracy(curve: FramesCurve) -> bytes:
 
 def plot_error_vs_frames(curve: FramesCurve) -> bytes:
     """The intensity re-projection error of each estimate against the number of frames (paper
-    Fig. 14c): mean over all frames and mean + 3 sigma, and the mean over the frames not used
+    Fig. 14c): mean over all frames and mean + 3 x SD over frames, and the mean over the frames not used
     for that estimate. Log scale: early estimates may be off by orders of magnitude."""
     from matplotlib.ticker import MaxNLocator
 
@@ -140,7 +140,7 @@ def plot_error_vs_frames(curve: FramesCurve) -> bytes:
     n = curve.n_frames
     m, s3 = _finite(curve.error_mean), _finite(curve.error_3sigma)
     a.plot(n, m, "o-", ms=3, label="all frames: mean")
-    a.plot(n, m + np.nan_to_num(s3), ":", color="tab:blue", label="all frames: mean + 3 sigma")
+    a.plot(n, m + np.nan_to_num(s3), ":", color="tab:blue", label="all frames: mean + 3 x SD over frames")
     a.plot(n, _finite(curve.heldout_mean), "s--", ms=3, label="frames not used for the fit: mean")
     a.set_xlabel("frames used")
     a.set_ylabel("intensity re-projection error (mrad)")

@@ -8,7 +8,7 @@ from ..board import Board
 from ..cameras import CameraModel
 from .plots import _figure, _png
 
-__all__ = ["plot_next_pose"]
+__all__ = ["next_pose_png", "plot_next_pose"]
 
 
 def _corners(board: Board, T: np.ndarray) -> np.ndarray:
@@ -93,3 +93,19 @@ def plot_next_pose(
     if caption:
         fig.suptitle(caption, fontsize=9)
     return _png(fig)
+
+
+def next_pose_png(proposal) -> bytes:  # noqa: ANN001 - next_pose.Proposal
+    """``next_pose.png``: the rig from above and the side with the boards so far and the proposal."""
+    import textwrap
+
+    rig = proposal.rig
+    return plot_next_pose(
+        rig.board,
+        proposal.boards,
+        proposal.T_lidar_board,
+        rig.T_cam_lidar,
+        rig.camera,
+        rig.lidar.vertical_angles_deg,
+        "\n".join(textwrap.wrap(proposal.describe(), 150)),
+    )

@@ -7,11 +7,12 @@ import html
 import math
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from ..cameras import make_camera
 from ..types import Calibration
 from .metric import Evaluation, FrameEvaluation
 from .studies import pose_difference
+from .summary import camera_in_lidar, lidar_in_camera
 from .text import lidar_frame_note
 
 __all__ = ["CHI2_6DOF_3SIGMA", "CSS", "GALLERY_NOTE", "TABLE_NOTE", "esc", "figure", "frame_rows", "num",
@@ -114,28 +115,57 @@ def _sigmas(cov: np.ndarray) -> np.ndarray:
     return np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
 
+def _pm(v: float, s: float, fmt: str) -> str:
+    return format(v, fmt) + ("" if not math.isfinite(s) else f" ± {format(s, fmt.lstrip('+'))}")
+
+
 def transform_section(cal: Calibration, T_gt: np.ndarray | None) -> tuple[str, str | None]:
+    """The result (the matrix; the camera's pose in the LiDAR frame and the LiDAR's in the camera
+    frame, 1-sigma beside each value, as ``summary`` prints them) and, with a ground truth, its verdict."""
     T = np.asarray(cal.T_cam_lidar, dtype=np.float64)
     s = _sigmas(cal.covariance)
-    rotvec = np.degrees(Rotation.from_matrix(T[:3, :3]).as_rotvec())
-    ypr = Rotation.from_matrix(T[:3, :3]).as_euler("ZYX", degrees=True)
+    try:
+        camera = make_camera(cal.camera) if cal.camera is not None else None
+    except ValueError:
+        camera = None
+    R_flu_cam = np.eye(3) if camera is None else camera.R_flu_cam
+    axes = "its own axes" if camera is None else camera.axes
+    p, ps, ang, angs = camera_in_lidar(T, cal.covariance, R_flu_cam)
+    q, qs, angle, axis, rs = lidar_in_camera(T, cal.covariance)
     mat = "<br>".join(" ".join(f"{v: .6f}" for v in row) for row in T)
+    rot = f"{angle:.3f} deg about ({', '.join(f'{a:+.3f}' for a in axis)})"
+    if np.all(np.isfinite(rs)):
+        rot += f", ± {rs[0]:.4f} {rs[1]:.4f} {rs[2]:.4f} deg about the camera's x, y, z"
     parts = [
         "<p><code>T_cam_lidar</code> maps LiDAR points into the camera frame: "
         "<code>p_cam = R p_lidar + t</code>.</p>",
         f"<pre>{mat}</pre>",
         table(
-            ["", "x", "y", "z"],
+            ["position (mm), ± 1 sigma", "x", "y", "z"],
             [
-                ["t (mm)"] + [num(1000 * v, ".1f") for v in T[:3, 3]],
-                ["rotation vector (deg)"] + [num(v, ".3f") for v in rotvec],
-                ["yaw, pitch, roll (Z-Y-X, deg)"] + [num(v, ".3f") for v in ypr],
-                ["1 sigma rotation (deg)"] + [num(math.degrees(v), ".4f") for v in s[:3]],
-                ["1 sigma translation (mm)"] + [num(1000 * v, ".2f") for v in s[3:]],
+                ["the camera in the LiDAR frame (x forward, y left, z up)"]
+                + [_pm(v, e, "+.2f") for v, e in zip(p, ps)],
+                [f"the LiDAR in the camera frame ({esc(axes)})"] + [_pm(v, e, "+.2f") for v, e in zip(q, qs)],
             ],
         ),
-        '<p class="note">Sigmas are the square roots of the covariance diagonal, in GTSAM\'s convention '
-        "(<code>T_true = T_est * Exp(xi)</code>, xi = rotation then translation, in the LiDAR frame).</p>",
+        table(
+            [
+                "the camera's view in the LiDAR frame (deg), ± 1 sigma",
+                "azimuth (+ left of x)",
+                "elevation (+ up)",
+                "roll about it (+ clockwise seen from behind)",
+            ],
+            [
+                ["viewing direction (optical axis; a panorama's centre column)"]
+                + [_pm(v, e, "+.4f") for v, e in zip(ang, angs)]
+            ],
+        ),  # fmt: skip
+        f"<p>The rotation of <code>T_cam_lidar</code>: {rot}.</p>",
+        '<p class="note">No Euler angles of <code>T_cam_lidar</code>: a lens camera\'s frame is turned 90 '
+        "degrees from the LiDAR's, where roll-pitch-yaw sit at gimbal lock. Every 1-sigma is propagated "
+        "from the covariance in GTSAM's convention (<code>T_true = T_est * Exp(xi)</code>, xi = rotation "
+        "then translation, in the LiDAR frame); its square roots of the diagonal are in calibration.yaml "
+        "(<code>sigma</code>).</p>",
     ]
     verdict = None
     if T_gt is not None:
@@ -265,7 +295,7 @@ def summary_verdict(cal: Calibration, ev: Evaluation, odd: list[str], expected: 
     pm, _ = ev.corner_px
     msg = (
         f"{n_used} of {len(cal.frames)} frames used. Corner re-projection error {num(pm)} px "
-        f"({num(cm)} mrad) on average over the used frames (3 sigma {num(c3)} mrad)"
+        f"({num(cm)} mrad) on average over the used frames (3 x SD over frames {num(c3)} mrad)"
     )
     used = {f.name for f in cal.frames if f.used}
     exp = np.array([v for n, v in expected.items() if n in used and np.isfinite(v)])
@@ -282,7 +312,7 @@ def summary_verdict(cal: Calibration, ev: Evaluation, odd: list[str], expected: 
                 else ""
             )
         )
-    msg += f". The paper's intensity re-projection error: {num(im)} mrad (3 sigma {num(i3)})."
+    msg += f". The paper's intensity re-projection error: {num(im)} mrad (3 x SD over frames {num(i3)})."
     if odd:
         msg += (
             f" Frame(s) {', '.join(esc(n) for n in odd)} stand out from the others: see their pictures below."

@@ -14,9 +14,10 @@ from typing import Any
 import numpy as np
 
 from ..estimation.effects import SQUARE_SIZE_KEY
+from ..estimation.selection import Selection
 from ..types import Calibration
 
-__all__ = ["sensors_html", "sensors_text", "square_size_text"]
+__all__ = ["model_text", "sensors_html", "sensors_text", "square_size_text"]
 
 _GROUPS = {
     "lidar_errors": "LiDAR error terms (held at zero)",
@@ -64,7 +65,7 @@ def _html_table(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> str:
 def sensors_html(cal: Calibration) -> str:
     """The report's section on the sensors' own errors ("" when the graph estimated none)."""
     sensors = cal.sensors or {}
-    parts: list[str] = []
+    parts: list[str] = [f"<p>{_e(line)}</p>"] if (line := model_text(cal)) else []
     lid = sensors.get("lidar_errors")
     if lid is not None:
         if lid["names"]:
@@ -130,10 +131,17 @@ def board_plane_text(bp: dict) -> str:
     return f"{'; '.join(parts)} ({how}){note}"
 
 
+def model_text(cal: Calibration) -> str:
+    """One line: the sensor model chosen and the evidence ("" when the run chose none)."""
+    model = (cal.sensors or {}).get("model")
+    return "" if not model else Selection.from_dict(model).summary()
+
+
 def sensors_text(cal: Calibration) -> str:
-    """A few lines for the terminal ("" when the graph estimated none)."""
+    """A few lines for the terminal: the sensor model chosen, the sensors' own errors ("" when
+    neither)."""
     sensors = cal.sensors or {}
-    lines: list[str] = []
+    lines: list[str] = [line] if (line := model_text(cal)) else []
     lid = sensors.get("lidar_errors")
     if lid is not None and lid["names"]:
         names = list(lid["names"])

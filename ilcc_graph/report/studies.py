@@ -20,6 +20,7 @@ from scipy.spatial.transform import Rotation
 
 from ..board import Board
 from ..cameras import CameraModel
+from ..errors import CalibrationImpossible, IndeterminateSystem
 from ..types import FrameResult
 from .evaluation import eval_frame, evaluate
 from .metric import EvalFrame, Evaluation, FrameEvaluation
@@ -60,7 +61,9 @@ def usable_frames(observed: Sequence[FrameResult]) -> list[FrameResult]:
 def _try_solve(solve: Solver, frames: Sequence[FrameResult]) -> tuple[np.ndarray, np.ndarray] | str:
     try:
         T, cov = solve(frames)
-    except Exception as err:  # noqa: BLE001 - any solver failure is a result of the study
+    except (CalibrationImpossible, IndeterminateSystem) as err:  # the solver refused: its message says why
+        return str(err)
+    except Exception as err:  # noqa: BLE001 - any other failure is a result of the study too, named
         return f"{type(err).__name__}: {err}"
     return np.asarray(T, dtype=np.float64), np.asarray(cov, dtype=np.float64)
 
@@ -170,7 +173,7 @@ class FramesCurve:
     offset: (L, 6) pose difference of each estimate from ``T_ref`` (rad, m).
     sigma: (L, 6) square roots of each estimate's covariance diagonal (rad, m; NaN if none).
     error_mean, error_3sigma: (L,) the intensity re-projection error (mrad) of each estimate on
-        all usable frames: mean and 3 sigma over frames.
+        all usable frames: mean and 3 x SD over frames.
     heldout_mean: (L,) its mean over the frames not used for that estimate (NaN at n = N).
     corner_mrad_mean: (L,) mean RMS corner bearing error on all frames.
     T_ref: the reference (ground truth when given, else the estimate with the most frames).

@@ -1,16 +1,14 @@
-"""What the command line prints: tables and summaries as plain strings (no printing here)."""
+"""What the command line prints: tables and lines as plain strings (no printing here; the closing
+summary of ``calibrate`` is ``summary``)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-import numpy as np
-
 from ..estimation.incremental import FrameUpdate
 from ..estimation.sessions import JointSolution
 from ..lidar.outline import BEYOND_FOV_SHARE
 from ..types import BoardFit, Calibration, Estimate, sigmas_deg_mm
-from .sensors import sensors_text, square_size_text
 
 __all__ = [
     "STAGE_HEADERS",
@@ -19,13 +17,10 @@ __all__ = [
     "format_joint",
     "format_table",
     "format_update",
-    "frames_table",
     "lidar_frame_note",
     "lidar_view_lines",
-    "run_summary",
     "short_reason",
     "stage_table",
-    "summarise",
 ]
 
 #: the columns of the stage commands' tables (rows from ``outputs.write_stage``)
@@ -44,62 +39,6 @@ def format_table(rows: Sequence[Sequence[object]], header: Sequence[str]) -> str
         lines.append("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
         if j == 0:
             lines.append("  ".join("-" * w for w in widths))
-    return "\n".join(lines)
-
-
-def frames_table(cal: Calibration) -> str:
-    """Per frame: used, RMS bearing error, and why it was dropped."""
-    rows = []
-    for f in cal.frames:
-        rms = "" if f.rms_bearing_error_mrad is None else f"{f.rms_bearing_error_mrad:.3f}"
-        rows.append((f.name, "yes" if f.used else "no", rms, f.reason or ""))
-    return format_table(rows, ("frame", "used", "rms mrad", "reason"))
-
-
-def summarise(T: np.ndarray, cov: np.ndarray, truth: np.ndarray | None = None) -> str:
-    """An extrinsic for a person: matrix, roll/pitch/yaw, translation, 1-sigma values, and, when a
-    truth is given, the truth beside each value and the error."""
-    import gtsam
-
-    pose = gtsam.Pose3(T)
-    rpy = np.degrees(pose.rotation().rpy())
-    sig = sigmas_deg_mm(cov)
-    has_cov = bool(np.all(np.isfinite(sig)))
-    true_rpy = true_t = None
-    if truth is not None:
-        true_rpy = np.degrees(gtsam.Pose3(truth).rotation().rpy())
-        true_t = 1e3 * np.asarray(truth)[:3, 3]
-
-    def row(name: str, value: float, s: float, true: float | None, fmt: str) -> str:
-        text = f"  {name:5s} {value:{fmt}}"
-        if has_cov:
-            text += f"   sigma {s:.4f}" if fmt.endswith("4f") else f"   sigma {s:.2f}"
-        if true is not None:
-            text += f"   truth {true:{fmt}}"
-        return text
-
-    lines = ["T_cam_lidar (p_cam = R p_lidar + t):"]
-    lines += ["  [" + "  ".join(f"{v:+.6f}" for v in row_) + "]" for row_ in T]
-    if has_cov:
-        lines.append("rotation (deg, Rz(yaw) Ry(pitch) Rx(roll)); 1-sigma about the body axes rx, ry, rz:")
-    else:
-        lines.append(
-            "rotation (deg, Rz(yaw) Ry(pitch) Rx(roll)); no covariance (the paper's refinement gives none):"
-        )
-    for i, name in enumerate(("roll", "pitch", "yaw")):
-        lines.append(row(name, rpy[i], sig[i], None if true_rpy is None else true_rpy[i], "+10.4f"))
-    lines.append("translation (mm):")
-    for i, name in enumerate("xyz"):
-        lines.append(row(name, 1e3 * T[i, 3], sig[3 + i], None if true_t is None else true_t[i], "+10.2f"))
-    if truth is not None:
-        err = gtsam.Pose3(truth).between(pose)  # T_true^-1 T_est
-        rot = np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(err.rotation())))
-        trans = 1e3 * np.linalg.norm(T[:3, 3] - truth[:3, 3])
-        lines.append(f"against the truth: rotation error {rot:.4f} deg, translation error {trans:.2f} mm")
-        if has_cov:
-            xi = gtsam.Pose3.Logmap(pose.between(gtsam.Pose3(truth)))  # T_true = T_est Exp(xi)
-            nees = float(xi @ np.linalg.solve(cov, xi))
-            lines.append(f"  NEES {nees:.2f} (chi-square, 6 dof: 95 % of runs below 12.6)")
     return "\n".join(lines)
 
 
@@ -156,73 +95,6 @@ def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = Non
     return f"{head}  {body}"
 
 
-def run_summary(
-    cal: Calibration,
-    joint: JointSolution | None,
-    truth: np.ndarray | None,
-    out: object,
-    seconds: tuple[float, float],
-    report: bool,
-    notes: Sequence[str] = (),
-) -> str:
-    """What ``calibrate`` prints: the frames, the sessions' tests, the extrinsic, the sensors' own
-    error terms, the frame count (and the damaged files), and where the result went. seconds:
-    (calibrating, writing)."""
-    parts = [frames_table(cal), ""]
-    if joint is not None:
-        parts += [format_joint(joint), ""]
-    parts.append(summarise(cal.T_cam_lidar, cal.covariance, truth))
-    if sensor_lines := sensors_text(cal):
-        parts.append(sensor_lines)
-    if scale_line := square_size_text(cal):
-        parts.append(scale_line)
-    parts += lidar_view_lines(cal)
-    if (vf := cal.diagnostics.get("variance_factor", 1.0)) > 1.0:
-        parts.append(
-            f"  (the residuals are {vf:.2f} x the stated noise variance: sigmas x {np.sqrt(vf):.2f})"
-        )
-    n_used = sum(f.used for f in cal.frames)
-    damaged = sum(f.damaged for f in cal.frames)
-    what = "calibration.yaml and the report" if report else "calibration.yaml"
-    hurt = f" ({damaged} skipped for damaged files)" if damaged else ""
-    parts.append(
-        f"\n{n_used} of {len(cal.frames)} frames used{hurt}; calibrated in {seconds[0]:.1f} s; "
-        f"wrote {what} to {out} ({seconds[1]:.1f} s)"
-    )
-    parts += list(notes)
-    return "\n".join(parts)
-
-
-def _names(names: Sequence[str], limit: int = 6) -> str:
-    return ", ".join(names[:limit]) + (f" and {len(names) - limit} more" if len(names) > limit else "")
-
-
-def lidar_frame_note(board: BoardFit | None, beyond: float = BEYOND_FOV_SHARE) -> str | None:
-    """How the LiDAR saw one frame's board, when worth a note in the report: placed by its outline
-    (no print in the intensity), partly beyond the beams' field."""
-    if board is None:
-        return None
-    d = board.diagnostics
-    notes = ["placed by its outline (no print in the LiDAR intensity)"] * bool(d.get("no_contrast"))
-    if (share := d.get("outside_fov_share", 0.0)) > beyond:
-        notes.append(f"{share:.0%} of the board beyond the LiDAR's field of view (not used)")
-    return "; ".join(notes) or None
-
-
-def lidar_view_lines(cal: Calibration, beyond: float = BEYOND_FOV_SHARE) -> list[str]:
-    """Lines on how the LiDAR saw the used boards: fitted by their outline alone (no print in its
-    intensity), partly beyond its field of view (more than ``beyond`` of the board's area)."""
-    used = [f for f in cal.frames if f.used and f.board is not None]
-    plain = [f.name for f in used if f.board.diagnostics.get("no_contrast")]  # type: ignore[union-attr]
-    out = [f.name for f in used if f.board.diagnostics.get("outside_fov_share", 0.0) > beyond]  # type: ignore[union-attr]
-    lines = []
-    if plain:
-        lines.append(f"  boards placed by their outline (no print in the LiDAR intensity): {_names(plain)}")
-    if out:
-        lines.append(f"  boards partly beyond the LiDAR's field of view (that part unused): {_names(out)}")
-    return lines
-
-
 def stage_table(
     stage: str, rows: Sequence[Sequence[object]], skipped: Sequence[tuple[str, str]], out: object
 ) -> str:
@@ -245,14 +117,17 @@ def evaluation_text(
 
 def short_reason(text: str, limit: int = 90) -> str:
     """A reason cut to its first clause (before the first ``"; "`` or ``". "``), at most ``limit``
-    characters."""
+    characters (cut at a word when it is longer)."""
     text = " ".join(str(text).split())
     for sep in ("; ", ". "):
         head = text.split(sep)[0]
         if len(head) >= 20:
             text = head
             break
-    return text if len(text) <= limit else text[: limit - 3].rstrip() + "..."
+    if len(text) <= limit:
+        return text
+    head = text[: limit - 3]
+    return (head.rsplit(" ", 1)[0] if " " in head[limit // 2 :] else head).rstrip(" ,;:") + "..."
 
 
 def failure_table(frames: Sequence[tuple[str, str, str]], limit: int = 90, max_rows: int = 40) -> str:
@@ -263,3 +138,33 @@ def failure_table(frames: Sequence[tuple[str, str, str]], limit: int = 90, max_r
     if len(frames) > max_rows:
         text += f"\n... and {len(frames) - max_rows} more"
     return text
+
+
+def _names(names: Sequence[str], limit: int = 6) -> str:
+    return ", ".join(names[:limit]) + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
+def lidar_frame_note(board: BoardFit | None, beyond: float = BEYOND_FOV_SHARE) -> str | None:
+    """How the LiDAR saw one frame's board, when worth a note in the report: placed by its outline
+    (no print in the intensity), partly beyond the beams' field."""
+    if board is None:
+        return None
+    d = board.diagnostics
+    notes = ["placed by its outline (no print in the LiDAR intensity)"] * bool(d.get("no_contrast"))
+    if (share := d.get("outside_fov_share", 0.0)) > beyond:
+        notes.append(f"{share:.0%} of the board beyond the LiDAR's field of view (not used)")
+    return "; ".join(notes) or None
+
+
+def lidar_view_lines(cal: Calibration, beyond: float = BEYOND_FOV_SHARE) -> list[str]:
+    """Lines on how the LiDAR saw the used boards: placed by their outline alone (no print in its
+    intensity), partly beyond its field of view (more than ``beyond`` of the board's area)."""
+    used = [f for f in cal.frames if f.used and f.board is not None]
+    plain = [f.name for f in used if f.board.diagnostics.get("no_contrast")]  # type: ignore[union-attr]
+    out = [f.name for f in used if f.board.diagnostics.get("outside_fov_share", 0.0) > beyond]  # type: ignore[union-attr]
+    lines = []
+    if plain:
+        lines.append(f"boards placed by their outline (no print in the LiDAR intensity): {_names(plain)}")
+    if out:
+        lines.append(f"boards partly beyond the LiDAR's field of view (that part unused): {_names(out)}")
+    return lines

@@ -34,7 +34,7 @@ from .placements import board_placements, frame_scene
 from .render import ImageRenderer
 from .spec import SimulationSpec
 
-__all__ = ["RosMessages", "WalkAndPause", "bag_frame_name", "simulate_walk", "write_bag"]
+__all__ = ["RosMessages", "WalkAndPause", "bag_frame_name", "simulate_walk", "walk_poses", "write_bag"]
 
 STORAGES = ("ros1", "sqlite3", "mcap")
 IMAGE_FORMATS = ("bgr8", "png", "jpeg", "none")
@@ -59,7 +59,13 @@ def bag_frame_name(t_ns: int, start_ns: int) -> str:
 
 def _timeline(spec: SimulationSpec, walk: WalkAndPause, rate_hz: float) -> list[tuple[np.ndarray, int, bool]]:
     """(T_lidar_board, placement index for the scene's clutter, still) per scan."""
-    poses = board_placements(spec)
+    return walk_poses(board_placements(spec), walk, rate_hz)
+
+
+def walk_poses(
+    poses: Sequence[np.ndarray], walk: WalkAndPause, rate_hz: float
+) -> list[tuple[np.ndarray, int, bool]]:
+    """(board pose, placement index for the scene's clutter, still) per scan of a walk through ``poses``."""
     n_pause, n_move = max(1, round(walk.pause_s * rate_hz)), max(1, round(walk.move_s * rate_hz))
     out = []
     for k, T in enumerate(poses):

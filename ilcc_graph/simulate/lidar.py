@@ -138,10 +138,18 @@ def _footprint_colour(
     return total / np.maximum(count, 1)
 
 
-def simulate_scan(spec: SimulationSpec, scene: Scene, frame: int, biases: np.ndarray | None = None) -> Scan:
+def simulate_scan(
+    spec: SimulationSpec,
+    scene: Scene,
+    frame: int,
+    biases: np.ndarray | None = None,
+    T_scene_lidar: np.ndarray | None = None,
+) -> Scan:
     """One scan of ``scene`` from the LiDAR origin; random streams keyed by (seed, frame).
 
-    Returns a :class:`Scan` with points (N, 3) LiDAR frame, intensity (N,), ring (N,) int32.
+    T_scene_lidar: (4, 4) the LiDAR's pose in the scene's frame (a rig's second LiDAR); None: the
+    scene is in the LiDAR's frame. Returns a :class:`Scan` with points (N, 3) LiDAR frame,
+    intensity (N,), ring (N,) int32.
     """
     model, sy = spec.lidar_model, spec.systematics
     streams = [frame_rng(spec.seed, PURPOSE_FRAME, frame, 1, k) for k in range(4)]
@@ -152,7 +160,9 @@ def simulate_scan(spec: SimulationSpec, scene: Scene, frame: int, biases: np.nda
     else:
         d, ring = _beam_directions(model, phase)
     n = len(d)
-    hits = cast_rays(scene, np.zeros(3), d)
+    if T_scene_lidar is not None:  # cast in the scene's frame from the LiDAR's origin
+        d = d @ T_scene_lidar[:3, :3].T
+    hits = cast_rays(scene, np.zeros(3) if T_scene_lidar is None else T_scene_lidar[:3, 3], d)
     t = hits.t
     board = hits.surface == SURF_BOARD
     # draw everything for every beam so the switches do not shift each other's numbers
@@ -187,6 +197,8 @@ def simulate_scan(spec: SimulationSpec, scene: Scene, frame: int, biases: np.nda
         height = delta + alpha * xy[:, 0] + beta * xy[:, 1]
         extra[board] -= height / np.maximum(cos_inc[board], 0.05)
     p += d * extra[:, None]
+    if T_scene_lidar is not None:  # offsets from the origin, back into the LiDAR's frame
+        p = p @ T_scene_lidar[:3, :3]
 
     # intensity
     level = np.zeros(n)

@@ -23,10 +23,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..board import Board
 from .scene import SURF_PERSON, SURF_POLE, Box, Scene, cast_rays
 from .spec import SimulationSpec
 
-__all__ = ["board_placements", "frame_scene", "static_scene", "frame_rng", "camera_centre_lidar"]
+__all__ = [
+    "board_placements",
+    "frame_scene",
+    "static_scene",
+    "frame_rng",
+    "camera_centre_lidar",
+    "pose_facing",
+]
 
 # stream keys for np.random.SeedSequence(seed, spawn_key=(purpose, ...))
 PURPOSE_UNIT, PURPOSE_PLACEMENT, PURPOSE_FRAME = 0, 1, 2
@@ -70,6 +78,14 @@ def _rot_y(a: float) -> np.ndarray:
 def _pose(spec: SimulationSpec, centre: np.ndarray, roll: float, pitch: float, yaw: float) -> np.ndarray:
     """T_lidar_board with the pattern centre at ``centre`` facing the sensors, then tilted and rolled."""
     target = 0.5 * camera_centre_lidar(spec.T_cam_lidar)  # between LiDAR and camera
+    return pose_facing(spec.board, centre, target, roll, pitch, yaw)
+
+
+def pose_facing(
+    board: Board, centre: np.ndarray, target: np.ndarray, roll: float, pitch: float, yaw: float
+) -> np.ndarray:
+    """(4, 4) board pose with the pattern centre at ``centre``, its z towards ``target`` (x level),
+    then turned by ``yaw`` (about its y), ``pitch`` (about x) and ``roll`` (about z), radians."""
     z0 = target - centre
     z0 /= np.linalg.norm(z0)
     x0 = np.cross([0.0, 0.0, 1.0], z0)
@@ -78,7 +94,7 @@ def _pose(spec: SimulationSpec, centre: np.ndarray, roll: float, pitch: float, y
     R = np.column_stack([x0, y0, z0]) @ _rot_y(yaw) @ _rot_x(pitch) @ _rot_z(roll)
     T = np.eye(4)
     T[:3, :3] = R
-    T[:3, 3] = centre - R @ spec.board.pattern_centre
+    T[:3, 3] = centre - R @ board.pattern_centre
     return T
 
 

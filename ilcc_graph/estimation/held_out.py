@@ -1,0 +1,102 @@
+"""Each board's image held out: how well the rest of a solved problem predicts it.
+
+The score of a sensor-error model (``selection``): for each kept board k, the board's pose in the
+camera frame as its image alone gives it (``image_alone``: its bearings fitted with the extrinsic
+held at identity, covariance ``s (A^T A)^-1`` with s its own chi-square per dof, at least 1) is
+compared with what the model predicts for it from everything else, its own LiDAR data included:
+``T_cam_lidar * T_lidar_board`` with both taken from the solve without board k's view. The
+predictive log density ``-1/2 (d^T S^-1 d + log det S)``, ``S = C_image + J C J^T``, sums over the
+boards (leave-one-board-out cross-validation of the image given the LiDAR).
+
+The target (the image's pose, its covariance) does not depend on the model: models that read the
+LiDAR differently (its boards as 6-dof poses, or its returns with beam and board terms) are scored
+on the same numbers. No re-solve: the solve without board k's view is one step of the linearised
+system from the solution (the view's rows taken out of the information of board k and the globals,
+``linear.reduce``), exact for a linear model (``tests/test_selection.py`` checks it against re-solves).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from ilcc_graph.estimation.keys import POSE3_DOF, B, X
+from ilcc_graph.estimation.linear import reduce
+from ilcc_graph.estimation.noise import Solution
+
+__all__ = ["HeldOut", "held_out", "image_alone"]
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """Board k's image held out: chi2 ``d^T S^-1 d`` (6 dof when the model is right), ``log det S``
+    and the log density ``-1/2 (chi2 + log det S)`` (up to a constant common to every model);
+    shift: (6,) what taking the view out moves the extrinsic (Pose3 tangent)."""
+
+    chi2: float
+    logdet: float
+    shift: np.ndarray
+
+    @property
+    def log_density(self) -> float:
+        return -0.5 * (self.chi2 + self.logdet)
+
+
+def image_alone(fac, start: gtsam.Pose3, iterations: int = 10) -> tuple[gtsam.Pose3, np.ndarray]:  # noqa: ANN001
+    """(T_cam_board, its (6, 6) covariance) from one view's bearing factor ``fac`` alone (Gauss-Newton
+    from ``start`` with the extrinsic at identity); the covariance scaled by the view's chi-square
+    per dof when above 1."""
+    ident = gtsam.Pose3()
+    T = start
+    for _ in range(iterations):
+        r, _, A = fac.evaluate(ident, T, True)
+        step = np.linalg.lstsq(A, -r, rcond=None)[0]
+        T = T.retract(step)
+        if np.abs(step).max() < 1e-10:
+            break
+    r, _, A = fac.evaluate(ident, T, True)
+    s = max(1.0, float(r @ r) / max(len(r) - POSE3_DOF, 1))
+    return T, s * np.linalg.inv(A.T @ A)
+
+
+def held_out(sol: Solution, e: int = 0) -> dict[int, HeldOut]:
+    """Per kept board with a bearing view on extrinsic ``e``: its image held out (module docstring).
+
+    The covariances are those the solution reports (its components' posterior means, its final
+    factor, the components' spread on the extrinsic). Boards whose views are pixel factors (refined
+    intrinsics) are left out: their image's pose depends on the intrinsics being estimated."""
+    asm = sol.assembly
+    scales = sol.covariance_scales or sol.scales
+    graph, terms = asm.graph(sol.boards, scales)
+    red = reduce(graph, sol.values, terms, asm.dim)
+    S_inv = np.linalg.inv(red.S)
+    xe = sol.values.atPose3(X(e))
+    spread = sol.spread_of([X(e)], [POSE3_DOF])
+    views = {sol.problem.views[j].board: fac for j, fac in asm.views if j not in asm.pixel_views}
+    out: dict[int, HeldOut] = {}
+    for kind, _, bk, A_b, g_keys, A_g, b, count in red.blocks:
+        if kind != "bearing" or count is not None or bk is None or g_keys != [X(e)]:
+            continue
+        k = int(gtsam.Symbol(bk).index())
+        if k not in views:
+            continue
+        c = red.cols(g_keys)
+        di, ci = red.Dinv[bk], red.C[bk]
+        S_bg = -di @ ci @ S_inv
+        S_bb = di - S_bg @ ci.T @ di
+        Sig = np.block([[S_bb, S_bg[:, c]], [S_bg[:, c].T, S_inv[np.ix_(c, c)]]])
+        A = np.hstack([A_b, A_g])
+        C = np.linalg.inv(np.linalg.inv(Sig) - A.T @ A)  # board k and the extrinsic without the view
+        delta = -C @ A.T @ b
+        C = C * sol.variance_factor
+        board = sol.values.atPose3(B(k)).retract(delta[:POSE3_DOF])
+        pred = xe.retract(delta[POSE3_DOF:]).compose(board)
+        J = np.hstack([np.eye(POSE3_DOF), board.inverse().AdjointMap()])  # d(X B) over (dB, dX)
+        C_pred = J @ C @ J.T + J[:, POSE3_DOF:] @ spread @ J[:, POSE3_DOF:].T
+        T_img, C_img = image_alone(views[k], pred)
+        d = np.asarray(pred.localCoordinates(T_img), dtype=np.float64)
+        S = C_img + C_pred
+        out[k] = HeldOut(float(d @ np.linalg.solve(S, d)), float(np.linalg.slogdet(S)[1]), delta[POSE3_DOF:])
+    return out

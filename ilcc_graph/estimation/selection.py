@@ -1,0 +1,316 @@
+"""Which model of the sensors' own errors the boards support, chosen per run (issue 21).
+
+Candidates (``MODELS``), each a way of reading the LiDAR:
+
+- ``none``: each board the LiDAR stage's 6-dof pose with its covariance;
+- ``offset``: the same with one range offset of the LiDAR (``O(l)``, every board shifted along its
+  rays), what ``--range-offset`` estimates;
+- ``beams``: the boards' returns with the LiDAR's per-beam and dark-print range offsets, each
+  board's own plane and each beam's offset on each board as random effects (``--lidar-errors``).
+
+Each candidate is solved under the one noise policy (``noise.solve_problem``) and scored by how
+well it predicts each board's image from the other boards and the board's own LiDAR data
+(``held_out``: leave-one-board-out cross-validation, summed over the boards every candidate kept).
+The weights ``exp(score)`` normalised (pseudo Bayesian model averaging with cross-validated
+densities) choose the model with the largest, and its covariance carries the others: about the
+chosen estimate, ``sum_m w_m (C_m + d_m d_m^T)`` with ``d_m`` the other model's estimate's offset
+(``averaged_covariance``). A decisive score leaves the chosen model's own covariance; two models
+that the boards cannot tell apart widen it by their difference. Why a held-out score and not an
+information criterion on the chi-square: the candidates read different data (poses against
+returns), and a model's own chi-square trusts its own noise model, which is what a term the boards
+barely determine gets wrong (docs/estimation.md, docs/bench_sensor_model.md).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, replace
+
+import gtsam
+import numpy as np
+
+from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
+from ilcc_graph.estimation.camera_choice import CameraChoice
+from ilcc_graph.estimation.held_out import HeldOut, held_out
+from ilcc_graph.estimation.keys import POSE3_DOF
+from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
+from ilcc_graph.estimation.noise import NoiseOptions, Solution, solve_problem
+from ilcc_graph.estimation.problem import Problem
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "AUTO",
+    "MODELS",
+    "Candidate",
+    "Selection",
+    "SensorModel",
+    "averaged_covariance",
+    "choose",
+    "mixture",
+    "select_model",
+]
+
+#: the prior sigma of the ``offset`` model's range offset (m): weak, the boards determine it
+OFFSET_PRIOR_M = 0.1
+#: weights below this are left out of the averaged covariance
+MIN_WEIGHT = 1e-4
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """One way of reading the sensors' own errors: the LiDAR's error terms (None: none), a range
+    offset's prior sigma (None: no offset), a description."""
+
+    name: str
+    lidar_errors: LidarErrorOptions | None = None
+    range_offset_m: float | None = None
+    description: str = ""
+
+    def problem(self, base: Problem) -> Problem:
+        """``base`` (a problem without sensor terms) with this model's."""
+        return replace(base, lidar_errors=self.lidar_errors, range_offset_sigma_m=self.range_offset_m)
+
+
+MODELS: dict[str, SensorModel] = {
+    "none": SensorModel("none", description="each board the LiDAR stage's 6-dof pose"),
+    "offset": SensorModel(
+        "offset", range_offset_m=OFFSET_PRIOR_M, description="the LiDAR stage's poses and one range offset"
+    ),
+    "beams": SensorModel(
+        "beams",
+        LidarErrorOptions(),
+        description="the returns with per-beam and dark-print range offsets, the boards' planes as random "
+        "effects",
+    ),
+}
+MODELS["range"] = SensorModel(
+    "range",
+    LidarErrorOptions(beam_offsets=False, global_offset=True),
+    description="the returns with one range offset and the dark-print offset, the boards' planes as random "
+    "effects",
+)
+#: the candidates of the default (``--sensor-model auto``)
+AUTO = ("none", "range", "beams")
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate's result: its held-out log density and chi-square over the boards every
+    candidate kept (``boards``; 6 dof each), the boards it kept itself (``used``), its weight, and
+    why it failed (then the rest are None / 0)."""
+
+    name: str
+    log_density: float = math.nan
+    chi2: float = math.nan
+    boards: int = 0
+    used: int = 0
+    weight: float = 0.0
+    factor: float = 1.0
+    failure: str | None = None
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The model chosen and the evidence: every candidate, whether the choice was forced (a flag or
+    ``--sensor-model``), whether the covariance carries other candidates (``averaged``) and the
+    camera's choice (``camera_choice``; None when not made)."""
+
+    chosen: str
+    candidates: tuple[Candidate, ...]
+    forced: bool = False
+    averaged: bool = False
+    camera: CameraChoice | None = None
+
+    def summary(self) -> str:
+        """One or two lines: the model and the evidence (held-out log densities against the chosen
+        one), the camera's intrinsics."""
+        cam = "" if self.camera is None else "\n" + self.camera.summary()
+        return self._lidar_summary() + cam
+
+    def _lidar_summary(self) -> str:
+        if self.forced:
+            return f"sensor model: {self.chosen} (as asked)"
+        best = next(c for c in self.candidates if c.name == self.chosen)
+        parts = []
+        for c in self.candidates:
+            if c.failure is not None:
+                parts.append(f"{c.name} failed")
+            elif c.name != self.chosen:
+                parts.append(f"{c.name} {c.log_density - best.log_density:+.1f} (w {c.weight:.2f})")
+        carried = "; covariance averaged over the models" if self.averaged else ""
+        return (
+            f"sensor model: {self.chosen} (held-out images of {best.boards} boards, log density against "
+            f"it: {', '.join(parts) or 'no other'}; chi2 {best.chi2:.0f} for {POSE3_DOF * best.boards})"
+            + carried
+        )
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> Selection:
+        """The selection ``to_dict`` wrote (calibration.yaml's ``sensor_errors.model``)."""
+
+        def num(x: object, default: float = math.nan) -> float:
+            return default if x is None else float(x)  # type: ignore[arg-type]
+
+        cands = tuple(
+            Candidate(
+                str(c["name"]),
+                num(c.get("log_density")),
+                num(c.get("chi2")),
+                int(c.get("boards", 0)),
+                int(c.get("used", 0)),
+                num(c.get("weight"), 0.0),
+                num(c.get("factor"), 1.0),
+                c.get("failure"),
+            )  # fmt: skip
+            for c in d.get("candidates") or ()
+        )
+        cam = CameraChoice.from_dict(d["camera"]) if d.get("camera") else None
+        return cls(str(d["chosen"]), cands, bool(d.get("forced", False)), bool(d.get("averaged", False)), cam)
+
+    def to_dict(self) -> dict:
+        """Plain data for calibration.yaml."""
+        return {
+            "chosen": self.chosen,
+            "forced": self.forced,
+            "averaged": self.averaged,
+            "criterion": "leave-one-board-out log density of each board's image pose given its LiDAR data",
+            **({"camera": self.camera.to_dict()} if self.camera is not None else {}),
+            "candidates": [
+                {
+                    "name": c.name,
+                    "description": MODELS[c.name].description if c.name in MODELS else "",
+                    "log_density": None if not math.isfinite(c.log_density) else float(c.log_density),
+                    "chi2": None if not math.isfinite(c.chi2) else float(c.chi2),
+                    "boards": int(c.boards),
+                    "used": int(c.used),
+                    "weight": float(c.weight),
+                    "factor": float(c.factor),
+                    **({"failure": c.failure} if c.failure else {}),
+                }
+                for c in self.candidates
+            ],
+        }
+
+
+CV_FACTOR = True
+BOOTSTRAP = 1000
+
+
+def _calibrated(h: HeldOut, f: float) -> float:
+    """The held-out log density with the predictive covariance scaled by f."""
+    return -0.5 * (h.chi2 / f + POSE3_DOF * math.log(f) + h.logdet)
+
+
+def _weights(per_board: Mapping[str, np.ndarray]) -> dict[str, float]:
+    """Pseudo-BMA+ weights (Yao et al. 2018): softmax of the summed held-out log densities, averaged over
+    Bayesian-bootstrap reweightings of the boards (the sum's own uncertainty with few boards)."""
+    names = list(per_board)
+    L = np.array([per_board[n] for n in names])  # (models, boards)
+    n = L.shape[1]
+    if n == 0:
+        return {m: 1.0 / len(names) for m in names}
+    rng = np.random.default_rng(0)
+    a = rng.dirichlet(np.ones(n), size=BOOTSTRAP) if BOOTSTRAP else np.full((1, n), 1.0 / n)
+    z = n * a @ L.T  # (draws, models)
+    z -= z.max(axis=1, keepdims=True)
+    w = np.exp(z)
+    w /= w.sum(axis=1, keepdims=True)
+    return dict(zip(names, (float(x) for x in w.mean(axis=0)), strict=True))
+
+
+def mixture(estimates: Mapping[str, tuple[np.ndarray, np.ndarray]], selection: Selection) -> np.ndarray:
+    """(6, 6) the mixture's covariance about the chosen model's extrinsic: ``sum_m w_m (f_m C_m +
+    d_m d_m^T)`` over the candidates' ``estimates`` ((4, 4) T, (6, 6) C by name), ``d_m =
+    Logmap(T_chosen^-1 T_m)``, ``C_m`` carried into the chosen's tangent and scaled by the model's
+    held-out factor ``f_m``."""
+    T0 = gtsam.Pose3(estimates[selection.chosen][0])
+    out = np.zeros((POSE3_DOF, POSE3_DOF))
+    total = 0.0
+    for c in selection.candidates:
+        if c.weight < MIN_WEIGHT or c.name not in estimates:
+            continue
+        T, C = estimates[c.name]
+        D = T0.between(gtsam.Pose3(T))
+        d = np.asarray(gtsam.Pose3.Logmap(D), dtype=np.float64)
+        Ad = D.AdjointMap()
+        out += c.weight * (c.factor * Ad @ C @ Ad.T + np.outer(d, d))
+        total += c.weight
+    out /= total
+    return 0.5 * (out + out.T)
+
+
+def averaged_covariance(sols: Mapping[str, Solution], selection: Selection, e: int = 0) -> np.ndarray:
+    """``mixture`` of the solutions' extrinsic ``e``."""
+    est = {n: sol.extrinsic(e) for n, sol in sols.items()}
+    return mixture({n: (x.T, x.covariance) for n, x in est.items()}, selection)
+
+
+def choose(
+    scores: Mapping[str, Mapping[object, HeldOut]],
+    used: Mapping[str, int],
+    names: Sequence[str],
+    failures: Mapping[str, str] | None = None,
+) -> Selection:
+    """The choice among ``names`` from each solved candidate's held-out ``scores`` (per board) and the
+    boards it kept (``used``); ``failures``: why the others have none (module docstring)."""
+    failures = dict(failures or {})
+    common = sorted(set.intersection(*(set(s) for s in scores.values())), key=str) if scores else []
+    factors = {n: 1.0 for n in scores}
+    if CV_FACTOR and common:
+        factors = {
+            n: max(1.0, sum(s[k].chi2 for k in common) / (POSE3_DOF * len(common))) for n, s in scores.items()
+        }
+    per_board = {n: np.array([_calibrated(s[k], factors[n]) for k in common]) for n, s in scores.items()}
+    weights = _weights(per_board)
+    chosen = max(weights, key=weights.get) if weights else next(iter(used))
+    cands = []
+    for name in names:
+        if name not in scores:
+            cands.append(Candidate(name, used=used.get(name, 0), failure=failures.get(name, "not solved")))
+            continue
+        s = scores[name]
+        cands.append(
+            Candidate(name, float(per_board[name].sum()), sum(s[k].chi2 for k in common), len(common),
+                      used[name], weights[name], factors[name])
+        )  # fmt: skip
+    averaged = sum(w >= MIN_WEIGHT for w in weights.values()) > 1
+    return Selection(chosen, tuple(cands), forced=False, averaged=averaged)
+
+
+def select_model(
+    base: Problem,
+    models: Sequence[SensorModel] = tuple(MODELS[n] for n in AUTO),
+    options: NoiseOptions = NoiseOptions(),
+    solve: Callable[..., Solution] = solve_problem,
+) -> tuple[dict[str, Solution], Selection]:
+    """Solve ``base`` (a problem without sensor terms) under each of ``models`` and choose (module
+    docstring). Returns the solutions by model name (failed candidates left out) and the selection.
+    With one model the choice is forced. Raises the first candidate's error when every one fails."""
+    names = [m.name for m in models]
+    sols: dict[str, Solution] = {}
+    failures: dict[str, str] = {}
+    first: Exception | None = None
+    for model in models:
+        try:
+            sols[model.name] = solve(model.problem(base), options)
+        except (CalibrationImpossible, IndeterminateSystem, np.linalg.LinAlgError) as err:
+            failures[model.name] = str(err)
+            first = first or err
+            log.info("sensor model %s: cannot solve: %s", model.name, err)
+    if not sols:
+        assert first is not None
+        raise first
+    if len(names) == 1:
+        return sols, Selection(
+            names[0], (Candidate(names[0], used=len(sols[names[0]].boards), weight=1.0),), True
+        )
+    scores: dict[str, dict[object, HeldOut]] = {}
+    for name, sol in sols.items():
+        try:
+            scores[name] = held_out(sol)
+        except np.linalg.LinAlgError as err:  # a singular held-out system: no score, no weight
+            failures[name] = f"held-out score: {err}"
+    return sols, choose(scores, {n: len(sol.boards) for n, sol in sols.items()}, names, failures)

@@ -1,0 +1,176 @@
+"""The sensor model chosen per run (``estimation.selection``, ``camera_choice``): its score, the
+choice in clear cases, the covariance carrying it, the command line writing it."""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+import yaml
+from test_lidar_errors import CAMERA, T_TRUE, lidar_frames, nees
+
+from ilcc_graph.cli import main
+from ilcc_graph.estimation import NoiseOptions, solve, solve_problem
+from ilcc_graph.estimation.held_out import held_out
+from ilcc_graph.estimation.keys import X
+from ilcc_graph.estimation.problem import frames_problem
+from ilcc_graph.estimation.selection import MODELS, Candidate, Selection, mixture, select_model
+
+AUTO = ("none", "range", "beams")
+
+
+def _frames(seed: int, offsets: np.ndarray, n: int = 8, dark: float = 0.0):  # noqa: ANN202
+    rng = np.random.default_rng(seed)
+    while True:  # a board between two beams' cones gives no returns: draw again
+        try:
+            return lidar_frames(rng, n, offsets, dark_offset=dark)[0]
+        except ValueError:
+            continue
+
+
+def test_held_out_board_is_the_re_solve_without_its_view() -> None:
+    """The held-out step (no re-solve) moves the extrinsic as a re-solve without that board's view
+    does (fixed noise; the board's own LiDAR data kept), to a fraction of its sigma."""
+    frames = _frames(11, np.zeros(16))
+    problem = frames_problem(frames, CAMERA, T_TRUE.matrix())
+    sol = solve_problem(problem)
+    ho = held_out(sol)
+    assert set(ho) == set(sol.boards) and all(h.chi2 > 0 for h in ho.values())
+    sigma = np.sqrt(np.diag(sol.extrinsic().covariance))
+    names = [b.name for b in problem.boards]
+    for k in sol.boards[:3]:
+        rest = [names[i] for i in sol.boards if i != k]
+        re = solve_problem(
+            problem, NoiseOptions(), boards=rest, scales=sol.scales, gate=False, variance_factor=1.0
+        )
+        moved = np.asarray(sol.values.atPose3(X(0)).localCoordinates(re.values.atPose3(X(0))))
+        assert np.all(np.abs(moved - ho[k].shift) < 0.05 * sigma), (moved, ho[k].shift, sigma)
+
+
+def test_a_range_offset_is_chosen_and_no_error_keeps_none() -> None:
+    """Clear cases: a LiDAR reading 20 mm long (no other error) leaves ``none`` no weight and the
+    chosen model honest; a LiDAR without errors keeps ``none`` (it predicts the images as well)."""
+    frames = _frames(0, np.full(16, 0.02))
+    sol = solve(frames, CAMERA, T_TRUE.matrix(), models=AUTO)
+    w = {c.name: c.weight for c in sol.selection.candidates}
+    assert sol.selection.chosen != "none" and w["none"] < 1e-3, sol.selection.summary()
+    assert nees(sol.T_cam_lidar, sol.covariance) < 16.8
+    forced = solve(frames, CAMERA, T_TRUE.matrix(), models=("none",))
+    assert forced.selection.forced and nees(forced.T_cam_lidar, forced.covariance) > 30  # the wrong model
+    for seed in (2, 4):
+        sol = solve(_frames(seed, np.zeros(16)), CAMERA, T_TRUE.matrix(), models=AUTO)
+        best = max(sol.selection.candidates, key=lambda c: c.weight)
+        assert sol.selection.chosen == "none" == best.name and best.weight > 0.5, sol.selection.summary()
+
+
+def test_the_covariance_carries_the_models_the_boards_cannot_tell_apart() -> None:
+    """Two models at equal weight: the covariance about the chosen one holds both covariances and
+    their estimates' difference; a decisive choice: the chosen model's, times its held-out factor."""
+    T0 = np.eye(4)
+    T1 = gtsam.Pose3(gtsam.Rot3(), np.array([0.003, 0.0, 0.0])).matrix()
+    C0, C1 = np.diag([1e-6] * 3 + [1e-6] * 3), np.diag([4e-6] * 3 + [4e-6] * 3)
+    est = {"none": (T0, C0), "range": (T1, C1)}
+    even = Selection("none", (Candidate("none", weight=0.5), Candidate("range", weight=0.5)))
+    C = mixture(est, even)
+    Ad = gtsam.Pose3(T1).AdjointMap()  # C1 carried into the chosen estimate's tangent
+    d = np.array([0, 0, 0, 0.003, 0, 0])
+    np.testing.assert_allclose(C, 0.5 * (C0 + Ad @ C1 @ Ad.T) + 0.5 * np.outer(d, d), atol=1e-15)
+    assert C[3, 3] > 0.5 * (C0[3, 3] + C1[3, 3]) + 4e-6  # the difference shows where the models differ
+    sure = Selection("range", (Candidate("none", weight=0.0), Candidate("range", weight=1.0, factor=1.5)))
+    np.testing.assert_allclose(mixture(est, sure), 1.5 * C1, atol=1e-15)
+    # the selection survives calibration.yaml's plain data
+    back = Selection.from_dict(even.to_dict())
+    assert back.chosen == "none" and [c.weight for c in back.candidates] == [0.5, 0.5]
+
+
+def test_a_failed_candidate_is_said_and_the_others_choose() -> None:
+    frames = _frames(3, np.full(16, 0.02), n=6)
+    base = frames_problem(frames, CAMERA, T_TRUE.matrix())
+
+    def solve_or_fail(problem, options):  # noqa: ANN001, ANN202
+        if problem.lidar_errors is not None and problem.lidar_errors.beam_offsets:
+            raise np.linalg.LinAlgError("singular")
+        return solve_problem(problem, options)
+
+    sols, sel = select_model(base, [MODELS[n] for n in AUTO], solve=solve_or_fail)
+    assert set(sols) == {"none", "range"} and sel.chosen == "range"
+    beams = next(c for c in sel.candidates if c.name == "beams")
+    assert beams.failure == "singular" and beams.weight == 0.0
+    assert "beams failed" in sel.summary()
+
+
+@pytest.fixture(scope="module")
+def offset_set(tmp_path_factory):  # noqa: ANN201
+    """Seven small pinhole frames of a LiDAR reading 20 mm long (besides its per-beam offsets)."""
+    out = tmp_path_factory.mktemp("sel") / "data"
+    args = ["simulate", str(out), "--lidar", "hdl32", "--camera", "pinhole", "--width", "800",
+            "--frames", "7", "--seed", "5", "--range-offset-mm", "20"]  # fmt: skip
+    assert main(args) == 0
+    return out
+
+
+def test_calibrate_prints_and_writes_the_model_chosen(offset_set, tmp_path, capsys) -> None:
+    out = tmp_path / "auto"
+    assert main(["calibrate", str(offset_set), "--out", str(out), "--no-report", "--jobs", "1"]) == 0
+    text = capsys.readouterr().out
+    model = yaml.safe_load((out / "calibration.yaml").read_text())["sensor_errors"]["model"]
+    assert model["chosen"] in ("range", "beams") and not model["forced"]
+    assert {c["name"] for c in model["candidates"]} == set(AUTO)
+    assert abs(sum(c["weight"] for c in model["candidates"]) - 1.0) < 1e-9
+    assert f"sensor model: {model['chosen']} (held-out images of" in text
+    out = tmp_path / "none"
+    assert (
+        main(["calibrate", str(offset_set), "--out", str(out), "--no-report", "--sensor-model", "none"]) == 0
+    )
+    model = yaml.safe_load((out / "calibration.yaml").read_text())["sensor_errors"]["model"]
+    assert model["chosen"] == "none" and model["forced"]
+    assert "sensor model: none (as asked)" in capsys.readouterr().out
+
+
+def _pinhole_frames(seed: int, stated_scale: float, n: int = 12):  # noqa: ANN202
+    """(frames, the stated camera): boards before a pinhole, pixels from the true camera; bearings
+    from a stated camera whose focal lengths are ``stated_scale`` times the true ones."""
+    from synthetic_graph import board_prior, random_board_pose, random_spd
+
+    from ilcc_graph.board import Board
+    from ilcc_graph.cameras import Pinhole
+    from ilcc_graph.types import GraphFrame
+
+    rng = np.random.default_rng(seed)
+    true = Pinhole(1280, 960, np.array([[800.0, 0, 640], [0, 800.0, 480], [0, 0, 1]]), np.zeros(4))
+    theta = true.intrinsics()
+    stated = true.with_intrinsics(np.concatenate([theta[:2] * stated_scale, theta[2:]]))
+    R = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # LiDAR x forward -> OpenCV z
+    T_cl = gtsam.Pose3(gtsam.Rot3(R), np.array([0.02, -0.1, 0.05]))
+    board = Board(6, 8, 0.095)
+    frames = []
+    while len(frames) < n:
+        T_lb = random_board_pose(
+            rng, board, towards=np.array([1.0, 0.0, 0.0]), spread=0.5, distance=(1.5, 4.0)
+        )
+        p = np.asarray(T_cl.compose(T_lb).transformFrom(board.corners_board().T)).T
+        uv = true.project(p)
+        if not np.all(np.isfinite(uv)) or not np.all(true.in_image(uv)):
+            continue
+        cov = np.stack([random_spd(rng, [0.3, 0.3]) for _ in uv])
+        uv = uv + np.stack([rng.multivariate_normal(np.zeros(2), c) for c in cov])
+        T_meas, board_cov = board_prior(rng, T_lb, board)
+        name = f"{len(frames):04d}"
+        frames.append(
+            GraphFrame(name, T_meas, board_cov, board.corners_board(), stated.bearing(uv), cov, None, uv)
+        )
+    return frames, stated, T_cl
+
+
+@pytest.mark.parametrize(("scale", "refined"), [(1.0, False), (1.02, True)])
+def test_intrinsics_are_refined_when_the_boards_determine_them_off_the_stated(scale, refined) -> None:
+    """Stated focal lengths 2 % off, 16 boards (halves of 8, as many as the intrinsics): refined (the
+    boards tell them, two halves agree) and the extrinsic honest; stated right: kept as stated."""
+    frames, stated, T_cl = _pinhole_frames(7, scale, n=16)
+    sol = solve(frames, stated, T_cl.matrix(), models=AUTO, intrinsics_choice="auto")
+    cam = sol.selection.camera
+    assert cam is not None and cam.refined == refined, cam.reason
+    assert (sol.intrinsics is not None) == refined
+    xi = gtsam.Pose3(sol.T_cam_lidar).localCoordinates(T_cl)
+    assert float(xi @ np.linalg.solve(sol.covariance, xi)) < 16.8
+    assert "camera intrinsics" in sol.selection.summary()
