@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 from _shared import processes_where, write_between  # noqa: E402
 
-from ilcc_graph.cli import main  # noqa: E402
+from ilcc_graph.app import main  # noqa: E402
 
 MARK_BEGIN, MARK_END = "<!-- soak:begin -->", "<!-- soak:end -->"
 
@@ -97,7 +97,7 @@ def soak(args: argparse.Namespace, work: Path) -> tuple[list[dict], list[tuple[i
         cmd = [
             sys.executable,
             "-m",
-            "ilcc_graph.cli",
+            "ilcc_graph.app",
             "calibrate",
             str(data),
             "--out",

@@ -17,8 +17,8 @@ from functools import partial
 from pathlib import Path
 
 from ..errors import InputError
-from ..folders import DATA_SET, staged
 from ..io import PCD_STYLES, write_image, write_pcd, write_yaml
+from ..io.output_folders import DATA_SET, staged
 from ..io.scans import write_csv
 from ..types import Scan
 from .frames import ground_truth, simulate_frames

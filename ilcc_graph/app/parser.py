@@ -10,7 +10,7 @@ import argparse
 import os
 from collections.abc import Callable, Mapping
 
-from ilcc_graph.console import COUNT, DEG_MM, NON_NEGATIVE, PIXELS, POSITIVE, RATE, SEED
+from ilcc_graph.app.console import COUNT, DEG_MM, NON_NEGATIVE, PIXELS, POSITIVE, RATE, SEED
 
 __all__ = ["BAG_OPTIONS", "EXAMPLES", "build_parser"]
 

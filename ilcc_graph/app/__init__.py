@@ -16,9 +16,10 @@ from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ilcc_graph import cli_parser, signals
-from ilcc_graph.cli_parser import BAG_OPTIONS
-from ilcc_graph.console import Progress, run_command, setup_logging
+from ilcc_graph import signals
+from ilcc_graph.app import parser as cli_parser
+from ilcc_graph.app.console import Progress, run_command, setup_logging
+from ilcc_graph.app.parser import BAG_OPTIONS
 from ilcc_graph.errors import CalibrationImpossible, InputError
 
 if TYPE_CHECKING:
@@ -31,7 +32,7 @@ def _run_dir(args: argparse.Namespace, reads: Sequence[str | Path] = (), root: s
     """``--out`` as given (a link: its target), else ``out/<timestamp>`` (linked as ``out/latest``
     once written); claimed now, before a long run: new, empty or an earlier result of ours, and not
     a data set the command ``reads`` (``folders.claim_output``)."""
-    from ilcc_graph.outputs import claim_output
+    from ilcc_graph.app.write import claim_output
 
     out = getattr(args, "out_dir", None) or (
         Path(args.out) if args.out else Path(root) / time.strftime("%Y%m%d-%H%M%S")
@@ -100,9 +101,9 @@ def _stage_options(args: argparse.Namespace):  # noqa: ANN202 - observe.StageOpt
 
 
 def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
+    from ilcc_graph.app.write import link_latest, write_run
     from ilcc_graph.datasets import open_source
     from ilcc_graph.next_pose import for_run as next_pose_for_run
-    from ilcc_graph.outputs import link_latest, write_run
     from ilcc_graph.pipeline import run
     from ilcc_graph.report.summary import run_summary
     from ilcc_graph.report.text import format_update
@@ -148,7 +149,7 @@ def _calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray 
 
 def _explain_failure(err: CalibrationImpossible, out: Path, command: str) -> None:
     """A failed run: its frames as a short table and the advice on stderr, the details in a file."""
-    from ilcc_graph.outputs import write_failure
+    from ilcc_graph.app.write import write_failure
     from ilcc_graph.report.text import failure_table
 
     if err.frames:
@@ -220,9 +221,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def _stage_command(args: argparse.Namespace, stage: str) -> int:
     """A stage alone over a data set: one YAML (and a drawing) per frame, and a table."""
+    from ilcc_graph.app.write import link_latest, write_stage
     from ilcc_graph.datasets import open_source
     from ilcc_graph.observe import stage_alone
-    from ilcc_graph.outputs import link_latest, write_stage
     from ilcc_graph.report.text import stage_table
 
     out = _run_dir(args, [args.data])
@@ -237,10 +238,10 @@ def _stage_command(args: argparse.Namespace, stage: str) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """The paper's metric and corner errors of a calibration on a data set's frames."""
+    from ilcc_graph.app.write import claim_output, write_evaluation
     from ilcc_graph.datasets import open_source
     from ilcc_graph.evaluation import evaluate_on
     from ilcc_graph.io import read_calibration
-    from ilcc_graph.outputs import claim_output, write_evaluation
     from ilcc_graph.report import evaluation_rows
     from ilcc_graph.report.text import evaluation_text
 
@@ -257,11 +258,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def cmd_check(args: argparse.Namespace) -> int:
     """Per frame as it arrives: board in scan and image, new pose, running sigmas (``live``)."""
+    from ilcc_graph.app.check_view import check_command
+    from ilcc_graph.app.write import link_latest
     from ilcc_graph.estimation.selection import AUTO
     from ilcc_graph.live import CheckOptions
-    from ilcc_graph.live_command import check_command
     from ilcc_graph.observe import StageOptions
-    from ilcc_graph.outputs import link_latest
 
     target = args.target_sigma
     options = CheckOptions(
@@ -280,9 +281,9 @@ def cmd_check(args: argparse.Namespace) -> int:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from ilcc_graph.app.write import write_file
     from ilcc_graph.export import export_calibration
     from ilcc_graph.io import read_calibration_with_camera
-    from ilcc_graph.outputs import write_file
 
     cal = read_calibration_with_camera(args.calibration)
     names = ("parent", "lidar_frame", "camera_frame", "ros") if args.format == "ros-tf" else ()
@@ -342,7 +343,3 @@ def main(argv: Sequence[str] | None = None) -> int:
     if signals.stop_requested() is not None:
         signals.exit_now(code)  # after a stop: no interpreter teardown (signals.exit_now)
     return code
-
-
-if __name__ == "__main__":
-    sys.exit(main())

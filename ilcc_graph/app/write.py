@@ -35,7 +35,8 @@ from ilcc_graph.config import Config, config_to_dict
 from ilcc_graph.errors import OutputError
 from ilcc_graph.estimation.incremental import FrameUpdate
 from ilcc_graph.estimation.sessions import ConsistencyTest, JointSolution
-from ilcc_graph.folders import (
+from ilcc_graph.io import atomic_write, write_calibration, write_yaml
+from ilcc_graph.io.output_folders import (
     OURS,
     add_file,
     check_output,
@@ -45,10 +46,9 @@ from ilcc_graph.folders import (
     write_beside,
     write_file,
 )
-from ilcc_graph.io import atomic_write, write_calibration, write_yaml
 from ilcc_graph.pipeline import RunOptions, RunResult
 from ilcc_graph.report.rig import next_pose_png
-from ilcc_graph.report_files import write_report
+from ilcc_graph.report.session import write_report
 from ilcc_graph.types import Estimate, sigma_dict, to_plain
 
 log = logging.getLogger(__name__)
