@@ -2,7 +2,7 @@
 
 The check itself is ``live``; this module prints it (the table on standard output, the progress
 line on standard error, redrawn in place on a terminal) and writes ``check.yaml`` and
-``next_pose.png`` through ``outputs``.
+``next_pose.png`` through ``write``. ``cmd_check`` is the command (its flags, its folder).
 """
 
 from __future__ import annotations
