@@ -1,6 +1,6 @@
 """Soak: many calibrations of a small simulated set back to back; memory, open files, processes.
 
-Runs ``ilcc-graph calibrate`` ``--runs`` times in this one process (``cli.main``, ``--jobs 2``,
+Runs ``ilcc-graph calibrate`` ``--runs`` times in this one process (``app.main``, ``--jobs 2``,
 every ``--report-every``-th run with the report), then ``--subprocess-runs`` times as separate
 command-line processes. Samples after each in-process run: resident memory, open file descriptors,
 threads, child processes and POSIX semaphores in /dev/shm; after each subprocess run: processes

@@ -1,4 +1,4 @@
-"""The command line flag by flag: each command and option run through ``ilcc-graph`` (``cli.main``)
+"""The command line flag by flag: each command and option run through ``ilcc-graph`` (``app.main``)
 on small simulated sets, and what it wrote checked.
 
 Accuracy is judged against the run's own covariance: the error against the simulated truth, as the

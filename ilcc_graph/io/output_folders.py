@@ -40,7 +40,6 @@ __all__ = [
     "MARKER",
     "RESULT",
     "add_file",
-    "check_output",
     "claim_output",
     "link_latest",
     "staged",
@@ -184,11 +183,6 @@ def claim_output(
     except OSError as err:
         raise OutputError(f"{say}: cannot write in {parent} ({err.strerror or err})") from None
     return out
-
-
-def check_output(out: Path | str, flag: str = "--out", kind: str = RESULT) -> None:
-    """``claim_output`` without its answer (kept for callers that only check)."""
-    claim_output(out, flag, kind)
 
 
 def link_latest(path: Path) -> None:
