@@ -180,9 +180,7 @@ def graph_variance_factor(
 ) -> float:  # fmt: skip
     """``chi2 / (m - n)`` over the whole graph, at least 1 (bearings without their robust kernel)."""
     chi2 = sum(s.chi2 + (s.returns[0] if s.returns else 0.0) for s in st.values())
-    chi2 += sum(
-        2.0 * g.at(k).error(values) for k, t in enumerate(terms) if t.kind in ("tie", "offset", "lidar")
-    )
+    chi2 += sum(2.0 * g.at(k).error(values) for k, t in enumerate(terms) if t.kind in asm.global_terms)
     m = sum(t.dim for t in terms)
     n = sum(asm.dim(k) for k in values.keys())
     return max(1.0, chi2 / (m - n)) if m > n else 1.0
