@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -86,6 +87,8 @@ class Problem:
     variables; else the sigma of each LiDAR's weak zero-mean prior on its offset (metres).
     lidar_errors: which of the LiDAR's own errors to estimate from the boards' returns (None: none).
     intrinsics: whether the cameras' intrinsics are refined, or their stated sigmas propagated.
+    evidence: the data of factor kinds that bring their own (``kinds/``), by kind name (e.g. a rig's
+    other LiDARs, ``kinds.lidar_boards``).
     """
 
     boards: tuple[BoardPrior, ...]
@@ -96,6 +99,7 @@ class Problem:
     lidar_names: tuple[str, ...] = field(default=("lidar",))
     lidar_errors: LidarErrorOptions | None = None
     intrinsics: IntrinsicsOptions | None = None
+    evidence: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         names = [b.name for b in self.boards]
@@ -166,6 +170,10 @@ def merge_problems(parts: Sequence[Problem], **kw: object) -> Problem:
     T_init: dict[int, np.ndarray] = {}
     ties: list[Tie] = []
     for p in parts:
+        if p.evidence:
+            raise ValueError(
+                f"merge_problems: a part carries evidence of {sorted(p.evidence)}, which it cannot shift"
+            )
         off = len(boards)
         boards.extend(p.boards)
         views.extend(replace(v, board=v.board + off) for v in p.views)

@@ -10,6 +10,7 @@ from ilcc_graph.estimation.kinds import (  # noqa: F401 - the registry: each imp
     board_returns,
     camera_views,
     intrinsics_prior,
+    lidar_boards,
     lidar_prior,
     offset_prior,
     ties,
