@@ -32,7 +32,8 @@ class BoardPrior:
     """One board placement as the LiDAR stage saw it.
 
     name: unique label (frame name, ``session/frame`` when several sessions).
-    T_lidar_board: (4, 4) the LiDAR stage's pose. covariance: (6, 6) its Pose3-tangent covariance.
+    T_lidar_board: (4, 4) the LiDAR stage's pose. covariance: (6, 6) its Pose3-tangent covariance, or
+    None for a board the (base) LiDAR did not see (a rig's: ``T_lidar_board`` is then only its start).
     group: noise group (the session): its board priors share one variance component.
     lidar: index of the LiDAR unit (shares the range-offset variable ``O(lidar)``).
     samples_board: (M, 3) points of the board's face, board frame, for the range offset (None: a
@@ -42,7 +43,7 @@ class BoardPrior:
 
     name: str
     T_lidar_board: np.ndarray
-    covariance: np.ndarray
+    covariance: np.ndarray | None
     group: str = ""
     lidar: int = 0
     samples_board: np.ndarray | None = None

@@ -28,9 +28,13 @@ class BoardPriors(FactorKind):
     def __init__(self, asm) -> None:  # noqa: ANN001 - Assembly
         super().__init__(asm)
         pr = asm.problem
-        self.covariances = [
-            check_covariance(b.covariance, POSE3_DOF, f"board {b.name!r} covariance") for b in pr.boards
-        ]
+        # per board its checked covariance; a board without one has no LiDAR prior (a rig's board
+        # that only cameras saw)
+        self.covariances = {
+            i: check_covariance(b.covariance, POSE3_DOF, f"board {b.name!r} covariance")
+            for i, b in enumerate(pr.boards)
+            if b.covariance is not None
+        }
         for b in pr.boards:
             check_pose(b.T_lidar_board, f"board {b.name!r} T_lidar_board")
         self.samples: dict[int, np.ndarray] = {}
@@ -46,7 +50,7 @@ class BoardPriors(FactorKind):
         self, boards: Sequence[int], scales: Scales, plain: bool
     ) -> tuple[gtsam.NonlinearFactorGraph, list[Term]]:
         pr = self.asm.problem
-        own = [i for i in boards if i not in self.asm.points]
+        own = [i for i in boards if i not in self.asm.points and i in self.covariances]
         priors = [
             (i, pr.boards[i], self.covariances[i] * scales.get(("board", pr.boards[i].group), 1.0))
             for i in own
