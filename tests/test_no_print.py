@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 import yaml
 
+from ilcc_graph.app import main
 from ilcc_graph.board import Board
-from ilcc_graph.cli import main
 from ilcc_graph.datasets import open_source
 from ilcc_graph.io import read_ground_truth
 from ilcc_graph.lidar._synthetic import SynthScene, board_pose

@@ -67,8 +67,9 @@ def board_stats(
         if t.kind != "board":
             continue
         if not t.parts:
-            prior[t.board] = 2.0 * graph.at(k).error(values)  # type: ignore[index]
-            prior_dof[t.board] = graph.at(k).dim()  # type: ignore[index]
+            # every LiDAR that saw the board adds its pose's term (one LiDAR: one term)
+            prior[t.board] = prior.get(t.board, 0.0) + 2.0 * graph.at(k).error(values)  # type: ignore[arg-type]
+            prior_dof[t.board] = prior_dof.get(t.board, 0) + graph.at(k).dim()  # type: ignore[arg-type]
             continue
         e = np.asarray(graph.at(k).whitenedError(values))
         (_, a0, a1), (_, b0, b1) = t.parts
@@ -77,8 +78,9 @@ def board_stats(
         prior_dof[t.board] = b1 - b0  # type: ignore[index]
     out: dict[int, BoardStats] = {}
     for i, fs in facs.items():
-        chi2 = prior[i]
-        robust = prior[i] if any(f[0].robust is not None for f in fs) else None
+        p0 = prior.get(i, 0.0)  # a board no LiDAR saw (a rig's cameras alone) has no prior term
+        chi2 = p0
+        robust = p0 if any(f[0].robust is not None for f in fs) else None
         dof, angles, raw = 0, [], 0.0
         for f, bearings, *scale in fs:
             T_cl, T_lb = values.atPose3(f.keys[0]), values.atPose3(f.keys[1])
@@ -101,9 +103,7 @@ def board_stats(
                 angles.append(np.arctan2(c, np.sum(p * bearings, axis=1)))
         a = np.concatenate(angles)
         rms = float(1e3 * np.sqrt(np.mean(a**2)))
-        out[i] = BoardStats(
-            chi2, dof, rms, robust, returns.get(i), (prior[i], prior_dof.get(i, 0)), (raw, dof)
-        )
+        out[i] = BoardStats(chi2, dof, rms, robust, returns.get(i), (p0, prior_dof.get(i, 0)), (raw, dof))
     return out
 
 
@@ -180,9 +180,7 @@ def graph_variance_factor(
 ) -> float:  # fmt: skip
     """``chi2 / (m - n)`` over the whole graph, at least 1 (bearings without their robust kernel)."""
     chi2 = sum(s.chi2 + (s.returns[0] if s.returns else 0.0) for s in st.values())
-    chi2 += sum(
-        2.0 * g.at(k).error(values) for k, t in enumerate(terms) if t.kind in ("tie", "offset", "lidar")
-    )
+    chi2 += sum(2.0 * g.at(k).error(values) for k, t in enumerate(terms) if t.kind in asm.global_terms)
     m = sum(t.dim for t in terms)
     n = sum(asm.dim(k) for k in values.keys())
     return max(1.0, chi2 / (m - n)) if m > n else 1.0

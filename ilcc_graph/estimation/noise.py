@@ -283,12 +283,8 @@ def solve_problem(
             f"no usable frame for the graph ({len(wanted)} given" + (f"; {detail})" if detail else ")")
         )
     allowed_drops = int(math.floor(options.max_dropped_fraction * len(candidates)))
-    ext = {e: (start or {}).get(e) for e in problem.T_init}
-    ext = {e: T for e, T in ext.items() if T is not None}
-    board_est: dict[int, gtsam.Pose3] = {}
-    offsets: dict[int, float] = {}
-    lidar_est: dict[int, np.ndarray] = {}
-    intr_est: dict[int, np.ndarray] = {}
+    # every variable's latest estimate by key (the start of the next fit): the extrinsics' given starts
+    known: dict[int, object] = {X(e): T for e, T in (start or {}).items() if T is not None}
     timings = {"build": 0.0, "optimize": 0.0}
     iterations = 0
 
@@ -296,23 +292,13 @@ def solve_problem(
         nonlocal iterations
         t0 = time.perf_counter()
         g, terms = asm.graph(kept, comps, plain)
-        values = asm.values(kept, ext, board_est, offsets, lidar_est, intr_est)
+        values = asm.values(kept, known)
         t1 = time.perf_counter()
         res, n_it = optimize(asm.compact(g, terms, comps), values, options.solver)
         timings["build"] += t1 - t0
         timings["optimize"] += time.perf_counter() - t1
         iterations += n_it
-        for e in asm.extrinsics(kept):
-            ext[e] = res.atPose3(X(e))
-        for i in kept:
-            board_est[i] = res.atPose3(B(i))
-        if problem.range_offset_sigma_m is not None:
-            for lid in asm.lidars(kept):
-                offsets[lid] = float(res.atVector(O(lid))[0])
-        for lid in asm.point_lidars(kept):
-            lidar_est[lid] = np.asarray(res.atVector(L(lid)))
-        for c in asm.view_cameras(kept):
-            intr_est[c] = np.asarray(res.atVector(I(c)))
+        known.update(asm.read(res, kept))
         return g, terms, res
 
     def stats_of(kept: Sequence[int], comps: Scales, g, terms, res) -> dict[int, BoardStats]:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -31,7 +32,8 @@ class BoardPrior:
     """One board placement as the LiDAR stage saw it.
 
     name: unique label (frame name, ``session/frame`` when several sessions).
-    T_lidar_board: (4, 4) the LiDAR stage's pose. covariance: (6, 6) its Pose3-tangent covariance.
+    T_lidar_board: (4, 4) the LiDAR stage's pose. covariance: (6, 6) its Pose3-tangent covariance, or
+    None for a board the (base) LiDAR did not see (a rig's: ``T_lidar_board`` is then only its start).
     group: noise group (the session): its board priors share one variance component.
     lidar: index of the LiDAR unit (shares the range-offset variable ``O(lidar)``).
     samples_board: (M, 3) points of the board's face, board frame, for the range offset (None: a
@@ -41,7 +43,7 @@ class BoardPrior:
 
     name: str
     T_lidar_board: np.ndarray
-    covariance: np.ndarray
+    covariance: np.ndarray | None
     group: str = ""
     lidar: int = 0
     samples_board: np.ndarray | None = None
@@ -86,6 +88,8 @@ class Problem:
     variables; else the sigma of each LiDAR's weak zero-mean prior on its offset (metres).
     lidar_errors: which of the LiDAR's own errors to estimate from the boards' returns (None: none).
     intrinsics: whether the cameras' intrinsics are refined, or their stated sigmas propagated.
+    evidence: the data of factor kinds that bring their own (``kinds/``), by kind name (e.g. a rig's
+    other LiDARs, ``kinds.lidar_boards``).
     """
 
     boards: tuple[BoardPrior, ...]
@@ -96,6 +100,7 @@ class Problem:
     lidar_names: tuple[str, ...] = field(default=("lidar",))
     lidar_errors: LidarErrorOptions | None = None
     intrinsics: IntrinsicsOptions | None = None
+    evidence: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         names = [b.name for b in self.boards]
@@ -166,6 +171,10 @@ def merge_problems(parts: Sequence[Problem], **kw: object) -> Problem:
     T_init: dict[int, np.ndarray] = {}
     ties: list[Tie] = []
     for p in parts:
+        if p.evidence:
+            raise ValueError(
+                f"merge_problems: a part carries evidence of {sorted(p.evidence)}, which it cannot shift"
+            )
         off = len(boards)
         boards.extend(p.boards)
         views.extend(replace(v, board=v.board + off) for v in p.views)
