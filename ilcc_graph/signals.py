@@ -30,6 +30,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from types import FrameType
 
 __all__ = [
     "Stopped",
@@ -156,14 +157,25 @@ def held() -> Iterator[None]:
     check()
 
 
-def _handler(signum: int, frame: object) -> None:
+def _importing(frame: FrameType | None) -> bool:
+    """Is the main thread inside Python's import machinery? (An exception raised there, e.g. in its
+    module-lock callback, is printed as "Exception ignored" with a traceback, not propagated.)"""
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib"):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _handler(signum: int, frame: FrameType | None) -> None:
     if _state.raised:
         return  # a second Ctrl-C while stopping: the stop is under way (the watcher ends it)
-    _state.raised = True
     if _state.signum is None:
         _state.signum = signum
-    if not _state.held:
-        raise Stopped(_state.signum)
+    if _state.held or _importing(frame):
+        return  # raised by the next check() or the end of ``held``; the watcher ends it otherwise
+    _state.raised = True
+    raise Stopped(_state.signum)
 
 
 def _force(signum: int) -> None:

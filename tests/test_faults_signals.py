@@ -144,3 +144,19 @@ def test_a_pool_starts_all_its_workers_at_once():
         assert len(procs) == 2 and all(p.is_alive() for p in procs.values())
         assert [f.result(timeout=60) for f in [ex.submit(abs, -k) for k in range(6)]] == list(range(6))
         assert dict(ex._processes).keys() == procs.keys()  # the same two did the work
+
+
+def test_a_stop_during_an_import_is_not_raised_inside_the_import_machinery(tmp_path, monkeypatch):
+    """SIGTERM at start-up used to land in importlib's module-lock callback, where Python prints the
+    exception as "Exception ignored ... Traceback" instead of stopping: the handler now leaves a stop
+    that arrives inside an import to the next check (or to the watcher), and raises it anywhere else."""
+    from ilcc_graph import signals as sig
+
+    (tmp_path / "probe_importing_mod.py").write_text(
+        "import sys\nfrom ilcc_graph import signals\nSEEN = signals._importing(sys._getframe())\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import probe_importing_mod  # noqa: PLC0415 - imported here: the import is what is probed
+
+    assert probe_importing_mod.SEEN is True
+    assert sig._importing(sys._getframe()) is False
