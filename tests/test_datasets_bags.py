@@ -22,7 +22,7 @@ from ilcc_graph.app import main
 from ilcc_graph.datasets import BagSource, FolderSource, open_source
 from ilcc_graph.errors import InputError
 from ilcc_graph.io import read_yaml
-from ilcc_graph.pipeline import run
+from ilcc_graph.run.pipeline import run
 from ilcc_graph.simulate import ImageOptions, simulate_dataset, simulate_frames, standard_spec, write_bag
 from ilcc_graph.simulate.bag import RosMessages, WalkAndPause, simulate_walk
 

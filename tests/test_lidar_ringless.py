@@ -18,7 +18,8 @@ from ilcc_graph.io import read_scan, write_pcd
 from ilcc_graph.lidar import estimate_board
 from ilcc_graph.lidar.ringless import find_ringless_candidates, pseudo_rings
 from ilcc_graph.lidars import choose_model, lidar_model, measure_beams, scanline_free
-from ilcc_graph.pipeline import RunOptions, run
+from ilcc_graph.run.pipeline import run
+from ilcc_graph.run.result import RunOptions
 from ilcc_graph.simulate import (
     SceneOptions,
     SimulationSpec,

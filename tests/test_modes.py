@@ -18,8 +18,9 @@ from ilcc_graph.app import main
 from ilcc_graph.app.write import write_run
 from ilcc_graph.datasets import FolderSource
 from ilcc_graph.estimation.sessions import JointOptions
-from ilcc_graph.observe import observe
-from ilcc_graph.pipeline import RunOptions, run, solve_observations
+from ilcc_graph.run.observe import observe
+from ilcc_graph.run.pipeline import run, solve_observations
+from ilcc_graph.run.result import RunOptions
 from ilcc_graph.simulate import simulate_dataset, standard_spec
 
 
@@ -49,7 +50,7 @@ def test_batch_sessions_range_offset_at_zero_and_incremental_agree(pinhole_set, 
     _same(batch, one.calibration)
     held = RunOptions(joint=JointOptions(range_offset=True, range_offset_prior_sigma_m=1e-10))
     offset = solve_observations([observed], held)
-    assert abs(offset.joint.range_offsets["hdl32"].value_m) < 1e-9
+    assert abs(offset.documents["joint.yaml"]["range_offsets"]["hdl32"]["value_mm"]) < 1e-6
     _same(batch, offset.calibration)
     # incremental mode ends with the batch strategy's answer, the model chosen as calibrate chooses it
     auto = solve_observations([observed]).calibration

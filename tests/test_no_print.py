@@ -18,8 +18,8 @@ from ilcc_graph.board import Board
 from ilcc_graph.datasets import open_source
 from ilcc_graph.io import read_ground_truth
 from ilcc_graph.lidar._synthetic import SynthScene, board_pose
-from ilcc_graph.pipeline import run
 from ilcc_graph.report.text import lidar_view_lines
+from ilcc_graph.run.pipeline import run
 from ilcc_graph.simulate import ImageOptions, board_placements, simulate_dataset, standard_spec
 from ilcc_graph.types import Calibration
 
