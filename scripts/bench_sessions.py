@@ -190,7 +190,8 @@ def pipeline_example(out_dir: Path, n_frames: int) -> str:
         )
     for rep in ((0.0, 0.0), (0.02, 1.0)):
         joint = JointOptions(repeatability_deg=rep[0], repeatability_mm=rep[1])
-        again = res if rep == (0.0, 0.0) else solve_observations(observations, RunOptions(joint=joint), list(truth))
+        opts = RunOptions(joint=joint)
+        again = res if rep == (0.0, 0.0) else solve_observations(observations, opts, list(truth))
         sol = again.documents["joint.yaml"]
         lines += [
             "",
