@@ -40,7 +40,7 @@ from ilcc_graph.estimation.selection import AUTO
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.prepare import graph_frame, prepare
 from ilcc_graph.run.second_look import second_pass
-from ilcc_graph.run.source import open_run, other_colour
+from ilcc_graph.run.source import colour_warning, open_run, other_colour
 from ilcc_graph.run.stages import StageOptions, observe_image, observe_lidar
 from ilcc_graph.types import Calibration, FrameResult, GraphFrame, sigmas_deg_mm
 
@@ -173,22 +173,11 @@ class LiveCheck:
         except BoardColourMismatch as err:
             if self._colour_checked:
                 return err
-            board = self.config.board
-            flipped = other_colour(self.config)
-            other = flipped.board.lower_left
             try:
-                res = observe_image(source, ref, flipped, self.stages.image, views=False)
+                res = observe_image(source, ref, other_colour(self.config), self.stages.image, views=False)
             except FrameError:
                 return err
-            log.warning(
-                "%s: board.lower_left is %s, but the print's lower-left square is %s in frame %s; using %s",
-                self.config.source,
-                board.lower_left,
-                other,
-                ref.name,
-                other,
-            )
-            self.config = flipped
+            self.config = colour_warning(self.config, f"image of frame {ref.name}")
             self._colour_checked = True
             return res
         except FrameError as err:

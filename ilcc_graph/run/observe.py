@@ -17,9 +17,9 @@ from dataclasses import dataclass
 from ilcc_graph import signals, workers
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
-from ilcc_graph.errors import BoardColourMismatch, FrameError, InputError
+from ilcc_graph.errors import FrameError, InputError
 from ilcc_graph.lidar import INTENSITY_UNUSABLE
-from ilcc_graph.run.source import Opened, open_run, other_colour
+from ilcc_graph.run.source import Opened, colour_votes, colour_warning, open_run
 from ilcc_graph.run.stages import StageOptions, attempt, observe_frame, observe_image, observe_lidar
 from ilcc_graph.types import FrameResult
 
@@ -62,20 +62,6 @@ def _observe_frame_errors(source: FrameSource, ref: FrameRef, config: Config, op
     return fr, res if isinstance(res, FrameError) else None
 
 
-def _colour_turned(done: Sequence[tuple[FrameResult, object]], needed: int = 2, look: int = 6) -> bool:
-    """Whether the images contradict ``board.lower_left``: as ``source.check_board_colour`` decides,
-    from the image stage's results of the first ``look`` frames (until ``needed`` agree either way)."""
-    agree = disagree = 0
-    for f, err in done[:look]:
-        if isinstance(err, BoardColourMismatch):
-            disagree += 1
-        elif f.corners is not None:
-            agree += 1
-        if max(agree, disagree) >= needed:
-            break
-    return disagree > agree
-
-
 def observe(
     source: FrameSource, options: StageOptions = StageOptions(), progress: Progress | None = None
 ) -> Observation:
@@ -94,14 +80,9 @@ def observe(
     items = [(source, r, config, options) for r in refs]
     done = workers.map_processes(_observe_frame_errors, items, options.jobs, progress)
     frames = [fr for fr, _ in done]
-    if config.board.half_turn_symmetric and _colour_turned(done):
-        turned = other_colour(config)
-        log.warning(
-            "%s: board.lower_left is %s, but the print's lower-left square (seen from the front, long "
-            "side horizontal) is %s in the images checked; using %s", config.source, config.board.lower_left,
-            turned.board.lower_left, turned.board.lower_left,
-        )  # fmt: skip
-        config = turned
+    agree, disagree = colour_votes(err if err is not None else fr.corners for fr, err in done[:6])
+    if config.board.half_turn_symmetric and disagree > agree:
+        config = colour_warning(config, "images checked")
         items = [(source, r, config, options) for r in refs]
         frames = workers.map_processes(observe_frame, items, options.jobs, progress)
     warn_damaged(frames)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 from ilcc_graph.config import Config
@@ -28,6 +28,8 @@ __all__ = [
     "Opened",
     "check_board_colour",
     "check_image_size",
+    "colour_votes",
+    "colour_warning",
     "open_run",
     "other_colour",
     "resolve_lidar",
@@ -141,29 +143,43 @@ def check_board_colour(
     the image stage's results (ImageCorners or FrameError) of the frames looked at when they hold
     for the config returned, so that they need not be computed again.
     """
-    board = config.board
-    if not board.half_turn_symmetric:
+    if not config.board.half_turn_symmetric:
         return config, {}
-    agree = disagree = 0
     seen: dict[str, object] = {}
-    for ref in refs[:look]:
-        if ref.image is None:
-            continue
-        res = attempt(observe_image, source, ref, config, options, strict)
-        seen[ref.name] = res
+
+    def results() -> Iterator[object]:
+        for ref in refs[:look]:
+            if ref.image is not None:
+                seen[ref.name] = attempt(observe_image, source, ref, config, options, strict)
+                yield seen[ref.name]
+
+    agree, disagree = colour_votes(results(), needed)
+    if disagree <= agree:
+        return config, seen
+    return colour_warning(config, f"{disagree} of {agree + disagree} images checked"), {}
+
+
+def colour_votes(results: Iterable[object], needed: int = 2) -> tuple[int, int]:
+    """(agree, disagree): the image stage's results (ImageCorners, FrameError or None, in frame
+    order; read until ``needed`` agree either way) that hold or contradict ``board.lower_left``
+    (``BoardColourMismatch``)."""
+    agree = disagree = 0
+    for res in results:
         if isinstance(res, BoardColourMismatch):
             disagree += 1
-        elif not isinstance(res, FrameError):
+        elif res is not None and not isinstance(res, FrameError):
             agree += 1
         if max(agree, disagree) >= needed:
             break
-    if disagree <= agree:
-        return config, seen
+    return agree, disagree
+
+
+def colour_warning(config: Config, evidence: str) -> Config:
+    """The config with the other print colour, said once (``evidence``: where the images say so)."""
     turned = other_colour(config)
     log.warning(
         "%s: board.lower_left is %s, but the print's lower-left square (seen from the front, long side "
-        "horizontal) is %s in %d of %d images checked; using %s",
-        config.source, board.lower_left, turned.board.lower_left, disagree, agree + disagree,
-        turned.board.lower_left,
+        "horizontal) is %s in the %s; using %s", config.source, config.board.lower_left,
+        turned.board.lower_left, evidence, turned.board.lower_left,
     )  # fmt: skip
-    return turned, {}
+    return turned
