@@ -14,7 +14,7 @@ out, ``until`` frames were seen, the target is reached or the user interrupts (C
 Each frame's verdict is ready once both stages ran on it (a fraction of a second to a few seconds,
 docs/bench_live.md). The print's colour (``board.lower_left``) is checked on the way: when the first
 image that shows the board contradicts the config and the other colour works, the other colour is
-used from then on (with a warning), as ``run.source.check_board_colour`` does for a whole data set.
+used from then on (with a warning), as ``run.colour.check_board_colour`` does for a whole data set.
 """
 
 from __future__ import annotations
@@ -37,10 +37,11 @@ from ilcc_graph.estimation.batch import solve as solve_batch
 from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.estimation.incremental import FrameUpdate
 from ilcc_graph.estimation.selection import AUTO
+from ilcc_graph.run.colour import colour_warning, other_colour
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.prepare import graph_frame, prepare
 from ilcc_graph.run.second_look import second_pass
-from ilcc_graph.run.source import colour_warning, open_run, other_colour
+from ilcc_graph.run.source import open_run
 from ilcc_graph.run.stages import StageOptions, observe_image, observe_lidar
 from ilcc_graph.types import Calibration, FrameResult, GraphFrame, sigmas_deg_mm
 

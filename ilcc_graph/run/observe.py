@@ -19,7 +19,8 @@ from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import FrameError, InputError
 from ilcc_graph.lidar import INTENSITY_UNUSABLE
-from ilcc_graph.run.source import Opened, colour_votes, colour_warning, open_run
+from ilcc_graph.run.colour import colour_votes, colour_warning
+from ilcc_graph.run.source import Opened, open_run
 from ilcc_graph.run.stages import StageOptions, attempt, observe_frame, observe_image, observe_lidar
 from ilcc_graph.types import FrameResult
 
