@@ -88,18 +88,9 @@ def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray |
     seconds = (t1 - t0, time.perf_counter() - t1)
     notes = [advice["next"].describe()] if advice.get("next") is not None else []
     reports = sorted((out / "report").glob("**/index.html"))
-    gate = options.noise.chi2_gate_prob
-    summary = run_summary(
-        result.calibration,
-        result.documents.get("joint.yaml"),
-        truth,
-        out,
-        seconds,
-        reports,
-        notes,
-        options.target_sigma,
-        gate,
-    )
+    need, gate = options.target_sigma, options.noise.chi2_gate_prob
+    joint = result.documents.get("joint.yaml")  # the sessions' tests, for the verdict
+    summary = run_summary(result.calibration, joint, truth, out, seconds, reports, notes, need, gate)
     print(summary)
     return 0
 

@@ -115,7 +115,7 @@ def write_report(
     obs, cal = session.observation, session.calibration
     config, source = obs.config, obs.source
     curve = cv = None
-    if studies and result.mode in ("graph", "incremental", "sessions"):
+    if studies and result.covariance is not None:  # the studies: batch refits of subsets
         options = dataclasses.replace(result.options, mode="graph")
 
         def solve(subset):  # noqa: ANN001, ANN202

@@ -63,7 +63,8 @@ def verdict(
     dropped for disagreeing with the result, and the largest 1-sigma in any direction within
     ``need`` (deg, mm; default ``NEED_DEG_MM``). POOR: fewer than 3 frames used, more than half
     disagreeing, or a 1-sigma above 3 x ``need``. FAIR: in between. MOVED: sessions whose mount
-    moved. NO UNCERTAINTY: a method without a covariance (the paper's refinement).
+    moved (``joint``: the sessions' ``joint.yaml`` document). NO UNCERTAINTY: a method without a
+    covariance (the paper's refinement).
     """
     need = NEED_DEG_MM if need is None else need
     used = [f for f in cal.frames if f.used]
@@ -295,7 +296,8 @@ def run_summary(
     need: tuple[float, float] | None = None,
     gate_prob: float | None = 0.999,
 ) -> str:
-    """What ``calibrate`` prints (module docstring). seconds: (calibrating, writing the outputs);
+    """What ``calibrate`` prints (module docstring). joint: the sessions' ``joint.yaml`` document
+    (``run.result.Result.documents``) or None; seconds: (calibrating, writing the outputs);
     reports: the report pages written; notes: further lines (the next board pose, ...)."""
     try:
         camera = make_camera(cal.camera) if cal.camera is not None else None
