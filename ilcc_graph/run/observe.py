@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from ilcc_graph import signals, workers
 from ilcc_graph.config import Config
@@ -44,13 +45,16 @@ class Observation:
     """A source observed: the config used (print colour checked) and every frame's stage results
     (frames without a partner come last, unused, with the reason); ``name``: the session's name in
     a run (the source's label made unique); ``stream``: for a strategy that reads the frames as it
-    solves, the frames still to observe (``frames`` then empty). Plain data a strategy interprets."""
+    solves, the frames still to observe (``frames`` then empty); ``data``: what a strategy's own
+    observation pass gives besides (``Strategy.observe``; a rig: each moment's results per sensor).
+    Plain data a strategy interprets."""
 
     source: FrameSource
     config: Config
     frames: list[FrameResult]
     name: str = ""
     stream: FrameStream | None = None
+    data: Any = None
 
 
 def _observe_frame_errors(source: FrameSource, ref: FrameRef, config: Config, options: StageOptions,

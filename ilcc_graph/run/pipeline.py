@@ -60,7 +60,8 @@ def run(
     observations = []
     for name, src in zip(names, sources, strict=True):
         cb = None if progress is None else (lambda i, n, name=name: progress(name, i, n))
-        observations.append(dataclasses.replace(observe(src, options.stages, cb), name=name))
+        observed = (chosen.observe or observe)(src, options.stages, cb)
+        observations.append(dataclasses.replace(observed, name=name))
     signals.check()
     try:
         result = solve_observations(observations, dataclasses.replace(options, mode=chosen.mode))

@@ -32,7 +32,9 @@ class Strategy:
     can; None: it calibrates one source). streams: it reads the frames as it solves
     (``Observation.stream``; no second look). second_pass: the run looks again for the boards the
     LiDAR stage missed once it has an extrinsic, and solves again. sensor_errors: it estimates the
-    sensors' own errors (the LiDAR's are turned on when most boards show no print).
+    sensors' own errors (the LiDAR's are turned on when most boards show no print). observe: the
+    observation pass of each source, ``(source, stages, progress) -> Observation`` (None:
+    ``observe.observe``; a multi-sensor strategy brings its own and its sources).
     """
 
     mode: str
@@ -41,6 +43,7 @@ class Strategy:
     streams: bool = False
     second_pass: bool = True
     sensor_errors: bool = True
+    observe: Callable[..., Observation] | None = None
 
 
 _REGISTRY: dict[str, Strategy] = {}
