@@ -44,7 +44,7 @@ __all__ = ["START_METHOD", "map_processes", "pool", "prestart", "processes_where
 #: how worker processes are started (see the module docstring)
 START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
 #: what the fork server imports once, so that a worker starts with the stages loaded
-PRELOAD = ["ilcc_graph._forkserver_preload", "ilcc_graph.observe"]
+PRELOAD = ["ilcc_graph._forkserver_preload", "ilcc_graph.run.observe"]
 
 Progress = Callable[[int, int], None]
 

@@ -58,7 +58,8 @@ from ilcc_graph.estimation import NoiseOptions, solve
 from ilcc_graph.image import detect_corners
 from ilcc_graph.init import upnp
 from ilcc_graph.lidar import estimate_board
-from ilcc_graph.pipeline import RunOptions, solve_observed
+from ilcc_graph.run.pipeline import solve_observed
+from ilcc_graph.run.result import RunOptions
 from ilcc_graph.simulate import (
     ImageRenderer,
     Systematics,

@@ -23,7 +23,7 @@ import numpy as np
 
 from ilcc_graph.datasets import open_source, rosbag
 from ilcc_graph.io import read_scan, write_pcd, write_ply
-from ilcc_graph.simulate import ImageOptions, simulate_dataset, simulate_frames, standard_spec, write_bag
+from ilcc_graph.simulate import RenderOptions, simulate_dataset, simulate_frames, standard_spec, write_bag
 from ilcc_graph.types import Scan
 
 N = 100_000
@@ -150,7 +150,7 @@ def _size_mb(p: Path) -> float:
 
 def bag_sources(d: Path) -> str:
     spec = standard_spec(lidar="os1-64", camera="pinhole", width=1920, frames=BAG_FRAMES, seed=0,
-                         image=ImageOptions(supersample=1))  # fmt: skip
+                         image=RenderOptions(supersample=1))  # fmt: skip
     frames = list(simulate_frames(spec))
     cases = {
         "folder (binary PCD + PNG)": simulate_dataset(d / "folder", spec),

@@ -71,8 +71,9 @@ from ilcc_graph.errors import CalibrationImpossible, FrameError, IndeterminateSy
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.image import detect_corners
 from ilcc_graph.lidar import estimate_board
-from ilcc_graph.observe import Observation
-from ilcc_graph.pipeline import RunOptions, solve_observed
+from ilcc_graph.run.observe import Observation
+from ilcc_graph.run.pipeline import solve_observed
+from ilcc_graph.run.result import RunOptions
 from ilcc_graph.simulate import (
     ImageRenderer,
     SceneOptions,
@@ -441,7 +442,7 @@ def timing(obs: Observed, sizes: Sequence[int] = (20, 400), repeats: int = 3) ->
     terms off and on, on the first frames of ``obs``; and of the effects' extra solves."""
     from ilcc_graph.estimation import NoiseOptions
     from ilcc_graph.estimation.batch import solve
-    from ilcc_graph.prepare import prepare
+    from ilcc_graph.run.prepare import prepare
 
     logging.getLogger("ilcc_graph").setLevel(logging.ERROR)
     lines = [
@@ -540,8 +541,9 @@ def _held_out(halves: Sequence[Calibration], parts: Sequence[Observation]) -> st
 def real_data(root: Path, jobs: int) -> list[str]:
     """Per recorded set and variant: frames used, dark offset, beams, the halves' agreement."""
     from ilcc_graph.datasets import open_source
-    from ilcc_graph.observe import StageOptions, observe
-    from ilcc_graph.pipeline import solve_observations
+    from ilcc_graph.run.observe import observe
+    from ilcc_graph.run.pipeline import solve_observations
+    from ilcc_graph.run.stages import StageOptions
 
     logging.getLogger("ilcc_graph").setLevel(logging.ERROR)
     lines: list[str] = []

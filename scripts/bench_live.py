@@ -93,9 +93,10 @@ def agreement(name: str, data: Path) -> list[str]:
 
     from ilcc_graph.datasets import open_source
     from ilcc_graph.errors import CalibrationImpossible
-    from ilcc_graph.live import CheckOptions, run_check
-    from ilcc_graph.observe import StageOptions
-    from ilcc_graph.pipeline import RunOptions, run
+    from ilcc_graph.run.live import CheckOptions, run_check
+    from ilcc_graph.run.pipeline import run
+    from ilcc_graph.run.result import RunOptions
+    from ilcc_graph.run.stages import StageOptions
     from ilcc_graph.types import sigmas_deg_mm
 
     logging.getLogger("ilcc_graph").setLevel(logging.ERROR)

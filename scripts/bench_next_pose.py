@@ -54,8 +54,9 @@ FIG = ROOT / "docs" / "bench_next_pose.png"
 def stage_observation(path: Path | None, cache: Path):
     """(config, [GraphFrame]) of a rendered simulated set observed by the real stages."""
     from ilcc_graph.datasets import open_source
-    from ilcc_graph.observe import StageOptions, observe
-    from ilcc_graph.prepare import graph_frame
+    from ilcc_graph.run.observe import observe
+    from ilcc_graph.run.prepare import graph_frame
+    from ilcc_graph.run.stages import StageOptions
 
     if cache.is_file():
         return pickle.loads(cache.read_bytes())

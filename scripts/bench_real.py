@@ -36,8 +36,10 @@ from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.io import atomic_write
-from ilcc_graph.observe import Observation, StageOptions, observe
-from ilcc_graph.pipeline import RunOptions, solve_observations
+from ilcc_graph.run.observe import Observation, observe
+from ilcc_graph.run.pipeline import solve_observations
+from ilcc_graph.run.result import RunOptions
+from ilcc_graph.run.stages import StageOptions
 from ilcc_graph.types import Calibration
 
 SETS = ("acfr-vlp16-fisheye", "acfr-os1-fisheye", "acfr-os1-pinhole")

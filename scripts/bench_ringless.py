@@ -231,8 +231,9 @@ def planes_table(frames: int) -> str:
 def calibration_table(seeds: int) -> str:
     from ilcc_graph.datasets import FolderSource
     from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
-    from ilcc_graph.observe import observe
-    from ilcc_graph.pipeline import RunOptions, solve_observations
+    from ilcc_graph.run.observe import observe
+    from ilcc_graph.run.pipeline import solve_observations
+    from ilcc_graph.run.result import RunOptions
     from ilcc_graph.simulate import simulate_dataset
 
     rows: dict[str, list[tuple[float, int]]] = {"systematics off": [], "systematics on": [],

@@ -44,7 +44,7 @@ from ilcc_graph.estimation.problem import frames_problem
 from ilcc_graph.estimation.selection import AUTO, MODELS, choose, mixture
 from ilcc_graph.image import detect_corners
 from ilcc_graph.lidar import estimate_board
-from ilcc_graph.prepare import prepare
+from ilcc_graph.run.prepare import prepare
 from ilcc_graph.simulate import (
     ImageRenderer,
     SceneOptions,

@@ -147,9 +147,10 @@ def pipeline_example(out_dir: Path, n_frames: int) -> str:
     from scipy.spatial.transform import Rotation
 
     from ilcc_graph.datasets import FolderSource
-    from ilcc_graph.observe import observe
-    from ilcc_graph.pipeline import RunOptions, solve_observations
     from ilcc_graph.report.text import format_joint
+    from ilcc_graph.run.observe import observe
+    from ilcc_graph.run.pipeline import solve_observations
+    from ilcc_graph.run.result import RunOptions
     from ilcc_graph.simulate import simulate_dataset, standard_spec
     from ilcc_graph.simulate.spec import default_T_cam_lidar
 
@@ -179,21 +180,19 @@ def pipeline_example(out_dir: Path, n_frames: int) -> str:
     ]
     for s in res.sessions:
         name = s.name
-        e = res.joint.alone[name]
-        xi = e.pose.localCoordinates(gtsam.Pose3(truth[name]))
+        e = res.documents["joint.yaml"]["alone"][name]
+        xi = gtsam.Pose3(e["T_cam_lidar"]).localCoordinates(gtsam.Pose3(truth[name]))
         used = sum(f.used for f in s.calibration.frames)
         lines.append(
             f"| {name} | {used} | {np.degrees(np.linalg.norm(xi[:3])):.3f} "
             f"| {1e3 * np.linalg.norm(xi[3:]):.2f} "
-            f"| {xi @ np.linalg.solve(e.covariance, xi):.1f} |"
+            f"| {xi @ np.linalg.solve(e['covariance'], xi):.1f} |"
         )
     for rep in ((0.0, 0.0), (0.02, 1.0)):
         joint = JointOptions(repeatability_deg=rep[0], repeatability_mm=rep[1])
-        sol = (
-            res.joint
-            if rep == (0.0, 0.0)
-            else solve_observations(observations, RunOptions(joint=joint), list(truth)).joint
-        )
+        opts = RunOptions(joint=joint)
+        again = res if rep == (0.0, 0.0) else solve_observations(observations, opts, list(truth))
+        sol = again.documents["joint.yaml"]
         lines += [
             "",
             f"`format_joint` with repeatability {rep[0]} deg / {rep[1]} mm:",

@@ -50,8 +50,10 @@ from ilcc_graph.datasets import open_source
 from ilcc_graph.errors import CalibrationError
 from ilcc_graph.io import read_scan, write_pcd
 from ilcc_graph.lidar import LidarOptions
-from ilcc_graph.observe import StageOptions, observe
-from ilcc_graph.pipeline import RunOptions, run, solve_observations
+from ilcc_graph.run.observe import observe
+from ilcc_graph.run.pipeline import run, solve_observations
+from ilcc_graph.run.result import RunOptions
+from ilcc_graph.run.stages import StageOptions
 from ilcc_graph.simulate import SceneOptions, SimulationSpec, board_placements, simulate_dataset
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -99,7 +99,7 @@ _POOL = """
 import math, sys, time, multiprocessing as mp
 from concurrent.futures import ProcessPoolExecutor
 def go():
-    import ilcc_graph.observe
+    import ilcc_graph.run.observe
     from ilcc_graph import workers
     m = sys.argv[1]
     ctx = mp.get_context(m)
@@ -107,7 +107,7 @@ def go():
         ctx.set_forkserver_preload(workers.PRELOAD)
     t = time.perf_counter()
     with ProcessPoolExecutor(2, mp_context=ctx) as pool:
-        list(pool.map(ilcc_graph.observe.warn_damaged, [[], [], [], []]))
+        list(pool.map(ilcc_graph.run.observe.warn_damaged, [[], [], [], []]))
     print(time.perf_counter() - t)
 if __name__ == "__main__":
     go()

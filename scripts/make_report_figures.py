@@ -45,7 +45,8 @@ from ilcc_graph.types import FrameResult, ImageCorners  # noqa: E402
 def observe(data: Path, config, corners: str, jobs: int, seed: int) -> list[FrameResult]:
     """Per-frame observations: the pipeline's, or LiDAR stage + ground-truth corners with noise."""
     from ilcc_graph.datasets import FolderSource
-    from ilcc_graph.observe import StageOptions, observe, run_lidar_stage
+    from ilcc_graph.run.observe import observe
+    from ilcc_graph.run.stages import StageOptions, attempt, observe_lidar
 
     source = FolderSource(data)
     options = StageOptions(jobs=jobs)
@@ -55,7 +56,8 @@ def observe(data: Path, config, corners: str, jobs: int, seed: int) -> list[Fram
     gt = read_ground_truth(data)
     rng = np.random.default_rng(seed)
     out = [FrameResult(name=s, used=False, reason=why) for s, why in source.skipped()]
-    for paths, res in zip(frames, run_lidar_stage(source, frames, config, options)):
+    lidar = [attempt(observe_lidar, source, r, config, options.lidar) for r in frames]
+    for paths, res in zip(frames, lidar):
         if isinstance(res, Exception):
             out.append(FrameResult(paths.name, False, f"LiDAR: {res}"))
             continue
@@ -119,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--docs", default=str(ROOT / "docs" / "report_metric.md"), help="where the table goes")
     args = ap.parse_args(argv)
 
-    from ilcc_graph.pipeline import solve_observed
+    from ilcc_graph.run.pipeline import solve_observed
 
     out = Path(args.out)
     data = out / "data"

@@ -20,8 +20,9 @@ from scipy.stats import chi2
 
 from ilcc_graph.datasets import open_source
 from ilcc_graph.io import atomic_write
-from ilcc_graph.observe import StageOptions, observe
-from ilcc_graph.pipeline import solve_observed
+from ilcc_graph.run.observe import observe
+from ilcc_graph.run.pipeline import solve_observed
+from ilcc_graph.run.stages import StageOptions
 
 
 def agreement(T_a: np.ndarray, C_a: np.ndarray, T_b: np.ndarray, C_b: np.ndarray) -> tuple[np.ndarray, float]:

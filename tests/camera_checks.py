@@ -134,7 +134,7 @@ def assert_simulated_set_calibrates(
     5 mm of the truth. Returns (rotation error deg, translation error mm)."""
     from ilcc_graph.datasets import FolderSource
     from ilcc_graph.io import read_ground_truth
-    from ilcc_graph.pipeline import run
+    from ilcc_graph.run.pipeline import run
     from ilcc_graph.simulate import simulate_dataset, standard_spec
 
     data = simulate_dataset(out, standard_spec(camera=kind, width=width, frames=frames, seed=seed))

@@ -20,7 +20,7 @@ from ilcc_graph.cameras import (
     make_camera,
 )
 from ilcc_graph.errors import InputError
-from ilcc_graph.export import export_calibration
+from ilcc_graph.exports import export_calibration
 from ilcc_graph.simulate import default_camera, default_T_cam_lidar
 
 KINDS = camera_kinds()

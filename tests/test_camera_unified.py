@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 from ilcc_graph.cameras import Pinhole, Unified, make_camera
 from ilcc_graph.config import parse_config
 from ilcc_graph.errors import InputError
-from ilcc_graph.export import export_calibration
+from ilcc_graph.exports import export_calibration
 
 K = [[300.0, 0.0, 320.5], [0.0, 302.0, 241.0], [0.0, 0.0, 1.0]]
 DIST = [-0.05, 0.01, 4e-4, -3e-4]

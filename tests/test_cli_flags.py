@@ -222,12 +222,12 @@ def test_image_corners(pano, tmp_path, capsys):
 def walk(tmp_path_factory) -> dict:
     """A walk-and-pause ROS 1 bag: the board held still three times for 0.3 s, carried 0.2 s between
     (13 scans at 10 Hz); its config moved away from the bag (only ``--config`` finds it)."""
-    from ilcc_graph.simulate import ImageOptions, standard_spec, write_bag
+    from ilcc_graph.simulate import RenderOptions, standard_spec, write_bag
     from ilcc_graph.simulate.bag import WalkAndPause
 
     d = tmp_path_factory.mktemp("walk")
     spec = standard_spec(lidar="hdl32", camera="pinhole", width=320, frames=3, seed=2,
-                         image=ImageOptions(supersample=1))  # fmt: skip
+                         image=RenderOptions(supersample=1))  # fmt: skip
     bag = write_bag(d / "walk.bag", spec, timeline=WalkAndPause(pause_s=0.3, move_s=0.2), image_format="png")
     config = d / "elsewhere" / "rig.yaml"
     config.parent.mkdir()

@@ -22,8 +22,8 @@ from ilcc_graph.app import main
 from ilcc_graph.datasets import BagSource, FolderSource, open_source
 from ilcc_graph.errors import InputError
 from ilcc_graph.io import read_yaml
-from ilcc_graph.pipeline import run
-from ilcc_graph.simulate import ImageOptions, simulate_dataset, simulate_frames, standard_spec, write_bag
+from ilcc_graph.run.pipeline import run
+from ilcc_graph.simulate import RenderOptions, simulate_dataset, simulate_frames, standard_spec, write_bag
 from ilcc_graph.simulate.bag import RosMessages, WalkAndPause, simulate_walk
 
 INFO = "sensor_msgs/msg/CameraInfo"
@@ -50,7 +50,7 @@ def walk(tmp_path_factory) -> dict:
     """A walk-and-pause recording (three pauses of 1.2 s, moves of 0.6 s, 10 Hz) with and without images."""
     d = tmp_path_factory.mktemp("walk")
     spec = standard_spec(lidar="hdl32", camera="pinhole", width=480, frames=3, seed=2,
-                         image=ImageOptions(supersample=1))  # fmt: skip
+                         image=RenderOptions(supersample=1))  # fmt: skip
     timeline = WalkAndPause(pause_s=1.2, move_s=0.6)
     frames = simulate_walk(spec, timeline)
     jpeg = write_bag(d / "walk.bag", spec, timeline=timeline, frames=frames, image_format="jpeg")
@@ -124,7 +124,7 @@ def test_walk_and_pause_gives_one_frame_per_pause(walk) -> None:
 
 def test_a_static_recording_keeps_every_scan_up_to_the_cap(tmp_path) -> None:
     spec = standard_spec(lidar="hdl32", camera="pinhole", width=320, frames=1, seed=4,
-                         image=ImageOptions(supersample=1))  # fmt: skip
+                         image=RenderOptions(supersample=1))  # fmt: skip
     bag = write_bag(tmp_path / "static.bag", spec, timeline=WalkAndPause(pause_s=1.5), rate_hz=10.0)
     assert len(open_source(bag).frames()) == 15  # no motion: not one pause, every scan
     capped = open_source(bag, max_frames=4).frames()

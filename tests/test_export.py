@@ -1,4 +1,4 @@
-"""Tests of ilcc_graph.export: every format reads back to the same transform."""
+"""Tests of ilcc_graph.exports: every format reads back to the same transform."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from ilcc_graph.export import FORMATS, export_calibration
+from ilcc_graph.exports import FORMATS, export_calibration
 from ilcc_graph.handoff import invert_with_covariance
 from ilcc_graph.types import Calibration, sigma_dict
 

@@ -31,8 +31,8 @@ from ilcc_graph.image import ImageOptions
 from ilcc_graph.io import list_frames, read_scan, write_calibration, write_pcd, write_ply
 from ilcc_graph.io.output_folders import MARKER, staged
 from ilcc_graph.io.scans import write_csv
-from ilcc_graph.observe import Observation
-from ilcc_graph.pipeline import RunOptions, RunResult, SessionResult
+from ilcc_graph.run.observe import Observation
+from ilcc_graph.run.result import Result, RunOptions, SessionResult
 from ilcc_graph.types import Calibration, FrameResult
 
 
@@ -51,7 +51,7 @@ def result(sim):  # noqa: ANN201 - pipeline.RunResult
     frames = tuple(FrameResult(f"{i:04d}", False, "no board " * 20) for i in range(100))
     cal = Calibration(np.eye(4), 1e-6 * np.eye(6), frames)
     obs = Observation(source, source.config(), list(frames))
-    return RunResult("graph", cal, (SessionResult("sim", obs, cal),), RunOptions())
+    return Result("graph", cal, (SessionResult("sim", obs, cal),), RunOptions())
 
 
 def _copy(sim: Path, dst: Path) -> Path:
@@ -225,12 +225,12 @@ def test_outputs_that_cannot_be_written_are_exit_2(sim, tmp_path, readonly_dir, 
 
 
 def test_an_internal_error_is_one_line_and_a_log(sim, tmp_path, capsys, monkeypatch):
-    import ilcc_graph.pipeline
+    import ilcc_graph.run.pipeline
 
     def broken(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
         raise ZeroDivisionError("boom")
 
-    monkeypatch.setattr(ilcc_graph.pipeline, "run", broken)
+    monkeypatch.setattr(ilcc_graph.run.pipeline, "run", broken)
     out = tmp_path / "run"
     assert main(["calibrate", str(sim), "--out", str(out)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
@@ -370,7 +370,7 @@ def _pose(rng: np.random.Generator) -> np.ndarray:
 def test_board_scale_is_the_square_size_ratio_without_an_extrinsic(configured):
     """Images of a 0.075 m print, read with another square size, against the scans' board poses."""
     from ilcc_graph.board import Board
-    from ilcc_graph.setup_mistakes import board_scale
+    from ilcc_graph.run.setup_mistakes import board_scale
     from ilcc_graph.types import ImageCorners
 
     rng = np.random.default_rng(0)
@@ -410,8 +410,8 @@ def test_a_wrong_square_size_is_said_in_one_line(sim, tmp_path, capsys):
 def test_a_part_of_a_bigger_print_is_seen(sim):
     """[5, 7] configured for the [6, 8] print: the image stage finds a part of it in frame 0001, and
     beyond those corners the checker pattern goes on by a row and a column."""
-    from ilcc_graph.observe import observe_image
-    from ilcc_graph.setup_mistakes import pattern_continues
+    from ilcc_graph.run.setup_mistakes import pattern_continues
+    from ilcc_graph.run.stages import observe_image
 
     source = open_source(sim)
     ref = source.frames()[0]

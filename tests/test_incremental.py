@@ -13,7 +13,7 @@ from ilcc_graph.board import Board
 from ilcc_graph.cameras import Equirectangular
 from ilcc_graph.estimation import NoiseOptions, solve
 from ilcc_graph.estimation.incremental import IncrementalCalibrator
-from ilcc_graph.report.text import format_update
+from ilcc_graph.run.strategies.solve_incremental import format_update
 from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
 
 CAMERA = Equirectangular(8000, 4000)

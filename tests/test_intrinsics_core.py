@@ -16,8 +16,9 @@ import pytest
 from ilcc_graph.datasets import FolderSource
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.io import read_ground_truth
-from ilcc_graph.observe import observe
-from ilcc_graph.pipeline import RunOptions, solve_observations
+from ilcc_graph.run.observe import observe
+from ilcc_graph.run.pipeline import solve_observations
+from ilcc_graph.run.result import RunOptions
 from ilcc_graph.simulate import IntrinsicsError, simulate_dataset, standard_spec
 
 

@@ -18,8 +18,8 @@ from ilcc_graph.lidar import ExpectedBoard, estimate_board
 from ilcc_graph.lidar._synthetic import SynthScene, synth_scan
 from ilcc_graph.lidar.detection import find_candidates
 from ilcc_graph.lidars import lidar_model
-from ilcc_graph.observe import resolve_lidar
-from ilcc_graph.pipeline import run
+from ilcc_graph.run.pipeline import run
+from ilcc_graph.run.source import resolve_lidar
 from ilcc_graph.simulate import SimulationSpec, Systematics, default_camera, simulate_dataset
 from ilcc_graph.types import Scan
 

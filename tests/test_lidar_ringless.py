@@ -18,7 +18,8 @@ from ilcc_graph.io import read_scan, write_pcd
 from ilcc_graph.lidar import estimate_board
 from ilcc_graph.lidar.ringless import find_ringless_candidates, pseudo_rings
 from ilcc_graph.lidars import choose_model, lidar_model, measure_beams, scanline_free
-from ilcc_graph.pipeline import RunOptions, run
+from ilcc_graph.run.pipeline import run
+from ilcc_graph.run.result import RunOptions
 from ilcc_graph.simulate import (
     SceneOptions,
     SimulationSpec,
@@ -190,9 +191,9 @@ def test_a_livox_set_whose_config_names_no_lidar_calibrates_with_its_range_offse
 
 def test_a_livox_recording_as_a_ros2_bag_reads_without_rings(tmp_path: Path) -> None:
     from ilcc_graph.datasets import open_source
-    from ilcc_graph.simulate import ImageOptions, simulate_frames, write_bag
+    from ilcc_graph.simulate import RenderOptions, simulate_frames, write_bag
 
-    spec = _spec(frames=2, integration_time_s=0.3, image=ImageOptions(supersample=1))
+    spec = _spec(frames=2, integration_time_s=0.3, image=RenderOptions(supersample=1))
     frames = list(simulate_frames(spec))
     src = open_source(write_bag(tmp_path / "livox", spec, frames=frames, storage="mcap"))
     refs = src.frames()

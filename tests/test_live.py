@@ -15,7 +15,7 @@ from ilcc_graph.app import main
 from ilcc_graph.app.check_view import format_verdict
 from ilcc_graph.datasets.watch import GrowingFolder
 from ilcc_graph.io import read_yaml
-from ilcc_graph.live import CheckOptions, run_check
+from ilcc_graph.run.live import CheckOptions, run_check
 from ilcc_graph.simulate import simulate_dataset, standard_spec
 
 
@@ -136,8 +136,9 @@ def test_ctrl_c_ends_the_check_cleanly_with_the_frames_so_far(sim: Path) -> None
 
 def _calibrate(data: Path):  # noqa: ANN202 - (used frame names, covariance) as calibrate gives them
     from ilcc_graph.datasets import open_source
-    from ilcc_graph.observe import StageOptions
-    from ilcc_graph.pipeline import RunOptions, run
+    from ilcc_graph.run.pipeline import run
+    from ilcc_graph.run.result import RunOptions
+    from ilcc_graph.run.stages import StageOptions
 
     cal = run([open_source(data)], RunOptions(stages=StageOptions(jobs=1))).calibration
     return {f.name for f in cal.frames if f.used}, cal.covariance

@@ -18,8 +18,9 @@ from ilcc_graph.app import main
 from ilcc_graph.app.write import write_run
 from ilcc_graph.datasets import FolderSource
 from ilcc_graph.estimation.sessions import JointOptions
-from ilcc_graph.observe import observe
-from ilcc_graph.pipeline import RunOptions, run, solve_observations
+from ilcc_graph.run.observe import observe
+from ilcc_graph.run.pipeline import run, solve_observations
+from ilcc_graph.run.result import RunOptions
 from ilcc_graph.simulate import simulate_dataset, standard_spec
 
 
@@ -49,7 +50,7 @@ def test_batch_sessions_range_offset_at_zero_and_incremental_agree(pinhole_set, 
     _same(batch, one.calibration)
     held = RunOptions(joint=JointOptions(range_offset=True, range_offset_prior_sigma_m=1e-10))
     offset = solve_observations([observed], held)
-    assert abs(offset.joint.range_offsets["hdl32"].value_m) < 1e-9
+    assert abs(offset.documents["joint.yaml"]["range_offsets"]["hdl32"]["value_mm"]) < 1e-6
     _same(batch, offset.calibration)
     # incremental mode ends with the batch strategy's answer, the model chosen as calibrate chooses it
     auto = solve_observations([observed]).calibration
@@ -125,3 +126,58 @@ def test_second_pass_finds_a_missed_board_where_the_image_puts_it(observed) -> N
     assert again.used and again.board.diagnostics["found_near_prediction"] == 1.0
     d = np.linalg.inv(lost.board.T_lidar_board) @ again.board.T_lidar_board
     assert np.linalg.norm(d[:3, 3]) < 0.01  # the same board pose as the first search found
+
+
+def test_a_new_strategy_is_one_registration(observed, tmp_path, monkeypatch) -> None:
+    """A strategy registered under a new mode runs through solve_observations and the one writer:
+    its further poses and documents (plain data) are written, the mode is recorded, and the paper's
+    refinement gives no covariance (None) while its file keeps the NaN convention."""
+    import dataclasses
+
+    from ilcc_graph.run import strategies
+    from ilcc_graph.run.result import Result
+    from ilcc_graph.run.strategies import Strategy, choose, solve_graph
+
+    def two_sensors(observations, options, report=None) -> Result:  # e.g. a rig: the graph's pair, one more
+        res = solve_graph.solve(observations, dataclasses.replace(options, mode="graph"), report)
+        pose = res.calibration.extrinsic
+        doc = {"sensors": {"camera": {"T_ref_sensor": pose.T}, "camera2": {"T_ref_sensor": np.eye(4)}}}
+        return dataclasses.replace(
+            res, mode="two", options=options, documents={"rig.yaml": doc}, poses={"camera": pose}
+        )
+
+    monkeypatch.setitem(strategies._REGISTRY, "two", Strategy("two", two_sensors))
+    assert "two" in strategies.modes() and choose(RunOptions(mode="two"), 1).mode == "two"
+    with pytest.raises(ValueError, match="calibrates one data set"):
+        choose(RunOptions(mode="two"), 2)  # no joint strategy named for it
+    res = solve_observations([observed], RunOptions(mode="two", second_pass=False))
+    assert res.mode == "two" and res.covariance is not None and "camera" in res.poses
+    out = write_run(tmp_path / "two", res, report=False)
+    rig = yaml.safe_load((out / "rig.yaml").read_text())
+    assert np.allclose(rig["sensors"]["camera"]["T_ref_sensor"], res.calibration.T_cam_lidar)
+    assert yaml.safe_load((out / "config.resolved.yaml").read_text())["options"]["mode"] == "two"
+    paper = solve_observations([observed], RunOptions(mode="paper"))
+    assert paper.covariance is None and np.all(np.isnan(paper.calibration.covariance))
+    with pytest.raises(ValueError, match="must be one of"):
+        RunOptions(mode="nope")
+
+
+def test_the_writer_and_the_report_read_only_the_result() -> None:
+    """app/write.py and report/ import no strategy's own types (BatchSolution, JointSolution,
+    FrameUpdate) and no strategy module: they read ``run.result.Result``."""
+    import ast
+
+    root = Path(__file__).resolve().parents[1] / "ilcc_graph"
+    banned = ("batch", "sessions", "incremental")
+    wrong = []
+    for path in [root / "app" / "write.py", *sorted((root / "report").glob("*.py"))]:
+        package = ["ilcc_graph", path.parent.name]
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom):
+                base = package[: len(package) - node.level + 1] if node.level else []
+                name = ".".join([*base, *([node.module] if node.module else [])])
+                if name in [f"ilcc_graph.estimation.{b}" for b in banned] or name.startswith(
+                    "ilcc_graph.run.strat"
+                ):
+                    wrong.append(f"{path.name}: {name}")
+    assert not wrong, wrong

@@ -137,8 +137,9 @@ def test_after_a_run_the_advice_predicts_with_the_noise_the_run_found(tmp_path) 
 
     from ilcc_graph.datasets import open_source
     from ilcc_graph.next_pose import from_calibration
-    from ilcc_graph.observe import StageOptions, observe
-    from ilcc_graph.pipeline import solve_observed
+    from ilcc_graph.run.observe import observe
+    from ilcc_graph.run.pipeline import solve_observed
+    from ilcc_graph.run.stages import StageOptions
     from ilcc_graph.simulate import simulate_dataset, standard_spec
 
     spec = standard_spec(lidar="hdl32", camera="pinhole", width=800, frames=6, seed=5)

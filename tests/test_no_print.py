@@ -18,9 +18,9 @@ from ilcc_graph.board import Board
 from ilcc_graph.datasets import open_source
 from ilcc_graph.io import read_ground_truth
 from ilcc_graph.lidar._synthetic import SynthScene, board_pose
-from ilcc_graph.pipeline import run
 from ilcc_graph.report.text import lidar_view_lines
-from ilcc_graph.simulate import ImageOptions, board_placements, simulate_dataset, standard_spec
+from ilcc_graph.run.pipeline import run
+from ilcc_graph.simulate import RenderOptions, board_placements, simulate_dataset, standard_spec
 from ilcc_graph.types import Calibration
 
 CHI2_6_999 = 22.46
@@ -30,7 +30,7 @@ BOARD = Board(6, 8, 0.075, 0.045, 0.02)
 def _spec(frames: int = 8, seed: int = 5, board: Board = BOARD, **kw):  # noqa: ANN003, ANN202
     return standard_spec(
         "vlp16", "pinhole", width=640, frames=frames, seed=seed, board=board,
-        image=ImageOptions(supersample=1), **kw,
+        image=RenderOptions(supersample=1), **kw,
     )  # fmt: skip
 
 

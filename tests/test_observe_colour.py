@@ -10,8 +10,9 @@ import pytest
 import yaml
 
 from ilcc_graph.datasets import FolderSource
-from ilcc_graph.live import CheckOptions, run_check
-from ilcc_graph.observe import StageOptions, observe
+from ilcc_graph.run.live import CheckOptions, run_check
+from ilcc_graph.run.observe import observe
+from ilcc_graph.run.stages import StageOptions
 from ilcc_graph.simulate import simulate_dataset, standard_spec
 
 

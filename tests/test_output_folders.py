@@ -56,18 +56,18 @@ def snapshot(folder: Path) -> dict[str, tuple]:
 def no_work(monkeypatch):
     """Every command's work raises: a refusal must come before it."""
     import ilcc_graph.app.check_view
-    import ilcc_graph.evaluation
-    import ilcc_graph.observe
-    import ilcc_graph.pipeline
+    import ilcc_graph.run.evaluate
+    import ilcc_graph.run.observe
+    import ilcc_graph.run.pipeline
     import ilcc_graph.simulate.export
 
     def started(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
         raise AssertionError("the command's work started before its output folder was checked")
 
-    monkeypatch.setattr(ilcc_graph.pipeline, "run", started)
-    monkeypatch.setattr(ilcc_graph.observe, "stage_alone", started)
+    monkeypatch.setattr(ilcc_graph.run.pipeline, "run", started)
+    monkeypatch.setattr(ilcc_graph.run.observe, "stage_alone", started)
     monkeypatch.setattr(ilcc_graph.app.check_view, "check_command", started)
-    monkeypatch.setattr(ilcc_graph.evaluation, "evaluate_on", started)
+    monkeypatch.setattr(ilcc_graph.run.evaluate, "evaluate_on", started)
     monkeypatch.setattr(ilcc_graph.simulate.export, "simulate_frames", started)
 
 
@@ -243,12 +243,12 @@ def test_a_failure_file_never_replaces_a_users_file(sim, earlier, tmp_path, caps
 
 
 def test_an_error_log_never_replaces_a_users_file(sim, tmp_path, capsys, monkeypatch):
-    import ilcc_graph.pipeline
+    import ilcc_graph.run.pipeline
 
     def broken(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
         raise ZeroDivisionError("boom")
 
-    monkeypatch.setattr(ilcc_graph.pipeline, "run", broken)
+    monkeypatch.setattr(ilcc_graph.run.pipeline, "run", broken)
     log = tmp_path / "run.error.log"
     log.write_text("my own log\n")
     assert main(["calibrate", str(sim), "--out", str(tmp_path / "run")]) == 1

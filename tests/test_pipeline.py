@@ -11,7 +11,8 @@ import pytest
 
 from ilcc_graph.config import parse_config
 from ilcc_graph.errors import CalibrationImpossible
-from ilcc_graph.pipeline import RunOptions, solve_observed
+from ilcc_graph.run.pipeline import solve_observed
+from ilcc_graph.run.result import RunOptions
 from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
 
 CONFIG = {
@@ -128,7 +129,7 @@ def test_print_colour_is_taken_from_the_images(tmp_path, caplog):
 
     from ilcc_graph.config import load_config
     from ilcc_graph.datasets import FolderSource
-    from ilcc_graph.observe import check_board_colour
+    from ilcc_graph.run.colour import check_board_colour
     from ilcc_graph.simulate import simulate_dataset, standard_spec
 
     data = simulate_dataset(tmp_path / "sim", standard_spec(camera="pinhole", width=960, frames=3, seed=2))
@@ -151,7 +152,7 @@ def test_print_colour_is_taken_from_the_images(tmp_path, caplog):
 def test_recorded_board_print_is_white_at_lower_left(acfr_data):
     from ilcc_graph.config import load_config
     from ilcc_graph.datasets import FolderSource
-    from ilcc_graph.observe import check_board_colour
+    from ilcc_graph.run.colour import check_board_colour
 
     config = load_config(acfr_data / "config.yaml")
     source = FolderSource(acfr_data)

@@ -11,11 +11,12 @@ import pytest
 import yaml
 
 from ilcc_graph.cameras import camera_class, camera_kinds
-from ilcc_graph.damage import check_image_size, read_frame_file
 from ilcc_graph.datasets import FolderSource, RigSource, open_source
 from ilcc_graph.errors import DamagedFile, InputError, OutputError
 from ilcc_graph.image import detect_corners
-from ilcc_graph.simulate import ImageOptions, Systematics, simulate_dataset, standard_spec
+from ilcc_graph.run.source import check_image_size
+from ilcc_graph.run.stages import read_frame_file
+from ilcc_graph.simulate import RenderOptions, Systematics, simulate_dataset, standard_spec
 from ilcc_graph.simulate.bag import WalkAndPause
 from ilcc_graph.simulate.rig import (
     RIG_PRESETS,
@@ -49,7 +50,7 @@ def ring(tmp_path_factory) -> dict:
 def pack(tmp_path_factory) -> dict:
     """The backpack (VLP-16, OS1-64 turned and tipped, panorama) without noise, 4 moments."""
     spec = backpack_rig(width=1000, n_moments=4, seed=1, noise_scale=0.0, systematics=Systematics.off(),
-                        image=ImageOptions(blur_sigma_px=0.0, noise_sigma=0.0))  # fmt: skip
+                        image=RenderOptions(blur_sigma_px=0.0, noise_sigma=0.0))  # fmt: skip
     return {"spec": spec, "folder": write_rig_set(tmp_path_factory.mktemp("pack") / "set", spec)}
 
 
@@ -272,7 +273,7 @@ def test_a_rig_set_stopped_half_way_leaves_nothing(tmp_path) -> None:
 
 
 def test_a_single_pair_set_seen_as_a_rig_calibrates_to_todays_result(tmp_path) -> None:
-    from ilcc_graph.pipeline import run
+    from ilcc_graph.run.pipeline import run
 
     spec = standard_spec(lidar="hdl32", camera="pinhole", width=800, frames=6, seed=5)
     data = simulate_dataset(tmp_path / "pair", spec)

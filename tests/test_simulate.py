@@ -10,7 +10,7 @@ from ilcc_graph.board import Board
 from ilcc_graph.errors import OutputError
 from ilcc_graph.io.output_folders import MARKER
 from ilcc_graph.simulate import (
-    ImageOptions,
+    RenderOptions,
     SimulationSpec,
     Systematics,
     beam_biases,
@@ -99,9 +99,9 @@ def test_equirectangular_projection_is_interface_formula():
 
 
 def test_image_options_change_the_image():
-    spec = standard_spec(width=600, frames=2, image=ImageOptions(noise_sigma=0.0, blur_sigma_px=0.0))
+    spec = standard_spec(width=600, frames=2, image=RenderOptions(noise_sigma=0.0, blur_sigma_px=0.0))
     clean = simulate_frame(spec, 1).image
-    noisy = simulate_frame(spec.with_(image=ImageOptions(noise_sigma=3.0, blur_sigma_px=0.0)), 1).image
+    noisy = simulate_frame(spec.with_(image=RenderOptions(noise_sigma=3.0, blur_sigma_px=0.0)), 1).image
     d = noisy.astype(float) - clean.astype(float)
     assert 2.5 < d.std() < 3.5
     assert clean.dtype == np.uint8 and clean.shape == (300, 600, 3)

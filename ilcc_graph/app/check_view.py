@@ -16,7 +16,7 @@ import numpy as np
 from ilcc_graph.config import Config
 from ilcc_graph.errors import InputError
 from ilcc_graph.estimation.incremental import FrameUpdate
-from ilcc_graph.live import CheckOptions, LiveCheck, Verdict, run_check
+from ilcc_graph.run.live import CheckOptions, LiveCheck, Verdict, run_check
 from ilcc_graph.types import GraphFrame, sigmas_deg_mm
 
 __all__ = ["VERDICT_HEADER", "LiveAdvice", "StatusLine", "check_command", "format_progress", "format_verdict"]

@@ -55,9 +55,8 @@ def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray |
     from ilcc_graph.app.write import write_run
     from ilcc_graph.datasets import open_source
     from ilcc_graph.next_pose import for_run as next_pose_for_run
-    from ilcc_graph.pipeline import run
     from ilcc_graph.report.summary import run_summary
-    from ilcc_graph.report.text import format_update
+    from ilcc_graph.run.pipeline import run
 
     options = run_options(args)
     out = output_folder(args, data)
@@ -69,7 +68,7 @@ def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray |
             sources,
             options,
             progress=lambda name, i, n: bars.setdefault(name, Progress(name))(i, n),
-            report=lambda u: print(format_update(u, options.target_sigma), flush=True),
+            report=lambda line: print(line, flush=True),
         )
     except CalibrationImpossible as err:  # a short table and one line of advice; details in the folder
         _explain_failure(err, out, args.command_line)
@@ -89,10 +88,9 @@ def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray |
     seconds = (t1 - t0, time.perf_counter() - t1)
     notes = [advice["next"].describe()] if advice.get("next") is not None else []
     reports = sorted((out / "report").glob("**/index.html"))
-    gate = options.noise.chi2_gate_prob
-    summary = run_summary(
-        result.calibration, result.joint, truth, out, seconds, reports, notes, options.target_sigma, gate
-    )
+    need, gate = options.target_sigma, options.noise.chi2_gate_prob
+    joint = result.documents.get("joint.yaml")  # the sessions' tests, for the verdict
+    summary = run_summary(result.calibration, joint, truth, out, seconds, reports, notes, need, gate)
     print(summary)
     return 0
 

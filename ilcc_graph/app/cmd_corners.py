@@ -30,8 +30,8 @@ def run(args: argparse.Namespace, stage: str) -> int:
     """The ``stage`` (``lidar`` or ``image``) alone over the data set ``args.data``."""
     from ilcc_graph.app.write import write_stage
     from ilcc_graph.datasets import open_source
-    from ilcc_graph.observe import stage_alone
     from ilcc_graph.report.text import stage_table
+    from ilcc_graph.run.observe import stage_alone
 
     out = output_folder(args, [args.data])
     source = open_source(args.data, **bag_options(args))

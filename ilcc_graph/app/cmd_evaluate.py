@@ -30,10 +30,10 @@ def run(args: argparse.Namespace) -> int:
     """The paper's metric and corner errors of a calibration on a data set's frames."""
     from ilcc_graph.app.write import write_evaluation
     from ilcc_graph.datasets import open_source
-    from ilcc_graph.evaluation import evaluate_on
     from ilcc_graph.io import read_calibration
     from ilcc_graph.report import evaluation_rows
     from ilcc_graph.report.text import evaluation_text
+    from ilcc_graph.run.evaluate import evaluate_on
 
     claim_given(args, reads=[args.data])
     cal = read_calibration(Path(args.calibration))

@@ -25,7 +25,7 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ilcc_graph.export import export_calibration
+    from ilcc_graph.exports import export_calibration
     from ilcc_graph.io import read_calibration_with_camera
     from ilcc_graph.io.output_folders import write_file
 

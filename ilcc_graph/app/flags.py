@@ -1,8 +1,8 @@
 """The flags' meaning as options: the only mapping from parsed arguments to the package's options.
 
-``run_options(args) -> pipeline.RunOptions`` (calibrate, demo), ``stage_options(args) ->
-observe.StageOptions``, ``bag_options(args)`` (keywords of ``datasets.open_source``) and
-``check_options(args) -> live.CheckOptions``. A contradiction between flags is an ``InputError``
+``run_options(args) -> run.result.RunOptions`` (calibrate, demo), ``stage_options(args) ->
+run.stages.StageOptions``, ``bag_options(args)`` (keywords of ``datasets.open_source``) and
+``check_options(args) -> run.live.CheckOptions``. A contradiction between flags is an ``InputError``
 (exit 2). The package's modules are imported when a command runs, not when the parser is built.
 """
 
@@ -16,9 +16,9 @@ from ilcc_graph.errors import InputError
 
 if TYPE_CHECKING:
     from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
-    from ilcc_graph.live import CheckOptions
-    from ilcc_graph.observe import StageOptions
-    from ilcc_graph.pipeline import RunOptions
+    from ilcc_graph.run.live import CheckOptions
+    from ilcc_graph.run.result import RunOptions
+    from ilcc_graph.run.stages import StageOptions
 
 __all__ = ["bag_options", "check_options", "run_options", "stage_options"]
 
@@ -28,7 +28,7 @@ def run_options(args: argparse.Namespace) -> RunOptions:
     from ilcc_graph.estimation import NoiseOptions
     from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
     from ilcc_graph.estimation.sessions import JointOptions
-    from ilcc_graph.pipeline import RunOptions
+    from ilcc_graph.run.result import RunOptions
 
     joint: dict = {
         "mode": getattr(args, "mode", "rigid"),
@@ -76,7 +76,7 @@ def _lidar_errors(args: argparse.Namespace) -> LidarErrorOptions | None:
 
 def stage_options(args: argparse.Namespace) -> StageOptions:
     """``--jobs`` and ``--strict`` as the per-frame stages' options."""
-    from ilcc_graph.observe import StageOptions
+    from ilcc_graph.run.stages import StageOptions
 
     return StageOptions(jobs=args.jobs, strict=bool(getattr(args, "strict", False)))
 
@@ -90,8 +90,8 @@ def check_options(args: argparse.Namespace) -> CheckOptions:
     """``check``'s options: the target, when to stop, the folder followed, the sensor models tried
     (``auto``: those ``estimation.selection`` chooses among), the stages on one process."""
     from ilcc_graph.estimation.selection import AUTO
-    from ilcc_graph.live import CheckOptions
-    from ilcc_graph.observe import StageOptions
+    from ilcc_graph.run.live import CheckOptions
+    from ilcc_graph.run.stages import StageOptions
 
     target = args.target_sigma
     return CheckOptions(

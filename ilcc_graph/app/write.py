@@ -7,17 +7,18 @@ everything is written (so ``out`` is either the complete result or untouched):
   (interface.md; everything ``export`` needs);
 - ``config.resolved.yaml``: the configuration used (print colour as checked, LiDAR model as
   resolved) in our schema, plus ``options``: every stage and solver option of the run;
-- sessions: ``joint.yaml`` (tests, offsets) and ``sessions/<name>/`` with each session's own
-  ``calibration.yaml`` and ``config.resolved.yaml``; incremental: ``incremental.yaml`` (the state
-  after each frame);
+- a strategy's further documents (``Result.documents``: sessions' ``joint.yaml`` with the tests
+  and offsets, incremental's ``incremental.yaml`` with the state after each frame); for several
+  sessions ``sessions/<name>/`` with each session's own ``calibration.yaml`` and
+  ``config.resolved.yaml``;
 - unless ``report=False``: ``report/index.html`` (one per session under ``report/<name>/`` when
   there are several), its pictures drawn on the views the image stage kept (no picture is read
   again), on ``jobs`` processes; on request (``clouds``) the coloured clouds ``coloured/<frame>.ply``
   and (``full_views``) the whole pictures at full resolution;
 - with a proposal: ``next_pose.png``; ``check``: ``check.yaml``; a failed run: ``failure.yaml``.
 
-The folder mechanics (staging, the locked commit) are ``io.output_folders``; the report's pictures
-and studies ``report.session``.
+It reads only ``run.result.Result`` (no strategy's own types). The folder mechanics (staging, the
+locked commit) are ``io.output_folders``; the report's pictures and studies ``report.session``.
 """
 
 from __future__ import annotations
@@ -33,19 +34,17 @@ import numpy as np
 
 from ilcc_graph.config import Config, config_to_dict
 from ilcc_graph.errors import OutputError
-from ilcc_graph.estimation.incremental import FrameUpdate
-from ilcc_graph.estimation.sessions import ConsistencyTest, JointSolution
 from ilcc_graph.io import atomic_write, write_calibration, write_yaml
 from ilcc_graph.io.output_folders import OURS, add_file, staged, write_beside
-from ilcc_graph.pipeline import RunOptions, RunResult, solve_observed
 from ilcc_graph.report.rig import next_pose_png
 from ilcc_graph.report.session import write_report
-from ilcc_graph.types import Estimate, sigma_dict, to_plain
+from ilcc_graph.run.pipeline import solve_observed
+from ilcc_graph.run.result import Result, RunOptions
+from ilcc_graph.types import sigma_dict, to_plain
 
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "joint_summary",
     "options_dict",
     "resolved_config",
     "write_check",
@@ -68,66 +67,6 @@ def resolved_config(config: Config, options: RunOptions) -> dict[str, Any]:
     return d
 
 
-def _estimate_dict(e: Estimate) -> dict[str, Any]:
-    return {
-        "T_cam_lidar": np.asarray(e.T),
-        "covariance": np.asarray(e.covariance),
-        "sigma": sigma_dict(e.covariance),
-    }
-
-
-def _test_dict(t: ConsistencyTest) -> dict[str, Any]:
-    return {
-        "label": t.label,
-        "kind": t.kind,
-        "session": t.session,
-        "rotation_deg": t.rotation_deg,
-        "translation_mm": t.translation_mm,
-        "mahalanobis": t.mahalanobis,
-        "dof": t.dof,
-        "p_value": t.p_value,
-        "moved": bool(t.moved),
-    }
-
-
-def joint_summary(sol: JointSolution) -> dict[str, Any]:
-    """joint.yaml: joint and per-session extrinsics, the consistency tests, offsets, components."""
-    return {
-        "mode": sol.mode,
-        "joint": _estimate_dict(sol.joint),
-        "sessions": {n: _estimate_dict(e) for n, e in sol.sessions.items()},
-        "alone": {n: _estimate_dict(e) for n, e in sol.alone.items()},
-        "consistency": {
-            "global": None if sol.global_test is None else _test_dict(sol.global_test),
-            "per_session": [_test_dict(t) for t in sol.session_tests],
-            "consecutive": [_test_dict(t) for t in sol.pair_tests],
-            "moved": sol.moved,
-        },
-        "range_offsets": {
-            k: {"value_mm": 1e3 * r.value_m, "sigma_mm": 1e3 * r.sigma_m}
-            for k, r in sol.range_offsets.items()
-        },
-        "variance_components": {n: {"board": c[0], "bearing": c[1]} for n, c in sol.components.items()},
-        "variance_factor": sol.variance_factor,
-        "dropped": {n: [{"name": f, "reason": why} for f, why in d] for n, d in sol.dropped.items()},
-    }
-
-
-def _update_dict(u: FrameUpdate) -> dict[str, Any]:
-    d: dict[str, Any] = {
-        "frame": u.name or "(final)",
-        "accepted": bool(u.accepted),
-        "n_frames": int(u.n_frames),
-    }
-    if u.reason:
-        d["reason"] = u.reason
-    if u.T_cam_lidar is not None:
-        d["sigma"] = sigma_dict(u.covariance)
-        d["reached_target"] = bool(u.reached_target)
-    d["seconds"] = float(u.seconds)
-    return d
-
-
 def write_evaluation(out: Path, evaluation: Any, flag: str = "--out", command: str = "") -> Path:
     """``out/evaluation.yaml`` (``report.evaluation_to_dict``) in a new or empty folder, or added to an
     earlier result of ours (``io.output_folders.add_file``); returns its path."""
@@ -140,7 +79,7 @@ def write_evaluation(out: Path, evaluation: Any, flag: str = "--out", command: s
 
 def write_run(
     out: Path,
-    result: RunResult,
+    result: Result,
     *,
     report: bool = True,
     studies: bool = False,
@@ -162,16 +101,15 @@ def write_run(
         write_calibration(d / "calibration.yaml", result.calibration)
         first = result.sessions[0].observation.config
         write_yaml(d / "config.resolved.yaml", resolved_config(first, result.options))
-        if result.joint is not None:
-            write_yaml(d / "joint.yaml", joint_summary(result.joint))
+        for name, doc in result.documents.items():  # a strategy's further results (joint.yaml, ...)
+            write_yaml(d / name, doc)
+        if result.per_session:
             for s in result.sessions:
                 write_calibration(d / "sessions" / s.name / "calibration.yaml", s.calibration)
                 write_yaml(
                     d / "sessions" / s.name / "config.resolved.yaml",
                     resolved_config(s.observation.config, result.options),
                 )
-        if result.updates:
-            write_yaml(d / "incremental.yaml", {"updates": [_update_dict(u) for u in result.updates]})
         if report:
             several = len(result.sessions) > 1
             for s in result.sessions:

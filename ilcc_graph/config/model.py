@@ -72,7 +72,7 @@ class Config:
     """A resolved configuration.
 
     board, lidar, camera: ready model objects (lidar None: no model named, the scans' own beam
-    table is used, see observe.resolve_lidar). roi: board-search limits or None.
+    table is used, see run.source.resolve_lidar). roi: board-search limits or None.
     intensity_column: CSV column of intensity for files without header (None: not given).
     source: the file it came from (for messages). schema: ``"ilcc_graph"`` or ``"ILCC"``.
     """

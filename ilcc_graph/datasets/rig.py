@@ -5,7 +5,7 @@ one moment; a moment may lack some sensors), or the topics of one ROS bag paired
 (``rig_bag.py``). A single-pair data set (a folder with ``config.yaml``, a bag) opens as the rig of
 one LiDAR and one camera (``config.rig_from_config``: sensors ``lidar`` in ``pcd/``, ``camera`` in
 ``img/``). Files are read with the single-pair sources' readers, so a damaged file raises the same
-``InputError`` naming the file (``damage.read_frame_file`` turns it into a skipped view).
+``InputError`` naming the file (``run.stages.read_frame_file`` turns it into a skipped view).
 :meth:`RigSource.pair` views one camera and one LiDAR as a single-pair :class:`FrameSource`.
 A source is picklable and opens files lazily.
 """

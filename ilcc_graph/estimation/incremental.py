@@ -370,7 +370,7 @@ def calibrate_incrementally(
     stop_at_target: bool = False,
 ) -> tuple[IncrementalCalibrator, FrameUpdate]:
     """Feed ``frames`` one by one, calling ``report(update)`` after each (e.g. printing
-    ``report.text.format_update(u)``).
+    ``run.strategies.solve_incremental.format_update(u)``).
 
     Frames without a board in both sensors are skipped (reported as not accepted, with their reason).
     With ``stop_at_target`` it stops at the first frame that reaches ``target_sigma`` (``frames`` may be

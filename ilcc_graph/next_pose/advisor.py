@@ -346,7 +346,7 @@ def from_calibration(
 
 
 def for_run(result, target_sigma: tuple[float, float] | None = None) -> Proposal | None:  # noqa: ANN001
-    """The next board pose after a run (``pipeline.RunResult``) of one session with a covariance;
+    """The next board pose after a run (``run.result.Result``) of one session with a covariance;
     None for several sessions, the paper's refinement (no covariance) or no valid candidate."""
     if len(result.sessions) != 1 or not np.all(np.isfinite(result.calibration.covariance)):
         return None

@@ -1,6 +1,6 @@
 """The sensors' own errors the graph estimated, for the report and the terminal.
 
-From ``Calibration.sensors`` (``pipeline._sensors``): the LiDAR's per-beam range offsets and its
+From ``Calibration.sensors`` (``run.finish``): the LiDAR's per-beam range offsets and its
 dark-print offset with their sigmas, the terms left out and why, the refined camera intrinsics
 against the stated ones, and what each group moved the extrinsic (``estimation.effects``); and
 what the board's printed scale would move (``square_size_text``). Pure: returns strings.

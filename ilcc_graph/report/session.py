@@ -4,7 +4,7 @@ The frames' pictures are drawn on the views the image stage kept (no picture is 
 the run's worker processes (``workers.pool``) while the caller's ``meanwhile`` runs here; the
 report's studies (accuracy against frames, cross-validation) on request; the coloured clouds and
 full-resolution views on request. The run's result types are named for the type checker only and
-the studies' solver comes from the caller (``refit``: ``pipeline.solve_observed``), so ``report``
+the studies' solver comes from the caller (``refit``: ``run.pipeline.solve_observed``), so ``report``
 does not import the run.
 """
 
@@ -24,7 +24,7 @@ from ilcc_graph.config import Config
 from ilcc_graph.io import write_ply
 
 if TYPE_CHECKING:
-    from ilcc_graph.pipeline import RunOptions, RunResult, SessionResult
+    from ilcc_graph.run.result import Result, RunOptions, SessionResult
     from ilcc_graph.types import Calibration, FrameResult
 
 __all__ = ["write_report"]
@@ -91,7 +91,7 @@ def write_report(
     out: Path,
     coloured_dir: Path,
     session: SessionResult,
-    result: RunResult,
+    result: Result,
     studies: bool,
     truth: np.ndarray | None,
     info: dict,
@@ -108,14 +108,14 @@ def write_report(
         pose (``next_pose.Proposal`` or None; else ``next_pose`` is it), drawn in the report. Returns
         (that proposal, its picture ``next_pose.png`` or None). ``progress(done, total)``: after each
         frame's pictures, and once more when the page is built. ``refit(frames, config, options)``: a
-    subset of the frames solved again (``pipeline.solve_observed``), for the studies."""
+    subset of the frames solved again (``run.pipeline.solve_observed``), for the studies."""
     from ilcc_graph.report import FigureOptions, build_report, cross_validate, frames_vs_accuracy
     from ilcc_graph.report.rig import next_pose_png
 
     obs, cal = session.observation, session.calibration
     config, source = obs.config, obs.source
     curve = cv = None
-    if studies and result.mode in ("graph", "incremental", "sessions"):
+    if studies and result.covariance is not None:  # the studies: batch refits of subsets
         options = dataclasses.replace(result.options, mode="graph")
 
         def solve(subset):  # noqa: ANN001, ANN202

@@ -24,7 +24,6 @@ import gtsam
 import numpy as np
 
 from ..cameras import CameraModel, make_camera
-from ..estimation.sessions import JointSolution
 from ..types import Calibration
 from .sensors import sensors_text, square_size_text
 from .text import format_joint, lidar_view_lines, short_reason
@@ -54,7 +53,7 @@ def _worst(cov: np.ndarray) -> tuple[float, float]:
 
 def verdict(
     cal: Calibration,
-    joint: JointSolution | None = None,
+    joint: dict | None = None,
     need: tuple[float, float] | None = None,
     gate_prob: float | None = 0.999,
 ) -> tuple[str, str]:
@@ -64,7 +63,8 @@ def verdict(
     dropped for disagreeing with the result, and the largest 1-sigma in any direction within
     ``need`` (deg, mm; default ``NEED_DEG_MM``). POOR: fewer than 3 frames used, more than half
     disagreeing, or a 1-sigma above 3 x ``need``. FAIR: in between. MOVED: sessions whose mount
-    moved. NO UNCERTAINTY: a method without a covariance (the paper's refinement).
+    moved (``joint``: the sessions' ``joint.yaml`` document). NO UNCERTAINTY: a method without a
+    covariance (the paper's refinement).
     """
     need = NEED_DEG_MM if need is None else need
     used = [f for f in cal.frames if f.used]
@@ -85,11 +85,12 @@ def verdict(
             "how far off the result may be (calibrate without --refine paper for a verdict)."
         )
     sigma = f"1-sigma at most {rot:.3g} deg and {mm:.2g} mm in any direction"
-    if joint is not None and joint.moved:
-        t = next(t for t in joint.session_tests if t.session == joint.moved)
+    moved = None if joint is None else joint["consistency"]["moved"]
+    if moved:
+        t = next(t for t in joint["consistency"]["per_session"] if t["session"] == moved)  # type: ignore[index]
         return "MOVED", (
-            f"MOVED: session {joint.moved} differs from the others by {t.rotation_deg:.3f} deg and "
-            f"{t.translation_mm:.1f} mm (p = {t.p_value:.2g}): the mount moved between sessions, so "
+            f"MOVED: session {moved} differs from the others by {t['rotation_deg']:.3f} deg and "
+            f"{t['translation_mm']:.1f} mm (p = {t['p_value']:.2g}): the mount moved between sessions, so "
             "one extrinsic does not hold for all of them (--mode drift estimates one per session)."
         )
     problems = []
@@ -117,8 +118,8 @@ def verdict(
     if comp > 1.5:
         basis += f" (image corners {math.sqrt(comp):.1f} x the stated noise)"
     basis += "; the sigmas are the factor graph's marginal covariance"
-    if joint is not None and joint.global_test is not None:
-        basis += f"; no evidence that the mount moved between sessions (p = {joint.global_test.p_value:.2g})"
+    if joint is not None and (g := joint["consistency"]["global"]) is not None:
+        basis += f"; no evidence that the mount moved between sessions (p = {g['p_value']:.2g})"
     return level, f"{head}\n  Rests on: {basis}."
 
 
@@ -286,7 +287,7 @@ def _wrap(text: str) -> str:
 
 def run_summary(
     cal: Calibration,
-    joint: JointSolution | None,
+    joint: dict | None,
     truth: np.ndarray | None,
     out: object,
     seconds: tuple[float, float],
@@ -295,7 +296,8 @@ def run_summary(
     need: tuple[float, float] | None = None,
     gate_prob: float | None = 0.999,
 ) -> str:
-    """What ``calibrate`` prints (module docstring). seconds: (calibrating, writing the outputs);
+    """What ``calibrate`` prints (module docstring). joint: the sessions' ``joint.yaml`` document
+    (``run.result.Result.documents``) or None; seconds: (calibrating, writing the outputs);
     reports: the report pages written; notes: further lines (the next board pose, ...)."""
     try:
         camera = make_camera(cal.camera) if cal.camera is not None else None

@@ -5,10 +5,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from ..estimation.incremental import FrameUpdate
-from ..estimation.sessions import JointSolution
 from ..lidar.outline import BEYOND_FOV_SHARE
-from ..types import BoardFit, Calibration, Estimate, sigmas_deg_mm
+from ..types import BoardFit, Calibration, sigmas_deg_mm
 
 __all__ = [
     "STAGE_HEADERS",
@@ -16,7 +14,6 @@ __all__ = [
     "failure_table",
     "format_joint",
     "format_table",
-    "format_update",
     "lidar_frame_note",
     "lidar_view_lines",
     "short_reason",
@@ -42,57 +39,43 @@ def format_table(rows: Sequence[Sequence[object]], header: Sequence[str]) -> str
     return "\n".join(lines)
 
 
-def _sig(e: Estimate) -> str:
-    s = sigmas_deg_mm(e.covariance)
+def _sig(e: dict) -> str:
+    s = sigmas_deg_mm(e["covariance"])
     return " ".join(f"{v:.3f}" for v in s[:3]) + "  |  " + " ".join(f"{v:.2f}" for v in s[3:])
 
 
-def format_joint(sol: JointSolution) -> str:
-    """Sessions: sigmas (deg | mm) of each estimate, the consistency tests, the verdict."""
-    lines = [f"joint calibration ({sol.mode}), sigma rx ry rz [deg] | tx ty tz [mm]:"]
-    lines.append(f"  {'joint':<18s} {_sig(sol.joint)}")
-    for n in sol.alone:
-        lines.append(f"  {n + ' alone':<18s} {_sig(sol.alone[n])}")
-        if sol.mode == "drift":
-            lines.append(f"  {n + ' in joint':<18s} {_sig(sol.sessions[n])}")
-    for r in sol.range_offsets.values():
-        lines.append(f"  range offset {r.lidar}: {1e3 * r.value_m:+.1f} +- {1e3 * r.sigma_m:.1f} mm")
-    tests = ([sol.global_test] if sol.global_test else []) + sol.session_tests + sol.pair_tests
+def format_joint(joint: dict) -> str:
+    """Sessions: sigmas (deg | mm) of each estimate, the consistency tests, the verdict; from the
+    sessions' ``joint.yaml`` document (``run.strategies.solve_sessions.joint_summary``)."""
+    lines = [f"joint calibration ({joint['mode']}), sigma rx ry rz [deg] | tx ty tz [mm]:"]
+    lines.append(f"  {'joint':<18s} {_sig(joint['joint'])}")
+    for n in joint["alone"]:
+        lines.append(f"  {n + ' alone':<18s} {_sig(joint['alone'][n])}")
+        if joint["mode"] == "drift":
+            lines.append(f"  {n + ' in joint':<18s} {_sig(joint['sessions'][n])}")
+    for lidar, r in joint["range_offsets"].items():
+        lines.append(f"  range offset {lidar}: {r['value_mm']:+.1f} +- {r['sigma_mm']:.1f} mm")
+    c = joint["consistency"]
+    tests = ([c["global"]] if c["global"] else []) + c["per_session"] + c["consecutive"]
     if tests:
         lines.append("consistency (chi-square):")
         for t in tests:
-            size = "" if t.session is None else f"  {t.rotation_deg:.3f} deg, {t.translation_mm:.1f} mm"
-            flag = ("differs" if t.kind == "session" else "MOVED") if t.moved else "ok"
-            lines.append(
-                f"  {t.label:<24s} chi2 {t.mahalanobis:8.1f} ({t.dof} dof)  p={t.p_value:.2g}{size}  {flag}"
+            size = (
+                "" if t["session"] is None else f"  {t['rotation_deg']:.3f} deg, {t['translation_mm']:.1f} mm"
             )
-    if sol.global_test is not None:
-        if sol.moved:
-            t = next(t for t in sol.session_tests if t.session == sol.moved)
+            flag = ("differs" if t["kind"] == "session" else "MOVED") if t["moved"] else "ok"
+            chi2 = f"chi2 {t['mahalanobis']:8.1f} ({t['dof']} dof)  p={t['p_value']:.2g}"
+            lines.append(f"  {t['label']:<24s} {chi2}{size}  {flag}")
+    if c["global"] is not None:
+        if c["moved"]:
+            t = next(t for t in c["per_session"] if t["session"] == c["moved"])
             lines.append(
-                f"the mount moved: session {sol.moved} differs from the others by "
-                f"{t.rotation_deg:.3f} deg and {t.translation_mm:.1f} mm (p = {t.p_value:.2g})"
+                f"the mount moved: session {c['moved']} differs from the others by "
+                f"{t['rotation_deg']:.3f} deg and {t['translation_mm']:.1f} mm (p = {t['p_value']:.2g})"
             )
         else:
-            lines.append(f"no evidence that the mount moved (p = {sol.global_test.p_value:.2g})")
+            lines.append(f"no evidence that the mount moved (p = {c['global']['p_value']:.2g})")
     return "\n".join(lines)
-
-
-def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = None) -> str:
-    """One line per incremental update: frame, count, sigmas in deg / mm, time, target status."""
-    head = f"{u.name or '(final)':>10s}  n={u.n_frames:<4d}"
-    if not u.accepted:
-        return f"{head}  rejected: {u.reason}"
-    if u.T_cam_lidar is None:
-        return f"{head}  {u.reason or 'waiting'}"
-    s = sigmas_deg_mm(u.covariance)
-    body = (
-        f"sigma rot [deg] {s[0]:.3f} {s[1]:.3f} {s[2]:.3f}  "
-        f"trans [mm] {s[3]:.2f} {s[4]:.2f} {s[5]:.2f}  ({1e3 * u.seconds:.0f} ms)"
-    )
-    if target_sigma is not None:
-        body += "  target reached" if u.reached_target else "  target not yet reached"
-    return f"{head}  {body}"
 
 
 def stage_table(

@@ -16,7 +16,7 @@ from .render import ImageRenderer
 from .scene import Box, Scene, cast_rays
 from .spec import (
     SENSOR_FORMATS,
-    ImageOptions,
+    RenderOptions,
     SceneOptions,
     SimulationSpec,
     Systematics,
@@ -43,7 +43,7 @@ def write_bag(*args, **kwargs):  # lazy: keeps rosbags out of `import ilcc_graph
 
 __all__ = [
     "SENSOR_FORMATS",
-    "Box", "ImageOptions", "ImageRenderer", "Scene", "SceneOptions", "SimFrame", "SimulationSpec",
+    "Box", "RenderOptions", "ImageRenderer", "Scene", "SceneOptions", "SimFrame", "SimulationSpec",
     "Systematics", "beam_biases", "beam_gains", "board_placements", "cast_rays", "default_T_cam_lidar",
     "default_camera", "frame_name", "frame_scene", "ground_truth", "paper_board", "simulate_dataset",
     "simulate_frame", "simulate_frames", "simulate_scan", "standard_spec", "write_bag",

@@ -5,7 +5,7 @@ and cached: one ray through each pixel centre, in chunks of rows to bound memory
 are traced at half resolution and scaled up bilinearly (the room is smooth). Each frame then
 re-renders the pixels inside the projected bounding box of each moving object (board, its stand,
 the person) with rays against the moving objects only (a ray that misses them shows the cached
-room pixel): one ray per pixel centre, then S x S rays (``ImageOptions.supersample``) averaged on
+room pixel): one ray per pixel centre, then S x S rays (``RenderOptions.supersample``) averaged on
 every pixel whose 3 x 3 neighbourhood changes label (an object's outline or a colour edge of the
 print), which anti-aliases all edges that matter. Then a Gaussian blur (``blur_sigma_px``) and
 Gaussian pixel noise (``noise_sigma``, luminance noise, see :func:`_add_noise`).

@@ -31,7 +31,7 @@ from .placements import _occludes, frame_scene
 from .render import ImageRenderer
 from .rig_placements import rig_placements, sees
 from .scene import SURF_PERSON
-from .spec import ImageOptions, SceneOptions, SimulationSpec, Systematics, default_camera, paper_board
+from .spec import RenderOptions, SceneOptions, SimulationSpec, Systematics, default_camera, paper_board
 
 __all__ = [
     "RIG_PRESETS", "Mount", "RigMoment", "RigSensorSpec", "RigSpec", "backpack_rig", "horizontal_fov_deg",
@@ -125,7 +125,7 @@ class RigSpec:
     noise_scale: float = 1.0
     systematics: Systematics = field(default_factory=Systematics)
     scene: SceneOptions = field(default_factory=SceneOptions)
-    image: ImageOptions = field(default_factory=ImageOptions)
+    image: RenderOptions = field(default_factory=RenderOptions)
 
     def __post_init__(self) -> None:
         names = [s.name for s in self.sensors]

@@ -36,7 +36,7 @@ __all__ = [
     "SENSOR_FORMATS",
     "INTENSITY_FIELDS",
     "Systematics",
-    "ImageOptions",
+    "RenderOptions",
     "SceneOptions",
     "SimulationSpec",
     "standard_spec",
@@ -105,7 +105,7 @@ class Systematics:
 
 
 @dataclass(frozen=True)
-class ImageOptions:
+class RenderOptions:
     """How images are rendered.
 
     supersample: S; pixels on the edges of moving objects and of the print get S x S rays.
@@ -121,9 +121,9 @@ class ImageOptions:
 
     def __post_init__(self) -> None:
         if not (1 <= int(self.supersample) <= 8):
-            raise ValueError(f"ImageOptions: supersample must be in 1..8, got {self.supersample!r}")
+            raise ValueError(f"RenderOptions: supersample must be in 1..8, got {self.supersample!r}")
         if self.blur_sigma_px < 0 or self.noise_sigma < 0:
-            raise ValueError("ImageOptions: blur_sigma_px and noise_sigma must be >= 0")
+            raise ValueError("RenderOptions: blur_sigma_px and noise_sigma must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -207,7 +207,7 @@ class SimulationSpec:
     systematics: Systematics = field(default_factory=Systematics)
     placements: tuple[np.ndarray, ...] | None = None
     scene: SceneOptions = field(default_factory=SceneOptions)
-    image: ImageOptions = field(default_factory=ImageOptions)
+    image: RenderOptions = field(default_factory=RenderOptions)
     intensity_black: float = 10.0
     intensity_white: float = 80.0
     intensity_sigma_black: float = 1.5

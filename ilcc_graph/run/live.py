@@ -14,7 +14,7 @@ out, ``until`` frames were seen, the target is reached or the user interrupts (C
 Each frame's verdict is ready once both stages ran on it (a fraction of a second to a few seconds,
 docs/bench_live.md). The print's colour (``board.lower_left``) is checked on the way: when the first
 image that shows the board contradicts the config and the other colour works, the other colour is
-used from then on (with a warning), as ``observe.check_board_colour`` does for a whole data set.
+used from then on (with a warning), as ``run.colour.check_board_colour`` does for a whole data set.
 """
 
 from __future__ import annotations
@@ -37,15 +37,12 @@ from ilcc_graph.estimation.batch import solve as solve_batch
 from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.estimation.incremental import FrameUpdate
 from ilcc_graph.estimation.selection import AUTO
-from ilcc_graph.observe import (
-    Observation,
-    StageOptions,
-    observe_image,
-    observe_lidar,
-    resolve_lidar,
-    second_pass,
-)
-from ilcc_graph.prepare import graph_frame, prepare
+from ilcc_graph.run.colour import colour_warning, other_colour
+from ilcc_graph.run.observe import Observation
+from ilcc_graph.run.prepare import graph_frame, prepare
+from ilcc_graph.run.second_look import second_pass
+from ilcc_graph.run.source import open_run
+from ilcc_graph.run.stages import StageOptions, observe_image, observe_lidar
 from ilcc_graph.types import Calibration, FrameResult, GraphFrame, sigmas_deg_mm
 
 log = logging.getLogger(__name__)
@@ -177,22 +174,11 @@ class LiveCheck:
         except BoardColourMismatch as err:
             if self._colour_checked:
                 return err
-            board = self.config.board
-            other = "white" if board.lower_left == "black" else "black"
-            flipped = dataclasses.replace(self.config, board=dataclasses.replace(board, lower_left=other))
             try:
-                res = observe_image(source, ref, flipped, self.stages.image, views=False)
+                res = observe_image(source, ref, other_colour(self.config), self.stages.image, views=False)
             except FrameError:
                 return err
-            log.warning(
-                "%s: board.lower_left is %s, but the print's lower-left square is %s in frame %s; using %s",
-                self.config.source,
-                board.lower_left,
-                other,
-                ref.name,
-                other,
-            )
-            self.config = flipped
+            self.config = colour_warning(self.config, f"image of frame {ref.name}")
             self._colour_checked = True
             return res
         except FrameError as err:
@@ -202,8 +188,8 @@ class LiveCheck:
         """Both stages on ``ref``, then the repeat test and the solve of the frames so far;
         ``arrived``: the frame's arrival (``time.time()``) for the latency."""
         t0 = time.perf_counter()
-        if not self._lidar_resolved:
-            self.config = resolve_lidar(source, [ref], self.config, look=1)
+        if not self._lidar_resolved:  # the run's start on the first frame (its colour checked below)
+            self.config = open_run(source, self.stages, refs=[ref], config=self.config, sizes=False).config
             self._lidar_resolved = True
         image = self._pool.submit(self._image, source, ref)  # decoding and detection release the GIL
         stated = self.config.board
@@ -308,7 +294,7 @@ class LiveCheck:
 
     def finish(self) -> FrameUpdate | None:
         """The solve of every distinct frame (``calibrate``'s noise policy), after ``calibrate``'s
-        second look (``observe.second_pass``: the boards the LiDAR stage missed, or saw far from
+        second look (``second_look.second_pass``: the boards the LiDAR stage missed, or saw far from
         where the image and the extrinsic put them, searched there; those found are solved with the
         rest); None when they cannot calibrate (fewer than three distinct poses, or the solver
         refuses)."""

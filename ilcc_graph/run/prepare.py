@@ -1,9 +1,7 @@
-"""Observed frames into the estimation core's input, and a strategy's answer back into a Calibration.
+"""Observed frames into the estimation core's input (``run.finish`` turns the answer back).
 
 ``prepare``: repeated board poses out, the corner order made consistent across frames (half
-turns), ``GraphFrame``s and the start (UPnP on that consensus). ``finish``: every frame in input
-order with its fate (used, or why not, with the likely cause of a dropped frame), the refined
-board poses, the sensors' own errors.
+turns), ``GraphFrame``s and the start (UPnP on that consensus); what the frames not used lacked.
 """
 
 from __future__ import annotations
@@ -17,27 +15,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcc_graph.config import Config
-from ilcc_graph.diagnose import dropped_frame_cause, fit_image_alone
 from ilcc_graph.errors import CalibrationImpossible
-from ilcc_graph.estimation.batch import BatchSolution
-from ilcc_graph.estimation.effects import SQUARE_SIZE_KEY
 from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.init import resolve_half_turns, upnp
-from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
-from ilcc_graph.types import Calibration, FrameResult, GraphFrame, ImageCorners, rotation_angle_deg
+from ilcc_graph.types import FrameResult, GraphFrame, ImageCorners
 
 log = logging.getLogger(__name__)
 
 __all__ = [
     "Prepared",
     "drop",
-    "finish",
     "frame_issues",
     "graph_frame",
-    "lidar_view_counts",
     "permute_corners",
     "prepare",
-    "rms_bearing_mrad",
 ]
 
 
@@ -145,7 +136,7 @@ def prepare(observed: Sequence[FrameResult], config: Config) -> Prepared:
     return Prepared(frames, np.asarray(T_init, dtype=np.float64), results)
 
 
-#: frame reasons as ``observe.observe_frame`` writes them: "LiDAR: ...; image: ..."
+#: frame reasons as ``stages.observe_frame`` writes them: "LiDAR: ...; image: ..."
 _STAGE_PREFIXES = (("LiDAR: ", "lidar"), ("image: ", "image"))
 
 
@@ -199,114 +190,3 @@ def _stage_advice(issues: Sequence[tuple[str, str, str]]) -> str:
         "the LiDAR stage found no board: check board.squares, board.square_size and lidar.model in "
         "config.yaml; if the board is in view, narrow the search with board.roi"
     )
-
-
-def finish(
-    prep: Prepared, observed: Sequence[FrameResult], config: Config, method: str, sol: BatchSolution
-) -> Calibration:
-    """The Calibration of one source from a strategy's answer: every frame in input order with its fate."""
-    results = dict(prep.results)
-    if sol.dropped:
-        causes = _dropped_causes(results, [n for n, _ in sol.dropped], config, sol.T_cam_lidar)
-        for name, reason in sol.dropped:
-            drop(results, name, f"{reason}; {causes[name]}" if causes.get(name) else reason)
-    frames = []
-    for r in (results[o.name] for o in observed):
-        if r.used:
-            stats = sol.per_frame.get(r.name)
-            rms = None if stats is None else stats.rms_bearing_error_mrad
-            r = dataclasses.replace(
-                r, rms_bearing_error_mrad=rms, T_lidar_board_refined=sol.T_lidar_board.get(r.name)
-            )
-        frames.append(r)
-    diagnostics = {
-        **lidar_view_counts(frames),
-        "iterations": float(sol.iterations),
-        "variance_factor": sol.variance_factor,
-        "variance_component_board": sol.variance_components[0],
-        "variance_component_bearing": sol.variance_components[1],
-        "upnp_rotation_deg": rotation_angle_deg(prep.T_init[:3, :3].T @ sol.T_cam_lidar[:3, :3]),
-    }
-    if sol.square_size is not None:  # what a print 0.1 % larger than board.square_size moves
-        e = sol.square_size.extrinsic
-        diagnostics[f"{SQUARE_SIZE_KEY}_rotation_deg"] = e.rotation_deg
-        diagnostics[f"{SQUARE_SIZE_KEY}_translation_mm"] = e.translation_mm
-        diagnostics[f"{SQUARE_SIZE_KEY}_sigmas"] = e.mahalanobis
-        if sol.square_size.beams_mm is not None:
-            diagnostics[f"{SQUARE_SIZE_KEY}_beams_mm"] = sol.square_size.beams_mm
-    cam = config.camera.to_dict()
-    return Calibration(
-        sol.T_cam_lidar, sol.covariance, tuple(frames), method, diagnostics, cam, _sensors(sol, config)
-    )
-
-
-def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:
-    """How the LiDAR saw the used frames' boards: ``lidar_boards_no_print`` (fitted by the outline
-    alone) and ``lidar_boards_beyond_fov`` (partly above the top beam or below the lowest), counts,
-    each only when not 0."""
-    boards = [f.board.diagnostics for f in frames if f.used and f.board is not None]
-    counts = {
-        "lidar_boards_no_print": float(sum(1 for d in boards if d.get("no_contrast"))),
-        "lidar_boards_beyond_fov": float(
-            sum(1 for d in boards if d.get("outside_fov_share", 0.0) > BEYOND_FOV_SHARE)
-        ),
-    }
-    return {k: v for k, v in counts.items() if v}
-
-
-def _dropped_causes(
-    results: dict[str, FrameResult], dropped: Sequence[str], config: Config, T_cam_lidar: np.ndarray
-) -> dict[str, str]:
-    """Per dropped frame the likely cause (``diagnose``), judged against the used frames' images."""
-    used = [r for n, r in results.items() if r.used and n not in dropped and r.corners is not None]
-    if len(used) < 3:
-        return {}
-    corners = config.board.corners_board()
-    typical = float(np.median([fit_image_alone(r.corners.bearings, corners).rms_mrad for r in used]))
-    return {
-        n: dropped_frame_cause(results[n], config.board, config.camera, T_cam_lidar, typical) for n in dropped
-    }
-
-
-def _sensors(sol: BatchSolution, config: Config) -> dict:
-    """``Calibration.sensors`` of a strategy's answer: the sensor model chosen and the evidence, the
-    LiDAR's errors, the camera's intrinsics and what each moved the extrinsic."""
-    out: dict = {}
-    if sol.selection is not None:
-        out["model"] = sol.selection.to_dict()
-    lay = sol.lidar_layout
-    if sol.lidar is not None or (lay is not None and lay.excluded):
-        names, values, sigmas = sol.lidar if sol.lidar is not None else ([], np.zeros(0), np.zeros(0))
-        left = [] if lay is None else [list(x) for x in lay.excluded]
-        out["lidar_errors"] = {"names": list(names), "values": values, "sigmas": sigmas, "left_out": left}
-        if sol.lidar_covariance is not None:
-            out["lidar_errors"]["covariance"] = sol.lidar_covariance
-        if getattr(sol, "board_plane", None) is not None:
-            out["lidar_errors"]["board_plane"] = dataclasses.asdict(sol.board_plane)
-        if config.lidar is not None:  # each beam's nominal elevation (beam index 0 = lowest)
-            el = config.lidar.vertical_angles_deg
-            beams = {n: int(n[n.index("[") + 1 : -1]) for n in names if "[" in n}
-            out["lidar_errors"]["elevation_deg"] = {
-                n: round(float(el[b]), 3) for n, b in beams.items() if b < len(el)
-            }
-    if sol.effects:
-        out["effects"] = {k: dataclasses.asdict(v) for k, v in sol.effects.items()}
-    if sol.intrinsics is not None:
-        names, values, sigmas = sol.intrinsics
-        stated = config.camera.intrinsics()
-        out["camera_intrinsics"] = {
-            "names": list(names),
-            "stated": stated,
-            "values": values,
-            "sigmas": sigmas,
-        }
-    return out
-
-
-def rms_bearing_mrad(T_cam_lidar: np.ndarray, f: GraphFrame) -> float:
-    """RMS angle (mrad) between measured bearings and the corners predicted through T."""
-    T = T_cam_lidar @ f.T_lidar_board
-    p = f.points_board @ T[:3, :3].T + T[:3, 3]
-    p /= np.linalg.norm(p, axis=1, keepdims=True)
-    ang = np.arctan2(np.linalg.norm(np.cross(p, f.bearings), axis=1), np.sum(p * f.bearings, axis=1))
-    return float(1e3 * np.sqrt(np.mean(ang**2)))

@@ -1,6 +1,6 @@
 """Does the checker pattern go on beyond the corners found? (a part of a bigger print was detected)
 
-Run by the image stage's worker on the image it has in memory (``observe.observe_image`` keeps the
+Run by the image stage's worker on the image it has in memory (``run.stages.observe_image`` keeps the
 answer in ``ImageCorners.diagnostics``), read by ``setup_mistakes`` for the ``board.squares``
 diagnosis.
 """

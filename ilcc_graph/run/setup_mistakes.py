@@ -15,8 +15,8 @@ passed by chance). These checks look for the evidence and say what is likely wro
   with a square fewer on both sides (squares counted as inner corners), and so does the LiDAR stage.
 - the camera's intrinsics: most images' corners do not fit a board seen through them.
 
-The LiDAR model is checked when the scans are read (``observe.resolve_lidar`` warns when the
-measured beam table contradicts ``lidar.model``); the image size in ``damage.check_image_size``.
+The LiDAR model is checked when the scans are read (``run.source.resolve_lidar`` warns when the
+measured beam table contradicts ``lidar.model``); the image size in ``run.source.check_image_size``.
 """
 
 from __future__ import annotations
@@ -31,8 +31,9 @@ from ilcc_graph.board import Board
 from ilcc_graph.config import Config
 from ilcc_graph.errors import FrameError, InputError
 from ilcc_graph.init import upnp
-from ilcc_graph.observe import Observation, StageOptions, observe_image, observe_lidar
-from ilcc_graph.pattern_check import extra_squares, pattern_continues
+from ilcc_graph.run.observe import Observation
+from ilcc_graph.run.pattern_check import extra_squares, pattern_continues
+from ilcc_graph.run.stages import StageOptions, attempt, observe_image, observe_lidar
 from ilcc_graph.types import Calibration, ImageCorners
 
 log = logging.getLogger(__name__)
@@ -148,13 +149,6 @@ def _found(results: Sequence[object]) -> int:
     return sum(1 for r in results if not isinstance(r, FrameError))
 
 
-def _attempt(fn, *args):  # noqa: ANN001, ANN202 - a stage's result or its FrameError
-    try:
-        return fn(*args)
-    except FrameError as err:
-        return err
-
-
 def _with_board(config: Config, **changes: object) -> Config:
     return dataclasses.replace(config, board=dataclasses.replace(config.board, **changes))
 
@@ -185,7 +179,7 @@ def _square_size_search(obs: Observation, stages: StageOptions, refs: dict) -> s
 
     def lidar(k: float) -> list:
         return [
-            _attempt(observe_lidar, obs.source, refs[f.name], _scaled(cfg, k), stages.lidar) for f in frames
+            attempt(observe_lidar, obs.source, refs[f.name], _scaled(cfg, k), stages.lidar) for f in frames
         ]
 
     found = next(
@@ -238,7 +232,7 @@ def _board_dims_search(obs: Observation, stages: StageOptions, refs: dict) -> st
         if rows < 3:
             continue
         alt = _with_board(cfg, rows=rows, cols=cols)
-        img = _found([_attempt(observe_image, obs.source, refs[f.name], alt, stages.image) for f in without])
+        img = _found([attempt(observe_image, obs.source, refs[f.name], alt, stages.image) for f in without])
         tried = len(without)
         if rows > board.rows:
             img, tried = img + sum(continues), tried + len(continues)
@@ -246,7 +240,7 @@ def _board_dims_search(obs: Observation, stages: StageOptions, refs: dict) -> st
             continue
         frames = (without + with_corners)[:LOOK]
         given = sum(f.board is not None for f in frames)
-        lid = _found([_attempt(observe_lidar, obs.source, refs[f.name], alt, stages.lidar) for f in frames])
+        lid = _found([attempt(observe_lidar, obs.source, refs[f.name], alt, stages.lidar) for f in frames])
         if lid <= given:
             continue
         ev = (

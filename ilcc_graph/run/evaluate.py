@@ -9,8 +9,9 @@ from __future__ import annotations
 import numpy as np
 
 from ilcc_graph.datasets import FrameSource
-from ilcc_graph.observe import Progress, StageOptions, observe
 from ilcc_graph.report import Evaluation, eval_frames, evaluate
+from ilcc_graph.run.observe import Progress, observe
+from ilcc_graph.run.stages import StageOptions
 
 __all__ = ["evaluate_on"]
 

@@ -1,0 +1,139 @@
+"""The run: sources -> open and observe -> the strategy of the mode -> the second look -> a Result.
+
+``run(sources, options)`` observes each source once (``observe.observe``; a streaming strategy
+reads ``observe.FrameStream`` as it solves), hands the observations to the strategy the registry
+gives for the mode (``strategies.choose``), looks again for the boards the LiDAR stage missed where
+the answer puts them (``second_look``) and solves again when some are found, and says which set-up
+mistake explains a failure (``setup_mistakes``). ``solve_observations``: the same on observations
+made once (studies, benchmarks). Only sources read files; ``app.write`` writes the ``Result``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Callable, Sequence
+
+from ilcc_graph import signals
+from ilcc_graph.config import Config
+from ilcc_graph.datasets import FrameSource
+from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
+from ilcc_graph.run.observe import FrameStream, Observation, observe
+from ilcc_graph.run.result import Result, RunOptions
+from ilcc_graph.run.second_look import second_pass
+from ilcc_graph.run.setup_mistakes import diagnose_failure, diagnose_result
+from ilcc_graph.run.strategies import Reporter, Strategy, choose, strategy
+from ilcc_graph.types import Calibration, FrameResult
+
+log = logging.getLogger(__name__)
+
+__all__ = ["calibrate", "run", "session_names", "solve_observations", "solve_observed"]
+
+
+def session_names(sources: Sequence[FrameSource]) -> list[str]:
+    """Source labels made unique (with an index where two share one)."""
+    labels = [s.label or f"session{i + 1}" for i, s in enumerate(sources)]
+    return [f"{n}#{i + 1}" if labels.count(n) > 1 else n for i, n in enumerate(labels)]
+
+
+def run(
+    sources: Sequence[FrameSource],
+    options: RunOptions = RunOptions(),
+    progress: Callable[[str, int, int], None] | None = None,
+    report: Reporter | None = None,
+) -> Result:
+    """Calibrate from one or more sources in the mode of ``options`` (several sources: sessions).
+
+    progress(source label, done, total) reports the per-frame stages; report(line) what a strategy
+    says while it solves (incremental: each update). Raises InputError (bad input),
+    CalibrationImpossible, IndeterminateSystem.
+    """
+    if not sources:
+        raise ValueError("run: no source given")
+    chosen = choose(options, len(sources))
+    names = session_names(sources)
+    if chosen.streams:
+        stream = FrameStream(sources[0], options.stages)
+        obs = Observation(sources[0], stream.config, [], names[0], stream)
+        return chosen.solve([obs], dataclasses.replace(options, mode=chosen.mode), report)
+    observations = []
+    for name, src in zip(names, sources, strict=True):
+        cb = None if progress is None else (lambda i, n, name=name: progress(name, i, n))
+        observed = (chosen.observe or observe)(src, options.stages, cb)
+        observations.append(dataclasses.replace(observed, name=name))
+    signals.check()
+    try:
+        result = solve_observations(observations, dataclasses.replace(options, mode=chosen.mode))
+    except CalibrationImpossible as err:  # say what set-up mistake explains it, when one does
+        if not (hints := diagnose_failure(observations, options.stages)):
+            raise
+        advice = "\n".join(f"likely: {h}" for h in hints)  # the set-up mistake is the better advice
+        raise CalibrationImpossible(str(err), err.frames, advice) from None
+    for s in result.sessions:
+        for line in diagnose_result(s.observation, s.calibration):
+            log.warning("%s", line)
+    return result
+
+
+def solve_observations(
+    observations: Sequence[Observation],
+    options: RunOptions = RunOptions(),
+    names: Sequence[str] | None = None,
+) -> Result:
+    """The strategy of ``options.mode`` on observed sources (``sessions`` for several, or with a
+    range offset); ``names`` label the sessions (default: the observations' names, else the
+    sources' labels). With ``options.second_pass`` the boards the LiDAR stage missed are searched
+    where the first answer puts them, and the data solved again when some are found."""
+    chosen = choose(options, len(observations))
+    if chosen.streams:
+        raise ValueError(f"{chosen.mode} mode observes frame by frame: use run()")
+    if names is None and not all(o.name for o in observations):
+        names = session_names([o.source for o in observations])
+    if names is not None:
+        observations = [dataclasses.replace(o, name=n) for o, n in zip(observations, names, strict=True)]
+    options = _without_print(observations, dataclasses.replace(options, mode=chosen.mode), chosen)
+    log.debug("estimating the extrinsic (%s) from %d source(s)", chosen.mode, len(observations))
+    result = chosen.solve(observations, options, None)
+    if not (options.second_pass and chosen.second_pass):
+        return result
+    again = [second_pass(s.observation, s.calibration, options.stages) for s in result.sessions]
+    if all(a is None for a in again):
+        return result
+    observations = [o if a is None else a for o, a in zip(observations, again, strict=True)]
+    return chosen.solve(observations, options, None)
+
+
+def _without_print(observations: Sequence[Observation], options: RunOptions, chosen: Strategy) -> RunOptions:
+    """The options with the LiDAR's errors estimated when most boards were placed by their outline
+    (``RunOptions.lidar_errors_without_print``), said once; as given otherwise."""
+    if options.lidar_errors is not None or not options.lidar_errors_without_print or not chosen.sensor_errors:
+        return options
+    boards = [f.board for o in observations for f in o.frames if f.used and f.board is not None]
+    plain = sum(1 for b in boards if b.diagnostics.get("no_contrast"))
+    if not boards or 2 * plain <= len(boards):
+        return options
+    log.warning(
+        "%d of %d boards were placed by their outline: the LiDAR's own errors (each beam's range offset) "
+        "are estimated, as with --lidar-errors, since the boards' planes then carry the translation",
+        plain, len(boards),
+    )  # fmt: skip
+    return dataclasses.replace(options, lidar_errors=LidarErrorOptions())
+
+
+def solve_observed(
+    observed: Sequence[FrameResult], config: Config, options: RunOptions = RunOptions()
+) -> Calibration:
+    """The calibration of one source's observed frames by the strategy of ``options.mode`` (no
+    second look): the report's studies and the benchmarks refit subsets with it."""
+    obs = Observation(None, config, list(observed), "frames")  # type: ignore[arg-type]
+    return strategy(options.mode).solve([obs], options, None).calibration
+
+
+def calibrate(data: str, options: RunOptions = RunOptions()):  # noqa: ANN201 - (gtsam.Pose3, (6, 6))
+    """Python API: the extrinsic of the data set at ``data`` as ``gtsam.Pose3`` (T_cam_lidar) and its
+    6x6 covariance (interface.md convention)."""
+    from ilcc_graph.datasets import open_source
+
+    cal = run([open_source(data)], options).calibration
+    return cal.extrinsic.pose, cal.covariance

@@ -1,0 +1,167 @@
+"""The per-frame stages on one frame of a source, and a frame file that cannot be read.
+
+``observe_lidar`` / ``observe_image`` run the LiDAR and image stages on one frame (the source reads
+the files); ``observe_frame`` both. A scan or image whose read raises ``InputError`` (truncated PCD,
+undecodable PNG, a .bin of the wrong length, ...) or an image of another size than the camera's
+becomes a ``DamagedFile``: the frame is skipped with the file and the problem as its reason; with
+``StageOptions.strict`` the ``InputError`` stops the run instead. The functions take plain,
+picklable arguments (they run on the worker processes, ``workers.py``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ilcc_graph.config import Config
+from ilcc_graph.datasets import FrameRef, FrameSource
+from ilcc_graph.errors import DamagedFile, FrameError, InputError
+from ilcc_graph.image import ImageOptions, detect_corners
+from ilcc_graph.image.previews import make_views
+from ilcc_graph.lidar import LidarOptions, estimate_board
+from ilcc_graph.run.pattern_check import KEYS as PATTERN_KEYS
+from ilcc_graph.run.pattern_check import pattern_continues
+from ilcc_graph.types import BoardFit, ExpectedBoard, FrameResult, ImageCorners
+
+__all__ = [
+    "StageOptions",
+    "attempt",
+    "check_image",
+    "observe_frame",
+    "observe_image",
+    "observe_lidar",
+    "read_frame_file",
+    "size_problem",
+]
+
+
+@dataclass(frozen=True)
+class StageOptions:
+    """The per-frame stages' options and the number of processes they run on.
+
+    strict: a frame file that cannot be read stops the run (``InputError``) instead of costing
+    that frame (``DamagedFile``).
+    """
+
+    lidar: LidarOptions = LidarOptions()
+    image: ImageOptions = ImageOptions()
+    jobs: int = 1
+    strict: bool = False
+
+
+def read_frame_file(fn: Callable[..., Any], *args: object, strict: bool = False) -> Any:
+    """``fn(*args)``, a source's read; its InputError (the file and the problem) becomes a DamagedFile
+    that costs the frame, or stays an InputError that stops the run with ``strict``."""
+    try:
+        return fn(*args)
+    except InputError as err:
+        if strict:
+            raise
+        raise DamagedFile(f"damaged file: {err}") from None
+
+
+def size_problem(size: tuple[int, int], config: Config, where: str) -> str | None:
+    """Why an image of ``size`` (width, height) px cannot be of the config's camera, or None."""
+    w, h = size
+    cam = config.camera
+    if (w, h) == (cam.width, cam.height):
+        return None
+    hint = ""
+    if w * cam.height == h * cam.width and cam.intrinsic_names:
+        hint = (
+            f"; the images look scaled by {w / cam.width:g} from the size the intrinsics are for: "
+            "scale fx, fy, cx, cy with width and height"
+        )
+    return (
+        f"{where}: image is {w}x{h} px, but the camera in {config.source} is {cam.width}x{cam.height} "
+        f"(camera.width x camera.height; ILCC's image_res){hint}"
+    )
+
+
+def check_image(
+    image: np.ndarray | tuple[int, int], config: Config, where: str, strict: bool = False
+) -> None:
+    """DamagedFile (InputError with ``strict``) when the image, or an image of size (width, height)
+    read from its header, has not the camera's size."""
+    size = image if isinstance(image, tuple) else (image.shape[1], image.shape[0])
+    problem = size_problem(size, config, where)
+    if problem is None:
+        return
+    if strict:
+        raise InputError(problem)
+    raise DamagedFile(f"damaged file: {problem}")
+
+
+def attempt(fn: Callable, *args: object) -> object:
+    """``fn(*args)``, or the FrameError it raised."""
+    try:
+        return fn(*args)
+    except FrameError as err:
+        return err
+
+
+def observe_lidar(
+    source: FrameSource,
+    ref: FrameRef,
+    config: Config,
+    options: LidarOptions,
+    expected: ExpectedBoard | None = None,
+    strict: bool = False,
+) -> BoardFit:
+    """The LiDAR stage on one frame's scan (near ``expected`` when given); FrameError says why not."""
+    scan = read_frame_file(source.read_scan, ref, config, strict=strict)
+    return estimate_board(scan, config.board, config.lidar, config.roi, options, expected)  # type: ignore[arg-type]
+
+
+def observe_image(
+    source: FrameSource,
+    ref: FrameRef,
+    config: Config,
+    options: ImageOptions,
+    strict: bool = False,
+    views: bool = True,
+) -> ImageCorners:
+    """The image stage on one frame's image, with (``views``) the report's views of it
+    (``image.previews``); raises FrameError with the reason (DamagedFile when the image cannot be
+    read or has not the camera's size: judged from the file's header before decoding where the
+    source can, so a forged size costs nothing)."""
+    size = read_frame_file(source.header_size, ref, strict=strict)
+    if size is not None:
+        check_image(size, config, str(ref.image), strict)
+    image = read_frame_file(source.read_image, ref, strict=strict)
+    check_image(image, config, str(ref.image), strict)
+    corners = detect_corners(image, config.camera, config.board, options)  # type: ignore[arg-type]
+    extra = dict(zip(PATTERN_KEYS, pattern_continues(image, config, corners)))  # for setup_mistakes
+    kept = make_views(image, corners.uv, config.camera) if views else corners.views
+    return dataclasses.replace(corners, diagnostics={**corners.diagnostics, **extra}, views=kept)
+
+
+def observe_frame(
+    source: FrameSource,
+    ref: FrameRef,
+    config: Config,
+    options: StageOptions = StageOptions(),
+    image: object = None,
+) -> FrameResult:
+    """Both stages on one frame (``image``: the image stage's result when already known)."""
+    board = attempt(observe_lidar, source, ref, config, options.lidar, None, options.strict)
+    corners = (
+        image
+        if image is not None
+        else attempt(observe_image, source, ref, config, options.image, options.strict)
+    )
+    reasons = [
+        f"{what}: {r}" for what, r in (("LiDAR", board), ("image", corners)) if isinstance(r, FrameError)
+    ]
+    return FrameResult(
+        name=ref.name,
+        used=not reasons,
+        reason="; ".join(reasons) or None,
+        board=None if isinstance(board, FrameError) else board,  # type: ignore[arg-type]
+        corners=None if isinstance(corners, FrameError) else corners,  # type: ignore[arg-type]
+        damaged=any(isinstance(r, DamagedFile) for r in (board, corners)),
+    )

@@ -1,0 +1,116 @@
+"""Incremental (``incremental``): frames observed one at a time and fed to iSAM2 until a target.
+
+The frames come from ``Observation.stream`` (``observe.FrameStream``) as the strategy reads them, so
+that with ``RunOptions.stop_at_target`` no frame is read after the target is reached; the last
+update is the batch answer on every frame offered (``IncrementalCalibrator.finish``). Each update is
+reported as one line (``format_update``) and kept in ``incremental.yaml``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from ilcc_graph.estimation.incremental import FrameUpdate, IncrementalCalibrator
+from ilcc_graph.run.finish import finish, from_batch
+from ilcc_graph.run.observe import Observation
+from ilcc_graph.run.prepare import Prepared, permute_corners, prepare
+from ilcc_graph.run.result import Result, RunOptions, SessionResult
+from ilcc_graph.run.strategies import Reporter, Strategy, one, register
+from ilcc_graph.types import FrameResult, sigma_dict, sigmas_deg_mm
+
+log = logging.getLogger(__name__)
+
+__all__ = ["format_update", "solve"]
+
+
+def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
+    """iSAM2 over the frames of one source's stream; ``report(line)`` after each update."""
+    obs = one(observations, "incremental")
+    stream, config = obs.stream, obs.config
+    if stream is None:
+        raise ValueError("incremental mode observes frame by frame: give Observation.stream (run() does)")
+    cal = IncrementalCalibrator(
+        config.camera, config.board, target_sigma=options.target_sigma, noise=options.noise,
+        lidar_errors=options.lidar_errors, intrinsics=options.intrinsics, models=options.models,
+        intrinsics_choice=options.intrinsics_choice,
+    )  # fmt: skip
+    observed: list[FrameResult] = []
+    updates: list[FrameUpdate] = []
+
+    def tell(u: FrameUpdate) -> None:
+        updates.append(u)
+        if report is not None:
+            report(format_update(u, options.target_sigma))
+
+    for fr in stream:
+        observed.append(fr)
+        if fr.damaged:
+            log.warning("%s: skipped, %s", fr.name, fr.reason)
+        if not fr.used or fr.board is None or fr.corners is None:
+            continue
+        u = cal.add_frame(fr)
+        tell(u)
+        if options.stop_at_target and u.reached_target:
+            break
+    observed += stream.unread(observed, "not read: the target sigma was reached")
+    if not updates:
+        prepare(observed, config)  # no frame reached the calibrator: raises with every frame's reason
+    final = cal.finish()
+    tell(final)
+    results = {f.name: f for f in observed}
+    for name in cal.flipped:  # the corner order the calibrator chose
+        f = results[name]
+        results[name] = dataclasses.replace(
+            f, corners=permute_corners(f.corners, config.board.half_turn_permutation())
+        )  # type: ignore[arg-type]
+    offered = {f.name for f in cal.offered}
+    sol = final.solution
+    assert sol is not None
+    not_offered = [(f.name, "not offered") for f in observed if f.used and f.name not in offered]
+    prep = Prepared(cal.offered, np.asarray(final.T_cam_lidar), results)
+    answer = from_batch(dataclasses.replace(sol, dropped=sol.dropped + not_offered), config)
+    calib = finish(prep, observed, config, "incremental", answer)
+    done = dataclasses.replace(obs, frames=observed, stream=None)
+    doc = {"updates": [_update_dict(u) for u in updates]}
+    return Result("incremental", calib, (SessionResult(obs.name, done, calib),), options, calib.covariance,
+                  documents={"incremental.yaml": doc})  # fmt: skip
+
+
+def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = None) -> str:
+    """One line per incremental update: frame, count, sigmas in deg / mm, time, target status."""
+    head = f"{u.name or '(final)':>10s}  n={u.n_frames:<4d}"
+    if not u.accepted:
+        return f"{head}  rejected: {u.reason}"
+    if u.T_cam_lidar is None:
+        return f"{head}  {u.reason or 'waiting'}"
+    s = sigmas_deg_mm(u.covariance)
+    body = (
+        f"sigma rot [deg] {s[0]:.3f} {s[1]:.3f} {s[2]:.3f}  "
+        f"trans [mm] {s[3]:.2f} {s[4]:.2f} {s[5]:.2f}  ({1e3 * u.seconds:.0f} ms)"
+    )
+    if target_sigma is not None:
+        body += "  target reached" if u.reached_target else "  target not yet reached"
+    return f"{head}  {body}"
+
+
+def _update_dict(u: FrameUpdate) -> dict[str, Any]:
+    d: dict[str, Any] = {
+        "frame": u.name or "(final)",
+        "accepted": bool(u.accepted),
+        "n_frames": int(u.n_frames),
+    }
+    if u.reason:
+        d["reason"] = u.reason
+    if u.T_cam_lidar is not None:
+        d["sigma"] = sigma_dict(u.covariance)
+        d["reached_target"] = bool(u.reached_target)
+    d["seconds"] = float(u.seconds)
+    return d
+
+
+register(Strategy("incremental", solve, streams=True, second_pass=False))
