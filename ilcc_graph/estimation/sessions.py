@@ -205,7 +205,9 @@ def compare_estimates(ref: Estimate, other: Estimate) -> tuple[np.ndarray, np.nd
     return delta, 0.5 * (C + C.T)
 
 
-def _test(label: str, session: str | None, delta: np.ndarray, m: float, dof: int, alpha: float, kind: str):
+def _test(
+    label: str, session: str | None, delta: np.ndarray, m: float, dof: int, alpha: float, kind: str
+) -> ConsistencyTest:
     p = float(chi2_dist.sf(m, dof))
     return ConsistencyTest(
         label=label,
