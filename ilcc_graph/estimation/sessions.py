@@ -303,16 +303,7 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
     moved = None
     if global_test is not None and global_test.moved and session_tests:
         moved = max(session_tests, key=lambda t: t.mahalanobis).session
-    dropped: dict[str, list[tuple[str, str]]] = {n: [] for n in names}
-    for full, why in noise_sol.dropped:
-        n, frame = _split(sep, sep.index(full))
-        dropped[n].append((frame, why))
-    boards_out: dict[str, dict[str, np.ndarray]] = {n: {} for n in names}
-    stats_out: dict[str, dict] = {n: {} for n in names}
-    for i in final.boards:
-        n, frame = _split(sep, i)
-        boards_out[n][frame] = final.board_pose(i)
-        stats_out[n][frame] = final.stats[i]
+    dropped, boards_out, stats_out = _per_session(sep, names, noise_sol, final)
     return JointSolution(
         mode=options.mode,
         joint=joint,
@@ -414,6 +405,24 @@ def _drift(
     drift = sep.with_ties(ties, init)
     final = sub(drift, [b for n in names for b in kept[n]], {e: check_pose(T, "") for e, T in init.items()})
     return final, final.extrinsic(hub), {n: final.extrinsic(si) for si, n in enumerate(names)}
+
+
+def _per_session(
+    sep: Problem, names: list[str], noise_sol: Solution, final: Solution
+) -> tuple[dict[str, list[tuple[str, str]]], dict[str, dict[str, np.ndarray]], dict[str, dict]]:
+    """Per session: the frames the gate dropped (frame, why), and the kept frames' refined board
+    poses and residual statistics, by frame name."""
+    dropped: dict[str, list[tuple[str, str]]] = {n: [] for n in names}
+    for full, why in noise_sol.dropped:
+        n, frame = _split(sep, sep.index(full))
+        dropped[n].append((frame, why))
+    boards_out: dict[str, dict[str, np.ndarray]] = {n: {} for n in names}
+    stats_out: dict[str, dict] = {n: {} for n in names}
+    for i in final.boards:
+        n, frame = _split(sep, i)
+        boards_out[n][frame] = final.board_pose(i)
+        stats_out[n][frame] = final.stats[i]
+    return dropped, boards_out, stats_out
 
 
 def _split(problem: Problem, board: int) -> tuple[str, str]:

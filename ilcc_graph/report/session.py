@@ -25,6 +25,7 @@ from ilcc_graph.io import write_ply
 
 if TYPE_CHECKING:
     from ilcc_graph.pipeline import RunOptions, RunResult, SessionResult
+    from ilcc_graph.report.studies import CrossValidation, FramesCurve
     from ilcc_graph.types import Calibration, FrameResult
 
 __all__ = ["write_report"]
@@ -109,29 +110,15 @@ def write_report(
         (that proposal, its picture ``next_pose.png`` or None). ``progress(done, total)``: after each
         frame's pictures, and once more when the page is built. ``refit(frames, config, options)``: a
     subset of the frames solved again (``pipeline.solve_observed``), for the studies."""
-    from ilcc_graph.report import FigureOptions, build_report, cross_validate, frames_vs_accuracy
+    from ilcc_graph.report import FigureOptions, build_report
     from ilcc_graph.report.rig import next_pose_png
 
     obs, cal = session.observation, session.calibration
     config, source = obs.config, obs.source
     curve = cv = None
     if studies and result.mode in ("graph", "incremental", "sessions"):
-        options = dataclasses.replace(result.options, mode="graph")
-
-        def solve(subset):  # noqa: ANN001, ANN202
-            c = refit(subset, config, options)
-            return c.T_cam_lidar, c.covariance
-
-        quiet = logging.getLogger("ilcc_graph")
-        level = quiet.level
-        quiet.setLevel(logging.ERROR)  # subsets of few frames warn by design
-        try:
-            curve = frames_vs_accuracy(obs.frames, solve, config.camera, config.board, truth)
-            cv = cross_validate(
-                obs.frames, solve, config.camera, config.board, folds=5, T_all=cal.T_cam_lidar
-            )
-        finally:
-            quiet.setLevel(level)
+        curve, cv = _studies(obs.frames, config, cal, dataclasses.replace(result.options, mode="graph"),
+                             truth, refit)  # fmt: skip
     damaged = {f.name for f in cal.frames if f.damaged}  # their files cannot be read
     refs = [
         r for r in source.frames() if r.scan is not None and r.image is not None and r.name not in damaged
@@ -178,3 +165,30 @@ def write_report(
         (out / rel).parent.mkdir(parents=True, exist_ok=True)
         (out / rel).write_bytes(blob)
     return got, png
+
+
+def _studies(
+    frames: Sequence[FrameResult],
+    config: Config,
+    cal: Calibration,
+    options: RunOptions,
+    truth: np.ndarray | None,
+    refit: Callable[[Sequence[FrameResult], Config, RunOptions], Calibration],
+) -> tuple[FramesCurve, CrossValidation]:
+    """The report's studies: each parameter against the number of frames, and a 5-fold
+    cross-validation, the subsets solved again with ``refit`` (their warnings kept quiet)."""
+    from ilcc_graph.report import cross_validate, frames_vs_accuracy
+
+    def solve(subset: Sequence[FrameResult]) -> tuple[np.ndarray, np.ndarray]:
+        c = refit(subset, config, options)
+        return c.T_cam_lidar, c.covariance
+
+    quiet = logging.getLogger("ilcc_graph")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)  # subsets of few frames warn by design
+    try:
+        curve = frames_vs_accuracy(frames, solve, config.camera, config.board, truth)
+        cv = cross_validate(frames, solve, config.camera, config.board, folds=5, T_all=cal.T_cam_lidar)
+    finally:
+        quiet.setLevel(level)
+    return curve, cv
