@@ -36,7 +36,7 @@ from ilcc_graph.next_pose import for_run as next_pose_for_run  # noqa: E402
 from ilcc_graph.observe import StageOptions  # noqa: E402
 from ilcc_graph.pipeline import RunOptions, run  # noqa: E402
 from ilcc_graph.simulate import standard_spec  # noqa: E402
-from ilcc_graph.simulate.export import simulate_dataset  # noqa: E402
+from ilcc_graph.simulate.write_set import simulate_dataset  # noqa: E402
 
 
 def _megabytes(folder: Path) -> float:

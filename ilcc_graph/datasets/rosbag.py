@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 
 from ilcc_graph.config import Config, parse_config
-from ilcc_graph.datasets.base import FrameRef, FrameSource
 from ilcc_graph.datasets.ros_messages import (
     CLOUD,
     COMPRESSED,
@@ -30,6 +29,7 @@ from ilcc_graph.datasets.ros_messages import (
     decode_image,
     sweep_offset,
 )
+from ilcc_graph.datasets.source import FrameRef, FrameSource
 from ilcc_graph.datasets.timeline import (
     IMAGE_STILL,
     LIDAR_STILL,

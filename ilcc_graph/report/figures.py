@@ -18,7 +18,7 @@ from ..board import Board
 from ..cameras import CameraModel
 from ..image.previews import TIGHT, WHOLE_WIDTH, WIDE, Crop, CropSpec, downscale, spec_crop, view_crop
 from ..types import FrameResult, Scan
-from .evaluation import eval_frame_with_scan
+from .frame_errors import eval_frame_with_scan
 from .metric import EvalFrame, metric_points, transform_points
 from .overlays import (
     ColouredPoints,

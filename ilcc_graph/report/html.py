@@ -17,8 +17,8 @@ from ..board import Board
 from ..cameras import CameraModel
 from ..image.previews import WHOLE_WIDTH
 from ..types import Calibration, FrameResult, Scan
-from .evaluation import eval_frame, evaluate, expected_corner_px
 from .figures import FIGURES_DIR, FigureOptions, FrameFigures, frame_figures
+from .frame_errors import eval_frame, evaluate, expected_corner_px
 from .metric import EvalFrame, Evaluation
 from .plots import (
     plot_cross_validation,
