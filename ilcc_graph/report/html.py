@@ -21,6 +21,7 @@ from .figures import FIGURES_DIR, FigureOptions, FrameFigures, frame_figures
 from .frame_errors import eval_frame, evaluate, expected_corner_px
 from .metric import EvalFrame, Evaluation
 from .plots import (
+    DrawnValley,
     plot_cross_validation,
     plot_error_vs_frames,
     plot_frames_vs_accuracy,
@@ -63,7 +64,7 @@ def build_report(
     show_valley: bool = True,
     figures: Iterable[FrameFigures] = (),
     figure_options: FigureOptions = FigureOptions(),
-    valley_study: Valley | Callable[[], Valley | None] | None = None,
+    valley_study: Valley | DrawnValley | Callable[[], Valley | DrawnValley | None] | None = None,
     next_pose: tuple[bytes, str] | None = None,
 ) -> dict[str, bytes]:
     """All files of the report: ``{"index.html": ..., "figures/<...>.webp|png": ...}``.
@@ -82,8 +83,8 @@ def build_report(
     info : extra key/value lines for the header (data folder, command, version...).
     on_frame : called with each frame's :class:`FrameFigures` and scan (e.g. to write the coloured PLY).
     show_valley : draw the metrics with each parameter moved alone (:func:`.studies.valley`);
-        ``valley_study``: that study computed already, or a callable that gives it (e.g. a future's
-        ``result`` of another process; None: computed here).
+        ``valley_study``: that study computed already (or with its chart drawn: ``plots.DrawnValley``),
+        or a callable that gives it (e.g. a future's ``result`` of another process; None: computed here).
     next_pose : (``next_pose.png``'s bytes, its advice) of the next board pose to take, or None.
     """
     T = np.asarray(calibration.T_cam_lidar, dtype=np.float64)
@@ -169,13 +170,13 @@ def _head_html(
     return body
 
 
-def _valley_html(study: Valley | None, add: Callable[[str, bytes], str]) -> list[str]:
-    """The valley study's chart (stored with ``add``), or nothing."""
+def _valley_html(study: Valley | DrawnValley | None, add: Callable[[str, bytes], str]) -> list[str]:
+    """The valley study's chart (stored with ``add``; drawn here unless it was), or nothing."""
     if study is None:
         return []
     return [
         figure(
-            add("valley.png", plot_valley(study)),
+            add("valley.png", study.png if isinstance(study, DrawnValley) else plot_valley(study)),
             "Each of the six parameters moved alone away from the result (about / along the LiDAR "
             "axes, the covariance's convention): on a right result both metrics bottom out at zero, "
             "inside the gray 3-sigma band.",

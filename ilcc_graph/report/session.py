@@ -24,7 +24,10 @@ from ilcc_graph.config import Config
 from ilcc_graph.io import write_ply
 
 if TYPE_CHECKING:
+    from ilcc_graph.board import Board
+    from ilcc_graph.cameras import CameraModel
     from ilcc_graph.pipeline import RunOptions, RunResult, SessionResult
+    from ilcc_graph.report.plots import DrawnValley
     from ilcc_graph.report.studies import CrossValidation, FramesCurve
     from ilcc_graph.types import Calibration, FrameResult
 
@@ -46,21 +49,25 @@ def _draw_frame(source, ref, config: Config, T: np.ndarray, result, options, ply
     return dataclasses.replace(ff, coloured=None)
 
 
-def _valley(cal, camera, board):  # noqa: ANN001, ANN202 - report.studies.Valley | None
-    """The report's valley study on the used frames (as ``report.build_report`` makes it), or None
-    when a used frame lacks its board points (the report then rebuilds them from the scans)."""
+def _valley(cal: Calibration, camera: CameraModel, board: Board) -> DrawnValley | None:
+    """The report's valley study on the used frames (as ``report.build_report`` makes it) with its
+    chart drawn (a worker process runs it while the main process works out the next pose), or
+    None when a used frame lacks its board points (the report then rebuilds them from the scans)."""
     from ilcc_graph.report import eval_frame
+    from ilcc_graph.report.plots import DrawnValley, plot_valley
     from ilcc_graph.report.studies import valley
 
     efs = [eval_frame(f) for f in cal.frames if f.used]
     if not efs or any(e is None or not len(e.points_lidar) for e in efs):
         return None
-    return valley(efs, camera, board, np.asarray(cal.T_cam_lidar), np.asarray(cal.covariance))
+    study = valley(efs, camera, board, np.asarray(cal.T_cam_lidar), np.asarray(cal.covariance))
+    return DrawnValley(study, plot_valley(study))
 
 
 def _drawn(items: list[tuple], pool, cal, config: Config) -> tuple[Iterator, object]:  # noqa: ANN001
-    """(``_draw_frame(*item)`` for each item in order, a future of the valley study), on ``pool``
-    (``workers.pool``; in this process when None); the valley study, the longest single job, goes first."""
+    """(``_draw_frame(*item)`` for each item in order, a future of the valley study with its chart), on
+    ``pool`` (``workers.pool``; in this process when None); the valley study, the longest single job,
+    goes first."""
     if pool is None:
         return (_draw_frame(*it) for it in items), None
     slim = dataclasses.replace(
