@@ -65,7 +65,7 @@ def calibrate(src: Path, data: Path, out: Path, extra: list[str]) -> dict:
     wall, cpu = time.perf_counter() - t0, _cpu_machine() - c0
     if p.returncode != 0:
         raise RuntimeError(f"{cmd} failed:\n{p.stdout[-3000:]}\n{p.stderr[-3000:]}")
-    m = re.search(r"calibrated in ([0-9.]+) s; wrote .* \(([0-9.]+) s\)", p.stdout)
+    m = re.search(r"calibrated in ([0-9.]+) s, outputs written in ([0-9.]+) s", p.stdout)
     return {
         "wall": wall,
         "cpu": cpu,
