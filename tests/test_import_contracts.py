@@ -52,6 +52,32 @@ LAYERS: tuple[tuple[tuple[str, ...], bool], ...] = (
     (("errors", "types"), True),  # no project imports
 )
 
+# The arrows of docs/architecture.md's drawing for the packages below the orchestration: what each
+# may import besides itself and ``errors``, ``types`` (which every module may import). Stricter than
+# the floors: a package that may not import a lower one is held to it here.
+BASE = {"errors", "types"}
+ARROWS: dict[str, set[str]] = {
+    "errors": set(),
+    "types": set(),
+    "board": set(),
+    "checks": set(),
+    "signals": set(),
+    "_forkserver_preload": set(),
+    "cameras": {"checks"},
+    "lidars": set(),
+    "io": {"signals"},
+    "workers": {"signals"},
+    "config": {"board", "cameras", "checks", "lidars", "io"},
+    "datasets": {"config", "cameras", "io"},
+    "lidar": {"board", "lidars"},
+    "image": {"board", "cameras"},
+    "init": set(),
+    "simulate": {"board", "cameras", "lidars", "io", "config"},
+    "estimation": {"board", "cameras", "init"},
+    "next_pose": {"estimation", "lidar", "lidars", "cameras", "board", "config"},
+    "report": {"lidar", "image", "estimation", "board", "cameras", "config", "io", "signals", "workers"},
+}
+
 # The stage packages do no file I/O (docs/architecture.md: only datasets/, io/, report/session.py
 # and app/ touch the disk); simulate/ writes its data sets through io/ and is not held to this.
 PURE = {"lidar", "image", "init", "estimation", "next_pose"}
@@ -149,6 +175,11 @@ def violations(imports: list[Import], present: set[str]) -> list[str]:
             out.append(f"pure stages: {where} ({src}/ does no file I/O)")
         if imp.type_only or src not in placed or dst not in placed:
             continue
+        allowed = ARROWS.get(src)
+        if allowed is not None and dst not in allowed | (set() if src in BASE else BASE):
+            out.append(
+                f"arrows: {where} (docs/architecture.md draws {src} -> {', '.join(sorted(allowed)) or '-'})"
+            )
         (h_src, independent), (h_dst, _) = placed[src], placed[dst]
         if h_dst > h_src:
             out.append(f"layers: {where} ({src} is below {dst})")
@@ -209,6 +240,10 @@ PRESENT = present_units(ROOT) | {"run"}
         ("factors.bearing", "ilcc_graph.types", "factors"),
         ("factors.pixel", "scipy.optimize", "factors"),
         ("ilcc_graph.lidar.pose", "ilcc_graph.io.scans", "pure stages"),
+        ("ilcc_graph.estimation.graphs", "ilcc_graph.lidars", "arrows"),  # lower, but not drawn
+        ("ilcc_graph.cameras.registry", "ilcc_graph.board", "arrows"),
+        ("ilcc_graph.report.html", "ilcc_graph.datasets", "arrows"),
+        ("ilcc_graph.types", "ilcc_graph.errors", "arrows"),
         ("ilcc_graph.estimation.batch", "ilcc_graph.datasets", "pure stages"),
     ],
 )
@@ -235,6 +270,12 @@ def test_what_the_contracts_allow_passes() -> None:
     assert not violations(_one(*allowed[-1], type_only=True), PRESENT)
 
 
+def test_every_package_below_the_orchestration_has_its_arrow() -> None:
+    """A package on the floors from ``report`` down is in ARROWS (its arrow drawn in the doc)."""
+    lower = {u for units, _ in LAYERS[2:] for u in units}
+    assert lower == set(ARROWS), sorted(lower ^ set(ARROWS))
+
+
 def test_a_new_package_must_be_placed() -> None:
     bad = violations([], PRESENT | {"gui"})
     assert bad == ["layers: ilcc_graph.gui is on no floor of LAYERS (place it there and in the doc)"]
@@ -249,5 +290,5 @@ def test_a_violation_written_into_a_copy_is_found(tmp_path: Path) -> None:
     fit.write_text(fit.read_text(encoding="utf-8") + "\n\ndef _late():\n    from ..image import detect\n")
     (tmp_path / "factors" / "bad.py").write_text("import ilcc_graph.types\n")
     bad = violations(scan(tmp_path), present_units(tmp_path))
-    assert sorted(b.split(":")[0] for b in bad) == ["factors", "layers", "layers"], bad
+    assert sorted(b.split(":")[0] for b in bad) == ["arrows", "arrows", "factors", "layers", "layers"], bad
     assert any("ilcc_graph.lidar.fit" in b and "ilcc_graph.image" in b for b in bad), bad
