@@ -6,6 +6,7 @@ Each module of ``ilcc_graph`` belongs to a *unit*: its sub-package (``ilcc_graph
 ``lidar``) or, for a module at the package root, its own name (``ilcc_graph/observe.py`` ->
 ``observe``). ``LAYERS`` places every unit on a floor; a unit may import its own modules and units
 on lower floors, never a unit on its own floor (units on one floor are independent) or above.
+Below the orchestration each package is also held to the arrow the doc draws for it (``ARROWS``).
 Every import counts, at module level or inside a function, except those under ``if
 TYPE_CHECKING:`` (names for type hints that never run; ``factors/`` and ``app/`` count them too).
 
