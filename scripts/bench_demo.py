@@ -37,7 +37,7 @@ from ilcc_graph.run.pipeline import run  # noqa: E402
 from ilcc_graph.run.result import RunOptions  # noqa: E402
 from ilcc_graph.run.stages import StageOptions  # noqa: E402
 from ilcc_graph.simulate import standard_spec  # noqa: E402
-from ilcc_graph.simulate.export import simulate_dataset  # noqa: E402
+from ilcc_graph.simulate.write_set import simulate_dataset  # noqa: E402
 
 
 def _megabytes(folder: Path) -> float:

@@ -55,7 +55,7 @@ from ilcc_graph.simulate import (
     simulate_scan,
     standard_spec,
 )
-from ilcc_graph.simulate.intrinsics import IntrinsicsError, stated_camera
+from ilcc_graph.simulate.intrinsics_error import IntrinsicsError, stated_camera
 from ilcc_graph.types import FrameResult
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from ilcc_graph.simulate import ImageRenderer, board_placements, frame_scene, simulate_scan, standard_spec  # noqa: E402
-from ilcc_graph.simulate.export import simulate_dataset  # noqa: E402
+from ilcc_graph.simulate.write_set import simulate_dataset  # noqa: E402
 
 
 def _rss_mb() -> float:
@@ -123,7 +123,7 @@ def main() -> None:
     md = (
         "# Simulator benchmark\n\n"
         "`python3 scripts/bench_simulate.py` writes a data set with\n"
-        "`ilcc_graph.simulate.export.simulate_dataset` (config.yaml, binary PCD, PNG images,\n"
+        "`ilcc_graph.simulate.write_set.simulate_dataset` (config.yaml, binary PCD, PNG images,\n"
         "ground_truth.yaml) to a temporary folder and reports wall time and the process's peak\n"
         "resident memory. Aim: under 2 minutes and 3 GB for 20 frames of HDL-32E +\n"
         "8000x4000 equirectangular images. The stage rows time one extra frame after the run.\n"

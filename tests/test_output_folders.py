@@ -59,7 +59,7 @@ def no_work(monkeypatch):
     import ilcc_graph.run.evaluate
     import ilcc_graph.run.observe
     import ilcc_graph.run.pipeline
-    import ilcc_graph.simulate.export
+    import ilcc_graph.simulate.write_set
 
     def started(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
         raise AssertionError("the command's work started before its output folder was checked")
@@ -68,7 +68,7 @@ def no_work(monkeypatch):
     monkeypatch.setattr(ilcc_graph.run.observe, "stage_alone", started)
     monkeypatch.setattr(ilcc_graph.app.check_view, "check_command", started)
     monkeypatch.setattr(ilcc_graph.run.evaluate, "evaluate_on", started)
-    monkeypatch.setattr(ilcc_graph.simulate.export, "simulate_frames", started)
+    monkeypatch.setattr(ilcc_graph.simulate.write_set, "simulate_frames", started)
 
 
 def _commands(data: Path, out: Path, cal: Path, cache: Path) -> list[list[str]]:

@@ -299,7 +299,7 @@ def test_placements_override_and_validation():
 
 
 def test_same_seed_same_bytes(tmp_path):
-    from ilcc_graph.simulate.export import simulate_dataset
+    from ilcc_graph.simulate.write_set import simulate_dataset
 
     spec = standard_spec(width=400, frames=2, seed=7)
     seen = []
@@ -324,7 +324,7 @@ def test_same_seed_same_bytes(tmp_path):
 
 def test_written_dataset_reads_back(tmp_path):
     from ilcc_graph.io import read_ground_truth, read_image, read_scan
-    from ilcc_graph.simulate.export import simulate_dataset
+    from ilcc_graph.simulate.write_set import simulate_dataset
 
     spec = standard_spec(width=400, frames=1, seed=1)
     out = simulate_dataset(tmp_path / "d", spec)

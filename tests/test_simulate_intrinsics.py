@@ -18,7 +18,7 @@ from ilcc_graph.simulate import (
     standard_spec,
     stated_camera,
 )
-from ilcc_graph.simulate.export import config_dict
+from ilcc_graph.simulate.write_set import config_dict
 
 
 def test_off_by_default_config_states_the_truth() -> None:

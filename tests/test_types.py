@@ -23,10 +23,10 @@ def test_mypy_is_clean_on_the_checked_paths() -> None:
     assert "Success: no issues found" in out, out
 
 
-def test_the_checked_paths_include_the_factors() -> None:
+def test_the_checked_paths_include_the_factors_and_the_estimation_core() -> None:
     tomllib = pytest.importorskip("tomllib", reason="reading pyproject.toml needs Python 3.11's tomllib")
     with open(ROOT / "pyproject.toml", "rb") as f:
         files = tomllib.load(f)["tool"]["mypy"]["files"]
-    assert "factors" in files, files
+    assert {"factors", "ilcc_graph/estimation"} <= set(files), files
     missing = [p for p in files if not (ROOT / p).exists()]
     assert not missing, f"[tool.mypy] files names paths that do not exist: {missing}"

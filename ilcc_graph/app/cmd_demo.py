@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     """The standard panoramic set simulated into the cache (JPEG images: a sixth of PNG's bytes,
     the same accuracy, docs/bench_demo.md) or reused from there, then calibrated against its truth."""
     from ilcc_graph.io import read_ground_truth
-    from ilcc_graph.simulate.export import write_standard_set
+    from ilcc_graph.simulate.write_set import write_standard_set
 
     data = Path(args.data or Path(args.cache) / f"demo-hdl32-equirect{args.width}-seed{args.seed}")
     output_folder(args, [data])  # the output folder, claimed before the simulation

@@ -1,4 +1,4 @@
-"""``ilcc-graph simulate``: a simulated data set with its ground truth (``simulate.export``)."""
+"""``ilcc-graph simulate``: a simulated data set with its ground truth (``simulate.write_set``)."""
 
 from __future__ import annotations
 
@@ -53,7 +53,7 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ilcc_graph.simulate.export import write_standard_set
+    from ilcc_graph.simulate.write_set import write_standard_set
 
     names = (
         "lidar",

@@ -1,11 +1,11 @@
 """Camera models, one file each, registered by kind (``camera.model`` in config.yaml).
 
 The model imports below fill the registry (``registry.py``): a model file joins it by being
-imported here. See ``base.py`` for what a model file holds; nothing outside this package branches
+imported here. See ``camera_model.py`` for what a model file holds; nothing outside this package branches
 on the kind.
 """
 
-from .base import R_FLU_OPENCV, CameraModel, LensModel
+from .camera_model import R_FLU_OPENCV, CameraModel, LensModel
 from .double_sphere import DoubleSphere as DoubleSphere
 from .equirectangular import Equirectangular as Equirectangular
 from .fisheye import Fisheye as Fisheye

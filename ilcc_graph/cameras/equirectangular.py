@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..checks import Checker
-from .base import CameraModel
+from .camera_model import CameraModel
 from .common import check_size
 from .registry import register
 

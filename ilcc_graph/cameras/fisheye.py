@@ -12,7 +12,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..checks import MISSING, Checker
-from .base import R_FLU_OPENCV, LensModel, Normalised
+from .camera_model import R_FLU_OPENCV, LensModel, Normalised
 from .common import config_dist, config_K, finite_vector, first_fold, solve_increasing
 from .registry import register
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..checks import MISSING, Checker
 from ..errors import InputError
-from .base import CameraModel
+from .camera_model import CameraModel
 from .common import config_intrinsics_sigma
 
 __all__ = [

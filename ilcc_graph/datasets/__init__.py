@@ -15,8 +15,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Literal, overload
 
-from ilcc_graph.datasets.base import FrameRef, FrameSource
 from ilcc_graph.datasets.folder import FolderSource, is_folder_source
+from ilcc_graph.datasets.frame_source import FrameRef, FrameSource
 from ilcc_graph.datasets.rig import Moment, RigPair, RigSource, is_rig_source
 from ilcc_graph.datasets.rosbag import BagSource, is_bag
 from ilcc_graph.errors import InputError

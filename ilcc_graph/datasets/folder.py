@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from ilcc_graph.config import Config, load_config
-from ilcc_graph.datasets.base import FrameRef, FrameSource
+from ilcc_graph.datasets.frame_source import FrameRef, FrameSource
 from ilcc_graph.errors import InputError
 from ilcc_graph.io import list_frames, read_ground_truth, read_image, read_scan
 from ilcc_graph.io.files import broken_link

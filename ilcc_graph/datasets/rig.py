@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from ilcc_graph.config import Config, RigConfig, load_rig_config
-from ilcc_graph.datasets.base import FrameRef, FrameSource
 from ilcc_graph.datasets.folder import FolderSource
+from ilcc_graph.datasets.frame_source import FrameRef, FrameSource
 from ilcc_graph.errors import InputError
 from ilcc_graph.io import (
     IMAGE_SUFFIXES,
@@ -32,7 +32,7 @@ from ilcc_graph.io import (
     read_scan,
     supported_scan_suffixes,
 )
-from ilcc_graph.io.frames import PREFERENCE
+from ilcc_graph.io.frame_pairs import PREFERENCE
 from ilcc_graph.io.results import GROUND_TRUTH_FILE
 from ilcc_graph.io.rig_truth import RIG_GROUND_TRUTH_FILE, RigGroundTruth, read_rig_ground_truth
 from ilcc_graph.types import Scan

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from ilcc_graph.config import Config, parse_config
-from ilcc_graph.datasets.base import FrameRef, FrameSource
+from ilcc_graph.datasets.frame_source import FrameRef, FrameSource
 from ilcc_graph.datasets.ros_messages import (
     CLOUD,
     COMPRESSED,

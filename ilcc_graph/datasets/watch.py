@@ -15,8 +15,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from ilcc_graph.datasets.base import FrameRef
 from ilcc_graph.datasets.folder import FolderSource
+from ilcc_graph.datasets.frame_source import FrameRef
 from ilcc_graph.io import IMAGE_SUFFIXES, natural_key, supported_scan_suffixes
 
 __all__ = ["Arrival", "GrowingFolder"]

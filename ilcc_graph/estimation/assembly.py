@@ -14,10 +14,12 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import gtsam
+import numpy as np
 
 from factors import FrameBearingFactor, FramePixelFactor
 from factors.board_moments import CompactBoardPoints
 from factors.board_points import BoardPointsFactor
+from factors.grouped import MEstimator
 from ilcc_graph.cameras import CameraModel
 from ilcc_graph.estimation.intrinsics import refinable
 from ilcc_graph.estimation.keys import POSE3_DOF, B, X
@@ -46,7 +48,7 @@ class Assembly:
     def __init__(
         self,
         problem: Problem,
-        robust: gtsam.noiseModel.mEstimator.Base | None = None,
+        robust: MEstimator | None = None,
         layouts: Mapping[int, LidarLayout] | None = None,
         refine: bool | set[int] | None = None,
         per_view: bool = False,
@@ -191,15 +193,15 @@ class Assembly:
         values = gtsam.Values()
         for e in self.extrinsics(boards):
             T = known.get(X(e))
-            values.insert(X(e), T if T is not None else check_pose(self.problem.T_init[e], f"T_init[{e}]"))
+            _insert(values, X(e), T if T is not None else check_pose(self.problem.T_init[e], f"T_init[{e}]"))
         for i in boards:
             bp = known.get(B(i))
-            values.insert(
-                B(i), bp if bp is not None else check_pose(self.problem.boards[i].T_lidar_board, "")
+            _insert(
+                values, B(i), bp if bp is not None else check_pose(self.problem.boards[i].T_lidar_board, "")
             )
         for kind in self.kinds:
             for key in kind.keys(boards):
-                values.insert(key, kind.initial(key, known))
+                _insert(values, key, kind.initial(key, known))
         return values
 
     def read(self, values: gtsam.Values, boards: Sequence[int]) -> dict[int, object]:
@@ -238,3 +240,11 @@ class Assembly:
     def lidars(self, boards: Sequence[int]) -> list[int]:
         """LiDARs of ``boards``, ascending."""
         return sorted({self.problem.boards[i].lidar for i in boards})
+
+
+def _insert(values: gtsam.Values, key: int, value: object) -> None:
+    """A variable's value into ``values``: a pose as a ``Pose3``, anything else as a vector."""
+    if isinstance(value, gtsam.Pose3):
+        values.insert(key, value)
+    else:
+        values.insert(key, np.asarray(value, dtype=np.float64))

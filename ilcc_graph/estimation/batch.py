@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
+import gtsam
 import numpy as np
 
 from ilcc_graph.cameras import CameraModel
@@ -69,7 +70,7 @@ class BatchSolution:
         return Estimate(self.T_cam_lidar, self.covariance)
 
     @property
-    def pose(self):  # noqa: ANN201 - gtsam.Pose3
+    def pose(self) -> gtsam.Pose3:
         """``T_cam_lidar`` as a ``gtsam.Pose3``."""
         return self.extrinsic.pose
 
@@ -162,10 +163,9 @@ def solve(
         refined, choice = choose_intrinsics(sol.problem, options)
         selection = replace(selection, camera=choice)
     sol = refined or sol
-    extra = {}
-    if effects:
-        extra = {"effects": sensor_effects(sol, options), "square_size": square_size_effect(sol)}
-    out = replace(batch_solution(sol, **extra), selection=selection)
+    moved = sensor_effects(sol, options) if effects else None
+    square = square_size_effect(sol) if effects else None
+    out = replace(batch_solution(sol, effects=moved, square_size=square), selection=selection)
     if refined is not None:  # refined: its covariance, times the model's held-out factor
         factor = next(c.factor for c in selection.candidates if c.name == selection.chosen)
         out = replace(out, covariance=factor * out.covariance)

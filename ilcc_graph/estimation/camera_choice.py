@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -90,7 +90,12 @@ class CameraChoice:
         )  # fmt: skip
 
 
-def _refined(problem: Problem, options: NoiseOptions, solve: Callable[..., Solution], boards=None):  # noqa: ANN001, ANN202
+def _refined(
+    problem: Problem,
+    options: NoiseOptions,
+    solve: Callable[..., Solution],
+    boards: Sequence[str] | None = None,
+) -> tuple[Solution, np.ndarray, np.ndarray]:
     """(solution, intrinsics (n,), their covariance) of ``problem`` with camera 0's intrinsics refined."""
     sol = solve(problem, options, boards=boards)
     got = sol.intrinsics(0)

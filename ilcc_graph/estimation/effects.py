@@ -73,7 +73,7 @@ def _effect(T_with: np.ndarray, T_without: np.ndarray, cov: np.ndarray) -> Effec
     c_with = -T_with[:3, :3].T @ T_with[:3, 3]
     c_without = -T_without[:3, :3].T @ T_without[:3, 3]
     try:
-        m = float(np.sqrt(max(xi @ np.linalg.solve(cov, xi), 0.0)))
+        m = float(np.sqrt(max(float(xi @ np.linalg.solve(cov, xi)), 0.0)))
     except np.linalg.LinAlgError:
         m = float("nan")
     return Effect(

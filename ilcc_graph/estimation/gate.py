@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import gtsam
 import numpy as np
@@ -64,18 +65,20 @@ def board_stats(
     prior_dof: dict[int, int] = {}
     returns: dict[int, tuple[float, int]] = {}
     for k, t in enumerate(terms):
-        if t.kind != "board":
+        i = t.board
+        if t.kind != "board" or i is None:  # a board's term always names its board
             continue
         if not t.parts:
             # every LiDAR that saw the board adds its pose's term (one LiDAR: one term)
-            prior[t.board] = prior.get(t.board, 0.0) + 2.0 * graph.at(k).error(values)  # type: ignore[arg-type]
-            prior_dof[t.board] = prior_dof.get(t.board, 0) + graph.at(k).dim()  # type: ignore[arg-type]
+            prior[i] = prior.get(i, 0.0) + 2.0 * graph.at(k).error(values)
+            prior_dof[i] = prior_dof.get(i, 0) + graph.at(k).dim()
             continue
-        e = np.asarray(graph.at(k).whitenedError(values))
+        # the returns' factor with its in-plane prior: a noise-model factor (factors.board_points)
+        e = np.asarray(cast(gtsam.NoiseModelFactor, graph.at(k)).whitenedError(values))
         (_, a0, a1), (_, b0, b1) = t.parts
-        returns[t.board] = (float(e[a0:a1] @ e[a0:a1]), a1 - a0 - 3)  # type: ignore[index]
-        prior[t.board] = float(e[b0:b1] @ e[b0:b1])  # type: ignore[index]
-        prior_dof[t.board] = b1 - b0  # type: ignore[index]
+        returns[i] = (float(e[a0:a1] @ e[a0:a1]), a1 - a0 - 3)
+        prior[i] = float(e[b0:b1] @ e[b0:b1])
+        prior_dof[i] = b1 - b0
     out: dict[int, BoardStats] = {}
     for i, fs in facs.items():
         p0 = prior.get(i, 0.0)  # a board no LiDAR saw (a rig's cameras alone) has no prior term

@@ -12,6 +12,7 @@ import numpy as np
 
 from factors import FrameBearingFactor, FramePixelFactor, sqrt_information, tangent_bases
 from factors.board_points import BoardPointsFactor
+from factors.grouped import MEstimator
 from factors.range_offset import RangeOffsetBoardFactor
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import CameraModel
@@ -62,7 +63,7 @@ def frame_bearing_factor(
     bearings: np.ndarray,
     cov_px: np.ndarray,
     camera: CameraModel,
-    robust: gtsam.noiseModel.mEstimator.Base | None = None,
+    robust: MEstimator | None = None,
     what: str = "frame",
 ) -> tuple[FrameBearingFactor | None, int]:
     """One board seen by one camera as a grouped bearing factor, and its number of usable corners.
@@ -102,7 +103,7 @@ def frame_pixel_factor(
     uv: np.ndarray,
     cov_px: np.ndarray,
     camera: CameraModel,
-    robust: gtsam.noiseModel.mEstimator.Base | None = None,
+    robust: MEstimator | None = None,
 ) -> tuple[FramePixelFactor | None, int]:
     """One board seen by one camera as a grouped pixel factor with the camera's intrinsics ``I(c)``
     as a variable, and its number of usable corners (finite pixels, positive-definite covariances);

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from factors import FrameBearingFactor
 from ilcc_graph.estimation.keys import POSE3_DOF, B, X
 from ilcc_graph.estimation.linear import reduce
 from ilcc_graph.estimation.noise import Solution
@@ -44,7 +45,9 @@ class HeldOut:
         return -0.5 * (self.chi2 + self.logdet)
 
 
-def image_alone(fac, start: gtsam.Pose3, iterations: int = 10) -> tuple[gtsam.Pose3, np.ndarray]:  # noqa: ANN001
+def image_alone(
+    fac: FrameBearingFactor, start: gtsam.Pose3, iterations: int = 10
+) -> tuple[gtsam.Pose3, np.ndarray]:
     """(T_cam_board, its (6, 6) covariance) from one view's bearing factor ``fac`` alone (Gauss-Newton
     from ``start`` with the extrinsic at identity); the covariance scaled by the view's chi-square
     per dof when above 1."""
@@ -74,10 +77,10 @@ def held_out(sol: Solution, e: int = 0) -> dict[int, HeldOut]:
     S_inv = np.linalg.inv(red.S)
     xe = sol.values.atPose3(X(e))
     spread = sol.spread_of([X(e)], [POSE3_DOF])
-    views = {sol.problem.views[j].board: fac for j, fac in asm.views if j not in asm.pixel_views}
+    views = {sol.problem.views[j].board: fac for j, fac in asm.views if isinstance(fac, FrameBearingFactor)}
     out: dict[int, HeldOut] = {}
     for kind, _, bk, A_b, g_keys, A_g, b, count in red.blocks:
-        if kind != "bearing" or count is not None or bk is None or g_keys != [X(e)]:
+        if kind != "bearing" or count is not None or bk is None or A_b is None or g_keys != [X(e)]:
             continue
         k = int(gtsam.Symbol(bk).index())
         if k not in views:

@@ -24,7 +24,7 @@ import dataclasses
 import logging
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 import gtsam
@@ -74,7 +74,7 @@ class FrameUpdate:
     seconds: float = 0.0
     solution: BatchSolution | None = None
 
-    def __iter__(self):  # noqa: ANN204 - tuple-like unpacking of the three main fields
+    def __iter__(self) -> Iterator[np.ndarray | bool | None]:  # unpacks as its three main fields
         return iter((self.T_cam_lidar, self.sigmas, self.reached_target))
 
 
@@ -254,6 +254,13 @@ class IncrementalCalibrator:
                     log.info("frame %s rejected at initialisation: %s", f.name, reason)
         return self._update(name, t0, True, None)
 
+    @property
+    def _pose(self) -> gtsam.Pose3:
+        """The current extrinsic (there is one once the first frames initialised it)."""
+        if self._T is None:
+            raise RuntimeError("the extrinsic is not initialised yet")
+        return self._T
+
     def _factor(self, f: GraphFrame, board: int = 0) -> FrameBearingFactor | None:
         """The frame's grouped bearing factor on (X(0), B(board))."""
         return frame_bearing_factor(X(0), B(board), f.points_board, f.bearings, f.cov_px, self.camera)[0]
@@ -267,9 +274,10 @@ class IncrementalCalibrator:
         g = self._flipped(f)
         gfac = self._factor(g)
         prior = gtsam.Pose3(np.asarray(f.T_lidar_board, dtype=np.float64))
+        T = self._T
 
         def cost(fc: FrameBearingFactor | None) -> float:
-            return math.inf if fc is None else float(np.sum(fc.evaluate(self._T, prior, False)[0] ** 2))
+            return math.inf if fc is None else float(np.sum(fc.evaluate(T, prior, False)[0] ** 2))
 
         if cost(gfac) < cost(fac):
             self._flipped_names.add(f.name)
@@ -277,13 +285,13 @@ class IncrementalCalibrator:
         return f, fac
 
     def _gate(self, f: GraphFrame, fac: FrameBearingFactor | None) -> tuple[bool, str | None]:
-        return innovation_gate(f, fac, self._T, self._cov, self.gate_prob)  # type: ignore[arg-type]
+        return innovation_gate(f, fac, self._pose, self._cov, self.gate_prob)
 
     def _insert(self, frames: Iterable[GraphFrame], first: bool) -> None:
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         if first:
-            values.insert(X(0), self._T)
+            values.insert(X(0), self._pose)
         n = 0
         for f in frames:
             i = len(self._frames)
@@ -318,7 +326,7 @@ class IncrementalCalibrator:
             if not self._pending:
                 raise CalibrationImpossible("no frame was added")
             self._initialise(self._pending[-1].frame.name, t0)
-        T = np.asarray(self._T.matrix())
+        T = np.asarray(self._pose.matrix())
         sol = solve(
             self._offered, self.camera, T, self.noise, self.lidar_errors, self.intrinsics,
             models=self.models, intrinsics_choice=self.intrinsics_choice,

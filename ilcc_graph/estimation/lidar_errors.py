@@ -82,7 +82,8 @@ class LidarErrorOptions:
         for name in ("prior_offset_m", "prior_dark_m", "prior_scale", "prior_elevation_rad"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"LidarErrorOptions.{name} must be > 0, got {getattr(self, name)!r}")
-        if self.board_plane is not None and not (len(self.board_plane) == 2 and min(self.board_plane) > 0):
+        given: Sequence[float] | None = self.board_plane  # as the caller gave it: any length
+        if given is not None and not (len(given) == 2 and min(given) > 0):
             raise ValueError(
                 f"LidarErrorOptions.board_plane must be two sigmas > 0 or None, got {self.board_plane!r}"
             )
@@ -159,7 +160,9 @@ class LidarLayout:
             excluded=self.excluded + tuple((n, reason) for n in names),
         )  # fmt: skip
 
-    def terms(self, r: BoardReturns, rho: np.ndarray, keep: np.ndarray) -> tuple[np.ndarray, ...]:
+    def terms(
+        self, r: BoardReturns, rho: np.ndarray, keep: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
         """For the returns ``r`` (rows ``keep``): range_index, range_coef (M, k) and
         elevation_index, elevation_coef (M, 1), or None for the latter without elevation terms."""
         ring, dark = np.asarray(r.ring)[keep], np.asarray(r.dark, dtype=np.float64)[keep]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
@@ -18,6 +19,9 @@ from ilcc_graph.errors import IndeterminateSystem
 from ilcc_graph.estimation.assembly import Term
 from ilcc_graph.estimation.keys import POSE3_DOF, I, X, is_board, key_dim
 
+if TYPE_CHECKING:
+    from ilcc_graph.estimation.noise import Solution
+
 __all__ = ["Reduced", "consider_covariance", "reduce", "redundancies"]
 
 
@@ -25,20 +29,29 @@ __all__ = ["Reduced", "consider_covariance", "reduce", "redundancies"]
 #: ``Z^T`` of its rows first..end (e.g. a random effect marginalised in their whitening,
 #: ``BoardPointsFactor.plane_rows``); they enter no information, only the chi-squares and redundancies
 Extra = Callable[[int, Term], Sequence[tuple[str, int, int, np.ndarray]]]
+#: a variable's dimension by key (``keys.key_dim``, or an assembly's ``dim``)
+Dim = Callable[[int], int]
+#: rows of one factor and kind: (kind, group, board key or None, A_board or None, global keys,
+#: A_globals, b, count: None for its own rows, ``Z^T Z`` for virtual ones)
+Block = tuple[
+    str, str, "int | None", "np.ndarray | None", list[int], np.ndarray, np.ndarray, "np.ndarray | None"
+]
 
 
 def _linear_blocks(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim,
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim: Dim,
     extra: Extra | None = None,
-):  # fmt: skip
+) -> list[Block]:  # fmt: skip
     """Per factor and row kind: (kind, group, board key or None, A_board, global keys, A_globals, b,
     count) of its whitened linearisation; count is None for its own rows, ``Z^T Z`` for the virtual
     rows ``Z^T`` of ``extra``."""
-    out = []
+    out: list[Block] = []
     for k, t in enumerate(terms):
         A, b = graph.at(k).linearize(values).jacobian()
         keys = list(graph.at(k).keys())
-        col, board_key, A_b, g_keys, g_cols = 0, None, None, [], []
+        col, board_key, A_b = 0, None, None
+        g_keys: list[int] = []
+        g_cols: list[np.ndarray] = []
         for key in keys:
             d = dim(key)
             if is_board(key):
@@ -77,7 +90,7 @@ class Reduced:
     ``Dinv``) and coupling ``C`` to the globals, and the globals' information ``S`` (Schur complement)
     with each global key's first column in ``index``."""
 
-    blocks: list
+    blocks: list[Block]
     index: dict[int, int]
     dims: dict[int, int]
     Dinv: dict[int, np.ndarray]
@@ -91,7 +104,7 @@ class Reduced:
 
 
 def reduce(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim=key_dim,
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim: Dim = key_dim,
     skip: Sequence[str] = (), extra: Extra | None = None,
 ) -> Reduced:  # fmt: skip
     """Linearise ``graph`` at ``values`` (whitened) and eliminate the boards; rows of the kinds in
@@ -112,7 +125,7 @@ def reduce(
         if count is not None:
             continue  # virtual rows: no information of their own
         c = red.cols(g_keys)
-        if board_key is not None:
+        if board_key is not None and A_b is not None:  # a board's rows have its columns
             D[board_key] = D.get(board_key, np.zeros((POSE3_DOF, POSE3_DOF))) + A_b.T @ A_b
             Ci = red.C.setdefault(board_key, np.zeros((POSE3_DOF, G)))
             Ci[:, c] += A_b.T @ A_g
@@ -124,7 +137,7 @@ def reduce(
 
 
 def redundancies(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim=key_dim,
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, terms: Sequence[Term], dim: Dim = key_dim,
     extra: Extra | None = None, information: dict[tuple[str, str], float] | None = None,
 ) -> dict[tuple[str, str], tuple[float, float]]:  # fmt: skip
     """Per (kind, group): (whitened chi-square, redundancy ``m_g - trace(N^-1 N_g)``) at ``values``.
@@ -148,7 +161,7 @@ def redundancies(
     out: dict[tuple[str, str], list[float]] = {}
     for kind, group, board_key, A_b, g_keys, A_g, b, count in red.blocks:
         c = red.cols(g_keys)
-        if board_key is not None:
+        if board_key is not None and A_b is not None:
             di, ci = red.Dinv[board_key], red.C[board_key]
             S_bg = -di @ ci @ S_inv  # (6, G)
             S_bb = di - S_bg @ ci.T @ di
@@ -168,7 +181,7 @@ def redundancies(
     return {k: (v[0], v[1]) for k, v in out.items()}
 
 
-def consider_covariance(sol, e: int = 0) -> np.ndarray:  # noqa: ANN001 - noise.Solution
+def consider_covariance(sol: Solution, e: int = 0) -> np.ndarray:
     """(6, 6) what the stated sigmas of the cameras' unrefined intrinsics add to extrinsic ``e``'s
     covariance, to first order: ``J Sigma_theta J^T`` with ``J = -S_rr^-1 S_r_theta`` from the data's
     information over the globals (the intrinsics as variables, without a prior)."""

@@ -43,14 +43,15 @@ from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import plane
 from ilcc_graph.estimation.assembly import Assembly
 from ilcc_graph.estimation.components import component_uncertainty, estimated_components
-from ilcc_graph.estimation.gate import BoardStats, board_stats, gate_failures, gate_scale
+from ilcc_graph.estimation.gate import BoardStats
 from ilcc_graph.estimation.gate import graph_variance_factor as graph_factor
 from ilcc_graph.estimation.graphs import Scales
 from ilcc_graph.estimation.keys import POSE3_DOF, B, I, L, O, X
 from ilcc_graph.estimation.lidar_errors import LidarLayout
-from ilcc_graph.estimation.linear import consider_covariance, redundancies
+from ilcc_graph.estimation.linear import consider_covariance
+from ilcc_graph.estimation.noise_loop import COMPONENT_KINDS, Fits
 from ilcc_graph.estimation.problem import Problem
-from ilcc_graph.estimation.solver import MarginalCovariances, SolverOptions, optimize, robust_kernel
+from ilcc_graph.estimation.solver import MarginalCovariances, SolverOptions, robust_kernel
 from ilcc_graph.types import Estimate
 
 log = logging.getLogger(__name__)
@@ -58,10 +59,6 @@ log = logging.getLogger(__name__)
 __all__ = ["BoardStats", "NoiseOptions", "Solution", "replace_scales", "solve_problem"]
 
 MIN_BOARDS_ADVISED = 4
-#: kinds of residual rows with a variance component each (per noise group)
-COMPONENT_KINDS = ("board", "bearing", "points", "inplane")
-#: with a component per view, a view fails only above this multiple of its dof (recorded views: to 5.5x)
-VIEW_MAX_RATIO = 8.0
 
 
 @dataclass(frozen=True)
@@ -252,7 +249,7 @@ def solve_problem(
     scales: Scales | None = None,
     variance_factor: float | None = None,
     gate: bool = True,
-    start: Mapping[int, gtsam.Pose3] | None = None,
+    start: Mapping[int, gtsam.Pose3 | None] | None = None,
     layouts: Mapping[int, LidarLayout] | None = None,
     uncertain: Mapping[tuple[str, str], float] | None = None,
 ) -> Solution:
@@ -282,109 +279,42 @@ def solve_problem(
         raise CalibrationImpossible(
             f"no usable frame for the graph ({len(wanted)} given" + (f"; {detail})" if detail else ")")
         )
-    allowed_drops = int(math.floor(options.max_dropped_fraction * len(candidates)))
-    # every variable's latest estimate by key (the start of the next fit): the extrinsics' given starts
-    known: dict[int, object] = {X(e): T for e, T in (start or {}).items() if T is not None}
-    timings = {"build": 0.0, "optimize": 0.0}
-    iterations = 0
-
-    def fit(kept: Sequence[int], comps: Scales, plain: bool = False):
-        nonlocal iterations
-        t0 = time.perf_counter()
-        g, terms = asm.graph(kept, comps, plain)
-        values = asm.values(kept, known)
-        t1 = time.perf_counter()
-        res, n_it = optimize(asm.compact(g, terms, comps), values, options.solver)
-        timings["build"] += t1 - t0
-        timings["optimize"] += time.perf_counter() - t1
-        iterations += n_it
-        known.update(asm.read(res, kept))
-        return g, terms, res
-
-    def stats_of(kept: Sequence[int], comps: Scales, g, terms, res) -> dict[int, BoardStats]:
-        facs: dict[int, list] = {i: [] for i in kept}
-        for j, fac in asm.views:
-            v = problem.views[j]
-            if v.board in facs:
-                s = comps.get(("bearing", asm.view_group(j)), 1.0)
-                facs[v.board].append(
-                    (fac.scaled(s) if s != 1.0 else fac, v.camera if j in asm.pixel_views else None, s)
-                )
-        return board_stats(g, terms, facs, res)
-
+    fits = Fits(
+        problem, asm,
+        # every variable's latest estimate by key (the start of the next fit): the extrinsics' given starts
+        {X(e): T for e, T in (start or {}).items() if T is not None},
+        names, int(math.floor(options.max_dropped_fraction * len(candidates))), gate, robust,
+        options.variance_components, options.view_components, options.chi2_gate_prob, options.solver,
+    )  # fmt: skip
     if robust is not None:
-        fit(candidates, scales or {}, plain=True)
+        fits.fit(candidates, scales or {}, plain=True)
     fixed = scales is not None
     use_components = options.variance_components and robust is None and not fixed
-
-    def gated(kept0: Sequence[int], comps: Scales):
-        kept, gone = list(kept0), []
-        while True:
-            g, terms, res = fit(kept, comps)
-            st = stats_of(kept, comps, g, terms, res)
-            if not gate or options.chi2_gate_prob is None:
-                break
-            on = options.variance_components
-            view_ratio = VIEW_MAX_RATIO if options.view_components and on else 0.0
-            # per-view components: the views' own rows (their verdict not hung on the LiDAR's fit)
-            parts = ("own_views" if view_ratio and robust is None else "views", "prior", "returns")
-            gate_scales = {p: gate_scale(st, p) if on else 1.0 for p in parts}
-            failing = gate_failures(st, options.chi2_gate_prob, gate_scales, view_ratio)
-            if not failing:
-                break
-            if len(gone) >= allowed_drops or len(kept) == 1:
-                log.warning(
-                    "chi-square gate fails for %d frame(s) (%s) but at most %d frames may be dropped; kept",
-                    len(failing), ", ".join(names[i] for _, i, _ in failing), allowed_drops,
-                )  # fmt: skip
-                break
-            _, worst, reason = failing[0]
-            log.info("dropping frame %s: %s", names[worst], reason)
-            gone.append((names[worst], reason))
-            kept = [i for i in kept if i != worst]
-        return kept, gone, g, terms, res, st
-
-    redundancy: dict[tuple[str, str], float] = {}
-
-    def with_components(kept: Sequence[int], comps: dict[tuple[str, str], float]):
-        g, terms, res = fit(kept, comps)
-        planes = plane.estimated(problem.lidar_errors, asm, kept)  # the boards' planes' components
-        for _ in range(16 if planes else 8):
-            extra, info = (plane.extra_rows(asm, comps, planes), {}) if planes else (None, None)
-            ratios = redundancies(g, res, terms, asm.dim, extra, info)
-            ratios = plane.split_points(ratios) if planes else ratios
-            new = dict(comps)
-            for key, (c2, r) in ratios.items():
-                if key[0] in COMPONENT_KINDS:
-                    new[key] = max(1.0, comps.get(key, 1.0) * (c2 / r if r > 0.5 else 1.0))
-            if planes:
-                new.update(plane.components(ratios, comps, problem.lidar_errors, info))  # type: ignore[arg-type]
-            redundancy.update({k: r for k, (_, r) in ratios.items()})
-            if all(abs(new[k] / comps.get(k, 1.0) - 1.0) < 0.02 for k in new):
-                break
-            comps = new
-            g, terms, res = fit(kept, comps)
-        return g, terms, res, comps
-
     comps: dict[tuple[str, str], float] = dict(scales or {})
-    kept, gone, g, terms, res, st = gated(candidates, comps)
+    run = fits.gated(candidates, comps)
+    fitted, st = run.fitted, run.stats
     if use_components:
         # components on the kept boards only (an outlier would inflate what judges it); then every
         # board is gated again under that noise, and the components re-estimated
-        *_, comps = with_components(kept, comps)
-        kept, gone, g, terms, res, st = gated(candidates, comps)
-        g, terms, res, comps = with_components(kept, comps)
-        st = stats_of(kept, comps, g, terms, res)
-    dropped.extend(gone)
+        _, comps = fits.with_components(run.kept, comps)
+        run = fits.gated(candidates, comps)
+        fitted, comps = fits.with_components(run.kept, comps)
+        st = fits.stats_of(run.kept, comps, fitted)
+    kept = run.kept
+    dropped.extend(run.gone)
     if variance_factor is None:
-        vf = graph_factor(g, terms, res, asm, st) if options.variance_components else 1.0
+        vf = (
+            graph_factor(fitted.graph, fitted.terms, fitted.values, asm, st)
+            if options.variance_components
+            else 1.0
+        )
     else:
         vf = variance_factor
     if use_components:
-        uncertain = estimated_components(comps, redundancy, problem.lidar_errors)
-    timings["total"] = time.perf_counter() - t_start
-    sol = Solution(problem, asm, kept, g, res, st, dropped, comps, float(vf), iterations, timings, redundancy,
-                   dict(uncertain or {}))  # fmt: skip
+        uncertain = estimated_components(comps, fits.redundancy, problem.lidar_errors)
+    fits.timings["total"] = time.perf_counter() - t_start
+    sol = Solution(problem, asm, kept, fitted.graph, fitted.values, st, dropped, comps, float(vf),
+                   fits.iterations, fits.timings, fits.redundancy, dict(uncertain or {}))  # fmt: skip
     weak = _unobservable(sol) if layouts is None else {}
     if weak:
         for lid, (terms_out, why) in weak.items():
@@ -392,23 +322,32 @@ def solve_problem(
         again = {lid: lay.without(*weak[lid]) if lid in weak else lay for lid, lay in asm.layouts.items()}
         return solve_problem(problem, options, boards=boards, scales=scales, variance_factor=variance_factor,
                              gate=gate, start=start, layouts=again, uncertain=uncertain)  # fmt: skip
-    if len(kept) < MIN_BOARDS_ADVISED:
+    _log_noise(sol, fixed, variance_factor is None)
+    return sol
+
+
+def _log_noise(sol: Solution, fixed: bool, estimated_factor: bool) -> None:
+    """What a solve found that the user should hear of: too few boards, the variance components
+    (when estimated), the boards' plane sigmas, a final factor above 1 (when estimated)."""
+    if len(sol.boards) < MIN_BOARDS_ADVISED:
         log.warning(
             "only %d usable frame(s) in the graph; at least %d are advised for a reliable extrinsic",
-            len(kept), MIN_BOARDS_ADVISED,
+            len(sol.boards), MIN_BOARDS_ADVISED,
         )  # fmt: skip
-    if any(v != 1.0 for v in comps.values()) and not fixed:
+    if any(v != 1.0 for v in sol.scales.values()) and not fixed:
         log.info(
             "variance components (residuals against the stated noise): %s",
             ", ".join(
                 f"{k}{'/' + grp.lstrip('|') if grp else ''} x {v:.2f}"
-                for (k, grp), v in sorted(comps.items())
+                for (k, grp), v in sorted(sol.scales.items())
             ),
         )
-    plane.log_sigmas(problem.lidar_errors, sol.board_plane())
-    if vf > 1.0 and variance_factor is None:
-        log.info("the residuals are %.2f times the stated noise variance; covariance scaled by it", vf)
-    return sol
+    plane.log_sigmas(sol.problem.lidar_errors, sol.board_plane())
+    if sol.variance_factor > 1.0 and estimated_factor:
+        log.info(
+            "the residuals are %.2f times the stated noise variance; covariance scaled by it",
+            sol.variance_factor,
+        )
 
 
 def _unobservable(sol: Solution) -> dict[int, tuple[list[str], str]]:

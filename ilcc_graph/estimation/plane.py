@@ -25,7 +25,9 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from ilcc_graph.estimation.assembly import Assembly
+import numpy as np
+
+from ilcc_graph.estimation.assembly import Assembly, Term
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.linear import Extra
 
@@ -108,7 +110,7 @@ def estimated(options: LidarErrorOptions | None, asm: Assembly, boards: Sequence
 def extra_rows(asm: Assembly, comps: Mapping[tuple[str, str], float], groups: set[str]) -> Extra:
     """``linear.Extra`` of the boards' planes of ``groups`` in the graph ``asm.graph(boards, comps)``."""
 
-    def rows(k: int, t) -> tuple:  # noqa: ANN001 - assembly.Term
+    def rows(k: int, t: Term) -> tuple[tuple[str, int, int, np.ndarray], ...]:
         if t.board is None or t.board not in asm.points or not t.parts or t.group not in groups:
             return ()
         z = asm.points_factor(t.board, comps).plane_rows()

@@ -25,8 +25,9 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass, replace
+from typing import TypeVar
 
 import gtsam
 import numpy as np
@@ -94,6 +95,7 @@ MODELS["range"] = SensorModel(
 )
 #: the candidates of the default (``--sensor-model auto``)
 AUTO = ("none", "range", "beams")
+AUTO_MODELS = tuple(MODELS[n] for n in AUTO)  # select_model's default candidates
 
 
 @dataclass(frozen=True)
@@ -199,6 +201,10 @@ CV_FACTOR = True
 BOOTSTRAP = 1000
 
 
+#: a board's key in the held-out scores (its index in the problem)
+_Board = TypeVar("_Board", bound=Hashable)
+
+
 def _calibrated(h: HeldOut, f: float) -> float:
     """The held-out log density with the predictive covariance scaled by f."""
     return -0.5 * (h.chi2 / f + POSE3_DOF * math.log(f) + h.logdet)
@@ -249,7 +255,7 @@ def averaged_covariance(sols: Mapping[str, Solution], selection: Selection, e: i
 
 
 def choose(
-    scores: Mapping[str, Mapping[object, HeldOut]],
+    scores: Mapping[str, Mapping[_Board, HeldOut]],
     used: Mapping[str, int],
     names: Sequence[str],
     failures: Mapping[str, str] | None = None,
@@ -265,7 +271,7 @@ def choose(
         }
     per_board = {n: np.array([_calibrated(s[k], factors[n]) for k in common]) for n, s in scores.items()}
     weights = _weights(per_board)
-    chosen = max(weights, key=weights.get) if weights else next(iter(used))
+    chosen = max(weights, key=lambda n: weights[n]) if weights else next(iter(used))
     cands = []
     for name in names:
         if name not in scores:
@@ -282,7 +288,7 @@ def choose(
 
 def select_model(
     base: Problem,
-    models: Sequence[SensorModel] = tuple(MODELS[n] for n in AUTO),
+    models: Sequence[SensorModel] = AUTO_MODELS,
     options: NoiseOptions = NoiseOptions(),
     solve: Callable[..., Solution] = solve_problem,
 ) -> tuple[dict[str, Solution], Selection]:
@@ -307,7 +313,7 @@ def select_model(
         return sols, Selection(
             names[0], (Candidate(names[0], used=len(sols[names[0]].boards), weight=1.0),), True
         )
-    scores: dict[str, dict[object, HeldOut]] = {}
+    scores: dict[str, dict[int, HeldOut]] = {}
     for name, sol in sols.items():
         try:
             scores[name] = held_out(sol)

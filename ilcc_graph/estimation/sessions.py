@@ -205,7 +205,9 @@ def compare_estimates(ref: Estimate, other: Estimate) -> tuple[np.ndarray, np.nd
     return delta, 0.5 * (C + C.T)
 
 
-def _test(label: str, session: str | None, delta: np.ndarray, m: float, dof: int, alpha: float, kind: str):
+def _test(
+    label: str, session: str | None, delta: np.ndarray, m: float, dof: int, alpha: float, kind: str
+) -> ConsistencyTest:
     p = float(chi2_dist.sf(m, dof))
     return ConsistencyTest(
         label=label,
@@ -271,15 +273,7 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         if not k:
             raise CalibrationImpossible(f"session {n!r} has no usable frame left")
     fixed = replace_scales(noise_sol, noise_sol.variance_factor)
-
-    def sub(problem: Problem, boards: list[str], start: dict) -> Solution:
-        nonlocal iterations
-        s = solve_problem(problem, options.noise, boards=boards, scales=fixed, variance_factor=1.0,
-                          gate=False, start=start, layouts=noise_sol.assembly.layouts,
-                          uncertain=noise_sol.uncertain)  # fmt: skip
-        iterations += s.iterations
-        return s
-
+    sub = _Sub(options.noise, fixed, noise_sol, iterations)
     all_kept = [b for n in names for b in kept[n]]
     sol = sub(rigid, all_kept, {0: noise_sol.extrinsic(0).pose})
     T_rigid = sol.extrinsic(0)
@@ -289,23 +283,7 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
     Q = np.diag(
         [math.radians(options.repeatability_deg) ** 2] * 3 + [(1e-3 * options.repeatability_mm) ** 2] * 3
     )
-    session_tests: list[ConsistencyTest] = []
-    global_test = None
-    if S >= 2:
-        for n in names:
-            others = [b for m in names if m != n for b in kept[m]]
-            est = sub(rigid, others, {0: T_rigid.pose}).extrinsic(0)
-            delta, C = compare_estimates(est, alone[n])
-            C = C + Q * (1.0 + 1.0 / (S - 1))  # the joint of S-1 others carries about Q / (S-1) of it
-            m = float(delta @ np.linalg.solve(C, delta))
-            session_tests.append(_test(f"{n} vs others", n, delta, m, POSE3_DOF, options.alpha, "session"))
-        total = 0.0
-        for n in names:
-            d = T_rigid.pose.localCoordinates(alone[n].pose)
-            total += float(d @ np.linalg.solve(alone[n].covariance + Q, d))
-        global_test = _test(
-            "all sessions", None, np.zeros(POSE3_DOF), total, POSE3_DOF * (S - 1), options.alpha, "global"
-        )
+    session_tests, global_test = _session_tests(names, kept, rigid, T_rigid, alone, Q, options.alpha, sub)
     pair_tests = []
     for a, b in zip(names[:-1], names[1:]):
         delta, C = compare_estimates(alone[a], alone[b])
@@ -316,21 +294,7 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
     if options.mode == "rigid":
         joint, per_session = T_rigid, {n: T_rigid for n in names}
     else:
-        sig = tuple([math.radians(options.drift_sigma_deg)] * 3 + [1e-3 * options.drift_sigma_mm] * 3)
-        init = {si: alone[n].T for si, n in enumerate(names)}
-        if options.drift_tie == "star":
-            hub = S
-            init[hub] = T_rigid.T
-            ties = [Tie(hub, si, sig) for si in range(S)]
-        else:
-            hub = S - 1
-            ties = [Tie(si, si + 1, sig) for si in range(S - 1)]
-        drift = sep.with_ties(ties, init)
-        final = sub(
-            drift, [b for n in names for b in kept[n]], {e: check_pose(T, "") for e, T in init.items()}
-        )
-        joint = final.extrinsic(hub)
-        per_session = {n: final.extrinsic(si) for si, n in enumerate(names)}
+        final, joint, per_session = _drift(sep, names, kept, T_rigid, alone, options, sub)
     range_offsets = {}
     if options.range_offset:
         for lid, lab in enumerate(sep.lidar_names):
@@ -339,16 +303,7 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
     moved = None
     if global_test is not None and global_test.moved and session_tests:
         moved = max(session_tests, key=lambda t: t.mahalanobis).session
-    dropped: dict[str, list[tuple[str, str]]] = {n: [] for n in names}
-    for full, why in noise_sol.dropped:
-        n, frame = _split(sep, sep.index(full))
-        dropped[n].append((frame, why))
-    boards_out: dict[str, dict[str, np.ndarray]] = {n: {} for n in names}
-    stats_out: dict[str, dict] = {n: {} for n in names}
-    for i in final.boards:
-        n, frame = _split(sep, i)
-        boards_out[n][frame] = final.board_pose(i)
-        stats_out[n][frame] = final.stats[i]
+    dropped, boards_out, stats_out = _per_session(sep, names, noise_sol, final)
     return JointSolution(
         mode=options.mode,
         joint=joint,
@@ -360,7 +315,7 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         moved=moved,
         range_offsets=range_offsets,
         dropped=dropped,
-        iterations=iterations,
+        iterations=sub.iterations,
         components={n: sol.components(n) for n in names},
         variance_factor=sol.variance_factor,
         scales=dict(fixed),
@@ -372,6 +327,102 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
         },
         lidar_layouts={sep.lidar_names[lid]: lay for lid, lay in sol.assembly.layouts.items()},
     )
+
+
+@dataclass
+class _Sub:
+    """A sub-problem solve under the noise the first solve found (``noise_sol``: its components
+    ``fixed`` with its final factor folded in, no gate, its LiDAR layouts); ``iterations`` counts
+    every solve's."""
+
+    noise: NoiseOptions
+    fixed: dict[tuple[str, str], float]
+    noise_sol: Solution
+    iterations: int
+
+    def __call__(self, problem: Problem, boards: list[str], start: dict) -> Solution:
+        s = solve_problem(problem, self.noise, boards=boards, scales=self.fixed, variance_factor=1.0,
+                          gate=False, start=start, layouts=self.noise_sol.assembly.layouts,
+                          uncertain=self.noise_sol.uncertain)  # fmt: skip
+        self.iterations += s.iterations
+        return s
+
+
+def _session_tests(
+    names: list[str],
+    kept: dict[str, list[str]],
+    rigid: Problem,
+    T_rigid: Estimate,
+    alone: dict[str, Estimate],
+    Q: np.ndarray,
+    alpha: float,
+    sub: _Sub,
+) -> tuple[list[ConsistencyTest], ConsistencyTest | None]:
+    """Each session alone against all others jointly, and the global test of the alone estimates
+    against one mount (none with one session)."""
+    S = len(names)
+    session_tests: list[ConsistencyTest] = []
+    if S < 2:
+        return session_tests, None
+    for n in names:
+        others = [b for m in names if m != n for b in kept[m]]
+        est = sub(rigid, others, {0: T_rigid.pose}).extrinsic(0)
+        delta, C = compare_estimates(est, alone[n])
+        C = C + Q * (1.0 + 1.0 / (S - 1))  # the joint of S-1 others carries about Q / (S-1) of it
+        m = float(delta @ np.linalg.solve(C, delta))
+        session_tests.append(_test(f"{n} vs others", n, delta, m, POSE3_DOF, alpha, "session"))
+    total = 0.0
+    for n in names:
+        d = T_rigid.pose.localCoordinates(alone[n].pose)
+        total += float(d @ np.linalg.solve(alone[n].covariance + Q, d))
+    global_test = _test(
+        "all sessions", None, np.zeros(POSE3_DOF), total, POSE3_DOF * (S - 1), alpha, "global"
+    )
+    return session_tests, global_test
+
+
+def _drift(
+    sep: Problem,
+    names: list[str],
+    kept: dict[str, list[str]],
+    T_rigid: Estimate,
+    alone: dict[str, Estimate],
+    options: JointOptions,
+    sub: _Sub,
+) -> tuple[Solution, Estimate, dict[str, Estimate]]:
+    """The sessions' extrinsics tied by drift (a star about a common mount, or a chain): the
+    solution, the joint extrinsic (the hub's) and each session's."""
+    S = len(names)
+    sig = tuple([math.radians(options.drift_sigma_deg)] * 3 + [1e-3 * options.drift_sigma_mm] * 3)
+    init = {si: alone[n].T for si, n in enumerate(names)}
+    if options.drift_tie == "star":
+        hub = S
+        init[hub] = T_rigid.T
+        ties = [Tie(hub, si, sig) for si in range(S)]
+    else:
+        hub = S - 1
+        ties = [Tie(si, si + 1, sig) for si in range(S - 1)]
+    drift = sep.with_ties(ties, init)
+    final = sub(drift, [b for n in names for b in kept[n]], {e: check_pose(T, "") for e, T in init.items()})
+    return final, final.extrinsic(hub), {n: final.extrinsic(si) for si, n in enumerate(names)}
+
+
+def _per_session(
+    sep: Problem, names: list[str], noise_sol: Solution, final: Solution
+) -> tuple[dict[str, list[tuple[str, str]]], dict[str, dict[str, np.ndarray]], dict[str, dict]]:
+    """Per session: the frames the gate dropped (frame, why), and the kept frames' refined board
+    poses and residual statistics, by frame name."""
+    dropped: dict[str, list[tuple[str, str]]] = {n: [] for n in names}
+    for full, why in noise_sol.dropped:
+        n, frame = _split(sep, sep.index(full))
+        dropped[n].append((frame, why))
+    boards_out: dict[str, dict[str, np.ndarray]] = {n: {} for n in names}
+    stats_out: dict[str, dict] = {n: {} for n in names}
+    for i in final.boards:
+        n, frame = _split(sep, i)
+        boards_out[n][frame] = final.board_pose(i)
+        stats_out[n][frame] = final.stats[i]
+    return dropped, boards_out, stats_out
 
 
 def _split(problem: Problem, board: int) -> tuple[str, str]:

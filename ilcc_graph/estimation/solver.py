@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
+from factors.grouped import MEstimator
 from ilcc_graph.errors import IndeterminateSystem
 
 log = logging.getLogger(__name__)
@@ -32,30 +33,31 @@ __all__ = [
     "robust_kernel",
 ]
 
-#: m-estimators by name: (GTSAM class, threshold in sigmas giving 95 % efficiency on Gaussian data).
-KERNELS: dict[str, tuple[type, float]] = {
-    "huber": (gtsam.noiseModel.mEstimator.Huber, 1.345),
-    "cauchy": (gtsam.noiseModel.mEstimator.Cauchy, 2.3849),
-    "tukey": (gtsam.noiseModel.mEstimator.Tukey, 4.6851),
-    "geman_mcclure": (gtsam.noiseModel.mEstimator.GemanMcClure, 2.9846),
-    "welsch": (gtsam.noiseModel.mEstimator.Welsch, 2.9846),
+#: m-estimators by name: (GTSAM's ``Create`` of the kernel at a threshold, that threshold in sigmas
+#: giving 95 % efficiency on Gaussian data).
+KERNELS: dict[str, tuple[Callable[[float], MEstimator], float]] = {
+    "huber": (gtsam.noiseModel.mEstimator.Huber.Create, 1.345),
+    "cauchy": (gtsam.noiseModel.mEstimator.Cauchy.Create, 2.3849),
+    "tukey": (gtsam.noiseModel.mEstimator.Tukey.Create, 4.6851),
+    "geman_mcclure": (gtsam.noiseModel.mEstimator.GemanMcClure.Create, 2.9846),
+    "welsch": (gtsam.noiseModel.mEstimator.Welsch.Create, 2.9846),
 }
 #: Largest 1-sigma (rad or m) we still call a determined estimate.
 MAX_SIGMA = 10.0
 
 
-def robust_kernel(name: str | None, k: float | None = None) -> gtsam.noiseModel.mEstimator.Base | None:
+def robust_kernel(name: str | None, k: float | None = None) -> MEstimator | None:
     """The m-estimator ``name`` (None: none) at threshold ``k`` sigmas (None: its default)."""
     if name is None:
         return None
     key = name.lower().replace("-", "_")
     if key not in KERNELS:
         raise ValueError(f"robust: unknown kernel {name!r}; choose from {sorted(KERNELS)}")
-    cls, k_default = KERNELS[key]
+    create, k_default = KERNELS[key]
     k = k_default if k is None else float(k)
     if not k > 0:
         raise ValueError(f"robust_k must be > 0, got {k!r}")
-    return cls.Create(k)
+    return create(k)
 
 
 def check_pose(T: np.ndarray | gtsam.Pose3, what: str) -> gtsam.Pose3:

@@ -32,6 +32,7 @@ import numpy as np
 from ilcc_graph.init.consensus import (
     Consensus,
     Frames,
+    Hypothesis,
     bearing_errors,
     half_turn_size,
     rms,
@@ -170,36 +171,8 @@ def resolve_half_turns(
     """
     names = list(names)
     L, F, perm, flip_ok = _check_inputs(lidar_corners, bearings, perm, names, flippable)
-    n = len(names)
-    dropped: list[tuple[str, str]] = []
-
-    def oriented(j: int, o: int) -> np.ndarray:
-        return F[j][perm] if o else F[j]
-
     # 1. each frame's own pose in each candidate order
-    own: dict[tuple[int, int], list[np.ndarray]] = {}
-    own_rms: dict[int, float] = {}
-    alive = []
-    for j in range(n):
-        try:
-            for o in (0, 1) if flip_ok[j] else (0,):
-                sols = upnp(L[j], oriented(j, o), prefer_front=True, tie_rtol=np.inf)
-                front = [s for s in sols if s.front_fraction > 0.5]
-                if not front:
-                    raise ValueError("no pose puts its corners in front of the camera")
-                # a planar board's pose has a second, tilted minimum of similar cost (the planar PnP
-                # ambiguity): keep every front minimum within cand_cost_ratio of the best
-                own[(j, o)] = [
-                    s.T_cam_points
-                    for s in front[: options.max_candidates]
-                    if s.cost <= options.cand_cost_ratio * front[0].cost + 1e-15
-                ]
-            own_rms[j] = float(rms(bearing_errors(own[(j, 0)][0], L[j], oriented(j, 0))))
-            alive.append(j)
-        except ValueError as e:
-            dropped.append(
-                (names[j], f"corner order inconsistent with the other frames: no pose from its corners ({e})")
-            )
+    own, own_rms, alive, dropped = _own_poses(L, F, perm, flip_ok, names, options)
     if not alive:
         return OrderResult({}, dropped, {})
 
@@ -230,6 +203,79 @@ def resolve_half_turns(
     # 3. pair hypotheses: the best-supported single-frame poses, each with the frames whose rotation
     # agrees best, fitted jointly (a pair fixes the extrinsic far better than one board); each grown
     # to a consensus; the most frames win, then the smaller bearing errors
+    finals = _consensuses(fr, _pairs(hyps, fr, len(alive), options), options)
+    if not finals or finals[0].score[0] < 2:
+        why = "no two frames agree on one extrinsic under either corner order"
+        if len(alive) == 2:
+            why = "the two frames disagree under either corner order; cannot tell which one is wrong"
+        dropped += [(names[j], f"corner order inconsistent with the other frames: {why}") for j in alive]
+        return OrderResult({}, dropped, {}, None, why)
+    best = finals[0]
+    ambiguous = _rival(best, finals, [names[j] for j in alive], options)
+
+    # 4. decisions
+    flip: dict[str, bool] = {}
+    per_frame: dict[str, np.ndarray] = {}
+    errs: dict[str, tuple[float, float]] = {}
+    for a, j in enumerate(alive):
+        errs[names[j]], o, reason = _decide(best, fr, a)
+        if reason is not None:
+            dropped.append((names[j], reason))
+            continue
+        flip[names[j]] = bool(o)
+        cands = own[(j, o)]
+        per_frame[names[j]] = min(cands, key=lambda Tc: rot_angle(Tc[:3, :3].T @ best.T[:3, :3]))
+    return OrderResult(flip, dropped, per_frame, best.T, ambiguous, errs)
+
+
+def _own_poses(
+    L: list[np.ndarray],
+    F: list[np.ndarray],
+    perm: np.ndarray | None,
+    flip_ok: list[bool],
+    names: list[str],
+    options: OrderOptions,
+) -> tuple[dict[tuple[int, int], list[np.ndarray]], dict[int, float], list[int], list[tuple[str, str]]]:
+    """Each frame's own poses (``T_cam_lidar`` candidates) by (frame, order: 0 as listed, 1
+    half-turned), its RMS bearing error under its best pose as listed, the frames that have poses
+    and those dropped (name, reason)."""
+    own: dict[tuple[int, int], list[np.ndarray]] = {}
+    own_rms: dict[int, float] = {}
+    alive: list[int] = []
+    dropped: list[tuple[str, str]] = []
+    for j in range(len(names)):
+        try:
+            for o in (0, 1) if flip_ok[j] else (0,):
+                sols = upnp(L[j], _oriented(F[j], perm, o), prefer_front=True, tie_rtol=np.inf)
+                front = [s for s in sols if s.front_fraction > 0.5]
+                if not front:
+                    raise ValueError("no pose puts its corners in front of the camera")
+                # a planar board's pose has a second, tilted minimum of similar cost (the planar PnP
+                # ambiguity): keep every front minimum within cand_cost_ratio of the best
+                own[(j, o)] = [
+                    s.T_cam_points
+                    for s in front[: options.max_candidates]
+                    if s.cost <= options.cand_cost_ratio * front[0].cost + 1e-15
+                ]
+            own_rms[j] = float(rms(bearing_errors(own[(j, 0)][0], L[j], _oriented(F[j], perm, 0))))
+            alive.append(j)
+        except ValueError as e:
+            dropped.append(
+                (names[j], f"corner order inconsistent with the other frames: no pose from its corners ({e})")
+            )
+    return own, own_rms, alive, dropped
+
+
+def _oriented(bearings: np.ndarray, perm: np.ndarray | None, o: int) -> np.ndarray:
+    """A frame's bearings in order ``o`` (1: re-indexed by the half turn ``perm``)."""
+    return bearings[perm] if o else bearings
+
+
+def _pairs(
+    hyps: Sequence[Hypothesis], fr: Frames, n: int, options: OrderOptions
+) -> list[tuple[int, int, int, int]]:
+    """(frame a, its order, frame b, its order) of the pairs to fit: each hypothesis's anchor with
+    the frames whose rotation agrees best; with none and few frames, every pair in every order."""
     pairs: list[tuple[int, int, int, int]] = []
     for h in hyps:
         if len(pairs) >= options.max_pair_fits:
@@ -242,19 +288,26 @@ def resolve_half_turns(
                 if key not in pairs and (key[2], key[3], key[0], key[1]) not in pairs:
                     pairs.append(key)
     pairs = pairs[: options.max_pair_fits]
-    if not pairs and len(alive) <= options.exhaustive_frames:
+    if not pairs and n <= options.exhaustive_frames:
         # no two single-frame rotations agree (far boards: a single board's tilt can be off by
         # more than the gate): with few frames, try every pair in every order
         pairs = [
             (a, oa, b, ob)
-            for a in range(len(alive))
-            for b in range(a + 1, len(alive))
+            for a in range(n)
+            for b in range(a + 1, n)
             for oa in ((0, 1) if fr.flip_ok[a] else (0,))
             for ob in ((0, 1) if fr.flip_ok[b] else (0,))
         ]
+    return pairs
+
+
+def _consensuses(
+    fr: Frames, pairs: Sequence[tuple[int, int, int, int]], options: OrderOptions
+) -> list[Consensus]:
+    """Each pair fitted jointly, the best-scoring ones grown to distinct consensuses, best first."""
     starts = []
     for a, oa, b, ob in pairs:
-        orders = np.zeros(len(alive), dtype=int)
+        orders = np.zeros(len(fr.L), dtype=int)
         orders[a], orders[b] = oa, ob
         starts.append(fr.evaluate(fr.fit(np.array([a, b]), orders)))
     starts.sort(key=lambda c: c.score, reverse=True)
@@ -266,63 +319,48 @@ def resolve_half_turns(
         if not any(np.array_equal(c.key, f.key) for f in finals):
             finals.append(c)
     finals.sort(key=lambda c: c.score, reverse=True)
-    if not finals or finals[0].score[0] < 2:
-        why = "no two frames agree on one extrinsic under either corner order"
-        if len(alive) == 2:
-            why = "the two frames disagree under either corner order; cannot tell which one is wrong"
-        dropped += [(names[j], f"corner order inconsistent with the other frames: {why}") for j in alive]
-        return OrderResult({}, dropped, {}, None, why)
-    best = finals[0]
+    return finals
 
-    # a rival consensus with as many frames, other orders or frames, and errors of the same size:
-    # the data cannot decide
-    ambiguous = None
+
+def _rival(
+    best: Consensus, finals: Sequence[Consensus], names: list[str], options: OrderOptions
+) -> str | None:
+    """Why the data cannot decide, when a rival consensus has as many frames, other orders or
+    frames, and errors of the same size (``names``: of the frames in the consensuses); else None."""
     for rival in finals[1:]:
         if rival.score[0] == best.score[0] and -rival.score[1] <= options.ambiguity_ratio * max(
             -best.score[1], 1e-9
         ):
-            both = ", ".join(names[alive[a]] for a in np.flatnonzero(best.inliers | rival.inliers))
+            both = ", ".join(names[a] for a in np.flatnonzero(best.inliers | rival.inliers))
             ambiguous = (
                 f"two extrinsics fit {best.score[0]} frames each, with different corner orders or frames "
                 f"(frames {both}); "
                 "the one with the smaller bearing errors is used"
             )
             log.warning(ambiguous)
-            break
+            return ambiguous
+    return None
 
-    # 4. decisions
-    flip: dict[str, bool] = {}
-    per_frame: dict[str, np.ndarray] = {}
-    errs: dict[str, tuple[float, float]] = {}
-    T, E, inl, best_o, g = best.T, best.E, best.inliers, best.orders, fr.g
-    for a, j in enumerate(alive):
-        e0, e1 = 1e3 * E[a, 0], (1e3 * E[a, 1] if np.isfinite(E[a, 1]) else float("nan"))
-        errs[names[j]] = (float(e0), float(e1))
-        o = int(best_o[a])
-        e_list = f"RMS bearing error {e0:.1f} mrad as listed" + (
-            f", {e1:.1f} mrad half-turned" if flip_ok[j] else ""
+
+def _decide(best: Consensus, fr: Frames, a: int) -> tuple[tuple[float, float], int, str | None]:
+    """Frame ``a``'s RMS bearing errors (mrad: as listed, half-turned) under the consensus, its order
+    there and, when it is dropped, why."""
+    E = best.E
+    e0, e1 = 1e3 * E[a, 0], (1e3 * E[a, 1] if np.isfinite(E[a, 1]) else float("nan"))
+    o = int(best.orders[a])
+    e_list = f"RMS bearing error {e0:.1f} mrad as listed" + (
+        f", {e1:.1f} mrad half-turned" if fr.flip_ok[a] else ""
+    )
+    limit = 1e3 * fr.gk[a]
+    why = None
+    if not best.inliers[a]:
+        why = (
+            f"corner order inconsistent with the other frames: {e_list} "
+            f"under the extrinsic of {int(best.inliers.sum())} frames (gate {limit:.1f} mrad)"
         )
-        limit = 1e3 * fr.gk[a]
-        if not inl[a]:
-            dropped.append(
-                (
-                    names[j],
-                    f"corner order inconsistent with the other frames: {e_list} "
-                    f"under the extrinsic of {int(inl.sum())} frames (gate {limit:.1f} mrad)",
-                )
-            )
-            continue
-        other = E[a, 1 - o]
-        if np.isfinite(other) and other < g[a]:
-            dropped.append(
-                (
-                    names[j],
-                    f"corner order ambiguous: both orders fit the other frames ({e_list}, "
-                    f"gate {1e3 * g[a]:.1f} mrad)",
-                )
-            )
-            continue
-        flip[names[j]] = bool(o)
-        cands = own[(j, o)]
-        per_frame[names[j]] = min(cands, key=lambda Tc: rot_angle(Tc[:3, :3].T @ T[:3, :3]))
-    return OrderResult(flip, dropped, per_frame, T, ambiguous, errs)
+    elif np.isfinite(E[a, 1 - o]) and E[a, 1 - o] < fr.g[a]:
+        why = (
+            f"corner order ambiguous: both orders fit the other frames ({e_list}, "
+            f"gate {1e3 * fr.g[a]:.1f} mrad)"
+        )
+    return (float(e0), float(e1)), o, why

@@ -13,7 +13,7 @@ everything is written, so ``out`` is always one run's complete result or as it w
 ``write_file(path, data)`` one file the user named (``export --out``, replaced as ``cp`` does);
 ``write_beside(path, data)`` a failure file or log beside an output folder, never over a file that is
 not ours; ``link_latest`` points ``<parent>/latest`` at a run folder. Which folder a command writes
-is decided in ``app.folders``; the simulator stages its data sets here too (``simulate.export``).
+is decided in ``app.folders``; the simulator stages its data sets here too (``simulate.write_set``).
 """
 
 from __future__ import annotations

@@ -115,9 +115,31 @@ def synth_scan(
     ring = np.broadcast_to(np.arange(el.size)[:, None], E.shape).reshape(-1).astype(np.int32)
     u = np.stack([np.cos(E) * np.cos(A), np.cos(E) * np.sin(A), np.sin(E)], axis=-1).reshape(-1, 3)
 
-    hits, levels = [], []
+    t_board, level_board = _board_returns(u, T, board, model, sc)
+    hits, levels = _clutter(u, T, board, sc)
+    hits.insert(0, t_board)
+    levels.insert(0, level_board)
+    H = np.stack(hits, axis=1)
+    k = np.argmin(H, axis=1)
+    t = H[np.arange(u.shape[0]), k]
+    level = np.stack(levels, axis=1)[np.arange(u.shape[0]), k]
+    keep = np.isfinite(t) & (t < 80) & (rng.random(t.size) >= sc.dropout)
+    t = t[keep] + rng.normal(0, sc.range_sigma, keep.sum())
+    pts = t[:, None] * u[keep]
+    on_board = (k == 0)[keep]
+    jitter = rng.normal(0, sc.in_plane_sigma, (int(on_board.sum()), 2)) @ T[:3, :2].T
+    pts[on_board] += jitter
+    inten = np.clip(level[keep] + rng.normal(0, sc.intensity_sigma, keep.sum()), 0, 255)
+    perm = rng.permutation(pts.shape[0])  # points need not be in scan order
+    return Scan(pts[perm], inten[perm], ring[keep][perm], source="synthetic"), T
+
+
+def _board_returns(
+    u: np.ndarray, T: np.ndarray, board: Board, model: LidarModel, sc: SynthScene
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per ray ``u`` (N, 3) its range to the board (inf: a miss) and the intensity there: the colour
+    averaged over the beam's footprint (centre + 6 on a ring), in the board plane."""
     t_board, local = _hit_rect(u, T, board.extent())
-    # colour averaged over the beam's footprint (centre + 6 on a ring), in the board plane
     xy = np.where(np.isfinite(t_board)[:, None], local[:, :2], 0.0)
     rad = 0.5 * (sc.footprint + model.beam_divergence_rad * np.where(np.isfinite(t_board), t_board, 0.0))
     acc, cnt = np.zeros(len(xy)), np.zeros(len(xy))
@@ -128,8 +150,17 @@ def synth_scan(
         acc[ok] += c[ok]
         cnt[ok] += 1
     colour = np.where(cnt > 0, acc / np.maximum(cnt, 1), np.nan)
-    hits.append(t_board)
-    levels.append(sc.black + np.nan_to_num(colour) * (sc.white - sc.black))
+    return t_board, sc.black + np.nan_to_num(colour) * (sc.white - sc.black)
+
+
+def _clutter(
+    u: np.ndarray, T: np.ndarray, board: Board, sc: SynthScene
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per ray ``u`` (N, 3) the ranges (inf: a miss) and intensities of what else the scene holds, in
+    this order when present: the wall behind the board, the ground, a person holding the board's
+    edge (body and arm), the board's stand, a decoy board."""
+    hits: list[np.ndarray] = []
+    levels: list[np.ndarray] = []
     R, centre = T[:3, :3], T[:3, :3] @ board.pattern_centre + T[:3, 3]
     if sc.wall_gap is not None:
         Tw = np.eye(4)
@@ -170,16 +201,4 @@ def synth_scan(
         t_d, loc_d = _hit_rect(u, Td, board.extent())
         hits.append(t_d)
         levels.append(np.where(loc_d[:, 0] < 0.5 * (x0 + x1), sc.black, sc.white))
-    H = np.stack(hits, axis=1)
-    k = np.argmin(H, axis=1)
-    t = H[np.arange(u.shape[0]), k]
-    level = np.stack(levels, axis=1)[np.arange(u.shape[0]), k]
-    keep = np.isfinite(t) & (t < 80) & (rng.random(t.size) >= sc.dropout)
-    t = t[keep] + rng.normal(0, sc.range_sigma, keep.sum())
-    pts = t[:, None] * u[keep]
-    on_board = (k == 0)[keep]
-    jitter = rng.normal(0, sc.in_plane_sigma, (int(on_board.sum()), 2)) @ T[:3, :2].T
-    pts[on_board] += jitter
-    inten = np.clip(level[keep] + rng.normal(0, sc.intensity_sigma, keep.sum()), 0, 255)
-    perm = rng.permutation(pts.shape[0])  # points need not be in scan order
-    return Scan(pts[perm], inten[perm], ring[keep][perm], source="synthetic"), T
+    return hits, levels

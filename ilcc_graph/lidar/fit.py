@@ -169,7 +169,6 @@ def fit_in_plane(
     tau_l, tau_h, r_l, r_h = gray_zone(intensity, options.gray_epsilon)
     cls = intensity_classes(intensity, tau_l, tau_h)
     s = board.square_size
-    centre = board.pattern_centre[:2]
     sub = rng.choice(q.shape[0], min(q.shape[0], 160), replace=False)
     qs, cs = q[sub], cls[sub]
     q_all, cls_all = q, cls
@@ -177,6 +176,27 @@ def fit_in_plane(
         keep = rng.choice(q.shape[0], options.powell_max_points, replace=False)
         q, cls = q[keep], cls[keep]
 
+    starts, n_evals = _starts(qs, cs, q, cls, board, options)
+    scales = np.array([np.deg2rad(options.angle_step_deg), options.shift_step * s, options.shift_step * s])
+    best_x, best_f = starts[0], np.inf
+    for x0 in starts:
+        x, f, ev = powell_batched(lambda X: paper_cost(X, q, cls, board), x0, scales, options.powell_xtol)
+        n_evals += ev
+        if f < best_f:
+            best_x, best_f = x, f
+    best_x[0] = _angle_wrap(best_x[0])
+    best_x, best_f, ev = _lattice_moves(best_x, q, cls, q_all, cls_all, board, scales, options)
+    return InPlaneFit(best_x, best_f, n_evals + ev, (tau_l, tau_h), (r_l, r_h))
+
+
+def _starts(
+    qs: np.ndarray, cs: np.ndarray, q: np.ndarray, cls: np.ndarray, board: Board, options: LidarOptions
+) -> tuple[list[np.ndarray], int]:
+    """Powell's starts (angle, tx, ty) and the cost evaluations spent finding them: the best cells of
+    a coarse grid on the subsample ``qs``, ``cs`` refined on a fine grid on ``q``, ``cls``, kept
+    when distinct and, but for the best, nearly as good as it (an ambiguous pattern)."""
+    s = board.square_size
+    centre = board.pattern_centre[:2]
     # coarse: every angle (step), translations over +-1 square around the centre (both colour phases)
     step = np.deg2rad(options.angle_step_deg * 2)
     angles = np.arange(-np.pi, np.pi, step)
@@ -207,19 +227,29 @@ def fit_in_plane(
     # a second start only when its cell is nearly as good as the best (an ambiguous pattern)
     f0 = float(np.min(fcost))
     starts = [starts[0]] + [x for x in starts[1:] if float(paper_cost(x, q, cls, board)) <= 1.5 * f0 + 1e-12]
+    return starts, n_evals
 
-    scales = np.array([np.deg2rad(options.angle_step_deg), options.shift_step * s, options.shift_step * s])
-    best_x, best_f = starts[0], np.inf
-    for x0 in starts:
-        x, f, ev = powell_batched(lambda X: paper_cost(X, q, cls, board), x0, scales, options.powell_xtol)
-        n_evals += ev
-        if f < best_f:
-            best_x, best_f = x, f
-    best_x[0] = _angle_wrap(best_x[0])
-    # the pattern repeats: a model moved by a whole square diagonally (or two along a side) matches
-    # the same colours and differs only at the board's edges, where few returns tell them apart;
-    # try those lattice neighbours on every return and keep the cheapest
-    # (and the quarter turns about the pattern's centre, when sparse rings leave the outline unclear)
+
+def _lattice_moves(
+    best_x: np.ndarray,
+    q: np.ndarray,
+    cls: np.ndarray,
+    q_all: np.ndarray,
+    cls_all: np.ndarray,
+    board: Board,
+    scales: np.ndarray,
+    options: LidarOptions,
+) -> tuple[np.ndarray, float, int]:
+    """The fit ``best_x`` moved on the pattern's lattice while that lowers C_m over every return
+    (``q_all``, ``cls_all``): (parameters, their cost over every return, cost evaluations spent).
+
+    The pattern repeats: a model moved by a whole square diagonally (or two along a side) matches
+    the same colours and differs only at the board's edges, where few returns tell them apart; those
+    lattice neighbours are tried on every return and the cheapest kept (and the quarter turns about
+    the pattern's centre, when sparse rings leave the outline unclear)."""
+    s = board.square_size
+    centre = board.pattern_centre[:2]
+    n_evals = 0
     lattice = s * np.array(
         [[0, 0], [1, 1], [1, -1], [-1, 1], [-1, -1], [2, 0], [-2, 0], [0, 2], [0, -2]], float
     )
@@ -233,20 +263,20 @@ def fit_in_plane(
                 if phi == 0.0 and not L.any():
                     continue
                 cand.append([best_x[0] + phi, *(t_rot - L)])
-        cand = np.asarray(cand)
-        f = paper_cost(cand, q_all, cls_all, board)
-        n_evals += len(cand)
+        cands = np.asarray(cand)
+        f = paper_cost(cands, q_all, cls_all, board)
+        n_evals += len(cands)
         k = int(np.argmin(f))
         if f[k] >= best_f:
             break
         x, f_new, ev = powell_batched(
-            lambda X: paper_cost(X, q, cls, board), cand[k], scales, options.powell_xtol
+            lambda X: paper_cost(X, q, cls, board), cands[k], scales, options.powell_xtol
         )
         n_evals += ev
         f_new = float(paper_cost(x, q_all, cls_all, board))
-        best_x, best_f = (x, f_new) if f_new < f[k] else (cand[k], float(f[k]))
+        best_x, best_f = (x, f_new) if f_new < f[k] else (cands[k], float(f[k]))
         best_x[0] = _angle_wrap(best_x[0])
-    return InPlaneFit(best_x, best_f, n_evals, (tau_l, tau_h), (r_l, r_h))
+    return best_x, best_f, n_evals
 
 
 def pose_from_in_plane(frame: PlaneFrame, params: np.ndarray) -> np.ndarray:

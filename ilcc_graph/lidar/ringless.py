@@ -39,7 +39,7 @@ Frames: the LiDAR frame, metres, radians.
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -117,60 +117,19 @@ def find_ringless_candidates(
     idx_all = np.flatnonzero(inside_mask(p_all, roi, mask, valid=ok))
     p, inten = p_all[idx_all], inten_all[idx_all]
     u = p / r_all[idx_all, None]
-    delta = dens.spacing(u)
     sigma = estimate_noise(p, rng)
-    thr = inlier_threshold(options, sigma)
-    allow = options.noise_sigmas * sigma
-    x0, x1, y0, y1 = board.extent()
-    short_side = y1 - y0
-    area = (x1 - x0) * short_side
-
-    def pieces(sub: np.ndarray, links: None = None) -> list[tuple[np.ndarray, None]]:
-        """The connected pieces of the subset ``sub`` (indices), clustered on their own."""
-        if sub.size < 12:
-            return []
-        labels = cluster_fn(p[sub], u[sub], delta[sub], options.jump_ratio, allow)
-        return [(sub[g], None) for g in _groups(labels)]
-
-    def spacing(idx: np.ndarray) -> float:
-        """The pattern's spacing over the piece, ``sqrt(mean(delta_i^2))`` (rad): its mean density
-        over the piece's solid angle is ``M / sum_i delta_i^2`` (each return stands for ``delta_i^2`` sr)."""
-        return float(np.sqrt(np.mean(delta[idx] ** 2)))
-
-    def n_theory(idx: np.ndarray) -> float:
-        """Returns of a frontal board at the piece's range: ``area / (d * spacing)^2``."""
-        d = float(np.linalg.norm(p[idx].mean(axis=0)))
-        return area / (d * spacing(idx)) ** 2
-
-    def tests(idx: np.ndarray) -> tuple[bool, float, str, str]:
-        """The paper's tests at the local spacing, each return weighted by the board area it stands for."""
-        q = p[idx]
-        s = spacing(idx)
-        r_q = np.linalg.norm(q, axis=1)
-        w_area = area_weights(q, float(np.linalg.norm(q.mean(axis=0))) * s)
-        n_q = np.linalg.svd(q - q.mean(axis=0), full_matrices=False)[2][2]
-        solid = w_area * np.abs(q @ n_q) / r_q**3  # each return's board area as a solid angle
-        return board_tests(q, board, _local_model(model, s), sigma, options, inten[idx], solid)
-
-    def trims(idx: np.ndarray, depth: int) -> Iterator[np.ndarray]:
-        """The piece trimmed in its own plane by an opening a third of the board's short side wide,
-        then a stronger one (the plane is fitted at any depth: the same random draws as ever)."""
-        q = p[idx]
-        n, _, inl = plane_fn(q, thr, rng)
-        cell = max(0.01, 1.5 * float(np.linalg.norm(q.mean(axis=0))) * spacing(idx))
-        for strength in (1.0, 1.6):
-            yield idx[np.flatnonzero(inl)[trim_in_plane(q[inl], n, cell, strength * short_side / 3.0)]]
-
+    own = _Pieces(p, u, dens.spacing(u), inten, sigma, inlier_threshold(options, sigma), board, model,
+                  options, rng, plane_fn, cluster_fn)  # fmt: skip
     scan = SearchInput(
         points=p,
         intensity=inten,
         sigma=sigma,
-        threshold=thr,
-        objects=[obj for obj, _ in pieces(np.arange(p.shape[0]))],
-        n_theory=n_theory,
-        tests=tests,
-        trims=trims,
-        pieces=pieces,
+        threshold=own.thr,
+        objects=[obj for obj, _ in own.pieces(np.arange(p.shape[0]))],
+        n_theory=own.n_theory,
+        tests=own.tests,
+        trims=own.trims,
+        pieces=own.pieces,
         plane_fn=plane_fn,
         to_scan=idx_all,
         note=", scan without scanlines",
@@ -178,3 +137,68 @@ def find_ringless_candidates(
         "0.5 s)",
     )
     return search_board(scan, board, options, rng, accept, in_roi=roi is not None)
+
+
+@dataclass
+class _Pieces:
+    """What the shared search (``search.SearchInput``) asks of a scanline-free scan, at the pattern's
+    local density: p (M, 3) the returns searched, u their unit directions, delta (M,) the pattern's
+    spacing at each (rad), intensity (M,), sigma the range noise and thr the RANSAC inlier distance (m)."""
+
+    p: np.ndarray
+    u: np.ndarray
+    delta: np.ndarray
+    intensity: np.ndarray
+    sigma: float
+    thr: float
+    board: Board
+    model: LidarModel
+    options: LidarOptions
+    rng: np.random.Generator
+    plane_fn: PlaneFn
+    cluster_fn: Callable[..., np.ndarray]
+
+    def __post_init__(self) -> None:
+        x0, x1, y0, y1 = self.board.extent()
+        self.short_side = y1 - y0
+        self.area = (x1 - x0) * self.short_side
+        self.allow = self.options.noise_sigmas * self.sigma
+
+    def pieces(self, sub: np.ndarray, links: None = None) -> list[tuple[np.ndarray, None]]:
+        """The connected pieces of the subset ``sub`` (indices), clustered on their own."""
+        if sub.size < 12:
+            return []
+        labels = self.cluster_fn(
+            self.p[sub], self.u[sub], self.delta[sub], self.options.jump_ratio, self.allow
+        )
+        return [(sub[g], None) for g in _groups(labels)]
+
+    def spacing(self, idx: np.ndarray) -> float:
+        """The pattern's spacing over the piece, ``sqrt(mean(delta_i^2))`` (rad): its mean density
+        over the piece's solid angle is ``M / sum_i delta_i^2`` (each return stands for ``delta_i^2`` sr)."""
+        return float(np.sqrt(np.mean(self.delta[idx] ** 2)))
+
+    def n_theory(self, idx: np.ndarray) -> float:
+        """Returns of a frontal board at the piece's range: ``area / (d * spacing)^2``."""
+        d = float(np.linalg.norm(self.p[idx].mean(axis=0)))
+        return self.area / (d * self.spacing(idx)) ** 2
+
+    def tests(self, idx: np.ndarray) -> tuple[bool, float, str, str]:
+        """The paper's tests at the local spacing, each return weighted by the board area it stands for."""
+        q = self.p[idx]
+        s = self.spacing(idx)
+        r_q = np.linalg.norm(q, axis=1)
+        w_area = area_weights(q, float(np.linalg.norm(q.mean(axis=0))) * s)
+        n_q = np.linalg.svd(q - q.mean(axis=0), full_matrices=False)[2][2]
+        solid = w_area * np.abs(q @ n_q) / r_q**3  # each return's board area as a solid angle
+        model = _local_model(self.model, s)
+        return board_tests(q, self.board, model, self.sigma, self.options, self.intensity[idx], solid)
+
+    def trims(self, idx: np.ndarray, depth: int) -> Iterator[np.ndarray]:
+        """The piece trimmed in its own plane by an opening a third of the board's short side wide,
+        then a stronger one (the plane is fitted at any depth: the same random draws as ever)."""
+        q = self.p[idx]
+        n, _, inl = self.plane_fn(q, self.thr, self.rng)
+        cell = max(0.01, 1.5 * float(np.linalg.norm(q.mean(axis=0))) * self.spacing(idx))
+        for strength in (1.0, 1.6):
+            yield idx[np.flatnonzero(inl)[trim_in_plane(q[inl], n, cell, strength * self.short_side / 3.0)]]

@@ -180,67 +180,99 @@ def search_board(
     over-merged ones are split, smallest first, and ``accept`` is asked again after each. Without
     ``accept`` the first candidates found are taken. in_roi: the search was limited to board.roi.
     """
-    p, inten, thr, sigma = scan.points, scan.intensity, scan.threshold, scan.sigma
-    x0, x1, y0, y1 = board.extent()
-    short_side = y1 - y0
-    diag = float(np.hypot(x1 - x0, y1 - y0))
-    passed: list[tuple[float, np.ndarray, float]] = []
-    misses: list[tuple[int, str, str]] = []  # (size, test, detail)
-    to_split: list[np.ndarray] = []
-    tested = 0
+    search = _Search(scan, board, options, rng, accept)
+    for obj in scan.objects:
+        search.test(obj, 0)
+    # only when no object passed as it is (or none of them was accepted): split the over-merged
+    # ones, smallest first: a board merged with a hand or its stand is cheap to split; the room last
+    done = search.offer()
+    for obj in sorted(search.to_split, key=len):
+        if done:
+            break
+        search.split(obj)
+        done = search.offer()
+    if not search.out:
+        raise search.not_found(in_roi)
+    return search.out
 
-    def min_count(idx: np.ndarray) -> float:
-        return options.count_ratio[0] * scan.n_theory(idx)
 
-    def test(idx: np.ndarray, depth: int) -> None:
-        nonlocal tested
+class _Search:
+    """One scan's search (``search_board``): the pieces tested so far, what passed (uniformity,
+    members, contrast), what failed ((size, test, detail)), the objects to split, the plane fits
+    left for the whole scan and the candidates offered."""
+
+    def __init__(
+        self,
+        scan: SearchInput,
+        board: Board,
+        options: LidarOptions,
+        rng: np.random.Generator,
+        accept: Callable[[list[Candidate]], bool] | None,
+    ) -> None:
+        self.scan, self.options, self.rng, self.accept = scan, options, rng, accept
+        x0, x1, y0, y1 = board.extent()
+        self.long_side, self.short_side = x1 - x0, y1 - y0
+        self.diag = float(np.hypot(x1 - x0, y1 - y0))
+        self.passed: list[tuple[float, np.ndarray, float]] = []
+        self.misses: list[tuple[int, str, str]] = []  # (size, test, detail)
+        self.to_split: list[np.ndarray] = []
+        self.tested = 0
+        self.budget = options.max_planes * 6  # plane fits for the whole scan
+        self.out: list[Candidate] = []
+
+    def min_count(self, idx: np.ndarray) -> float:
+        return self.options.count_ratio[0] * self.scan.n_theory(idx)
+
+    def test(self, idx: np.ndarray, depth: int) -> None:
+        """Test the piece ``idx`` (depth 0: an object as found, 1: a piece of a split one, 2: a
+        trimmed piece); a failed depth-1 piece is trimmed and tested again."""
+        scan, options, p = self.scan, self.options, self.scan.points
         span = float(np.linalg.norm(np.ptp(p[idx], axis=0)))
-        if span < options.size_ratio[0] * short_side or idx.size < max(MIN_PIECE, options.min_points):
+        if span < options.size_ratio[0] * self.short_side or idx.size < max(MIN_PIECE, options.min_points):
             return
-        if idx.size < min_count(idx) or not scan.admit(idx):
+        if idx.size < self.min_count(idx) or not scan.admit(idx):
             return
-        tested += 1
+        self.tested += 1
         ok, uni, name, detail = scan.tests(idx)
         if ok:
-            _, _, inl = scan.plane_fn(p[idx], thr, rng)
+            _, _, inl = scan.plane_fn(p[idx], scan.threshold, self.rng)
             if inl.mean() >= 0.9:
-                passed.append((uni, idx[inl], intensity_contrast(inten[idx[inl]])[0]))
+                self.passed.append((uni, idx[inl], intensity_contrast(scan.intensity[idx[inl]])[0]))
                 return
             name, detail = "plane", f"only {inl.mean():.0%} of its points on one plane; {detail}"
         if depth >= 1 and name in TRIMMABLE:
             for kept in scan.trims(idx, depth):
                 if depth == 1 and MIN_PIECE <= kept.size < idx.size:
-                    n_pass = len(passed)
-                    test(kept, 2)
-                    if len(passed) > n_pass:
+                    n_pass = len(self.passed)
+                    self.test(kept, 2)
+                    if len(self.passed) > n_pass:
                         return
-        misses.append((idx.size, name, detail))
-        if depth == 0 and span >= options.size_ratio[0] * diag:
-            to_split.append(idx)
+        self.misses.append((idx.size, name, detail))
+        if depth == 0 and span >= options.size_ratio[0] * self.diag:
+            self.to_split.append(idx)
 
-    budget = [options.max_planes * 6]  # plane fits for the whole scan
-
-    def split(idx: np.ndarray) -> None:
-        # peel planes off an over-merged object: each plane's inliers are cut into connected pieces
-        # and tested; what is left is cut into connected pieces again (the ground gone, a board on a
-        # pole comes apart from it) and those are tested or split in turn
+    def split(self, idx: np.ndarray) -> None:
+        """Peel planes off an over-merged object: each plane's inliers are cut into connected pieces
+        and tested; what is left is cut into connected pieces again (the ground gone, a board on a
+        pole comes apart from it) and those are tested or split in turn."""
+        scan, options, p = self.scan, self.options, self.scan.points
         idx = np.sort(idx)
         queue = [(idx, scan.links(idx))]
         own = options.max_planes * 3
-        n_before = len(passed)
-        while queue and budget[0] > 0 and own > 0 and len(passed) == n_before:
+        n_before = len(self.passed)
+        while queue and self.budget > 0 and own > 0 and len(self.passed) == n_before:
             own -= 1
             # smallest first: the floor and walls are big, a board with a pole or an arm is not
             queue.sort(key=lambda t: -len(t[0]))
             cur, links = queue.pop()
             if cur.size < MIN_PIECE:
                 continue
-            budget[0] -= 1
-            _, _, inl = scan.plane_fn(p[cur], thr, rng)
+            self.budget -= 1
+            _, _, inl = scan.plane_fn(p[cur], scan.threshold, self.rng)
             if inl.sum() < MIN_PIECE:
                 continue
             for piece, _ in scan.pieces(cur[inl], links):
-                test(piece, 1)
+                self.test(piece, 1)
             rest = cur[~inl]
             if rest.size < MIN_PIECE:
                 continue
@@ -248,53 +280,41 @@ def search_board(
                 if piece.size < MIN_PIECE:
                     continue
                 size = float(np.linalg.norm(np.ptp(p[piece], axis=0)))
-                if size < 2.0 * diag:
-                    test(piece, 1)  # small enough to be judged (and trimmed) directly
-                if size >= options.size_ratio[0] * diag and piece.size >= max(
-                    min_count(piece), options.min_points
+                if size < 2.0 * self.diag:
+                    self.test(piece, 1)  # small enough to be judged (and trimmed) directly
+                if size >= options.size_ratio[0] * self.diag and piece.size >= max(
+                    self.min_count(piece), options.min_points
                 ):
                     queue.append((piece, piece_links))  # big enough, with returns enough, for a board
 
-    out: list[Candidate] = []
-
-    def offer() -> bool:
+    def offer(self) -> bool:
         """Turn the new passes into Candidates; True when the caller accepts them (stop searching)."""
+        scan, p = self.scan, self.scan.points
         new: list[Candidate] = []
-        for uni, members, sep in passed[len(out) :]:
+        for uni, members, sep in self.passed[len(self.out) :]:
             loc = np.unique(members)
             q = p[loc]
-            n, d, _ = scan.plane_fn(q, thr, rng)
+            n, d, _ = scan.plane_fn(q, scan.threshold, self.rng)
             if n @ q.mean(axis=0) > 0:  # normal towards the sensor
                 n, d = -n, -d
             idx = loc if scan.to_scan is None else scan.to_scan[loc]
-            new.append(Candidate(idx, n, float(d), float(uni), sigma, tested, float(sep)))
-        out.extend(new)
+            new.append(Candidate(idx, n, float(d), float(uni), scan.sigma, self.tested, float(sep)))
+        self.out.extend(new)
         if not new:
             return False
-        return True if accept is None else bool(accept(new))
+        return True if self.accept is None else bool(self.accept(new))
 
-    for obj in scan.objects:
-        test(obj, 0)
-    # only when no object passed as it is (or none of them was accepted): split the over-merged
-    # ones, smallest first: a board merged with a hand or its stand is cheap to split; the room last
-    done = offer()
-    for obj in sorted(to_split, key=len):
-        if done:
-            break
-        split(obj)
-        done = offer()
-
-    if not out:
-        if not misses:
-            raise BoardNotFound(
-                f"no object of board size ({x1 - x0:.2f} x {short_side:.2f} m) in the scan"
+    def not_found(self, in_roi: bool) -> BoardNotFound:
+        """Why no candidate was found: no object of board size, or the largest that failed and why."""
+        if not self.misses:
+            return BoardNotFound(
+                f"no object of board size ({self.long_side:.2f} x {self.short_side:.2f} m) in the scan"
                 + (" inside the region of interest" if in_roi else "")
             )
-        misses.sort(key=lambda t: -t[0])
+        misses = sorted(self.misses, key=lambda t: -t[0])
         near = "; ".join(f"{name}: {detail}" for _, name, detail in misses[:3])
-        raise BoardNotFound(
-            f"no segment passed the chessboard tests ({tested} board-sized candidates{scan.note}); "
+        return BoardNotFound(
+            f"no segment passed the chessboard tests ({self.tested} board-sized candidates{self.scan.note}); "
             f"largest: {near}. If the board is in view, narrow the search with board.roi "
-            f"(azimuth_deg, elevation_deg, range_m){scan.hint}."
+            f"(azimuth_deg, elevation_deg, range_m){self.scan.hint}."
         )
-    return out

@@ -137,8 +137,33 @@ def segment_scan(
     edges_w = np.stack([wrap_a[wok], wrap_b[wok]], axis=1)
 
     # 2. links between neighbouring rings (1 and 2 apart), nearest in azimuth
-    elev = _ring_spacing_rad(model, int(G.max()) + 3)
     ring_slices = {int(g): (s, e + 1) for g, s, e in zip(ring_vals, starts, ends, strict=True)}
+    edges_v = _ring_links(
+        P, R, A, ring_slices, _ring_spacing_rad(model, int(G.max()) + 3), step, allow, options
+    )
+    # merge scanline segments: wrap joins always, vertical links when numerous enough
+    n_obj, obj_of_seg = _merged(seg, edges_v, edges_w, options.min_links)
+
+    labels[sidx] = obj_of_seg[seg]
+    scanline[sidx] = seg
+    all_edges = np.concatenate([edges_h, edges_w, edges_v]) if m > 1 else np.zeros((0, 2), np.int64)
+    return Segmentation(labels, scanline, sidx[all_edges].astype(np.int64), sigma, int(n_obj))
+
+
+def _ring_links(
+    P: np.ndarray,
+    R: np.ndarray,
+    A: np.ndarray,
+    ring_slices: dict[int, tuple[int, int]],
+    elev: np.ndarray,
+    step: float,
+    allow: float,
+    options: LidarOptions,
+) -> np.ndarray:
+    """(E, 2) links (indices in ring-then-azimuth order) between each return and the nearest in
+    azimuth on the rings 1 and 2 above, when close enough in azimuth and in 3-D. P, R, A: the
+    returns' points, ranges, azimuths in that order; ring_slices: each ring's [start, end);
+    elev: the rings' elevation (rad)."""
     v_edges = []
     for g, (s0, e0) in ring_slices.items():
         for dg in (1, 2):
@@ -157,9 +182,14 @@ def segment_scan(
             good = (dphi_v < 2.5 * step) & (dist < vthr)
             if np.any(good):
                 v_edges.append(np.stack([np.flatnonzero(good) + s0, pick[good] + s1], axis=1))
-    edges_v = np.concatenate(v_edges) if v_edges else np.zeros((0, 2), np.int64)
+    return np.concatenate(v_edges) if v_edges else np.zeros((0, 2), np.int64)
 
-    # merge scanline segments: wrap joins always, vertical links when numerous enough
+
+def _merged(
+    seg: np.ndarray, edges_v: np.ndarray, edges_w: np.ndarray, min_links: int
+) -> tuple[int, np.ndarray]:
+    """(number of objects, object of each scanline segment): segments joined by a wrap-around link,
+    or by at least ``min_links`` links between rings (fewer when a segment is smaller)."""
     n_seg = int(seg[-1]) + 1
     seg_size = np.bincount(seg, minlength=n_seg)
     if edges_v.size:
@@ -167,16 +197,11 @@ def segment_scan(
         key = np.minimum(sa, sb) * n_seg + np.maximum(sa, sb)
         ukey, cnt = np.unique(key, return_counts=True)
         ua, ub = ukey // n_seg, ukey % n_seg
-        need = np.minimum(options.min_links, np.minimum(seg_size[ua], seg_size[ub]))
+        need = np.minimum(min_links, np.minimum(seg_size[ua], seg_size[ub]))
         keep = cnt >= need
         seg_edges = np.stack([ua[keep], ub[keep]], axis=1)
     else:
         seg_edges = np.zeros((0, 2), np.int64)
     if edges_w.size:
         seg_edges = np.concatenate([seg_edges, np.stack([seg[edges_w[:, 0]], seg[edges_w[:, 1]]], axis=1)])
-    n_obj, obj_of_seg = components_of(n_seg, seg_edges)
-
-    labels[sidx] = obj_of_seg[seg]
-    scanline[sidx] = seg
-    all_edges = np.concatenate([edges_h, edges_w, edges_v]) if m > 1 else np.zeros((0, 2), np.int64)
-    return Segmentation(labels, scanline, sidx[all_edges].astype(np.int64), sigma, int(n_obj))
+    return components_of(n_seg, seg_edges)

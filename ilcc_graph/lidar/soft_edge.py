@@ -127,6 +127,42 @@ def _huber(res: np.ndarray, k: float) -> tuple[float, np.ndarray]:
     return float(rho.sum()), np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))
 
 
+def _residual(
+    r: np.ndarray, b0h: np.ndarray, board: Board, H: np.ndarray, a: float, c: float, lsig: float, jac: bool
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """The intensities ``r`` less the soft-edged model's at the points ``b0h`` (N, 3: homogeneous,
+    start board frame) moved by ``H``; with ``jac`` the (N, 6) Jacobian of the prediction's negative
+    in (rz, tx, ty, a, c, log sigma)."""
+    b = (b0h @ H.T)[:, :2]
+    if not jac:
+        return r - soft_intensity(b, board, a, c, np.exp(lsig))[0], None
+    pred, grad, dsig = soft_intensity(b, board, a, c, np.exp(lsig), with_sigma=True)
+    res = r - pred
+    J = np.empty((len(r), 6))
+    # d b / d xi for b' = Exp(-xi) b: [[y, -1, 0], [-x, 0, -1]]
+    J[:, 0] = -(grad[:, 0] * b[:, 1] - grad[:, 1] * b[:, 0])
+    J[:, 1] = grad[:, 0]
+    J[:, 2] = grad[:, 1]
+    J[:, 3] = -1.0
+    J[:, 4] = -(pred - a) / c if c != 0 else 0.0
+    J[:, 5] = -dsig * np.exp(lsig)  # d/d log(sigma)
+    return res, J
+
+
+def _sandwich(J: np.ndarray, res: np.ndarray, W: np.ndarray, k: float) -> np.ndarray:
+    """(3, 3) the pose part of the Huber M-estimator's sandwich covariance ``A^-1 B A^-1``:
+    ``A = sum psi'(r) J J^T`` (psi' 1 inside the threshold ``k``, 0 beyond), ``B = sum psi(r)^2 J J^T``
+    with ``psi(r) = w r``; LinAlgError when the fit does not determine every parameter."""
+    inside = (np.abs(res) <= k).astype(np.float64)
+    A = (J * inside[:, None]).T @ J
+    d = np.sqrt(np.diag(A))  # a parameter the points do not determine: no covariance (no overflow)
+    if not (np.all(d > 0) and np.linalg.cond(A / np.outer(d, d)) < 1e12):
+        raise np.linalg.LinAlgError("the fit does not determine every parameter")
+    Ainv = np.linalg.inv(A)
+    G = J * (W * res)[:, None]
+    return (Ainv @ (G.T @ G) @ Ainv)[:3, :3]
+
+
 def soft_edge_refine(
     b0: np.ndarray,
     intensity: np.ndarray,
@@ -145,21 +181,10 @@ def soft_edge_refine(
     b0h = np.column_stack([b0, np.ones(len(b0))])
     sig_lo, sig_hi = np.log(2e-4), np.log(0.5 * board.square_size)
 
-    def residual(H: np.ndarray, a: float, c: float, lsig: float, jac: bool):
-        b = (b0h @ H.T)[:, :2]
-        if not jac:
-            return r - soft_intensity(b, board, a, c, np.exp(lsig))[0], None
-        pred, grad, dsig = soft_intensity(b, board, a, c, np.exp(lsig), with_sigma=True)
-        res = r - pred
-        J = np.empty((len(r), 6))
-        # d b / d xi for b' = Exp(-xi) b: [[y, -1, 0], [-x, 0, -1]]
-        J[:, 0] = -(grad[:, 0] * b[:, 1] - grad[:, 1] * b[:, 0])
-        J[:, 1] = grad[:, 0]
-        J[:, 2] = grad[:, 1]
-        J[:, 3] = -1.0
-        J[:, 4] = -(pred - a) / c if c != 0 else 0.0
-        J[:, 5] = -dsig * np.exp(lsig)  # d/d log(sigma)
-        return res, J
+    def residual(
+        H: np.ndarray, a: float, c: float, lsig: float, jac: bool
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        return _residual(r, b0h, board, H, a, c, lsig, jac)
 
     H = np.eye(3)
     a, c = float(levels[0]), float(levels[1] - levels[0])
@@ -201,14 +226,7 @@ def soft_edge_refine(
         # from point to point (returns near edges, whose positions are noisy, vs flat squares)
         # M-estimator sandwich: A = sum psi'(r) J J^T (psi' = 1 inside the Huber threshold, 0 beyond),
         # B = sum psi(r)^2 J J^T with psi(r) = w r
-        inside = (np.abs(res) <= k).astype(np.float64)
-        A = (J * inside[:, None]).T @ J
-        d = np.sqrt(np.diag(A))  # a parameter the points do not determine: no covariance (no overflow)
-        if not (np.all(d > 0) and np.linalg.cond(A / np.outer(d, d)) < 1e12):
-            raise np.linalg.LinAlgError("the fit does not determine every parameter")
-        Ainv = np.linalg.inv(A)
-        G = J * (W * res)[:, None]
-        cov = (Ainv @ (G.T @ G) @ Ainv)[:3, :3]
+        cov = _sandwich(J, res, W, k)
     except np.linalg.LinAlgError:
         cov = np.full((3, 3), np.nan)
         converged = False

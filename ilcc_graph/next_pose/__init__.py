@@ -45,8 +45,8 @@ from ilcc_graph.next_pose.advisor import (
     noise_scaled,
     propose,
 )
-from ilcc_graph.next_pose.geometry import Rig, beam_hits, board_outline, board_pose, in_view
 from ilcc_graph.next_pose.lidar_noise import BoardNoiseModel, fit_noise_model
+from ilcc_graph.next_pose.pose_geometry import Rig, beam_hits, board_outline, board_pose, in_view
 
 __all__ = [
     "Advisor",

@@ -10,8 +10,8 @@ import numpy as np
 
 from ilcc_graph.config import Config
 from ilcc_graph.estimation.graphs import frame_bearing_factor
-from ilcc_graph.next_pose.geometry import Rig, board_pose, in_view
 from ilcc_graph.next_pose.lidar_noise import BoardNoiseModel, fit_noise_model
+from ilcc_graph.next_pose.pose_geometry import Rig, board_pose, in_view
 from ilcc_graph.types import Calibration, GraphFrame, sigmas_deg_mm
 
 __all__ = [

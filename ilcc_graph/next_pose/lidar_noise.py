@@ -13,7 +13,7 @@ from ilcc_graph.board import Board
 from ilcc_graph.lidar.covariance import assemble_covariance, ray_coupling, sampling_covariance
 from ilcc_graph.lidar.soft_edge import soft_intensity
 from ilcc_graph.lidars import LidarModel
-from ilcc_graph.next_pose.geometry import MIN_BEAMS, beam_hits
+from ilcc_graph.next_pose.pose_geometry import MIN_BEAMS, beam_hits
 from ilcc_graph.types import GraphFrame
 
 __all__ = ["BoardNoiseModel", "fit_noise_model"]

@@ -16,7 +16,8 @@ Pure: nothing here reads or writes files; the command line writes what these ret
 
 from __future__ import annotations
 
-from .evaluation import (
+from .figures import FigureOptions, FrameFigures, frame_figures
+from .frame_errors import (
     board_points_from_scan,
     eval_frame,
     eval_frame_with_scan,
@@ -26,7 +27,6 @@ from .evaluation import (
     evaluation_rows,
     evaluation_to_dict,
 )
-from .figures import FigureOptions, FrameFigures, frame_figures
 from .html import build_report
 from .metric import EPSILON_G, EvalFrame, Evaluation, FrameEvaluation, metric_points
 from .overlays import (

@@ -18,7 +18,7 @@ from ..board import Board
 from ..cameras import CameraModel
 from ..image.previews import TIGHT, WHOLE_WIDTH, WIDE, Crop, CropSpec, downscale, spec_crop, view_crop
 from ..types import FrameResult, Scan
-from .evaluation import eval_frame_with_scan
+from .frame_errors import eval_frame_with_scan
 from .metric import EvalFrame, metric_points, transform_points
 from .overlays import (
     ColouredPoints,
@@ -158,15 +158,7 @@ def frame_figures(
     else:
         vis = visible_points(scan.points, camera, T, T_lb, bd)
     rng_lidar = np.linalg.norm(scan.points, axis=1)
-    files: dict[str, bytes] = {}
-    captions: dict[str, str] = {}
-    ext = options.fmt
-
-    def put(suffix: str, img: np.ndarray, caption: str) -> None:
-        key = f"{FIGURES_DIR}/{name}_{suffix}.{ext}"
-        files[key] = encode_image(img, ext, options.quality)
-        captions[key] = caption
-
+    out = _Pictures(name, options)
     uv_corners = None if cr is None else np.asarray(cr.uv, dtype=np.float64)
     uv_rep = None
     if bf is not None and bf.corners_lidar is not None and len(bf.corners_lidar):
@@ -181,7 +173,7 @@ def frame_figures(
     vis_idx = np.flatnonzero(vis.visible)
     far_first = vis_idx[np.argsort(-vis.depth[vis_idx])]
     if tight is not None and uv_corners is not None:
-        put(
+        out.put(
             "corners",
             draw_reprojection(tight, uv_corners, uv_rep),
             "Detected corners (0 green, last blue, joined in index order) and the LiDAR corners "
@@ -189,7 +181,7 @@ def frame_figures(
         )
     if tight is not None and ef is not None and len(ef.points_lidar):
         mp = metric_points(ef, camera, board, T)
-        put(
+        out.put(
             "metric",
             draw_metric(tight, mp, ef.uv),
             "The intensity metric: board points inside the detected cells agreeing with the printed "
@@ -197,28 +189,7 @@ def frame_figures(
             "(yellow), outside the cells (blue).",
         )
     if crop is not None:
-        uvc = crop.to_crop(vis.uv[far_first])
-        h, w = crop.image.shape[:2]
-        inside = (uvc[:, 0] >= -0.5) & (uvc[:, 0] < w - 0.5) & (uvc[:, 1] >= -0.5) & (uvc[:, 1] < h - 0.5)
-        sel, uvc = far_first[inside], uvc[inside]
-        r = 2 if crop.zoom > 1 else None
-        if sel.size:
-            lo, hi = colour_range(rng_lidar[sel])
-            dots = draw_points(crop.image, uvc, colour_map(rng_lidar[sel], lo, hi, "turbo"), radius=r)
-            put(
-                "range",
-                with_colour_bar(dots, lo, hi, "turbo", "range (m)"),
-                "Visible LiDAR points on the image, coloured by range (scale below the picture).",
-            )
-            lo, hi = colour_range(scan.intensity[sel])
-            dots = draw_points(
-                edge_image(crop.image), uvc, colour_map(scan.intensity[sel], lo, hi, "jet"), radius=r
-            )
-            put(
-                "edges",
-                with_colour_bar(dots, lo, hi, "jet", "intensity"),
-                "Visible LiDAR points on the image's edges, coloured by intensity (scale below the picture).",
-            )
+        _range_and_edges(out, crop, vis.uv[far_first], far_first, rng_lidar, scan.intensity)
     lo, hi = colour_range(rng_lidar[far_first])
     colours = colour_map(rng_lidar[far_first], lo, hi, "turbo")
     whole = _whole(result, image, max_width)
@@ -228,7 +199,7 @@ def frame_figures(
         # 3x3 dots where points are sparse on the picture, single pixels where they would cover it
         sparse = small.shape[0] * small.shape[1] > 40 * max(len(far_first), 1)
         dots = draw_points(small, uv_small, colours, radius=int(sparse))
-        put(
+        out.put(
             "whole",
             with_colour_bar(dots, lo, hi, "turbo", "range (m)"),
             f"The whole picture (scaled by {f:.2f}) with every visible LiDAR point, coloured by range.",
@@ -236,5 +207,52 @@ def frame_figures(
     full = None
     if options.full_views and image is not None:
         full = f"{FIGURES_DIR}/full/{name}_full.jpg"
-        files[full] = encode_image(draw_points(image, vis.uv[far_first], colours, radius=1), "jpg", 90)
-    return FrameFigures(name, files, captions, coloured, ef, full)
+        out.files[full] = encode_image(draw_points(image, vis.uv[far_first], colours, radius=1), "jpg", 90)
+    return FrameFigures(name, out.files, out.captions, coloured, ef, full)
+
+
+class _Pictures:
+    """A frame's pictures as they are drawn: encoded files by relative path, and their captions."""
+
+    def __init__(self, name: str, options: FigureOptions) -> None:
+        self.name, self.options = name, options
+        self.files: dict[str, bytes] = {}
+        self.captions: dict[str, str] = {}
+
+    def put(self, suffix: str, img: np.ndarray, caption: str) -> None:
+        key = f"{FIGURES_DIR}/{self.name}_{suffix}.{self.options.fmt}"
+        self.files[key] = encode_image(img, self.options.fmt, self.options.quality)
+        self.captions[key] = caption
+
+
+def _range_and_edges(
+    out: _Pictures,
+    crop: Crop,
+    uv: np.ndarray,
+    order: np.ndarray,
+    rng_lidar: np.ndarray,
+    intensity: np.ndarray,
+) -> None:
+    """The visible points (pixels ``uv`` of the points ``order``, far first) on the board's wide crop,
+    coloured by range, and on the crop's edges, coloured by intensity."""
+    uvc = crop.to_crop(uv)
+    h, w = crop.image.shape[:2]
+    inside = (uvc[:, 0] >= -0.5) & (uvc[:, 0] < w - 0.5) & (uvc[:, 1] >= -0.5) & (uvc[:, 1] < h - 0.5)
+    sel, uvc = order[inside], uvc[inside]
+    r = 2 if crop.zoom > 1 else None
+    if not sel.size:
+        return
+    lo, hi = colour_range(rng_lidar[sel])
+    dots = draw_points(crop.image, uvc, colour_map(rng_lidar[sel], lo, hi, "turbo"), radius=r)
+    out.put(
+        "range",
+        with_colour_bar(dots, lo, hi, "turbo", "range (m)"),
+        "Visible LiDAR points on the image, coloured by range (scale below the picture).",
+    )
+    lo, hi = colour_range(intensity[sel])
+    dots = draw_points(edge_image(crop.image), uvc, colour_map(intensity[sel], lo, hi, "jet"), radius=r)
+    out.put(
+        "edges",
+        with_colour_bar(dots, lo, hi, "jet", "intensity"),
+        "Visible LiDAR points on the image's edges, coloured by intensity (scale below the picture).",
+    )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -15,6 +16,7 @@ __all__ = [
     "plot_error_vs_frames",
     "plot_cross_validation",
     "plot_valley",
+    "DrawnValley",
 ]
 
 _LABELS = (
@@ -190,6 +192,15 @@ def plot_cross_validation(cv: CrossValidation) -> bytes:
     if ok and len(ok) <= 10:
         ax[0, 2].legend(fontsize=7, ncol=2)
     return _png(fig)
+
+
+@dataclass(frozen=True)
+class DrawnValley:
+    """The valley study with its chart drawn already (``plot_valley``'s PNG; e.g. by a worker process
+    right after the study, while the report's other parts are made)."""
+
+    study: Valley
+    png: bytes
 
 
 def plot_valley(v: Valley) -> bytes:

@@ -24,6 +24,10 @@ from ilcc_graph.config import Config
 from ilcc_graph.io import write_ply
 
 if TYPE_CHECKING:
+    from ilcc_graph.board import Board
+    from ilcc_graph.cameras import CameraModel
+    from ilcc_graph.report.plots import DrawnValley
+    from ilcc_graph.report.studies import CrossValidation, FramesCurve
     from ilcc_graph.run.result import Result, RunOptions, SessionResult
     from ilcc_graph.types import Calibration, FrameResult
 
@@ -45,21 +49,25 @@ def _draw_frame(source, ref, config: Config, T: np.ndarray, result, options, ply
     return dataclasses.replace(ff, coloured=None)
 
 
-def _valley(cal, camera, board):  # noqa: ANN001, ANN202 - report.studies.Valley | None
-    """The report's valley study on the used frames (as ``report.build_report`` makes it), or None
-    when a used frame lacks its board points (the report then rebuilds them from the scans)."""
+def _valley(cal: Calibration, camera: CameraModel, board: Board) -> DrawnValley | None:
+    """The report's valley study on the used frames (as ``report.build_report`` makes it) with its
+    chart drawn (a worker process runs it while the main process works out the next pose), or
+    None when a used frame lacks its board points (the report then rebuilds them from the scans)."""
     from ilcc_graph.report import eval_frame
+    from ilcc_graph.report.plots import DrawnValley, plot_valley
     from ilcc_graph.report.studies import valley
 
     efs = [eval_frame(f) for f in cal.frames if f.used]
     if not efs or any(e is None or not len(e.points_lidar) for e in efs):
         return None
-    return valley(efs, camera, board, np.asarray(cal.T_cam_lidar), np.asarray(cal.covariance))
+    study = valley(efs, camera, board, np.asarray(cal.T_cam_lidar), np.asarray(cal.covariance))
+    return DrawnValley(study, plot_valley(study))
 
 
 def _drawn(items: list[tuple], pool, cal, config: Config) -> tuple[Iterator, object]:  # noqa: ANN001
-    """(``_draw_frame(*item)`` for each item in order, a future of the valley study), on ``pool``
-    (``workers.pool``; in this process when None); the valley study, the longest single job, goes first."""
+    """(``_draw_frame(*item)`` for each item in order, a future of the valley study with its chart), on
+    ``pool`` (``workers.pool``; in this process when None); the valley study, the longest single job,
+    goes first."""
     if pool is None:
         return (_draw_frame(*it) for it in items), None
     slim = dataclasses.replace(
@@ -109,29 +117,15 @@ def write_report(
         (that proposal, its picture ``next_pose.png`` or None). ``progress(done, total)``: after each
         frame's pictures, and once more when the page is built. ``refit(frames, config, options)``: a
     subset of the frames solved again (``run.pipeline.solve_observed``), for the studies."""
-    from ilcc_graph.report import FigureOptions, build_report, cross_validate, frames_vs_accuracy
+    from ilcc_graph.report import FigureOptions, build_report
     from ilcc_graph.report.rig import next_pose_png
 
     obs, cal = session.observation, session.calibration
     config, source = obs.config, obs.source
     curve = cv = None
     if studies and result.covariance is not None:  # the studies: batch refits of subsets
-        options = dataclasses.replace(result.options, mode="graph")
-
-        def solve(subset):  # noqa: ANN001, ANN202
-            c = refit(subset, config, options)
-            return c.T_cam_lidar, c.covariance
-
-        quiet = logging.getLogger("ilcc_graph")
-        level = quiet.level
-        quiet.setLevel(logging.ERROR)  # subsets of few frames warn by design
-        try:
-            curve = frames_vs_accuracy(obs.frames, solve, config.camera, config.board, truth)
-            cv = cross_validate(
-                obs.frames, solve, config.camera, config.board, folds=5, T_all=cal.T_cam_lidar
-            )
-        finally:
-            quiet.setLevel(level)
+        curve, cv = _studies(obs.frames, config, cal, dataclasses.replace(result.options, mode="graph"),
+                             truth, refit)  # fmt: skip
     damaged = {f.name for f in cal.frames if f.damaged}  # their files cannot be read
     refs = [
         r for r in source.frames() if r.scan is not None and r.image is not None and r.name not in damaged
@@ -178,3 +172,30 @@ def write_report(
         (out / rel).parent.mkdir(parents=True, exist_ok=True)
         (out / rel).write_bytes(blob)
     return got, png
+
+
+def _studies(
+    frames: Sequence[FrameResult],
+    config: Config,
+    cal: Calibration,
+    options: RunOptions,
+    truth: np.ndarray | None,
+    refit: Callable[[Sequence[FrameResult], Config, RunOptions], Calibration],
+) -> tuple[FramesCurve, CrossValidation]:
+    """The report's studies: each parameter against the number of frames, and a 5-fold
+    cross-validation, the subsets solved again with ``refit`` (their warnings kept quiet)."""
+    from ilcc_graph.report import cross_validate, frames_vs_accuracy
+
+    def solve(subset: Sequence[FrameResult]) -> tuple[np.ndarray, np.ndarray]:
+        c = refit(subset, config, options)
+        return c.T_cam_lidar, c.covariance
+
+    quiet = logging.getLogger("ilcc_graph")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)  # subsets of few frames warn by design
+    try:
+        curve = frames_vs_accuracy(frames, solve, config.camera, config.board, truth)
+        cv = cross_validate(frames, solve, config.camera, config.board, folds=5, T_all=cal.T_cam_lidar)
+    finally:
+        quiet.setLevel(level)
+    return curve, cv

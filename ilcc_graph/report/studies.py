@@ -22,7 +22,7 @@ from ..board import Board
 from ..cameras import CameraModel
 from ..errors import CalibrationImpossible, IndeterminateSystem
 from ..types import FrameResult
-from .evaluation import eval_frame, evaluate
+from .frame_errors import eval_frame, evaluate
 from .metric import EvalFrame, Evaluation, FrameEvaluation
 
 __all__ = [

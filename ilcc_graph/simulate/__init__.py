@@ -9,7 +9,7 @@ writes it as a ROS 1 or ROS 2 bag, optionally as a walk-and-pause recording (``b
 from __future__ import annotations
 
 from .frames import SimFrame, frame_name, ground_truth, simulate_frame, simulate_frames
-from .intrinsics import IntrinsicsError, stated_camera
+from .intrinsics_error import IntrinsicsError, stated_camera
 from .lidar import beam_biases, beam_gains, simulate_scan
 from .placements import board_placements, frame_scene
 from .render import ImageRenderer
@@ -28,8 +28,8 @@ from .spec import (
 
 
 def simulate_dataset(*args, **kwargs):  # lazy: keeps io out of `import ilcc_graph.simulate`
-    """Write a data set; see :func:`ilcc_graph.simulate.export.simulate_dataset`."""
-    from .export import simulate_dataset as _write
+    """Write a data set; see :func:`ilcc_graph.simulate.write_set.simulate_dataset`."""
+    from .write_set import simulate_dataset as _write
 
     return _write(*args, **kwargs)
 

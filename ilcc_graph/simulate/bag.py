@@ -27,12 +27,12 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from ..io import write_yaml
-from .export import config_dict
 from .frames import SimFrame, ground_truth, simulate_frames
 from .lidar import beam_biases, simulate_scan
 from .placements import board_placements, frame_scene
 from .render import ImageRenderer
 from .spec import SimulationSpec
+from .write_set import config_dict
 
 __all__ = ["RosMessages", "WalkAndPause", "bag_frame_name", "simulate_walk", "walk_poses", "write_bag"]
 

@@ -1,6 +1,6 @@
 """The simulator's front door: :func:`simulate_frames` yields in-memory frames; :func:`ground_truth`.
 
-Pure: no file I/O (see ``export.py`` for writing a data set). Every random stream is derived
+Pure: no file I/O (see ``write_set.py`` for writing a data set). Every random stream is derived
 from ``spec.seed`` with ``np.random.SeedSequence(seed, spawn_key=(purpose, frame, stream))``, so a
 frame's content does not depend on which other frames are generated or in what order.
 """
@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..types import Scan
-from .intrinsics import stated_camera
+from .intrinsics_error import stated_camera
 from .lidar import beam_biases, beam_gains, simulate_scan
 from .placements import board_placements, frame_scene
 from .render import ImageRenderer

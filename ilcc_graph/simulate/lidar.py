@@ -215,20 +215,31 @@ def simulate_scan(
     p_drop = np.where(board, sy.dropout + (sy.dropout_black - sy.dropout) * (1.0 - colour), sy.dropout)
     keep = np.isfinite(t) & (t >= MIN_RANGE_M) & (t <= MAX_RANGE_M) & (u_drop >= p_drop)
     if spec.sensor_format == "ouster":
-        r = np.linalg.norm(p, axis=1)
-        signal = (
-            gain
-            * level
-            * (0.85 + 0.15 * cos_inc)
-            / 255.0
-            * 6000.0
-            * np.minimum(1.0, (2.0 / np.maximum(r, 1e-3)) ** 2)
-        )
-        z_sig = frame_rng(spec.seed, PURPOSE_FRAME, frame, 1, 4).standard_normal(n)
-        raw = np.clip(np.rint(signal + (2.0 * np.sqrt(signal) + 5.0) * z_sig), 0, 65535)
-        rows = model.n_beams - 1 - ring  # the organised row: 0 = top beam
-        scan = _organised(model, p, _field(spec, raw, rows), keep)
-        return scan if spec.ring_field else replace(scan, ring=None)
+        return _ouster_scan(spec, frame, p, gain * level * (0.85 + 0.15 * cos_inc), ring, keep)
+    return _written_scan(spec, p, intensity, ring, keep)
+
+
+def _ouster_scan(
+    spec: SimulationSpec, frame: int, p: np.ndarray, lit: np.ndarray, ring: np.ndarray, keep: np.ndarray
+) -> Scan:
+    """An Ouster's organised scan: its signal field from each return's lit level ``lit`` (gain x
+    reflectivity x incidence) falling with range, with shot noise; ``keep``: the returns it gives."""
+    model, n = spec.lidar_model, len(p)
+    r = np.linalg.norm(p, axis=1)
+    signal = lit / 255.0 * 6000.0 * np.minimum(1.0, (2.0 / np.maximum(r, 1e-3)) ** 2)
+    z_sig = frame_rng(spec.seed, PURPOSE_FRAME, frame, 1, 4).standard_normal(n)
+    raw = np.clip(np.rint(signal + (2.0 * np.sqrt(signal) + 5.0) * z_sig), 0, 65535)
+    rows = model.n_beams - 1 - ring  # the organised row: 0 = top beam
+    scan = _organised(model, p, _field(spec, raw, rows), keep)
+    return scan if spec.ring_field else replace(scan, ring=None)
+
+
+def _written_scan(
+    spec: SimulationSpec, p: np.ndarray, intensity: np.ndarray, ring: np.ndarray, keep: np.ndarray
+) -> Scan:
+    """The returns ``keep`` as the sensor's file gives them: its intensity field, and its ring
+    numbers (a Velodyne CSV's laser ids) where it has any."""
+    model = spec.lidar_model
     if model.ringless:
         return Scan(
             points=p[keep], intensity=_field(spec, intensity, ring)[keep], ring=None, source="simulated"

@@ -29,7 +29,7 @@ from scipy.spatial.transform import Rotation
 from ..board import Board
 from ..cameras import CameraModel, Equirectangular, camera_class
 from ..lidars import LASER_ID_ELEVATIONS_DEG, LidarModel, lidar_model
-from .intrinsics import IntrinsicsError
+from .intrinsics_error import IntrinsicsError
 from .rosette import rosette_for
 
 __all__ = [

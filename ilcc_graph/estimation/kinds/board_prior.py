@@ -5,6 +5,7 @@ returns enter instead (``board_returns``)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
@@ -13,6 +14,9 @@ from ilcc_graph.estimation.graphs import board_prior_graph, samples_from_corners
 from ilcc_graph.estimation.keys import POSE3_DOF
 from ilcc_graph.estimation.kinds.base import FactorKind, Scales, Term, register
 from ilcc_graph.estimation.solver import check_covariance, check_pose
+
+if TYPE_CHECKING:
+    from ilcc_graph.estimation.assembly import Assembly
 
 __all__ = ["BoardPriors"]
 
@@ -25,7 +29,7 @@ class BoardPriors(FactorKind):
     order = 10
     term = "board"
 
-    def __init__(self, asm) -> None:  # noqa: ANN001 - Assembly
+    def __init__(self, asm: Assembly) -> None:
         super().__init__(asm)
         pr = asm.problem
         # per board its checked covariance; a board without one has no LiDAR prior (a rig's board

@@ -5,6 +5,7 @@ instead of their pose prior; the compact form of the same cost for optimising.""
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import gtsam
 
@@ -13,6 +14,9 @@ from factors.board_points import BoardPointsFactor
 from ilcc_graph.estimation.graphs import board_points_factor
 from ilcc_graph.estimation.kinds.base import FactorKind, Scales, Term, register
 from ilcc_graph.estimation.lidar_errors import LidarLayout, layout_for
+
+if TYPE_CHECKING:
+    from ilcc_graph.estimation.assembly import Assembly
 
 __all__ = ["BoardReturns"]
 
@@ -26,7 +30,7 @@ class BoardReturns(FactorKind):
     order = 20
     term = "board"
 
-    def __init__(self, asm) -> None:  # noqa: ANN001 - Assembly
+    def __init__(self, asm: Assembly) -> None:
         super().__init__(asm)
         pr = asm.problem
         self.layouts: dict[int, LidarLayout] = {}
@@ -42,7 +46,8 @@ class BoardReturns(FactorKind):
             if b.returns is not None:
                 by_lidar.setdefault(b.lidar, []).append(i)
         for lid, idx in by_lidar.items():
-            lay = asm.given_layouts.get(lid) or layout_for([pr.boards[i].returns for i in idx], opts)
+            returns = [r for i in idx if (r := pr.boards[i].returns) is not None]  # every one has them
+            lay = asm.given_layouts.get(lid) or layout_for(returns, opts)
             self.layouts[lid] = lay
             if lay.dim == 0:
                 continue  # nothing left to estimate: the boards enter through their priors
@@ -86,9 +91,11 @@ class BoardReturns(FactorKind):
             return f
         last = self._scaled.get(i)
         if last is not None and last[1] is f:
-            if last[2] is None:
-                last = self._scaled[i] = (last[0], f, CompactBoardPoints(f, m))
-            return last[2]
+            compact = last[2]
+            if compact is None:
+                compact = CompactBoardPoints(f, m)
+                self._scaled[i] = (last[0], f, compact)
+            return compact
         return CompactBoardPoints(f, m)
 
     def point_lidars(self, boards: Sequence[int]) -> list[int]:

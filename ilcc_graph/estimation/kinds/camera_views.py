@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import gtsam
 
@@ -13,6 +14,9 @@ from factors import FrameBearingFactor, FramePixelFactor
 from ilcc_graph.estimation.graphs import bearing_graph, frame_bearing_factor, frame_pixel_factor
 from ilcc_graph.estimation.keys import B, I, X
 from ilcc_graph.estimation.kinds.base import FactorKind, Scales, Term, register
+
+if TYPE_CHECKING:
+    from ilcc_graph.estimation.assembly import Assembly
 
 log = logging.getLogger(__name__)
 
@@ -28,20 +32,21 @@ class CameraViews(FactorKind):
     order = 30
     term = "bearing"
 
-    def __init__(self, asm) -> None:  # noqa: ANN001 - Assembly
+    def __init__(self, asm: Assembly) -> None:
         super().__init__(asm)
         pr = asm.problem
         self.views: list[tuple[int, FrameBearingFactor | FramePixelFactor]] = []
         self.pixel_views: set[int] = set()
         seen: set[int] = set()
         reasons: dict[int, str] = {}
+        fac: FrameBearingFactor | FramePixelFactor | None
         for j, v in enumerate(pr.views):
             name = pr.boards[v.board].name
             c = asm.camera_of(j)
             if c in asm.refined and v.uv is not None:
                 fac, n_ok = frame_pixel_factor(
                     X(v.extrinsic), B(v.board), I(c), v.points_board, v.uv, v.cov_px, v.camera, asm.robust
-                )  # type: ignore[assignment]
+                )
                 if fac is not None:
                     self.pixel_views.add(j)
             else:

@@ -22,7 +22,7 @@ from ..io.output_folders import DATA_SET, staged
 from ..io.scans import write_csv
 from ..types import Scan
 from .frames import ground_truth, simulate_frames
-from .intrinsics import IntrinsicsError, stated_camera
+from .intrinsics_error import IntrinsicsError, stated_camera
 from .spec import SimulationSpec, standard_spec
 
 __all__ = ["IMAGE_FORMATS", "assemble", "simulate_dataset", "config_dict", "write_scan", "write_standard_set"]
