@@ -186,7 +186,7 @@ def test_boards_far_off_their_returns_are_called_out() -> None:
     T0 = T_TRUE.compose(gtsam.Pose3.Expmap(rng.normal(0, 0.01, 6))).matrix()
     bp = solve(frames, CAMERA, T0, lidar_errors=LidarErrorOptions()).board_plane
     assert bp.estimated and bp.offset_m > 0.015, bp
-    assert "more than a bent print" in bp.note and "without --lidar-errors" in bp.note, bp
+    assert "more than a bent print" in bp.note and "--sensor-model none" in bp.note, bp
 
 
 def test_few_boards_keep_the_configured_plane_sigma_and_say_so() -> None:

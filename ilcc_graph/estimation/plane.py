@@ -53,8 +53,8 @@ KINDS = ("plane_offset", "plane_tilt", "board_beam")
 SUSPECT_OFFSET_M = 0.015
 SUSPECT_NOTE = (
     "offset {mm:.0f} mm is more than a bent print: the boards' returns sit off where the images put "
-    "them (a range error per board, or the camera's intrinsics); compare with the result without "
-    "--lidar-errors"
+    "them (a range error per board, or the camera's intrinsics); compare with the result of "
+    "--sensor-model none"
 )
 
 
