@@ -26,11 +26,12 @@ iteration costs O(factors x variables). One factor per frame keeps both small (s
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Literal, overload
 
 import gtsam
 import numpy as np
 
-from factors.grouped import POSE3_DOF, CornerGroupFactor, pose_chain, sqrt_information
+from factors.grouped import POSE3_DOF, CornerGroupFactor, MEstimator, pose_chain, sqrt_information
 
 BEARING_DOF = 2
 
@@ -106,10 +107,11 @@ def board_bearing_error(
     """
     D_pl_Tb = np.zeros((3, POSE3_DOF), order="F")
     p_lidar = T_lidar_board.transformFrom(np.asarray(p_board, dtype=np.float64), D_pl_Tb)
-    D_e_pl = None if H_board is None else np.zeros((2, 3), order="F")
+    if H_board is None:
+        return bearing_error(T_cam_lidar, p_lidar, b_meas, H_cam, None)
+    D_e_pl = np.zeros((2, 3), order="F")
     e = bearing_error(T_cam_lidar, p_lidar, b_meas, H_cam, D_e_pl)
-    if H_board is not None:
-        H_board[:] = D_e_pl @ D_pl_Tb
+    H_board[:] = D_e_pl @ D_pl_Tb
     return e
 
 
@@ -134,7 +136,7 @@ def bearing_factor(
     b = b_meas if isinstance(b_meas, gtsam.Unit3) else gtsam.Unit3(np.asarray(b_meas, dtype=np.float64))
     p = np.array(p_board, dtype=np.float64).reshape(3)
 
-    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None) -> np.ndarray:
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: gtsam.JacobianVector | None) -> np.ndarray:
         keys = this.keys()
         T_cl, T_lb = values.atPose3(keys[0]), values.atPose3(keys[1])
         if H is None:
@@ -161,7 +163,7 @@ def bearing_point_factor(
     """
     b = b_meas if isinstance(b_meas, gtsam.Unit3) else gtsam.Unit3(np.asarray(b_meas, dtype=np.float64))
 
-    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None) -> np.ndarray:
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: gtsam.JacobianVector | None) -> np.ndarray:
         keys = this.keys()
         T_cl, p = values.atPose3(keys[0]), values.atPoint3(keys[1])
         if H is None:
@@ -187,7 +189,7 @@ def tangent_bases(bearings: np.ndarray | Sequence[gtsam.Unit3]) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------- per-frame group
-class FrameBearingFactor(CornerGroupFactor):
+class FrameBearingFactor(CornerGroupFactor[gtsam.Pose3, gtsam.Pose3]):
     """All corners of one frame as one factor on (``T_cam_lidar``, ``T_lidar_board``).
 
     Each corner k has its own 2x2 bearing covariance ``cov_tangent[k]`` in the basis
@@ -213,7 +215,7 @@ class FrameBearingFactor(CornerGroupFactor):
         points_board: np.ndarray,
         bearings: np.ndarray,
         cov_tangent: np.ndarray,
-        robust: gtsam.noiseModel.mEstimator.Base | None = None,
+        robust: MEstimator | None = None,
     ) -> None:
         p = np.asarray(points_board, dtype=np.float64)
         b = np.asarray(bearings, dtype=np.float64)
@@ -267,6 +269,14 @@ class FrameBearingFactor(CornerGroupFactor):
         e = self.unwhitened(T_cam_lidar, T_lidar_board)[0]
         return np.einsum("kij,kj->ki", self.sqrt_info, e)
 
+    @overload
+    def evaluate(
+        self, T_cam_lidar: gtsam.Pose3, T_lidar_board: gtsam.Pose3, jacobians: Literal[True]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+    @overload
+    def evaluate(
+        self, T_cam_lidar: gtsam.Pose3, T_lidar_board: gtsam.Pose3, jacobians: bool
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]: ...
     def evaluate(
         self, T_cam_lidar: gtsam.Pose3, T_lidar_board: gtsam.Pose3, jacobians: bool
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -280,7 +290,7 @@ class FrameBearingFactor(CornerGroupFactor):
         s = self._robust_scales(r, jacobians)
         if s is not None:
             r = r * s[:, None]
-        if not jacobians:
+        if H_cam is None or H_board is None:  # without jacobians
             return r.reshape(-1), None, None
         Wt = self.sqrt_info if s is None else self.sqrt_info * s[:, None, None]
         A_cam = np.asfortranarray((Wt @ H_cam).reshape(-1, POSE3_DOF))

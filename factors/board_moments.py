@@ -55,15 +55,16 @@ def moments_of(f: BoardPointsFactor) -> Moments:
     F[:, :3] = f.points - c
     F[:, 3] = 1.0
     g = -f.u[:, :, None] * f._A_range[:, None, :]  # (M, 3, k): d h / d (n_a l_i)
-    if f._A_elev is not None:
-        g += f._elev_dir[:, :, None] * f._A_elev[:, None, :]  # type: ignore[index]
+    if f._elevation is not None:
+        A_elev, elev_dir = f._elevation
+        g += elev_dir[:, :, None] * A_elev[:, None, :]
     F[:, 4:] = g.reshape(M, 3 * k)
     Fw = f.weight[:, None] * F
     QtF = None if f._plane is None else f._plane[1].T @ Fw
     return Moments(c, Fw.T @ Fw, QtF)
 
 
-class CompactBoardPoints(GroupedFactor):
+class CompactBoardPoints(GroupedFactor[gtsam.Pose3, np.ndarray]):
     """``f``'s cost on (``T_lidar_board``, LiDAR parameters ``l``) with ``n_theta + 3`` rows.
 
     ``moments``: ``moments_of`` of ``f`` or of the unscaled factor ``f`` was scaled from (the
@@ -75,9 +76,9 @@ class CompactBoardPoints(GroupedFactor):
         self.base, self.moments = f, m
         self.keys = f.keys
         G = m.FtF.copy()
-        if f._whiten is not None and m.QtF is not None:
+        if f._plane is not None and f._whiten is not None and m.QtF is not None:
             U, c = f._whiten
-            UtF = (f._plane[1].T @ U).T @ m.QtF  # type: ignore[index]  # U = Q V: U^T F_w = V^T Q^T F_w
+            UtF = (f._plane[1].T @ U).T @ m.QtF  # U = Q V: U^T F_w = V^T Q^T F_w
             G += UtF.T @ ((2.0 * c + c * c)[:, None] * UtF)
         G /= f.scale
         lam, V = np.linalg.eigh(0.5 * (G + G.T))
@@ -104,14 +105,11 @@ class CompactBoardPoints(GroupedFactor):
         theta[3] = n @ (self.moments.centre - t)
         theta[4:] = np.outer(n, la).ravel()
         r_pts = self.L @ theta
-        H_log = np.zeros((POSE3_DOF, POSE3_DOF), order="F") if jacobians else None
-        H_btw = np.zeros((POSE3_DOF, POSE3_DOF), order="F") if jacobians else None
-        rel = f.T_measured.between(T, None, H_btw)
-        xi = np.asarray(gtsam.Pose3.Logmap(rel, H_log) if jacobians else gtsam.Pose3.Logmap(rel))
-        Wi = f.W / np.sqrt(f.inplane_scale)
-        err = np.concatenate([r_pts, Wi @ (f.S @ xi)])
+        nt = self.moments.n_theta
         if not jacobians:
-            return err, None, None
+            return np.concatenate([r_pts, f.inplane_error(T)]), None, None
+        H_T = np.empty((nt + 3, POSE3_DOF), order="F")
+        err = np.concatenate([r_pts, f.inplane_error(T, H_T[nt:])])
         # d theta / d (omega, v, l): dn/d omega = (-R e_y, R e_x, 0) (T Exp(xi)), dt/dv = R
         dn = np.column_stack([-R[:, 1], R[:, 0], np.zeros(3)])
         D = np.zeros((self.moments.n_theta, POSE3_DOF + k))
@@ -123,10 +121,7 @@ class CompactBoardPoints(GroupedFactor):
         for a in range(3):
             D[4 + a * k + i, POSE3_DOF + i] = n[a]  # d (n_a l_i) / d l_i
         LD = self.L @ D
-        nt = self.moments.n_theta
-        H_T = np.empty((nt + 3, POSE3_DOF), order="F")
         H_T[:nt] = LD[:, :POSE3_DOF]
-        H_T[nt:] = Wi @ f.S @ H_log @ H_btw
         H_l = np.zeros((nt + 3, f.n_params), order="F")
         H_l[:nt, f.active] = LD[:, POSE3_DOF:]
         return err, H_T, H_l

@@ -45,6 +45,10 @@ from factors.grouped import POSE3_DOF, GroupedFactor
 
 __all__ = ["BoardPointsFactor", "elevation_directions"]
 
+#: A board's random effects: G (M, q) their whitened Jacobian, Q (M, q) and R (q, q) with G = Q R,
+#: their variances (q,) and the kind of each column (q,) (0 the plane's offset, 1 its tilts, 2 a beam).
+_Effects = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
 
 def elevation_directions(u: np.ndarray) -> np.ndarray:
     """(M, 3) unit vectors of increasing elevation at unit rays ``u`` (M, 3), LiDAR frame (z up)."""
@@ -65,15 +69,16 @@ def _dense_coefficients(index: np.ndarray, coef: np.ndarray, active: np.ndarray)
     return out
 
 
-class BoardPointsFactor(GroupedFactor):
+class BoardPointsFactor(GroupedFactor[gtsam.Pose3, np.ndarray]):
     """One board's returns and in-plane prior on (``T_lidar_board``, LiDAR parameters ``l``).
 
     Parameters
     ----------
     key_board, key_lidar : GTSAM keys (Pose3, Vector of dimension ``n_params``).
     points : (M, 3) measured returns, LiDAR frame, metres.
-    sigma : (M,) one-sigma range noise of each return, metres (its plane-height sigma is
-        ``sigma * |n . u|``, n the normal of ``T_measured``: a noise model fixed at construction).
+    sigma : (M,) one-sigma range noise of each return, metres, or one for all (its plane-height
+        sigma is ``sigma * |n . u|``, n the normal of ``T_measured``: a noise model fixed at
+        construction).
     range_index, range_coef : (M, k) parameter indices and coefficients of ``a_j`` (pad with
         coefficient 0); ``elevation_index``, ``elevation_coef`` likewise for ``b_j`` (or None).
     n_params : dimension of ``l``.
@@ -89,7 +94,7 @@ class BoardPointsFactor(GroupedFactor):
         key_board: int,
         key_lidar: int,
         points: np.ndarray,
-        sigma: np.ndarray,
+        sigma: np.ndarray | float,
         range_index: np.ndarray,
         range_coef: np.ndarray,
         n_params: int,
@@ -135,8 +140,13 @@ class BoardPointsFactor(GroupedFactor):
         used = [ri[rc != 0]] + ([] if ei is None else [ei[ec != 0]])
         self.active = np.unique(np.concatenate(used)).astype(np.int64)
         self._A_range = _dense_coefficients(ri, rc, self.active)
-        self._A_elev = None if ei is None else _dense_coefficients(ei, self.rho[:, None] * ec, self.active)
-        self._elev_dir = None if ei is None else elevation_directions(self.u)  # e_j (M, 3)
+        # the elevation terms: dense coefficients of rho_j b_j (M, n_active) and e_j (M, 3), or None
+        self._elevation: tuple[np.ndarray, np.ndarray] | None = None
+        if ei is not None:
+            self._elevation = (
+                _dense_coefficients(ei, self.rho[:, None] * ec, self.active),
+                elevation_directions(self.u),
+            )
         self.T_measured = T_measured if isinstance(T_measured, gtsam.Pose3) else gtsam.Pose3(T_measured)
         self.S = np.asarray(inplane_select, dtype=np.float64).reshape(3, POSE3_DOF)
         self.W = np.asarray(inplane_sqrt_info, dtype=np.float64).reshape(3, 3)
@@ -145,9 +155,8 @@ class BoardPointsFactor(GroupedFactor):
         self.scale = 1.0  # variance scale of the point rows (``scaled``)
         self.inplane_scale = 1.0
         self.plane_scale = (1.0, 1.0, 1.0)  # variance scales of the plane's offset, tilt and the beams
-        # the random effects: (G (M, q) their whitened Jacobian, Q (M, q), R (q, q) with G = Q R,
-        # variances (q,), kind of each column (q,): 0 the plane's offset, 1 its tilts, 2 a beam's offset)
-        self._plane: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
+        # the random effects (_Effects), or None
+        self._plane: _Effects | None = None
         cols, var, kind = [], [], []
         if plane_sigma is not None:
             so, st = (float(v) for v in plane_sigma)
@@ -208,16 +217,17 @@ class BoardPointsFactor(GroupedFactor):
     def plane_variances(self) -> np.ndarray | None:
         """(q,) the random effects' variances as scaled (the plane's offset m^2 and tilt rad^2 twice,
         then each beam's offset m^2), or None without any."""
-        if self._plane is None:
-            return None
-        return self._plane[3] * np.asarray(self.plane_scale)[self._plane[4]]
+        return None if self._plane is None else self._variances(self._plane)
+
+    def _variances(self, plane: _Effects) -> np.ndarray:
+        return plane[3] * np.asarray(self.plane_scale)[plane[4]]
 
     def _plane_whitening(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(U (M, q), c (q,)): the point rows' whitening is ``r + U (c * (U^T r))``."""
         if self._plane is None:
             return None
         _, Q, Rg, _, _ = self._plane
-        A = Rg @ np.diag(self.plane_variances()) @ Rg.T
+        A = Rg @ np.diag(self._variances(self._plane)) @ Rg.T
         lam, V = np.linalg.eigh(A / self.scale)
         return Q @ V, 1.0 / np.sqrt(1.0 + np.maximum(lam, 0.0)) - 1.0
 
@@ -232,10 +242,11 @@ class BoardPointsFactor(GroupedFactor):
         if self._plane is None:
             return None
         G = self._plane[0] / np.sqrt(self.scale)
-        Z = self._plane_apply(G) * np.sqrt(self.plane_variances())
+        Z = self._plane_apply(G) * np.sqrt(self._variances(self._plane))
         kind = self._plane[4]
         parts = [Z[:, kind == k] for k in range(3)]
-        return tuple(z if z.shape[1] else None for z in parts)  # type: ignore[return-value]
+        offset, tilt, beams = (z if z.shape[1] else None for z in parts)
+        return offset, tilt, beams
 
     def _plane_apply(self, r: np.ndarray) -> np.ndarray:
         """The board-plane whitening applied to point rows ``r`` (M,) or (M, k)."""
@@ -249,9 +260,22 @@ class BoardPointsFactor(GroupedFactor):
         """(M, 3) the returns corrected by the LiDAR parameters ``lidar`` (n_params,)."""
         la = np.asarray(lidar, dtype=np.float64)[self.active]
         q = self.points - self.u * (self._A_range @ la)[:, None]
-        if self._A_elev is not None:
-            q = q + (self._A_elev @ la)[:, None] * self._elev_dir
+        if self._elevation is not None:
+            A_elev, elev_dir = self._elevation
+            q = q + (A_elev @ la)[:, None] * elev_dir
         return q
+
+    def inplane_error(self, T: gtsam.Pose3, H_T: np.ndarray | None = None) -> np.ndarray:
+        """The in-plane prior's whitened error (3,) at the board pose ``T``; fills ``H_T`` (3, 6), when
+        given, with its Jacobian w.r.t. ``T``."""
+        Wi = self.W / np.sqrt(self.inplane_scale)
+        if H_T is None:
+            return Wi @ (self.S @ np.asarray(gtsam.Pose3.Logmap(self.T_measured.between(T))))
+        H_log = np.zeros((POSE3_DOF, POSE3_DOF), order="F")
+        H_btw = np.zeros((POSE3_DOF, POSE3_DOF), order="F")
+        xi = np.asarray(gtsam.Pose3.Logmap(self.T_measured.between(T, None, H_btw), H_log))
+        H_T[:] = Wi @ self.S @ H_log @ H_btw
+        return Wi @ (self.S @ xi)
 
     def evaluate(
         self, T: gtsam.Pose3, lidar: np.ndarray, jacobians: bool
@@ -262,15 +286,11 @@ class BoardPointsFactor(GroupedFactor):
         n = R[:, 2]
         pb = (self.corrected(lidar) - t) @ R  # board frame
         w = self.weight / np.sqrt(self.scale)
-        H_log = np.zeros((POSE3_DOF, POSE3_DOF), order="F") if jacobians else None
-        H_btw = np.zeros((POSE3_DOF, POSE3_DOF), order="F") if jacobians else None
-        rel = self.T_measured.between(T, None, H_btw)
-        xi = np.asarray(gtsam.Pose3.Logmap(rel, H_log) if jacobians else gtsam.Pose3.Logmap(rel))
-        Wi = self.W / np.sqrt(self.inplane_scale)
-        r_in = Wi @ (self.S @ xi)
         M, k = self.n_points, len(self.active)
         if not jacobians:
-            return np.concatenate([self._plane_apply(w * pb[:, 2]), r_in]), None, None
+            return np.concatenate([self._plane_apply(w * pb[:, 2]), self.inplane_error(T)]), None, None
+        H_T = np.empty((M + 3, POSE3_DOF), order="F")
+        r_in = self.inplane_error(T, H_T[M:])
         # the point rows' [error | d/d T | d/d l_active], whitened together by the board plane
         rows = np.empty((M, 1 + POSE3_DOF + k))
         rows[:, 0] = w * pb[:, 2]
@@ -280,13 +300,12 @@ class BoardPointsFactor(GroupedFactor):
         rows[:, 3:6] = 0.0
         rows[:, 6] = -w
         rows[:, 7:] = -(w * (self.u @ n))[:, None] * self._A_range
-        if self._A_elev is not None:
-            rows[:, 7:] += (w * (self._elev_dir @ n))[:, None] * self._A_elev
+        if self._elevation is not None:
+            A_elev, elev_dir = self._elevation
+            rows[:, 7:] += (w * (elev_dir @ n))[:, None] * A_elev
         rows = self._plane_apply(rows)
         err = np.concatenate([rows[:, 0], r_in])
-        H_T = np.empty((M + 3, POSE3_DOF), order="F")
         H_T[:M] = rows[:, 1:7]
-        H_T[M:] = Wi @ self.S @ H_log @ H_btw
         H_l = np.zeros((M + 3, self.n_params), order="F")
         H_l[:M, self.active] = rows[:, 7:]
         return err, H_T, H_l

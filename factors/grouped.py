@@ -11,14 +11,45 @@ scaling. ``pose_chain``: a point error's Jacobians through ``p_cam = T_cam_lidar
 from __future__ import annotations
 
 import copy
+import sys
 from collections.abc import Sequence
+from typing import Generic, Protocol
 
 import gtsam
 import numpy as np
 
+if sys.version_info >= (3, 11):
+    from typing import Self, TypeVarTuple, Unpack
+else:
+    from typing_extensions import Self, TypeVarTuple, Unpack
+
 POSE3_DOF = 6
 
-__all__ = ["POSE3_DOF", "CornerGroupFactor", "GroupedFactor", "pose_chain", "skew", "sqrt_information"]
+#: The types of a factor's variables, in the order ``evaluate`` takes them (before ``jacobians``).
+Variables = TypeVarTuple("Variables")
+#: What ``evaluate`` returns: the whitened error (dim,), then one Jacobian per variable (or None).
+Evaluation = tuple[np.ndarray, Unpack[tuple[np.ndarray | None, ...]]]
+
+__all__ = [
+    "POSE3_DOF",
+    "CornerGroupFactor",
+    "Evaluation",
+    "GroupedFactor",
+    "MEstimator",
+    "pose_chain",
+    "skew",
+    "sqrt_information",
+]
+
+
+class MEstimator(Protocol):
+    """A GTSAM m-estimator (``gtsam.noiseModel.mEstimator.Huber``, ``Cauchy``, ``Tukey``, ...): its
+    weight and loss of a whitened error norm are what the corner factors use. GTSAM binds both on
+    each kernel, not on ``mEstimator.Base``, so a ``Base`` is not enough here."""
+
+    def weight(self, error: float) -> float: ...
+
+    def loss(self, error: float) -> float: ...
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -66,8 +97,12 @@ def pose_chain(
     return H_cam, H_board
 
 
-class GroupedFactor:
-    """Base of the grouped factors: ``keys``, ``dim``, ``_variables``, ``evaluate`` in; a GTSAM factor out."""
+class GroupedFactor(Generic[Unpack[Variables]]):
+    """Base of the grouped factors: ``keys``, ``dim``, ``_variables``, ``evaluate`` in; a GTSAM factor out.
+
+    A subclass names the types of its variables, e.g. ``GroupedFactor[gtsam.Pose3, np.ndarray]``, and
+    its ``evaluate(T, lidar, jacobians)`` and ``_variables`` are checked against them.
+    """
 
     keys: tuple[int, ...]
 
@@ -76,23 +111,28 @@ class GroupedFactor:
         """Error dimension."""
         raise NotImplementedError
 
-    def _variables(self, values: gtsam.Values, keys: Sequence[int]) -> tuple:
+    def _variables(self, values: gtsam.Values, keys: Sequence[int]) -> tuple[Unpack[Variables]]:
         """The variables' current values from ``values``, in the order ``evaluate`` takes them."""
         raise NotImplementedError
 
-    def evaluate(self, *args: object) -> tuple:
+    def evaluate(self, *args: Unpack[tuple[Unpack[Variables], bool]]) -> Evaluation:
         """(error (dim,), one Jacobian per variable, each None without ``jacobians``) at the variables
         (``*args``: each factor's own variables, then ``jacobians``)."""
         raise NotImplementedError
 
     def _error(
-        self, this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None
+        self, this: gtsam.CustomFactor, values: gtsam.Values, H: gtsam.JacobianVector | None
     ) -> np.ndarray:
         keys = this.keys()
         r, *A = self.evaluate(*self._variables(values, keys), H is not None)
         if H is not None:
             for i in range(len(keys)):
-                H[i] = A[i]
+                A_i = A[i]
+                if A_i is None:
+                    raise TypeError(
+                        f"{type(self).__name__}.evaluate gave no Jacobian {i} with jacobians=True"
+                    )
+                H[i] = A_i
         return r
 
     def factor(self) -> gtsam.CustomFactor:
@@ -100,22 +140,22 @@ class GroupedFactor:
         return gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(self.dim), list(self.keys), self._error)
 
 
-class CornerGroupFactor(GroupedFactor):
+class CornerGroupFactor(GroupedFactor[Unpack[Variables]]):
     """Corners with a 2-vector error each, whitened by ``sqrt_info`` (K, 2, 2); an optional GTSAM
     m-estimator ``robust`` per corner, exactly as ``noiseModel.Robust`` would do for a single-corner
     factor: linearisation scaled by ``sqrt(w(|r_k|))``, cost ``sum_k rho(|r_k|)``."""
 
     sqrt_info: np.ndarray
-    robust: gtsam.noiseModel.mEstimator.Base | None
+    robust: MEstimator | None
     n_corners: int
 
-    def with_robust(self, robust: gtsam.noiseModel.mEstimator.Base | None) -> CornerGroupFactor:
+    def with_robust(self, robust: MEstimator | None) -> Self:
         """The same measurements with another (or no) m-estimator; shares the arrays."""
         other = copy.copy(self)
         other.robust = robust
         return other
 
-    def scaled(self, variance_scale: float) -> CornerGroupFactor:
+    def scaled(self, variance_scale: float) -> Self:
         """The same measurements with every corner covariance multiplied by ``variance_scale`` (> 0)."""
         if not variance_scale > 0:
             raise ValueError(

@@ -33,7 +33,7 @@ from collections.abc import Callable, Sequence
 import gtsam
 import numpy as np
 
-from factors.grouped import CornerGroupFactor, pose_chain, sqrt_information
+from factors.grouped import CornerGroupFactor, MEstimator, pose_chain, sqrt_information
 
 PIXEL_DOF = 2
 #: Whitened residual (per component) of a corner that cannot be imaged at the current estimate.
@@ -45,7 +45,7 @@ Projection = Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray, np
 __all__ = ["PIXEL_DOF", "UNIMAGED_RESIDUAL", "FramePixelFactor", "Projection"]
 
 
-class FramePixelFactor(CornerGroupFactor):
+class FramePixelFactor(CornerGroupFactor[gtsam.Pose3, gtsam.Pose3, np.ndarray | None]):
     """All corners of one view as one factor on (``T_cam_lidar``, ``T_lidar_board``, ``theta``).
 
     Parameters
@@ -71,7 +71,7 @@ class FramePixelFactor(CornerGroupFactor):
         cov_px: np.ndarray,
         project: Projection,
         intrinsics: np.ndarray | None = None,
-        robust: gtsam.noiseModel.mEstimator.Base | None = None,
+        robust: MEstimator | None = None,
     ) -> None:
         p = np.asarray(points_board, dtype=np.float64)
         q = np.asarray(uv, dtype=np.float64)
@@ -100,7 +100,9 @@ class FramePixelFactor(CornerGroupFactor):
         self.robust = robust
         self.n_corners = K
 
-    def _variables(self, values: gtsam.Values, keys: Sequence[int]) -> tuple:
+    def _variables(
+        self, values: gtsam.Values, keys: Sequence[int]
+    ) -> tuple[gtsam.Pose3, gtsam.Pose3, np.ndarray | None]:
         theta = values.atVector(keys[2]) if len(keys) == 3 else None
         return values.atPose3(keys[0]), values.atPose3(keys[1]), theta
 
@@ -164,23 +166,20 @@ class FramePixelFactor(CornerGroupFactor):
         e, H_cam, H_board, H_theta = self.unwhitened(T_cam_lidar, T_lidar_board, theta, jacobians)
         r = np.einsum("kij,kj->ki", self.sqrt_info, e)
         bad = ~np.all(np.isfinite(r), axis=1)
-        if jacobians:
-            bad |= ~(
-                np.all(np.isfinite(H_cam), axis=(1, 2))  # type: ignore[arg-type]
-                & np.all(np.isfinite(H_theta), axis=(1, 2))  # type: ignore[arg-type]
-            )
+        if H_cam is not None and H_theta is not None:  # with jacobians
+            bad |= ~(np.all(np.isfinite(H_cam), axis=(1, 2)) & np.all(np.isfinite(H_theta), axis=(1, 2)))
         r[bad] = UNIMAGED_RESIDUAL
         s = self._robust_scales(r, jacobians)
         if s is None:
             s = np.ones(self.n_corners)
         else:
             r = r * s[:, None]
-        if not jacobians:
+        if H_cam is None or H_board is None or H_theta is None:  # without jacobians
             return r.reshape(-1), None, None, None
         Wt = self.sqrt_info * s[:, None, None]
         Wt[bad] = 0.0
         blocks = []
         for H in (H_cam, H_board, H_theta):
-            H = np.where(bad[:, None, None], 0.0, H)  # type: ignore[call-overload]
+            H = np.where(bad[:, None, None], 0.0, H)
             blocks.append(np.asfortranarray((Wt @ H).reshape(self.dim, -1)))
         return r.reshape(-1), blocks[0], blocks[1], blocks[2]

@@ -150,7 +150,7 @@ class RangeOffsetBoardFactor:
         self.samples = _Samples(samples_board)
 
     def _error(
-        self, this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None
+        self, this: gtsam.CustomFactor, values: gtsam.Values, H: gtsam.JacobianVector | None
     ) -> np.ndarray:
         keys = this.keys()
         T, b = values.atPose3(keys[0]), float(values.atVector(keys[1])[0])

@@ -77,7 +77,7 @@ def factor_jacobians(factor: gtsam.NonlinearFactor, values: gtsam.Values) -> lis
 
 
 def numerical_factor_jacobians(
-    factor: gtsam.NonlinearFactor, values: gtsam.Values, delta: float = 1e-6
+    factor: gtsam.NoiseModelFactor, values: gtsam.Values, delta: float = 1e-6
 ) -> list[np.ndarray]:
     """Central differences of ``factor.whitenedError`` w.r.t. each key, retracting that key only."""
     blocks = []
@@ -99,7 +99,7 @@ def numerical_factor_jacobians(
     return blocks
 
 
-def factor_jacobian_error(factor: gtsam.NonlinearFactor, values: gtsam.Values, delta: float = 1e-6) -> float:
+def factor_jacobian_error(factor: gtsam.NoiseModelFactor, values: gtsam.Values, delta: float = 1e-6) -> float:
     """Largest absolute difference between analytic and numerical whitened Jacobians of ``factor``.
 
     Valid for factors without a robust kernel (a robust one linearises with IRLS weights).

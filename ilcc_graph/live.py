@@ -206,11 +206,17 @@ class LiveCheck:
             self.config = resolve_lidar(source, [ref], self.config, look=1)
             self._lidar_resolved = True
         image = self._pool.submit(self._image, source, ref)  # decoding and detection release the GIL
+        stated = self.config.board
         try:
             board = observe_lidar(source, ref, self.config, self.stages.lidar)
         except FrameError as err:
             board = err
         corners = image.result()
+        if self.config.board != stated:  # the image turned the print's colour: the pattern is another
+            try:
+                board = observe_lidar(source, ref, self.config, self.stages.lidar)
+            except FrameError as err:
+                board = err
         if not isinstance(corners, FrameError):
             self._colour_checked = True
         lidar_why = str(board) if isinstance(board, FrameError) else None

@@ -25,7 +25,7 @@ from ilcc_graph.errors import BoardColourMismatch, DamagedFile, FrameError, Inpu
 from ilcc_graph.image import ImageOptions, detect_corners
 from ilcc_graph.image.previews import make_views
 from ilcc_graph.init import upnp
-from ilcc_graph.lidar import LidarOptions, estimate_board
+from ilcc_graph.lidar import INTENSITY_UNUSABLE, LidarOptions, estimate_board
 from ilcc_graph.lidars import choose_model, measure_beams
 from ilcc_graph.pattern_check import KEYS as PATTERN_KEYS
 from ilcc_graph.pattern_check import pattern_continues
@@ -47,6 +47,7 @@ __all__ = [
     "run_lidar_stage",
     "second_pass",
     "stage_alone",
+    "warn_no_print",
 ]
 
 Progress = Callable[[int, int], None]
@@ -281,8 +282,29 @@ def observe(
         config = dataclasses.replace(config, board=dataclasses.replace(board, lower_left=other))
         frames = _map(observe_frame, [(source, r, config, options) for r in refs], options.jobs, progress)
     warn_damaged(frames)
+    warn_no_print(frames, config)
     frames += [FrameResult(name=n, used=False, reason=why) for n, why in source.skipped()]
     return Observation(source, config, frames)
+
+
+def warn_no_print(frames: Sequence[FrameResult], config: Config) -> str | None:
+    """One warning for the whole run when boards were found without a print the LiDAR shows (their
+    in-plane pose from the board's outline), saying why; returns it (None when every board shows it)."""
+    boards = [f.board for f in frames if f.board is not None]
+    plain = [b for b in boards if b.diagnostics.get("no_contrast")]
+    if not plain:
+        return None
+    codes = sorted({b.diagnostics.get("intensity_unusable", 0.0) for b in plain} - {0.0})
+    why = "; ".join(INTENSITY_UNUSABLE.get(c, "") for c in codes) or "no black/white contrast on the board"
+    if codes:
+        why += "; for CSV scans check lidar.intensity_column"
+    msg = (
+        f"{config.source}: {len(plain)} of {len(boards)} boards show no print in the LiDAR intensity "
+        f"({why}); their position in their plane comes from the board's outline (its size and margin as "
+        "configured)"
+    )
+    log.warning("%s", msg)
+    return msg
 
 
 def _stage(fn: Callable, source: FrameSource, ref: FrameRef, config: Config, opts: object,

@@ -77,6 +77,10 @@ class RunOptions:
     lidar_errors: the LiDAR's own errors the graph estimates from the boards' returns (None: none,
         the default: on the recorded sets the boards' 6-dof LiDAR priors gave halves that agree,
         the returns with these terms did not; docs/bench_real.md).
+    lidar_errors_without_print: when ``lidar_errors`` is None and most boards were placed by their
+        outline (the LiDAR shows no print), estimate the LiDAR's errors all the same
+        (``LidarErrorOptions()``): the boards' planes then carry the translation, and every beam's
+        range offset, common to all frames, biases them alike (docs/lidar_stage.md).
     intrinsics: refine the camera's intrinsics, or propagate their stated ``camera.intrinsics_sigma``.
     sensor_model: ``auto`` (the default: the model of the sensors' own errors the boards support,
         ``estimation.selection``, and the camera's intrinsics refined when the boards support it,
@@ -93,6 +97,7 @@ class RunOptions:
     stop_at_target: bool = False
     second_pass: bool = True
     lidar_errors: LidarErrorOptions | None = None
+    lidar_errors_without_print: bool = True
     intrinsics: IntrinsicsOptions = IntrinsicsOptions()
     sensor_model: str = "auto"
 
@@ -352,6 +357,7 @@ def solve_observations(
     names = list(names) if names is not None else session_names([o.source for o in observations])
     if options.mode == "incremental":
         raise ValueError("incremental mode observes frame by frame: use run()")
+    options = _without_print(observations, options)
     log.debug("estimating the extrinsic (%s) from %d source(s)", options.mode, len(observations))
     result = _solve_once(observations, options, names)
     if not options.second_pass:
@@ -361,6 +367,23 @@ def solve_observations(
         return result
     observations = [o if a is None else a for o, a in zip(observations, again, strict=True)]
     return _solve_once(observations, options, names)
+
+
+def _without_print(observations: Sequence[Observation], options: RunOptions) -> RunOptions:
+    """The options with the LiDAR's errors estimated when most boards were placed by their outline
+    (``RunOptions.lidar_errors_without_print``), said once; as given otherwise."""
+    if options.lidar_errors is not None or not options.lidar_errors_without_print or options.mode == "paper":
+        return options
+    boards = [f.board for o in observations for f in o.frames if f.used and f.board is not None]
+    plain = sum(1 for b in boards if b.diagnostics.get("no_contrast"))
+    if not boards or 2 * plain <= len(boards):
+        return options
+    log.warning(
+        "%d of %d boards were placed by their outline: the LiDAR's own errors (each beam's range offset) "
+        "are estimated, as with --lidar-errors, since the boards' planes then carry the translation",
+        plain, len(boards),
+    )  # fmt: skip
+    return dataclasses.replace(options, lidar_errors=LidarErrorOptions())
 
 
 def _solve_once(observations: Sequence[Observation], options: RunOptions, names: list[str]) -> RunResult:

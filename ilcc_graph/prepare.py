@@ -23,6 +23,7 @@ from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.effects import SQUARE_SIZE_KEY
 from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.init import resolve_half_turns, upnp
+from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
 from ilcc_graph.types import Calibration, FrameResult, GraphFrame, ImageCorners, rotation_angle_deg
 
 log = logging.getLogger(__name__)
@@ -33,6 +34,7 @@ __all__ = [
     "finish",
     "frame_issues",
     "graph_frame",
+    "lidar_view_counts",
     "permute_corners",
     "prepare",
     "rms_bearing_mrad",
@@ -101,12 +103,16 @@ def prepare(observed: Sequence[FrameResult], config: Config) -> Prepared:
         log.warning("%s: %s", config.source, geometry.parallel)
     usable = [r for r in usable if r.name not in geometry.repeats]
     board = config.board
-    perm = board.half_turn_permutation() if board.half_turn_symmetric else None
+    # a board whose print looks the same half-turned, or whose LiDAR fit could not see the print
+    # (its outline alone: the half turn unknown), is matched to the image in either order
+    flippable = [board.half_turn_symmetric or r.board.half_turn_ambiguous for r in usable]  # type: ignore[union-attr]
+    perm = board.half_turn_permutation() if any(flippable) else None
     order = resolve_half_turns(
         [r.board.corners_lidar for r in usable],  # type: ignore[union-attr]
         [r.corners.bearings for r in usable],  # type: ignore[union-attr]
         perm,
         [r.name for r in usable],
+        flippable=flippable,
     )
     if order.ambiguous:
         raise CalibrationImpossible(
@@ -214,6 +220,7 @@ def finish(
             )
         frames.append(r)
     diagnostics = {
+        **lidar_view_counts(frames),
         "iterations": float(sol.iterations),
         "variance_factor": sol.variance_factor,
         "variance_component_board": sol.variance_components[0],
@@ -231,6 +238,20 @@ def finish(
     return Calibration(
         sol.T_cam_lidar, sol.covariance, tuple(frames), method, diagnostics, cam, _sensors(sol, config)
     )
+
+
+def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:
+    """How the LiDAR saw the used frames' boards: ``lidar_boards_no_print`` (fitted by the outline
+    alone) and ``lidar_boards_beyond_fov`` (partly above the top beam or below the lowest), counts,
+    each only when not 0."""
+    boards = [f.board.diagnostics for f in frames if f.used and f.board is not None]
+    counts = {
+        "lidar_boards_no_print": float(sum(1 for d in boards if d.get("no_contrast"))),
+        "lidar_boards_beyond_fov": float(
+            sum(1 for d in boards if d.get("outside_fov_share", 0.0) > BEYOND_FOV_SHARE)
+        ),
+    }
+    return {k: v for k, v in counts.items() if v}
 
 
 def _dropped_causes(

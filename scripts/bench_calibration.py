@@ -630,7 +630,7 @@ def timing_table(rows: Sequence[dict[str, float]]) -> str:
 
 
 def time_cli(width: int, seed: int, jobs: int, keep: Path | None = None, extra: Sequence[str] = ()) -> dict:
-    """Simulate the standard set and time ``python -m ilcc_graph.cli calibrate DATA --out OUT``."""
+    """Simulate the standard set and time ``python -m ilcc_graph.app calibrate DATA --out OUT``."""
     from ilcc_graph.simulate import simulate_dataset
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_cal_"))
@@ -638,7 +638,7 @@ def time_cli(width: int, seed: int, jobs: int, keep: Path | None = None, extra: 
     if not (data / "config.yaml").exists():
         simulate_dataset(data, standard_spec(width=width, seed=seed))
     out = tmp / "out"
-    cmd = [sys.executable, "-m", "ilcc_graph.cli", "calibrate", str(data), "--out", str(out)]
+    cmd = [sys.executable, "-m", "ilcc_graph.app", "calibrate", str(data), "--out", str(out)]
     if jobs > 1:
         cmd += ["--jobs", str(jobs)]
     cmd += list(extra)

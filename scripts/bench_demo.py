@@ -29,11 +29,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from ilcc_graph.app.write import write_run  # noqa: E402
 from ilcc_graph.datasets import open_source  # noqa: E402
 from ilcc_graph.io import read_ground_truth  # noqa: E402
 from ilcc_graph.next_pose import for_run as next_pose_for_run  # noqa: E402
 from ilcc_graph.observe import StageOptions  # noqa: E402
-from ilcc_graph.outputs import write_run  # noqa: E402
 from ilcc_graph.pipeline import RunOptions, run  # noqa: E402
 from ilcc_graph.simulate import standard_spec  # noqa: E402
 from ilcc_graph.simulate.export import simulate_dataset  # noqa: E402

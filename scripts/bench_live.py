@@ -49,7 +49,7 @@ def fill_and_check(src: Path, work: Path, n: int, interval: float) -> tuple[list
     shutil.copyfile(src / "config.yaml", dst / "config.yaml")
     stems = sorted(p.stem for p in (src / "pcd").iterdir())[:n]
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    cmd = [sys.executable, "-m", "ilcc_graph.cli", "check", str(dst), "--watch", "--until", str(len(stems)),
+    cmd = [sys.executable, "-m", "ilcc_graph.app", "check", str(dst), "--watch", "--until", str(len(stems)),
            "--out", str(out)]  # fmt: skip
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     time.sleep(3.0)  # the command's start (imports) is not part of a frame's latency

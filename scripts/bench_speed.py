@@ -6,7 +6,7 @@ The standard set is the one ``ilcc-graph demo`` simulates (HDL-32E, 8000 x 4000 
 20 frames, seed 0; ``--data`` or simulated into the demo's cache folder). The baseline is the code
 of ``--baseline`` (a git revision, default: the commit this branch started from, ``git merge-base
 HEAD main``) extracted with ``git archive`` into a temporary folder; both run as
-``python -m ilcc_graph.cli calibrate DATA --out OUT --jobs 2`` in their own process, alternately
+``python -m ilcc_graph.app calibrate DATA --out OUT --jobs 2`` in their own process, alternately
 (``--repeats`` each), so that the machine's load falls on both alike. Wall time, the machine's busy CPU
 time during the run (/proc/stat), the two phases the command prints (calibration, writing), the
 report's and the clouds' sizes; and the calibration.yaml numbers of both (they must agree).
@@ -57,7 +57,7 @@ def calibrate(src: Path, data: Path, out: Path, extra: list[str]) -> dict:
     link = out.parent / "DATA"  # run beside it with relative names: the report (and its screenshot)
     if not link.exists():  # shows "DATA" and "OUT", not this machine's folders
         link.symlink_to(Path(data).resolve())
-    cmd = [sys.executable, "-m", "ilcc_graph.cli", "calibrate", "DATA", "--out", out.name, "--jobs", "2"]
+    cmd = [sys.executable, "-m", "ilcc_graph.app", "calibrate", "DATA", "--out", out.name, "--jobs", "2"]
     cmd += extra
     c0, t0 = _cpu_machine(), time.perf_counter()
     p = subprocess.run(cmd, cwd=out.parent, env=env, capture_output=True, text=True)

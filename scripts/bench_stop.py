@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from _shared import processes_where, write_between  # noqa: E402
 
-from ilcc_graph.cli import main  # noqa: E402
+from ilcc_graph.app import main  # noqa: E402
 
 MARK_BEGIN, MARK_END = "<!-- stop:begin -->", "<!-- stop:end -->"
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
@@ -46,7 +46,7 @@ def one(data: Path, work: Path, phase: str, sig: int, group: bool) -> dict:
     cmd = [
         sys.executable,
         "-m",
-        "ilcc_graph.cli",
+        "ilcc_graph.app",
         "-v",
         "calibrate",
         str(data),

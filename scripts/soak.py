@@ -1,6 +1,6 @@
 """Soak: many calibrations of a small simulated set back to back; memory, open files, processes.
 
-Runs ``ilcc-graph calibrate`` ``--runs`` times in this one process (``cli.main``, ``--jobs 2``,
+Runs ``ilcc-graph calibrate`` ``--runs`` times in this one process (``app.main``, ``--jobs 2``,
 every ``--report-every``-th run with the report), then ``--subprocess-runs`` times as separate
 command-line processes. Samples after each in-process run: resident memory, open file descriptors,
 threads, child processes and POSIX semaphores in /dev/shm; after each subprocess run: processes
@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 from _shared import processes_where, write_between  # noqa: E402
 
-from ilcc_graph.cli import main  # noqa: E402
+from ilcc_graph.app import main  # noqa: E402
 
 MARK_BEGIN, MARK_END = "<!-- soak:begin -->", "<!-- soak:end -->"
 
@@ -97,7 +97,7 @@ def soak(args: argparse.Namespace, work: Path) -> tuple[list[dict], list[tuple[i
         cmd = [
             sys.executable,
             "-m",
-            "ilcc_graph.cli",
+            "ilcc_graph.app",
             "calibrate",
             str(data),
             "--out",

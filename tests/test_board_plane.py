@@ -214,7 +214,8 @@ def test_plane_estimate_options_are_checked() -> None:
 
 
 def test_cli_board_plane_maps_to_the_options() -> None:
-    from ilcc_graph.cli import _run_options, build_parser
+    from ilcc_graph.app.flags import run_options as _run_options
+    from ilcc_graph.app.parser import build_parser
     from ilcc_graph.errors import InputError
 
     def opts(*extra):

@@ -87,7 +87,7 @@ def test_the_principal_point_sees_straight_ahead(kind) -> None:
 
 
 def test_cli_camera_choices_come_from_the_registry() -> None:
-    from ilcc_graph.cli import build_parser
+    from ilcc_graph.app.parser import build_parser
 
     for kind in KINDS:
         assert build_parser().parse_args(["simulate", "out", "--camera", kind]).camera == kind

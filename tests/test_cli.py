@@ -9,7 +9,7 @@ import pytest
 import yaml
 from accuracy import NEES_BOUND, pose_nees
 
-from ilcc_graph.cli import main
+from ilcc_graph.app import main
 
 SIGMA_KEYS = {"rx_deg", "ry_deg", "rz_deg", "tx_mm", "ty_mm", "tz_mm"}
 

@@ -29,8 +29,8 @@ import pytest
 import yaml
 from test_export import quat_to_matrix, rigid  # Hamilton (x, y, z, w) read as ROS reads it
 
+from ilcc_graph.app import main
 from ilcc_graph.cameras import camera_kinds, make_camera
-from ilcc_graph.cli import main
 
 KINDS = camera_kinds()
 

@@ -1,4 +1,4 @@
-"""The command line flag by flag: each command and option run through ``ilcc-graph`` (``cli.main``)
+"""The command line flag by flag: each command and option run through ``ilcc-graph`` (``app.main``)
 on small simulated sets, and what it wrote checked.
 
 Accuracy is judged against the run's own covariance: the error against the simulated truth, as the
@@ -18,8 +18,8 @@ import yaml
 from accuracy import NEES_BOUND, pose_nees
 from scipy.stats import chi2
 
+from ilcc_graph.app import main
 from ilcc_graph.cameras import camera_kinds, make_camera
-from ilcc_graph.cli import main
 
 #: NEES bound: chi-square, 6 dof, 99.9 %
 

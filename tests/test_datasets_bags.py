@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import yaml
 
-from ilcc_graph.cli import main
+from ilcc_graph.app import main
 from ilcc_graph.datasets import BagSource, FolderSource, open_source
 from ilcc_graph.errors import InputError
 from ilcc_graph.io import read_yaml

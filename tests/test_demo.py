@@ -8,8 +8,8 @@ import re
 
 import yaml
 
-from ilcc_graph.cli import main
-from ilcc_graph.folders import MARKER
+from ilcc_graph.app import main
+from ilcc_graph.io.output_folders import MARKER
 
 
 def test_the_demo_says_what_it_stores(tmp_path, capsys):

@@ -23,15 +23,15 @@ import pytest
 import yaml
 
 import ilcc_graph.io.files as io_files
-from ilcc_graph.cli import main
+from ilcc_graph.app import main
+from ilcc_graph.app.write import write_run
 from ilcc_graph.datasets import FolderSource, open_source
 from ilcc_graph.errors import InputError, OutputError
-from ilcc_graph.folders import MARKER
 from ilcc_graph.image import ImageOptions
 from ilcc_graph.io import list_frames, read_scan, write_calibration, write_pcd, write_ply
+from ilcc_graph.io.output_folders import MARKER, staged
 from ilcc_graph.io.scans import write_csv
 from ilcc_graph.observe import Observation
-from ilcc_graph.outputs import staged, write_run
 from ilcc_graph.pipeline import RunOptions, RunResult, SessionResult
 from ilcc_graph.types import Calibration, FrameResult
 
@@ -320,7 +320,7 @@ def test_two_writers_racing_for_one_folder_leave_one_complete_result(tmp_path):
 _WRITER = """
 import sys, time
 from pathlib import Path
-from ilcc_graph.outputs import staged
+from ilcc_graph.io.output_folders import staged
 out, who, go = Path(sys.argv[1]), sys.argv[2], Path(sys.argv[3])
 with staged(out) as d:
     for i in range(50):

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from ilcc_graph.cli import main
+from ilcc_graph.app import main
 from ilcc_graph.workers import processes_where
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
@@ -42,7 +42,7 @@ class Run:
     def __init__(self, data: Path, out: Path, ignore_sigint: bool = False, report: bool = False) -> None:
         self.out = out
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
-        cmd = [sys.executable, "-m", "ilcc_graph.cli", "-v", "calibrate", str(data), "--out", str(out)]
+        cmd = [sys.executable, "-m", "ilcc_graph.app", "-v", "calibrate", str(data), "--out", str(out)]
         pre = (lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if ignore_sigint else None
         cmd += ["--jobs", "2", *([] if report else ["--no-report"])]
         self.p = subprocess.Popen(

@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 import ilcc_graph.datasets.folder
-from ilcc_graph.cli import main
+from ilcc_graph.app import main
 from ilcc_graph.errors import InputError
 from ilcc_graph.io import read_image
 from ilcc_graph.io.images import MAX_PIXELS, image_size

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import yaml
 
-from ilcc_graph.cli import main
+from ilcc_graph.app import main
 from ilcc_graph.config import load_config
 from ilcc_graph.errors import CornersNotFound
 from ilcc_graph.image import ImageOptions, detect_corners

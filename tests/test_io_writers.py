@@ -19,7 +19,7 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ilcc_graph.cli import main
+from ilcc_graph.app import main
 from ilcc_graph.errors import InputError
 from ilcc_graph.io import PCD_STYLES, read_calibration, read_scan, write_pcd
 from ilcc_graph.io.lzf import lzf_compress

@@ -181,7 +181,7 @@ def test_compare_estimates_is_consistent_for_independent_draws() -> None:
 def test_summary_and_terminal_report_of_a_moved_mount() -> None:
     import yaml
 
-    from ilcc_graph.outputs import joint_summary
+    from ilcc_graph.app.write import joint_summary
     from ilcc_graph.report.text import format_joint
 
     rng = np.random.default_rng(11)

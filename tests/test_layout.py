@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ast
 import importlib.util
 from pathlib import Path
 
@@ -31,3 +32,30 @@ def test_no_module_is_oversized() -> None:
         if (n := len((ROOT / p).read_text(encoding="utf-8").splitlines())) > MAX_LINES
     }
     assert not big, f"modules over {MAX_LINES} lines: {big}"
+
+
+def _imported(path: Path) -> set[str]:
+    """Every module ``path`` (a module of ilcc_graph) imports, relative imports resolved, with
+    ``from a import b`` counted as ``a`` and ``a.b``."""
+    rel = path.relative_to(ROOT)
+    package = list(rel.parts[:-1])
+    got: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            got.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = package[: len(package) - node.level + 1] if node.level else []
+            module = ".".join([*base, *([node.module] if node.module else [])])
+            got.add(module)
+            got.update(f"{module}.{a.name}" for a in node.names)
+    return got
+
+
+def test_nothing_below_the_command_line_imports_it() -> None:
+    """Imports point one way (docs/architecture.md): ``ilcc_graph.app`` is the top floor."""
+    below = [p for p in sorted((ROOT / "ilcc_graph").rglob("*.py")) if p.relative_to(ROOT).parts[1] != "app"]
+    wrong = {}
+    for p in below:
+        if found := sorted(m for m in _imported(p) if (m + ".").startswith("ilcc_graph.app.")):
+            wrong[p.relative_to(ROOT).as_posix()] = found
+    assert len(below) > 100 and not wrong, f"modules below app/ that import it: {wrong}"

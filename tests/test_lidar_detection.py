@@ -82,13 +82,36 @@ def test_frame_without_board_raises_with_a_reason() -> None:
         estimate_board(empty, BOARD, HDL32)
 
 
-def test_plain_board_sized_plate_is_not_the_chessboard() -> None:
-    scan, T = synth_scan(BOARD, HDL32, SynthScene(distance=2.0, wall_gap=None), np.random.default_rng(0))
+def _in_plane_error(fit, T: np.ndarray, board: Board) -> np.ndarray:  # noqa: ANN001
+    """(rz, tx, ty) of the fit against the truth T (the nearer of T and its half turn), tangent of the fit."""
+    import gtsam
+
+    errs = [
+        gtsam.Pose3.Logmap(gtsam.Pose3(fit.T_lidar_board).between(gtsam.Pose3(Tt)))[[2, 3, 4]]
+        for Tt in (T, T @ board.T_half_turn())
+    ]
+    return min(errs, key=lambda e: np.linalg.norm(e[1:]))
+
+
+def test_plain_board_sized_plate_is_placed_by_its_outline() -> None:
+    """No print in the intensities: the board-sized plate is the board, placed by its outline (its half
+    turn unknown), within its covariance; a plate of another size is refused by its outline."""
+    scan, T = synth_scan(BOARD, HDL32, SynthScene(distance=2.0, in_plane_deg=30), np.random.default_rng(0))
     on = _board_mask(scan, T, BOARD)
     inten = scan.intensity.copy()
     inten[on] = 40.0 + np.random.default_rng(1).normal(0, 2.0, on.sum())  # no print
-    with pytest.raises(BoardNotFound, match="contrast"):
-        estimate_board(Scan(scan.points, inten, scan.ring), BOARD, HDL32)
+    fit = estimate_board(Scan(scan.points, inten, scan.ring), BOARD, HDL32)
+    assert fit.diagnostics["no_contrast"] == 1.0 and fit.half_turn_ambiguous
+    assert fit.diagnostics["intensity_unusable"] == 0.0  # the scan's intensity is fine, the board shows none
+    e = _in_plane_error(fit, T, BOARD)
+    C = fit.covariance[np.ix_([2, 3, 4], [2, 3, 4])]
+    assert float(e @ np.linalg.solve(C, e)) < 16.3, (e, np.sqrt(np.diag(C)))  # chi2(3) at 0.999
+    assert np.sqrt(C[1, 1]) < 0.005 and np.sqrt(C[2, 2]) < 0.005  # a few mm from HDL-32 rings at 2 m
+    # the same scan, the config's board 20 % larger than the plate: the rays passing beside the plate
+    # cross where that board would be (the plate passes the board tests, its outline does not)
+    large = Board(6, 8, 0.075 * 1.2)
+    with pytest.raises(BoardNotFound, match="outline is not the board's"):
+        estimate_board(Scan(scan.points, inten, scan.ring), large, HDL32)
 
 
 def test_region_of_interest_narrows_the_search() -> None:
@@ -108,12 +131,23 @@ def test_roi_mask_wraps_and_limits() -> None:
     assert roi_mask(p, None).all()
 
 
-def test_scan_without_usable_intensity_is_an_input_error() -> None:
-    scan, _ = synth_scan(BOARD, HDL32, SynthScene(distance=2.0), np.random.default_rng(0))
-    with pytest.raises(InputError, match="intensity"):
-        estimate_board(Scan(scan.points, np.zeros(len(scan)), scan.ring, source="x.pcd"), BOARD, HDL32)
-    with pytest.raises(InputError, match="intensity"):
-        estimate_board(Scan(scan.points, None, scan.ring), BOARD, HDL32)  # type: ignore[arg-type]
+@pytest.mark.parametrize(
+    "what, code", [("zeros", 3.0), ("none", 1.0), ("nan", 2.0), ("ring", 4.0), ("elevation", 4.0)]
+)
+def test_scan_without_usable_intensity_is_placed_by_its_outline(what: str, code: float) -> None:
+    """An intensity field that cannot show a print (absent, constant, not finite, the ring number, the
+    elevation) is said once per scan (``intensity_unusable``) and the board is placed by its outline;
+    an intensity of the wrong length is still an InputError."""
+    scan, T = synth_scan(BOARD, HDL32, SynthScene(distance=2.0, in_plane_deg=40), np.random.default_rng(0))
+    el = np.arctan2(scan.points[:, 2], np.hypot(scan.points[:, 0], scan.points[:, 1]))
+    inten = {"zeros": np.zeros(len(scan)), "none": None, "nan": np.full(len(scan), np.nan),
+             "ring": scan.ring.astype(float), "elevation": 100.0 + 3.0 * el}[what]  # fmt: skip
+    fit = estimate_board(Scan(scan.points, inten, scan.ring, source="x.pcd"), BOARD, HDL32)
+    assert fit.diagnostics["intensity_unusable"] == code and fit.diagnostics["no_contrast"] == 1.0
+    e = _in_plane_error(fit, T, BOARD)
+    C = fit.covariance[np.ix_([2, 3, 4], [2, 3, 4])]
+    assert float(e @ np.linalg.solve(C, e)) < 16.3
+    assert np.all(fit.returns.dark == 0.0)  # no print: no return is taken for black
     with pytest.raises(InputError, match="shape"):
         estimate_board(Scan(scan.points, scan.intensity[:10], scan.ring), BOARD, HDL32)
 

@@ -221,7 +221,7 @@ def test_calibrate_with_lidar_errors_writes_terms_refined_corners_and_exports_th
     """End to end: ``calibrate --lidar-errors`` on a simulated set, then ``export --format lidar-offsets``."""
     import yaml
 
-    from ilcc_graph.cli import main
+    from ilcc_graph.app import main
 
     data, out = tmp_path / "data", tmp_path / "out"
     assert main(["simulate", str(data), "--frames", "6", "--seed", "2", "--width", "1600"]) == 0

@@ -11,11 +11,11 @@ import cv2
 import numpy as np
 import pytest
 
-from ilcc_graph.cli import main
+from ilcc_graph.app import main
+from ilcc_graph.app.check_view import format_verdict
 from ilcc_graph.datasets.watch import GrowingFolder
 from ilcc_graph.io import read_yaml
 from ilcc_graph.live import CheckOptions, run_check
-from ilcc_graph.live_command import format_verdict
 from ilcc_graph.simulate import simulate_dataset, standard_spec
 
 

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 import yaml
 
-from ilcc_graph.cli import main
+from ilcc_graph.app import main
+from ilcc_graph.app.write import write_run
 from ilcc_graph.datasets import FolderSource
 from ilcc_graph.estimation.sessions import JointOptions
 from ilcc_graph.observe import observe
-from ilcc_graph.outputs import write_run
 from ilcc_graph.pipeline import RunOptions, run, solve_observations
 from ilcc_graph.simulate import simulate_dataset, standard_spec
 

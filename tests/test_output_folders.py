@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from ilcc_graph.cli import main
-from ilcc_graph.folders import MARKER
+from ilcc_graph.app import main
+from ilcc_graph.io.output_folders import MARKER
 
 
 @pytest.fixture(scope="module")
@@ -55,8 +55,8 @@ def snapshot(folder: Path) -> dict[str, tuple]:
 @pytest.fixture
 def no_work(monkeypatch):
     """Every command's work raises: a refusal must come before it."""
+    import ilcc_graph.app.check_view
     import ilcc_graph.evaluation
-    import ilcc_graph.live_command
     import ilcc_graph.observe
     import ilcc_graph.pipeline
     import ilcc_graph.simulate.export
@@ -66,7 +66,7 @@ def no_work(monkeypatch):
 
     monkeypatch.setattr(ilcc_graph.pipeline, "run", started)
     monkeypatch.setattr(ilcc_graph.observe, "stage_alone", started)
-    monkeypatch.setattr(ilcc_graph.live_command, "check_command", started)
+    monkeypatch.setattr(ilcc_graph.app.check_view, "check_command", started)
     monkeypatch.setattr(ilcc_graph.evaluation, "evaluate_on", started)
     monkeypatch.setattr(ilcc_graph.simulate.export, "simulate_frames", started)
 
@@ -289,7 +289,7 @@ cd {work}
 @pytest.mark.parametrize("mask", [0o022, 0o027], ids=["umask022", "umask027"])
 def test_outputs_follow_the_umask(tmp_path, mask):
     """Every file and folder the commands write has the mode the umask gives (0644 / 0755 for 022)."""
-    cli = f"{sys.executable} -m ilcc_graph.cli"
+    cli = f"{sys.executable} -m ilcc_graph.app"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     script = _UMASK_RUN.format(mask=mask, work=tmp_path, cli=cli)
     done = subprocess.run(["bash", "-c", script], env=env, timeout=600, capture_output=True, text=True)

@@ -9,7 +9,7 @@ import pytest
 import yaml
 from test_lidar_errors import CAMERA, T_TRUE, lidar_frames, nees
 
-from ilcc_graph.cli import main
+from ilcc_graph.app import main
 from ilcc_graph.estimation import NoiseOptions, solve, solve_problem
 from ilcc_graph.estimation.held_out import held_out
 from ilcc_graph.estimation.keys import X

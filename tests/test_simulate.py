@@ -8,7 +8,7 @@ import pytest
 
 from ilcc_graph.board import Board
 from ilcc_graph.errors import OutputError
-from ilcc_graph.folders import MARKER
+from ilcc_graph.io.output_folders import MARKER
 from ilcc_graph.simulate import (
     ImageOptions,
     SimulationSpec,

@@ -111,7 +111,7 @@ def test_images_follow_the_truth_and_config_the_perturbed_camera(tmp_path) -> No
 
 
 def test_cli_simulate_states_the_error(tmp_path) -> None:
-    from ilcc_graph.cli import main
+    from ilcc_graph.app import main
 
     out = tmp_path / "sim"
     argv = ["simulate", str(out), "--camera", "pinhole", "--width", "320", "--frames", "1"]

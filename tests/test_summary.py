@@ -138,10 +138,10 @@ def run(simulated, tmp_path_factory) -> tuple[Path, list[str] | None]:
     argv = ["calibrate", "data", "--out", "out", "--jobs", "1", "--studies"]
     if shutil.which("tmux") is None:
         subprocess.run(
-            [sys.executable, "-m", "ilcc_graph.cli", *argv], cwd=cwd, check=True, capture_output=True
+            [sys.executable, "-m", "ilcc_graph.app", *argv], cwd=cwd, check=True, capture_output=True
         )
         return cwd, None
-    return cwd, _tmux(cwd, " ".join(shlex.quote(a) for a in [sys.executable, "-m", "ilcc_graph.cli", *argv]))
+    return cwd, _tmux(cwd, " ".join(shlex.quote(a) for a in [sys.executable, "-m", "ilcc_graph.app", *argv]))
 
 
 def test_the_summary_in_an_80_column_terminal(run):

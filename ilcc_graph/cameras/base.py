@@ -33,7 +33,11 @@ import numpy as np
 from ..checks import Checker
 from .common import as_points, axes_text, check_intrinsics_sigma, check_K, check_size
 
-__all__ = ["R_FLU_OPENCV", "CameraModel", "LensModel"]
+__all__ = ["R_FLU_OPENCV", "CameraModel", "LensModel", "Normalised"]
+
+#: What a lens model's ``_normalised`` gives: xd, yd, ok (N,), then d (xd, yd) / d p (N, 2, 3) and
+#: d (xd, yd) / d params (N, 2, m), each None unless asked for.
+Normalised = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]
 
 #: OpenCV's camera axes (x right, y down, z forward) in a forward-left-up frame: the columns are
 #: the camera's x, y, z axes. ``R_FLU_OPENCV.T`` is the nominal ``R_cam_lidar`` of a lens camera
@@ -75,6 +79,13 @@ class CameraModel(ABC):
     def _bearing(self, uv: np.ndarray) -> np.ndarray:
         """uv (N, 2) -> unit bearings (N, 3); NaN where no ray maps to the pixel."""
 
+    def _project_jac(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``_project`` with its Jacobian: uv (N, 2) and d uv / d p (N, 2, 3)."""
+        uv, J = self._project(p, True)
+        if J is None:
+            raise TypeError(f"{type(self).__name__}._project gave no Jacobian with jac=True")
+        return uv, J
+
     def project(self, p_cam: np.ndarray) -> np.ndarray:
         """Pixels (..., 2) of camera-frame points (..., 3); NaN where the point cannot be imaged."""
         p, lead = as_points(p_cam, 3, "p_cam")
@@ -87,12 +98,12 @@ class CameraModel(ABC):
         projection is scale invariant). NaN where ``project`` is NaN.
         """
         p, lead = as_points(p_cam, 3, "p_cam")
-        return self._project(p, True)[1].reshape(*lead, 2, 3)
+        return self._project_jac(p)[1].reshape(*lead, 2, 3)
 
     def project_with_jacobian(self, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(uv (..., 2), d uv / d p (..., 2, 3)) in one pass."""
         p, lead = as_points(p_cam, 3, "p_cam")
-        uv, J = self._project(p, True)
+        uv, J = self._project_jac(p)
         return uv.reshape(*lead, 2), J.reshape(*lead, 2, 3)
 
     def bearing(self, uv: np.ndarray) -> np.ndarray:
@@ -141,8 +152,8 @@ class CameraModel(ABC):
         return uv.reshape(*lead, 2), J.reshape(*lead, 2, 3), J_t.reshape(*lead, 2, J_t.shape[-1])
 
     def _project_intrinsics(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        uv, J = self._project(p, True)
-        return uv, J, np.zeros((len(p), 2, 0))  # type: ignore[return-value]
+        uv, J = self._project_jac(p)
+        return uv, J, np.zeros((len(p), 2, 0))
 
     def _check_intrinsics_sigma(self) -> None:
         """Coerce ``intrinsics_sigma`` (call at the end of ``__post_init__``, once the names are known)."""
@@ -172,7 +183,7 @@ class CameraModel(ABC):
                 f"bearing_tangent_cov: b, cov_px, basis must have the same N, got "
                 f"{len(b)}, {len(cov_px)}, {len(basis)}"
             )
-        Jt = self._project(b, True)[1] @ basis
+        Jt = self._project_jac(b)[1] @ basis
         det = Jt[:, 0, 0] * Jt[:, 1, 1] - Jt[:, 0, 1] * Jt[:, 1, 0]
         inv = np.empty_like(Jt)
         inv[:, 0, 0], inv[:, 1, 1] = Jt[:, 1, 1], Jt[:, 0, 0]
@@ -261,7 +272,7 @@ class CameraModel(ABC):
         """A camera of this kind with plausible intrinsics (the simulator's default), ``width`` px wide."""
 
     def __eq__(self, other: object) -> bool:
-        return type(other) is type(self) and self.to_dict() == other.to_dict()  # type: ignore[union-attr]
+        return type(other) is type(self) and self.to_dict() == other.to_dict()
 
     def __hash__(self) -> int:
         return hash(repr(self.to_dict()))
@@ -318,9 +329,7 @@ class LensModel(CameraModel):
 
     # -- what each lens file gives: its coordinates before K and its own parameters
     @abstractmethod
-    def _normalised(
-        self, p: np.ndarray, jac: bool, jac_params: bool
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool) -> Normalised:
         """p (N, 3) -> (xd, yd, ok, d (xd, yd) / d p (N, 2, 3) when ``jac``, d (xd, yd) / d params
         (N, 2, m) when ``jac_params``); ``ok`` (N,) False where the model cannot image the point."""
 
@@ -344,16 +353,20 @@ class LensModel(CameraModel):
         uv[~ok] = np.nan
         if not jac:
             return uv, None
+        if D_p is None:
+            raise TypeError(f"{type(self).__name__}._normalised gave no Jacobian with jac=True")
         J = self._chain_K(D_p)
         J[~ok] = np.nan
         return uv, J
 
     def _project_intrinsics(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         xd, yd, ok, D_p, D_q = self._normalised(p, True, True)
+        if D_p is None or D_q is None:
+            raise TypeError(f"{type(self).__name__}._normalised gave no Jacobians with jac, jac_params")
         with np.errstate(over="ignore", invalid="ignore"):
             uv = self._to_pixels(xd, yd)
         J = self._chain_K(D_p)
-        J_t = np.zeros((len(p), 2, 4 + D_q.shape[2]))  # type: ignore[union-attr]
+        J_t = np.zeros((len(p), 2, 4 + D_q.shape[2]))
         J_t[:, 0, 0], J_t[:, 1, 1] = xd, yd  # u = fx xd + s yd + cx, v = fy yd + cy
         J_t[:, 0, 2] = J_t[:, 1, 3] = 1.0
         J_t[:, :, 4:] = self._chain_K(D_q)

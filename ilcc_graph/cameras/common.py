@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -48,7 +49,9 @@ def finite_vector(v: Any, what: str) -> np.ndarray:
     return d
 
 
-def solve_increasing(f, target: np.ndarray, hi: float, iters: int = 100) -> np.ndarray:
+def solve_increasing(
+    f: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], target: np.ndarray, hi: float, iters: int = 100
+) -> np.ndarray:
     """Solve f(x) = target for x in [0, hi], f increasing there with f(0) = 0; safeguarded Newton.
 
     ``f(x) -> (value, derivative)``. Targets outside [0, f(hi)] must be masked by the caller.
@@ -72,7 +75,7 @@ def solve_increasing(f, target: np.ndarray, hi: float, iters: int = 100) -> np.n
     return x
 
 
-def first_fold(dfdx, hi: float, n: int = 20001) -> float:
+def first_fold(dfdx: Callable[[np.ndarray], np.ndarray], hi: float, n: int = 20001) -> float:
     """Smallest x in (0, hi) where dfdx(x) <= 0 (bisection-refined), or ``hi`` when there is none."""
     xs = np.linspace(0.0, hi, n)
     bad = ~(dfdx(xs) > 0)
@@ -89,8 +92,9 @@ def first_fold(dfdx, hi: float, n: int = 20001) -> float:
     return float(lo)
 
 
-def config_K(c: Checker, v: Any, key: str) -> list[list[float]]:
-    """A config value for K: 3x3 nested or 9 numbers row-major, [[fx, s, cx], [0, fy, cy], [0, 0, 1]]."""
+def config_K(c: Checker, v: Any, key: str) -> np.ndarray:
+    """A config value for K: 3x3 nested or 9 numbers row-major, [[fx, s, cx], [0, fy, cy], [0, 0, 1]];
+    (3, 3) float64."""
     if isinstance(v, (list, tuple)) and len(v) == 9 and not any(isinstance(x, (list, tuple)) for x in v):
         v = [list(v[0:3]), list(v[3:6]), list(v[6:9])]
     if not (
@@ -102,18 +106,18 @@ def config_K(c: Checker, v: Any, key: str) -> list[list[float]]:
     K = [c.numbers(r, f"{key}[{i}]", 3) for i, r in enumerate(v)]
     if not (K[0][0] > 0 and K[1][1] > 0 and K[1][0] == 0 and K[2] == [0.0, 0.0, 1.0]):
         raise c.fail(key, v, "[[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
-    return K
+    return np.array(K, dtype=np.float64)
 
 
-def config_dist(c: Checker, d: dict, lengths: tuple[int, ...], missing: list[float]) -> list[float]:
-    """The ``dist`` key of a camera section: ``missing`` when absent, [] when empty, else numbers of
-    one of ``lengths``."""
+def config_dist(c: Checker, d: dict, lengths: tuple[int, ...], missing: list[float]) -> np.ndarray:
+    """The ``dist`` key of a camera section as float64 (n,): ``missing`` when absent, empty when
+    empty, else numbers of one of ``lengths``."""
     dist = d.get("dist")
     if dist is None:
-        return list(missing)
+        return np.array(missing, dtype=np.float64)
     if isinstance(dist, (list, tuple)) and len(dist) == 0:
-        return []
-    return c.numbers(dist, "camera.dist", lengths)
+        return np.zeros(0)
+    return np.array(c.numbers(dist, "camera.dist", lengths), dtype=np.float64)
 
 
 def axes_text(R_flu_cam: np.ndarray) -> str:

@@ -30,7 +30,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..checks import MISSING, Checker
-from .base import R_FLU_OPENCV, LensModel
+from .base import R_FLU_OPENCV, LensModel, Normalised
 from .common import config_K
 from .registry import register
 
@@ -87,7 +87,7 @@ class DoubleSphere(LensModel):
     def _with_params(self, K: np.ndarray, q: np.ndarray) -> DoubleSphere:
         return replace(self, K=K, xi=float(q[0]), alpha=float(q[1]))
 
-    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool):
+    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool) -> Normalised:
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         a, xi = self.alpha, self.xi
         d1 = np.sqrt(x * x + y * y + z * z)

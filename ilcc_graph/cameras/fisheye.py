@@ -12,7 +12,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..checks import MISSING, Checker
-from .base import R_FLU_OPENCV, LensModel
+from .base import R_FLU_OPENCV, LensModel, Normalised
 from .common import config_dist, config_K, finite_vector, first_fold, solve_increasing
 from .registry import register
 
@@ -65,7 +65,7 @@ class Fisheye(LensModel):
     def _with_params(self, K: np.ndarray, q: np.ndarray) -> Fisheye:
         return replace(self, K=K, dist=q)
 
-    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool):
+    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool) -> Normalised:
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         rho2 = x * x + y * y
         rho = np.sqrt(rho2)

@@ -9,12 +9,12 @@ with other models that apply it to their own normalised coordinates.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal, overload
 
 import numpy as np
 
 from ..checks import MISSING, Checker
-from .base import R_FLU_OPENCV, LensModel
+from .base import R_FLU_OPENCV, LensModel, Normalised
 from .common import config_dist, config_K, finite_vector, first_fold, solve_increasing
 from .registry import register
 
@@ -66,7 +66,17 @@ class RadTan:
         with np.errstate(divide="ignore", invalid="ignore"):
             return num / den, (dnum * den - num * dden) / (den * den), den
 
-    def distort(self, a: np.ndarray, b: np.ndarray, jac: bool):
+    @overload
+    def distort(
+        self, a: np.ndarray, b: np.ndarray, jac: Literal[True]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+    @overload
+    def distort(
+        self, a: np.ndarray, b: np.ndarray, jac: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]: ...
+    def distort(
+        self, a: np.ndarray, b: np.ndarray, jac: bool
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Normalised (a, b) -> distorted (xd, yd) and d(xd, yd)/d(a, b) (N, 2, 2) when ``jac``."""
         p1, p2 = self.d8[2], self.d8[3]
         r2 = a * a + b * b
@@ -179,7 +189,7 @@ class Pinhole(LensModel):
     config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "dist", "intrinsics_sigma")
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
     r_max: float = field(init=False, repr=False, default=np.inf)
-    _rt: RadTan = field(init=False, repr=False, default=None)  # type: ignore[assignment]
+    _rt: RadTan = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._check_lens()
@@ -208,7 +218,7 @@ class Pinhole(LensModel):
     def _with_params(self, K: np.ndarray, q: np.ndarray) -> Pinhole:
         return replace(self, K=K, dist=q)
 
-    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool):
+    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool) -> Normalised:
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             iz = np.where(z > 0, 1.0 / z, np.nan)
@@ -216,7 +226,7 @@ class Pinhole(LensModel):
         ok = (z > 0) & (a * a + b * b < self.r_max**2)
         xd, yd, D = self._rt.distort(a, b, jac)
         D_p = D_q = None
-        if jac:
+        if D is not None:  # jac
             dab = np.zeros((p.shape[0], 2, 3))
             dab[:, 0, 0] = dab[:, 1, 1] = iz
             dab[:, 0, 2] = -a * iz

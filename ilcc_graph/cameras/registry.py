@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -23,12 +24,13 @@ __all__ = [
 
 
 _REGISTRY: dict[str, type[CameraModel]] = {}
+_Model = TypeVar("_Model", bound=type[CameraModel])
 
 
-def register(kind: str):
+def register(kind: str) -> Callable[[_Model], _Model]:
     """Class decorator: make a ``CameraModel`` subclass the model of ``camera.model: <kind>``."""
 
-    def add(cls: type[CameraModel]) -> type[CameraModel]:
+    def add(cls: _Model) -> _Model:
         if kind in _REGISTRY:
             raise ValueError(f"camera kind {kind!r} is already {_REGISTRY[kind].__name__}'s")
         R = np.array(getattr(cls, "R_flu_cam", None), dtype=np.float64)

@@ -24,7 +24,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..checks import MISSING, Checker
-from .base import R_FLU_OPENCV, LensModel
+from .base import R_FLU_OPENCV, LensModel, Normalised
 from .common import config_dist, config_K, finite_vector
 from .pinhole import DIST_NAMES, RadTan
 from .registry import register
@@ -45,7 +45,7 @@ class Unified(LensModel):
     xi: float = 0.0
     dist: np.ndarray = field(default_factory=lambda: np.zeros(4))
     r_max: float = field(init=False, repr=False, default=np.inf)
-    _rt: RadTan = field(init=False, repr=False, default=None)  # type: ignore[assignment]
+    _rt: RadTan = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         self._check_lens()
@@ -79,7 +79,7 @@ class Unified(LensModel):
     def _with_params(self, K: np.ndarray, q: np.ndarray) -> Unified:
         return replace(self, K=K, xi=float(q[0]), dist=q[1:])
 
-    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool):
+    def _normalised(self, p: np.ndarray, jac: bool, jac_params: bool) -> Normalised:
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         xi = self.xi
         d = np.sqrt(x * x + y * y + z * z)
@@ -90,6 +90,8 @@ class Unified(LensModel):
         ok &= a * a + b * b < self.r_max**2
         with np.errstate(over="ignore", invalid="ignore"):
             xd, yd, D = self._rt.distort(a, b, jac or jac_params)
+        if D is None:  # no Jacobian asked for
+            return xd, yd, ok, None, None
         D_q = None
         if jac_params:  # d (a, b) / d xi = -(a, b) |p| / den, then through the distortion
             D_q = np.empty((len(p), 2, 5))

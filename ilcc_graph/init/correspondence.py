@@ -107,7 +107,15 @@ class OrderResult:
     errors_mrad: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
-def _check_inputs(lidar_corners, bearings, perm, names, flippable):
+def _check_inputs(
+    lidar_corners: Sequence[np.ndarray],
+    bearings: Sequence[np.ndarray],
+    perm: np.ndarray | None,
+    names: list[str],
+    flippable: Sequence[bool] | None,
+) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray | None, list[bool]]:
+    """The inputs checked (ValueError saying what is wrong): corners and unit bearings per frame as
+    float64, ``perm`` as int64, and per frame whether its order may be flipped."""
     n = len(names)
     if len(lidar_corners) != n or len(bearings) != n:
         raise ValueError(
@@ -226,11 +234,11 @@ def resolve_half_turns(
     for h in hyps:
         if len(pairs) >= options.max_pair_fits:
             break
-        partners = [b for b in np.flatnonzero(h.support) if b != h.anchor]
+        partners = [int(b) for b in np.flatnonzero(h.support) if b != h.anchor]
         partners.sort(key=lambda b: h.distance[b])
         for b in partners[: options.partners_per_hypothesis]:
             for ob in (0, 1) if h.undecided[b] else (int(h.orders[b]),):
-                key = (h.anchor, int(h.orders[h.anchor]), int(b), ob)
+                key = (h.anchor, int(h.orders[h.anchor]), b, ob)
                 if key not in pairs and (key[2], key[3], key[0], key[1]) not in pairs:
                     pairs.append(key)
     pairs = pairs[: options.max_pair_fits]

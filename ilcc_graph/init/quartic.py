@@ -28,12 +28,17 @@ def _rotation_quadrics() -> np.ndarray:
     for k, (a, b, c, d) in {0: (1, 1, -1, -1), 4: (1, -1, 1, -1), 8: (1, -1, -1, 1)}.items():
         for idx, coef in zip((w, x, y, z), (a, b, c, d), strict=True):
             put(k, idx, idx, coef)
-    put(1, x, y, 2.0), put(1, w, z, -2.0)  # R01 = 2(xy - wz)
-    put(2, x, z, 2.0), put(2, w, y, 2.0)  # R02 = 2(xz + wy)
-    put(3, x, y, 2.0), put(3, w, z, 2.0)  # R10 = 2(xy + wz)
-    put(5, y, z, 2.0), put(5, w, x, -2.0)  # R12 = 2(yz - wx)
-    put(6, x, z, 2.0), put(6, w, y, -2.0)  # R20 = 2(xz - wy)
-    put(7, y, z, 2.0), put(7, w, x, 2.0)  # R21 = 2(yz + wx)
+    off_diagonal = [
+        (1, (x, y, 2.0), (w, z, -2.0)),  # R01 = 2(xy - wz)
+        (2, (x, z, 2.0), (w, y, 2.0)),  # R02 = 2(xz + wy)
+        (3, (x, y, 2.0), (w, z, 2.0)),  # R10 = 2(xy + wz)
+        (5, (y, z, 2.0), (w, x, -2.0)),  # R12 = 2(yz - wx)
+        (6, (x, z, 2.0), (w, y, -2.0)),  # R20 = 2(xz - wy)
+        (7, (y, z, 2.0), (w, x, 2.0)),  # R21 = 2(yz + wx)
+    ]
+    for k, *terms in off_diagonal:
+        for i, j, value in terms:
+            put(k, i, j, value)
     return A
 
 
@@ -106,7 +111,7 @@ def _parity(p: tuple[int, ...]) -> int:
     return inv % 2
 
 
-def _eval(T64: np.ndarray, Q: np.ndarray):
+def _eval(T64: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Batched f, Euclidean gradient/4 and Hessian/12 of the quartic at rows of Q (K, 4)."""
     X2 = ((Q @ T64.T).reshape(-1, 16, 4) @ Q[:, :, None]).reshape(-1, 4, 4)  # T q q  (Hessian / 12)
     X3 = (X2 @ Q[:, :, None])[:, :, 0]  # T q q q (gradient / 4)
@@ -124,7 +129,7 @@ _LQ = np.stack([_left_matrix(np.eye(4)[a][None])[0] for a in range(4)]).reshape(
 _STEPS = np.array([1.0, 0.5, 0.25, 0.1, 0.02])
 
 
-def _riemannian(T64: np.ndarray, Q: np.ndarray):
+def _riemannian(T64: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """f, tangent basis B (K,4,3), Riemannian gradient (K,3) and Hessian (K,3,3) at unit rows of Q."""
     f, g4, h12 = _eval(T64, Q)
     B = (Q @ _LQ).reshape(-1, 4, 4)[:, :, 1:]  # orthonormal tangent basis q * e_x, q * e_y, q * e_z

@@ -61,7 +61,11 @@ class UpnpSolution:
         return self.T_cam_points
 
 
-def _check(points: np.ndarray, bearings: np.ndarray, weights, origins):
+def _check(
+    points: np.ndarray, bearings: np.ndarray, weights: np.ndarray | None, origins: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    """The inputs checked and as float64: points P (N, 3), unit bearings F (N, 3), weights W (N,),
+    origins C (N, 3) or None; ValueError saying what is wrong."""
     P = np.asarray(points, dtype=np.float64)
     F = np.asarray(bearings, dtype=np.float64)
     if P.ndim != 2 or P.shape[1] != 3 or F.shape != P.shape:
@@ -235,7 +239,7 @@ def refine_angular(
     Bt = np.stack([b1, b2], axis=1)  # (N, 2, 3)
     sw = np.sqrt(W)
 
-    def residual(Tm):
+    def residual(Tm: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         X = P @ Tm[:3, :3].T + Tm[:3, 3]
         n = np.linalg.norm(X, axis=1)
         u = X / n[:, None]

@@ -13,6 +13,7 @@ See docs/lidar_stage.md.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -21,33 +22,59 @@ from ..board import Board
 from ..errors import BoardNotFound, InputError
 from ..lidars import LidarModel, beam_index, choose_model, measure_beams
 from ..types import BoardFit, ExpectedBoard, Scan
+from .board_tests import print_visible
 from .choice import candidate_order, expected_mask, fit_score
 from .detection import Candidate, find_candidates
 from .options import LidarOptions
 from .pose import fit_board_points
 from .ringless import find_ringless_candidates, one_pseudo_beam, pseudo_rings
 
-__all__ = ["estimate_board", "LidarOptions", "check_intensity", "fit_board_points", "ExpectedBoard"]
+__all__ = [
+    "estimate_board",
+    "LidarOptions",
+    "check_intensity",
+    "fit_board_points",
+    "ExpectedBoard",
+    "INTENSITY_UNUSABLE",
+]
 
 
-def check_intensity(scan: Scan) -> None:
-    """Raise InputError when the scan has no usable reflectance intensity (absent, wrong size, constant)."""
-    src = scan.source or "scan"
+#: why a scan's intensity cannot show the print (``BoardFit.diagnostics["intensity_unusable"]``)
+INTENSITY_UNUSABLE = {
+    1.0: "the scans have no intensity field",
+    2.0: "the intensity field has no finite value",
+    3.0: "the intensity field holds one value everywhere",
+    4.0: "the intensity field follows the beams (the ring number or the elevation)",
+}
+
+
+def check_intensity(scan: Scan) -> float:
+    """Whether the scan's intensity can show a print: 0.0 when it may, else the key of the reason in
+    ``INTENSITY_UNUSABLE`` (absent, no finite value, constant, the ring number or the elevation).
+    InputError when it does not match the points (wrong length): a file that is wrong."""
     inten = scan.intensity
     if inten is None:
-        raise InputError(
-            f"{src}: the scan has no intensity field; the chessboard is found by its reflectance"
-        )
+        return 1.0
     inten = np.asarray(inten)
     if inten.shape != (len(scan),):
-        raise InputError(f"{src}: intensity has shape {inten.shape}, expected ({len(scan)},)")
-    fin = inten[np.isfinite(inten)]
-    if fin.size == 0 or float(fin.max()) == float(fin.min()):
-        value = "no finite value" if fin.size == 0 else f"every value is {float(fin[0]):g}"
         raise InputError(
-            f"{src}: the intensity field carries no information ({value}); the chessboard's squares "
-            "are told apart by reflectance intensity (check lidar.intensity_column for a CSV)"
+            f"{scan.source or 'scan'}: intensity has shape {inten.shape}, expected ({len(scan)},)"
         )
+    fin = np.isfinite(inten)
+    if not fin.any():
+        return 2.0
+    if float(inten[fin].max()) == float(inten[fin].min()):
+        return 3.0
+    pts = np.asarray(scan.points, dtype=np.float64)[fin]
+    el = np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1]))
+    for other in (el, None if scan.ring is None else np.asarray(scan.ring, np.float64)[fin]):
+        if (
+            other is not None
+            and np.ptp(other) > 0
+            and abs(float(np.corrcoef(inten[fin], other)[0, 1])) > 0.98
+        ):
+            return 4.0
+    return 0.0
 
 
 def _fit_candidate(
@@ -59,8 +86,11 @@ def _fit_candidate(
     model: LidarModel,
     options: LidarOptions,
     rng: np.random.Generator,
+    contrast: bool | None = None,
 ) -> BoardFit:
-    """The chessboard fitted to one candidate and the points around it (the pool)."""
+    """The chessboard fitted to one candidate and the points around it (the pool); every point of the
+    scan is the outline's evidence (rays that pass the board's plane). contrast: False without a
+    print to fit (the outline alone), None to judge from the candidate's intensities."""
     # the pool: every point near the board's plane and not farther from its centre than the board's size
     x0, x1, y0, y1 = board.extent()
     centre = pts[cand.indices].mean(axis=0)
@@ -71,8 +101,9 @@ def _fit_candidate(
     # a person or the stand); off-board returns in the pool cost their distance, as in the paper
     near[cand.indices] = True
     return fit_board_points(
-        pts[near], inten[near], cand.normal, cand.offset, board, model, options, rng, ring=ring[near]
-    )
+        pts[near], inten[near], cand.normal, cand.offset, board, model, options, rng, ring=ring[near],
+        scan_points=pts, contrast=contrast,
+    )  # fmt: skip
 
 
 def estimate_board(
@@ -98,22 +129,60 @@ def estimate_board(
     no segment passes the chessboard tests or no fit is good.
     """
     t0, c0 = time.perf_counter(), time.process_time()
-    check_intensity(scan)
+    unusable = check_intensity(scan)
     pts = np.asarray(scan.points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"{scan.source or 'scan'}: points must be (N, 3), got {pts.shape}")
-    valid = np.isfinite(pts).all(axis=1) & (pts != 0).any(
-        axis=1
-    )  # (0, 0, 0): an organised cloud's "no return"
+    inten = np.zeros(len(pts)) if scan.intensity is None else np.asarray(scan.intensity, np.float64)
+    valid = np.isfinite(pts).all(axis=1) & (pts != 0).any(axis=1)  # (0, 0, 0): an organised "no return"
     if not valid.all():
         ring_v = None if scan.ring is None else np.asarray(scan.ring)[valid]
-        scan = Scan(pts[valid], np.asarray(scan.intensity)[valid], ring_v, scan.source, scan.columns)
-        pts = scan.points
+        scan = Scan(pts[valid], inten[valid], ring_v, scan.source, scan.columns)
+        pts, inten = scan.points, inten[valid]
     if lidar_model is None:
         lidar_model = choose_model(measure_beams(scan), None, scan.source)[0]
     ring = pseudo_rings(pts) if lidar_model.ringless else beam_index(scan, lidar_model)  # no scanlines
+    inputs = (pts, np.nan_to_num(inten), ring, board, lidar_model, roi, expected)
+    found, why = None, ""
+    if not unusable:  # the print first: the paper's search with the contrast test
+        try:
+            found = _search(*inputs, options, True)
+        except BoardNotFound as e:
+            why = str(e)
+    if found is None:  # the board by its shape and size, fitted by its outline
+        try:  # (a candidate with a print was fitted by it above, or refused: its pattern is not a chessboard)
+            found = _search(
+                *inputs, replace(options, contrast_min=None), False, None if unusable else options
+            )
+        except BoardNotFound as e:
+            raise BoardNotFound(
+                f"{why}; by its shape alone: {e}" if why and str(e) != why else str(e)
+            ) from None
+    score, cand, fit, n_cands, n_fitted = found
+    fit = one_pseudo_beam(fit) if lidar_model.ringless else fit
+    t_all, c_all = time.perf_counter() - t0, time.process_time() - c0
+    fit.diagnostics.update(
+        {"time_total_s": t_all, "cpu_total_s": c_all,
+         "time_detect_s": t_all - fit.diagnostics["time_fit_s"],
+         "cpu_detect_s": c_all - fit.diagnostics["cpu_fit_s"],
+         "uniformity": cand.uniformity, "contrast": cand.contrast, "range_noise_m": cand.noise_sigma,
+         "candidates_tested": float(cand.tested), "candidates_passed": float(n_cands),
+         "candidates_fitted": float(n_fitted), "choice_score": score, "intensity_unusable": unusable}
+    )  # fmt: skip
+    return fit
+
+
+def _search(
+    pts: np.ndarray, inten: np.ndarray, ring: np.ndarray, board: Board, model: LidarModel, roi: Any | None,
+    expected: ExpectedBoard | None, options: LidarOptions, contrast: bool | None,
+    skip_printed: LidarOptions | None = None,
+) -> tuple[float, Candidate, BoardFit, int, int]:  # fmt: skip
+    """The candidates that pass the board tests, the chessboard fitted to the best few, the best fit:
+    (score, candidate, fit, candidates passed, candidates fitted); BoardNotFound with the reasons.
+    contrast: as ``fit_board_points`` takes it; an outline fit must score ``good_fit_score``.
+    skip_printed: candidates whose intensities show a print (``board_tests.print_visible`` with these
+    options' ``print_contrast_min``) are not fitted."""
     rng = np.random.default_rng(0)
-    inten = np.asarray(scan.intensity, np.float64)
     mask = None if expected is None else expected_mask(pts, board, expected)
     fits: list[tuple[float, Candidate, BoardFit]] = []
     refused: list[str] = []
@@ -125,27 +194,39 @@ def estimate_board(
             if budget[0] <= 0:
                 break
             budget[0] -= 1
+            if (
+                skip_printed is not None
+                and print_visible(
+                    inten[cand.indices],
+                    pts[cand.indices],
+                    skip_printed.print_contrast_min,
+                    ring[cand.indices],
+                )[0]
+            ):
+                refused.append("its intensities show a print that is not the chessboard")
+                continue
             try:
-                fit = _fit_candidate(cand, pts, inten, ring, board, lidar_model, options, rng)
+                fit = _fit_candidate(cand, pts, inten, ring, board, model, options, rng, contrast)
             except BoardNotFound as e:
                 refused.append(str(e))
                 continue
             score = fit_score(fit, board, expected)
+            # an outline fit must itself be good (its distance from the prediction only ranks it)
+            plain = fit.diagnostics.get("no_contrast")
             if not np.isfinite(score):
                 refused.append("the fitted board lies beyond the expected board's tolerances")
-            elif score < options.min_fit_score:
-                off = fit.cost / max(fit.diagnostics["n_points"], 1.0) / board.square_size
-                refused.append(
-                    f"a board-shaped object at {fit.diagnostics['range_m']:.2f} m, but the fitted chessboard "
-                    f"explains it poorly (colour agreement {fit.diagnostics['colour_agreement']:.0%}, "
-                    f"returns {off:.2f} squares off the pattern on average)"
-                )
+            elif (
+                (fit_score(fit, board, None) < options.good_fit_score)
+                if plain
+                else score < options.min_fit_score
+            ):
+                refused.append(_poor_fit(fit, board))
             else:
                 fits.append((score, cand, fit))
         return any(f[0] >= options.good_fit_score for f in fits) or budget[0] <= 0
 
-    find = find_ringless_candidates if lidar_model.ringless else find_candidates
-    cands = find(pts, ring, inten, board, lidar_model, roi, options, rng, mask, accept)
+    find = find_ringless_candidates if model.ringless else find_candidates
+    cands = find(pts, ring, inten, board, model, roi, options, rng, mask, accept)
     if not fits:
         raise BoardNotFound(
             refused[0]
@@ -153,14 +234,20 @@ def estimate_board(
             else f"{len(refused)} board-shaped candidates, none fits: " + "; ".join(refused[:3])
         )
     score, cand, fit = max(fits, key=lambda t: t[0])
-    fit = one_pseudo_beam(fit) if lidar_model.ringless else fit
-    t_all, c_all = time.perf_counter() - t0, time.process_time() - c0
-    fit.diagnostics.update(
-        {"time_total_s": t_all, "cpu_total_s": c_all,
-         "time_detect_s": t_all - fit.diagnostics["time_fit_s"],
-         "cpu_detect_s": c_all - fit.diagnostics["cpu_fit_s"],
-         "uniformity": cand.uniformity, "contrast": cand.contrast, "range_noise_m": cand.noise_sigma,
-         "candidates_tested": float(cand.tested), "candidates_passed": float(len(cands)),
-         "candidates_fitted": float(len(fits) + len(refused)), "choice_score": score}
-    )  # fmt: skip
-    return fit
+    return score, cand, fit, len(cands), len(fits) + len(refused)
+
+
+def _poor_fit(fit: BoardFit, board: Board) -> str:
+    """Why a fit scoring below ``min_fit_score`` is refused."""
+    d = fit.diagnostics
+    if d.get("no_contrast"):
+        return (
+            f"a board-sized object at {d['range_m']:.2f} m, but its outline explains only "
+            f"{d.get('shape_agreement', 0.0):.0%} of the returns and rays about it"
+        )
+    off = np.nan_to_num(fit.cost) / max(d["n_points"], 1.0) / board.square_size
+    return (
+        f"a board-shaped object at {d['range_m']:.2f} m, but the fitted chessboard explains it poorly "
+        f"(colour agreement {d['colour_agreement']:.0%}, returns {off:.2f} squares off the pattern on "
+        "average)"
+    )

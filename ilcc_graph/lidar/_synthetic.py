@@ -42,6 +42,7 @@ class SynthScene:
     # a board-sized panel facing the sensor at the board's distance and this azimuth, painted dark on
     # one half and bright on the other: it passes the paper's tests and the contrast test
     decoy_azimuth_deg: float | None = None
+    decoy_distance: float | None = None  # None: the board's distance
 
 
 def _rot(axis: np.ndarray, ang: float) -> np.ndarray:
@@ -164,7 +165,8 @@ def synth_scan(
         hits.append(_hit_box(u, lo, hi))
         levels.append(np.full(u.shape[0], 25.0))
     if sc.decoy_azimuth_deg is not None:
-        Td = board_pose(board, SynthScene(distance=sc.distance, azimuth_deg=sc.decoy_azimuth_deg))
+        d_decoy = sc.distance if sc.decoy_distance is None else sc.decoy_distance
+        Td = board_pose(board, SynthScene(distance=d_decoy, azimuth_deg=sc.decoy_azimuth_deg))
         t_d, loc_d = _hit_rect(u, Td, board.extent())
         hits.append(t_d)
         levels.append(np.where(loc_d[:, 0] < 0.5 * (x0 + x1), sc.black, sc.white))

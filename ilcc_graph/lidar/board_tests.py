@@ -11,7 +11,7 @@ from ..board import Board
 from ..lidars import LidarModel
 from .options import LidarOptions
 
-__all__ = ["board_tests", "intensity_contrast", "local_elevation_step"]
+__all__ = ["board_tests", "intensity_contrast", "local_elevation_step", "print_visible"]
 
 
 def local_elevation_step(model: LidarModel, elevation):  # noqa: ANN001, ANN202 - float or array
@@ -50,6 +50,40 @@ def intensity_contrast(intensity: np.ndarray) -> tuple[float, float]:
     pooled = np.sqrt((lo.var() * lo.size + hi.var() * hi.size) / m)
     spread = r[-1] - r[0]
     return float((hi.mean() - lo.mean()) / max(pooled, 1e-9 * spread)), float(min(lo.size, hi.size) / m)
+
+
+def print_visible(
+    intensity: np.ndarray, points: np.ndarray, contrast_min: float, ring: np.ndarray | None = None
+) -> tuple[bool, str]:
+    """Whether a board's returns (intensities (M,), points (M, 3) LiDAR frame, beam index (M,)) show
+    a two-tone print, and if not, why: Otsu's two levels at least ``contrast_min`` pooled sigmas apart
+    with both holding 10 % (``intensity_contrast``), and intensities that do not follow the beams
+    (the elevation: a ring number written as intensity; or each beam's own level: uneven per-laser
+    intensity calibration splits a plain board into "levels" by beam, a print splits every beam)."""
+    r = np.asarray(intensity, dtype=np.float64)
+    ok = np.isfinite(r)
+    if ok.sum() < 10:
+        return False, "no finite intensity on the board"
+    sep, frac = intensity_contrast(r[ok])
+    if sep < contrast_min or frac < 0.1:
+        return False, f"no black/white contrast in the intensity (d'={sep:.1f}, {frac:.0%})"
+    p = np.asarray(points, dtype=np.float64)[ok]
+    el = np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
+    if np.ptp(el) > 0:
+        corr = float(np.corrcoef(r[ok], el)[0, 1])
+        if abs(corr) > 0.9:
+            return (
+                False,
+                f"the intensity follows the beams' elevation (correlation {corr:+.2f}): no print in it",
+            )
+    if ring is not None:
+        _, g = np.unique(np.asarray(ring)[ok], return_inverse=True)
+        x = r[ok] - r[ok].mean()
+        n = np.bincount(g)
+        between = float((np.bincount(g, x) ** 2 / n).sum())
+        if between > 0.7 * float((x * x).sum()):
+            return False, "the intensity differs by beam, not across each beam: no print in it"
+    return True, ""
 
 
 def board_tests(
@@ -122,7 +156,7 @@ def board_tests(
             "uniformity",
             f"uneven ({uniformity:.2f}) {ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m",
         )
-    if intensity is not None:
+    if intensity is not None and options.contrast_min is not None:
         sep, frac = intensity_contrast(intensity)
         if sep < options.contrast_min or frac < 0.1:
             return (

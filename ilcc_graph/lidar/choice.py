@@ -74,10 +74,20 @@ def candidate_order(
 
 
 def fit_score(fit: BoardFit, board: Board, expected: ExpectedBoard | None) -> float:
-    """Higher is better: colour agreement less the cost per return in squares, less (with a
-    prediction) the distance and angle from it in tolerances, halved; -inf beyond the tolerances."""
+    """Higher is better: colour agreement less the cost per return in squares (without a print the
+    LiDAR shows: the share of samples the outline explains, scaled down when few rays pass beside
+    the board), less (with a prediction) the distance and angle from it in tolerances, halved; -inf
+    beyond the tolerances."""
     n = max(fit.diagnostics.get("n_points", 1.0), 1.0)
-    score = fit.diagnostics.get("colour_agreement", 0.0) - fit.cost / (n * board.square_size)
+    d = fit.diagnostics
+    if d.get("no_contrast"):  # no print to judge by: how well its outline is the board's, and how much
+        # of it the scan shows (rays passing beside it; a third of the samples or more: all of it)
+        share = d.get("shape_n_out", 0.0) / max(d.get("shape_n_in", 0.0) + d.get("shape_n_out", 0.0), 1.0)
+        score = d.get("shape_agreement", 0.0) * min(1.0, 3.0 * share)
+    else:
+        # (no cost when the pattern was moved to where the outline is: Powell's was at the slid pose)
+        cost = 0.0 if not np.isfinite(fit.cost) else fit.cost
+        score = d.get("colour_agreement", 0.0) - cost / (n * board.square_size)
     if expected is not None:
         T = fit.T_lidar_board
         d, a = prediction_error(T[:3, :3] @ _centre_board(board) + T[:3, 3], T[:3, 2], board, expected)

@@ -36,7 +36,12 @@ class LidarOptions:
         (margin included).
     uniformity_min: ``1 - (n_max - n_min) / n_all`` over the four quadrants must reach this.
     contrast_min: the board's intensities must split in two levels at least this many pooled
-        sigmas apart (our addition: a plain board-sized surface is not the chessboard).
+        sigmas apart (our addition: a plain board-sized surface is not the chessboard); None: no
+        contrast test (the search for a board whose print the LiDAR does not show).
+    print_contrast_min: a board's intensities show a print (not only for the test above: to be
+        fitted by its pattern rather than its outline) when their two levels are at least this
+        many pooled sigmas apart, within each beam (a uniform spread of intensities, e.g. by the
+        incidence angle, already splits 3.5 apart; printed boards split 5 to 30 apart).
     min_points, min_rings: fewest returns and scanlines a candidate may have (a few returns at long
         range pass the paper's tests by chance and cannot give corners anyway).
     ransac_threshold_m: plane inlier distance floor (grown with the noise estimate).
@@ -65,6 +70,31 @@ class LidarOptions:
     min_agreement: after the fit, the share of black/white returns (away from the edges) whose
         colour matches the fitted pattern must reach this, else BoardNotFound.
     covariance_inflation: multiplies the final covariance (1 = the derivation as documented).
+
+    The board's outline (shape.py, outline.py)
+    ------------------------------------------
+    shape: what the outline's evidence does when the print shows: ``"fuse"`` checks the intensity
+        fit against it and combines the two, ``"check"`` only checks, ``"off"`` ignores it. Without a
+        visible print the outline is the in-plane evidence whatever this says.
+    outline_blur: the blur of the board's edge as the beams see it, in footprint radii (a return
+        straddling the edge is the board's or the background's depending on how much of the
+        footprint each holds; its systematic part, the board looking larger or smaller, is the
+        outline's growth, estimated). The simulator's edges are sharp (0 would be exact there); a
+        real one's a little blurred; a board prior too optimistic is scaled up by the graph's
+        variance components, a pessimistic one is not scaled down.
+    shape_gate_p: the intensity fit and the outline disagree when the chi-square of their
+        difference (3 dof) is beyond this quantile: the pattern slid; it is moved by whole squares
+        (or half-turned) to where the outline allows, or the fit is refused.
+    slide_squares: a disagreement beyond the gate is a slid fit only when it moves the board's
+        corners by more than this many squares (less: a print off the centre of its backing, or
+        covariances a few times too small; the two are then not combined, nothing is refused).
+    min_shape_agreement: share of the samples near the outline (returns on the board's plane,
+        rays passing it) the fitted board must explain, else it is not the board's outline.
+    quarter_turn_score, quarter_turn_odds: without a visible print, a quarter-turned outline whose
+        start scores at least ``quarter_turn_score`` of the best is fitted too, and the board is
+        refused when neither is ``quarter_turn_odds`` times likelier.
+    max_inplane_2sigma_squares: a fit whose in-plane uncertainty (2 sigma at the board's corners)
+        exceeds this many squares is refused.
     """
 
     min_range_m: float = 0.3
@@ -76,7 +106,8 @@ class LidarOptions:
     planarity_ratio: float = 0.01
     size_ratio: tuple[float, float] = (0.8, 1.6)
     uniformity_min: float = 0.85
-    contrast_min: float = 3.0
+    contrast_min: float | None = 3.0
+    print_contrast_min: float = 5.0
     min_points: int = 30
     min_rings: int = 4
     ransac_threshold_m: float = 0.03
@@ -94,3 +125,11 @@ class LidarOptions:
     min_fit_score: float = 0.5
     min_agreement: float = 0.8
     covariance_inflation: float = 1.0
+    shape: str = "fuse"
+    outline_blur: float = 0.1
+    shape_gate_p: float = 0.999
+    slide_squares: float = 0.5
+    min_shape_agreement: float = 0.9
+    quarter_turn_score: float = 0.85
+    quarter_turn_odds: float = 20.0
+    max_inplane_2sigma_squares: float = 1.0

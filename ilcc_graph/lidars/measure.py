@@ -196,6 +196,7 @@ def measure_beams(scan: Scan) -> MeasuredBeams | None:
     columns = getattr(scan, "columns", None)
     if scan.ring is None and not columns and _continuous(el[far]):
         return MeasuredBeams(_ringless_model(p, scan.source), None, "no scanlines")
+    ring_values: np.ndarray | None
     if scan.ring is not None:
         ring = np.asarray(scan.ring).astype(np.int64)[valid]
         ids, med, _ = _group_medians(el[far], ring[far])
@@ -218,7 +219,7 @@ def measure_beams(scan: Scan) -> MeasuredBeams | None:
         angles = _stable_clusters(el[far], max(3, int(2e-4 * far.sum())))
         if angles.size < 2:
             return None
-        ring_values = None  # type: ignore[assignment]
+        ring_values = None
         method = "elevation clusters"
         mid = 0.5 * (angles[1:] + angles[:-1])
         beam_of_point = np.searchsorted(mid, el)

@@ -133,6 +133,8 @@ class LidarModel:
             and self.pattern == other.pattern
         )
 
+    # unhashable, as its __eq__ compares arrays (typeshed has object.__hash__ as a method: mypy
+    # cannot see None assigned to it, Python's documented way to say unhashable)
     __hash__ = None  # type: ignore[assignment]
 
     @property

@@ -13,6 +13,7 @@ from ..types import Calibration
 from .metric import Evaluation, FrameEvaluation
 from .studies import pose_difference
 from .summary import camera_in_lidar, lidar_in_camera
+from .text import lidar_frame_note
 
 __all__ = ["CHI2_6DOF_3SIGMA", "CSS", "GALLERY_NOTE", "TABLE_NOTE", "esc", "figure", "frame_rows", "num",
            "standing_out", "summary_verdict", "table", "transform_section"]  # fmt: skip
@@ -245,7 +246,7 @@ def frame_rows(
     rows, classes = [], []
     for f in cal.frames:
         e: FrameEvaluation | None = by.get(f.name)
-        notes = [x for x in (f.reason, hints.get(f.name)) if x]
+        notes = [x for x in (f.reason, hints.get(f.name), lidar_frame_note(f.board)) if x]
         rows.append(
             [
                 f'<a href="#f{esc(f.name)}">{esc(f.name)}</a>' if f.name in pictured else esc(f.name),

@@ -27,7 +27,7 @@ from ..cameras import CameraModel, make_camera
 from ..estimation.sessions import JointSolution
 from ..types import Calibration
 from .sensors import sensors_text, square_size_text
-from .text import format_joint, short_reason
+from .text import format_joint, lidar_view_lines, short_reason
 
 __all__ = ["NEED_DEG_MM", "WIDTH", "camera_in_lidar", "lidar_in_camera", "run_summary", "verdict"]
 
@@ -308,7 +308,7 @@ def run_summary(
     parts += ["", *_pose_lines(cal, camera)]
     if truth is not None:
         parts += _truth_lines(cal, truth)
-    extra = [x for x in (sensors_text(cal), square_size_text(cal)) if x]
+    extra = [x for x in (sensors_text(cal), square_size_text(cal)) if x] + lidar_view_lines(cal)
     if (vf := (cal.diagnostics or {}).get("variance_factor", 1.0)) > 1.0:
         extra.append(f"the residuals are {vf:.2f} x the stated noise variance: sigmas x {math.sqrt(vf):.2f}")
     parts += ["", *extra] if extra else []

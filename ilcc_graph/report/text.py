@@ -7,7 +7,8 @@ from collections.abc import Sequence
 
 from ..estimation.incremental import FrameUpdate
 from ..estimation.sessions import JointSolution
-from ..types import Estimate, sigmas_deg_mm
+from ..lidar.outline import BEYOND_FOV_SHARE
+from ..types import BoardFit, Calibration, Estimate, sigmas_deg_mm
 
 __all__ = [
     "STAGE_HEADERS",
@@ -16,6 +17,8 @@ __all__ = [
     "format_joint",
     "format_table",
     "format_update",
+    "lidar_frame_note",
+    "lidar_view_lines",
     "short_reason",
     "stage_table",
 ]
@@ -135,3 +138,33 @@ def failure_table(frames: Sequence[tuple[str, str, str]], limit: int = 90, max_r
     if len(frames) > max_rows:
         text += f"\n... and {len(frames) - max_rows} more"
     return text
+
+
+def _names(names: Sequence[str], limit: int = 6) -> str:
+    return ", ".join(names[:limit]) + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
+def lidar_frame_note(board: BoardFit | None, beyond: float = BEYOND_FOV_SHARE) -> str | None:
+    """How the LiDAR saw one frame's board, when worth a note in the report: placed by its outline
+    (no print in the intensity), partly beyond the beams' field."""
+    if board is None:
+        return None
+    d = board.diagnostics
+    notes = ["placed by its outline (no print in the LiDAR intensity)"] * bool(d.get("no_contrast"))
+    if (share := d.get("outside_fov_share", 0.0)) > beyond:
+        notes.append(f"{share:.0%} of the board beyond the LiDAR's field of view (not used)")
+    return "; ".join(notes) or None
+
+
+def lidar_view_lines(cal: Calibration, beyond: float = BEYOND_FOV_SHARE) -> list[str]:
+    """Lines on how the LiDAR saw the used boards: placed by their outline alone (no print in its
+    intensity), partly beyond its field of view (more than ``beyond`` of the board's area)."""
+    used = [f for f in cal.frames if f.used and f.board is not None]
+    plain = [f.name for f in used if f.board.diagnostics.get("no_contrast")]  # type: ignore[union-attr]
+    out = [f.name for f in used if f.board.diagnostics.get("outside_fov_share", 0.0) > beyond]  # type: ignore[union-attr]
+    lines = []
+    if plain:
+        lines.append(f"boards placed by their outline (no print in the LiDAR intensity): {_names(plain)}")
+    if out:
+        lines.append(f"boards partly beyond the LiDAR's field of view (that part unused): {_names(out)}")
+    return lines

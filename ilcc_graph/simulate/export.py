@@ -5,8 +5,8 @@ ring; organised HEIGHT x WIDTH for ``sensor_format="ouster"``; header and fields
 writes them with ``pcd_style``, e.g. MATLAB's) or ``pcd/<stem>.csv`` (ILCC's CSV with the hardware
 ``laser_id`` for ``"velodyne-csv"``), ``img/<stem>.png`` (or ``.jpg``), ``ground_truth.yaml``. The
 data set is assembled in a staging folder beside ``out_dir`` that becomes ``out_dir`` at the end
-(``assemble``: ``folders.staged``), so ``out_dir`` either holds a complete data set or is left as it
-was; it must be new, empty or an earlier simulated set (docs/faults.md).
+(``assemble``: ``io.output_folders.staged``), so ``out_dir`` either holds a complete data set or is
+left as it was; it must be new, empty or an earlier simulated set (docs/faults.md).
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from functools import partial
 from pathlib import Path
 
 from ..errors import InputError
-from ..folders import DATA_SET, staged
 from ..io import PCD_STYLES, write_image, write_pcd, write_yaml
+from ..io.output_folders import DATA_SET, staged
 from ..io.scans import write_csv
 from ..types import Scan
 from .frames import ground_truth, simulate_frames
@@ -68,9 +68,9 @@ def simulate_dataset(
 
 
 def assemble(out: Path, fill: Callable[[Path], None], command: str = "") -> Path:
-    """Run ``fill(tmp)`` on a staging folder that becomes ``out`` (``folders.staged``, a data set: new,
-    empty or an earlier simulated set; ``OutputError`` naming the folder otherwise), so ``out`` holds
-    the whole data set or is left as it was. Returns the folder written (a link's target)."""
+    """Run ``fill(tmp)`` on a staging folder that becomes ``out`` (``io.output_folders.staged``, a
+    data set: new, empty or an earlier simulated set; ``OutputError`` naming the folder otherwise), so
+    ``out`` holds the whole data set or is left as it was. Returns the folder written (a link's target)."""
     with staged(out, DATA_SET, "simulate", command) as tmp:
         fill(tmp)
     return Path(out).resolve() if Path(out).is_symlink() else Path(out)

@@ -25,6 +25,12 @@ Measurement model (all geometric sigmas times ``spec.noise_scale``):
   a relative intensity gain per beam (``beam_intensity_gain_sigma``); the board's returns from a
   random plane off its print, per frame (``board_plane_sigma``, off by default).
 
+The intensity field (``spec.intensity_field``): ``"print"`` as above; ``"invisible"``: the board's
+print reads as white everywhere (a print the LiDAR cannot see; no dark range offset, no extra
+dropout on black); ``"zero"``: every value 0; ``"ring"``: the ring value as the file writes it
+(0 = lowest beam for ``"plain"``, the hardware laser id for ``"velodyne-csv"``, the row, 0 = top,
+for ``"ouster"``). ``spec.ring_field = False`` leaves the ring field out.
+
 Sensor formats (``spec.sensor_format``), how a real driver writes the same returns:
 
 - ``"plain"``: as above (ring 0 = lowest beam, intensity 0-255, lost returns omitted).
@@ -44,6 +50,8 @@ turning one effect on or off leaves the others' numbers unchanged.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -163,7 +171,7 @@ def simulate_scan(
     u_drop = streams[3].random(n)
 
     colour = np.ones(n)
-    if board.any():
+    if board.any() and spec.intensity_field != "invisible":  # an invisible print reads as white
         radius = 0.5 * (spec.beam_aperture_m + model.beam_divergence_rad * t[board])
         colour[board] = _footprint_colour(scene, d[board], t[board], hits.board_xy[board], radius)
     cos_inc = np.abs(np.einsum("ij,ij->i", d, hits.normal))
@@ -218,15 +226,31 @@ def simulate_scan(
         )
         z_sig = frame_rng(spec.seed, PURPOSE_FRAME, frame, 1, 4).standard_normal(n)
         raw = np.clip(np.rint(signal + (2.0 * np.sqrt(signal) + 5.0) * z_sig), 0, 65535)
-        return _organised(model, p, raw, keep)
+        rows = model.n_beams - 1 - ring  # the organised row: 0 = top beam
+        scan = _organised(model, p, _field(spec, raw, rows), keep)
+        return scan if spec.ring_field else replace(scan, ring=None)
     if model.ringless:
-        return Scan(points=p[keep], intensity=intensity[keep], ring=None, source="simulated")
+        return Scan(
+            points=p[keep], intensity=_field(spec, intensity, ring)[keep], ring=None, source="simulated"
+        )
     out_ring = ring
     if spec.sensor_format == "velodyne-csv":
         out_ring = laser_ids(model)[ring]
     return Scan(
-        points=p[keep], intensity=intensity[keep], ring=out_ring[keep].astype(np.int32), source="simulated"
+        points=p[keep],
+        intensity=_field(spec, intensity, out_ring)[keep],
+        ring=out_ring[keep].astype(np.int32) if spec.ring_field else None,
+        source="simulated",
     )
+
+
+def _field(spec: SimulationSpec, intensity: np.ndarray, ring: np.ndarray) -> np.ndarray:
+    """The intensity field as ``spec.intensity_field`` says: the intensity, zeros or the file's ring value."""
+    if spec.intensity_field == "zero":
+        return np.zeros_like(intensity)
+    if spec.intensity_field == "ring":
+        return np.asarray(ring, dtype=intensity.dtype)
+    return intensity
 
 
 def laser_ids(model: LidarModel) -> np.ndarray:

@@ -34,6 +34,7 @@ from .rosette import rosette_for
 
 __all__ = [
     "SENSOR_FORMATS",
+    "INTENSITY_FIELDS",
     "Systematics",
     "ImageOptions",
     "SceneOptions",
@@ -45,6 +46,9 @@ __all__ = [
 
 #: how simulated scans are written (see simulate/lidar.py)
 SENSOR_FORMATS = ("plain", "ouster", "velodyne-csv")
+#: what a scan's intensity field holds (see simulate/lidar.py): the printed pattern as the LiDAR sees
+#: it; a print the LiDAR cannot see (black reads as white); every value 0; the ring number
+INTENSITY_FIELDS = ("print", "invisible", "zero", "ring")
 #: Default camera centre in the LiDAR frame (m): a camera mounted 25 cm above the LiDAR.
 DEFAULT_CAMERA_CENTRE_LIDAR = (0.05, -0.03, 0.25)
 #: Default small rotation (rotation vector, degrees) between the nominal and the true camera axes.
@@ -182,6 +186,13 @@ class SimulationSpec:
     integration_time_s: how long a scanline-free lidar's returns are accumulated into one scan
         (a spinning lidar's scan is one turn whatever this says). 0.5 s: 50,000 returns of a
         Mid-40/70, about half of the Mid-70's field covered.
+    intensity_field: what the scans' intensity holds (``INTENSITY_FIELDS``): ``"print"`` the
+        printed pattern (default); ``"invisible"`` a print the LiDAR cannot see (dye inks in the
+        near infrared: black print returns like white, with no dark range offset or extra
+        dropout); ``"zero"`` every intensity 0 (a simulator or driver that fills none);
+        ``"ring"`` the ring value as the file writes it (a driver that puts the ring number in the
+        field named intensity). The print's effect on range is kept for ``"zero"`` and ``"ring"``.
+    ring_field: False writes scans without a ring field (an organised Ouster scan keeps its rows).
     """
 
     lidar: str | LidarModel = "hdl32"
@@ -204,6 +215,8 @@ class SimulationSpec:
     beam_aperture_m: float = 0.01
     sensor_format: str = "plain"
     integration_time_s: float = 0.5
+    intensity_field: str = "print"
+    ring_field: bool = True
 
     def __post_init__(self) -> None:
         model = self.lidar if isinstance(self.lidar, LidarModel) else lidar_model(self.lidar)
@@ -212,6 +225,15 @@ class SimulationSpec:
         if self.sensor_format not in SENSOR_FORMATS:
             raise ValueError(
                 f"SimulationSpec: sensor_format must be one of {SENSOR_FORMATS}, got {self.sensor_format!r}"
+            )
+        if self.intensity_field not in INTENSITY_FIELDS:
+            raise ValueError(
+                f"SimulationSpec: intensity_field must be one of {INTENSITY_FIELDS}, "
+                f"got {self.intensity_field!r}"
+            )
+        if not self.ring_field and self.sensor_format == "velodyne-csv":
+            raise ValueError(
+                "SimulationSpec: a 'velodyne-csv' scan always has its laser_id column (ring_field)"
             )
         if model.ringless:
             rosette_for(model)  # ValueError: no pattern to render
@@ -276,6 +298,8 @@ class SimulationSpec:
             "lidar_model": self.lidar_model.name,
             "sensor_format": self.sensor_format,
             **({"integration_time_s": float(self.integration_time_s)} if self.lidar_model.ringless else {}),
+            **({"intensity_field": self.intensity_field} if self.intensity_field != "print" else {}),
+            **({"ring_field": False} if not self.ring_field else {}),
             "camera_model": self.camera.kind,
             "intrinsics_error": self.intrinsics_error.summary(),
             "n_frames": int(self.n_frames),

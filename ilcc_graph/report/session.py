@@ -1,9 +1,11 @@
-"""The report of one session of a run, written into a staging folder (``outputs.write_run``).
+"""The report of one session of a run, written into a staging folder (``app.write.write_run``).
 
 The frames' pictures are drawn on the views the image stage kept (no picture is read again), on
 the run's worker processes (``workers.pool``) while the caller's ``meanwhile`` runs here; the
 report's studies (accuracy against frames, cross-validation) on request; the coloured clouds and
-full-resolution views on request.
+full-resolution views on request. The run's result types are named for the type checker only and
+the studies' solver comes from the caller (``refit``: ``pipeline.solve_observed``), so ``report``
+does not import the run.
 """
 
 from __future__ import annotations
@@ -11,15 +13,19 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import logging
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ilcc_graph import signals, workers
 from ilcc_graph.config import Config
 from ilcc_graph.io import write_ply
-from ilcc_graph.pipeline import RunResult, SessionResult, solve_observed
+
+if TYPE_CHECKING:
+    from ilcc_graph.pipeline import RunOptions, RunResult, SessionResult
+    from ilcc_graph.types import Calibration, FrameResult
 
 __all__ = ["write_report"]
 
@@ -94,12 +100,15 @@ def write_report(
     meanwhile: Callable[[], object] | None = None,
     next_pose: object | None = None,
     progress: Callable[[int, int], None] | None = None,
+    *,
+    refit: Callable[[Sequence[FrameResult], Config, RunOptions], Calibration],
 ) -> tuple[object, bytes | None]:
     """``out/index.html`` with its figures for one session; with ``clouds`` ``coloured_dir/<frame>.ply``.
-    ``meanwhile()`` runs here while the pictures are drawn on other processes and gives the next board
-    pose (``next_pose.Proposal`` or None; else ``next_pose`` is it), drawn in the report. Returns
-    (that proposal, its picture ``next_pose.png`` or None). ``progress(done, total)``: after each
-    frame's pictures, and once more when the page is built."""
+        ``meanwhile()`` runs here while the pictures are drawn on other processes and gives the next board
+        pose (``next_pose.Proposal`` or None; else ``next_pose`` is it), drawn in the report. Returns
+        (that proposal, its picture ``next_pose.png`` or None). ``progress(done, total)``: after each
+        frame's pictures, and once more when the page is built. ``refit(frames, config, options)``: a
+    subset of the frames solved again (``pipeline.solve_observed``), for the studies."""
     from ilcc_graph.report import FigureOptions, build_report, cross_validate, frames_vs_accuracy
     from ilcc_graph.report.rig import next_pose_png
 
@@ -110,7 +119,7 @@ def write_report(
         options = dataclasses.replace(result.options, mode="graph")
 
         def solve(subset):  # noqa: ANN001, ANN202
-            c = solve_observed(subset, config, options)
+            c = refit(subset, config, options)
             return c.T_cam_lidar, c.covariance
 
         quiet = logging.getLogger("ilcc_graph")

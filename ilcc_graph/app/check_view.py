@@ -2,7 +2,7 @@
 
 The check itself is ``live``; this module prints it (the table on standard output, the progress
 line on standard error, redrawn in place on a terminal) and writes ``check.yaml`` and
-``next_pose.png`` through ``outputs``.
+``next_pose.png`` through ``write``. ``cmd_check`` is the command (its flags, its folder).
 """
 
 from __future__ import annotations
@@ -216,7 +216,7 @@ def check_command(
     if proposal is not None:
         print(proposal.describe())
     if out is not None:
-        from ilcc_graph.outputs import write_check
+        from ilcc_graph.app.write import write_check
 
         write_check(Path(out), result, proposal, command)
         print(f"wrote check.yaml{' and next_pose.png' if proposal is not None else ''} to {out}")

@@ -16,8 +16,8 @@ everything is written (so ``out`` is either the complete result or untouched):
   and (``full_views``) the whole pictures at full resolution;
 - with a proposal: ``next_pose.png``; ``check``: ``check.yaml``; a failed run: ``failure.yaml``.
 
-The folder mechanics (staging, the locked commit, ``check_output``) are ``folders``; the report's
-pictures and studies ``report_files``.
+The folder mechanics (staging, the locked commit) are ``io.output_folders``; the report's pictures
+and studies ``report.session``.
 """
 
 from __future__ import annotations
@@ -35,35 +35,22 @@ from ilcc_graph.config import Config, config_to_dict
 from ilcc_graph.errors import OutputError
 from ilcc_graph.estimation.incremental import FrameUpdate
 from ilcc_graph.estimation.sessions import ConsistencyTest, JointSolution
-from ilcc_graph.folders import (
-    OURS,
-    add_file,
-    check_output,
-    claim_output,
-    link_latest,
-    staged,
-    write_beside,
-    write_file,
-)
 from ilcc_graph.io import atomic_write, write_calibration, write_yaml
-from ilcc_graph.pipeline import RunOptions, RunResult
+from ilcc_graph.io.output_folders import OURS, add_file, staged, write_beside
+from ilcc_graph.pipeline import RunOptions, RunResult, solve_observed
 from ilcc_graph.report.rig import next_pose_png
-from ilcc_graph.report_files import write_report
+from ilcc_graph.report.session import write_report
 from ilcc_graph.types import Estimate, sigma_dict, to_plain
 
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "check_output",
-    "claim_output",
-    "link_latest",
-    "write_evaluation",
-    "write_file",
     "joint_summary",
     "options_dict",
     "resolved_config",
-    "staged",
     "write_check",
+    "write_evaluation",
+    "write_failure",
     "write_run",
     "write_stage",
 ]
@@ -143,7 +130,7 @@ def _update_dict(u: FrameUpdate) -> dict[str, Any]:
 
 def write_evaluation(out: Path, evaluation: Any, flag: str = "--out", command: str = "") -> Path:
     """``out/evaluation.yaml`` (``report.evaluation_to_dict``) in a new or empty folder, or added to an
-    earlier result of ours (``folders.add_file``); returns its path."""
+    earlier result of ours (``io.output_folders.add_file``); returns its path."""
     from ilcc_graph.io import dump_yaml
     from ilcc_graph.report import evaluation_to_dict
 
@@ -197,7 +184,7 @@ def write_run(
                 bar = progress and progress(f"report {s.name}" if several else "report")
                 proposal, png = write_report(
                     d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, studies, truth, info,
-                    clouds, full_views, later, proposal, bar,
+                    clouds, full_views, later, proposal, bar, refit=solve_observed,
                 )  # fmt: skip
                 later = None
         if later is not None:

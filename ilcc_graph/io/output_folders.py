@@ -12,7 +12,8 @@ everything is written, so ``out`` is always one run's complete result or as it w
 ``add_file(folder, name, data)`` writes one file into a folder we may write (``evaluate --out``);
 ``write_file(path, data)`` one file the user named (``export --out``, replaced as ``cp`` does);
 ``write_beside(path, data)`` a failure file or log beside an output folder, never over a file that is
-not ours; ``link_latest`` points ``<parent>/latest`` at a run folder.
+not ours; ``link_latest`` points ``<parent>/latest`` at a run folder. Which folder a command writes
+is decided in ``app.folders``; the simulator stages its data sets here too (``simulate.export``).
 """
 
 from __future__ import annotations
@@ -39,7 +40,6 @@ __all__ = [
     "MARKER",
     "RESULT",
     "add_file",
-    "check_output",
     "claim_output",
     "link_latest",
     "staged",
@@ -183,11 +183,6 @@ def claim_output(
     except OSError as err:
         raise OutputError(f"{say}: cannot write in {parent} ({err.strerror or err})") from None
     return out
-
-
-def check_output(out: Path | str, flag: str = "--out", kind: str = RESULT) -> None:
-    """``claim_output`` without its answer (kept for callers that only check)."""
-    claim_output(out, flag, kind)
 
 
 def link_latest(path: Path) -> None:

@@ -122,7 +122,7 @@ def setup_logging(verbose: bool) -> None:
 
 def report_bug(err: BaseException, out: Path | None, debug: bool, argv: list[str] | None = None) -> int:
     """Say an internal error in one line, keep its traceback in a log file; returns exit code 1."""
-    from ilcc_graph.folders import OURS, write_beside
+    from ilcc_graph.io.output_folders import OURS, write_beside
 
     text = "".join(traceback.format_exception(type(err), err, err.__traceback__))
     command = "ilcc-graph " + " ".join(sys.argv[1:] if argv is None else argv)

@@ -1,0 +1,110 @@
+"""``ilcc-graph calibrate``: data sets or bags -> the calibration, its report and the closing summary.
+
+``calibrate(data, args, truth)`` is also the demo's second half (``cmd_demo``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ilcc_graph.app.arguments import add_bag_arguments, add_solve_arguments
+from ilcc_graph.app.console import DEG_MM, RATE, Progress
+from ilcc_graph.app.flags import bag_options, run_options
+from ilcc_graph.app.folders import output_folder, written
+from ilcc_graph.errors import CalibrationImpossible
+
+if TYPE_CHECKING:
+    import numpy as np
+
+__all__ = ["HELP", "add_arguments", "calibrate", "run"]
+
+HELP = "calibrate from data sets (DATA/config.yaml, pcd/, img/) or ROS bags"
+
+
+def add_arguments(sp: argparse.ArgumentParser) -> None:
+    sp.add_argument("data", nargs="+", metavar="DATA", help="data sets or bags (several: sessions of a rig)")
+    add_solve_arguments(sp)
+    add_bag_arguments(sp)
+    g = sp.add_argument_group("several sessions (joint calibration)")
+    help = "rigid (default): one extrinsic for all sessions; drift: one per session, tied by --drift-sigma"
+    g.add_argument("--mode", choices=("rigid", "drift"), default="rigid", help=help)
+    help = "drift mode: how far the mount may move (default 0.1,2)"
+    g.add_argument("--drift-sigma", type=DEG_MM, metavar="DEG,MM", help=help)
+    help = "false-alarm rate of the moved-mount test (default 0.01)"
+    g.add_argument("--alpha", type=RATE, default=0.01, help=help)
+    help = "extra per-session spread the test tolerates (default 0,0)"
+    g.add_argument("--repeatability", type=DEG_MM, metavar="DEG,MM", help=help)
+    g = sp.add_argument_group("incremental (iSAM2)")
+    help = "frame by frame until these 1-sigma values"
+    g.add_argument("--target-sigma", type=DEG_MM, metavar="DEG,MM", help=help)
+    g.add_argument("--stop-at-target", action="store_true", help="read no frame after the target is reached")
+
+
+def run(args: argparse.Namespace) -> int:
+    return calibrate(args.data, args)
+
+
+def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
+    """Calibrate the data sets ``data`` as the arguments say, write the results, print the summary
+    (``truth``: the true T_cam_lidar (4, 4) of a simulated set, compared in the summary)."""
+    from ilcc_graph.app.write import write_run
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.next_pose import for_run as next_pose_for_run
+    from ilcc_graph.pipeline import run
+    from ilcc_graph.report.summary import run_summary
+    from ilcc_graph.report.text import format_update
+
+    options = run_options(args)
+    out = output_folder(args, data)
+    sources = [open_source(d, **bag_options(args)) for d in data]
+    bars: dict[str, Progress] = {}
+    t0 = time.perf_counter()
+    try:
+        result = run(
+            sources,
+            options,
+            progress=lambda name, i, n: bars.setdefault(name, Progress(name))(i, n),
+            report=lambda u: print(format_update(u, options.target_sigma), flush=True),
+        )
+    except CalibrationImpossible as err:  # a short table and one line of advice; details in the folder
+        _explain_failure(err, out, args.command_line)
+        raise
+    t1 = time.perf_counter()
+    advice: dict = {}
+
+    def propose():  # noqa: ANN202 - worked out while the report's pictures are drawn
+        advice["next"] = next_pose_for_run(result, options.target_sigma)
+        return advice["next"]
+
+    write_run(
+        out, result, report=args.report, studies=args.studies, truth=truth, command=args.command_line,
+        next_pose=propose, clouds=args.clouds, full_views=args.full_views, progress=Progress,
+    )  # fmt: skip
+    written(args, out)
+    seconds = (t1 - t0, time.perf_counter() - t1)
+    notes = [advice["next"].describe()] if advice.get("next") is not None else []
+    reports = sorted((out / "report").glob("**/index.html"))
+    gate = options.noise.chi2_gate_prob
+    summary = run_summary(
+        result.calibration, result.joint, truth, out, seconds, reports, notes, options.target_sigma, gate
+    )
+    print(summary)
+    return 0
+
+
+def _explain_failure(err: CalibrationImpossible, out: Path, command: str) -> None:
+    """A failed run: its frames as a short table and the advice on stderr, the details in a file."""
+    from ilcc_graph.app.write import write_failure
+    from ilcc_graph.report.text import failure_table
+
+    if err.frames:
+        print(failure_table(err.frames), file=sys.stderr)
+    if err.advice:  # one line of advice, or the likely set-up mistakes (``likely: ...`` lines)
+        print(err.advice if err.advice.startswith("likely: ") else f"advice: {err.advice}", file=sys.stderr)
+    where = write_failure(out, err, command)
+    print(f"details: {where}" if where else "details: nowhere (no place to write them)", file=sys.stderr)

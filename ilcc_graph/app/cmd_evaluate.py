@@ -1,0 +1,45 @@
+"""``ilcc-graph evaluate``: the paper's metric and corner errors of a calibration on a data set.
+
+Computed by ``evaluation``, printed, and with ``--out`` written as evaluation.yaml.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ilcc_graph.app.arguments import add_bag_arguments, add_frames_arguments
+from ilcc_graph.app.console import Progress
+from ilcc_graph.app.flags import bag_options, stage_options
+from ilcc_graph.app.folders import claim_given
+
+__all__ = ["HELP", "add_arguments", "run"]
+
+HELP = "the paper's re-projection metric and corner errors of a calibration"
+
+
+def add_arguments(sp: argparse.ArgumentParser) -> None:
+    sp.add_argument("data", metavar="DATA", help="a data set (may hold frames the calibration did not use)")
+    sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")
+    sp.add_argument("--out", help="folder for evaluation.yaml (default: print only)")
+    add_frames_arguments(sp)
+    add_bag_arguments(sp)
+
+
+def run(args: argparse.Namespace) -> int:
+    """The paper's metric and corner errors of a calibration on a data set's frames."""
+    from ilcc_graph.app.write import write_evaluation
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.evaluation import evaluate_on
+    from ilcc_graph.io import read_calibration
+    from ilcc_graph.report import evaluation_rows
+    from ilcc_graph.report.text import evaluation_text
+
+    claim_given(args, reads=[args.data])
+    cal = read_calibration(Path(args.calibration))
+    source = open_source(args.data, **bag_options(args))
+    ev, skipped = evaluate_on(source, cal.T_cam_lidar, stage_options(args), Progress("frames"))
+    print(evaluation_text(evaluation_rows(ev), skipped))
+    if args.out:
+        print(f"wrote {write_evaluation(Path(args.out), ev, command=args.command_line)}")
+    return 0

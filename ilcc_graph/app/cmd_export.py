@@ -1,0 +1,45 @@
+"""``ilcc-graph export``: a calibration in another tool's format (``export``), to a file or stdout."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ilcc_graph.errors import InputError
+
+__all__ = ["HELP", "add_arguments", "run"]
+
+HELP = "write a calibration in another tool's format"
+
+
+def add_arguments(sp: argparse.ArgumentParser) -> None:
+    sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")
+    sp.add_argument("--format", required=True, choices=("json", "ros-tf", "kitti", "kalibr", "lidar-offsets"))
+    sp.add_argument("--out", help="file to write (default: standard output)")
+    sp.add_argument("--parent", choices=("lidar", "camera"), help="ros-tf: the parent frame (default lidar)")
+    sp.add_argument("--lidar-frame", help="ros-tf: the LiDAR's frame id (default lidar)")
+    help = "ros-tf: the camera's frame id (default camera_optical for a lens camera, camera for a panorama)"
+    sp.add_argument("--camera-frame", help=help)
+    sp.add_argument("--ros", choices=("both", "ros1", "ros2"), help="ros-tf: which ROS (default both)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ilcc_graph.export import export_calibration
+    from ilcc_graph.io import read_calibration_with_camera
+    from ilcc_graph.io.output_folders import write_file
+
+    cal = read_calibration_with_camera(args.calibration)
+    names = ("parent", "lidar_frame", "camera_frame", "ros") if args.format == "ros-tf" else ()
+    options = {k: getattr(args, k) for k in names if getattr(args, k)}
+    if args.format == "lidar-offsets":  # a table: CSV when the output file says so
+        options["table"] = "csv" if args.out and Path(args.out).suffix.lower() == ".csv" else "yaml"
+    try:
+        text = export_calibration(cal, args.format, **options)
+    except ValueError as err:
+        raise InputError(f"{args.calibration}: {err}") from None
+    if args.out:
+        print(f"wrote {write_file(Path(args.out), text)}")
+    else:
+        sys.stdout.write(text)
+    return 0
