@@ -3,6 +3,8 @@ folders (``rig_observe.observe_rig`` over a ``RigSource``), with the same answer
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import gtsam
 import numpy as np
 
@@ -13,13 +15,23 @@ from ilcc_graph.observe import StageOptions
 from ilcc_graph.rig_observe import observe_moment, observe_rig
 from ilcc_graph.simulate.rig import backpack_rig, simulate_moments
 from ilcc_graph.simulate.rig_export import write_rig_set
+from ilcc_graph.types import Scan
+
+
+def _float32(scan: Scan) -> Scan:
+    def f(a: np.ndarray) -> np.ndarray:
+        return a.astype(np.float32).astype(np.float64)
+
+    return replace(scan, points=f(scan.points), intensity=f(scan.intensity))
 
 
 def test_backpack_from_memory_and_folders(tmp_path) -> None:  # noqa: ANN001
     spec = backpack_rig(width=1600, n_moments=5, seed=4)
     rig = spec.rig_config()
     sim = list(simulate_moments(spec))
-    mem = [observe_moment(m.name, m.scans, m.images, rig) for m in sim]
+    # the files hold the scans' points and intensities as float32: observe the same values in memory
+    f32 = {m.name: {n: _float32(s) for n, s in m.scans.items()} for m in sim}
+    mem = [observe_moment(m.name, f32[m.name], m.images, rig) for m in sim]
     write_rig_set(tmp_path / "rig", spec, moments=sim)
     obs = observe_rig(open_source(tmp_path / "rig", rig=True), StageOptions())
     assert [m.name for m in obs.moments] == [m.name for m in mem]
