@@ -242,16 +242,21 @@ def solve_rig(
             T_base[n], M[rows, cols] = np.linalg.inv(T), -adjoint(T)
         else:
             T_base[n], M[rows, cols] = T, np.eye(POSE3_DOF)
+    reference = reference or lidars[0]
+    if reference not in solved:
+        raise CalibrationImpossible(
+            f"the reference sensor {reference!r} has no pose: {unsolved.get(reference)}"
+        )
     rank = {n: i for i, n in enumerate(order or [*lidars, *cams])}
     perm = sorted(range(len(solved)), key=lambda k: rank.get(solved[k], len(rank) + k))
     idx = np.concatenate([np.arange(POSE3_DOF * k, POSE3_DOF * (k + 1)) for k in perm])
     C_base = (M @ J @ M.T)[np.ix_(idx, idx)]
     names = tuple(solved[k] for k in perm)
-    T_ref, C = to_reference({n: T_base[n] for n in names}, C_base, reference or lidars[0])
+    T_ref, C = to_reference({n: T_base[n] for n in names}, C_base, reference)
     kept = [problem.boards[i].name for i in sol.boards]
     return RigSolution(
         sensors=names,
-        reference=reference or lidars[0],
+        reference=reference,
         base=lidars[0],
         T_ref_sensor=T_ref,
         covariance=C,
