@@ -22,16 +22,26 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcc_graph.config import RigConfig
+from ilcc_graph.config import RigConfig, rig_config_to_dict
 from ilcc_graph.datasets import open_source
 from ilcc_graph.datasets.rig import RigSource
 from ilcc_graph.estimation.rig_solve import RigOptions, RigSolution, solve_rig
 from ilcc_graph.init.rig_start import RigStart, StartOptions, rig_start
+from ilcc_graph.io.rig_results import RigCalibration
 from ilcc_graph.observe import StageOptions
 from ilcc_graph.rig_observe import RigObservation, observe_rig
 from ilcc_graph.types import Estimate
 
-__all__ = ["USED", "Fate", "RigRunOptions", "RigResult", "calibrate_rig", "fates", "solve_observed"]
+__all__ = [
+    "USED",
+    "Fate",
+    "RigRunOptions",
+    "RigResult",
+    "calibrate_rig",
+    "fates",
+    "solve_observed",
+    "to_calibration",
+]
 
 #: the reason of an observation that entered the graph
 USED = "used"
@@ -172,3 +182,33 @@ def calibrate_rig(
     src = source if isinstance(source, RigSource) else open_source(source, rig=True)
     observation = observe_rig(src, options.stages, progress)
     return solve_observed(observation, options)
+
+
+def to_calibration(result: RigResult) -> RigCalibration:
+    """The rig's ``calibration.yaml`` content (``io.rig_results``): poses, joint covariance, every
+    pair's relative pose and covariance, the rig file's mapping (intrinsics), what was used."""
+    names = result.sensors
+    pairs = {}
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            e = result.relative(a, b)
+            pairs[(a, b)] = (e.T, e.covariance)
+    moments: dict[str, dict[str, str]] = {}
+    for f in result.fates:
+        moments.setdefault(f.moment, {})[f.sensor] = f.reason
+    extra = {
+        "variance_factor": result.variance_factor,
+        "used": {s: len(result.used(s)) for s in result.rig.names},
+        "unsolved": dict(result.unsolved),
+        "moments": moments,
+        "skipped": [list(x) for x in result.skipped],
+    }
+    return RigCalibration(
+        names,
+        result.reference,
+        dict(result.T_ref_sensor),
+        result.covariance,
+        pairs,
+        rig_config_to_dict(result.rig),
+        extra,
+    )

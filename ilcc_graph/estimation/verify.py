@@ -139,7 +139,9 @@ class VerifyOptions:
 class AxisCheck:
     """One axis of a sensor's change: ``name`` (``rx_deg`` .. ``tz_mm``), ``change`` and ``sigma`` in
     deg or mm, ``z`` = change / sigma, ``p_value`` of the 1-dof test, ``detectable``: the smallest
-    change along this axis alone the sensor's test detects with the stated power (deg or mm)."""
+    change along this axis alone the sensor's test detects with the stated power (deg or mm).
+    verdict: ``fail`` when the axis's own test rejects at the sensor's level / 6, ``warn`` when not
+    but its detectable change exceeds the tolerance, else ``pass``."""
 
     name: str
     change: float
@@ -147,6 +149,7 @@ class AxisCheck:
     z: float
     p_value: float
     detectable: float
+    verdict: str = "pass"
 
 
 @dataclass(frozen=True)
@@ -223,11 +226,16 @@ def _check(
     p = chi2.sf(m, POSE3_DOF)
     det, rot, trans = detectable_change(C, alpha, opts.power)
     sig = np.sqrt(np.diag(C))
-    axes = tuple(
-        AxisCheck(n, float(_SCALE[k] * d[k]), float(_SCALE[k] * sig[k]), float(d[k] / sig[k]),
-                  chi2.sf(float((d[k] / sig[k]) ** 2), 1), float(_SCALE[k] * det[k]))
-        for k, n in enumerate(SIGMA_NAMES)
-    )  # fmt: skip
+    tol = [opts.tolerance_deg] * 3 + [opts.tolerance_mm] * 3
+    axes = []
+    for k, n in enumerate(SIGMA_NAMES):
+        pk, dk = chi2.sf(float((d[k] / sig[k]) ** 2), 1), float(_SCALE[k] * det[k])
+        word = "fail" if pk < alpha / POSE3_DOF else ("warn" if dk > tol[k] else "pass")
+        axes.append(
+            AxisCheck(
+                n, float(_SCALE[k] * d[k]), float(_SCALE[k] * sig[k]), float(d[k] / sig[k]), pk, dk, word
+            )
+        )
     rot_deg, trans_mm = math.degrees(rot), 1e3 * trans
     size = f"{math.degrees(np.linalg.norm(d[:3])):.3f} deg, {1e3 * np.linalg.norm(d[3:]):.1f} mm"
     can = f"{rot_deg:.3f} deg / {trans_mm:.1f} mm"
@@ -239,7 +247,7 @@ def _check(
                   f"(tolerance {opts.tolerance_deg:g} deg / {opts.tolerance_mm:g} mm)")  # fmt: skip
     else:
         verdict, reason = "pass", f"no change found ({size}, p = {p:.2g}); detectable: {can}"
-    return SensorCheck(s, verdict, reason, d, C, m, p, axes, rot_deg, trans_mm, boards)
+    return SensorCheck(s, verdict, reason, d, C, m, p, tuple(axes), rot_deg, trans_mm, boards)
 
 
 def verify_rig(
