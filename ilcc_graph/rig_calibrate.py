@@ -196,6 +196,9 @@ def to_calibration(result: RigResult) -> RigCalibration:
     moments: dict[str, dict[str, str]] = {}
     for f in result.fates:
         moments.setdefault(f.moment, {})[f.sensor] = f.reason
+    rig = rig_config_to_dict(result.rig)
+    for d in rig["sensors"].values():
+        d.pop("T_ref_sensor", None)  # the rig file's guesses: the poses above are the answer
     extra = {
         "variance_factor": result.variance_factor,
         "used": {s: len(result.used(s)) for s in result.rig.names},
