@@ -212,6 +212,6 @@ def to_calibration(result: RigResult) -> RigCalibration:
         dict(result.T_ref_sensor),
         result.covariance,
         pairs,
-        rig_config_to_dict(result.rig),
+        rig,
         extra,
     )
