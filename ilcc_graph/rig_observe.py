@@ -19,11 +19,12 @@ import numpy as np
 from ilcc_graph import workers
 from ilcc_graph.config import RigConfig
 from ilcc_graph.damage import read_frame_file
+from ilcc_graph.datasets.rig import Moment, RigSource
 from ilcc_graph.errors import DamagedFile, FrameError
 from ilcc_graph.image import detect_corners
 from ilcc_graph.lidar import estimate_board
 from ilcc_graph.observe import StageOptions
-from ilcc_graph.types import MomentResult, Scan
+from ilcc_graph.types import BoardFit, ImageCorners, MomentResult, Scan
 
 __all__ = ["RigObservation", "observe_moment", "observe_rig", "observe_source_moment"]
 
@@ -42,20 +43,22 @@ class RigObservation:
         return [m.name for m in self.moments if sensor in m.boards or sensor in m.corners]
 
 
-def _lidar(scan: Scan, rig: RigConfig, name: str, options: StageOptions):  # noqa: ANN202
+def _lidar(scan: Scan, rig: RigConfig, name: str, options: StageOptions) -> BoardFit:
     s = rig.sensor(name)
     return estimate_board(scan, rig.board, s.lidar, s.roi, options.lidar)
 
 
-def _camera(image: np.ndarray, rig: RigConfig, name: str, options: StageOptions, where: str):  # noqa: ANN202
+def _camera(image: np.ndarray, rig: RigConfig, name: str, options: StageOptions, where: str) -> ImageCorners:
     cam = rig.sensor(name).camera
+    if cam is None:
+        raise ValueError(f"sensor {name!r} is not a camera")
     h, w = np.asarray(image).shape[:2]
-    if (w, h) != (cam.width, cam.height):  # type: ignore[union-attr]
+    if (w, h) != (cam.width, cam.height):
         raise DamagedFile(
             f"{where}: image is {w}x{h} px, but camera {name!r} in {rig.source or 'the rig'} is "
-            f"{cam.width}x{cam.height}"  # type: ignore[union-attr]
+            f"{cam.width}x{cam.height}"
         )
-    return detect_corners(image, cam, rig.board, options.image)  # type: ignore[arg-type]
+    return detect_corners(image, cam, rig.board, options.image)
 
 
 def observe_moment(
@@ -73,26 +76,32 @@ def observe_moment(
     unknown = [n for n in (*scans, *images) if n not in rig.names]
     if unknown:
         raise ValueError(f"moment {name}: sensors {unknown} are not in the rig {list(rig.names)}")
-    boards, corners, failures, damaged = {}, {}, {}, []
-    jobs = [(lid, boards, _lidar, (scans[lid], rig, lid, options)) for lid in rig.lidars if lid in scans]
-    jobs += [
-        (cam, corners, _camera, (images[cam], rig, cam, options, f"{name}/{cam}"))
-        for cam in rig.cameras
-        if cam in images
-    ]
-    for sensor, out, fn, args in jobs:
+    boards: dict[str, BoardFit] = {}
+    corners: dict[str, ImageCorners] = {}
+    failures: dict[str, str] = {}
+    damaged: list[str] = []
+
+    def failed(sensor: str, err: FrameError) -> None:
+        failures[sensor] = str(err)
+        if isinstance(err, DamagedFile):
+            damaged.append(sensor)
+
+    for lid in (x for x in rig.lidars if x in scans):
         try:
-            out[sensor] = fn(*args)
+            boards[lid] = _lidar(scans[lid], rig, lid, options)
         except FrameError as err:
-            failures[sensor] = str(err)
-            if isinstance(err, DamagedFile):
-                damaged.append(sensor)
+            failed(lid, err)
+    for cam in (x for x in rig.cameras if x in images):
+        try:
+            corners[cam] = _camera(images[cam], rig, cam, options, f"{name}/{cam}")
+        except FrameError as err:
+            failed(cam, err)
     return MomentResult(name, boards, corners, failures, tuple(damaged))
 
 
 def observe_source_moment(
-    source,  # noqa: ANN001 - datasets.RigSource
-    moment,  # noqa: ANN001 - datasets.rig.Moment
+    source: RigSource,
+    moment: Moment,
     rig: RigConfig,
     options: StageOptions = StageOptions(),
 ) -> MomentResult:
@@ -118,9 +127,9 @@ def observe_source_moment(
 
 
 def observe_rig(
-    source,
+    source: RigSource,
     options: StageOptions = StageOptions(),
-    progress: Callable[[int, int], None] | None = None,  # noqa: ANN001
+    progress: Callable[[int, int], None] | None = None,
 ) -> RigObservation:
     """Every moment of a ``datasets.RigSource`` through the stages, on ``options.jobs`` processes."""
     rig = source.config()

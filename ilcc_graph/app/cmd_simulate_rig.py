@@ -24,7 +24,7 @@ def _triple(text: str) -> tuple[float, float, float]:
         x = ()
     if len(x) != 3:
         raise argparse.ArgumentTypeError(f"expected three numbers X,Y,Z, got {text!r}")
-    return x  # type: ignore[return-value]
+    return x[0], x[1], x[2]
 
 
 def add_arguments(sp: argparse.ArgumentParser) -> None:

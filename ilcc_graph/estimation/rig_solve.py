@@ -156,7 +156,10 @@ def rig_problem(
         raise ValueError(f"rig_problem: the start's base is {start.base!r}, the rig's first LiDAR {base!r}")
     corners = board.corners_board()
     cams = list(cameras)
-    boards, views, lidar_views, skipped = [], [], [], []
+    boards: list[BoardPrior] = []
+    views: list[View] = []
+    lidar_views: list[LidarBoard] = []
+    skipped: list[tuple[str, str]] = []
     for m in moments:
         flips = start.flips.get(m.name)
         if flips is None or m.name not in start.T_base_board:
@@ -233,7 +236,7 @@ def solve_rig(
     # base-frame perturbations d_s of T_base_s: a LiDAR's Y is T_base_lidar (d = eta); a camera's
     # X = T_cam_base, T_base_cam = X^-1 (d = -Ad(X) xi); the base's own pose is fixed (d = 0)
     M = np.zeros((POSE3_DOF * len(solved), POSE3_DOF * len(keys)))
-    T_base = {lidars[0]: np.eye(4)}
+    T_base: dict[str, np.ndarray] = {lidars[0]: np.eye(4)}
     six = POSE3_DOF
     for k, (n, key) in enumerate(zip(solved[1:], keys, strict=True)):
         rows, cols = slice(six * (k + 1), six * (k + 2)), slice(six * k, six * (k + 1))

@@ -199,7 +199,9 @@ class VerifyResult:
     notes: list[str] = field(default_factory=list)
 
 
-def detectable_change(C: np.ndarray, alpha: float, power: float, dof: int = POSE3_DOF):
+def detectable_change(
+    C: np.ndarray, alpha: float, power: float, dof: int = POSE3_DOF
+) -> tuple[np.ndarray, float, float]:
     """(per axis (6,), worst rotation, worst translation): the smallest change (rad, m) the test
     ``d^T C^-1 d > chi2_{1-alpha}(dof)`` detects with probability ``power`` (module docstring)."""
     q = chi2.ppf(1.0 - alpha, dof)

@@ -178,11 +178,13 @@ def _link(
     return Link(a, b, order.T_cam_lidar, n, len(order.flip), kind, order.ambiguous)
 
 
-def _pairs(moments: Sequence[MomentResult], lidars: Sequence[str], cameras: Sequence[str]):
+def _pairs(
+    moments: Sequence[MomentResult], lidars: Sequence[str], cameras: Sequence[str]
+) -> dict[tuple[str, str], list[MomentResult]]:
     """Every sensor pair (a camera before a LiDAR: its link is ``T_cam_lidar``, as the single pair's)
     with their shared moments."""
     sensors = [*lidars, *cameras]
-    out = {}
+    out: dict[tuple[str, str], list[MomentResult]] = {}
     for i, s in enumerate(sensors):
         for t in sensors[i + 1 :]:
             a, b = (t, s) if (s in lidars and t in cameras) else (s, t)
@@ -200,7 +202,7 @@ def _tree(
     pairs: Mapping[tuple[str, str], list[MomentResult]],
     lidars: set[str],
     link: Callable[[str, str, list[MomentResult]], Link],
-):
+) -> tuple[dict[str, np.ndarray], list[tuple[str, str]], dict[str, str], list[Link]]:
     """Prim's maximum spanning tree from ``base`` (links by agreeing moments, then kind), the links
     evaluated lazily: one whose shared moments cannot beat an evaluated link's agreeing ones is not
     computed. Returns (poses, tree edges, unplaced with reasons, the links evaluated)."""
@@ -277,7 +279,9 @@ def _candidates(m: MomentResult, s: str, T_base_s: np.ndarray, board: Board) -> 
         return []
 
 
-def _place(m: MomentResult, T_base: Mapping[str, np.ndarray], board: Board, base: str, opts: StartOptions):
+def _place(
+    m: MomentResult, T_base: Mapping[str, np.ndarray], board: Board, base: str, opts: StartOptions
+) -> tuple[np.ndarray, dict[str, bool], list[tuple[str, str]]] | None:
     """(T_base_board, {sensor: flip}, [(sensor, reason)]) of one moment, or None with no observation."""
     obs = [s for s in m.sensors if s in T_base]
     if not obs:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import gtsam
 import numpy as np
@@ -20,6 +21,9 @@ from gtsam.symbol_shorthand import Y
 from ilcc_graph.estimation.keys import POSE3_DOF, B
 from ilcc_graph.estimation.kinds.base import FactorKind, Scales, Term, register
 from ilcc_graph.estimation.solver import check_covariance, check_pose, gaussian
+
+if TYPE_CHECKING:
+    from ilcc_graph.estimation.assembly import Assembly
 
 __all__ = ["LidarBoard", "LidarBoards", "LidarBoardViews", "Y"]
 
@@ -51,7 +55,7 @@ class LidarBoardViews(FactorKind):
     term = "board"
     letter = "y"
 
-    def __init__(self, asm) -> None:  # noqa: ANN001 - Assembly
+    def __init__(self, asm: Assembly) -> None:
         super().__init__(asm)
         data: LidarBoards | None = asm.problem.evidence.get(self.name)
         self.data = data if data is not None else LidarBoards((), {})
