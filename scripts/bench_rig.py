@@ -131,7 +131,9 @@ def calibration_stats(
                 row.setdefault("nees", []).append(float(xi @ np.linalg.solve(est.covariance, xi)))
                 row.setdefault("rot", []).append(float(np.degrees(np.linalg.norm(xi[:3]))))
                 row.setdefault("trans", []).append(float(1e3 * np.linalg.norm(xi[3:])))
-                row.setdefault("sig_rot", []).append(float(np.degrees(np.sqrt(np.trace(est.covariance[:3, :3])))))
+                row.setdefault("sig_rot", []).append(
+                    float(np.degrees(np.sqrt(np.trace(est.covariance[:3, :3]))))
+                )
                 row.setdefault("shared", []).append(
                     float(sum(1 for m in moments if {a, b} <= {*m.boards, *m.corners}))
                 )
@@ -143,7 +145,9 @@ def calibration_stats(
                         row.setdefault("trans_alone", []).append(float(1e3 * np.linalg.norm(x2[3:])))
                         row.setdefault("rot_joint_paired", []).append(row["rot"][-1])
                         row.setdefault("trans_joint_paired", []).append(row["trans"][-1])
-                        row.setdefault("nees_alone", []).append(float(x2 @ np.linalg.solve(e2.covariance, x2)))
+                        row.setdefault("nees_alone", []).append(
+                            float(x2 @ np.linalg.solve(e2.covariance, x2))
+                        )
     return out
 
 
@@ -178,13 +182,13 @@ def calibration_table(stats: dict[tuple[str, str], dict[str, list[float]]], with
                 line += " - | - | - |"
         lines.append(line)
     a = np.asarray(all_nees)
+    means = [float(np.mean(r["nees"])) for r in stats.values()]
+    cover = [100 * float(np.mean(np.asarray(r["nees"]) < Q95)) for r in stats.values()]
     lines.append("")
     lines.append(
         f"All pairs pooled: NEES {a.mean():.2f}, coverage {100 * np.mean(a < Q95):.1f} % "
         f"({len(a)} pair estimates); per-pair NEES range "
-        f"{min(np.mean(r['nees']) for r in stats.values()):.2f}-{max(np.mean(r['nees']) for r in stats.values()):.2f}, "
-        f"coverage {min(100 * np.mean(np.asarray(r['nees']) < Q95) for r in stats.values()):.0f}-"
-        f"{max(100 * np.mean(np.asarray(r['nees']) < Q95) for r in stats.values()):.0f} %."
+        f"{min(means):.2f}-{max(means):.2f}, coverage {min(cover):.0f}-{max(cover):.0f} %."
     )
     return "\n".join(lines)
 
@@ -206,7 +210,7 @@ def verify_stats(
             row.setdefault("sensor_fail", []).append(c.verdict == "fail")
             others = [x.verdict == "fail" for s, x in res.sensors.items() if s != moved]
             row.setdefault("others_fail", []).append(any(others))
-        for s, c in res.sensors.items():
+        for c in res.sensors.values():
             if np.isfinite(c.detectable_deg):
                 row.setdefault("det_deg", []).append(c.detectable_deg)
                 row.setdefault("det_mm", []).append(c.detectable_mm)
@@ -215,8 +219,8 @@ def verify_stats(
 
 def verify_table(stats: dict[str, dict[str, list]]) -> str:
     lines = [
-        "| capture | n | rig verdict fail | moved sensor fail | another sensor fail | verdicts (pass/warn/fail) | "
-        "smallest detectable, median (deg / mm) |",
+        "| capture | n | rig verdict fail | moved sensor fail | another sensor fail | "
+        "verdicts (pass/warn/fail) | smallest detectable, median (deg / mm) |",
         "|---|---|---|---|---|---|---|",
     ]
     label = {"same": "unchanged", "rot": "one sensor turned 0.25 deg", "trans": "one sensor shifted 10 mm"}
@@ -300,47 +304,63 @@ def timed(what: str, fn: Callable[[], str]) -> str:
     return text
 
 
+def observation_part(kind: str, runs: int, verify: int) -> str:
+    obs = timed(
+        f"{kind} calibration (observation level)",
+        lambda: calibration_table(calibration_stats(observation_runs(kind, range(1, runs + 1)), True), True),
+    )
+    ver = timed(
+        f"{kind} verify (observation level)",
+        lambda: verify_table(verify_stats(observation_verify(kind, range(1, verify + 1)))),
+    )
+    return (
+        f"### {kind}\n\nCalibration, {runs} rigs x 12 boards:\n\n{obs}\n\n"
+        f"verify, {verify} stored calibrations x 3 captures of 5 boards:\n\n{ver}\n"
+    )
+
+
+def rendered_part(kind: str, limit: int) -> str:
+    rendered = rendered_runs(kind, limit)
+    ren = (
+        timed(
+            f"{kind} calibration (rendered)",
+            lambda: calibration_table(calibration_stats(rendered, False), False),
+        )
+        if rendered
+        else "no cached captures"
+    )
+    cases = rendered_verify(kind, limit)
+    ver = (
+        timed(f"{kind} verify (rendered)", lambda: verify_table(verify_stats(cases)))
+        if cases
+        else "none cached"
+    )
+    return (
+        f"### {kind}\n\nCalibration, {len(rendered)} rigs x 12 boards:\n\n{ren}\n\n"
+        f"verify, {len(cases) // 3} stored calibrations x 3 captures of 5 boards:\n\n{ver}\n"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=int, default=50)
-    ap.add_argument("--verify", type=int, default=50)
-    ap.add_argument("--rendered", type=int, default=50, help="at most this many cached captures per kind")
+    ap.add_argument("--runs", type=int, default=50, help="observation-level rigs per kind (0: none)")
+    ap.add_argument("--verify", type=int, default=50, help="observation-level verify seeds per kind")
+    ap.add_argument(
+        "--rendered", type=int, default=50, help="at most this many cached captures per kind (0: none)"
+    )
     ap.add_argument("--kinds", nargs="*", default=["ring-pinhole", "ring-fisheye", "backpack"])
     ap.add_argument("--write", action="store_true", help=f"write the tables into {DOC.name}")
     a = ap.parse_args()
-    parts = []
-    for kind in a.kinds:
-        seeds = range(1, a.runs + 1)
-        obs = timed(
-            f"{kind} calibration (observation level)",
-            lambda: calibration_table(calibration_stats(observation_runs(kind, seeds), True), True),
-        )
-        rendered = rendered_runs(kind, a.rendered)
-        ren = (
-            timed(f"{kind} calibration (rendered)", lambda: calibration_table(calibration_stats(rendered, False), False))
-            if rendered
-            else "no cached captures"
-        )
-        ver = timed(
-            f"{kind} verify (observation level)",
-            lambda: verify_table(verify_stats(observation_verify(kind, range(1, a.verify + 1)))),
-        )
-        rcases = rendered_verify(kind, a.rendered)
-        rver = (
-            timed(f"{kind} verify (rendered)", lambda: verify_table(verify_stats(rcases)))
-            if rcases
-            else "no cached captures"
-        )
-        part = (
-            f"### {kind}\n\nCalibration, observation level, {a.runs} rigs x 12 boards:\n\n{obs}\n\n"
-            f"Calibration, rendered (the real stages), {len(rendered)} cached rigs:\n\n{ren}\n\n"
-            f"verify, observation level, {a.verify} stored calibrations x 3 captures of 5 boards:\n\n{ver}\n\n"
-            f"verify, rendered, {len(rcases) // 3} stored calibrations x 3 captures of 5 boards:\n\n{rver}\n"
-        )
-        print(part, flush=True)
-        parts.append(part)
-    if a.write:
-        write_between(DOC, "<!-- bench:begin -->", "<!-- bench:end -->", "\n".join(parts))
+    for name, on, part in (
+        ("observations", a.runs > 0, lambda k: observation_part(k, a.runs, a.verify)),
+        ("rendered", a.rendered > 0, lambda k: rendered_part(k, a.rendered)),
+    ):
+        if not on:
+            continue
+        text = "\n".join(part(kind) for kind in a.kinds)
+        print(text, flush=True)
+        if a.write:
+            write_between(DOC, f"<!-- {name}:begin -->", f"<!-- {name}:end -->", text)
 
 
 if __name__ == "__main__":
