@@ -9,6 +9,7 @@ rig names them); ``verify_capture(stored, source, options)`` runs the stages on 
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -128,13 +129,14 @@ def verify_text(run: VerifyRun) -> str:
     r = run.result
     lines = [f"verify: {len(run.observation.moments)} moments; poses relative to {r.reference}"]
     for s, c in r.sensors.items():
-        lines.append(f"{s}: {c.verdict.upper()} - {c.reason}")
+        lines += textwrap.wrap(f"{s}: {c.verdict.upper()} - {c.reason}", 80, subsequent_indent="   ")
         if c.axes:
             lines.append("   axis     change    sigma  detectable  (deg or mm)")
             lines += [
                 f"   {a.name:<7}{a.change:>8.3f} {a.sigma:>8.3f} {a.detectable:>10.3f}  {a.verdict}"
                 for a in c.axes
             ]
-    lines += [f"note: {n}" for n in r.notes]
+    for n in r.notes:
+        lines += textwrap.wrap(f"note: {n}", 80, subsequent_indent="   ")
     lines.append(f"verdict: {r.verdict}")
     return "\n".join(lines)

@@ -50,6 +50,7 @@ def _verify(cal: Path, data: Path, out: Path, capsys: pytest.CaptureFixture[str]
     word = (out / "verdict.txt").read_text().strip()
     assert word == doc["verdict"] and code == doc["exit_status"] == EXIT_CODES[word]
     assert f"verdict: {word}" in printed
+    assert all(len(line) <= 80 for line in printed.splitlines() if not line.startswith("wrote "))
     return code, doc, printed
 
 
