@@ -73,8 +73,8 @@ def test_refine_intrinsics(simulated, calibrated, tmp_path):
     """Stated intrinsics off by a typical error: refined, they come back to the truth within their
     sigmas, and the extrinsic stays within its own; Kalibr gets the refined ones."""
     data = simulated("pinhole", "--intrinsics-error", "1")
-    # the LiDAR read as 6-dof poses: with the model auto chooses here (range), k3 refines to 2e-5
-    # (0.03 px), which Kalibr's radtan cannot hold and the export refuses, as it should
+    # the LiDAR read as 6-dof poses. k3 (0 in truth) refines to ~1e-5, moving pixels by ~0.02 px:
+    # below cameras.pinhole.KALIBR_PX, so the camchain leaves it out with a comment
     out = calibrated(data, "--refine-intrinsics", "--sensor-model", "none")
     got = _yaml(out / "calibration.yaml")["sensor_errors"]["camera_intrinsics"]
     error = _yaml(data / "ground_truth.yaml")["camera_intrinsics_error"]  # stated minus true

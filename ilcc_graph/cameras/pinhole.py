@@ -19,8 +19,10 @@ from .common import config_dist, config_K, finite_vector, first_fold, solve_incr
 from .registry import register
 
 _THETA_HI = np.pi / 2 - 1e-6  # radii are searched as r = tan(theta) up to here
-#: k3.. that move no pixel by more than this are left out of a Kalibr camchain (Kalibr has no k3)
-KALIBR_PX = 0.01
+#: k3.. that move no pixel by more than this are left out of a Kalibr camchain (Kalibr has no k3):
+#: a twentieth of a pixel, below the noise of any corner detector (0.1-0.3 px). A refined k3 of a lens
+#: with none moves pixels by 0.01-0.03 px, which must not block the export; a real k3 moves them by px.
+KALIBR_PX = 0.05
 #: Names of OpenCV's distortion coefficients, in its order.
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
 
