@@ -162,10 +162,11 @@ def solve_observed(observation: RigObservation, options: RigRunOptions = RigRunO
 
     Raises CalibrationImpossible (no moment relates two sensors), IndeterminateSystem."""
     rig = observation.rig
-    lidars, cams = list(rig.lidars), {c: rig.sensor(c).camera for c in rig.cameras}
+    lidars = list(rig.lidars)
+    cams = {c: cam for c in rig.cameras if (cam := rig.sensor(c).camera) is not None}
     start = rig_start(observation.moments, rig.board, lidars, list(cams), options.start)
     reference = options.reference or rig.reference
-    sol = solve_rig(observation.moments, start, rig.board, lidars, cams, reference, options.solve, rig.names)  # type: ignore[arg-type]
+    sol = solve_rig(observation.moments, start, rig.board, lidars, cams, reference, options.solve, rig.names)
     return RigResult(rig, sol, fates(observation, start, sol), list(observation.skipped), start, observation)
 
 

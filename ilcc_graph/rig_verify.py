@@ -71,8 +71,8 @@ def verify_capture(
             f"(it has {list(stored.sensors)})"
         )
     obs = observe_rig(src, stages, progress)
-    cams = {c: rig.sensor(c).camera for c in rig.cameras}
-    res = verify_rig(stored, obs.moments, rig.board, list(rig.lidars), cams, options)  # type: ignore[arg-type]
+    cams = {c: cam for c in rig.cameras if (cam := rig.sensor(c).camera) is not None}
+    res = verify_rig(stored, obs.moments, rig.board, list(rig.lidars), cams, options)
     return VerifyRun(res, obs)
 
 
