@@ -252,7 +252,8 @@ def _export_lidar_offsets(cal: Calibration, *, table: str = "yaml") -> str:
     lid = (cal.sensors or {}).get("lidar_errors")
     if lid is None:
         raise ValueError(
-            "the calibration holds no LiDAR error terms (calibrate with --sensor-model beams to estimate them)"
+            "the calibration holds no LiDAR error terms (calibrate with --sensor-model beams to "
+            "estimate them)"
         )
     elev = lid.get("elevation_deg", {})
     rows = []

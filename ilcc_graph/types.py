@@ -226,6 +226,29 @@ class FrameResult:
 
 
 @dataclass(frozen=True)
+class MomentResult:
+    """What a rig's stages found at one moment (issue 24): every sensor's answer or why not.
+
+    name: the moment's name. boards: {LiDAR: BoardFit} (its own frame). corners: {camera:
+    ImageCorners}. failures: {sensor: reason} for the sensors that had data but no board (or whose
+    file could not be read). damaged: the sensors whose file could not be read.
+    Each observation's corner order is its own stage's (known up to the board's half turn when
+    ``half_turn_ambiguous``); ``init.rig_start`` makes them agree.
+    """
+
+    name: str
+    boards: dict[str, BoardFit] = field(default_factory=dict)
+    corners: dict[str, ImageCorners] = field(default_factory=dict)
+    failures: dict[str, str] = field(default_factory=dict)
+    damaged: tuple[str, ...] = ()
+
+    @property
+    def sensors(self) -> tuple[str, ...]:
+        """The sensors that saw the board (LiDARs first, then cameras)."""
+        return (*self.boards, *self.corners)
+
+
+@dataclass(frozen=True)
 class Calibration:
     """The extrinsic with its uncertainty.
 

@@ -9,7 +9,7 @@ by ``b`` along their rays, *not* the first-order model of ``factors.range_offset
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import gtsam
 import numpy as np
@@ -18,8 +18,8 @@ from factors.testing import sample_bearing
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import CameraModel
 from ilcc_graph.estimation.graphs import board_face_samples
-from ilcc_graph.estimation.rig import RigFrame, RigView
-from ilcc_graph.types import GraphFrame
+from ilcc_graph.init.rig_start import orient_corners, orient_fit
+from ilcc_graph.types import BoardFit, GraphFrame, ImageCorners, MomentResult
 
 BOARD_SIGMAS = (2e-3, 2e-3, 1e-3, 3e-3, 3e-3, 2e-3)
 
@@ -132,31 +132,61 @@ def session_frames(
     return frames, truth
 
 
-def rig_frames(
+def rig_moments(
     rng: np.random.Generator,
-    n_frames: int,
+    n_moments: int,
     cameras: Mapping[str, CameraModel],
-    T_cam_lidar: Mapping[str, gtsam.Pose3],
+    T_cam_base: Mapping[str, gtsam.Pose3],
     board: Board,
-    range_offset_m: float = 0.0,
+    T_base_lidar: Mapping[str, gtsam.Pose3] | None = None,
     sigma_px: float = 0.5,
     min_views: int = 1,
-) -> list[RigFrame]:
-    """Boards all around the LiDAR; each camera that sees the whole board gives a view."""
+    turn: bool = True,
+    lidar_sees: Callable[[int, str], bool] | None = None,
+    distance: tuple[float, float] = (1.5, 4.0),
+    range_offset_m: float = 0.0,
+) -> tuple[list[MomentResult], dict[str, gtsam.Pose3]]:
+    """A rig's moments as its stages would report them: boards all around the base LiDAR (the first
+    of ``T_base_lidar``, default one LiDAR ``lidar`` at the origin); each camera that sees the whole
+    board gives image corners, each LiDAR facing the board's printed side a board fit (pose drawn from
+    its covariance, as ``board_prior``). turn: each observation's corner order half-turned at random
+    (the stages know it only up to the half turn). lidar_sees(k, lidar): whether LiDAR ``lidar`` scans
+    the board of moment k (default: every LiDAR the board faces). min_views: camera views per moment.
+    range_offset_m: the base LiDAR reads this much long (its fits as ``lidar_board_pose`` gives them).
+    Returns the moments and the true ``T_base_board`` per moment."""
+    lidars = dict(T_base_lidar or {"lidar": gtsam.Pose3()})
     p_board = board.corners_board()
-    out: list[RigFrame] = []
-    while len(out) < n_frames:
-        T_lb = random_board_pose(rng, board, distance=(1.5, 4.0))
-        views = []
+    out: list[MomentResult] = []
+    truth: dict[str, gtsam.Pose3] = {}
+    while len(out) < n_moments:
+        T_bb = random_board_pose(rng, board, distance=distance)
+        corners = {}
         for name, cam in cameras.items():
-            obs = observe(rng, cam, T_cam_lidar[name], T_lb, p_board, sigma_px)
+            obs = observe(rng, cam, T_cam_base[name], T_bb, p_board, sigma_px)
             if obs is not None:
-                views.append(RigView(name, obs[0], obs[1]))
-        if len(views) < min_views:
+                uv = cam.project(obs[0])
+                corners[name] = ImageCorners(uv, obs[0], obs[1], board.half_turn_symmetric)
+        if len(corners) < min_views:
             continue
-        T_meas, cov = board_prior(rng, T_lb, board, range_offset_m)
-        out.append(RigFrame(f"{len(out):04d}", T_meas, cov, p_board, tuple(views)))
-    return out
+        k = len(out)
+        fits = {}
+        for name, T_bl in lidars.items():
+            T_lb = T_bl.inverse().compose(T_bb)
+            normal, centre = T_lb.rotation().matrix()[:, 2], T_lb.transformFrom(p_board.mean(axis=0))
+            faces = float(normal @ centre) < -0.2 * np.linalg.norm(centre)
+            if not (lidar_sees(k, name) if lidar_sees is not None else faces):
+                continue
+            T_meas, cov = board_prior(rng, T_lb, board, range_offset_m if name == next(iter(lidars)) else 0.0)
+            c_lidar = p_board @ T_meas[:3, :3].T + T_meas[:3, 3]
+            empty = (np.zeros((0, 3)), np.zeros(0))
+            fits[name] = BoardFit(T_meas, cov, c_lidar, *empty, board.half_turn_symmetric)
+        if turn and board.half_turn_symmetric:
+            fits = {n: orient_fit(f, board) if rng.random() < 0.5 else f for n, f in fits.items()}
+            corners = {n: orient_corners(c, board) if rng.random() < 0.5 else c for n, c in corners.items()}
+        name = f"{k + 1:04d}"
+        out.append(MomentResult(name, fits, corners))
+        truth[name] = T_bb
+    return out, truth
 
 
 def board_returns(

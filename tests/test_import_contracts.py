@@ -33,7 +33,7 @@ LAYERS: tuple[tuple[tuple[str, ...], bool], ...] = (
     (("app",), True),  # the command line: nothing imports it
     # the orchestration: the run over a source (run/: opening, observation pass, strategies,
     # evaluation, `check`), the exports and the hand-off into a user's GTSAM graph
-    (("run", "exports", "handoff"), False),
+    (("run", "exports", "handoff", "exports_rig", "handoff_rig"), False),
     (("report", "next_pose"), True),  # what the run shows and advises; the run hands them its results
     (("estimation",), True),  # the one estimation core
     (("datasets", "lidar", "image", "init", "simulate"), True),  # frame sources and the stages
@@ -62,7 +62,7 @@ ARROWS: dict[str, set[str]] = {
     "datasets": {"config", "cameras", "io"},
     "lidar": {"board", "lidars"},
     "image": {"board", "cameras"},
-    "init": set(),
+    "init": {"board"},  # the rig's start (init/rig_start.py) reads the board's corners
     "simulate": {"board", "cameras", "lidars", "io", "config"},
     "estimation": {"board", "cameras", "init"},
     "next_pose": {"estimation", "lidar", "lidars", "cameras", "board", "config"},

@@ -1,20 +1,18 @@
-"""Tests of the sessions (rigid, drift, moved mount) and rig strategies of the estimation core."""
+"""Tests of the sessions strategy (rigid, drift, moved mount) of the estimation core (the rig's:
+test_rig_solve.py)."""
 
 from __future__ import annotations
-
-from dataclasses import replace
 
 import gtsam
 import numpy as np
 import pytest
-from synthetic_graph import rig_frames, session_frames
+from synthetic_graph import session_frames
 
 from ilcc_graph.board import Board
-from ilcc_graph.cameras import Equirectangular, Pinhole
+from ilcc_graph.cameras import Equirectangular
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import NoiseOptions, solve, solve_problem
 from ilcc_graph.estimation.problem import frames_problem
-from ilcc_graph.estimation.rig import RigFrame, RigOptions, RigView, relative_pose, solve_rig
 from ilcc_graph.estimation.sessions import JointOptions, Session, compare_estimates, solve_sessions
 from ilcc_graph.types import Estimate
 
@@ -165,79 +163,6 @@ def test_bad_input() -> None:
     assert single.global_test is None and single.session_tests == [] and single.pair_tests == []
 
 
-# ------------------------------------------------------------------------------------- rigs
-def pinhole(width: int = 1280, height: int = 960, hfov_deg: float = 110.0) -> Pinhole:
-    f = 0.5 * width / np.tan(np.radians(hfov_deg) / 2)
-    K = np.array([[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]])
-    return Pinhole(width, height, K, np.array([-0.02, 0.004, 0.0, 0.0, 0.0]))
-
-
-def rig(n_cameras: int = 4) -> tuple[dict[str, Pinhole], dict[str, gtsam.Pose3]]:
-    """Pinhole cameras looking out every 360/n degrees, 10 cm from the LiDAR axis, 20 cm up."""
-    R_cv = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # OpenCV axes from LiDAR's
-    cams, poses = {}, {}
-    for k in range(n_cameras):
-        yaw = 2 * np.pi * k / n_cameras
-        Rz = gtsam.Rot3.Rz(yaw).matrix()
-        R_cam_lidar = R_cv @ Rz.T @ gtsam.Rot3.Expmap(np.radians([1.0, -2.0, 1.5 * k])).matrix()
-        c_lidar = np.array([0.1 * np.cos(yaw), 0.1 * np.sin(yaw), 0.2])
-        name = f"cam{k}"
-        cams[name] = pinhole()
-        poses[name] = gtsam.Pose3(gtsam.Rot3(R_cam_lidar), -R_cam_lidar @ c_lidar)
-    return cams, poses
-
-
-def test_relative_pose_jacobians() -> None:
-    rng = np.random.default_rng(7)
-    Ta = gtsam.Pose3.Expmap(rng.normal(0, 1, 6))
-    Tb = gtsam.Pose3.Expmap(rng.normal(0, 1, 6))
-    H1 = np.zeros((6, 6), order="F")
-    H2 = np.zeros((6, 6), order="F")
-    Hi = np.zeros((6, 6), order="F")
-    Tb_inv = Tb.inverse(Hi)
-    Ta.compose(Tb_inv, H1, H2)
-    J_gtsam = np.hstack([H1, H2 @ Hi])
-    C = np.cov(rng.normal(size=(12, 40)))
-    est = relative_pose(Ta.matrix(), Tb.matrix(), C)
-    assert np.allclose(est.T, (Ta * Tb.inverse()).matrix())
-    assert np.allclose(est.covariance, J_gtsam @ C @ J_gtsam.T, atol=1e-10)
-
-
-def test_rig_cameras_and_camera_to_camera() -> None:
-    rng = np.random.default_rng(8)
-    cams, truth = rig(4)
-    frames = rig_frames(rng, 40, cams, truth, BOARD)
-    shared = sum(len(f.views) > 1 for f in frames)
-    assert shared > 0
-    sol = solve_rig(frames, cams)
-    assert sol.cameras == ("cam0", "cam1", "cam2", "cam3") and sol.joint_covariance.shape == (24, 24)
-    for name, est in sol.extrinsics.items():
-        assert nees(est, truth[name]) < 22.5
-    for (a, b), est in sol.relative.items():
-        T_ab = truth[a] * truth[b].inverse()
-        assert nees(est, T_ab) < 22.5
-    # boards seen twice correlate neighbouring cameras: the relative covariance is not the sum
-    C01 = sol.joint_covariance[:6, 6:12]
-    assert np.abs(C01).max() > 0
-    assert len(sol.T_lidar_board) == 40
-
-
-def test_rig_with_given_start_and_range_offset() -> None:
-    rng = np.random.default_rng(9)
-    cams, truth = rig(2)
-    cams = {"front": cams["cam0"], "back": cams["cam1"], "pano": PANO}
-    truth = {"front": truth["cam0"], "back": truth["cam1"], "pano": T_TRUE}
-    frames = rig_frames(rng, 20, cams, truth, BOARD, range_offset_m=0.03, min_views=2)
-    start = {n: T.compose(gtsam.Pose3.Expmap(rng.normal(0, 0.02, 6))).matrix() for n, T in truth.items()}
-    sol = solve_rig(frames, cams, start, RigOptions(range_offset=True))
-    value, sigma = sol.range_offset
-    assert abs(value - 0.03) < 3 * sigma
-    for name, est in sol.extrinsics.items():
-        assert nees(est, truth[name]) < 22.5
-    with pytest.raises(CalibrationImpossible, match="no usable view"):
-        solve_rig(frames, {**cams, "unused": PANO})
-
-
 def test_compare_estimates_is_consistent_for_independent_draws() -> None:
     """Mahalanobis distance of two independent draws around one pose: mean ~ 6 (chi2 with 6 dof)."""
     rng = np.random.default_rng(10)
@@ -278,34 +203,6 @@ def _plain(x):
     if isinstance(x, (list, tuple)):
         return [_plain(v) for v in x]
     return x.tolist() if isinstance(x, np.ndarray) else x
-
-
-def test_rig_robust_kernel_limits_bad_corners() -> None:
-    """Nine corners 20 mrad off (three in each of three views): Cauchy stays near the clean answer."""
-    rng = np.random.default_rng(12)
-    cams, truth = rig(2)
-    clean = rig_frames(rng, 12, cams, truth, BOARD)
-    frames = list(clean)
-    turn = gtsam.Rot3.Expmap(np.array([0.0, 0.02, 0.0]))
-    for i in range(3):
-        f, v = frames[i], frames[i].views[0]
-        b = v.bearings.copy()
-        b[[3, 10, 20]] = [turn.rotate(x) for x in b[[3, 10, 20]]]
-        views = (RigView(v.camera, b, v.cov_px), *f.views[1:])
-        frames[i] = RigFrame(f.name, f.T_lidar_board, f.board_cov, f.points_board, views)
-    ref = solve_rig(clean, cams)
-    # one bearing component for all views: a component per view would down-weight the bad views
-    no_gate = NoiseOptions(chi2_gate_prob=None, view_components=False)
-    plain = solve_rig(frames, cams, options=RigOptions(noise=no_gate))
-    robust = solve_rig(frames, cams, options=RigOptions(noise=replace(no_gate, robust="cauchy")))
-    gated = solve_rig(frames, cams)  # the noise policy's gate drops the three frames instead
-    assert sorted(n for n, _ in gated.dropped) == sorted(f.name for f in frames[:3])
-    for name in cams:
-        d_plain = nees(ref.extrinsics[name], gtsam.Pose3(plain.extrinsics[name].T))
-        d_robust = nees(ref.extrinsics[name], gtsam.Pose3(robust.extrinsics[name].T))
-        assert d_plain > 5.0 and d_robust < 0.1 * d_plain, (name, d_plain, d_robust)
-    with pytest.raises(ValueError, match="unknown kernel"):
-        solve_rig(frames, cams, options=RigOptions(noise=NoiseOptions(robust="nope")))
 
 
 def test_repeatability_widens_the_tests() -> None:

@@ -79,6 +79,7 @@ def _commands(data: Path, out: Path, cal: Path, cache: Path) -> list[list[str]]:
         ["image-corners", str(data), "--out", str(out)],
         ["check", str(data), "--out", str(out)],
         ["evaluate", str(data), str(cal), "--out", str(out)],
+        ["verify", str(cal), str(data), "--out", str(out)],
         ["demo", "--cache", str(cache), "--out", str(out)],
     ]
 
@@ -94,7 +95,7 @@ def test_out_at_the_data_folder_is_refused_and_nothing_touched(sim, earlier, tmp
     data = tmp_path / "data"
     shutil.copytree(sim, data)
     before = snapshot(data)
-    for argv in _commands(data, data, earlier / "calibration.yaml", tmp_path / "cache")[:5]:
+    for argv in _commands(data, data, earlier / "calibration.yaml", tmp_path / "cache")[:6]:
         _refused(argv, capsys, f"--out {data}", "holds the data set this run reads")
     assert snapshot(data) == before
     # the simulated set is ours, but a data set: no run replaces it, whatever reads it
@@ -116,6 +117,7 @@ def test_out_at_a_folder_of_the_users_is_refused_and_every_file_kept(sim, earlie
             argv, capsys, f"--out {home}", "holds files ilcc-graph did not write", ".bashrc", "projects/"
         )
     _refused(["simulate", str(home)], capsys, f"simulate {home}", "holds files ilcc-graph did not write")
+    _refused(["simulate-rig", str(home)], capsys, f"simulate {home}", "holds files ilcc-graph did not write")
     assert snapshot(home) == before
     assert not (tmp_path / "cache").exists()  # the demo refused before simulating
 

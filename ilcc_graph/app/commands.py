@@ -20,6 +20,8 @@ from ilcc_graph.app import (
     cmd_evaluate,
     cmd_export,
     cmd_simulate,
+    cmd_simulate_rig,
+    cmd_verify,
 )
 
 __all__ = ["COMMANDS", "Command"]
@@ -39,9 +41,11 @@ COMMANDS: tuple[Command, ...] = (
     Command("calibrate", cmd_calibrate.HELP, cmd_calibrate.add_arguments, cmd_calibrate.run),
     Command("demo", cmd_demo.HELP, cmd_demo.add_arguments, cmd_demo.run),
     Command("simulate", cmd_simulate.HELP, cmd_simulate.add_arguments, cmd_simulate.run),
+    Command("simulate-rig", cmd_simulate_rig.HELP, cmd_simulate_rig.add_arguments, cmd_simulate_rig.run),
     Command("lidar-corners", cmd_corners.LIDAR_HELP, cmd_corners.add_arguments, cmd_corners.run_lidar),
     Command("image-corners", cmd_corners.IMAGE_HELP, cmd_corners.add_arguments, cmd_corners.run_image),
     Command("evaluate", cmd_evaluate.HELP, cmd_evaluate.add_arguments, cmd_evaluate.run),
     Command("check", cmd_check.HELP, cmd_check.add_arguments, cmd_check.run),
     Command("export", cmd_export.HELP, cmd_export.add_arguments, cmd_export.run),
+    Command("verify", cmd_verify.HELP, cmd_verify.add_arguments, cmd_verify.run),
 )

@@ -31,9 +31,12 @@ examples:
   ilcc-graph evaluate DATA2 out/run1/calibration.yaml  the paper's metric on frames not used to calibrate
   ilcc-graph export out/latest/calibration.yaml --format ros-tf
   ilcc-graph check DATA --watch --target-sigma 0.05,1   judge each frame while a recorder fills DATA
+  ilcc-graph simulate-rig rig/ --rig backpack       a simulated rig: a folder per sensor, rig.yaml
+  ilcc-graph verify out/rig/calibration.yaml NEW/   has a sensor moved? exit 0 pass, 4 warn, 5 fail
 
 exit codes: 0 success, 1 internal error (a bug; log beside the output), 2 bad usage or bad input,
-  3 calibration impossible from the data given, 129/130/143 stopped by SIGHUP/SIGINT/SIGTERM
+  3 calibration impossible from the data given, 129/130/143 stopped by SIGHUP/SIGINT/SIGTERM;
+  verify: 0 pass, 4 warn, 5 fail
 """
 
 

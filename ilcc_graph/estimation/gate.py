@@ -104,7 +104,7 @@ def board_stats(
                 p = f.points_board @ T[:3, :3].T + T[:3, 3]
                 c = np.linalg.norm(np.cross(p, bearings), axis=1)
                 angles.append(np.arctan2(c, np.sum(p * bearings, axis=1)))
-        a = np.concatenate(angles)
+        a = np.concatenate(angles) if angles else np.full(1, np.nan)  # a board LiDARs alone saw: none
         rms = float(1e3 * np.sqrt(np.mean(a**2)))
         out[i] = BoardStats(chi2, dof, rms, robust, returns.get(i), (p0, prior_dof.get(i, 0)), (raw, dof))
     return out

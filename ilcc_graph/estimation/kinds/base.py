@@ -63,6 +63,11 @@ class FactorKind:
         """The variables it owns that the graph of ``boards`` holds."""
         return []
 
+    def sightings(self) -> dict[int, int]:
+        """Per board, how many LiDARs' poses of it its factors hold (a board no camera saw is of use
+        when LiDARs saw it twice)."""
+        return {}
+
     def dim(self, key: int) -> int:
         """Tangent dimension of its variable ``key``."""
         raise KeyError(key)

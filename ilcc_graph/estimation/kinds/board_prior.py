@@ -50,6 +50,9 @@ class BoardPriors(FactorKind):
                     pts = next(v.points_board for v in pr.views if v.board == i)
                     self.samples[i] = samples_from_corners(pts)
 
+    def sightings(self) -> dict[int, int]:
+        return dict.fromkeys(self.covariances, 1)
+
     def graph(
         self, boards: Sequence[int], scales: Scales, plain: bool
     ) -> tuple[gtsam.NonlinearFactorGraph, list[Term]]:

@@ -70,6 +70,13 @@ class CameraViews(FactorKind):
                 )  # fmt: skip
             self.views.append((j, fac))
             seen.add(v.board)
+        # a board no camera saw is still of use when LiDARs saw it twice (a rig's base LiDAR and
+        # another, or two others: the kinds built before this one say)
+        lidars: dict[int, int] = {}
+        for kind in asm.kinds:
+            for i, n in kind.sightings().items():
+                lidars[i] = lidars.get(i, 0) + n
+        seen |= {i for i, n in lidars.items() if n >= 2}
         self.unusable = {i: reasons.get(i, "no view of it") for i in range(len(pr.boards)) if i not in seen}
 
     def graph(

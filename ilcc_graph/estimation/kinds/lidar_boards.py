@@ -80,6 +80,12 @@ class LidarBoardViews(FactorKind):
                 terms.append(Term(self.term, v.group, v.board, POSE3_DOF))
         return graph, terms
 
+    def sightings(self) -> dict[int, int]:
+        out: dict[int, int] = {}
+        for v in self.data.views:
+            out[v.board] = out.get(v.board, 0) + 1
+        return out
+
     def keys(self, boards: Sequence[int]) -> list[int]:
         keep = set(boards)
         return [Y(lid) for lid in sorted({v.lidar for v in self.data.views if v.board in keep})]

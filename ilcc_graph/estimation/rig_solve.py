@@ -1,0 +1,276 @@
+"""Rig strategy: every camera and LiDAR of a rig in one graph, one board per moment (issue 24).
+
+Variables: ``B(i)`` the board of moment i in the base LiDAR's frame (the rig's first LiDAR);
+``X(c) = T_cam_base`` per camera c (``p_cam = X(c) p_base``); ``Y(l) = T_base_lidar`` per other
+LiDAR l (``kinds.lidar_boards``). Factors: the base LiDAR's board fits as board priors (a board it
+did not see has none), every other LiDAR's fits as ``BetweenFactorPose3(Y(l), B(i))``, every
+camera's view as a grouped bearing factor on ``(X(c), B(i))``. Noise groups: the base LiDAR's
+boards, each other LiDAR's boards and each camera's views have their own (with
+``NoiseOptions.view_components`` every view its own bearing component); solved by the core's noise
+policy (``noise.solve_problem``: gate, variance components, final factor).
+
+The sensor model is ``none`` (each board the LiDAR stage's 6-dof pose): the choice among sensor
+models (``selection.py``) is the single pair's for now. A rig of one camera and one LiDAR is
+today's single-pair problem and gives the batch answer (``batch.solve(..., models=["none"])``).
+
+Answer: every sensor's ``T_ref_sensor`` in the frame of a chosen reference sensor (a camera or any
+LiDAR) with their joint covariance, and any pair's ``T_a_b`` with its own. Covariances follow
+interface.md: ``T_true = T_est Exp(xi)``, xi = (rotation, translation), rad and m. From the base
+frame: a camera's ``T_base_cam = X^-1`` perturbs by ``-Ad(X) xi``; a pose ``T_ref_s = T_base_ref^-1
+T_base_s`` by ``d_s - Ad(T_s_ref) d_ref`` (``d`` the base-frame perturbations).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from gtsam.symbol_shorthand import Y
+
+from ilcc_graph.board import Board
+from ilcc_graph.cameras import CameraModel
+from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.estimation.gate import BoardStats
+from ilcc_graph.estimation.keys import POSE3_DOF, X
+from ilcc_graph.estimation.kinds.lidar_boards import LidarBoard, LidarBoards
+from ilcc_graph.estimation.noise import NoiseOptions, Solution, solve_problem
+from ilcc_graph.estimation.problem import BoardPrior, Problem, View
+from ilcc_graph.init.rig_start import RigStart, adjoint, orient_moment
+from ilcc_graph.types import Estimate, MomentResult
+
+__all__ = ["RigOptions", "RigSolution", "between", "rig_problem", "solve_rig", "to_reference"]
+
+
+@dataclass(frozen=True)
+class RigOptions:
+    """noise: the noise policy. range_offset: estimate the base LiDAR's range offset (weak prior
+    ``range_offset_prior_sigma_m``); samples_board: (M, 3) board-face points for it (None: from the
+    corners)."""
+
+    noise: NoiseOptions = NoiseOptions()
+    range_offset: bool = False
+    range_offset_prior_sigma_m: float = 0.1
+    samples_board: np.ndarray | None = None
+
+
+def between(T_ref_a: np.ndarray, T_ref_b: np.ndarray, C: np.ndarray) -> Estimate:
+    """``T_a_b = T_ref_a^-1 T_ref_b`` with its covariance from the (12, 12) joint covariance ``C``
+    of (``T_ref_a``, ``T_ref_b``): ``xi_ab = xi_b - Ad(T_b_a) xi_a``."""
+    T_ab = np.linalg.solve(T_ref_a, T_ref_b)
+    J = np.hstack([-adjoint(np.linalg.inv(T_ab)), np.eye(POSE3_DOF)])
+    S = J @ C @ J.T
+    return Estimate(T_ab, 0.5 * (S + S.T))
+
+
+def to_reference(
+    T_base: Mapping[str, np.ndarray], C_base: np.ndarray, reference: str
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Poses ``T_base_s`` (in ``T_base``'s order) and their (6N, 6N) joint covariance re-expressed
+    in sensor ``reference``'s frame: ``T_ref_s`` and the joint covariance (the reference's block
+    zero)."""
+    names = list(T_base)
+    r = names.index(reference)
+    M = np.eye(POSE3_DOF * len(names))
+    out = {}
+    for k, s in enumerate(names):
+        out[s] = np.linalg.solve(T_base[reference], T_base[s])
+        sl = slice(POSE3_DOF * k, POSE3_DOF * (k + 1))
+        M[sl, POSE3_DOF * r : POSE3_DOF * (r + 1)] -= adjoint(np.linalg.inv(out[s]))
+    C = M @ C_base @ M.T
+    return out, 0.5 * (C + C.T)
+
+
+@dataclass(frozen=True)
+class RigSolution:
+    """The rig's answer.
+
+    sensors: the sensors solved, in the rig's order. reference: the sensor whose frame the poses are
+    in. base: the base LiDAR (the graph's frame). T_ref_sensor: {sensor: (4, 4)}. covariance: (6N,
+    6N) their joint covariance in ``sensors`` order (right tangent, rotation first; the reference's
+    block zero). T_base_board: the refined boards of the kept moments. per_moment: their residual
+    statistics. dropped: ``(moment, reason)`` of the boards the graph left out (the gate, or seen by
+    one sensor only); left_out: ``(moment, sensor, reason)`` of observations the start left out.
+    unsolved: {sensor: reason} of the rig's sensors without an answer. scales: the variance
+    components by (kind, noise group); variance_factor: the final factor. range_offset: the base
+    LiDAR's (value, sigma) metres when asked. solution: the core's ``noise.Solution`` (graph frame).
+    """
+
+    sensors: tuple[str, ...]
+    reference: str
+    base: str
+    T_ref_sensor: dict[str, np.ndarray]
+    covariance: np.ndarray
+    T_base_board: dict[str, np.ndarray]
+    per_moment: dict[str, BoardStats]
+    dropped: list[tuple[str, str]]
+    left_out: list[tuple[str, str, str]] = field(default_factory=list)
+    unsolved: dict[str, str] = field(default_factory=dict)
+    scales: dict[tuple[str, str], float] = field(default_factory=dict)
+    variance_factor: float = 1.0
+    iterations: int = 0
+    range_offset: tuple[float, float] | None = None
+    solution: Solution | None = None
+
+    def _slice(self, s: str) -> slice:
+        k = self.sensors.index(s)
+        return slice(POSE3_DOF * k, POSE3_DOF * (k + 1))
+
+    def joint(self, sensors: Sequence[str]) -> np.ndarray:
+        """(6n, 6n) joint covariance of the poses of ``sensors``, in that order."""
+        idx = np.concatenate([np.arange(POSE3_DOF * len(self.sensors))[self._slice(s)] for s in sensors])
+        return self.covariance[np.ix_(idx, idx)]
+
+    def pose(self, s: str) -> Estimate:
+        """``T_ref_s`` with its covariance."""
+        return Estimate(self.T_ref_sensor[s], self.covariance[self._slice(s), self._slice(s)])
+
+    def relative(self, a: str, b: str) -> Estimate:
+        """``T_a_b`` (``p_a = T_a_b p_b``) with its covariance (e.g. ``relative(cam, lidar)`` is the
+        pair's ``T_cam_lidar``)."""
+        return between(self.T_ref_sensor[a], self.T_ref_sensor[b], self.joint([a, b]))
+
+    def in_frame(self, reference: str) -> RigSolution:
+        """The same answer with every pose in sensor ``reference``'s frame."""
+        T, C = to_reference(self.T_ref_sensor, self.covariance, reference)
+        return RigSolution(
+            self.sensors, reference, self.base, T, C, self.T_base_board, self.per_moment, self.dropped,
+            self.left_out, self.unsolved, self.scales, self.variance_factor, self.iterations,
+            self.range_offset, self.solution,
+        )  # fmt: skip
+
+
+def rig_problem(
+    moments: Sequence[MomentResult],
+    start: RigStart,
+    board: Board,
+    lidars: Sequence[str],
+    cameras: Mapping[str, CameraModel],
+    options: RigOptions = RigOptions(),
+) -> tuple[Problem, list[tuple[str, str]]]:
+    """The rig's ``Problem`` (module docstring) from the stages' answers put in order by ``start``;
+    and the moments left out with the reason (not placed, or seen by one sensor only). Camera c is
+    extrinsic c (``cameras``' order), LiDAR l is ``lidars[l]`` (0: the base)."""
+    base = lidars[0]
+    if start.base != base:
+        raise ValueError(f"rig_problem: the start's base is {start.base!r}, the rig's first LiDAR {base!r}")
+    corners = board.corners_board()
+    cams = list(cameras)
+    boards: list[BoardPrior] = []
+    views: list[View] = []
+    lidar_views: list[LidarBoard] = []
+    skipped: list[tuple[str, str]] = []
+    for m in moments:
+        flips = start.flips.get(m.name)
+        if flips is None or m.name not in start.T_base_board:
+            if m.sensors:
+                skipped.append((m.name, "the board could not be placed"))
+            continue
+        o = orient_moment(m, flips, board)
+        n_obs = len(o.boards) + len([c for c in o.corners if c in cameras])
+        if n_obs < 2:
+            skipped.append((m.name, f"seen by one sensor only ({', '.join(o.sensors)}): relates nothing"))
+            continue
+        i = len(boards)
+        fit = o.boards.get(base)  # none: the board's place from the start, no LiDAR prior
+        T, C = (fit.T_lidar_board, fit.covariance) if fit else (start.T_base_board[m.name], None)
+        boards.append(BoardPrior(m.name, T, C, base, 0, options.samples_board, fit.returns if fit else None))
+        for lid, f in o.boards.items():
+            if lid != base:
+                lidar_views.append(LidarBoard(i, lidars.index(lid), f.T_lidar_board, f.covariance, lid))
+        for cam, c in o.corners.items():
+            if cam in cameras:
+                views.append(View(i, cams.index(cam), corners, c.bearings, c.cov_px, cameras[cam], cam, c.uv))
+    if not boards:
+        raise CalibrationImpossible(
+            "no moment with the board seen by two sensors of the rig"
+            + (f" ({'; '.join(f'{n}: {r}' for n, r in skipped[:4])})" if skipped else "")
+        )
+    placed = start.T_base_sensor
+    T_init = {c: np.linalg.inv(placed[n]) for c, n in enumerate(cams) if n in placed}
+    T_lidar = {k: placed[n] for k, n in enumerate(lidars) if k and n in placed}
+    problem = Problem(
+        tuple(boards),
+        tuple(views),
+        T_init,
+        range_offset_sigma_m=options.range_offset_prior_sigma_m if options.range_offset else None,
+        lidar_names=(base,),
+        evidence={"lidar_boards": LidarBoards(tuple(lidar_views), T_lidar)},
+    )
+    return problem, skipped
+
+
+def solve_rig(
+    moments: Sequence[MomentResult],
+    start: RigStart,
+    board: Board,
+    lidars: Sequence[str],
+    cameras: Mapping[str, CameraModel],
+    reference: str | None = None,
+    options: RigOptions = RigOptions(),
+    order: Sequence[str] | None = None,
+) -> RigSolution:
+    """Every sensor's pose in ``reference``'s frame (default the base, ``lidars[0]``) with the joint
+    covariance, from the stages' answers (``moments``) and the start (``init.rig_start``, or
+    ``init.rig_start.place_boards`` with known poses).
+
+    order: the sensors' order in the answer (default LiDARs then cameras). Raises
+    CalibrationImpossible (no moment relates two sensors), IndeterminateSystem (the boards do not
+    determine a pose), ValueError (malformed input).
+    """
+    problem, skipped = rig_problem(moments, start, board, lidars, cameras, options)
+    sol = solve_problem(problem, options.noise)
+    cams = list(cameras)
+    seen_cams = set(sol.assembly.extrinsics(sol.boards))
+    seen_lidars = {lv.lidar for lv in problem.evidence["lidar_boards"].views if lv.board in sol.boards}
+    found = [(n, Y(k)) for k, n in enumerate(lidars) if k in seen_lidars]
+    found += [(n, X(c)) for c, n in enumerate(cams) if c in seen_cams]
+    solved, keys = [lidars[0], *(n for n, _ in found)], [key for _, key in found]
+    unsolved = {
+        n: start.unplaced.get(n) or "no kept moment relates it to the others"
+        for n in [*lidars, *cams]
+        if n not in solved
+    }
+    dims = [POSE3_DOF] * len(keys)
+    J = sol.marginals.joint(keys, dims) + sol.spread_of(keys, dims)
+    # base-frame perturbations d_s of T_base_s: a LiDAR's Y is T_base_lidar (d = eta); a camera's
+    # X = T_cam_base, T_base_cam = X^-1 (d = -Ad(X) xi); the base's own pose is fixed (d = 0)
+    M = np.zeros((POSE3_DOF * len(solved), POSE3_DOF * len(keys)))
+    T_base: dict[str, np.ndarray] = {lidars[0]: np.eye(4)}
+    six = POSE3_DOF
+    for k, (n, key) in enumerate(zip(solved[1:], keys, strict=True)):
+        rows, cols = slice(six * (k + 1), six * (k + 2)), slice(six * k, six * (k + 1))
+        T = np.asarray(sol.values.atPose3(key).matrix(), dtype=np.float64)
+        if n in cameras:
+            T_base[n], M[rows, cols] = np.linalg.inv(T), -adjoint(T)
+        else:
+            T_base[n], M[rows, cols] = T, np.eye(POSE3_DOF)
+    reference = reference or lidars[0]
+    if reference not in solved:
+        raise CalibrationImpossible(
+            f"the reference sensor {reference!r} has no pose: {unsolved.get(reference)}"
+        )
+    rank = {n: i for i, n in enumerate(order or [*lidars, *cams])}
+    perm = sorted(range(len(solved)), key=lambda k: rank.get(solved[k], len(rank) + k))
+    idx = np.concatenate([np.arange(POSE3_DOF * k, POSE3_DOF * (k + 1)) for k in perm])
+    C_base = (M @ J @ M.T)[np.ix_(idx, idx)]
+    names = tuple(solved[k] for k in perm)
+    T_ref, C = to_reference({n: T_base[n] for n in names}, C_base, reference)
+    kept = [problem.boards[i].name for i in sol.boards]
+    return RigSolution(
+        sensors=names,
+        reference=reference,
+        base=lidars[0],
+        T_ref_sensor=T_ref,
+        covariance=C,
+        T_base_board={n: sol.board_pose(i) for n, i in zip(kept, sol.boards, strict=True)},
+        per_moment={n: sol.stats[i] for n, i in zip(kept, sol.boards, strict=True)},
+        dropped=[*skipped, *sol.dropped],
+        left_out=list(start.dropped),
+        unsolved=unsolved,
+        scales=dict(sol.scales),
+        variance_factor=sol.variance_factor,
+        iterations=sol.iterations,
+        range_offset=sol.offset(0) if options.range_offset else None,
+        solution=sol,
+    )

@@ -1,0 +1,142 @@
+"""Verify a stored calibration against a short new capture (``ilcc-graph verify``; docs/verify.md).
+
+``load_stored(path)`` reads a rig's calibration.yaml (``io.rig_results``) or a single pair's
+(``io.read_calibration``: the rig of ``lidar`` and ``camera``, as a single-pair data set opened as a
+rig names them); ``verify_capture(stored, source, options)`` runs the stages on the capture
+(``rig_observe``) and the test (``estimation.verify.verify_rig``); ``verify_to_dict`` and
+``verify_text`` are what the command writes and prints. Units in the answer: deg and mm.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ilcc_graph.config.rig import PAIR_NAMES
+from ilcc_graph.datasets import open_source
+from ilcc_graph.datasets.rig import RigSource
+from ilcc_graph.errors import InputError
+from ilcc_graph.estimation.verify import StoredRig, VerifyOptions, VerifyResult, verify_rig
+from ilcc_graph.io import read_calibration
+from ilcc_graph.io.rig_results import is_rig_calibration, read_rig_calibration
+from ilcc_graph.run.rig_observe import RigObservation, observe_rig
+from ilcc_graph.run.stages import StageOptions
+
+__all__ = ["EXIT_CODES", "VerifyRun", "load_stored", "verify_capture", "verify_text", "verify_to_dict"]
+
+#: the command's exit status per verdict (docs/verify.md; 1, 2, 3 and the signals' as every command's)
+EXIT_CODES = {"pass": 0, "warn": 4, "fail": 5}
+
+
+@dataclass(frozen=True)
+class VerifyRun:
+    """A verify run: the test's answer and the capture's observations."""
+
+    result: VerifyResult
+    observation: RigObservation
+
+
+def load_stored(path: str | Path) -> StoredRig:
+    """A stored calibration: a rig's calibration.yaml or a single pair's (InputError otherwise)."""
+    if is_rig_calibration(path):
+        cal = read_rig_calibration(path)
+        return StoredRig(cal.sensors, cal.reference, cal.T_ref_sensor, cal.covariance)
+    c = read_calibration(path)
+    if not np.all(np.isfinite(c.covariance)):
+        raise InputError(f"{path}: the calibration has no covariance (method {c.method}); verify needs one")
+    lidar, camera = PAIR_NAMES
+    return StoredRig.pair(c.T_cam_lidar, c.covariance, camera, lidar)
+
+
+def verify_capture(
+    stored: StoredRig,
+    source: RigSource | str | Path,
+    options: VerifyOptions = VerifyOptions(),
+    stages: StageOptions = StageOptions(),
+    progress: Callable[[int, int], None] | None = None,
+) -> VerifyRun:
+    """The capture ``source`` (a rig folder, file or bag, or a single-pair data set) against
+    ``stored``; InputError when the capture's sensors are not the calibration's."""
+    src = source if isinstance(source, RigSource) else open_source(source, rig=True)
+    rig = src.config()
+    missing = [s for s in rig.names if s not in stored.sensors]
+    if missing:
+        raise InputError(
+            f"{rig.source or source}: sensors {missing} are not in the stored calibration "
+            f"(it has {list(stored.sensors)})"
+        )
+    obs = observe_rig(src, stages, progress)
+    cams = {c: cam for c in rig.cameras if (cam := rig.sensor(c).camera) is not None}
+    res = verify_rig(stored, obs.moments, rig.board, list(rig.lidars), cams, options)
+    return VerifyRun(res, obs)
+
+
+def verify_to_dict(run: VerifyRun, options: VerifyOptions) -> dict[str, Any]:
+    """verify.yaml's content: the verdict, its exit status, each sensor's check, the rule."""
+    r = run.result
+    sensors = {}
+    for s, c in r.sensors.items():
+        sensors[s] = {
+            "verdict": c.verdict,
+            "reason": c.reason,
+            "boards": c.boards,
+            "chi2": c.chi2,
+            "p_value": c.p_value,
+            "rotation_deg": c.rotation_deg,
+            "translation_mm": c.translation_mm,
+            "detectable_deg": c.detectable_deg,
+            "detectable_mm": c.detectable_mm,
+            "axes": {
+                a.name: {
+                    "verdict": a.verdict,
+                    "change": a.change,
+                    "sigma": a.sigma,
+                    "z": a.z,
+                    "p_value": a.p_value,
+                    "detectable": a.detectable,
+                }
+                for a in c.axes
+            },  # fmt: skip
+        }
+    glob = (
+        None if r.global_test is None else dict(zip(("chi2", "dof", "p_value"), r.global_test, strict=True))
+    )
+    return {
+        "verdict": r.verdict,
+        "exit_status": EXIT_CODES[r.verdict],
+        "reference": r.reference,
+        "sensors": sensors,
+        "alpha": options.alpha,
+        "alpha_per_sensor": r.alpha_sensor,
+        "power": options.power,
+        "tolerance_deg": options.tolerance_deg,
+        "tolerance_mm": options.tolerance_mm,
+        "global_test": glob,
+        "moments": len(run.observation.moments),
+        "notes": list(r.notes),
+        "rule": r.rule,
+    }
+
+
+def verify_text(run: VerifyRun) -> str:
+    """What the command prints: per sensor its verdict and reason, per axis the change, its sigma and
+    the smallest detectable change; the verdict word last."""
+    r = run.result
+    lines = [f"verify: {len(run.observation.moments)} moments; poses relative to {r.reference}"]
+    for s, c in r.sensors.items():
+        lines += textwrap.wrap(f"{s}: {c.verdict.upper()} - {c.reason}", 80, subsequent_indent="   ")
+        if c.axes:
+            lines.append("   axis     change    sigma  detectable  (deg or mm)")
+            lines += [
+                f"   {a.name:<7}{a.change:>8.3f} {a.sigma:>8.3f} {a.detectable:>10.3f}  {a.verdict}"
+                for a in c.axes
+            ]
+    for n in r.notes:
+        lines += textwrap.wrap(f"note: {n}", 80, subsequent_indent="   ")
+    lines.append(f"verdict: {r.verdict}")
+    return "\n".join(lines)

@@ -1,0 +1,112 @@
+"""The rig's commands the way a user takes them (issue 24): ``simulate-rig`` as folders and as one
+bag (both calibrate to the same result through ``rig_calibrate.calibrate_rig``), and ``verify`` of a
+rig and of a single pair: the verdict printed, written (verify.yaml, verdict.txt) and as the exit
+status."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from ilcc_graph.app import main
+from ilcc_graph.io import read_ground_truth, write_calibration
+from ilcc_graph.io.rig_results import write_rig_calibration
+from ilcc_graph.io.rig_truth import read_rig_ground_truth
+from ilcc_graph.run.rig_calibrate import calibrate_rig, to_calibration
+from ilcc_graph.run.rig_verify import EXIT_CODES
+from ilcc_graph.types import Calibration
+
+RIG = ["--rig", "backpack", "--width", "1200"]
+
+
+@pytest.fixture(scope="module")
+def calibrated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A backpack rig simulated as folders and as a bag; (the folders, the rig's calibration.yaml)."""
+    d = tmp_path_factory.mktemp("rig")
+    assert main(["simulate-rig", str(d / "folders"), *RIG, "--moments", "6", "--seed", "1"]) == 0
+    assert main(["simulate-rig", str(d / "bag"), *RIG, "--moments", "6", "--seed", "1", "--as", "bag"]) == 0
+    a, b = calibrate_rig(d / "folders"), calibrate_rig(d / "bag")
+    assert a.sensors == b.sensors == ("vlp16", "os1", "pano") and not a.unsolved
+    assert np.array_equal(a.covariance, b.covariance)  # the same arrays: the same graph
+    for s in a.sensors:
+        assert np.array_equal(a.T_ref_sensor[s], b.T_ref_sensor[s])
+    assert [f.used for f in a.fates] == [f.used for f in b.fates] and all(f.used for f in a.fates)
+    truth = read_rig_ground_truth(d / "folders")
+    for x, y in (("vlp16", "os1"), ("vlp16", "pano"), ("os1", "pano")):
+        e = a.relative(x, y)
+        T = truth.T_a_b(x, y)
+        assert np.degrees(np.arccos(np.clip((np.trace(e.T[:3, :3].T @ T[:3, :3]) - 1) / 2, -1, 1))) < 0.1
+        assert np.linalg.norm(e.T[:3, 3] - T[:3, 3]) < 0.005
+    return d / "folders", write_rig_calibration(d / "calibration.yaml", to_calibration(a))
+
+
+def _verify(cal: Path, data: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, dict, str]:
+    code = main(["verify", str(cal), str(data), "--out", str(out), "--jobs", "1"])
+    printed = capsys.readouterr().out
+    doc = yaml.safe_load((out / "verify.yaml").read_text())
+    word = (out / "verdict.txt").read_text().strip()
+    assert word == doc["verdict"] and code == doc["exit_status"] == EXIT_CODES[word]
+    assert f"verdict: {word}" in printed
+    assert all(len(line) <= 80 for line in printed.splitlines() if not line.startswith("wrote "))
+    return code, doc, printed
+
+
+def test_verify_a_rig(
+    calibrated: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _, cal = calibrated
+    args = ["--moments", "5", "--seed", "9"]
+    assert main(["simulate-rig", str(tmp_path / "same"), *RIG, *args]) == 0
+    assert (
+        main(
+            [
+                "simulate-rig",
+                str(tmp_path / "knock"),
+                *RIG,
+                *args,
+                "--moved",
+                "os1",
+                "--rotation-deg",
+                "0,0,0.5",
+            ]
+        )
+        == 0
+    )
+    code, doc, _ = _verify(cal, tmp_path / "same", tmp_path / "v1", capsys)
+    assert doc["verdict"] != "fail" and set(doc["sensors"]) == {"os1", "pano"}
+    code, doc, printed = _verify(cal, tmp_path / "knock", tmp_path / "v2", capsys)
+    assert (
+        code == 5
+        and doc["sensors"]["os1"]["verdict"] == "fail"
+        and doc["sensors"]["pano"]["verdict"] != "fail"
+    )
+    rz = doc["sensors"]["os1"]["axes"]["rz_deg"]
+    assert rz["verdict"] == "fail" and abs(rz["change"] - 0.5) < 4 * rz["sigma"]
+    assert "os1: FAIL" in printed
+    # no data set there: one line, exit 2
+    assert main(["verify", str(cal), str(tmp_path / "nothing"), "--out", str(tmp_path / "v3")]) == 2
+
+
+def test_verify_a_pair(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A pair's calibration.yaml (the truth with a stated covariance) against a new single-pair data set;
+    the same file turned 1 deg fails."""
+    data = tmp_path / "pair"
+    assert (
+        main(["simulate", str(data), "--camera", "fisheye", "--width", "640", "--frames", "5", "--seed", "3"])
+        == 0
+    )
+    T = read_ground_truth(data).T_cam_lidar
+    cov = np.diag([np.radians(0.02)] * 3 + [1e-3] * 3) ** 2
+    write_calibration(tmp_path / "ok.yaml", Calibration(T, cov, ()))
+    code, doc, _ = _verify(tmp_path / "ok.yaml", data, tmp_path / "v1", capsys)
+    assert doc["verdict"] != "fail" and list(doc["sensors"]) == ["camera"]
+    turn = np.eye(4)
+    turn[:3, :3] = np.array(
+        [[1, 0, 0], [0, np.cos(0.0175), -np.sin(0.0175)], [0, np.sin(0.0175), np.cos(0.0175)]]
+    )
+    write_calibration(tmp_path / "off.yaml", Calibration(turn @ T, cov, ()))
+    code, doc, _ = _verify(tmp_path / "off.yaml", data, tmp_path / "v2", capsys)
+    assert code == 5 and doc["sensors"]["camera"]["verdict"] == "fail"
