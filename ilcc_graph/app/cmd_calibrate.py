@@ -46,7 +46,31 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ilcc_graph.datasets.rig import is_rig_source
+
+    if len(args.data) == 1 and is_rig_source(Path(args.data[0])):
+        return calibrate_rig(args.data[0], args)
     return calibrate(args.data, args)
+
+
+def calibrate_rig(data: str, args: argparse.Namespace) -> int:
+    """A rig (a folder with rig.yaml, or a rig file; docs/rig.md): every sensor's pose in the
+    reference frame with the joint covariance, written as the rig's calibration.yaml."""
+    from ilcc_graph.app.flags import stage_options
+    from ilcc_graph.app.rig_view import rig_lines
+    from ilcc_graph.io.output_folders import staged
+    from ilcc_graph.io.rig_results import write_rig_calibration
+    from ilcc_graph.run.rig_calibrate import RigRunOptions, to_calibration
+    from ilcc_graph.run.rig_calibrate import calibrate_rig as solve_rig
+
+    out = output_folder(args, [data])
+    res = solve_rig(data, RigRunOptions(stages=stage_options(args)), Progress("moments"))
+    print("\n".join(rig_lines(res)))
+    with staged(out, command=args.command_line) as d:
+        write_rig_calibration(d / "calibration.yaml", to_calibration(res))
+    written(args, out)
+    print(f"wrote {out / 'calibration.yaml'} (a rig's: docs/rig.md; exports and verify read it)")
+    return 0
 
 
 def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray | None = None) -> int:

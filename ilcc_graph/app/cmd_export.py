@@ -14,8 +14,10 @@ HELP = "write a calibration in another tool's format"
 
 
 def add_arguments(sp: argparse.ArgumentParser) -> None:
-    sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml")
-    sp.add_argument("--format", required=True, choices=("json", "ros-tf", "kitti", "kalibr", "lidar-offsets"))
+    sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml (of a pair or a rig)")
+    help = "a rig's calibration: ros-tf (a launch file), urdf, kalibr or json (docs/rig.md)"
+    choices = ("json", "ros-tf", "kitti", "kalibr", "lidar-offsets", "urdf")
+    sp.add_argument("--format", required=True, choices=choices, help=help)
     sp.add_argument("--out", help="file to write (default: standard output)")
     sp.add_argument("--parent", choices=("lidar", "camera"), help="ros-tf: the parent frame (default lidar)")
     sp.add_argument("--lidar-frame", help="ros-tf: the LiDAR's frame id (default lidar)")
@@ -27,8 +29,12 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ilcc_graph.exports import export_calibration
     from ilcc_graph.io import read_calibration_with_camera
-    from ilcc_graph.io.output_folders import write_file
+    from ilcc_graph.io.rig_results import is_rig_calibration
 
+    if is_rig_calibration(args.calibration):
+        return _rig(args)
+    if args.format == "urdf":
+        raise InputError(f"{args.calibration}: urdf is an export of a rig's calibration (docs/rig.md)")
     cal = read_calibration_with_camera(args.calibration)
     names = ("parent", "lidar_frame", "camera_frame", "ros") if args.format == "ros-tf" else ()
     options = {k: getattr(args, k) for k in names if getattr(args, k)}
@@ -38,6 +44,28 @@ def run(args: argparse.Namespace) -> int:
         text = export_calibration(cal, args.format, **options)
     except ValueError as err:
         raise InputError(f"{args.calibration}: {err}") from None
+    return _emit(args, text)
+
+
+def _rig(args: argparse.Namespace) -> int:
+    """A rig's calibration.yaml in one of ``exports_rig.RIG_FORMATS``."""
+    from ilcc_graph.exports_rig import RIG_FORMATS, export_rig
+    from ilcc_graph.io.rig_results import read_rig_calibration
+
+    if args.format not in RIG_FORMATS:
+        raise InputError(
+            f"{args.calibration}: a rig's calibration exports as {', '.join(RIG_FORMATS)}, not {args.format}"
+        )
+    try:
+        text = export_rig(read_rig_calibration(args.calibration), args.format)
+    except ValueError as err:
+        raise InputError(f"{args.calibration}: {err}") from None
+    return _emit(args, text)
+
+
+def _emit(args: argparse.Namespace, text: str) -> int:
+    from ilcc_graph.io.output_folders import write_file
+
     if args.out:
         print(f"wrote {write_file(Path(args.out), text)}")
     else:
