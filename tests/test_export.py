@@ -287,5 +287,5 @@ def test_lidar_offsets_yaml_and_csv(tmp_path: Path) -> None:
     assert [(b["beam"], b["elevation_deg"]) for b in again["beams"]] == [(0, -15.0), (5, 1.0)]
     assert [b["offset_mm"] for b in again["beams"]] == pytest.approx([1.2, -3.1])
     assert again["left_out"] == doc["left_out"]
-    with pytest.raises(ValueError, match="--lidar-errors"):
+    with pytest.raises(ValueError, match="--sensor-model beams"):
         export_calibration(Calibration(T_cam_lidar=T, covariance=cov, frames=()), "lidar-offsets")
