@@ -121,6 +121,9 @@ def test_calibrate_a_rig_through_the_command_line(
     its own covariance of the truth."""
     folders, stored = calibrated
     out = tmp_path / "out"
+    # a pair's solve option is refused for a rig, before anything is written
+    assert main(["calibrate", str(folders), "--out", str(out), "--sensor-model", "beams"]) == 2
+    assert "sensor_model" in capsys.readouterr().err and not out.exists()
     assert main(["calibrate", str(folders), "--out", str(out), "--no-report", "--jobs", "1"]) == 0
     printed = capsys.readouterr().out
     assert all(len(line) <= 80 for line in printed.splitlines() if not line.startswith("wrote ")), printed

@@ -16,7 +16,7 @@ from ilcc_graph.app.arguments import add_bag_arguments, add_solve_arguments
 from ilcc_graph.app.console import DEG_MM, RATE, Progress
 from ilcc_graph.app.flags import bag_options, run_options
 from ilcc_graph.app.folders import output_folder, written
-from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.errors import CalibrationImpossible, InputError
 
 if TYPE_CHECKING:
     import numpy as np
@@ -63,6 +63,12 @@ def calibrate_rig(data: str, args: argparse.Namespace) -> int:
     from ilcc_graph.run.rig_calibrate import RigRunOptions, to_calibration
     from ilcc_graph.run.rig_calibrate import calibrate_rig as solve_rig
 
+    pair_only = _pair_options_given(args)
+    if pair_only:
+        raise InputError(
+            f"{data}: a rig (docs/rig.md); the options given ({', '.join(pair_only)}) apply to one "
+            "camera-LiDAR pair, not to a rig's graph"
+        )
     out = output_folder(args, [data])
     res = solve_rig(data, RigRunOptions(stages=stage_options(args)), Progress("moments"))
     print("\n".join(rig_lines(res)))
@@ -71,6 +77,18 @@ def calibrate_rig(data: str, args: argparse.Namespace) -> int:
     written(args, out)
     print(f"wrote {out / 'calibration.yaml'} (a rig's: docs/rig.md; exports and verify read it)")
     return 0
+
+
+def _pair_options_given(args: argparse.Namespace) -> list[str]:
+    """The run options (``RunOptions`` fields) the arguments set away from their defaults, the
+    stages' (jobs, strict) aside: a pair's solve options, which a rig's graph does not take."""
+    import dataclasses
+
+    from ilcc_graph.run.result import RunOptions
+
+    given, default = run_options(args), RunOptions()
+    given = dataclasses.replace(given, stages=default.stages)
+    return [f.name for f in dataclasses.fields(given) if getattr(given, f.name) != getattr(default, f.name)]
 
 
 def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
