@@ -19,22 +19,27 @@ WIDTH = 80
 
 
 def rig_lines(res: RigResult) -> list[str]:
-    """The closing lines of a rig's calibration: poses T_ref_sensor (position mm, rotation as
-    roll/pitch/yaw about the reference's x, y, z in degrees) with 1-sigma, unsolved sensors, use."""
+    """The closing lines of a rig's calibration: poses T_ref_sensor (position in mm in the
+    reference's axes with its 1-sigma; rotation as roll/pitch/yaw about the reference's x, y, z in
+    degrees, its 1-sigma about the sensor's own axes), unsolved sensors, moments used."""
     ref = res.reference
     lines = [f"every sensor in the frame of {ref} (the reference), +- 1 sigma:"]
     for s in res.sensors:
         if s == ref:
             continue
         e = res.pose(s)
-        t_mm = 1e3 * np.asarray(e.T)[:3, 3]
-        rpy = Rotation.from_matrix(np.asarray(e.T)[:3, :3]).as_euler("xyz", degrees=True)
-        sd = e.sigmas
+        T, C = np.asarray(e.T), np.asarray(e.covariance)
+        R = T[:3, :3]
+        # position sigmas in the reference's axes (the tangent's translation is in the sensor's:
+        # t_true = t + R dt); rotation sigmas about the sensor's own axes (the right tangent)
+        sd_t = np.sqrt(np.clip(np.diag(R @ C[3:, 3:] @ R.T), 0.0, None))
+        sd_r = np.degrees(np.sqrt(np.clip(np.diag(C[:3, :3]), 0.0, None)))
+        rpy = Rotation.from_matrix(R).as_euler("xyz", degrees=True)
         lines.append(f"  {s}")
-        pos = [f"{a} {v:+8.1f} +- {1e3 * d:.1f}" for a, v, d in zip("xyz", t_mm, sd[3:], strict=True)]
+        pos = [f"{a} {v:+8.1f} +- {1e3 * d:.1f}" for a, v, d in zip("xyz", 1e3 * T[:3, 3], sd_t, strict=True)]
         lines.append("    position mm  " + "  ".join(pos))
-        rot = [f"{v:+8.3f} +- {np.degrees(d):.3f}" for v, d in zip(rpy, sd[:3], strict=True)]
-        lines.append("    rpy deg      " + "  ".join(rot))
+        lines.append("    roll pitch yaw deg  " + "  ".join(f"{v:+8.3f}" for v in rpy))
+        lines.append("    sigma deg about its own x y z  " + "  ".join(f"{d:.3f}" for d in sd_r))
     for s, why in res.unsolved.items():
         lines += textwrap.wrap(f"no pose for {s}: {why}", WIDTH, subsequent_indent="  ")
     used = ", ".join(f"{s} {len(res.used(s))}" for s in res.sensors)
