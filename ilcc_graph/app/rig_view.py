@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ilcc_graph.report.summary import lidar_in_camera
+
 if TYPE_CHECKING:
     from ilcc_graph.run.rig_calibrate import RigResult
 
@@ -21,25 +23,22 @@ WIDTH = 80
 def rig_lines(res: RigResult) -> list[str]:
     """The closing lines of a rig's calibration: poses T_ref_sensor (position in mm in the
     reference's axes with its 1-sigma; rotation as roll/pitch/yaw about the reference's x, y, z in
-    degrees, its 1-sigma about the sensor's own axes), unsolved sensors, moments used."""
+    degrees, its 1-sigma about the reference's axes), unsolved sensors, moments used."""
     ref = res.reference
     lines = [f"every sensor in the frame of {ref} (the reference), +- 1 sigma:"]
     for s in res.sensors:
         if s == ref:
             continue
         e = res.pose(s)
-        T, C = np.asarray(e.T), np.asarray(e.covariance)
-        R = T[:3, :3]
-        # position sigmas in the reference's axes (the tangent's translation is in the sensor's:
-        # t_true = t + R dt); rotation sigmas about the sensor's own axes (the right tangent)
-        sd_t = np.sqrt(np.clip(np.diag(R @ C[3:, 3:] @ R.T), 0.0, None))
-        sd_r = np.degrees(np.sqrt(np.clip(np.diag(C[:3, :3]), 0.0, None)))
-        rpy = Rotation.from_matrix(R).as_euler("xyz", degrees=True)
+        # T_ref_sensor has T_cam_lidar's form (the child's pose in its parent's frame): the same
+        # position, rotation and sigmas in the parent's axes as the pair's summary
+        p_mm, p_sigma, _, _, r_sigma = lidar_in_camera(e.T, e.covariance)
+        rpy = Rotation.from_matrix(np.asarray(e.T)[:3, :3]).as_euler("xyz", degrees=True)
         lines.append(f"  {s}")
-        pos = [f"{a} {v:+8.1f} +- {1e3 * d:.1f}" for a, v, d in zip("xyz", 1e3 * T[:3, 3], sd_t, strict=True)]
+        pos = [f"{a} {v:+8.1f} +- {d:.1f}" for a, v, d in zip("xyz", p_mm, p_sigma, strict=True)]
         lines.append("    position mm  " + "  ".join(pos))
         lines.append("    roll pitch yaw deg  " + "  ".join(f"{v:+8.3f}" for v in rpy))
-        lines.append("    sigma deg about its own x y z  " + "  ".join(f"{d:.3f}" for d in sd_r))
+        lines.append("    sigma deg about the reference's x y z  " + "  ".join(f"{d:.3f}" for d in r_sigma))
     for s, why in res.unsolved.items():
         lines += textwrap.wrap(f"no pose for {s}: {why}", WIDTH, subsequent_indent="  ")
     used = ", ".join(f"{s} {len(res.used(s))}" for s in res.sensors)
