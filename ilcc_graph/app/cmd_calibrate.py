@@ -21,6 +21,8 @@ from ilcc_graph.errors import CalibrationImpossible, InputError
 if TYPE_CHECKING:
     import numpy as np
 
+    from ilcc_graph.run.result import Result, RunOptions
+
 __all__ = ["HELP", "add_arguments", "calibrate", "run"]
 
 HELP = "calibrate from data sets (DATA/config.yaml, pcd/, img/) or ROS bags"
@@ -46,63 +48,51 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ilcc_graph.datasets.rig import is_rig_source
-
-    if len(args.data) == 1 and is_rig_source(Path(args.data[0])):
-        return calibrate_rig(args.data[0], args)
     return calibrate(args.data, args)
 
 
-def calibrate_rig(data: str, args: argparse.Namespace) -> int:
-    """A rig (a folder with rig.yaml, or a rig file; docs/rig.md): every sensor's pose in the
-    reference frame with the joint covariance, written as the rig's calibration.yaml."""
-    from ilcc_graph.app.flags import stage_options
-    from ilcc_graph.app.rig_view import rig_lines
-    from ilcc_graph.io.output_folders import staged
-    from ilcc_graph.io.rig_results import write_rig_calibration
-    from ilcc_graph.run.rig_calibrate import RigRunOptions, to_calibration
-    from ilcc_graph.run.rig_calibrate import calibrate_rig as solve_rig
+def _options(data: Sequence[str], args: argparse.Namespace) -> tuple[RunOptions, bool]:
+    """The run's options and whether ``data`` is a rig (one folder with rig.yaml, or a rig file;
+    docs/rig.md): a rig runs the ``rig`` strategy, and a pair's solve options given for one are an
+    InputError naming them (they do not apply to a rig's graph)."""
+    from ilcc_graph.datasets.rig import is_rig_source
+    from ilcc_graph.run.result import RunOptions
 
-    pair_only = _pair_options_given(args)
+    options = run_options(args)
+    if not (len(data) == 1 and is_rig_source(Path(data[0]))):
+        return options, False
+    pair_only = _pair_options_given(options)
     if pair_only:
         raise InputError(
-            f"{data}: a rig (docs/rig.md); the options given ({', '.join(pair_only)}) apply to one "
+            f"{data[0]}: a rig (docs/rig.md); the options given ({', '.join(pair_only)}) apply to one "
             "camera-LiDAR pair, not to a rig's graph"
         )
-    out = output_folder(args, [data])
-    res = solve_rig(data, RigRunOptions(stages=stage_options(args)), Progress("moments"))
-    print("\n".join(rig_lines(res)))
-    with staged(out, command=args.command_line) as d:
-        write_rig_calibration(d / "calibration.yaml", to_calibration(res))
-    written(args, out)
-    print(f"wrote {out / 'calibration.yaml'} (a rig's: docs/rig.md; exports and verify read it)")
-    return 0
+    return RunOptions(mode="rig", stages=options.stages), True
 
 
-def _pair_options_given(args: argparse.Namespace) -> list[str]:
-    """The run options (``RunOptions`` fields) the arguments set away from their defaults, the
-    stages' (jobs, strict) aside: a pair's solve options, which a rig's graph does not take."""
+def _pair_options_given(given: RunOptions) -> list[str]:
+    """The run options set away from their defaults, the stages' (jobs, strict) aside: a pair's
+    solve options, which a rig's graph does not take."""
     import dataclasses
 
     from ilcc_graph.run.result import RunOptions
 
-    given, default = run_options(args), RunOptions()
+    default = RunOptions()
     given = dataclasses.replace(given, stages=default.stages)
     return [f.name for f in dataclasses.fields(given) if getattr(given, f.name) != getattr(default, f.name)]
 
 
 def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
-    """Calibrate the data sets ``data`` as the arguments say, write the results, print the summary
-    (``truth``: the true T_cam_lidar (4, 4) of a simulated set, compared in the summary)."""
+    """Calibrate the data sets ``data`` as the arguments say (a rig: every sensor's pose in the
+    reference frame), write the results, print the summary (``truth``: the true T_cam_lidar (4, 4)
+    of a simulated set, compared in the summary)."""
     from ilcc_graph.app.write import write_run
     from ilcc_graph.datasets import open_source
-    from ilcc_graph.next_pose import for_run as next_pose_for_run
-    from ilcc_graph.report.summary import run_summary
     from ilcc_graph.run.pipeline import run
 
-    options = run_options(args)
+    options, rig = _options(data, args)
     out = output_folder(args, data)
-    sources = [open_source(d, **bag_options(args)) for d in data]
+    sources = [open_source(d, rig=True) if rig else open_source(d, **bag_options(args)) for d in data]
     bars: dict[str, Progress] = {}
     t0 = time.perf_counter()
     try:
@@ -116,9 +106,13 @@ def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray |
         _explain_failure(err, out, args.command_line)
         raise
     t1 = time.perf_counter()
+    if rig:
+        return _rig_summary(result, out, args)
     advice: dict = {}
 
     def propose():  # noqa: ANN202 - worked out while the report's pictures are drawn
+        from ilcc_graph.next_pose import for_run as next_pose_for_run
+
         advice["next"] = next_pose_for_run(result, options.target_sigma)
         return advice["next"]
 
@@ -127,13 +121,33 @@ def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray |
         next_pose=propose, clouds=args.clouds, full_views=args.full_views, progress=Progress,
     )  # fmt: skip
     written(args, out)
-    seconds = (t1 - t0, time.perf_counter() - t1)
-    notes = [advice["next"].describe()] if advice.get("next") is not None else []
+    _pair_summary(result, out, options, truth, (t1 - t0, time.perf_counter() - t1), advice.get("next"))
+    return 0
+
+
+def _pair_summary(result: Result, out: Path, options: RunOptions, truth: np.ndarray | None,
+                  seconds: tuple[float, float], proposal: object) -> None:  # fmt: skip
+    """The closing summary of one pair (or joint sessions): report.summary's ``run_summary``."""
+    from ilcc_graph.report.summary import run_summary
+
+    notes = [proposal.describe()] if proposal is not None else []  # type: ignore[attr-defined]
     reports = sorted((out / "report").glob("**/index.html"))
     need, gate = options.target_sigma, options.noise.chi2_gate_prob
     joint = result.documents.get("joint.yaml")  # the sessions' tests, for the verdict
-    summary = run_summary(result.calibration, joint, truth, out, seconds, reports, notes, need, gate)
-    print(summary)
+    print(run_summary(result.calibration, joint, truth, out, seconds, reports, notes, need, gate))
+
+
+def _rig_summary(result: Result, out: Path, args: argparse.Namespace) -> int:
+    """A rig's results written (its calibration.yaml, config.resolved.yaml) and its poses printed as
+    written (``rig_view``)."""
+    from ilcc_graph.app.rig_view import rig_lines
+    from ilcc_graph.app.write import write_run
+    from ilcc_graph.io.rig_results import rig_calibration_from_doc
+
+    print("\n".join(rig_lines(rig_calibration_from_doc(result.documents["calibration.yaml"]))))
+    write_run(out, result, report=args.report, command=args.command_line, progress=Progress)
+    written(args, out)
+    print(f"wrote {out / 'calibration.yaml'} (a rig's: docs/rig.md; exports and verify read it)")
     return 0
 
 

@@ -13,34 +13,36 @@ from scipy.spatial.transform import Rotation
 from ilcc_graph.report.summary import lidar_in_camera
 
 if TYPE_CHECKING:
-    from ilcc_graph.run.rig_calibrate import RigResult
+    from ilcc_graph.io.rig_results import RigCalibration
 
 __all__ = ["rig_lines"]
 
 WIDTH = 80
 
 
-def rig_lines(res: RigResult) -> list[str]:
-    """The closing lines of a rig's calibration: poses T_ref_sensor (position in mm in the
-    reference's axes with its 1-sigma; rotation as roll/pitch/yaw about the reference's x, y, z in
-    degrees, its 1-sigma about the reference's axes), unsolved sensors, moments used."""
-    ref = res.reference
+def rig_lines(cal: RigCalibration) -> list[str]:
+    """The closing lines of a rig's calibration as written (``calibration.yaml``): poses T_ref_sensor
+    (position in mm in the reference's axes with its 1-sigma; rotation as roll/pitch/yaw about the
+    reference's x, y, z in degrees, its 1-sigma about the reference's axes), unsolved sensors,
+    moments used."""
+    ref = cal.reference
     lines = [f"every sensor in the frame of {ref} (the reference), +- 1 sigma:"]
-    for s in res.sensors:
+    for s in cal.sensors:
         if s == ref:
             continue
-        e = res.pose(s)
+        T = cal.T_ref_sensor[s]
         # T_ref_sensor has T_cam_lidar's form (the child's pose in its parent's frame): the same
         # position, rotation and sigmas in the parent's axes as the pair's summary
-        p_mm, p_sigma, _, _, r_sigma = lidar_in_camera(e.T, e.covariance)
-        rpy = Rotation.from_matrix(np.asarray(e.T)[:3, :3]).as_euler("xyz", degrees=True)
+        p_mm, p_sigma, _, _, r_sigma = lidar_in_camera(T, cal.block(s))
+        rpy = Rotation.from_matrix(np.asarray(T)[:3, :3]).as_euler("xyz", degrees=True)
         lines.append(f"  {s}")
         pos = [f"{a} {v:+8.1f} +- {d:.1f}" for a, v, d in zip("xyz", p_mm, p_sigma, strict=True)]
         lines.append("    position mm  " + "  ".join(pos))
         lines.append("    roll pitch yaw deg  " + "  ".join(f"{v:+8.3f}" for v in rpy))
         lines.append("    sigma deg about the reference's x y z  " + "  ".join(f"{d:.3f}" for d in r_sigma))
-    for s, why in res.unsolved.items():
+    for s, why in (cal.extra.get("unsolved") or {}).items():
         lines += textwrap.wrap(f"no pose for {s}: {why}", WIDTH, subsequent_indent="  ")
-    used = ", ".join(f"{s} {len(res.used(s))}" for s in res.sensors)
+    counts = cal.extra.get("used") or {}
+    used = ", ".join(f"{s} {counts.get(s, 0)}" for s in cal.sensors)
     lines += textwrap.wrap(f"moments in the graph per sensor: {used}", WIDTH, subsequent_indent="  ")
     return lines

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from ilcc_graph.config import Config, config_to_dict
+from ilcc_graph.config import Config, RigConfig, config_to_dict, rig_config_to_dict
 from ilcc_graph.errors import OutputError
 from ilcc_graph.io import atomic_write, write_calibration, write_yaml
 from ilcc_graph.io.output_folders import OURS, add_file, staged, write_beside
@@ -60,9 +60,10 @@ def options_dict(options: RunOptions) -> dict[str, Any]:
     return to_plain(options)
 
 
-def resolved_config(config: Config, options: RunOptions) -> dict[str, Any]:
-    """config.resolved.yaml: the config used, in our schema, with the run's ``options``."""
-    d = config_to_dict(config)
+def resolved_config(config: Config | RigConfig, options: RunOptions) -> dict[str, Any]:
+    """config.resolved.yaml: the config used (a pair's, or a rig's as rig.yaml), in our schema, with
+    the run's ``options``."""
+    d = rig_config_to_dict(config) if isinstance(config, RigConfig) else config_to_dict(config)
     d["options"] = options_dict(options)
     return d
 
@@ -98,7 +99,8 @@ def write_run(
     later = next_pose if callable(next_pose) else None
     proposal, png = (None, None) if later is not None else (next_pose, None)
     with staged(out, command=command) as d:
-        write_calibration(d / "calibration.yaml", result.calibration)
+        if "calibration.yaml" not in result.documents:  # a rig's is the strategy's own document
+            write_calibration(d / "calibration.yaml", result.calibration)
         first = result.sessions[0].observation.config
         write_yaml(d / "config.resolved.yaml", resolved_config(first, result.options))
         for name, doc in result.documents.items():  # a strategy's further results (joint.yaml, ...)
@@ -113,6 +115,8 @@ def write_run(
         if report:
             several = len(result.sessions) > 1
             for s in result.sessions:
+                if isinstance(s.observation.config, RigConfig):
+                    continue
                 info = {
                     "data": s.observation.source.location,
                     "command": command or "ilcc-graph",

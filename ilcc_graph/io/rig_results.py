@@ -19,7 +19,15 @@ from ilcc_graph.errors import InputError
 from ilcc_graph.io.files import read_yaml, write_yaml
 from ilcc_graph.types import sigma_dict
 
-__all__ = ["KIND", "RigCalibration", "is_rig_calibration", "read_rig_calibration", "write_rig_calibration"]
+__all__ = [
+    "KIND",
+    "RigCalibration",
+    "is_rig_calibration",
+    "read_rig_calibration",
+    "rig_calibration_doc",
+    "rig_calibration_from_doc",
+    "write_rig_calibration",
+]
 
 #: the ``kind`` key of a rig's calibration.yaml (a single pair's has none)
 KIND = "rig-calibration"
@@ -49,9 +57,9 @@ class RigCalibration:
         return self.covariance[6 * k : 6 * k + 6, 6 * k : 6 * k + 6]
 
 
-def write_rig_calibration(path: str | Path, cal: RigCalibration) -> Path:
-    """``path`` (a file) written atomically; the sigmas (deg, mm) are added for people."""
-    doc: dict[str, Any] = {
+def rig_calibration_doc(cal: RigCalibration) -> dict[str, Any]:
+    """The file's content as plain data (the sigmas in deg and mm added for people)."""
+    return {
         "kind": KIND,
         "reference": cal.reference,
         "sensors": list(cal.sensors),
@@ -65,7 +73,11 @@ def write_rig_calibration(path: str | Path, cal: RigCalibration) -> Path:
         **({"rig": cal.rig} if cal.rig is not None else {}),
         **cal.extra,
     }
-    return write_yaml(Path(path), doc)
+
+
+def write_rig_calibration(path: str | Path, cal: RigCalibration) -> Path:
+    """``path`` (a file) written atomically (:func:`rig_calibration_doc`)."""
+    return write_yaml(Path(path), rig_calibration_doc(cal))
 
 
 def is_rig_calibration(path: str | Path) -> bool:
@@ -89,8 +101,12 @@ def _matrix(src: str, v: Any, key: str, shape: tuple[int, int]) -> np.ndarray:
 
 def read_rig_calibration(path: str | Path) -> RigCalibration:
     """Read what :func:`write_rig_calibration` wrote; InputError naming the file and key otherwise."""
-    src = str(path)
-    d = read_yaml(Path(path))
+    return rig_calibration_from_doc(read_yaml(Path(path)), str(path))
+
+
+def rig_calibration_from_doc(d: Any, src: str = "calibration.yaml") -> RigCalibration:
+    """The ``RigCalibration`` of a file's content (:func:`rig_calibration_doc`); InputError naming
+    ``src`` and the key when it is not one."""
     if not isinstance(d, dict) or d.get("kind") != KIND:
         raise InputError(f"{src}: not a rig calibration (expected kind: {KIND})")
     for k in ("reference", "sensors", "T_ref_sensor", "covariance"):

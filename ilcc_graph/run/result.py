@@ -34,8 +34,9 @@ class RunOptions:
     """Everything a run uses (written to config.resolved.yaml).
 
     mode: a registered strategy (``run.strategies.modes()``): ``graph`` (batch, default), ``paper``
-        (the paper's refinement, no covariance), ``incremental`` (iSAM2, frame by frame) or
-        ``sessions`` (joint; chosen for several sources or a range offset).
+        (the paper's refinement, no covariance), ``incremental`` (iSAM2, frame by frame),
+        ``sessions`` (joint; chosen for several sources or a range offset) or ``rig`` (a rig source:
+        every sensor in one graph; only ``stages`` applies).
     noise: the estimation core's noise policy. stages: the per-frame stages' options and processes.
     joint: sessions mode (rigid / drift, range offset, tests).
     target_sigma: incremental mode's (deg, mm) target; stop_at_target: read no frame after it.

@@ -91,4 +91,10 @@ def one(observations: Sequence[Observation], mode: str) -> Observation:
 
 
 # the registry: one import per strategy (each module registers itself)
-from ilcc_graph.run.strategies import solve_graph, solve_incremental, solve_paper, solve_sessions  # noqa: E402, F401
+from ilcc_graph.run.strategies import (  # noqa: E402, F401
+    solve_graph,
+    solve_incremental,
+    solve_paper,
+    solve_rig,
+    solve_sessions,
+)

@@ -1,0 +1,87 @@
+"""The rig (``rig``): every sensor of a rig in one graph, with the joint covariance (issue 24).
+
+Its own observation pass (``observe``: the stages on every sensor's data at every moment,
+``rig_observe.observe_rig``, kept as ``Observation.data``) and its solve (``rig_calibrate.solve_observed``:
+the start, the joint graph). The ``Result`` holds every sensor's pose in the reference frame
+(``Result.poses``), the rig's ``calibration.yaml`` as a document (``io.rig_results``), and as its
+headline ``Calibration`` the pair of the rig's first camera and first LiDAR (``T_cam_lidar`` with
+its covariance from the joint one; its frames are the moments), so that a rig of one camera and one
+LiDAR reads like a single pair's run.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import numpy as np
+
+from ilcc_graph.datasets.rig import RigSource
+from ilcc_graph.io.rig_results import rig_calibration_doc
+from ilcc_graph.run.observe import Observation
+from ilcc_graph.run.result import Result, RunOptions, SessionResult
+from ilcc_graph.run.rig_calibrate import RigResult, RigRunOptions, solve_observed, to_calibration
+from ilcc_graph.run.rig_observe import RigObservation, observe_rig
+from ilcc_graph.run.stages import StageOptions
+from ilcc_graph.run.strategies import Reporter, Strategy, one, register
+from ilcc_graph.types import Calibration, FrameResult
+
+__all__ = ["headline", "observe", "solve"]
+
+
+def observe(
+    source: RigSource,
+    options: StageOptions = StageOptions(),
+    progress: Callable[[int, int], None] | None = None,
+) -> Observation:
+    """Every moment of a rig source through the stages (``Observation.data``: the ``RigObservation``;
+    ``config``: the rig's ``RigConfig``; no single-pair frames)."""
+    seen = observe_rig(source, options, progress)
+    return Observation(source, seen.rig, [], data=seen)  # type: ignore[arg-type]
+
+
+def headline(res: RigResult) -> Calibration:
+    """The pair of the rig's first solved camera and first solved LiDAR as a single pair's
+    ``Calibration`` (``T_cam_lidar``, its covariance from the joint one; one frame per moment, used
+    when both sensors' observations entered the graph). A rig without both kinds: the reference and
+    the next solved sensor (``T_cam_lidar`` then holds ``T_ref_sensor``). ``camera``: the camera's
+    config section when the first sensor is a camera."""
+    rig = res.rig
+    cams = [s for s in rig.cameras if s in res.sensors]
+    lidars = [s for s in rig.lidars if s in res.sensors]
+    if cams and lidars:
+        a, b = cams[0], lidars[0]
+    else:
+        a, b = res.reference, next(s for s in res.sensors if s != res.reference)
+    e = res.relative(a, b)
+    used = {(f.moment, f.sensor): f for f in res.fates}
+    observed = {m.name: m for m in res.observation.moments} if res.observation is not None else {}
+    frames = []
+    for moment in dict.fromkeys(f.moment for f in res.fates):
+        fa, fb = used[(moment, a)], used[(moment, b)]
+        why = "; ".join(f"{f.sensor}: {f.reason}" for f in (fa, fb) if not f.used) or None
+        m = observed.get(moment)
+        board = m.boards.get(b) if m is not None else None
+        corners = m.corners.get(a) if m is not None else None
+        frames.append(FrameResult(moment, why is None, why, board, corners))
+    cam = rig.sensor(a).camera
+    diagnostics = {"variance_factor": float(res.variance_factor)}
+    return Calibration(
+        np.asarray(e.T), np.asarray(e.covariance), tuple(frames), f"rig {a}/{b}", diagnostics,
+        None if cam is None else cam.to_dict(),
+    )  # fmt: skip
+
+
+def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
+    """The rig's joint answer from its observation (``observe``). Raises CalibrationImpossible,
+    IndeterminateSystem."""
+    obs = one(observations, "rig")
+    if not isinstance(obs.data, RigObservation):
+        raise ValueError("rig mode: the observation holds no rig (observe it with this strategy's observe)")
+    res = solve_observed(obs.data, RigRunOptions(stages=options.stages))
+    cal = headline(res)
+    poses = {s: res.pose(s) for s in res.sensors}
+    docs = {"calibration.yaml": rig_calibration_doc(to_calibration(res))}
+    return Result("rig", cal, (SessionResult(obs.name, obs, cal),), options, cal.covariance, docs, poses)
+
+
+register(Strategy("rig", solve, second_pass=False, sensor_errors=False, observe=observe))
