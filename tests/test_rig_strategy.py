@@ -75,3 +75,24 @@ def test_a_pair_as_a_rig_through_the_run_is_todays_result(tmp_path: Path) -> Non
     ]
     np.testing.assert_allclose(rig.calibration.T_cam_lidar, base.calibration.T_cam_lidar, atol=1e-9)
     np.testing.assert_allclose(rig.calibration.covariance, base.calibration.covariance, rtol=1e-6, atol=1e-14)
+
+
+def test_calibrate_a_rig_prints_its_verdict_and_writes_its_report(
+    backpack: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Through the command line: the rig's verdict (a line per sensor, then the rig's level) within 80
+    columns, and report/index.html with a picture per (moment, camera, LiDAR) that saw the board."""
+    from ilcc_graph.app import main
+    from ilcc_graph.report.rig_verdict import rig_verdict
+
+    out = tmp_path / "out"
+    assert main(["calibrate", str(backpack), "--out", str(out), "--jobs", "1"]) == 0
+    printed = capsys.readouterr().out
+    lines = [line for line in printed.splitlines() if not line.startswith(("wrote ", "report: "))]
+    assert all(len(line) <= 80 for line in lines), printed
+    level, _ = rig_verdict(read_rig_calibration(out / "calibration.yaml"))
+    assert f"\n{level}: " in printed and "sensor  verdict" in printed
+    page = (out / "report" / "index.html").read_text()
+    pictures = sorted((out / "report" / "figures").iterdir())
+    assert pictures and all(p.name in page for p in pictures)
+    assert all(s in page for s in ("vlp16", "os1", "pano")) and level in page

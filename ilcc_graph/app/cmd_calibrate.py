@@ -140,14 +140,23 @@ def _pair_summary(result: Result, out: Path, options: RunOptions, truth: np.ndar
 def _rig_summary(result: Result, out: Path, args: argparse.Namespace) -> int:
     """A rig's results written (its calibration.yaml, config.resolved.yaml) and its poses printed as
     written (``rig_view``)."""
+    import textwrap
+
     from ilcc_graph.app.rig_view import rig_lines
     from ilcc_graph.app.write import write_run
     from ilcc_graph.io.rig_results import rig_calibration_from_doc
+    from ilcc_graph.report.rig_verdict import rig_verdict, rig_verdict_lines
 
-    print("\n".join(rig_lines(rig_calibration_from_doc(result.documents["calibration.yaml"]))))
+    cal = rig_calibration_from_doc(result.documents["calibration.yaml"])
     write_run(out, result, report=args.report, command=args.command_line, progress=Progress)
     written(args, out)
+    print("\n".join(rig_lines(cal)))
+    print("\n".join(rig_verdict_lines(cal)))
+    for part in rig_verdict(cal)[1].split("\n"):  # the verdict, then what it rests on (indented)
+        print("\n".join(textwrap.wrap(part, 80, subsequent_indent="  ")))
     print(f"wrote {out / 'calibration.yaml'} (a rig's: docs/rig.md; exports and verify read it)")
+    if args.report:
+        print(f"report: {out / 'report' / 'index.html'}")
     return 0
 
 

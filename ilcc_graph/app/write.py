@@ -36,7 +36,9 @@ from ilcc_graph.config import Config, RigConfig, config_to_dict, rig_config_to_d
 from ilcc_graph.errors import OutputError
 from ilcc_graph.io import atomic_write, write_calibration, write_yaml
 from ilcc_graph.io.output_folders import OURS, add_file, staged, write_beside
+from ilcc_graph.io.rig_results import rig_calibration_from_doc
 from ilcc_graph.report.rig import next_pose_png
+from ilcc_graph.report.rig_report import write_rig_report
 from ilcc_graph.report.session import write_report
 from ilcc_graph.run.pipeline import solve_observed
 from ilcc_graph.run.result import Result, RunOptions
@@ -115,13 +117,15 @@ def write_run(
         if report:
             several = len(result.sessions) > 1
             for s in result.sessions:
-                if isinstance(s.observation.config, RigConfig):
-                    continue
                 info = {
                     "data": s.observation.source.location,
                     "command": command or "ilcc-graph",
                     "mode": result.mode,
                 }
+                if isinstance(s.observation.config, RigConfig):  # a rig: its own page (docs/rig.md)
+                    cal = rig_calibration_from_doc(result.documents["calibration.yaml"])
+                    write_rig_report(d / "report", cal, s.observation.data, s.observation.source, info)
+                    continue
                 sub = (s.name,) if several else ()
                 bar = progress and progress(f"report {s.name}" if several else "report")
                 proposal, png = write_report(

@@ -10,6 +10,8 @@
 - :mod:`.figures`: a frame's pictures (on the image stage's kept views, compressed);
   :mod:`.sections`: the page's parts; :mod:`.html`: ``build_report(...) -> {relative path: bytes}``
   (``index.html`` and ``figures/``); :mod:`.rig`: the rig and the next board pose, from above and aside.
+- A rig (several sensors): :mod:`.rig_verdict` (``rig_verdict``, ``rig_verdict_lines``), :mod:`.rig_report`
+  (``write_rig_report``: its page), :mod:`.rig_pictures` (LiDAR boards on the images, ``board_share``).
 
 Pure: nothing here reads or writes files; the command line writes what these return.
 """

@@ -51,8 +51,8 @@ def run(
     """
     if not sources:
         raise ValueError("run: no source given")
-    chosen = choose(options, len(sources))
     names = session_names(sources)
+    chosen = choose(options, len(sources))
     if chosen.streams:
         stream = FrameStream(sources[0], options.stages)
         obs = Observation(sources[0], stream.config, [], names[0], stream)
