@@ -85,13 +85,13 @@ def solve_observations(
     range offset); ``names`` label the sessions (default: the observations' names, else the
     sources' labels). With ``options.second_pass`` the boards the LiDAR stage missed are searched
     where the first answer puts them, and the data solved again when some are found."""
-    chosen = choose(options, len(observations))
-    if chosen.streams:
-        raise ValueError(f"{chosen.mode} mode observes frame by frame: use run()")
     if names is None and not all(o.name for o in observations):
         names = session_names([o.source for o in observations])
     if names is not None:
         observations = [dataclasses.replace(o, name=n) for o, n in zip(observations, names, strict=True)]
+    chosen = choose(options, len(observations))
+    if chosen.streams:
+        raise ValueError(f"{chosen.mode} mode observes frame by frame: use run()")
     options = _without_print(observations, dataclasses.replace(options, mode=chosen.mode), chosen)
     log.debug("estimating the extrinsic (%s) from %d source(s)", chosen.mode, len(observations))
     result = chosen.solve(observations, options, None)
