@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import threading
 import time
@@ -12,10 +13,10 @@ import numpy as np
 import pytest
 
 from ilcc_graph.app import main
-from ilcc_graph.app.check_view import format_verdict
+from ilcc_graph.app.check_view import WIDTH, format_verdict
 from ilcc_graph.datasets.watch import GrowingFolder
 from ilcc_graph.io import read_yaml
-from ilcc_graph.run.live import CheckOptions, run_check
+from ilcc_graph.run.live import CheckOptions, Verdict, run_check
 from ilcc_graph.simulate import simulate_dataset, standard_spec
 
 
@@ -109,12 +110,35 @@ def test_check_reports_a_frame_without_the_board(sim: Path, tmp_path: Path) -> N
     assert sum(x.found for x in result.verdicts) == 5
 
 
+def test_a_verdict_with_long_notes_fits_80_columns() -> None:
+    reason = "no 6x8-square chessboard (5x7 inner corners) found in the image"
+    sig = np.array([0.01, 0.02, 0.03, 1.0, 2.0, 3.0])
+    v = Verdict("0002", "board plane fit: 12 points, fewer than the 30 needed", reason, latency=0.61)
+    lines = format_verdict(v, (0.05, 1.0)).splitlines()
+    assert lines[0].split() == ["0002", "no", "no", "-", "0", "0.61s"]
+    assert " ".join(" ".join(lines[1:]).split()) == f"scan: {v.lidar}; image: {reason}"  # whole
+    assert all(line.startswith(" " * 11) for line in lines[1:])
+    # a very long note ends after three lines; a long name stands on its own line
+    seen = Verdict(
+        "frame_000012345", None, None, repeat_of="frame_000000001", note="gate: " + " ".join(["far"] * 40)
+    )
+    seen = dataclasses.replace(seen, n_frames=5, sigmas=100 * sig, latency=12.5)
+    lines = format_verdict(seen, (0.0001, 0.001)).splitlines()
+    assert lines[0] == seen.name and lines[1].split()[:3] == ["ok", "ok", "repeat"]
+    assert lines[1].split()[-3:] == ["x3e+04", "x3e+05", "12.50s"]  # the ratios in 13 columns
+    assert len(lines) == 5 and lines[-1].endswith("[...]")
+    for each in (v, seen):
+        assert max(map(len, format_verdict(each, (0.0001, 0.001)).splitlines())) <= WIDTH == 80
+
+
 def test_cli_check_writes_verdicts_and_next_pose(sim: Path, tmp_path: Path, capsys) -> None:
     out = tmp_path / "out"
     assert main(["check", str(sim), "--out", str(out), "--target-sigma", "0.0001,0.001"]) == 0
     text = capsys.readouterr().out
     rows = [line for line in text.splitlines() if line[:4].isdigit()]
     assert len(rows) == 6 and all(" ok   ok " in r for r in rows)
+    assert "their noise levels rest on few boards" in text  # frames with a note
+    assert max(map(len, text.splitlines())) <= WIDTH == 80, text
     assert "next board pose:" in text
     doc = read_yaml(out / "check.yaml")
     assert [f["frame"] for f in doc["frames"]] == ["0001", "0002", "0003", "0004", "0005", "0006"]

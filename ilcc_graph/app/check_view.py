@@ -3,11 +3,14 @@
 The check itself is ``live``; this module prints it (the table on standard output, the progress
 line on standard error, redrawn in place on a terminal) and writes ``check.yaml`` and
 ``next_pose.png`` through ``write``. ``cmd_check`` is the command (its flags, its folder).
+Every line printed fits ``WIDTH`` columns: a frame's note goes on indented lines below its row,
+longer text is wrapped (the full notes are in check.yaml).
 """
 
 from __future__ import annotations
 
 import sys
+import textwrap
 from pathlib import Path
 from typing import TextIO
 
@@ -19,22 +22,56 @@ from ilcc_graph.estimation.incremental import FrameUpdate
 from ilcc_graph.run.live import CheckOptions, LiveCheck, Verdict, run_check
 from ilcc_graph.types import GraphFrame, sigmas_deg_mm
 
-__all__ = ["VERDICT_HEADER", "LiveAdvice", "StatusLine", "check_command", "format_progress", "format_verdict"]
+__all__ = [
+    "VERDICT_HEADER",
+    "WIDTH",
+    "LiveAdvice",
+    "StatusLine",
+    "check_command",
+    "format_progress",
+    "format_verdict",
+]
 
 
 # ----------------------------------------------------------------------------- printing
-#: the columns of :func:`format_verdict`
+#: the terminal width every printed line fits in (columns)
+WIDTH = 80
+#: the columns of :func:`format_verdict` (a row's note follows on lines indented by ``_NOTE_INDENT``)
 VERDICT_HEADER = (
     f"{'frame':<10s} {'scan':<4s} {'image':<5s} {'pose':<10s} {'n':>3s} "
-    f"{'rot deg':>8s} {'trans mm':>8s} {'target':>13s} {'latency':>7s}  note"
+    f"{'rot deg':>8s} {'trans mm':>8s} {'target':>13s} {'latency':>7s}"
 )
+_NOTE_INDENT = " " * 11  # under the scan column
+_NOTE_LINES = 3  # a longer note ends with " [...]"; check.yaml has it whole
+
+
+def _wrapped(text: str, indent: str = "", more: str = "  ") -> str:
+    """``text`` wrapped to ``WIDTH`` columns, each of its lines on its own: the first line of each
+    starts with ``indent``, the following ones with ``more``. A word longer than a line (a path) is
+    kept whole."""
+    out: list[str] = []
+    for para in text.splitlines() or [""]:
+        out += textwrap.wrap(
+            para,
+            WIDTH,
+            initial_indent=indent,
+            subsequent_indent=more,
+            break_long_words=False,
+            break_on_hyphens=False,
+        ) or [indent.rstrip()]
+    return "\n".join(out)
 
 
 def _gap(sig: np.ndarray, target: tuple[float, float] | None) -> str:
     if target is None:
         return ""
     r, t = float(np.max(sig[:3])) / target[0], float(np.max(sig[3:])) / target[1]
-    return "reached" if max(r, t) <= 1.0 else f"x{r:.1f} x{t:.1f}"
+    return "reached" if max(r, t) <= 1.0 else f"{_times(r)} {_times(t)}"
+
+
+def _times(x: float) -> str:
+    """A ratio in at most 6 characters ("x12.3", "x4567", "x3e+04"): the target column holds two."""
+    return f"x{x:.1f}" if x < 100 else f"x{x:.0f}" if x < 9999.5 else f"x{x:.0e}"
 
 
 def _more(n_distinct: int) -> str:
@@ -42,15 +79,30 @@ def _more(n_distinct: int) -> str:
     return "" if k == 0 else f"{k} more pose" + ("s" if k > 1 else "")
 
 
-def _short(text: str, n: int = 70) -> str:
+def _short(text: str, n: int = WIDTH - 1) -> str:
     text = " ".join(text.split())
     return text if len(text) <= n else text[: n - 3] + "..."
 
 
+def _note_lines(note: str) -> list[str]:
+    """A row's note on at most ``_NOTE_LINES`` lines of ``WIDTH`` columns, indented."""
+    return textwrap.wrap(
+        " ".join(note.split()),
+        WIDTH,
+        initial_indent=_NOTE_INDENT,
+        subsequent_indent=_NOTE_INDENT,
+        max_lines=_NOTE_LINES,
+        placeholder=" [...]",
+    )
+
+
 def format_verdict(v: Verdict, target: tuple[float, float] | None = None) -> str:
     """One table row (``VERDICT_HEADER``): found in scan / image, pose new or a repeat, frames in
-    the graph, worst rotation and translation sigma, gap to the target (sigma / target), latency."""
+    the graph, worst rotation and translation sigma, gap to the target (sigma / target), latency;
+    then its note (the scan's and the image's reason, the solve's note) on indented lines. Every
+    line fits ``WIDTH`` columns (a frame name too long for its row stands on a line of its own)."""
     pose = "-" if not v.found else (f"= {v.repeat_of}" if v.repeat_of else "new")
+    pose = pose if len(pose) <= 10 else "repeat"  # the note names the frame
     rot = trans = gap = ""
     if v.sigmas is not None:
         rot, trans = f"{np.max(v.sigmas[:3]):.4f}", f"{np.max(v.sigmas[3:]):.3f}"
@@ -59,13 +111,15 @@ def format_verdict(v: Verdict, target: tuple[float, float] | None = None) -> str
         gap = _more(v.n_distinct)
     notes = [f"scan: {v.lidar}" if v.lidar else "", f"image: {v.image}" if v.image else "", v.note or ""]
     if v.repeat_of:
-        notes.append("same board pose as before: move or turn the board")
-    note = _short("; ".join(n for n in notes if n))
+        notes.append(f"same board pose as {v.repeat_of}: move or turn the board")
     lat = "" if v.latency is None else f"{v.latency:.2f}s"
-    return (
-        f"{v.name:<10s} {'ok' if v.lidar is None else 'no':<4s} {'ok' if v.image is None else 'no':<5s} "
-        f"{pose:<10s} {v.n_frames:>3d} {rot:>8s} {trans:>8s} {gap:>13s} {lat:>7s}  {note}"
-    ).rstrip()
+    cells = (
+        f"{'ok' if v.lidar is None else 'no':<4s} {'ok' if v.image is None else 'no':<5s} "
+        f"{pose:<10s} {v.n_frames:>3d} {rot:>8s} {trans:>8s} {gap:>13s} {lat:>7s}"
+    )
+    row = f"{v.name:<10s} {cells}".rstrip()
+    lines = [row] if len(row) <= WIDTH else [v.name, f"{'':<10s} {cells}".rstrip()]
+    return "\n".join(lines + _note_lines("; ".join(n for n in notes if n)))
 
 
 def format_progress(
@@ -178,12 +232,12 @@ def check_command(
         seen.append(v)
         status.clear()
         print(format_verdict(v, target), flush=True)
-        status.show(format_progress(seen, target))
+        status.show(_short(format_progress(seen, target)))
 
     def on_idle(waited: float, checker: LiveCheck | None) -> None:
         if checker is None:
             if status.tty:
-                status.show(f"waiting for {Path(data) / 'config.yaml'}")
+                status.show(_short(f"waiting for {Path(data) / 'config.yaml'}"))
             return
         last = checker.last
         if advise_live and last is not None and waited > 0.3 and shown["advised"] != last.n_frames:
@@ -191,33 +245,34 @@ def check_command(
             p = advice.propose(checker.config, checker.used, last)
             if p is not None:
                 status.clear()
-                print("  " + p.describe(), flush=True)
+                print(_wrapped(p.describe(), "  ", "    "), flush=True)
         if status.tty:
-            status.show(format_progress(seen, target, waiting=waited))
+            status.show(_short(format_progress(seen, target, waiting=waited)))
 
     result = run_check(source, options, on_verdict, on_idle)
     status.clear()
-    print(f"\n{format_progress(result.verdicts, target)} ({result.stopped})")
+    print("\n" + _wrapped(f"{format_progress(result.verdicts, target)} ({result.stopped})"))
     proposal = None
     if result.final is not None:
         s = sigmas_deg_mm(result.final.covariance)
-        print(
-            f"all {result.final.n_frames} frames solved together (as calibrate solves them): sigma "
-            f"rot {s[0]:.4f} {s[1]:.4f} {s[2]:.4f} deg, trans {s[3]:.3f} {s[4]:.3f} {s[5]:.3f} mm"
-        )
+        print(f"all {result.final.n_frames} frames solved together (as calibrate solves them):")
+        print(f"  sigma rot {s[0]:.4f} {s[1]:.4f} {s[2]:.4f} deg, trans {s[3]:.3f} {s[4]:.3f} {s[5]:.3f} mm")
         if result.second_look:
-            print(f"second look, as calibrate's: the board found in {', '.join(result.second_look)}")
+            print(
+                _wrapped(f"second look, as calibrate's: the board found in {', '.join(result.second_look)}")
+            )
         sol = result.final.solution
         if sol is not None and sol.selection is not None:
-            print(sol.selection.summary())
+            print(_wrapped(sol.selection.summary()))
         proposal = advice.propose(result.config, result.frames, result.final)
     elif result.verdicts:
-        print("not calibrated yet: at least 3 distinct board poses with the board in both sensors are needed")
+        print("not calibrated yet: at least 3 distinct board poses with the board in both sensors")
+        print("  are needed")
     if proposal is not None:
-        print(proposal.describe())
+        print(_wrapped(proposal.describe()))
     if out is not None:
         from ilcc_graph.app.write import write_check
 
         write_check(Path(out), result, proposal, command)
-        print(f"wrote check.yaml{' and next_pose.png' if proposal is not None else ''} to {out}")
+        print(_wrapped(f"wrote check.yaml{' and next_pose.png' if proposal is not None else ''} to {out}"))
     return 0
