@@ -2,7 +2,7 @@
 
 Monte Carlo: simulated standard panoramic sets (HDL-32E, equirectangular camera, 20 frames,
 baseline noise). Each set is observed once in memory (``estimate_board`` on the scans,
-``detect_corners`` on the images; a ``FrameError`` drops the frame as in ``pipeline.observe``)
+``detect_corners`` on the images; a ``FrameError`` drops the frame as in ``run.stages.observe_frame``)
 and solved three ways from the same observations: UPnP alone, the paper's refinement, the graph.
 The image does not depend on the LiDAR systematics, so with ``--systematics both`` every set is
 rendered and detected once and its scans are simulated and fitted twice (systematics on and off).

@@ -1,4 +1,4 @@
-"""Benchmark of ilcc_graph.graph: time vs frames, factor design, and Monte Carlo accuracy / NEES.
+"""Benchmark of the batch solve (estimation.batch): time vs frames, factor design, Monte Carlo NEES.
 
 Synthetic problems as in tests/test_graph.py: an 8000x4000 equirectangular camera, a 6x8 board
 (35 corners) 1.5-5 m around the LiDAR, pixel noise 0.5 px (random anisotropic covariance per

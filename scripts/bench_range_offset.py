@@ -1,4 +1,4 @@
-"""Benchmark of the LiDAR range offset (factors/range_offset.py, ilcc_graph.joint).
+"""Benchmark of the LiDAR range offset (factors/range_offset.py, ilcc_graph.estimation.sessions).
 
 1. The model against the simulator: the same scene scanned by the ray-casting LiDAR simulator with
    ``Systematics(range_offset_m=0.03)`` and without (no noise, no other systematics), both fitted by

@@ -1,4 +1,4 @@
-"""Benchmark of ilcc_graph.joint sessions: joint vs alone, and detection of a moved mount (Monte Carlo).
+"""Benchmark of joint sessions (estimation.sessions): joint vs alone, detection of a moved mount.
 
 Graph-level synthetic sessions (tests/synthetic_graph.py): an 8000x4000 equirectangular camera, a 6x8
 board of 75 mm 1.5-5 m around the LiDAR, 0.5 px corner noise (random anisotropic covariance per
@@ -8,7 +8,7 @@ The three sessions of a run share the rig, not the board placements.
 Run: ``nice python3 scripts/bench_sessions.py [--runs 100] [--write]`` (``--write``: tables into
 docs/bench_joint.md between markers). ``--pipeline DIR`` instead runs one end-to-end example: three
 simulated data sets (``ilcc_graph.simulate``, pinhole camera, C with a moved mount) written to DIR and
-calibrated from disk with ``pipeline.observe`` and ``pipeline.solve_observations`` (real stages).
+calibrated from disk with ``run.observe.observe`` and ``run.pipeline.solve_observations`` (real stages).
 """
 
 from __future__ import annotations

@@ -53,7 +53,8 @@ def pose_difference(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
 def usable_frames(observed: Sequence[FrameResult]) -> list[FrameResult]:
     """Frames that have both a board fit and image corners (whatever their ``used`` flag says).
 
-    A frame the solver dropped is still usable here: ``observe_frames`` output is what to pass.
+    A frame the solver dropped is still usable here: pass the observed frames (``run.observe.observe``'s
+    ``Observation.frames``).
     """
     return [r for r in observed if r.board is not None and r.corners is not None]
 
