@@ -9,9 +9,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 # TEMPORARY, to be removed: names still used twice while their modules move. The rig's modules
-# (config/, datasets/, simulate/, estimation/rig.py) are renamed with the rig's work (issue 24);
-# report/rig.py (the next pose's picture) once its importer app/write.py has moved into run/
-# (issue 23). The test fails when a name listed here is no longer used twice: then delete it here.
+# (config/, datasets/, simulate/ rig.py) are renamed with the rig's work (issue 24). The test fails
+# when a name listed here is no longer used twice: then delete it here.
 PENDING = {"rig.py"}
 
 

@@ -37,7 +37,7 @@ from ilcc_graph.errors import OutputError
 from ilcc_graph.io import atomic_write, write_calibration, write_yaml
 from ilcc_graph.io.output_folders import OURS, add_file, staged, write_beside
 from ilcc_graph.io.rig_results import rig_calibration_from_doc
-from ilcc_graph.report.rig import next_pose_png
+from ilcc_graph.report.next_pose_picture import next_pose_png
 from ilcc_graph.report.rig_report import write_rig_report
 from ilcc_graph.report.session import write_report
 from ilcc_graph.run.pipeline import solve_observed

@@ -118,7 +118,7 @@ def write_report(
         frame's pictures, and once more when the page is built. ``refit(frames, config, options)``: a
     subset of the frames solved again (``run.pipeline.solve_observed``), for the studies."""
     from ilcc_graph.report import FigureOptions, build_report
-    from ilcc_graph.report.rig import next_pose_png
+    from ilcc_graph.report.next_pose_picture import next_pose_png
 
     obs, cal = session.observation, session.calibration
     config, source = obs.config, obs.source
