@@ -59,6 +59,29 @@ def test_the_forged_headers_are_read_as_declared(tmp_path):
         assert f"{MAX_PIXELS / 1e6:.0f} Mpx" in str(exc.value)
 
 
+def test_size_and_read_say_the_same_of_a_bad_file(tmp_path):
+    """``image_size`` and ``read_image`` read the header through one function: the same message,
+    naming the file, for each problem the header shows."""
+    (tmp_path / "dir.png").mkdir()
+    (tmp_path / "link.png").symlink_to(tmp_path / "gone.png")
+    (tmp_path / "zero.png").write_bytes(forged_png(0, 10))
+    (tmp_path / "huge.jpg").write_bytes(forged_jpeg(60000, 60000))
+    problems = {
+        "missing.png": "image file not found",
+        "dir.png": "cannot read image (Is a directory)",
+        "link.png": "broken link",
+        "zero.png": "the image's header declares 0x10 px (corrupt)",
+        "huge.jpg": "the image's header declares 60000x60000 px",
+    }
+    for name, problem in problems.items():
+        said = []
+        for fn in (image_size, read_image):
+            with pytest.raises(InputError) as exc:
+                fn(tmp_path / name)
+            said.append(str(exc.value))
+        assert said[0] == said[1] and name in said[0] and problem in said[0], said
+
+
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory) -> Path:
     """A small simulated panoramic set (7 frames, 1000 x 500 px)."""

@@ -74,7 +74,7 @@ def _header_size(p: Path) -> tuple[int, int] | None:
 def _declared(p: Path) -> tuple[int, int] | None:
     """(width, height) the file's header declares (our parsers, else Pillow's lazy open); None when
     neither can tell (the decoder then says what is wrong); ``InputError`` when Pillow refuses a size
-    over its decompression-bomb limit. Raises OSError when the file cannot be opened."""
+    over its decompression-bomb limit. Raises OSError (with its errno) when the file cannot be opened."""
     try:
         size = _header_size(p)
     except struct.error:
@@ -97,9 +97,25 @@ def _declared(p: Path) -> tuple[int, int] | None:
         ) from None
     except (UnidentifiedImageError, ValueError, SyntaxError, struct.error, EOFError):
         return None
+    except OSError as e:
+        if e.errno is None:  # a plugin's parse error (truncated header...), not the file's
+            return None
+        raise
 
 
-def _check_size(p: Path, size: tuple[int, int]) -> tuple[int, int]:
+def _checked_header(p: Path) -> tuple[int, int] | None:
+    """(width, height) the header of image file ``p`` declares, checked, or None when the header does
+    not tell; ``InputError`` naming the file when it is a broken link, missing or unreadable, or its
+    header declares a size of zero or more than ``MAX_PIXELS``. The one reader of the header for
+    ``image_size`` and ``read_image``."""
+    if why := broken_link(p):
+        raise InputError(why)
+    try:
+        size = _declared(p)
+    except OSError as e:
+        raise _unreadable(p, e) from None
+    if size is None:
+        return None
     w, h = size
     if w <= 0 or h <= 0:
         raise InputError(f"{p}: the image's header declares {w}x{h} px (corrupt)")
@@ -111,21 +127,20 @@ def _check_size(p: Path, size: tuple[int, int]) -> tuple[int, int]:
     return size
 
 
+def _unreadable(p: Path, e: OSError) -> InputError:
+    """The error of an image file that cannot be opened or read."""
+    if isinstance(e, FileNotFoundError):
+        return InputError(f"{p}: image file not found")
+    return InputError(f"{p}: cannot read image ({e.strerror or e})")
+
+
 def image_size(path: str | Path) -> tuple[int, int]:
     """(width, height) in pixels from the image file's header, nothing decoded; ``InputError`` naming
     the file when it is missing, a broken link, not an image, or declares more than ``MAX_PIXELS``."""
     p = Path(path)
-    if why := broken_link(p):
-        raise InputError(why)
-    try:
-        size = _declared(p)
-    except FileNotFoundError:
-        raise InputError(f"{p}: image file not found") from None
-    except OSError as e:
-        raise InputError(f"{p}: cannot read image ({e.strerror or e})") from None
-    if size is None:
+    if (size := _checked_header(p)) is None:
         raise InputError(f"{p}: cannot read the image's size (corrupt or not an image)")
-    return _check_size(p, size)
+    return size
 
 
 def _decode(cv2, buf: np.ndarray) -> np.ndarray | None:  # noqa: ANN001 - the cv2 module
@@ -151,20 +166,11 @@ def read_image(path: str | Path) -> np.ndarray:
     import cv2
 
     p = Path(path)
-    if why := broken_link(p):
-        raise InputError(why)
-    try:
-        size = _declared(p)
-    except OSError:
-        size = None  # the read below says why
-    if size is not None:
-        _check_size(p, size)
+    _checked_header(p)  # a size it cannot tell: the decoder says what is wrong
     try:
         buf = np.fromfile(p, dtype=np.uint8)
-    except FileNotFoundError:
-        raise InputError(f"{p}: image file not found") from None
     except OSError as e:
-        raise InputError(f"{p}: cannot read image ({e})") from None
+        raise _unreadable(p, e) from None
     if buf.size == 0:
         raise InputError(f"{p}: empty image file")
     img = _decode(cv2, buf)
