@@ -236,6 +236,80 @@ def test_bad_input_names_the_bag_and_the_problem(sets, tmp_path) -> None:
             open_source(broken, config=sets["folder"] / "config.yaml").frames()
 
 
+def _copy_bag(src: Path, dst: Path, change: dict[int, object]) -> Path:
+    """A copy of the ROS 1 bag ``src`` (and its config) with the k-th image message (0-based) altered by
+    ``change[k](message)``; every other message as it was."""
+    from rosbags.rosbag1 import Reader, Writer
+
+    m = RosMessages(ros1=True)
+    with Reader(src) as r, Writer(dst) as w:
+        conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=m.ts) for c in r.connections}
+        k = 0
+        for c, t, raw in r.messages():
+            if c.topic.startswith("/camera/image_raw"):
+                if k in change:
+                    msg = m.ts.deserialize_ros1(raw, c.msgtype)
+                    change[k](msg)  # type: ignore[operator]
+                    raw = m.serialize(msg, c.msgtype)
+                k += 1
+            w.write(conns[c.id], t, raw)
+    shutil.copy(src.with_suffix(".yaml"), dst.with_suffix(".yaml"))
+    return dst
+
+
+def test_a_damaged_bag_image_costs_its_frame_unread(sets, tmp_path) -> None:
+    """As an image file's: a bag's image message is checked before it is decoded, against its own data
+    (truncated) and the camera's size; the frame is skipped with the bag, topic and time named (strict:
+    InputError), the others are used; the still-pause survey leaves the damaged message out."""
+    from ilcc_graph.run.observe import observe
+    from ilcc_graph.run.stages import StageOptions
+    from ilcc_graph.simulate.frames import SimFrame
+
+    frames = list(sets["frames"])
+    f2 = frames[2]
+    frames[2] = SimFrame(f2.name, f2.scan, np.ascontiguousarray(f2.image[:300, :400]), f2.T_lidar_board)
+    odd = write_bag(tmp_path / "odd.bag", sets["spec"], frames=frames)  # the simulator's, image 2 smaller
+
+    def truncate(msg) -> None:  # noqa: ANN001 - a sensor_msgs/Image
+        msg.data = msg.data[: len(msg.data) // 2].copy()
+
+    bag = _copy_bag(odd, tmp_path / "damaged.bag", {4: truncate})
+    src = open_source(bag)
+    assert len(src.frames()) == 6  # the survey did not stop at the damaged message
+    obs = observe(src, StageOptions(jobs=1))
+    why = {f.name: f.reason or "" for f in obs.frames if not f.used}
+    assert set(why) == {"t000000.200", "t000000.400"}, why
+    w, h = sets["spec"].camera.width, sets["spec"].camera.height
+    t2, t4 = (src.frames()[i].image[1] for i in (2, 4))
+    assert (
+        f"damaged file: {bag}:/camera/image_raw@t000000.200 (bag time {t2} ns): image is 400x300 px, "
+        f"but the camera in" in why["t000000.200"]
+    )
+    assert (
+        f"damaged file: {bag}:/camera/image_raw@t000000.400 (bag time {t4} ns): {w * h * 3 // 2} data "
+        f"bytes do not hold a {w} x {h} bgr8 image"
+        in why["t000000.400"]
+        and "damaged or truncated message" in why["t000000.400"]
+    )
+    with pytest.raises(InputError, match=r"damaged\.bag:/camera/image_raw@t000000\.200 .*image is 400x300"):
+        observe(open_source(bag), StageOptions(jobs=1, strict=True))
+    # a compressed image whose header declares an absurd size is refused before it is decoded
+    png = write_bag(tmp_path / "png.bag", sets["spec"], frames=sets["frames"], image_format="png")
+
+    def forge(msg) -> None:  # noqa: ANN001 - a sensor_msgs/CompressedImage (PNG)
+        data = msg.data.copy()
+        data[16:24] = np.frombuffer((60000).to_bytes(4, "big") * 2, np.uint8)
+        msg.data = data
+
+    forged = open_source(_copy_bag(png, tmp_path / "forged.bag", {1: forge}))
+    ref = forged.frames()[1]
+    for read in (forged.header_size, forged.read_image, forged.image_size):
+        with pytest.raises(InputError, match=r"forged\.bag:/camera/image_raw/compressed@t000000\.100 "
+                           r"\(bag time \d+ ns\): the image's header declares 60000x60000 px"):  # fmt: skip
+            read(ref)
+    assert forged.header_size(forged.frames()[0]) == (w, h)
+
+
 def test_cli_calibrates_a_bag(sets, tmp_path) -> None:
     out = tmp_path / "out"
     argv = ["calibrate", str(sets["ros1"]), "--out", str(out), "--no-report", "--jobs", "1",

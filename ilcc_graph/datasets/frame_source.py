@@ -62,6 +62,10 @@ class FrameSource(ABC):
     def read_image(self, ref: FrameRef) -> np.ndarray:
         """The frame's image, (H, W, 3) BGR uint8; InputError naming the file and the problem."""
 
+    def image_location(self, ref: FrameRef) -> str:
+        """Where the frame's image is, for messages (a file's path; a bag, topic and time)."""
+        return str(ref.image)
+
     def header_size(self, ref: FrameRef) -> tuple[int, int] | None:
         """(width, height) of the frame's image from its header alone, nothing decoded; None where the
         source cannot tell without decoding (InputError naming the file when it is damaged)."""

@@ -1,5 +1,9 @@
 """ROS sensor messages as plain data: PointCloud2 -> Scan, Image / CompressedImage -> BGR array,
-CameraInfo -> our config's camera section. Messages are rosbags' deserialised objects (ROS 1 or 2)."""
+CameraInfo -> our config's camera section. Messages are rosbags' deserialised objects (ROS 1 or 2).
+
+An image message's size is read before a pixel is decoded (``image_message_size``: the Image's
+fields, a CompressedImage's encoded header), as ``io.images`` reads an image file's header: a message
+whose data do not hold the image it declares, or that declares an absurd size, is refused unread."""
 
 from __future__ import annotations
 
@@ -9,6 +13,7 @@ import numpy as np
 
 from ilcc_graph.cameras import camera_section_from_ros
 from ilcc_graph.errors import InputError
+from ilcc_graph.io.images import encoded_image_size
 from ilcc_graph.io.scans import find_fields, make_scan
 from ilcc_graph.types import Scan
 
@@ -18,8 +23,10 @@ __all__ = [
     "IMAGE",
     "INFO",
     "camera_section",
+    "check_image_format",
     "decode_cloud",
     "decode_image",
+    "image_message_size",
     "sweep_offset",
 ]
 
@@ -95,27 +102,52 @@ def sweep_offset(msg: Any, where: str) -> float:
     return 0.5 * (lo + hi) if np.isfinite(lo + hi) and hi - lo <= 0.5 and abs(lo + hi) <= 1.0 else 0.0
 
 
-def decode_image(msg: Any, where: str) -> np.ndarray:
-    """An Image (bgr8, rgb8, mono8, mono16, bgra8, rgba8) or CompressedImage as (H, W, 3) BGR uint8."""
-    import cv2
-
+def check_image_format(msg: Any, where: str) -> None:
+    """InputError when an Image's encoding or a CompressedImage's format is not one we decode (a
+    topic's problem rather than one message's)."""
     if hasattr(msg, "format"):  # CompressedImage: jpeg / png
-        img = None
-        if "compresseddepth" not in msg.format.lower():
-            img = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_COLOR)
-        if img is None:
+        if "compresseddepth" in msg.format.lower():
             raise InputError(f"{where}: cannot decode the compressed image (format {msg.format!r})")
-        return img
-    enc = _ENCODINGS.get(msg.encoding.lower())
-    if enc is None:
+    elif msg.encoding.lower() not in _ENCODINGS:
         raise InputError(
             f"{where}: image encoding {msg.encoding!r} is not supported ({', '.join(_ENCODINGS)})"
         )
-    size, ch, conversion = enc
+
+
+def image_message_size(msg: Any, where: str) -> tuple[int, int] | None:
+    """(width, height) px an Image or CompressedImage declares (its fields; the encoded image's header),
+    no pixel decoded; None when a compressed image's header does not tell (its decoder then says what
+    is wrong). InputError starting with ``where`` when the encoding is not supported or the message is
+    damaged or truncated: its data do not hold the image it declares, or its header declares a size
+    of zero or more than ``io.images.MAX_PIXELS``."""
+    check_image_format(msg, where)
+    if hasattr(msg, "format"):
+        return encoded_image_size(np.asarray(msg.data, dtype=np.uint8), where)
+    size, ch, _ = _ENCODINGS[msg.encoding.lower()]
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    n = np.asarray(msg.data, dtype=np.uint8).size
+    if w <= 0 or h <= 0 or step < w * ch * size or n < h * step:
+        raise InputError(
+            f"{where}: {n} data bytes do not hold a {w} x {h} {msg.encoding} image of {step} bytes a row "
+            "(a damaged or truncated message)"
+        )
+    return w, h
+
+
+def decode_image(msg: Any, where: str) -> np.ndarray:
+    """An Image (bgr8, rgb8, mono8, mono16, bgra8, rgba8) or CompressedImage as (H, W, 3) BGR uint8;
+    its size checked first (``image_message_size``)."""
+    import cv2
+
+    image_message_size(msg, where)
+    if hasattr(msg, "format"):  # CompressedImage: jpeg / png
+        img = cv2.imdecode(np.asarray(msg.data, dtype=np.uint8), cv2.IMREAD_COLOR)
+        if img is None:
+            raise InputError(f"{where}: cannot decode the compressed image (format {msg.format!r})")
+        return img
+    size, ch, conversion = _ENCODINGS[msg.encoding.lower()]
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     data = np.asarray(msg.data, dtype=np.uint8)
-    if step < w * ch * size or data.size < h * step:
-        raise InputError(f"{where}: {data.size} data bytes do not hold a {w} x {h} {msg.encoding} image")
     px = data[: h * step].reshape(h, step)[:, : w * ch * size]
     if size == 2:  # 16 bits scaled to 8 as io.read_image does
         px = np.round(px.copy().view(">u2" if msg.is_bigendian else "<u2") / 257.0).astype(np.uint8)

@@ -26,8 +26,10 @@ from ilcc_graph.datasets.ros_messages import (
     IMAGE,
     INFO,
     camera_section,
+    check_image_format,
     decode_cloud,
     decode_image,
+    image_message_size,
     sweep_offset,
 )
 from ilcc_graph.datasets.timeline import (
@@ -62,8 +64,12 @@ def is_bag(path: Path) -> bool:
 
 
 _OPEN: dict[tuple, Any] = {}  # per process: (path, mtime, size) -> open AnyReader
+#: per process, at most one: the image message ``header_size`` read, kept for the ``read_image`` that
+#: follows it (``run.stages.observe_image``), so that the message is read once
+_KEPT: dict[tuple, tuple[Any, str]] = {}
 if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_OPEN.clear)  # a forked worker opens its own
+    os.register_at_fork(after_in_child=_KEPT.clear)
 
 
 class BagSource(FrameSource):
@@ -141,16 +147,43 @@ class BagSource(FrameSource):
         while (item := self._guard(next, it, None)) is not None:
             yield item[0].topic, item[1], self._guard(r.deserialize, item[2], item[0].msgtype)
 
+    def _where(self, topic: str, t_ns: int, name: str | None = None) -> str:
+        """A message's place for messages: the bag, the topic, the frame's name and the bag time."""
+        return f"{self.path}:{topic}{'' if name is None else '@' + name} (bag time {t_ns} ns)"
+
     def _one(self, locator: tuple[str, int], name: str) -> tuple[Any, str]:
         for _, _, msg in self._messages([locator[0]], locator[1]):
-            return msg, f"{self.path}:{locator[0]}@{name}"
+            return msg, self._where(locator[0], locator[1], name)
         raise InputError(f"{self.path}: no message on {locator[0]} at {locator[1]} ns (bag changed?)")
 
     def read_scan(self, ref: FrameRef, config: Config) -> Scan:
         return decode_cloud(*self._one(ref.scan, ref.name))
 
     def read_image(self, ref: FrameRef) -> np.ndarray:
-        return decode_image(*self._one(ref.image, ref.name))
+        """The image message decoded, its size checked first (``ros_messages.image_message_size``):
+        InputError naming the bag, topic and time when it is damaged or truncated."""
+        kept = _KEPT.pop((str(self.path), *ref.image), None)
+        return decode_image(*(kept or self._one(ref.image, ref.name)))
+
+    def image_location(self, ref: FrameRef) -> str:
+        return self._where(*ref.image, ref.name)
+
+    def header_size(self, ref: FrameRef) -> tuple[int, int] | None:
+        """(width, height) the image message declares, nothing decoded (``image_message_size``); the
+        message is kept for the ``read_image`` of the same frame that follows."""
+        msg, where = self._one(ref.image, ref.name)
+        size = image_message_size(msg, where)
+        _KEPT.clear()
+        _KEPT[(str(self.path), *ref.image)] = (msg, where)
+        return size
+
+    def image_size(self, ref: FrameRef) -> tuple[int, int]:
+        """(width, height) of the frame's image: declared by the message, else decoded (nothing kept)."""
+        msg, where = self._one(ref.image, ref.name)
+        if (size := image_message_size(msg, where)) is not None:
+            return size
+        h, w = decode_image(msg, where).shape[:2]
+        return int(w), int(h)
 
     # -- topics and config -------------------------------------------------------------------------
     def _topic(self, role: str, types: tuple[str, ...], required: bool = True) -> str | None:
@@ -235,6 +268,7 @@ class BagSource(FrameSource):
         stamp and sweep offset (``clouds``: PointCloud2 topics), and the motion between samples of each
         ``motion`` topic (``model()``: the LiDAR model giving rings to a cloud without them)."""
         lasts: dict[str, tuple[int, Any]] = {}
+        damaged: list[str] = []
         for topic, t, msg in self._messages(list(streams)):
             s, where = streams[topic], f"{self.path}:{topic}"
             s.bag_ns.append(t)
@@ -248,11 +282,19 @@ class BagSource(FrameSource):
                 ring = model().ring_from_points(scan.points) if scan.ring is None else scan.ring
                 sig = range_image(scan.points, ring)
             else:
-                sig = motion_image(decode_image(msg, where))
+                check_image_format(msg, where)  # the topic's images cannot be read: said for the bag
+                try:
+                    sig = motion_image(decode_image(msg, self._where(topic, t)))
+                except InputError as err:  # one damaged message: no motion sample; its frame says so
+                    damaged.append(str(err))
+                    continue
             if last is not None:
                 s.changes.append((lidar_change if topic in clouds else image_change)(last[1], sig))
             s.samples.append(len(s.bag_ns) - 1)
             lasts[topic] = (t, sig)
+        if damaged:
+            more = f" (and {len(damaged) - 1} more)" if len(damaged) > 1 else ""
+            log.warning("damaged image message(s), left out of the motion measure: %s%s", damaged[0], more)
 
     def _set_time_base(self, streams: list[Stream], what: str) -> None:
         """Header stamps, or bag times when stamps are zero or when no other stream pairs with the first

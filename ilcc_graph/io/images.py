@@ -2,20 +2,23 @@
 
 ``image_size`` reads width and height from the header alone (PNG IHDR, JPEG SOF, BMP; Pillow's lazy
 open for the rest), so a file that declares an absurd size is refused before a byte of it is
-decoded: ``read_image`` checks it first (``MAX_PIXELS``).
+decoded: ``read_image`` checks it first (``MAX_PIXELS``). ``encoded_image_size`` does the same for
+an encoded image held in memory (a bag's CompressedImage).
 """
 
 from __future__ import annotations
 
+import io
 import struct
 from pathlib import Path
+from typing import BinaryIO
 
 import numpy as np
 
 from ..errors import InputError
 from .files import atomic_write, broken_link
 
-__all__ = ["IMAGE_SUFFIXES", "MAX_PIXELS", "image_size", "read_image", "write_image"]
+__all__ = ["IMAGE_SUFFIXES", "MAX_PIXELS", "encoded_image_size", "image_size", "read_image", "write_image"]
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
@@ -56,27 +59,33 @@ def _jpeg_size(f) -> tuple[int, int] | None:  # noqa: ANN001 - a binary file pos
         f.seek(length - 2, 1)
 
 
-def _header_size(p: Path) -> tuple[int, int] | None:
-    """(width, height) declared by the header of a PNG, JPEG or BMP file; None for other formats."""
-    with open(p, "rb") as f:
-        head = f.read(26)
-        if head.startswith(_PNG) and head[12:16] == b"IHDR" and len(head) >= 24:
-            return struct.unpack(">II", head[16:24])
-        if head.startswith(b"\xff\xd8"):
-            f.seek(2)
-            return _jpeg_size(f)
-        if head.startswith(b"BM") and len(head) >= 26:
-            w, h = struct.unpack("<ii", head[18:26])
-            return abs(w), abs(h)
+def _header_size(f: BinaryIO) -> tuple[int, int] | None:
+    """(width, height) declared by the header of a PNG, JPEG or BMP image read from ``f`` (at its
+    start); None for other formats."""
+    head = f.read(26)
+    if head.startswith(_PNG) and head[12:16] == b"IHDR" and len(head) >= 24:
+        return struct.unpack(">II", head[16:24])
+    if head.startswith(b"\xff\xd8"):
+        f.seek(2)
+        return _jpeg_size(f)
+    if head.startswith(b"BM") and len(head) >= 26:
+        w, h = struct.unpack("<ii", head[18:26])
+        return abs(w), abs(h)
     return None
 
 
-def _declared(p: Path) -> tuple[int, int] | None:
-    """(width, height) the file's header declares (our parsers, else Pillow's lazy open); None when
-    neither can tell (the decoder then says what is wrong); ``InputError`` when Pillow refuses a size
-    over its decompression-bomb limit. Raises OSError (with its errno) when the file cannot be opened."""
+def _declared(p: Path | BinaryIO, where: str) -> tuple[int, int] | None:
+    """(width, height) the header of the image file ``p`` (or in the stream ``p``) declares (our
+    parsers, else Pillow's lazy open); None when neither can tell (the decoder then says what is
+    wrong); ``InputError`` starting with ``where`` when Pillow refuses a size over its
+    decompression-bomb limit. Raises OSError (with its errno) when the file cannot be opened."""
     try:
-        size = _header_size(p)
+        if isinstance(p, Path):
+            with open(p, "rb") as f:
+                size = _header_size(f)
+        else:
+            size = _header_size(p)
+            p.seek(0)
     except struct.error:
         size = None
     if size is not None:
@@ -92,7 +101,7 @@ def _declared(p: Path) -> tuple[int, int] | None:
                 return int(im.width), int(im.height)
     except Image.DecompressionBombError:
         raise InputError(
-            f"{p}: the image's header declares more than {2 * Image.MAX_IMAGE_PIXELS / 1e6:.0f} Mpx; "
+            f"{where}: the image's header declares more than {2 * Image.MAX_IMAGE_PIXELS / 1e6:.0f} Mpx; "
             "not decoded (a damaged or forged file)"
         ) from None
     except (UnidentifiedImageError, ValueError, SyntaxError, struct.error, EOFError):
@@ -111,20 +120,32 @@ def _checked_header(p: Path) -> tuple[int, int] | None:
     if why := broken_link(p):
         raise InputError(why)
     try:
-        size = _declared(p)
+        size = _declared(p, str(p))
     except OSError as e:
         raise _unreadable(p, e) from None
-    if size is None:
-        return None
+    return None if size is None else _checked(size, str(p), "file")
+
+
+def _checked(size: tuple[int, int], where: str, what: str) -> tuple[int, int]:
+    """``size`` (width, height) as declared, or ``InputError`` starting with ``where`` when it is zero
+    or over ``MAX_PIXELS`` (``what``: "file" or "message", for the message)."""
     w, h = size
     if w <= 0 or h <= 0:
-        raise InputError(f"{p}: the image's header declares {w}x{h} px (corrupt)")
+        raise InputError(f"{where}: the image's header declares {w}x{h} px (corrupt)")
     if w * h > MAX_PIXELS:
         raise InputError(
-            f"{p}: the image's header declares {w}x{h} px ({w * h / 1e6:.0f} Mpx), more than the "
-            f"{MAX_PIXELS / 1e6:.0f} Mpx an image may have; not decoded (a damaged or forged file)"
+            f"{where}: the image's header declares {w}x{h} px ({w * h / 1e6:.0f} Mpx), more than the "
+            f"{MAX_PIXELS / 1e6:.0f} Mpx an image may have; not decoded (a damaged or forged {what})"
         )
     return size
+
+
+def encoded_image_size(data: bytes | np.ndarray, where: str) -> tuple[int, int] | None:
+    """(width, height) the header of an encoded image in memory (PNG, JPEG, ...) declares, checked as a
+    file's, or None when the header does not tell; ``InputError`` starting with ``where`` when it
+    declares a size of zero or more than ``MAX_PIXELS``."""
+    size = _declared(io.BytesIO(bytes(memoryview(data))), where)
+    return None if size is None else _checked(size, where, "message")
 
 
 def _unreadable(p: Path, e: OSError) -> InputError:

@@ -105,7 +105,7 @@ def check_image_size(source: FrameSource, refs: Sequence[FrameRef], config: Conf
             w, h = source.image_size(ref)
         except InputError:
             continue  # a damaged image: the stage says so for its frame
-        problem = size_problem((w, h), config, str(ref.image))
+        problem = size_problem((w, h), config, source.image_location(ref))
         if problem is None:
             return
         problems.append(problem)

@@ -129,11 +129,12 @@ def observe_image(
     (``image.previews``); raises FrameError with the reason (DamagedFile when the image cannot be
     read or has not the camera's size: judged from the file's header before decoding where the
     source can, so a forged size costs nothing)."""
+    where = source.image_location(ref)
     size = read_frame_file(source.header_size, ref, strict=strict)
     if size is not None:
-        check_image(size, config, str(ref.image), strict)
+        check_image(size, config, where, strict)
     image = read_frame_file(source.read_image, ref, strict=strict)
-    check_image(image, config, str(ref.image), strict)
+    check_image(image, config, where, strict)
     corners = detect_corners(image, config.camera, config.board, options)  # type: ignore[arg-type]
     extra = dict(zip(PATTERN_KEYS, pattern_continues(image, config, corners)))  # for setup_mistakes
     kept = make_views(image, corners.uv, config.camera) if views else corners.views
