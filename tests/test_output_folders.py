@@ -305,3 +305,46 @@ def test_outputs_follow_the_umask(tmp_path, mask):
         if stat.S_IMODE(p.stat().st_mode) != (0o777 if p.is_dir() else 0o666) & ~mask
     }
     assert wrong == {}
+
+
+def test_simulate_bag_writes_new_files_only_and_all_at_once(tmp_path, capsys, monkeypatch):
+    """``simulate --bag``: the bag and the two YAML files beside it appear together (staged beside,
+    moved in at the end); a name in use, the bag's or a file's beside it, is refused before any work
+    (exit 2) and left as it was; a stop while writing leaves nothing."""
+    from ilcc_graph import signals
+    from ilcc_graph.datasets import open_source
+    from ilcc_graph.simulate import standard_spec, write_bag
+
+    small = ["--bag", "--frames", "2", "--width", "400", "--camera", "pinhole"]
+    bags = tmp_path / "bags"
+    assert main(["simulate", str(bags / "run.bag"), *small]) == 0
+    assert main(["simulate", str(bags / "run2"), *small, "--storage", "sqlite3"]) == 0  # a ROS 2 folder
+    assert sorted(p.name for p in bags.iterdir()) == [
+        "run.bag", "run.ground_truth.yaml", "run.yaml", "run2", "run2.ground_truth.yaml", "run2.yaml"
+    ]  # fmt: skip
+    assert (bags / "run2" / "run2.db3").is_file()
+    assert [len(open_source(bags / n).frames()) for n in ("run.bag", "run2")] == [2, 2]
+
+    import ilcc_graph.simulate.bag
+
+    def started(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        raise AssertionError("simulated before the names were checked")
+
+    with monkeypatch.context() as m:
+        m.setattr(ilcc_graph.simulate.bag, "simulate_frames", started)
+        before = snapshot(bags)
+        _refused(["simulate", str(bags / "run.bag"), *small], capsys, f"simulate {bags / 'run.bag'}: exists")
+        assert snapshot(bags) == before
+        (bags / "mine.yaml").write_text("mine: true\n")  # the user's file where the bag's config would go
+        before = snapshot(bags)
+        err = _refused(["simulate", str(bags / "mine.bag"), *small], capsys, "mine.yaml exists beside it")
+        assert "never writes over a file it did not write" in err
+        assert snapshot(bags) == before
+
+    def stop_after_one(done: int, total: int) -> None:
+        raise signals.Stopped(15)
+
+    spec = standard_spec(camera="pinhole", width=400, frames=2, seed=0)
+    with pytest.raises(signals.Stopped):
+        write_bag(bags / "stopped.bag", spec, progress=stop_after_one)
+    assert snapshot(bags) == before  # no bag, no YAML, no staging folder

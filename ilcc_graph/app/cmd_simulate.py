@@ -1,4 +1,7 @@
-"""``ilcc-graph simulate``: a simulated data set with its ground truth (``simulate.write_set``)."""
+"""``ilcc-graph simulate``: a simulated data set with its ground truth (``simulate.write_set``), or
+with ``--bag`` the same as a ROS bag (``simulate.bag.write_bag``: OUT, with ``<OUT>.yaml`` and
+``<OUT>.ground_truth.yaml`` beside it; none may exist, since a run never writes over a file it did
+not write)."""
 
 from __future__ import annotations
 
@@ -50,10 +53,20 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
     sp.add_argument("--intrinsics-error", type=NON_NEGATIVE, default=0.0, metavar="SCALE", help=wrong_k)
     help = "every range reads MM long (a LiDAR's zero error), on top of the per-beam and dark-print offsets"
     sp.add_argument("--range-offset-mm", type=float, default=0.0, metavar="MM", help=help)
+    g = sp.add_argument_group("as a ROS bag (docs/datasets.md)")
+    help = "OUT is a new ROS bag (OUT.bag: ROS 1, else a ROS 2 folder); OUT.yaml, OUT.ground_truth.yaml by it"
+    g.add_argument("--bag", action="store_true", help=help)
+    help = "ros1 for OUT.bag, else sqlite3 (default); or mcap"
+    g.add_argument("--storage", choices=("auto", "ros1", "sqlite3", "mcap"), default="auto", help=help)
+    help = "Image bgr8 (default), or CompressedImage png or jpeg"
+    g.add_argument("--bag-images", choices=("bgr8", "png", "jpeg"), default="bgr8", help=help)
 
 
 def run(args: argparse.Namespace) -> int:
     from ilcc_graph.simulate.write_set import write_standard_set
+
+    if args.bag:
+        return _bag(args)
 
     names = (
         "lidar",
@@ -74,4 +87,31 @@ def run(args: argparse.Namespace) -> int:
         **{k: getattr(args, k) for k in names},
     )
     print(f"wrote {spec.n_frames} frames to {args.out}")
+    return 0
+
+
+def _bag(args: argparse.Namespace) -> int:
+    """``simulate --bag``: the standard set as a ROS bag at ``args.out`` (new files only)."""
+    from ilcc_graph.errors import InputError
+    from ilcc_graph.simulate.bag import write_bag
+    from ilcc_graph.simulate.write_set import standard_set_spec
+
+    if args.format != "plain" or args.pcd_style != "plain":
+        raise InputError(
+            "simulate --bag: --format and --pcd-style are for PCD files; a bag holds PointCloud2"
+        )
+    names = (
+        "lidar",
+        "camera",
+        "width",
+        "frames",
+        "seed",
+        "noise_scale",
+        "intrinsics_error",
+        "range_offset_mm",
+    )
+    spec = standard_set_spec(**{k: getattr(args, k) for k in names})
+    kw = {"storage": args.storage, "image_format": args.bag_images, "flag": "simulate"}
+    out = write_bag(args.out, spec, progress=Progress("simulate"), **kw)
+    print(f"wrote {spec.n_frames} frames to the bag {out} (config and ground truth beside it)")
     return 0

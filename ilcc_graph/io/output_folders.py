@@ -12,7 +12,9 @@ everything is written, so ``out`` is always one run's complete result or as it w
 ``add_file(folder, name, data)`` writes one file into a folder we may write (``evaluate --out``);
 ``write_file(path, data)`` one file the user named (``export --out``, replaced as ``cp`` does);
 ``write_beside(path, data)`` a failure file or log beside an output folder, never over a file that is
-not ours; ``link_latest`` points ``<parent>/latest`` at a run folder. Which folder a command writes
+not ours; ``staged_files(targets)`` new files (or folders) that belong together, e.g. a simulated bag
+and the YAML files beside it, moved in together at the end and never over anything that exists;
+``link_latest`` points ``<parent>/latest`` at a run folder. Which folder a command writes
 is decided in ``app.folders``; the simulator stages its data sets here too (``simulate.write_set``).
 """
 
@@ -43,6 +45,7 @@ __all__ = [
     "claim_output",
     "link_latest",
     "staged",
+    "staged_files",
     "write_beside",
     "write_file",
 ]
@@ -348,4 +351,64 @@ def staged(
             raise OutputError(f"{out}: cannot write the results: {err.strerror or err}{where}") from None
         except BaseException:
             shutil.rmtree(stage, ignore_errors=True)
+            raise
+
+
+def _in_the_way(targets: Sequence[Path], flag: str) -> None:
+    """``OutputError`` naming ``flag``, the main target (the last) and the first target that exists:
+    new files are never written over anything (a run never writes over a file it did not write)."""
+    main = targets[-1]
+    for t in (main, *targets[:-1]):
+        if t.exists() or t.is_symlink():
+            where = "exists" if t == main else f"{t.name} exists beside it (written with it)"
+            raise OutputError(
+                f"{flag} {main}: {where}; a run never writes over a file it did not write: "
+                f"give another name or move {t.name}"
+            )
+
+
+@contextmanager
+def staged_files(targets: Sequence[Path | str], flag: str = "output") -> Iterator[Path]:
+    """A staging folder for new files or folders that belong together (``targets``, all in one folder,
+    the main one last): the block writes each under its name in the staging folder; when it ends
+    without an error they are moved to their targets, the main one last, with signals held (so the
+    main one present means all are). None of them may exist: ``OutputError`` naming ``flag`` and the
+    one in the way, before the block and again under the commit's lock. On an error or a stop the
+    staging folder and whatever was moved are removed: nothing is left, nothing else is touched."""
+    paths = [Path(t) for t in targets]
+    parent = paths[-1].parent
+    if any(t.parent != parent for t in paths):
+        raise ValueError(f"staged_files: the targets must share one folder, got {paths}")
+    _in_the_way(paths, flag)
+    _existing_parent(paths[-1], f"{flag} {paths[-1]}", "nothing can be written")
+    made: list[Path] = []  # the staging folder, then each target moved in
+
+    def remove() -> None:
+        for q in made:
+            if q.is_dir() and not q.is_symlink():
+                shutil.rmtree(q, ignore_errors=True)
+            else:
+                q.unlink(missing_ok=True)
+
+    with signals.on_stop(remove):
+        try:
+            with signals.held():  # a stop in here is raised once the folder is in ``made``
+                parent.mkdir(parents=True, exist_ok=True)
+                made.append(Path(tempfile.mkdtemp(prefix=f".{paths[-1].name}.partial-", dir=parent)))
+                os.chmod(made[0], new_mode(folder=True))
+            yield made[0]
+            with signals.held(), _locked(parent):
+                _in_the_way(paths, flag)
+                for t in paths:
+                    os.rename(made[0] / t.name, t)
+                    made.append(t)
+                stage = made.pop(0)
+                made.clear()  # committed: nothing of it is to be removed any more
+            shutil.rmtree(stage, ignore_errors=True)  # empty, unless the block wrote more than its targets
+        except BaseException as err:
+            with signals.held():
+                remove()
+            if isinstance(err, OSError):
+                where = f" ({err.filename})" if err.filename else ""
+                raise OutputError(f"{flag} {paths[-1]}: cannot write: {err.strerror or err}{where}") from None
             raise

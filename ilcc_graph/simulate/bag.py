@@ -18,7 +18,6 @@ its own noise (the simulator's streams are keyed by message index).
 
 from __future__ import annotations
 
-import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +26,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from ..io import write_yaml
+from ..io.output_folders import staged_files
 from .frames import SimFrame, ground_truth, simulate_frames
 from .lidar import beam_biases, simulate_scan
 from .placements import board_placements, frame_scene
@@ -200,6 +200,7 @@ def write_bag(
     latency_s: tuple[float, float] = (0.030, 0.020),
     frames: Sequence[SimFrame] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    flag: str = "write_bag",
 ) -> Path:
     """Simulate ``spec`` and write it as a bag at ``path``; returns the bag's path.
 
@@ -209,7 +210,10 @@ def write_bag(
     image_delay_s: image stamp minus scan stamp, one value or one per scan. latency_s: (LiDAR, camera)
     bag time minus stamp. frames: the frames to write when already simulated (``simulate_frames(spec)``,
     or ``simulate_walk(spec, timeline, rate_hz)`` with a timeline).
-    Raises FileExistsError when ``path`` exists; a failed write leaves nothing behind.
+    The bag, ``<bag>.yaml`` and ``<bag>.ground_truth.yaml`` are written in a staging folder beside them
+    and moved in at the end, the bag last (``io.output_folders.staged_files``), so a failed or stopped
+    write leaves nothing behind; none of them may exist (a run never writes over a file it did not
+    write): ``OutputError`` naming ``flag``, the bag and the file in the way otherwise, before any work.
     """
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import StoragePlugin
@@ -219,36 +223,37 @@ def write_bag(
     storage = ("ros1" if out.suffix == ".bag" else "sqlite3") if storage == "auto" else storage
     if storage not in STORAGES or image_format not in IMAGE_FORMATS:
         raise ValueError(f"storage must be one of {STORAGES}, image_format one of {IMAGE_FORMATS}")
-    if out.exists():
-        raise FileExistsError(f"{out}: exists")
-    steps = None if timeline is None else _timeline(spec, timeline, rate_hz)
-    if frames is None:
-        frames = list(simulate_frames(spec)) if timeline is None else simulate_walk(spec, timeline, rate_hz)
-    n = len(frames)
-    delays = np.broadcast_to(np.asarray(image_delay_s, dtype=np.float64), (n,))
-    t_scan = START_NS + np.round(np.arange(n) / rate_hz * 1e9).astype(np.int64)
-    t_image = t_scan + np.round(delays * 1e9).astype(np.int64)
-    bag_scan, bag_image = t_scan + round(latency_s[0] * 1e9), t_image + round(latency_s[1] * 1e9)
     ros1 = storage == "ros1"
-    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    writer = Writer1(out) if ros1 else Writer2(out, version=9, storage_plugin=plugin)
-    try:
+    stem = out.with_suffix("") if ros1 else out
+    config_name, truth_name = f"{stem.name}.yaml", f"{stem.name}.ground_truth.yaml"
+    with staged_files([out.parent / config_name, out.parent / truth_name, out], flag) as tmp:
+        steps = None if timeline is None else _timeline(spec, timeline, rate_hz)
+        if frames is None:
+            frames = (
+                list(simulate_frames(spec)) if timeline is None else simulate_walk(spec, timeline, rate_hz)
+            )
+        n = len(frames)
+        delays = np.broadcast_to(np.asarray(image_delay_s, dtype=np.float64), (n,))
+        t_scan = START_NS + np.round(np.arange(n) / rate_hz * 1e9).astype(np.int64)
+        t_image = t_scan + np.round(delays * 1e9).astype(np.int64)
+        bag_scan, bag_image = t_scan + round(latency_s[0] * 1e9), t_image + round(latency_s[1] * 1e9)
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        bag = tmp / out.name
+        writer = Writer1(bag) if ros1 else Writer2(bag, version=9, storage_plugin=plugin)
         times = (t_scan, t_image, bag_scan, bag_image)
         has_info = _write(writer, RosMessages(ros1), spec, frames, image_format, times, progress)
-    except BaseException:
-        shutil.rmtree(out, ignore_errors=True) if out.is_dir() else out.unlink(missing_ok=True)
-        raise
 
-    stem = out.with_suffix("") if ros1 else out
-    config = config_dict(spec)
-    if has_info:
-        config.pop("camera")
-    write_yaml(stem.parent / f"{stem.name}.yaml", config)
-    start = int(bag_scan.min() if image_format == "none" else min(bag_scan.min(), bag_image.min()))
-    names = [bag_frame_name(int(t), start) for t in bag_scan]
-    gt = ground_truth(spec, [SimFrame(nm, f.scan, f.image, f.T_lidar_board) for nm, f in zip(names, frames)])
-    still = np.asarray([s[2] for s in steps] if steps is not None else [False] * n, dtype=int)
-    edges = np.flatnonzero(np.diff(np.r_[0, still, 0]))
-    gt["pauses"] = [[names[a], names[b - 1]] for a, b in zip(edges[::2], edges[1::2])]
-    write_yaml(stem.parent / f"{stem.name}.ground_truth.yaml", gt)
+        config = config_dict(spec)
+        if has_info:
+            config.pop("camera")
+        write_yaml(tmp / config_name, config)
+        start = int(bag_scan.min() if image_format == "none" else min(bag_scan.min(), bag_image.min()))
+        names = [bag_frame_name(int(t), start) for t in bag_scan]
+        gt = ground_truth(
+            spec, [SimFrame(nm, f.scan, f.image, f.T_lidar_board) for nm, f in zip(names, frames)]
+        )
+        still = np.asarray([s[2] for s in steps] if steps is not None else [False] * n, dtype=int)
+        edges = np.flatnonzero(np.diff(np.r_[0, still, 0]))
+        gt["pauses"] = [[names[a], names[b - 1]] for a, b in zip(edges[::2], edges[1::2])]
+        write_yaml(tmp / truth_name, gt)
     return out

@@ -25,7 +25,15 @@ from .frames import ground_truth, simulate_frames
 from .intrinsics_error import IntrinsicsError, stated_camera
 from .spec import SimulationSpec, standard_spec
 
-__all__ = ["IMAGE_FORMATS", "assemble", "simulate_dataset", "config_dict", "write_scan", "write_standard_set"]
+__all__ = [
+    "IMAGE_FORMATS",
+    "assemble",
+    "config_dict",
+    "simulate_dataset",
+    "standard_set_spec",
+    "write_scan",
+    "write_standard_set",
+]
 
 #: how the images are stored: PNG (lossless) or JPEG (OpenCV's quality 95: a sixth of the bytes)
 IMAGE_FORMATS = ("png", "jpg")
@@ -114,6 +122,23 @@ class _Pose:
         self.name, self.T_lidar_board = name, T
 
 
+def standard_set_spec(
+    intrinsics_error: float = 0.0, range_offset_mm: float = 0.0, pcd_style: str = "plain", **spec: object
+) -> SimulationSpec:
+    """The standard set's spec (``standard_spec(**spec)``, stated intrinsics off by ``intrinsics_error``
+    x a typical error, every range ``range_offset_mm`` long on top of the default systematics);
+    InputError naming the option that cannot be (``pcd_style``: how its PCD files are to look)."""
+    try:
+        s = standard_spec(intrinsics_error=IntrinsicsError.typical(intrinsics_error), **spec)  # type: ignore[arg-type]
+        if range_offset_mm:
+            s = s.with_(systematics=replace(s.systematics, range_offset_m=1e-3 * float(range_offset_mm)))
+        if pcd_style != "plain" and s.sensor_format == "velodyne-csv":
+            raise ValueError(f"--pcd-style {pcd_style} needs PCD files; --format velodyne-csv writes CSV")
+    except ValueError as err:
+        raise InputError(f"simulate: {err}") from None
+    return s
+
+
 def write_standard_set(
     out: Path | str,
     progress: Callable[[int, int], None] | None = None,
@@ -124,18 +149,9 @@ def write_standard_set(
     command: str = "",
     **spec: object,
 ) -> SimulationSpec:
-    """The standard set (``standard_spec(**spec)``, stated intrinsics off by ``intrinsics_error`` x a
-    typical error, every range ``range_offset_mm`` long on top of the default systematics) written
-    to ``out`` with ``image_format`` images and PCD files in ``pcd_style``; InputError naming the
-    option, OutputError the folder when it cannot be."""
-    try:
-        s = standard_spec(intrinsics_error=IntrinsicsError.typical(intrinsics_error), **spec)  # type: ignore[arg-type]
-        if range_offset_mm:
-            s = s.with_(systematics=replace(s.systematics, range_offset_m=1e-3 * float(range_offset_mm)))
-        if pcd_style != "plain" and s.sensor_format == "velodyne-csv":
-            raise ValueError(f"--pcd-style {pcd_style} needs PCD files; --format velodyne-csv writes CSV")
-    except ValueError as err:
-        raise InputError(f"simulate: {err}") from None
+    """The standard set (``standard_set_spec``) written to ``out`` with ``image_format`` images and
+    PCD files in ``pcd_style``; InputError naming the option, OutputError the folder when it cannot be."""
+    s = standard_set_spec(intrinsics_error, range_offset_mm, pcd_style, **spec)
     kw = {"pcd_style": pcd_style, "image_format": image_format, "command": command}
     simulate_dataset(Path(out), s, progress=progress, **kw)
     return s
