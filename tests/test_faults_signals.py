@@ -160,3 +160,61 @@ def test_a_stop_during_an_import_is_not_raised_inside_the_import_machinery(tmp_p
 
     assert probe_importing_mod.SEEN is True
     assert sig._importing(sys._getframe()) is False
+
+
+def test_a_stop_anywhere_in_staging_leaves_no_staging_folder(tmp_path, monkeypatch):
+    """A stop (the real handler, called where SIGTERM would interrupt the main thread) right after the
+    staging folder is made, after its mode is set, and during the clean-up's removal after a failed
+    write: the run stops and no ``.partial-`` folder is left (before, a stop between ``mkdtemp`` and the
+    ``try`` that removes the folder, or one inside that removal, left it behind: seen once under load
+    in ``test_sigterm_while_writing``). Also for ``staged_files``' staging folder."""
+    import shutil as shutil_module
+    import tempfile as tempfile_module
+
+    import ilcc_graph.io.output_folders as of
+    from ilcc_graph import signals as sig
+
+    real_mkdtemp, real_chmod, real_rmtree = tempfile_module.mkdtemp, of.os.chmod, shutil_module.rmtree
+
+    def stop_now() -> None:
+        sig._handler(signal.SIGTERM, None)  # raises Stopped unless signals are held
+
+    def after_mkdtemp(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        path = real_mkdtemp(*args, **kwargs)
+        if ".partial-" in path:
+            stop_now()
+        return path
+
+    def after_chmod(path, mode):  # noqa: ANN001, ANN202
+        real_chmod(path, mode)
+        if ".partial-" in str(path):
+            stop_now()
+
+    def within_rmtree(path, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+        if ".partial-" in str(path):
+            stop_now()
+        return real_rmtree(path, *args, **kwargs)
+
+    def write(d: Path, fail: bool) -> None:
+        (d / "a.txt").write_text("x")
+        if fail:
+            raise OSError(28, "No space left on device", str(d / "a.txt"))
+
+    hooks = {"mkdtemp": (tempfile_module, "mkdtemp", after_mkdtemp, False),
+             "chmod": (of.os, "chmod", after_chmod, False),
+             "rmtree": (of.shutil, "rmtree", within_rmtree, True)}  # fmt: skip
+    for name, (owner, attr, hook, fail) in hooks.items():
+        for staging in ("staged", "staged_files"):
+            where = tmp_path / f"{name}-{staging}"
+            where.mkdir()
+            with monkeypatch.context() as m:
+                m.setattr(sig, "_state", sig._State())  # a fresh process's stop state
+                m.setattr(owner, attr, hook)
+                with pytest.raises(sig.Stopped):
+                    if staging == "staged":
+                        with of.staged(where / "out") as d:
+                            write(d, fail)
+                    else:
+                        with of.staged_files([where / "a.txt"]) as d:
+                            write(d, fail)
+            assert list(where.iterdir()) == [], (name, staging, list(where.iterdir()))

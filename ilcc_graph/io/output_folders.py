@@ -321,6 +321,52 @@ def _commit(stage: Path, out: Path, kind: str) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
+def _make_stage(parent: Path, name: str) -> Path:
+    """A new staging folder ``.<name>.partial-*`` in ``parent`` (made), with the umask's mode;
+    ``OutputError`` naming ``name`` when it cannot be made."""
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=f".{name}.partial-", dir=parent))
+        os.chmod(stage, new_mode(folder=True))
+    except OSError as err:
+        raise OutputError(
+            f"{parent / name}: cannot create the output folder ({err.strerror or err})"
+        ) from None
+    return stage
+
+
+def _remove(paths: Sequence[Path]) -> None:
+    """Remove what a staging wrote (folders whole, files, links); what is gone already is skipped."""
+    for q in paths:
+        if q.is_dir() and not q.is_symlink():
+            shutil.rmtree(q, ignore_errors=True)
+        else:
+            q.unlink(missing_ok=True)
+
+
+@contextmanager
+def _staging(parent: Path, name: str) -> Iterator[list[Path]]:
+    """``[stage]``: a staging folder (``_make_stage``) that is removed, with whatever the caller adds to
+    the list, when the block raises or a stop ends the process (the caller takes out what it has
+    committed).
+
+    No stop can leave the folder behind: it is made with signals held inside the block that removes
+    it (a stop between ``mkdtemp`` and that block used to leave it), it is in the stop's clean-up
+    (``signals.on_stop``) before it exists, and the removal after an error runs with signals held (a
+    first stop inside it used to cut it short). The stop is raised once the folder is gone.
+    """
+    made: list[Path] = []
+    with signals.on_stop(lambda: _remove(made)):
+        try:
+            with signals.held():
+                made.append(_make_stage(parent, name))
+            yield made
+        except BaseException:
+            with signals.held():
+                _remove(made)
+            raise
+
+
 @contextmanager
 def staged(
     out: Path | str, kind: str = RESULT, flag: str = "output folder", command: str = ""
@@ -330,28 +376,21 @@ def staged(
     ``out`` must be one a run may write (``claim_output``; a link stands for its target). The marker
     (``MARKER``) is added last, naming what the block wrote and the ``command`` that wrote it. An
     earlier result is replaced only at the end, in one step where the system allows; on an error or
-    a signal the staging folder is removed and ``out`` is untouched. A write that fails (disk full,
-    read-only, permissions) raises ``OutputError`` naming the file. Folders follow the umask.
+    a signal the staging folder is removed and ``out`` is untouched (``_staging``). A write that
+    fails (disk full, read-only, permissions) raises ``OutputError`` naming the file. Folders follow
+    the umask.
     """
     out = claim_output(out, flag, kind)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
-        os.chmod(stage, new_mode(folder=True))
-    except OSError as err:
-        raise OutputError(f"{out}: cannot create the output folder ({err.strerror or err})") from None
-    with signals.on_stop(lambda: shutil.rmtree(stage, ignore_errors=True)):
+    with _staging(out.parent, out.name) as made:
+        stage = made[0]
         try:
             yield stage
             atomic_write(stage / MARKER, _marker(stage, kind, command))
             _commit(stage, out, kind)
         except OSError as err:
-            shutil.rmtree(stage, ignore_errors=True)
             where = f" ({err.filename})" if err.filename else ""
             raise OutputError(f"{out}: cannot write the results: {err.strerror or err}{where}") from None
-        except BaseException:
-            shutil.rmtree(stage, ignore_errors=True)
-            raise
+        # committed: the stage's path is gone (renamed to ``out``) or holds the old result (removed)
 
 
 def _in_the_way(targets: Sequence[Path], flag: str) -> None:
@@ -381,34 +420,17 @@ def staged_files(targets: Sequence[Path | str], flag: str = "output") -> Iterato
         raise ValueError(f"staged_files: the targets must share one folder, got {paths}")
     _in_the_way(paths, flag)
     _existing_parent(paths[-1], f"{flag} {paths[-1]}", "nothing can be written")
-    made: list[Path] = []  # the staging folder, then each target moved in
-
-    def remove() -> None:
-        for q in made:
-            if q.is_dir() and not q.is_symlink():
-                shutil.rmtree(q, ignore_errors=True)
-            else:
-                q.unlink(missing_ok=True)
-
-    with signals.on_stop(remove):
+    with _staging(parent, paths[-1].name) as made:  # the staging folder, then each target moved in
+        stage = made[0]
         try:
-            with signals.held():  # a stop in here is raised once the folder is in ``made``
-                parent.mkdir(parents=True, exist_ok=True)
-                made.append(Path(tempfile.mkdtemp(prefix=f".{paths[-1].name}.partial-", dir=parent)))
-                os.chmod(made[0], new_mode(folder=True))
-            yield made[0]
+            yield stage
             with signals.held(), _locked(parent):
                 _in_the_way(paths, flag)
                 for t in paths:
-                    os.rename(made[0] / t.name, t)
+                    os.rename(stage / t.name, t)
                     made.append(t)
-                stage = made.pop(0)
-                made.clear()  # committed: nothing of it is to be removed any more
-            shutil.rmtree(stage, ignore_errors=True)  # empty, unless the block wrote more than its targets
-        except BaseException as err:
-            with signals.held():
-                remove()
-            if isinstance(err, OSError):
-                where = f" ({err.filename})" if err.filename else ""
-                raise OutputError(f"{flag} {paths[-1]}: cannot write: {err.strerror or err}{where}") from None
-            raise
+                del made[1:]  # committed: the targets stay
+                shutil.rmtree(stage, ignore_errors=True)  # empty, unless the block wrote more
+        except OSError as err:
+            where = f" ({err.filename})" if err.filename else ""
+            raise OutputError(f"{flag} {paths[-1]}: cannot write: {err.strerror or err}{where}") from None
