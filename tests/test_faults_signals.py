@@ -218,3 +218,40 @@ def test_a_stop_anywhere_in_staging_leaves_no_staging_folder(tmp_path, monkeypat
                         with of.staged_files([where / "a.txt"]) as d:
                             write(d, fail)
             assert list(where.iterdir()) == [], (name, staging, list(where.iterdir()))
+
+
+def test_a_stop_anywhere_in_atomic_write_leaves_no_temporary_file(tmp_path, monkeypatch):
+    """A stop (the real handler) right after ``atomic_write``'s temporary file is made, and during its
+    removal after a failed write: the stop propagates, the named file is as it was, no ``.tmp`` is
+    left beside it (before, a stop between ``mkstemp`` and the ``try`` left the temporary file)."""
+    import tempfile as tempfile_module
+
+    import ilcc_graph.io.files as files
+    from ilcc_graph import signals as sig
+
+    real_mkstemp, real_unlink = tempfile_module.mkstemp, files.os.unlink
+
+    def after_mkstemp(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        made = real_mkstemp(*args, **kwargs)
+        sig._handler(signal.SIGTERM, None)  # raises Stopped unless signals are held
+        return made
+
+    def within_unlink(path, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+        sig._handler(signal.SIGTERM, None)
+        return real_unlink(path, *args, **kwargs)
+
+    def failing_fsync(fd: int) -> None:
+        raise OSError(28, "No space left on device")
+
+    target = tmp_path / "calibration.yaml"
+    target.write_text("old")
+    cases = [[(tempfile_module, "mkstemp", after_mkstemp)],
+             [(files.os, "fsync", failing_fsync), (files.os, "unlink", within_unlink)]]  # fmt: skip
+    for patches in cases:
+        with monkeypatch.context() as m:
+            m.setattr(sig, "_state", sig._State())  # a fresh process's stop state
+            for owner, attr, hook in patches:
+                m.setattr(owner, attr, hook)
+            with pytest.raises(sig.Stopped):
+                files.atomic_write(target, "new")
+        assert target.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["calibration.yaml"]

@@ -11,6 +11,7 @@ from typing import Any
 
 import yaml
 
+from .. import signals
 from ..errors import InputError
 from ..types import to_plain
 
@@ -65,19 +66,25 @@ def atomic_write(path: str | Path, data: bytes | str) -> Path:
         mode = stat.S_IMODE(old.st_mode) if stat.S_ISREG(old.st_mode) else new_mode()
     except OSError:
         mode = new_mode()
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    tmp: str | None = None
     try:
-        with os.fdopen(fd, "wb") as f:
+        # made with a stop held (raised once ``tmp`` is known, so the except below removes it)
+        with signals.held():
+            fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+            f = os.fdopen(fd, "wb")
+        with f:
             os.fchmod(f.fileno(), mode)
             f.write(payload)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, p)
     except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
+        if tmp is not None:
+            with signals.held():  # a stop during the removal waits for it
+                try:
+                    os.unlink(tmp)
+                except FileNotFoundError:
+                    pass
         raise
     return p
 
