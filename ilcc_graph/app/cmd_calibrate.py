@@ -94,7 +94,7 @@ def _pair_options_given(args: argparse.Namespace) -> list[str]:
 def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray | None = None) -> int:
     """Calibrate the data sets ``data`` as the arguments say, write the results, print the summary
     (``truth``: the true T_cam_lidar (4, 4) of a simulated set, compared in the summary)."""
-    if getattr(args, "jobs", 1) > 1:  # the workers' fork server imports the stages while this process imports the rest
+    if getattr(args, "jobs", 1) > 1:  # the workers' fork server imports while this process does
         from ilcc_graph import workers
 
         workers.prestart()
