@@ -223,6 +223,8 @@ def intensity_colour(intensity: np.ndarray, tau: tuple[float, float]) -> np.ndar
 
 
 _H_CACHE: dict[bytes, np.ndarray] = {}
+#: margin (px) of a cell's bounding box in ``cell_coordinates``
+_BOX_PX = 0.01
 
 
 def _unit_square_homographies(quads: np.ndarray) -> np.ndarray:
@@ -295,20 +297,33 @@ def cell_coordinates(uv: np.ndarray, corners_uv: np.ndarray, board: Board) -> tu
     if M == 0 or not np.any(finite):
         return inside, ab
     q = np.concatenate([uv[finite], np.ones((int(finite.sum()), 1))], axis=1)  # (F, 3)
-    w = np.tensordot(H, q, axes=([2], [1]))  # (C, 3, F)
     centre = np.concatenate([quads.mean(axis=1), np.ones((quads.shape[0], 1))], axis=1)
     w_centre = np.sum(H[:, 2, :] * centre, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x, y = w[:, 0] / w[:, 2], w[:, 1] / w[:, 2]  # (C, F)
-        hit = (x >= 0) & (x <= 1) & (y >= 0) & (y <= 1) & (np.sign(w[:, 2]) == np.sign(w_centre)[:, None])
-    any_hit = hit.any(axis=0)
-    cell = np.argmax(hit, axis=0)
+    # a point in a cell lies in its corners' bounding box: only those pairs are tested (a point a
+    # hundredth of a pixel outside maps well outside the unit square)
+    lo, hi = quads.min(axis=1) - _BOX_PX, quads.max(axis=1) + _BOX_PX  # (C, 2)
+    cell = np.full(len(q), len(quads))  # the first cell hit, len(quads): none
+    xy = np.full((len(q), 2), np.nan)
+    for c in range(len(quads)):
+        near = np.flatnonzero(
+            (q[:, 0] >= lo[c, 0]) & (q[:, 0] <= hi[c, 0]) & (q[:, 1] >= lo[c, 1]) & (q[:, 1] <= hi[c, 1])
+        )
+        near = near[cell[near] > c]  # cells are tried in order: the first hit wins
+        if not near.size:
+            continue
+        w = np.tensordot(H[c : c + 1], q[near], axes=([2], [1]))[0]  # (3, n)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = w[0] / w[2], w[1] / w[2]
+            hit = (x >= 0) & (x <= 1) & (y >= 0) & (y <= 1) & (np.sign(w[2]) == np.sign(w_centre[c]))
+        got = near[hit]
+        cell[got] = c
+        xy[got, 0], xy[got, 1] = x[hit], y[hit]
+    any_hit = cell < len(quads)
     idx = np.flatnonzero(finite)[any_hit]
-    f = np.flatnonzero(any_hit)
     c = cell[any_hit]
     inside[idx] = True
-    ab[idx, 0] = cj[c] + 1 + x[c, f]
-    ab[idx, 1] = ci[c] + 1 + y[c, f]
+    ab[idx, 0] = cj[c] + 1 + xy[any_hit, 0]
+    ab[idx, 1] = ci[c] + 1 + xy[any_hit, 1]
     return inside, ab
 
 
