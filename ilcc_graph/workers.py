@@ -43,16 +43,8 @@ __all__ = ["START_METHOD", "map_processes", "pool", "prestart", "processes_where
 
 #: how worker processes are started (see the module docstring)
 START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
-#: what the fork server imports once, so that a worker starts with the stages loaded, and the
-#: report's pictures and charts (matplotlib), which a report's workers would otherwise import each
-#: (about half a second of each worker's time, while the main process waits for the pictures)
-PRELOAD = [
-    "ilcc_graph._forkserver_preload",
-    "ilcc_graph.run.observe",
-    "ilcc_graph.report",
-    "matplotlib.figure",
-    "matplotlib.backends.backend_agg",
-]
+#: what the fork server imports once, so that a worker starts with the stages loaded
+PRELOAD = ["ilcc_graph._forkserver_preload", "ilcc_graph.run.observe"]
 
 Progress = Callable[[int, int], None]
 
