@@ -86,6 +86,10 @@ def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray |
     """Calibrate the data sets ``data`` as the arguments say (a rig: every sensor's pose in the
     reference frame), write the results, print the summary (``truth``: the true T_cam_lidar (4, 4)
     of a simulated set, compared in the summary)."""
+    if getattr(args, "jobs", 1) > 1:  # the workers' fork server imports while this process does
+        from ilcc_graph import workers
+
+        workers.prestart()
     from ilcc_graph.app.write import write_run
     from ilcc_graph.datasets import open_source
     from ilcc_graph.run.pipeline import run

@@ -160,11 +160,24 @@ def view_around(
 
 
 def _view_maps(view: VirtualView, camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
-    """cv2.remap's float32 maps (view pixel -> image pixel) of ``view``; outside the picture -> -10."""
-    ys, xs = np.mgrid[0 : view.height, 0 : view.width]
-    uv = camera.project(view.rays(np.stack([xs, ys], axis=-1).astype(np.float64)))
-    uv[~np.isfinite(uv).all(axis=-1)] = -10.0
-    return uv[..., 0].astype(np.float32), uv[..., 1].astype(np.float32)
+    """cv2.remap's float32 maps (view pixel -> image pixel) of ``view``; outside the picture -> -10.
+
+    Every pixel's ray as ``VirtualView.rays`` gives it (the same arithmetic, bit for bit), the grid's
+    rows and columns worked out once each."""
+    x = (np.arange(view.width, dtype=np.float64) - view.cx) / view.f
+    y = (np.arange(view.height, dtype=np.float64) - view.cy) / view.f
+    norm = np.sqrt((x * x)[None, :] + (y * y)[:, None] + 1.0)
+    d = np.empty((view.height, view.width, 3))
+    d[..., 0] = x[None, :] / norm
+    d[..., 1] = y[:, None] / norm
+    d[..., 2] = 1.0 / norm
+    uv = camera.project(d @ view.R_cam_view.T)
+    u, v = uv[..., 0], uv[..., 1]
+    outside = ~(np.isfinite(u) & np.isfinite(v))
+    map_x, map_y = u.astype(np.float32), v.astype(np.float32)
+    map_x[outside] = -10.0
+    map_y[outside] = -10.0
+    return map_x, map_y
 
 
 @functools.lru_cache(maxsize=64)

@@ -15,7 +15,16 @@ import numpy as np
 from ..board import Board
 from ..cameras import CameraModel
 from ..types import Calibration, FrameResult, Scan
-from .metric import EPSILON_G, EvalFrame, Evaluation, FrameEvaluation, metric_points, transform_points
+from .metric import (
+    EPSILON_G,
+    EvalFrame,
+    Evaluation,
+    FrameEvaluation,
+    MetricPoints,
+    metric_points,
+    metric_points_many,
+    transform_points,
+)
 
 __all__ = [
     "board_points_from_scan",
@@ -26,6 +35,7 @@ __all__ = [
     "evaluate",
     "evaluate_calibration",
     "evaluate_frame",
+    "evaluate_many",
     "evaluation_rows",
     "evaluation_to_dict",
     "expected_corner_px",
@@ -80,7 +90,14 @@ def evaluate_frame(
     epsilon: float = EPSILON_G,
 ) -> FrameEvaluation:
     """The paper's metric and the corner errors for one frame (see the module docstring)."""
-    mp = metric_points(frame, camera, board, T_cam_lidar, epsilon)
+    return _frame_evaluation(frame, metric_points(frame, camera, board, T_cam_lidar, epsilon), camera, board,
+                             T_cam_lidar)  # fmt: skip
+
+
+def _frame_evaluation(
+    frame: EvalFrame, mp: MetricPoints, camera: CameraModel, board: Board, T_cam_lidar: np.ndarray
+) -> FrameEvaluation:
+    """A frame's numbers from its metric's workings ``mp`` under ``T_cam_lidar``."""
     n_in = int(mp.inside.sum())
     n_exp = int(mp.expected.sum())
     attendance = min(1.0, n_in / n_exp) if n_exp > 0 else float("nan")
@@ -119,10 +136,27 @@ def evaluate(
     epsilon: float = EPSILON_G,
 ) -> Evaluation:
     """Per-frame and overall numbers of ``T_cam_lidar`` (4x4, p_cam = T p_lidar) on ``frames``."""
-    T = np.asarray(T_cam_lidar, dtype=np.float64)
-    if T.shape != (4, 4):
-        raise ValueError(f"evaluate: T_cam_lidar must be 4x4, got {T.shape}")
-    return Evaluation(tuple(evaluate_frame(f, camera, board, T, epsilon) for f in frames), T.copy())
+    return evaluate_many(frames, camera, board, [T_cam_lidar], epsilon)[0]
+
+
+def evaluate_many(
+    frames: Sequence[EvalFrame],
+    camera: CameraModel,
+    board: Board,
+    Ts: Sequence[np.ndarray],
+    epsilon: float = EPSILON_G,
+) -> list[Evaluation]:
+    """``evaluate`` under each extrinsic of ``Ts`` (4x4 each), in order: each frame's metric worked
+    out for all of them at once (``metric.metric_points_many``)."""
+    Ts = [np.asarray(T, dtype=np.float64) for T in Ts]
+    for T in Ts:
+        if T.shape != (4, 4):
+            raise ValueError(f"evaluate: T_cam_lidar must be 4x4, got {T.shape}")
+    per_frame = []
+    for f in frames:
+        mps = metric_points_many(f, camera, board, Ts, epsilon)
+        per_frame.append([_frame_evaluation(f, mp, camera, board, T) for mp, T in zip(mps, Ts, strict=True)])
+    return [Evaluation(tuple(fe[k] for fe in per_frame), T.copy()) for k, T in enumerate(Ts)]
 
 
 # ------------------------------------------------------------------- from our types

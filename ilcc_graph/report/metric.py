@@ -24,6 +24,7 @@ per-frame and overall numbers, and what they are computed from, are in ``evaluat
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -43,6 +44,7 @@ __all__ = [
     "cell_coordinates",
     "circular_mean_u",
     "metric_points",
+    "metric_points_many",
     "transform_points",
 ]
 
@@ -221,6 +223,8 @@ def intensity_colour(intensity: np.ndarray, tau: tuple[float, float]) -> np.ndar
 
 
 _H_CACHE: dict[bytes, np.ndarray] = {}
+#: margin (px) of a cell's bounding box in ``cell_coordinates``
+_BOX_PX = 0.01
 
 
 def _unit_square_homographies(quads: np.ndarray) -> np.ndarray:
@@ -293,24 +297,41 @@ def cell_coordinates(uv: np.ndarray, corners_uv: np.ndarray, board: Board) -> tu
     if M == 0 or not np.any(finite):
         return inside, ab
     q = np.concatenate([uv[finite], np.ones((int(finite.sum()), 1))], axis=1)  # (F, 3)
-    w = np.tensordot(H, q, axes=([2], [1]))  # (C, 3, F)
     centre = np.concatenate([quads.mean(axis=1), np.ones((quads.shape[0], 1))], axis=1)
     w_centre = np.sum(H[:, 2, :] * centre, axis=1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x, y = w[:, 0] / w[:, 2], w[:, 1] / w[:, 2]  # (C, F)
-        hit = (x >= 0) & (x <= 1) & (y >= 0) & (y <= 1) & (np.sign(w[:, 2]) == np.sign(w_centre)[:, None])
-    any_hit = hit.any(axis=0)
-    cell = np.argmax(hit, axis=0)
+    # a point in a cell lies in its corners' bounding box: only those pairs are tested (a point a
+    # hundredth of a pixel outside maps well outside the unit square)
+    lo, hi = quads.min(axis=1) - _BOX_PX, quads.max(axis=1) + _BOX_PX  # (C, 2)
+    cell = np.full(len(q), len(quads))  # the first cell hit, len(quads): none
+    xy = np.full((len(q), 2), np.nan)
+    for c in range(len(quads)):
+        near = np.flatnonzero(
+            (q[:, 0] >= lo[c, 0]) & (q[:, 0] <= hi[c, 0]) & (q[:, 1] >= lo[c, 1]) & (q[:, 1] <= hi[c, 1])
+        )
+        near = near[cell[near] > c]  # cells are tried in order: the first hit wins
+        if not near.size:
+            continue
+        w = np.tensordot(H[c : c + 1], q[near], axes=([2], [1]))[0]  # (3, n)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = w[0] / w[2], w[1] / w[2]
+            hit = (x >= 0) & (x <= 1) & (y >= 0) & (y <= 1) & (np.sign(w[2]) == np.sign(w_centre[c]))
+        got = near[hit]
+        cell[got] = c
+        xy[got, 0], xy[got, 1] = x[hit], y[hit]
+    any_hit = cell < len(quads)
     idx = np.flatnonzero(finite)[any_hit]
-    f = np.flatnonzero(any_hit)
     c = cell[any_hit]
     inside[idx] = True
-    ab[idx, 0] = cj[c] + 1 + x[c, f]
-    ab[idx, 1] = ci[c] + 1 + y[c, f]
+    ab[idx, 0] = cj[c] + 1 + xy[any_hit, 0]
+    ab[idx, 1] = ci[c] + 1 + xy[any_hit, 1]
     return inside, ab
 
 
 # ------------------------------------------------------------------------ the metric
+#: at most this many (cell, point) pairs are tested in one pass of ``metric_points_many``
+_CELL_PAIRS = 2_000_000
+
+
 def metric_points(
     frame: EvalFrame,
     camera: CameraModel,
@@ -319,6 +340,19 @@ def metric_points(
     epsilon: float = EPSILON_G,
 ) -> MetricPoints:
     """Per-point workings of the intensity metric (module docstring) for one frame."""
+    return metric_points_many(frame, camera, board, [T_cam_lidar], epsilon)[0]
+
+
+def metric_points_many(
+    frame: EvalFrame,
+    camera: CameraModel,
+    board: Board,
+    Ts: Sequence[np.ndarray],
+    epsilon: float = EPSILON_G,
+) -> list[MetricPoints]:
+    """``metric_points`` of one frame under each extrinsic of ``Ts`` (4x4 each), in order: the
+    frame's own parts (gray zone, expected points, ranges) once, the points of many extrinsics
+    placed in the detected cells in one pass (the valley study tries 66 extrinsics per frame)."""
     p = np.asarray(frame.points_lidar, dtype=np.float64).reshape(-1, 3)
     corners_uv = np.asarray(frame.uv, dtype=np.float64).reshape(-1, 2)
     if corners_uv.shape[0] != board.n_corners:
@@ -326,38 +360,53 @@ def metric_points(
             f"metric_points: frame {frame.name!r} has {corners_uv.shape[0]} image corners, "
             f"the board has {board.n_corners}"
         )
-    uv = camera.project(transform_points(T_cam_lidar, p)) if len(p) else np.zeros((0, 2))
     u_ref = (
         circular_mean_u(corners_uv[:, 0], camera.width)
         if camera.periodic_u
         else float(np.nanmedian(corners_uv[:, 0]))
     )
-    inside, ab = cell_coordinates(_unwrap(uv, u_ref, camera), _unwrap(corners_uv, u_ref, camera), board)
+    corners = _unwrap(corners_uv, u_ref, camera)
     tau = gray_zone(frame.intensity, epsilon)
     colour = intensity_colour(frame.intensity, tau)
     s = board.square_size
-    pattern = np.full(len(p), np.nan)
-    if np.any(inside):
-        pattern[inside] = board.colour_at(ab[inside] * s)
-    with np.errstate(invalid="ignore"):
-        mismatch = inside & (colour >= 0) & (colour != pattern)
-    f_d = np.zeros(len(p))
-    a = ab[mismatch]
-    f_d[mismatch] = s * np.sum(np.abs(a - np.round(a)), axis=1)
     expected = np.zeros(len(p), dtype=bool)
     if frame.T_lidar_board is not None and len(p):
         xy = transform_points(np.linalg.inv(np.asarray(frame.T_lidar_board, dtype=np.float64)), p)[:, :2]
         ni, nj = board.inner_shape
         expected = (xy[:, 0] >= s) & (xy[:, 0] <= nj * s) & (xy[:, 1] >= s) & (xy[:, 1] <= ni * s)
-    return MetricPoints(
-        uv=uv,
-        inside=inside,
-        ab=ab,
-        colour=colour,
-        pattern=pattern,
-        mismatch=mismatch,
-        f_d=f_d,
-        range_m=np.linalg.norm(p, axis=1),
-        expected=expected,
-        gray=tau,
-    )
+    range_m = np.linalg.norm(p, axis=1)
+    cells = (board.inner_shape[0] - 1) * (board.inner_shape[1] - 1)
+    step = max(1, _CELL_PAIRS // max(1, cells * len(p)))
+    out = []
+    for k0 in range(0, len(Ts), step):
+        chunk = Ts[k0 : k0 + step]
+        if len(p):
+            uv = camera.project(np.concatenate([transform_points(T, p) for T in chunk]))
+        else:
+            uv = np.zeros((0, 2))
+        inside, ab = cell_coordinates(_unwrap(uv, u_ref, camera), corners, board)
+        pattern = np.full(len(uv), np.nan)
+        if np.any(inside):
+            pattern[inside] = board.colour_at(ab[inside] * s)
+        for k in range(len(chunk)):
+            rows = slice(k * len(p), (k + 1) * len(p))
+            with np.errstate(invalid="ignore"):
+                mismatch = inside[rows] & (colour >= 0) & (colour != pattern[rows])
+            f_d = np.zeros(len(p))
+            a = ab[rows][mismatch]
+            f_d[mismatch] = s * np.sum(np.abs(a - np.round(a)), axis=1)
+            out.append(
+                MetricPoints(
+                    uv=uv[rows],
+                    inside=inside[rows],
+                    ab=ab[rows],
+                    colour=colour,
+                    pattern=pattern[rows],
+                    mismatch=mismatch,
+                    f_d=f_d,
+                    range_m=range_m,
+                    expected=expected,
+                    gray=tau,
+                )
+            )
+    return out

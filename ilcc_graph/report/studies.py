@@ -22,7 +22,7 @@ from ..board import Board
 from ..cameras import CameraModel
 from ..errors import CalibrationImpossible, IndeterminateSystem
 from ..types import FrameResult
-from .frame_errors import eval_frame, evaluate
+from .frame_errors import eval_frame, evaluate, evaluate_many
 from .metric import EvalFrame, Evaluation, FrameEvaluation
 
 __all__ = [
@@ -302,15 +302,15 @@ def valley(
     steps = np.linspace(-1.0, 1.0, 2 * n + 1)
     scale = np.array([np.radians(rotation_deg)] * 3 + [translation_m] * 3)
     offsets = scale[:, None] * steps[None, :]
-    inten = np.full((6, steps.size), np.nan)
-    corner = np.full((6, steps.size), np.nan)
+    Ts = []
     for k in range(6):
-        for j, a in enumerate(offsets[k]):
+        for a in offsets[k]:
             xi = np.zeros(6)
             xi[k] = a
-            ev = evaluate(frames, camera, board, _exp_right(T_cam_lidar, xi))
-            inten[k, j] = ev.intensity_mrad[0]
-            corner[k, j] = ev.corner_mrad[0]
+            Ts.append(_exp_right(T_cam_lidar, xi))
+    evs = evaluate_many(frames, camera, board, Ts)
+    inten = np.array([ev.intensity_mrad[0] for ev in evs]).reshape(6, steps.size)
+    corner = np.array([ev.corner_mrad[0] for ev in evs]).reshape(6, steps.size)
     cov = np.full((6, 6), np.nan) if covariance is None else np.asarray(covariance, dtype=np.float64)
     sigma = np.sqrt(np.clip(np.diag(cov), 0.0, None)) if cov.shape == (6, 6) else np.full(6, np.nan)
     return Valley(steps, offsets, inten, corner, sigma)
