@@ -14,6 +14,9 @@ import numpy as np
 import pytest
 from scipy.special import chdtri, chndtr
 from synthetic_graph import rig_moments
+from test_lidar_errors import BOARD as LIDAR_BOARD
+from test_lidar_errors import CAMERA as LIDAR_CAMERA
+from test_lidar_errors import T_TRUE, lidar_frames
 
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import Pinhole
@@ -21,10 +24,11 @@ from ilcc_graph.config import Config
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import NoiseOptions, solve
 from ilcc_graph.estimation.rig_solve import RigOptions, between, solve_rig, to_reference
+from ilcc_graph.estimation.selection import AUTO
 from ilcc_graph.estimation.verify import StoredRig, detectable_change, verify_rig
 from ilcc_graph.init.rig_start import RigStart, place_boards, rig_start
 from ilcc_graph.run.prepare import prepare
-from ilcc_graph.types import Estimate, FrameResult
+from ilcc_graph.types import BoardFit, Estimate, FrameResult, ImageCorners, MomentResult
 
 BOARD = Board(6, 8, 0.075)
 R_CV = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # OpenCV axes from a LiDAR's
@@ -157,7 +161,8 @@ def test_one_camera_and_one_lidar_is_the_batch() -> None:
     rng = np.random.default_rng(22)
     cams, T_cb = ring(1, hfov_deg=120.0)
     moments, _ = rig_moments(rng, 10, cams, T_cb, BOARD)
-    _, sol = solve_all(moments, cams, {"lidar": None})
+    _, sol = solve_all(moments, cams, {"lidar": None}, options=RigOptions(models=("none",)))
+    assert sol.selection is not None and sol.selection.forced and sol.selection.chosen == "none"
     pair = [
         FrameResult(m.name, True, None, m.boards["lidar"], m.corners["cam0"])
         for m in moments
@@ -169,6 +174,41 @@ def test_one_camera_and_one_lidar_is_the_batch() -> None:
     assert np.allclose(est.T, ref.T_cam_lidar, atol=1e-9)
     assert np.allclose(est.covariance, ref.covariance, rtol=1e-7, atol=1e-14)
     assert sol.variance_factor == ref.variance_factor and len(sol.T_base_board) == len(ref.T_lidar_board)
+
+
+def test_one_camera_and_one_lidar_choose_the_model_as_the_batch() -> None:
+    """Boards with returns of a LiDAR reading 20 mm long, each beam its own way: the rig chooses
+    among the pair's default models (``selection.AUTO``) as the batch does, to the same answer and
+    covariance; forced to ``none`` it is the biased answer the choice avoids."""
+    rng = np.random.default_rng(33)
+    frames, _ = lidar_frames(rng, 10, 0.02 + rng.normal(0, 0.004, 16))
+    flat = {"lidar": gtsam.Pose3()}
+    moments = [
+        MomentResult(
+            f.name,
+            {"lidar": BoardFit(f.T_lidar_board, f.board_cov, f.points_board @ f.T_lidar_board[:3, :3].T
+                               + f.T_lidar_board[:3, 3], np.zeros((0, 3)), np.zeros(0), False,
+                               returns=f.returns)},
+            {"cam0": ImageCorners(LIDAR_CAMERA.project(f.bearings), f.bearings, f.cov_px, False)},
+        )  # fmt: skip
+        for f in frames
+    ]
+    truth = true_poses({"cam0": T_TRUE}, flat)
+    start = RigStart("lidar", truth, *place_boards(moments, truth, LIDAR_BOARD, "lidar"))
+    cams = {"cam0": LIDAR_CAMERA}
+    sol = solve_rig(moments, start, LIDAR_BOARD, ["lidar"], cams)
+    ref = solve(frames, LIDAR_CAMERA, T_TRUE.matrix(), models=AUTO)
+    assert sol.selection.chosen == ref.selection.chosen != "none" and not sol.selection.forced
+    for a, b in zip(sol.selection.candidates, ref.selection.candidates, strict=True):
+        assert a.name == b.name and a.boards == b.boards == 10
+        assert np.allclose([a.log_density, a.chi2, a.weight, a.factor], [b.log_density, b.chi2, b.weight, b.factor],
+                           rtol=1e-7, atol=1e-12)  # fmt: skip
+    est = sol.relative("cam0", "lidar")
+    assert np.allclose(est.T, ref.T_cam_lidar, atol=1e-9)
+    assert np.allclose(est.covariance, ref.covariance, rtol=1e-7, atol=1e-14)
+    assert nees(est, T_TRUE.matrix()) < 16.8  # chi2(6) 99 %
+    forced = solve_rig(moments, start, LIDAR_BOARD, ["lidar"], cams, options=RigOptions(models=("none",)))
+    assert nees(forced.relative("cam0", "lidar"), T_TRUE.matrix()) > 30.0
 
 
 def test_a_board_only_two_cameras_saw_chains_them() -> None:
