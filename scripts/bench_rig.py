@@ -19,8 +19,12 @@ panorama); 12 boards per calibration capture.
    random direction (``RigSpec.moved``): how often the rig's verdict is ``fail`` (false alarms /
    detections) and the moved sensor's own verdict; the smallest detectable change (median).
    Observation level per ``--verify`` seeds; rendered on the cached captures.
+4. **Sensor models** (``--models N``, on the cached captures): the rendered rigs solved with the
+   base LiDAR's sensor model forced to ``none``, forced to ``beams`` and chosen (``auto``, the
+   default): every pair's NEES, coverage, RMS error and RMS sigma under each.
 
-Run: ``nice -n 10 python3 scripts/bench_rig.py [--runs 50] [--verify 50] [--write]`` (one process).
+Run: ``nice -n 10 python3 scripts/bench_rig.py [--runs 50] [--verify 50] [--models 20] [--write]``
+(one process).
 """
 
 from __future__ import annotations
@@ -42,9 +46,10 @@ from _shared import write_between  # noqa: E402
 from bench_rig_observe import CACHE, moved_mount  # noqa: E402
 
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem  # noqa: E402
-from ilcc_graph.estimation.rig_solve import RigSolution, between  # noqa: E402
+from ilcc_graph.estimation.rig_solve import RigOptions, RigSolution, between  # noqa: E402
+from ilcc_graph.estimation.selection import AUTO  # noqa: E402
 from ilcc_graph.estimation.verify import StoredRig, VerifyResult, verify_rig  # noqa: E402
-from ilcc_graph.run.rig_calibrate import solve_observed  # noqa: E402
+from ilcc_graph.run.rig_calibrate import RigRunOptions, solve_observed  # noqa: E402
 from ilcc_graph.run.rig_observe import RigObservation  # noqa: E402
 from ilcc_graph.simulate.rig import RigSpec, backpack_rig, ring_rig  # noqa: E402
 from ilcc_graph.simulate.rig_observations import observe_spec  # noqa: E402
@@ -74,7 +79,12 @@ def xi_error(est: Estimate, T_true: np.ndarray) -> np.ndarray:
     return np.asarray(gtsam.Pose3(est.T).localCoordinates(gtsam.Pose3(T_true)))
 
 
-def solve(rig, moments: Sequence[MomentResult], keep: Sequence[str] | None = None) -> RigSolution:  # noqa: ANN001
+def solve(  # noqa: ANN001
+    rig,
+    moments: Sequence[MomentResult],
+    keep: Sequence[str] | None = None,
+    options: RigOptions = RigOptions(),
+) -> RigSolution:
     """The joint solve of ``moments`` (only sensors ``keep``'s observations when given)."""
     if keep is not None:
         moments = [
@@ -88,7 +98,7 @@ def solve(rig, moments: Sequence[MomentResult], keep: Sequence[str] | None = Non
         sensors = tuple(s for s in rig.sensors if s.name in keep)
         ref = rig.reference if rig.reference in keep else next(s.name for s in sensors if s.kind == "lidar")
         rig = type(rig)(rig.board, sensors, ref, rig.data, rig.base_dir, rig.source)
-    return solve_observed(RigObservation(rig, list(moments))).solution
+    return solve_observed(RigObservation(rig, list(moments)), RigRunOptions(solve=options)).solution
 
 
 def alone(rig, moments: Sequence[MomentResult], a: str, b: str) -> Estimate | None:  # noqa: ANN001
@@ -112,15 +122,22 @@ def alone(rig, moments: Sequence[MomentResult], a: str, b: str) -> Estimate | No
 
 # ------------------------------------------------------------------------------ 1. calibration
 def calibration_stats(
-    runs: Sequence[tuple[object, list[MomentResult], dict[str, np.ndarray]]], with_alone: bool
+    runs: Sequence[tuple[object, list[MomentResult], dict[str, np.ndarray]]],
+    with_alone: bool,
+    options: RigOptions = RigOptions(),
+    chosen: list[str] | None = None,
 ) -> dict[tuple[str, str], dict[str, list[float]]]:
+    """Per pair its figures over ``runs`` (``options``: the joint solve's; ``chosen``: filled with each
+    rig's sensor model)."""
     out: dict[tuple[str, str], dict[str, list[float]]] = {}
     for rig, moments, truth in runs:
         try:
-            sol = solve(rig, moments)
+            sol = solve(rig, moments, options=options)
         except (CalibrationImpossible, IndeterminateSystem) as err:
             print(f"  not solved: {err}", flush=True)
             continue
+        if chosen is not None and sol.selection is not None:
+            chosen.append(sol.selection.chosen)
         names = sol.sensors
         for i, a in enumerate(names):
             for b in names[i + 1 :]:
@@ -134,6 +151,7 @@ def calibration_stats(
                 row.setdefault("sig_rot", []).append(
                     float(np.degrees(np.sqrt(np.trace(est.covariance[:3, :3]))))
                 )
+                row.setdefault("sig_trans", []).append(float(1e3 * np.sqrt(np.trace(est.covariance[3:, 3:]))))
                 row.setdefault("shared", []).append(
                     float(sum(1 for m in moments if {a, b} <= {*m.boards, *m.corners}))
                 )
@@ -341,6 +359,47 @@ def rendered_part(kind: str, limit: int) -> str:
     )
 
 
+#: the base LiDAR's sensor models compared on the rendered rigs (``--models``)
+MODEL_RUNS = {"none": ("none",), "beams": ("beams",), "auto": AUTO}
+
+
+def models_part(kind: str, limit: int) -> str:
+    """The rendered rigs solved with the base LiDAR's sensor model forced to ``none``, to ``beams``,
+    and chosen (``auto``): every pair's NEES, coverage and RMS error under each."""
+    rendered = rendered_runs(kind, limit)
+    if not rendered:
+        return f"### {kind}\n\nno cached captures\n"
+    pooled, chosen, by_model = [], [], {}
+    t0 = time.perf_counter()
+    for label, models in MODEL_RUNS.items():
+        picks: list[str] = []
+        by_model[label] = calibration_stats(rendered, False, RigOptions(models=models), picks)
+        if len(models) > 1:
+            chosen = picks
+        allv = np.concatenate([r["nees"] for r in by_model[label].values()])
+        pooled.append(f"{label} NEES {allv.mean():.2f}, coverage {100 * np.mean(allv < Q95):.1f} %")
+    lines = [
+        "| pair | NEES none / beams / auto | coverage none / beams / auto | RMS error none, auto (deg / mm) "
+        "| RMS sigma none, auto (deg / mm) |",
+        "|---|---|---|---|---|",
+    ]
+    for pair in by_model["none"]:
+        if any(pair not in stats for stats in by_model.values()):
+            continue  # a sensor one model left without a pose
+        rs = [stats[pair] for stats in by_model.values()]
+        nees = " / ".join(f"{np.mean(r['nees']):.2f}" for r in rs)
+        cover = " / ".join(f"{100 * np.mean(np.asarray(r['nees']) < Q95):.0f}" for r in rs)
+        err = ", ".join(f"{rms(r['rot']):.4f} / {rms(r['trans']):.3f}" for r in (rs[0], rs[-1]))
+        sig = ", ".join(f"{rms(r['sig_rot']):.4f} / {rms(r['sig_trans']):.3f}" for r in (rs[0], rs[-1]))
+        lines.append(f"| {pair[0]}-{pair[1]} | {nees} | {cover} % | {err} | {sig} |")
+    print(f"{kind} sensor models (rendered): {time.perf_counter() - t0:.0f} s", flush=True)
+    picked = ", ".join(f"{m} {chosen.count(m)}" for m in dict.fromkeys(sorted(chosen)))
+    return (
+        f"### {kind}\n\n{len(rendered)} rigs x 12 boards; the model chosen: {picked}. All pairs pooled: "
+        f"{'; '.join(pooled)}.\n\n" + "\n".join(lines) + "\n"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=50, help="observation-level rigs per kind (0: none)")
@@ -348,12 +407,19 @@ def main() -> None:
     ap.add_argument(
         "--rendered", type=int, default=50, help="at most this many cached captures per kind (0: none)"
     )
+    ap.add_argument(
+        "--models",
+        type=int,
+        default=0,
+        help="compare the base LiDAR's sensor models on this many cached captures",
+    )
     ap.add_argument("--kinds", nargs="*", default=["ring-pinhole", "ring-fisheye", "backpack"])
     ap.add_argument("--write", action="store_true", help=f"write the tables into {DOC.name}")
     a = ap.parse_args()
     for name, on, part in (
         ("observations", a.runs > 0, lambda k: observation_part(k, a.runs, a.verify)),
         ("rendered", a.rendered > 0, lambda k: rendered_part(k, a.rendered)),
+        ("models", a.models > 0, lambda k: models_part(k, a.models)),
     ):
         if not on:
             continue

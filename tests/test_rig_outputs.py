@@ -17,6 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from ilcc_graph.cameras import make_camera
 from ilcc_graph.errors import InputError
+from ilcc_graph.estimation.selection import AUTO, Selection
 from ilcc_graph.exports_rig import export_rig, tf_frames
 from ilcc_graph.handoff_rig import add_rig_prior, rig_prior
 from ilcc_graph.io.rig_results import is_rig_calibration, read_rig_calibration, write_rig_calibration
@@ -55,6 +56,8 @@ def test_calibration_yaml_round_trip(result: RigResult, tmp_path) -> None:  # no
     used = back.extra["used"]
     assert used["lidar"] == 12 and all(used[c] >= 2 for c in ("front", "left", "back", "right"))
     assert back.extra["moments"]["0001"]["lidar"] == "used"
+    model = Selection.from_dict(back.extra["sensor_model"])  # the base LiDAR's, chosen as the pair's
+    assert model == result.solution.selection and model.chosen in AUTO and not model.forced
     assert "T_ref_sensor" not in back.rig["sensors"]["front"]  # the rig file's guesses left out
     bad = tmp_path / "bad.yaml"
     bad.write_text(p.read_text().replace("reference: lidar", "reference: nobody"))

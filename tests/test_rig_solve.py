@@ -13,7 +13,10 @@ import gtsam
 import numpy as np
 import pytest
 from scipy.special import chdtri, chndtr
-from synthetic_graph import rig_moments
+from synthetic_graph import observe, rig_moments
+from test_lidar_errors import BOARD as LIDAR_BOARD
+from test_lidar_errors import CAMERA as LIDAR_CAMERA
+from test_lidar_errors import T_TRUE, lidar_frames
 
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import Pinhole
@@ -21,12 +24,14 @@ from ilcc_graph.config import Config
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import NoiseOptions, solve
 from ilcc_graph.estimation.rig_solve import RigOptions, between, solve_rig, to_reference
+from ilcc_graph.estimation.selection import AUTO
 from ilcc_graph.estimation.verify import StoredRig, detectable_change, verify_rig
 from ilcc_graph.init.rig_start import RigStart, place_boards, rig_start
 from ilcc_graph.run.prepare import prepare
-from ilcc_graph.types import Estimate, FrameResult
+from ilcc_graph.types import BoardFit, Estimate, FrameResult, GraphFrame, ImageCorners, MomentResult
 
 BOARD = Board(6, 8, 0.075)
+EMPTY = (np.zeros((0, 3)), np.zeros(0))  # a board fit's segment points and intensities, not used
 R_CV = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])  # OpenCV axes from a LiDAR's
 
 
@@ -157,7 +162,8 @@ def test_one_camera_and_one_lidar_is_the_batch() -> None:
     rng = np.random.default_rng(22)
     cams, T_cb = ring(1, hfov_deg=120.0)
     moments, _ = rig_moments(rng, 10, cams, T_cb, BOARD)
-    _, sol = solve_all(moments, cams, {"lidar": None})
+    _, sol = solve_all(moments, cams, {"lidar": None}, options=RigOptions(models=("none",)))
+    assert sol.selection is not None and sol.selection.forced and sol.selection.chosen == "none"
     pair = [
         FrameResult(m.name, True, None, m.boards["lidar"], m.corners["cam0"])
         for m in moments
@@ -169,6 +175,57 @@ def test_one_camera_and_one_lidar_is_the_batch() -> None:
     assert np.allclose(est.T, ref.T_cam_lidar, atol=1e-9)
     assert np.allclose(est.covariance, ref.covariance, rtol=1e-7, atol=1e-14)
     assert sol.variance_factor == ref.variance_factor and len(sol.T_base_board) == len(ref.T_lidar_board)
+
+
+def test_one_camera_and_one_lidar_choose_the_model_as_the_batch() -> None:
+    """Boards with returns of a LiDAR reading 20 mm long, each beam its own way: the rig chooses
+    among the pair's default models (``selection.AUTO``) as the batch does, to the same answer and
+    covariance; forced to ``none`` it is the biased answer the choice avoids."""
+    rng = np.random.default_rng(33)
+    frames, truth_boards = lidar_frames(rng, 10, 0.02 + rng.normal(0, 0.004, 16))
+    flat = {"lidar": gtsam.Pose3()}
+
+    def fit(f: GraphFrame) -> BoardFit:
+        corners = f.points_board @ f.T_lidar_board[:3, :3].T + f.T_lidar_board[:3, 3]
+        return BoardFit(f.T_lidar_board, f.board_cov, corners, *EMPTY, False, returns=f.returns)
+
+    def view(f: GraphFrame) -> ImageCorners:
+        return ImageCorners(LIDAR_CAMERA.project(f.bearings), f.bearings, f.cov_px, False)
+
+    moments = [MomentResult(f.name, {"lidar": fit(f)}, {"cam0": view(f)}) for f in frames]
+    truth = true_poses({"cam0": T_TRUE}, flat)
+    start = RigStart("lidar", truth, *place_boards(moments, truth, LIDAR_BOARD, "lidar"))
+    cams = {"cam0": LIDAR_CAMERA}
+    sol = solve_rig(moments, start, LIDAR_BOARD, ["lidar"], cams)
+    ref = solve(frames, LIDAR_CAMERA, T_TRUE.matrix(), models=AUTO)
+    assert sol.selection.chosen == ref.selection.chosen != "none" and not sol.selection.forced
+    for a, b in zip(sol.selection.candidates, ref.selection.candidates, strict=True):
+        assert a.name == b.name and a.boards == b.boards == 10
+        x, y = ([c.log_density, c.chi2, c.weight, c.factor] for c in (a, b))
+        assert np.allclose(x, y, rtol=1e-7, atol=1e-12), (a, b)
+    est = sol.relative("cam0", "lidar")
+    assert np.allclose(est.T, ref.T_cam_lidar, atol=1e-9)
+    assert np.allclose(est.covariance, ref.covariance, rtol=1e-7, atol=1e-14)
+    assert nees(est, T_TRUE.matrix()) < 16.8  # chi2(6) 99 %
+    forced = solve_rig(moments, start, LIDAR_BOARD, ["lidar"], cams, options=RigOptions(models=("none",)))
+    assert nees(forced.relative("cam0", "lidar"), T_TRUE.matrix()) > 30.0
+    # a second camera seeing every board: each camera's views are held out in turn
+    T_cam1 = gtsam.Pose3(gtsam.Rot3.Rz(0.4), np.array([0.2, 0.1, 0.0])).compose(T_TRUE)
+    seen = [
+        observe(rng, LIDAR_CAMERA, T_cam1, truth_boards[f.name], LIDAR_BOARD.corners_board()) for f in frames
+    ]
+    both = [
+        replace(m, corners={**m.corners, "cam1": ImageCorners(LIDAR_CAMERA.project(b), b, c, False)})
+        for m, (b, c) in zip(moments, seen, strict=True)  # type: ignore[misc]
+    ]
+    truth2 = true_poses({"cam0": T_TRUE, "cam1": T_cam1}, flat)
+    start2 = RigStart("lidar", truth2, *place_boards(both, truth2, LIDAR_BOARD, "lidar"))
+    two = solve_rig(both, start2, LIDAR_BOARD, ["lidar"], {**cams, "cam1": LIDAR_CAMERA})
+    chosen = next(c for c in two.selection.candidates if c.name == two.selection.chosen)
+    assert two.selection.chosen != "none" and chosen.boards == 20, two.selection.summary()
+    assert chosen.chi2 < 2 * 6 * chosen.boards  # each view scored against its own camera's image
+    for c in ("cam0", "cam1"):
+        assert nees(two.relative(c, "lidar"), np.linalg.inv(truth2[c])) < 16.8
 
 
 def test_a_board_only_two_cameras_saw_chains_them() -> None:

@@ -65,16 +65,18 @@ def test_the_rig_through_the_run_is_calibrate_rig(backpack: Path, tmp_path: Path
 
 def test_a_pair_as_a_rig_through_the_run_is_todays_result(tmp_path: Path) -> None:
     """A single-pair data set opened as a rig of two, in rig mode: the headline is the batch solve's
-    extrinsic (the rig graph has no sensor-model choice: compared with the ``none`` model)."""
+    extrinsic, the LiDAR's sensor model chosen among the same candidates (the default ``auto``)."""
     spec = standard_spec(lidar="hdl32", camera="pinhole", width=800, frames=6, seed=5)
     data = simulate_dataset(tmp_path / "pair", spec)
-    base = run([open_source(data)], RunOptions(sensor_model="none", second_pass=False, stages=ONE))
+    base = run([open_source(data)], RunOptions(second_pass=False, stages=ONE))
     rig = run([open_source(data, rig=True)], RunOptions(mode="rig", stages=ONE))
     assert [(f.name, f.used) for f in rig.calibration.frames] == [
         (f.name, f.used) for f in base.calibration.frames
     ]
     np.testing.assert_allclose(rig.calibration.T_cam_lidar, base.calibration.T_cam_lidar, atol=1e-9)
     np.testing.assert_allclose(rig.calibration.covariance, base.calibration.covariance, rtol=1e-6, atol=1e-14)
+    chosen = rig.documents["calibration.yaml"]["sensor_model"]
+    assert chosen["chosen"] == base.calibration.sensors["model"]["chosen"] and not chosen["forced"]
 
 
 def test_calibrate_a_rig_prints_its_verdict_and_writes_its_report(

@@ -65,7 +65,8 @@ def image_alone(
 
 
 def held_out(sol: Solution, e: int = 0) -> dict[int, HeldOut]:
-    """Per kept board with a bearing view on extrinsic ``e``: its image held out (module docstring).
+    """Per kept board with a bearing view on extrinsic ``e`` (camera ``e`` of a rig): its image in
+    that camera held out (module docstring; the board's views in other cameras stay).
 
     The covariances are those the solution reports (its components' posterior means, its final
     factor, the components' spread on the extrinsic). Boards whose views are pixel factors (refined
@@ -77,7 +78,11 @@ def held_out(sol: Solution, e: int = 0) -> dict[int, HeldOut]:
     S_inv = np.linalg.inv(red.S)
     xe = sol.values.atPose3(X(e))
     spread = sol.spread_of([X(e)], [POSE3_DOF])
-    views = {sol.problem.views[j].board: fac for j, fac in asm.views if isinstance(fac, FrameBearingFactor)}
+    views = {
+        v.board: fac
+        for j, fac in asm.views
+        if isinstance(fac, FrameBearingFactor) and (v := sol.problem.views[j]).extrinsic == e
+    }
     out: dict[int, HeldOut] = {}
     for kind, _, bk, A_b, g_keys, A_g, b, count in red.blocks:
         if kind != "bearing" or count is not None or bk is None or A_b is None or g_keys != [X(e)]:

@@ -9,9 +9,14 @@ boards, each other LiDAR's boards and each camera's views have their own (with
 ``NoiseOptions.view_components`` every view its own bearing component); solved by the core's noise
 policy (``noise.solve_problem``: gate, variance components, final factor).
 
-The sensor model is ``none`` (each board the LiDAR stage's 6-dof pose): the choice among sensor
-models (``selection.py``) is the single pair's for now. A rig of one camera and one LiDAR is
-today's single-pair problem and gives the batch answer (``batch.solve(..., models=["none"])``).
+The base LiDAR's sensor model is chosen as the single pair's (``selection.select_model`` over
+``RigOptions.models``, the pair's candidates ``batch.sensor_models``): each candidate reads the base
+LiDAR's boards its way (``none``: their 6-dof poses; ``range`` and ``beams``: their returns with the
+LiDAR's own range errors; ``offset``: one range offset), is solved under the noise policy and scored
+by every camera's views held out in turn; the joint covariance carries the candidates the boards
+cannot tell apart (``selection.mixture`` over the graph's poses). The other LiDARs' boards enter as
+6-dof fits in every candidate. A rig of one camera and one LiDAR is today's single-pair problem and
+gives the batch answer (``batch.solve`` with the same ``models``).
 
 Answer: every sensor's ``T_ref_sensor`` in the frame of a chosen reference sensor (a camera or any
 LiDAR) with their joint covariance, and any pair's ``T_a_b`` with its own. Covariances follow
@@ -23,7 +28,7 @@ T_base_s`` by ``d_s - Ad(T_s_ref) d_ref`` (``d`` the base-frame perturbations).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from gtsam.symbol_shorthand import Y
@@ -31,11 +36,13 @@ from gtsam.symbol_shorthand import Y
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.estimation.batch import sensor_models
 from ilcc_graph.estimation.gate import BoardStats
 from ilcc_graph.estimation.keys import POSE3_DOF, X
 from ilcc_graph.estimation.kinds.lidar_boards import LidarBoard, LidarBoards
-from ilcc_graph.estimation.noise import NoiseOptions, Solution, solve_problem
+from ilcc_graph.estimation.noise import NoiseOptions, Solution
 from ilcc_graph.estimation.problem import BoardPrior, Problem, View
+from ilcc_graph.estimation.selection import AUTO, MODELS, Selection, SensorModel, mixture, select_model
 from ilcc_graph.init.rig_start import RigStart, adjoint, orient_moment
 from ilcc_graph.types import Estimate, MomentResult
 
@@ -44,14 +51,23 @@ __all__ = ["RigOptions", "RigSolution", "between", "rig_problem", "solve_rig", "
 
 @dataclass(frozen=True)
 class RigOptions:
-    """noise: the noise policy. range_offset: estimate the base LiDAR's range offset (weak prior
-    ``range_offset_prior_sigma_m``); samples_board: (M, 3) board-face points for it (None: from the
-    corners)."""
+    """noise: the noise policy. models: the base LiDAR's sensor models to choose among
+    (``selection.MODELS`` names; one name forces it; default the pair's ``selection.AUTO``).
+    range_offset: force the ``offset`` model, the base LiDAR's range offset with the weak prior
+    ``range_offset_prior_sigma_m`` (``models`` then unused); samples_board: (M, 3) board-face points
+    for it (None: from the corners)."""
 
     noise: NoiseOptions = NoiseOptions()
+    models: tuple[str, ...] = AUTO
     range_offset: bool = False
     range_offset_prior_sigma_m: float = 0.1
     samples_board: np.ndarray | None = None
+
+    def candidates(self) -> list[SensorModel]:
+        """The sensor models solved (``batch.sensor_models``; ``range_offset``: ``offset`` alone)."""
+        if self.range_offset:
+            return [replace(MODELS["offset"], range_offset_m=self.range_offset_prior_sigma_m)]
+        return sensor_models(self.models, None)
 
 
 def between(T_ref_a: np.ndarray, T_ref_b: np.ndarray, C: np.ndarray) -> Estimate:
@@ -93,7 +109,10 @@ class RigSolution:
     one sensor only); left_out: ``(moment, sensor, reason)`` of observations the start left out.
     unsolved: {sensor: reason} of the rig's sensors without an answer. scales: the variance
     components by (kind, noise group); variance_factor: the final factor. range_offset: the base
-    LiDAR's (value, sigma) metres when asked. solution: the core's ``noise.Solution`` (graph frame).
+    LiDAR's (value, sigma) metres when the model estimates it. solution: the core's
+    ``noise.Solution`` of the chosen model (graph frame). selection: the base LiDAR's sensor model
+    chosen and the evidence (``selection.Selection``; with candidates the boards could not tell
+    apart, ``covariance`` is averaged over them).
     """
 
     sensors: tuple[str, ...]
@@ -111,6 +130,7 @@ class RigSolution:
     iterations: int = 0
     range_offset: tuple[float, float] | None = None
     solution: Solution | None = None
+    selection: Selection | None = None
 
     def _slice(self, s: str) -> slice:
         k = self.sensors.index(s)
@@ -136,7 +156,7 @@ class RigSolution:
         return RigSolution(
             self.sensors, reference, self.base, T, C, self.T_base_board, self.per_moment, self.dropped,
             self.left_out, self.unsolved, self.scales, self.variance_factor, self.iterations,
-            self.range_offset, self.solution,
+            self.range_offset, self.solution, self.selection,
         )  # fmt: skip
 
 
@@ -200,6 +220,37 @@ def rig_problem(
     return problem, skipped
 
 
+def _found(sol: Solution, lidars: Sequence[str], cams: Sequence[str]) -> list[tuple[str, int]]:
+    """(sensor, graph key) of the sensors but the base that the kept boards relate: the other LiDARs'
+    ``Y(l)``, then the cameras' ``X(c)``."""
+    seen_cams = set(sol.assembly.extrinsics(sol.boards))
+    views = sol.problem.evidence["lidar_boards"].views
+    seen_lidars = {lv.lidar for lv in views if lv.board in sol.boards}
+    found = [(n, Y(k)) for k, n in enumerate(lidars) if k in seen_lidars]
+    return found + [(n, X(c)) for c, n in enumerate(cams) if c in seen_cams]
+
+
+def _graph_joint(sol: Solution, keys: Sequence[int]) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 4, 4) the poses of the graph's ``keys`` and their (6n, 6n) joint covariance (the final
+    factor's, plus the variance components' spread)."""
+    dims = [POSE3_DOF] * len(keys)
+    T = np.array([np.asarray(sol.values.atPose3(k).matrix(), dtype=np.float64) for k in keys])
+    return T.reshape(-1, 4, 4), sol.marginals.joint(keys, dims) + sol.spread_of(keys, dims)
+
+
+def _averaged(
+    sols: Mapping[str, Solution], selection: Selection, found: list[tuple[str, int]], lidars: Sequence[str],
+    cams: Sequence[str],
+) -> np.ndarray:  # fmt: skip
+    """The graph poses' joint covariance: the chosen model's, or the mixture over the candidates that
+    relate the same sensors (``selection.mixture``)."""
+    keys = [key for _, key in found]
+    if selection.forced:
+        return _graph_joint(sols[selection.chosen], keys)[1]
+    same = {n: s for n, s in sols.items() if _found(s, lidars, cams) == found}
+    return mixture({n: _graph_joint(s, keys) for n, s in same.items()}, selection)
+
+
 def solve_rig(
     moments: Sequence[MomentResult],
     start: RigStart,
@@ -212,27 +263,25 @@ def solve_rig(
 ) -> RigSolution:
     """Every sensor's pose in ``reference``'s frame (default the base, ``lidars[0]``) with the joint
     covariance, from the stages' answers (``moments``) and the start (``init.rig_start``, or
-    ``init.rig_start.place_boards`` with known poses).
+    ``init.rig_start.place_boards`` with known poses); the base LiDAR's sensor model chosen among
+    ``options.models`` (module docstring).
 
     order: the sensors' order in the answer (default LiDARs then cameras). Raises
     CalibrationImpossible (no moment relates two sensors), IndeterminateSystem (the boards do not
-    determine a pose), ValueError (malformed input).
+    determine a pose), ValueError (malformed input, an unknown model).
     """
     problem, skipped = rig_problem(moments, start, board, lidars, cameras, options)
-    sol = solve_problem(problem, options.noise)
+    sols, selection = select_model(problem, options.candidates(), options.noise)
+    sol = sols[selection.chosen]
     cams = list(cameras)
-    seen_cams = set(sol.assembly.extrinsics(sol.boards))
-    seen_lidars = {lv.lidar for lv in problem.evidence["lidar_boards"].views if lv.board in sol.boards}
-    found = [(n, Y(k)) for k, n in enumerate(lidars) if k in seen_lidars]
-    found += [(n, X(c)) for c, n in enumerate(cams) if c in seen_cams]
+    found = _found(sol, lidars, cams)
     solved, keys = [lidars[0], *(n for n, _ in found)], [key for _, key in found]
     unsolved = {
         n: start.unplaced.get(n) or "no kept moment relates it to the others"
         for n in [*lidars, *cams]
         if n not in solved
     }
-    dims = [POSE3_DOF] * len(keys)
-    J = sol.marginals.joint(keys, dims) + sol.spread_of(keys, dims)
+    J = _averaged(sols, selection, found, lidars, cams)
     # base-frame perturbations d_s of T_base_s: a LiDAR's Y is T_base_lidar (d = eta); a camera's
     # X = T_cam_base, T_base_cam = X^-1 (d = -Ad(X) xi); the base's own pose is fixed (d = 0)
     M = np.zeros((POSE3_DOF * len(solved), POSE3_DOF * len(keys)))
@@ -271,6 +320,7 @@ def solve_rig(
         scales=dict(sol.scales),
         variance_factor=sol.variance_factor,
         iterations=sol.iterations,
-        range_offset=sol.offset(0) if options.range_offset else None,
+        range_offset=sol.offset(0) if sol.problem.range_offset_sigma_m is not None else None,
         solution=sol,
+        selection=selection,
     )

@@ -10,7 +10,8 @@ Candidates (``MODELS``), each a way of reading the LiDAR:
 
 Each candidate is solved under the one noise policy (``noise.solve_problem``) and scored by how
 well it predicts each board's image from the other boards and the board's own LiDAR data
-(``held_out``: leave-one-board-out cross-validation, summed over the boards every candidate kept).
+(``held_out``: leave-one-board-out cross-validation, summed over the boards every candidate kept;
+a rig's: each camera's view of each board held out in turn, summed over the cameras).
 The weights ``exp(score)`` normalised (pseudo Bayesian model averaging with cross-validated
 densities) choose the model with the largest, and its covariance carries the others: about the
 chosen estimate, ``sum_m w_m (C_m + d_m d_m^T)`` with ``d_m`` the other model's estimate's offset
@@ -228,20 +229,24 @@ def _weights(per_board: Mapping[str, np.ndarray]) -> dict[str, float]:
 
 
 def mixture(estimates: Mapping[str, tuple[np.ndarray, np.ndarray]], selection: Selection) -> np.ndarray:
-    """(6, 6) the mixture's covariance about the chosen model's extrinsic: ``sum_m w_m (f_m C_m +
-    d_m d_m^T)`` over the candidates' ``estimates`` ((4, 4) T, (6, 6) C by name), ``d_m =
-    Logmap(T_chosen^-1 T_m)``, ``C_m`` carried into the chosen's tangent and scaled by the model's
-    held-out factor ``f_m``."""
-    T0 = gtsam.Pose3(estimates[selection.chosen][0])
-    out = np.zeros((POSE3_DOF, POSE3_DOF))
+    """(6n, 6n) the mixture's covariance about the chosen model's poses: ``sum_m w_m (f_m C_m +
+    d_m d_m^T)`` over the candidates' ``estimates`` (by name: T (4, 4), or (n, 4, 4) for n poses
+    such as a rig's, and their (6n, 6n) joint C), ``d_m`` the poses' ``Logmap(T_chosen^-1 T_m)``
+    stacked, ``C_m`` carried into the chosen's tangents and scaled by the model's held-out factor
+    ``f_m``."""
+    T0 = [gtsam.Pose3(T) for T in np.reshape(estimates[selection.chosen][0], (-1, 4, 4))]
+    n = POSE3_DOF * len(T0)
+    out = np.zeros((n, n))
     total = 0.0
     for c in selection.candidates:
         if c.weight < MIN_WEIGHT or c.name not in estimates:
             continue
         T, C = estimates[c.name]
-        D = T0.between(gtsam.Pose3(T))
-        d = np.asarray(gtsam.Pose3.Logmap(D), dtype=np.float64)
-        Ad = D.AdjointMap()
+        D = [t0.between(gtsam.Pose3(t)) for t0, t in zip(T0, np.reshape(T, (-1, 4, 4)), strict=True)]
+        d = np.concatenate([np.asarray(gtsam.Pose3.Logmap(x), dtype=np.float64) for x in D])
+        Ad = np.zeros((n, n))
+        for k, x in enumerate(D):
+            Ad[POSE3_DOF * k : POSE3_DOF * (k + 1), POSE3_DOF * k : POSE3_DOF * (k + 1)] = x.AdjointMap()
         out += c.weight * (c.factor * Ad @ C @ Ad.T + np.outer(d, d))
         total += c.weight
     out /= total
@@ -313,10 +318,10 @@ def select_model(
         return sols, Selection(
             names[0], (Candidate(names[0], used=len(sols[names[0]].boards), weight=1.0),), True
         )
-    scores: dict[str, dict[int, HeldOut]] = {}
+    scores: dict[str, dict[tuple[int, int], HeldOut]] = {}
     for name, sol in sols.items():
-        try:
-            scores[name] = held_out(sol)
+        try:  # every camera's views (a rig's): (extrinsic, board)
+            scores[name] = {(e, k): h for e in sol.problem.extrinsics for k, h in held_out(sol, e).items()}
         except np.linalg.LinAlgError as err:  # a singular held-out system: no score, no weight
             failures[name] = f"held-out score: {err}"
     return sols, choose(scores, {n: len(sol.boards) for n, sol in sols.items()}, names, failures)

@@ -187,7 +187,8 @@ def calibrate_rig(
 
 def to_calibration(result: RigResult) -> RigCalibration:
     """The rig's ``calibration.yaml`` content (``io.rig_results``): poses, joint covariance, every
-    pair's relative pose and covariance, the rig file's mapping (intrinsics), what was used."""
+    pair's relative pose and covariance, the rig file's mapping (intrinsics), what was used, the
+    base LiDAR's sensor model chosen (``sensor_model``, as the pair's ``selection.Selection``)."""
     names = result.sensors
     pairs = {}
     for i, a in enumerate(names):
@@ -207,6 +208,8 @@ def to_calibration(result: RigResult) -> RigCalibration:
         "moments": moments,
         "skipped": [list(x) for x in result.skipped],
     }
+    if result.solution.selection is not None:  # the base LiDAR's sensor model and the evidence
+        extra["sensor_model"] = result.solution.selection.to_dict()
     return RigCalibration(
         names,
         result.reference,
