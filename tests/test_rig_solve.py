@@ -173,7 +173,10 @@ def test_one_camera_and_one_lidar_is_the_batch() -> None:
     ref = solve(prep.frames, cams["cam0"], prep.T_init, models=["none"])
     est = sol.relative("cam0", "lidar")
     assert np.allclose(est.T, ref.T_cam_lidar, atol=1e-9)
-    assert np.allclose(est.covariance, ref.covariance, rtol=1e-7, atol=1e-14)
+    # the variance components are iterated to a fixed point from each graph's own start (the rig's
+    # start, the pair's UPnP): they meet to about 2e-7 relative (1.2618232 against 1.2618235 measured
+    # on this machine), and every covariance scales with them; a different graph differs by far more
+    assert np.allclose(est.covariance, ref.covariance, rtol=1e-6, atol=1e-14)
     assert sol.variance_factor == ref.variance_factor and len(sol.T_base_board) == len(ref.T_lidar_board)
 
 
