@@ -93,7 +93,14 @@ def field_directions(cam: Unified, rng: np.random.Generator, n: int, margin: flo
     the pinhole as for this model, and a pixel there has two rays."""
     t = np.linspace(0, math.acos(-cam.w), 200001)[1:-1]
     a = np.sin(t) / (np.cos(t) + cam.xi)  # the normalised radius before distortion, increasing
-    inside = np.flatnonzero(a < min(0.9 * cam.r_max, 4.0))
+    k1, k2, p1, p2 = cam.dist
+    # where the radial map is nearly flat (it need not stop increasing: r_max inf) the tangential
+    # terms, whose derivative is at most about 6 max(|p1|, |p2|) a, fold it all the same: stop
+    # before the radial derivative falls to twice that
+    slope = 1 + 3 * k1 * a**2 + 5 * k2 * a**4
+    flat = np.flatnonzero(slope < 12 * max(abs(p1), abs(p2)) * a)
+    end = a[flat[0]] if flat.size else np.inf
+    inside = np.flatnonzero((a < min(0.9 * cam.r_max, 4.0)) & (a < end))
     theta = t[inside[-1]] * np.r_[0.0, rng.uniform(0, 1, n), 1 - margin]
     return directions(theta, rng.uniform(-np.pi, np.pi, theta.size))
 
