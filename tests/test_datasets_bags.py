@@ -236,9 +236,9 @@ def test_bad_input_names_the_bag_and_the_problem(sets, tmp_path) -> None:
             open_source(broken, config=sets["folder"] / "config.yaml").frames()
 
 
-def _copy_bag(src: Path, dst: Path, change: dict[int, object]) -> Path:
-    """A copy of the ROS 1 bag ``src`` (and its config) with the k-th image message (0-based) altered by
-    ``change[k](message)``; every other message as it was."""
+def _copy_bag(src: Path, dst: Path, change: dict[int, object], topic: str = "/camera/image_raw") -> Path:
+    """A copy of the ROS 1 bag ``src`` (and its config) with the k-th message (0-based) of the topics
+    starting with ``topic`` altered by ``change[k](message)``; every other message as it was."""
     from rosbags.rosbag1 import Reader, Writer
 
     m = RosMessages(ros1=True)
@@ -246,7 +246,7 @@ def _copy_bag(src: Path, dst: Path, change: dict[int, object]) -> Path:
         conns = {c.id: w.add_connection(c.topic, c.msgtype, typestore=m.ts) for c in r.connections}
         k = 0
         for c, t, raw in r.messages():
-            if c.topic.startswith("/camera/image_raw"):
+            if c.topic.startswith(topic):
                 if k in change:
                     msg = m.ts.deserialize_ros1(raw, c.msgtype)
                     change[k](msg)  # type: ignore[operator]
@@ -308,6 +308,36 @@ def test_a_damaged_bag_image_costs_its_frame_unread(sets, tmp_path) -> None:
                            r"\(bag time \d+ ns\): the image's header declares 60000x60000 px"):  # fmt: skip
             read(ref)
     assert forged.header_size(forged.frames()[0]) == (w, h)
+
+
+def test_a_truncated_cloud_costs_its_frame_not_the_bag(sets, walk, tmp_path) -> None:
+    """A PointCloud2 whose data are cut short (a recording stopped mid-write) is left out of the survey
+    (its sweep time, the LiDAR's motion measure) and costs only its own frame, skipped with the bag,
+    topic, time and the problem named; the other frames are used."""
+    from ilcc_graph.run.observe import observe
+    from ilcc_graph.run.stages import StageOptions
+
+    def cut(msg) -> None:  # noqa: ANN001 - a sensor_msgs/PointCloud2
+        msg.data = msg.data[: len(msg.data) // 2].copy()
+
+    def timed_and_cut(msg) -> None:  # noqa: ANN001 - a per-point time field (Ouster, Hesai), then cut
+        msg.fields = [*msg.fields, type(msg.fields[0])(name="t", offset=24, datatype=6, count=1)]
+        cut(msg)
+
+    bag = _copy_bag(sets["ros1"], tmp_path / "cut.bag", {3: timed_and_cut}, topic="/lidar/points")
+    src = open_source(bag)
+    assert len(src.frames()) == 6  # the survey did not stop at the damaged cloud
+    obs = observe(src, StageOptions(jobs=1))
+    why = {f.name: f.reason or "" for f in obs.frames if not f.used}
+    assert set(why) == {"t000000.300"}, why
+    t3 = src.frames()[3].scan[1]
+    assert f"damaged file: {bag}:/lidar/points@t000000.300 (bag time {t3} ns): " in why["t000000.300"]
+    assert "data bytes do not hold 1 x" in why["t000000.300"]
+    # a LiDAR-only bag measures motion on the clouds: a cut one is no motion sample, the pauses still found
+    whole = open_source(walk["lidar"]).frames(require_image=False)
+    cuts = {k: cut for k in (4, 5)}
+    lidar = open_source(_copy_bag(walk["lidar"], tmp_path / "cut-walk.bag", cuts, topic="/lidar/points"))
+    assert [f.name for f in lidar.frames(require_image=False)] == [f.name for f in whole]
 
 
 def test_cli_calibrates_a_bag(sets, tmp_path) -> None:

@@ -273,28 +273,39 @@ class BagSource(FrameSource):
             s, where = streams[topic], f"{self.path}:{topic}"
             s.bag_ns.append(t)
             s.stamp_ns.append(int(msg.header.stamp.sec) * 10**9 + int(msg.header.stamp.nanosec))
-            s.offset_s.append(sweep_offset(msg, where) if topic in clouds else 0.0)
+            try:  # a damaged cloud: no sweep offset and no motion sample; its frame says so when read
+                s.offset_s.append(sweep_offset(msg, self._where(topic, t)) if topic in clouds else 0.0)
+            except InputError as err:
+                s.offset_s.append(0.0)
+                damaged.append(str(err))
+                continue
             last = lasts.get(topic)
             if topic not in motion or (last is not None and t - last[0] < MOTION_STEP_S * 1e9):
                 continue
-            if topic in clouds:
-                scan = decode_cloud(msg, where)
-                ring = model().ring_from_points(scan.points) if scan.ring is None else scan.ring
-                sig = range_image(scan.points, ring)
-            else:
+            if topic not in clouds:
                 check_image_format(msg, where)  # the topic's images cannot be read: said for the bag
-                try:
-                    sig = motion_image(decode_image(msg, self._where(topic, t)))
-                except InputError as err:  # one damaged message: no motion sample; its frame says so
-                    damaged.append(str(err))
-                    continue
+            try:  # one damaged message: no motion sample; its frame says so
+                sig = self._motion_signal(msg, self._where(topic, t), topic in clouds, model)
+            except InputError as err:
+                damaged.append(str(err))
+                continue
             if last is not None:
                 s.changes.append((lidar_change if topic in clouds else image_change)(last[1], sig))
             s.samples.append(len(s.bag_ns) - 1)
             lasts[topic] = (t, sig)
         if damaged:
             more = f" (and {len(damaged) - 1} more)" if len(damaged) > 1 else ""
-            log.warning("damaged image message(s), left out of the motion measure: %s%s", damaged[0], more)
+            log.warning("damaged message(s), left out of the motion measure: %s%s", damaged[0], more)
+
+    @staticmethod
+    def _motion_signal(msg: Any, where: str, cloud: bool, model: Any) -> np.ndarray:
+        """What the motion between samples is measured on: a cloud's range image (rings from
+        ``model()`` when it has none) or an image's reduced grey image; InputError when damaged."""
+        if cloud:
+            scan = decode_cloud(msg, where)
+            ring = model().ring_from_points(scan.points) if scan.ring is None else scan.ring
+            return range_image(scan.points, ring)
+        return motion_image(decode_image(msg, where))
 
     def _set_time_base(self, streams: list[Stream], what: str) -> None:
         """Header stamps, or bag times when stamps are zero or when no other stream pairs with the first

@@ -331,7 +331,7 @@ def _log_noise(sol: Solution, fixed: bool, estimated_factor: bool) -> None:
     (when estimated), the boards' plane sigmas, a final factor above 1 (when estimated)."""
     if len(sol.boards) < MIN_BOARDS_ADVISED:
         log.warning(
-            "only %d usable frame(s) in the graph; at least %d are advised for a reliable extrinsic",
+            "only %d usable frame(s) in the graph; %d or more advised",
             len(sol.boards), MIN_BOARDS_ADVISED,
         )  # fmt: skip
     if any(v != 1.0 for v in sol.scales.values()) and not fixed:
