@@ -75,13 +75,16 @@ class Scan:
     """One LiDAR scan.
 
     points: (N, 3) float64, LiDAR frame, metres.
-    intensity: (N,) float64, the sensor's reflectance units.
+    intensity: (N,) float64, the sensor's reflectance units (zeros when the file has none).
     ring: (N,) int32 ring value as the file gives it (the file's numbering: Ouster's ring 0 is the
         top beam, Velodyne CSVs carry the hardware laser id; an organised cloud's row), or None when
         the file has none. The LiDAR stage maps it onto its beam table (0 = lowest elevation) with
         ``lidars.beam_index``; the simulator writes 0 = lowest unless told otherwise.
     source: where it came from, for messages.
     columns: columns per turn of an organised cloud (PCD WIDTH when HEIGHT > 1), else None.
+    has_intensity: False when the file has no intensity field (x y z only, as Open3D's legacy
+        clouds and MATLAB's ``pcwrite`` of a cloud without Intensity write): the board is then placed
+        by its shape alone, and writers leave the field out.
     """
 
     points: np.ndarray
@@ -89,6 +92,7 @@ class Scan:
     ring: np.ndarray | None = None
     source: str = ""
     columns: int | None = None
+    has_intensity: bool = True
 
     def __len__(self) -> int:
         return int(self.points.shape[0])

@@ -133,13 +133,26 @@ def test_csv_without_header_uses_intensity_column(tmp_path: Path) -> None:
 
 
 def test_csv_header_without_intensity_name_uses_column(tmp_path: Path) -> None:
+    """The configured column when the header names none; without one the scan has no intensity
+    (its boards are then placed by their shape), as a three-column file without a header."""
     p = tmp_path / "named.csv"
     p.write_text("x,y,z,a,b\n1,2,3,40,50\n")
-    np.testing.assert_array_equal(read_scan(p, intensity_column=4).intensity, [50])
-    with pytest.raises(
-        InputError, match=r"named\.csv: no intensity field.*fields present: \['x', 'y', 'z', 'a', 'b'\]"
-    ):
-        read_scan(p)
+    s = read_scan(p, intensity_column=4)
+    np.testing.assert_array_equal(s.intensity, [50])
+    assert s.has_intensity
+    s = read_scan(p)
+    assert not s.has_intensity and s.ring is None
+    np.testing.assert_array_equal(s.intensity, [0])
+    q = tmp_path / "xyz.csv"
+    q.write_text("1 2 3\n4 5 6\n")
+    s = read_scan(q)
+    np.testing.assert_array_equal(s.points, [[1, 2, 3], [4, 5, 6]])
+    assert not s.has_intensity
+    r = tmp_path / "ring.csv"  # a ring column, no intensity
+    r.write_text("x,y,z,ring\n1,2,3,7\n4,5,6,9\n")
+    s = read_scan(r)
+    assert not s.has_intensity
+    np.testing.assert_array_equal(s.ring, [7, 9])
 
 
 def test_veloview_csv_header_names(tmp_path: Path) -> None:
@@ -256,9 +269,9 @@ def _bad_files(d: Path) -> list[tuple[Path, str]]:
         "ascii PCD",
     )
     add(
-        "noint.pcd",
-        _pcd_header(["x", "y", "z", "rgb"], [4] * 4, "FFFF", [1] * 4, 1, "ascii") + b"1 2 3 4\n",
-        "fields present: ['x', 'y', 'z', 'rgb']",
+        "nox.pcd",
+        _pcd_header(["y", "z", "rgb", "intensity"], [4] * 4, "FFFF", [1] * 4, 1, "ascii") + b"1 2 3 4\n",
+        "no 'x' field; fields present: ['y', 'z', 'rgb', 'intensity']",
     )
     add(
         "nan.pcd",
@@ -292,13 +305,14 @@ def _bad_files(d: Path) -> list[tuple[Path, str]]:
         b"property float z\nproperty float intensity\nend_header\n" + bytes(40),
         "truncated",
     )
-    add(
-        "noint.ply",
+    add(  # (x y z without intensity is a scan: its board is placed by its shape)
+        "noz.ply",
         b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
-        b"property float z\nend_header\n1 2 3\n",
-        "fields present: ['x', 'y', 'z']",
+        b"property float intensity\nend_header\n1 2 3\n",
+        "no 'z' field; fields present: ['x', 'y', 'intensity']",
     )
-    add("noint.csv", b"x,y,z,azimuth\n1,2,3,4\n", "fields present")
+    add("noy.csv", b"x,z,azimuth,intensity\n1,2,3,4\n", "fields present")
+    add("five.csv", b"1,2,3,4,5\n", "set lidar.intensity_column")
     add("text.csv", b"x,y,z,intensity\n1,2,3,four\n", "bad CSV")
     add("data.xyz", b"1 2 3\n", "no reader")
     return cases
@@ -349,6 +363,14 @@ def test_images(tmp_path: Path) -> None:
     g16 = gray.astype(np.uint16) * 257
     cv2.imwrite(str(tmp_path / "g16.png"), g16)
     np.testing.assert_array_equal(read_image(tmp_path / "g16.png")[:, :, 1], gray)
+    for bits in (10, 12):  # a machine-vision camera's 10 or 12 bits in a 16-bit PNG fill 0..255 too
+        g = np.round(gray / 255.0 * (2**bits - 1)).astype(np.uint16)
+        g[0, 0] = 2**bits - 1  # saturated somewhere
+        cv2.imwrite(str(tmp_path / f"g{bits}.png"), g)
+        got = read_image(tmp_path / f"g{bits}.png")[:, :, 1].astype(int)
+        want = gray.astype(int)
+        want[0, 0] = 255
+        assert np.abs(got - want).max() <= 1, bits
     bgra = np.dstack([bgr, np.full((20, 30), 9, np.uint8)])
     cv2.imwrite(str(tmp_path / "a.png"), bgra)
     np.testing.assert_array_equal(read_image(tmp_path / "a.png"), bgr)

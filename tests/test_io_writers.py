@@ -327,16 +327,23 @@ def test_open3d_tensor_writer(tmp_path: Path, kind: str) -> None:
     np.testing.assert_array_equal(s.ring, ring[:, 0])
 
 
-def test_open3d_legacy_cloud_without_intensity_is_refused_naming_its_fields(tmp_path: Path) -> None:
+def test_open3d_legacy_cloud_without_intensity_reads_without_it(tmp_path: Path) -> None:
+    """Open3D's legacy cloud keeps x y z (and rgb), no intensity: read as a scan without intensity
+    (its board placed by its shape); our writers then leave the field out too."""
     o3d = pytest.importorskip("open3d")
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(_rng_points(10, 8).astype(np.float64)))
+    pts = _rng_points(10, 8).astype(np.float64)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
     pc.colors = o3d.utility.Vector3dVector(np.full((10, 3), 0.5))
     path = tmp_path / "legacy.pcd"
     assert o3d.io.write_point_cloud(str(path), pc)
-    with pytest.raises(
-        InputError, match=r"legacy\.pcd: no intensity field.*fields present: \['x', 'y', 'z', 'rgb'\]"
-    ):
-        read_scan(path)
+    s = read_scan(path)
+    np.testing.assert_allclose(s.points, pts, rtol=1e-6)
+    assert not s.has_intensity
+    back = write_pcd(tmp_path / "back.pcd", s)
+    assert b"FIELDS x y z\n" in back.read_bytes()[:300]
+    again = read_scan(back)
+    assert not again.has_intensity
+    np.testing.assert_array_equal(again.points, s.points)
 
 
 @pytest.mark.parametrize("style", PCD_STYLES)

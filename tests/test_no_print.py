@@ -54,8 +54,15 @@ def _boards_trustworthy(cal: Calibration, board: Board) -> None:
         assert 2.0 * np.sqrt(np.linalg.eigvalsh(C[3:5, 3:5]).max()) < board.square_size, f.name
 
 
-def test_print_invisible_through_the_command_line(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    data = simulate_dataset(tmp_path / "data", _spec(intensity_field="invisible"))
+@pytest.mark.parametrize("field", ["invisible", "none"], ids=["print-invisible", "no-intensity-field"])
+def test_print_invisible_through_the_command_line(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, field: str
+) -> None:
+    """A print the LiDAR cannot see, and scans with no intensity field at all (x y z and ring, as
+    Open3D's legacy clouds or MATLAB's ``pcwrite`` of a cloud without Intensity write them)."""
+    data = simulate_dataset(tmp_path / "data", _spec(intensity_field=field))
+    header = next((data / "pcd").iterdir()).read_bytes()[:400]
+    assert (b"intensity" in header) == (field != "none"), header
     out = tmp_path / "out"
     with caplog.at_level(logging.WARNING, logger="ilcc_graph"):
         assert main(["calibrate", str(data), "--out", str(out), "--no-report", "--jobs", "1"]) == 0
@@ -63,6 +70,7 @@ def test_print_invisible_through_the_command_line(tmp_path: Path, caplog: pytest
         r.getMessage() for r in caplog.records if "show no print in the LiDAR intensity" in r.getMessage()
     ]
     assert len(said) == 1, said  # once for the run, not per frame
+    assert ("the scans have no intensity field" in said[0]) == (field == "none"), said
     cal = yaml.safe_load((out / "calibration.yaml").read_text())
     used = sum(f["used"] for f in cal["frames"])
     assert used >= 7

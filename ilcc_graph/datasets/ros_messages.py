@@ -13,7 +13,7 @@ import numpy as np
 
 from ilcc_graph.cameras import camera_section_from_ros
 from ilcc_graph.errors import InputError
-from ilcc_graph.io.images import encoded_image_size
+from ilcc_graph.io.images import eight_bits, encoded_image_size
 from ilcc_graph.io.scans import find_fields, make_scan
 from ilcc_graph.types import Scan
 
@@ -77,7 +77,7 @@ def _column(rec: np.ndarray, name: str) -> np.ndarray:
 
 def decode_cloud(msg: Any, where: str) -> Scan:
     """A PointCloud2 as a Scan: fields by name through ``io.scans``' aliases (x y z, intensity or
-    reflectivity, ring or laser_id); NaN and (0, 0, 0) points ("no return") dropped."""
+    reflectivity when there is one, ring or laser_id); NaN and (0, 0, 0) points ("no return") dropped."""
     rec = _records(msg, where)
     names = list(rec.dtype.names or ())
     cols = find_fields(where, names)  # type: ignore[arg-type]
@@ -86,7 +86,8 @@ def decode_cloud(msg: Any, where: str) -> Scan:
         xyz[:, k] = _column(rec, names[cols[axis]])  # type: ignore[index]
     xyz[(xyz[:, 0] == 0) & (xyz[:, 1] == 0) & (xyz[:, 2] == 0)] = np.nan
     ring = None if cols["ring"] is None else _column(rec, names[cols["ring"]])
-    return make_scan(where, xyz, _column(rec, names[cols["intensity"]]), ring)  # type: ignore[index, arg-type]
+    inten = None if cols["intensity"] is None else _column(rec, names[cols["intensity"]])
+    return make_scan(where, xyz, inten, ring)  # type: ignore[arg-type]
 
 
 def sweep_offset(msg: Any, where: str) -> float:
@@ -150,7 +151,7 @@ def decode_image(msg: Any, where: str) -> np.ndarray:
     data = np.asarray(msg.data, dtype=np.uint8)
     px = data[: h * step].reshape(h, step)[:, : w * ch * size]
     if size == 2:  # 16 bits scaled to 8 as io.read_image does
-        px = np.round(px.copy().view(">u2" if msg.is_bigendian else "<u2") / 257.0).astype(np.uint8)
+        px = eight_bits(px.copy().view(">u2" if msg.is_bigendian else "<u2"))
     px = np.array(px).reshape(h, w, ch)  # a copy: the message's buffer is read-only
     return px if conversion is None else cv2.cvtColor(px, getattr(cv2, f"COLOR_{conversion}"))
 

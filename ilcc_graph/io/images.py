@@ -177,12 +177,22 @@ def _decode(cv2, buf: np.ndarray) -> np.ndarray | None:  # noqa: ANN001 - the cv
         log.setLogLevel(level)
 
 
+def eight_bits(px: np.ndarray) -> np.ndarray:
+    """uint16 pixels as uint8 by the bits they use: the depth is the fewest bits (at least 8) that
+    hold the largest value, and its full scale maps to 255. A 16-bit image is value / 257; a 10- or
+    12-bit camera's (values to 1023 or 4095, stored in a 16-bit PNG or TIFF or a mono16 message) fills
+    0..255 too, instead of the bottom 4 or 16 levels that dividing by 257 would leave it."""
+    bits = max(8, int(px.max()).bit_length()) if px.size else 16
+    return np.round(px.astype(np.float64) * (255.0 / (2**bits - 1))).astype(np.uint8)
+
+
 def read_image(path: str | Path) -> np.ndarray:
     """Read an image as (H, W, 3) uint8 BGR.
 
     Gray images are promoted to three channels, an alpha channel is dropped, 16-bit images are
-    scaled to 8 bits (value / 257). Missing, empty or undecodable files, broken links and files
-    whose header declares more than ``MAX_PIXELS`` (checked before decoding) raise ``InputError``.
+    scaled to 8 bits by the bits they use (``eight_bits``). Missing, empty or undecodable files,
+    broken links and files whose header declares more than ``MAX_PIXELS`` (checked before decoding)
+    raise ``InputError``.
     """
     import cv2
 
@@ -198,7 +208,7 @@ def read_image(path: str | Path) -> np.ndarray:
     if img is None:
         raise InputError(f"{p}: cannot decode image (corrupt or not an image)")
     if img.dtype == np.uint16:
-        img = np.round(img.astype(np.float64) / 257.0).astype(np.uint8)
+        img = eight_bits(img)
     elif img.dtype in (np.float32, np.float64):
         img = np.clip(np.round(img * 255.0 if img.max() <= 1.0 else img), 0, 255).astype(np.uint8)
     elif img.dtype != np.uint8:

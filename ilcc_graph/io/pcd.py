@@ -151,7 +151,8 @@ def _columns(path: Path, names: list[str], rec: np.ndarray, width: int = -1, hei
     organised = height > 1 and width > 0 and width * height == rec.shape[0]
     if ring is None and organised:
         ring = np.repeat(np.arange(height, dtype=np.int64), width)
-    return make_scan(path, xyz, col("intensity"), ring, width if organised else None)
+    inten = col("intensity") if idx["intensity"] is not None else None
+    return make_scan(path, xyz, inten, ring, width if organised else None)
 
 
 @reader(".pcd")
@@ -251,7 +252,7 @@ def _style_fields(scan: Scan, style: str) -> tuple[list[tuple[str, str, np.ndarr
     of PCL's in-memory record (32 bytes, padding between) or None for packed records."""
     pts = np.asarray(scan.points, dtype=np.float64).reshape(-1, 3)
     xyz = [("x", "<f4", pts[:, 0]), ("y", "<f4", pts[:, 1]), ("z", "<f4", pts[:, 2])]
-    inten = [("intensity", "<f4", np.asarray(scan.intensity, dtype=np.float64))]
+    inten = [("intensity", "<f4", np.asarray(scan.intensity, dtype=np.float64))] if scan.has_intensity else []
     ring = [] if scan.ring is None else [("ring", "<u2", np.asarray(scan.ring))]
     if style == "open3d":  # Open3D's tensor writer: the other attributes after x y z, last added first
         return xyz + ring + inten, None

@@ -159,7 +159,7 @@ def read_ply(path: Path, intensity_column: int | None = None) -> Scan:
 
     xyz = np.stack([col("x"), col("y"), col("z")], axis=1)
     ring = col("ring") if idx["ring"] is not None else None
-    return make_scan(path, xyz, col("intensity"), ring)
+    return make_scan(path, xyz, col("intensity") if idx["intensity"] is not None else None, ring)
 
 
 def write_ply(path: str | Path, scan: Scan, rgb: np.ndarray | None = None) -> Path:
@@ -172,8 +172,7 @@ def write_ply(path: str | Path, scan: Scan, rgb: np.ndarray | None = None) -> Pa
         ("x", "<f4", "float"),
         ("y", "<f4", "float"),
         ("z", "<f4", "float"),
-        ("intensity", "<f4", "float"),
-    ]
+    ] + ([("intensity", "<f4", "float")] if scan.has_intensity else [])
     if scan.ring is not None:
         fields.append(("ring", "<u2", "ushort"))
     if rgb is not None:
@@ -184,7 +183,8 @@ def write_ply(path: str | Path, scan: Scan, rgb: np.ndarray | None = None) -> Pa
     rec = np.empty(n, dtype=[(f, t) for f, t, _ in fields])
     pts = np.asarray(scan.points, dtype=np.float64).reshape(-1, 3)
     rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
-    rec["intensity"] = scan.intensity
+    if scan.has_intensity:
+        rec["intensity"] = scan.intensity
     if scan.ring is not None:
         rec["ring"] = scan.ring
     if rgb is not None:

@@ -87,28 +87,31 @@ def read_scan(path: str | Path, intensity_column: int | None = None) -> Scan:
         raise InputError(f"{p}: cannot read as a {p.suffix} point cloud ({e})") from None
 
 
-def find_fields(path: Path, names: Sequence[str], need_intensity: bool = True) -> dict[str, int | None]:
-    """Indices of x, y, z, intensity (and ring, or None) among ``names``; InputError if missing."""
+def find_fields(path: Path, names: Sequence[str]) -> dict[str, int | None]:
+    """Indices of x, y, z, intensity and ring among ``names`` (intensity and ring None when absent);
+    InputError when x, y or z is missing."""
     low = [_UNIT.sub("", str(n).strip().strip('"').strip("'")).lower() for n in names]
     found: dict[str, int | None] = {}
     for key, aliases in FIELD_ALIASES.items():
         idx = next((low.index(a) for a in aliases if a in low), None)
         if idx is None and key in ("x", "y", "z"):
             raise InputError(f"{path}: no {key!r} field; fields present: {list(names)}")
-        if idx is None and key == "intensity" and need_intensity:
-            raise InputError(
-                f"{path}: no intensity field (looked for {list(aliases)}); fields present: {list(names)}"
-            )
         found[key] = idx
     return found
 
 
 def make_scan(
-    path: Path, xyz: np.ndarray, intensity: np.ndarray, ring: np.ndarray | None, columns: int | None = None
+    path: Path,
+    xyz: np.ndarray,
+    intensity: np.ndarray | None,
+    ring: np.ndarray | None,
+    columns: int | None = None,
 ) -> Scan:
-    """Check values, drop non-finite rows and (0, 0, 0) points; the ``Scan`` (float64 / int32 copies)."""
+    """Check values, drop non-finite rows and (0, 0, 0) points; the ``Scan`` (float64 / int32 copies).
+    intensity None: the file has no intensity field (zeros, ``Scan.has_intensity`` False)."""
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
-    inten = np.asarray(intensity, dtype=np.float64).reshape(-1)
+    has_intensity = intensity is not None
+    inten = np.asarray(intensity, dtype=np.float64).reshape(-1) if has_intensity else np.zeros(len(xyz))
     n = xyz.shape[0]
     if n == 0:
         raise InputError(f"{path}: the file holds no points")
@@ -140,6 +143,7 @@ def make_scan(
         ring=r,
         source=str(path),
         columns=columns,
+        has_intensity=has_intensity,
     )
 
 
@@ -204,37 +208,36 @@ def _csv_layout(path: Path, lines: list[str]) -> tuple[list[str] | None, list[st
 def read_csv(path: Path, intensity_column: int | None = None) -> Scan:
     """A CSV export: a header row naming the columns (ILCC's and VeloView's ``Points:0,...``,
     LidarView's ``"Points_m_XYZ:0",...``, ouster-cli's commented ``X1 (m)``, CloudCompare's
-    ``//X,Y,Z,Intensity``; intensity found by name, else at ``intensity_column``), or no header:
-    x y z first, intensity at ``intensity_column`` (a 4-column file needs none)."""
+    ``//X,Y,Z,Intensity``; intensity found by name, else at ``intensity_column``, else none), or no
+    header: x y z first, intensity at ``intensity_column`` (a 4-column file needs none; 3 columns:
+    no intensity)."""
     lines = path.read_bytes().decode("utf-8-sig", errors="replace").splitlines()
     head, body_lines, sep = _csv_layout(path, lines)
     ncols = len(head) if head is not None else len(_split(body_lines[0], sep))
     if head is not None:
-        cols = find_fields(path, head, need_intensity=intensity_column is None)
-        if cols["intensity"] is None:  # header without an intensity name: use the configured column
-            if not 3 <= int(intensity_column) < ncols:  # type: ignore[arg-type]
+        cols = find_fields(path, head)
+        if cols["intensity"] is None and intensity_column is not None:  # the configured column
+            if not 3 <= int(intensity_column) < ncols:
                 raise InputError(
                     f"{path}: intensity_column {intensity_column} is outside the {ncols} columns"
                 )
-            cols["intensity"] = int(intensity_column)  # type: ignore[arg-type]
+            cols["intensity"] = int(intensity_column)
     else:
         if intensity_column is None:
-            if ncols != 4:
+            if ncols > 4:
                 raise InputError(
                     f"{path}: CSV without a header row has {ncols} columns; set lidar.intensity_column "
                     "in config.yaml to say which holds intensity"
                 )
-            intensity_column = 3
-        if not 3 <= intensity_column < ncols:
+            intensity_column = 3 if ncols == 4 else None  # x y z alone: no intensity
+        if intensity_column is not None and not 3 <= intensity_column < ncols:
             raise InputError(
                 f"{path}: intensity_column {intensity_column} is outside the file's {ncols} columns"
             )
         cols = {"x": 0, "y": 1, "z": 2, "intensity": intensity_column, "ring": None}
     if not body_lines:
         raise InputError(f"{path}: the file holds no points")
-    want = [cols["x"], cols["y"], cols["z"], cols["intensity"]]
-    if cols["ring"] is not None:
-        want.append(cols["ring"])
+    want = [cols["x"], cols["y"], cols["z"]] + [c for c in (cols["intensity"], cols["ring"]) if c is not None]
     try:
         data = np.loadtxt(
             io.StringIO("\n".join(body_lines)), delimiter=sep, usecols=want, ndmin=2, dtype=np.float64
@@ -244,19 +247,25 @@ def read_csv(path: Path, intensity_column: int | None = None) -> Scan:
     widths = {len(ln.split(sep)) for ln in body_lines[:: max(1, len(body_lines) // 1000)]}
     if widths != {ncols}:
         raise InputError(f"{path}: rows have {sorted(widths)} values, the first row has {ncols}")
-    ring = data[:, 4] if cols["ring"] is not None else None
-    return make_scan(path, data[:, :3], data[:, 3], ring)
+    inten = data[:, 3] if cols["intensity"] is not None else None
+    ring = data[:, -1] if cols["ring"] is not None else None
+    return make_scan(path, data[:, :3], inten, ring)
 
 
 def write_csv(path: str | Path, scan: Scan, ring_name: str = "laser_id") -> Path:
     """Write ``scan`` as ILCC's / VeloView's CSV: header ``Points:0,Points:1,Points:2,intensity,laser_id``
-    (ring column named ``ring_name``; omitted when the scan has no ring), atomically."""
+    (ring column named ``ring_name``; omitted when the scan has no ring, and intensity when it has
+    none), atomically."""
     from .files import atomic_write
 
     pts = np.asarray(scan.points, dtype=np.float64).reshape(-1, 3)
-    cols = [pts[:, 0], pts[:, 1], pts[:, 2], np.asarray(scan.intensity, dtype=np.float64)]
-    names = ["Points:0", "Points:1", "Points:2", "intensity"]
-    fmt = ["%.6f", "%.6f", "%.6f", "%.6g"]
+    cols = [pts[:, 0], pts[:, 1], pts[:, 2]]
+    names = ["Points:0", "Points:1", "Points:2"]
+    fmt = ["%.6f", "%.6f", "%.6f"]
+    if scan.has_intensity:
+        cols.append(np.asarray(scan.intensity, dtype=np.float64))
+        names.append("intensity")
+        fmt.append("%.6g")
     if scan.ring is not None:
         cols.append(np.asarray(scan.ring, dtype=np.float64))
         names.append(ring_name)

@@ -41,7 +41,8 @@ __all__ = [
 
 #: why a scan's intensity cannot show the print (``BoardFit.diagnostics["intensity_unusable"]``)
 INTENSITY_UNUSABLE = {
-    1.0: "the scans have no intensity field",
+    1.0: "the scans have no intensity field, by any of the names intensity, reflectance, reflectivity, "
+    "signal, i",
     2.0: "the intensity field has no finite value",
     3.0: "the intensity field holds one value everywhere",
     4.0: "the intensity field follows the beams (the ring number or the elevation)",
@@ -53,7 +54,7 @@ def check_intensity(scan: Scan) -> float:
     ``INTENSITY_UNUSABLE`` (absent, no finite value, constant, the ring number or the elevation).
     InputError when it does not match the points (wrong length): a file that is wrong."""
     inten = scan.intensity
-    if inten is None:
+    if inten is None or not scan.has_intensity:
         return 1.0
     inten = np.asarray(inten)
     if inten.shape != (len(scan),):
@@ -125,8 +126,10 @@ def estimate_board(
     refused.
     Of the candidates that pass the board tests, the chessboard is fitted to at most
     ``options.max_fits`` and the fit that explains the intensities best is returned (choice.py).
-    Raises InputError when the scan has no usable intensity, BoardNotFound (with the reason) when
-    no segment passes the chessboard tests or no fit is good.
+    A scan whose intensity cannot show a print (``check_intensity``) is searched by the board's shape
+    and fitted by its outline. Raises InputError when the scan is malformed (points or intensity of
+    the wrong shape), BoardNotFound (with the reason) when no segment passes the chessboard tests or
+    no fit is good.
     """
     t0, c0 = time.perf_counter(), time.process_time()
     unusable = check_intensity(scan)
@@ -137,7 +140,7 @@ def estimate_board(
     valid = np.isfinite(pts).all(axis=1) & (pts != 0).any(axis=1)  # (0, 0, 0): an organised "no return"
     if not valid.all():
         ring_v = None if scan.ring is None else np.asarray(scan.ring)[valid]
-        scan = Scan(pts[valid], inten[valid], ring_v, scan.source, scan.columns)
+        scan = Scan(pts[valid], inten[valid], ring_v, scan.source, scan.columns, scan.has_intensity)
         pts, inten = scan.points, inten[valid]
     if lidar_model is None:
         lidar_model = choose_model(measure_beams(scan), None, scan.source)[0]

@@ -27,7 +27,8 @@ Measurement model (all geometric sigmas times ``spec.noise_scale``):
 
 The intensity field (``spec.intensity_field``): ``"print"`` as above; ``"invisible"``: the board's
 print reads as white everywhere (a print the LiDAR cannot see; no dark range offset, no extra
-dropout on black); ``"zero"``: every value 0; ``"ring"``: the ring value as the file writes it
+dropout on black); ``"zero"``: every value 0; ``"none"``: no intensity field (x y z only, as
+Open3D's legacy clouds write); ``"ring"``: the ring value as the file writes it
 (0 = lowest beam for ``"plain"``, the hardware laser id for ``"velodyne-csv"``, the row, 0 = top,
 for ``"ouster"``). ``spec.ring_field = False`` leaves the ring field out.
 
@@ -215,8 +216,10 @@ def simulate_scan(
     p_drop = np.where(board, sy.dropout + (sy.dropout_black - sy.dropout) * (1.0 - colour), sy.dropout)
     keep = np.isfinite(t) & (t >= MIN_RANGE_M) & (t <= MAX_RANGE_M) & (u_drop >= p_drop)
     if spec.sensor_format == "ouster":
-        return _ouster_scan(spec, frame, p, gain * level * (0.85 + 0.15 * cos_inc), ring, keep)
-    return _written_scan(spec, p, intensity, ring, keep)
+        scan = _ouster_scan(spec, frame, p, gain * level * (0.85 + 0.15 * cos_inc), ring, keep)
+    else:
+        scan = _written_scan(spec, p, intensity, ring, keep)
+    return replace(scan, has_intensity=False) if spec.intensity_field == "none" else scan
 
 
 def _ouster_scan(
@@ -257,7 +260,7 @@ def _written_scan(
 
 def _field(spec: SimulationSpec, intensity: np.ndarray, ring: np.ndarray) -> np.ndarray:
     """The intensity field as ``spec.intensity_field`` says: the intensity, zeros or the file's ring value."""
-    if spec.intensity_field == "zero":
+    if spec.intensity_field in ("zero", "none"):
         return np.zeros_like(intensity)
     if spec.intensity_field == "ring":
         return np.asarray(ring, dtype=intensity.dtype)

@@ -48,7 +48,7 @@ __all__ = [
 SENSOR_FORMATS = ("plain", "ouster", "velodyne-csv")
 #: what a scan's intensity field holds (see simulate/lidar.py): the printed pattern as the LiDAR sees
 #: it; a print the LiDAR cannot see (black reads as white); every value 0; the ring number
-INTENSITY_FIELDS = ("print", "invisible", "zero", "ring")
+INTENSITY_FIELDS = ("print", "invisible", "zero", "none", "ring")
 #: Default camera centre in the LiDAR frame (m): a camera mounted 25 cm above the LiDAR.
 DEFAULT_CAMERA_CENTRE_LIDAR = (0.05, -0.03, 0.25)
 #: Default small rotation (rotation vector, degrees) between the nominal and the true camera axes.
@@ -189,9 +189,12 @@ class SimulationSpec:
     intensity_field: what the scans' intensity holds (``INTENSITY_FIELDS``): ``"print"`` the
         printed pattern (default); ``"invisible"`` a print the LiDAR cannot see (dye inks in the
         near infrared: black print returns like white, with no dark range offset or extra
-        dropout); ``"zero"`` every intensity 0 (a simulator or driver that fills none);
+        dropout); ``"zero"`` every intensity 0 (a simulator or driver that fills none); ``"none"``
+        no intensity field at all (x y z only: Open3D's legacy clouds, MATLAB's ``pcwrite`` of a cloud
+        without Intensity, a depth camera's or a simulator's cloud);
         ``"ring"`` the ring value as the file writes it (a driver that puts the ring number in the
-        field named intensity). The print's effect on range is kept for ``"zero"`` and ``"ring"``.
+        field named intensity). The print's effect on range is kept for ``"zero"``, ``"none"`` and
+        ``"ring"``.
     ring_field: False writes scans without a ring field (an organised Ouster scan keeps its rows).
     """
 
