@@ -10,7 +10,8 @@ Our schema (see interface.md)::
             (optional: the unit's Ouster metadata JSON, Velodyne db.xml / YAML or Hesai CSV, path
             relative to the config file's folder), intensity_column (optional, CSV without header)
     camera: model (one of ``cameras.camera_kinds()``), width, height and the model's own keys
-            (``cameras/<model>.py``, docs/config.md)
+            (``cameras/<model>.py``, docs/config.md); or ``file``: the camera calibration tool's
+            own file (ROS ost.yaml, Kalibr camchain, OpenCV FileStorage; ``camera_file.py``)
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from ..board import Board
 from ..cameras import camera_from_config
 from ..checks import MISSING, Checker
 from ..lidars import MODEL_NAMES, LidarModel, lidar_model, read_calibration_file
+from .camera_file import camera_section
 from .model import Config, Roi
 
 __all__ = ["TOP_KEYS", "intensity_column", "parse_board", "parse_lidar", "parse_ours", "parse_roi"]
@@ -142,5 +144,5 @@ def parse_ours(c: Checker, d: dict, source: str, base: Path | None = None) -> Co
     board, roi = parse_board(c, c.section(d.get("board", MISSING), "board"))
     section = d.get("lidar")
     lidar, col = parse_lidar(c, {} if section is None else c.section(section, "lidar"), base)
-    camera = camera_from_config(d.get("camera", MISSING), source)
+    camera = camera_from_config(camera_section(c, d.get("camera", MISSING), base), source)
     return Config(board, lidar, camera, roi, col, source, "ilcc_graph")

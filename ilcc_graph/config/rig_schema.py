@@ -34,6 +34,7 @@ from ..cameras import camera_from_config
 from ..checks import MISSING, Checker
 from ..errors import InputError
 from ..io.files import read_yaml
+from .camera_file import camera_section
 from .ours import parse_board, parse_lidar, parse_roi
 from .rig import SELECT, RigConfig, RigData, RigSensor, pose_from_flu, rig_from_config
 
@@ -129,7 +130,8 @@ def _sensor(c: Checker, name: Any, d: Any, base: Path) -> RigSensor:
     if kinds == ["camera"]:
         if "roi" in d:
             raise c.fail(f"{key}.roi", d["roi"], "no roi on a camera (a roi limits a LiDAR's board search)")
-        camera = _under(c.source, f"{key}.", camera_from_config, d["camera"], c.source)
+        section = camera_section(_Prefixed(c.source, f"{key}."), d["camera"], base)
+        camera = _under(c.source, f"{key}.", camera_from_config, section, c.source)
         return RigSensor(name, "camera", camera=camera, folder=folder, topic=topic)
     section = d["lidar"]
     lc = _Prefixed(c.source, f"{key}.")
