@@ -127,6 +127,16 @@ def test_opencv_filestorage(tmp_path: Path, suffix: str) -> None:
     fs.release()
     cam = load_config(_config(tmp_path, {"file": q.name})).camera
     assert (cam.kind, cam.width, cam.height) == ("fisheye", 1280, 720)
+    # a cv::fisheye result saved without the flag: the section says its model in ROS's names
+    r = tmp_path / f"plain{suffix}"
+    fs = cv2.FileStorage(str(r), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 1280)
+    fs.write("image_height", 720)
+    fs.write("K", np.array(INLINE["K"], dtype=np.float64))
+    fs.write("D", np.array([0.01, -0.002, 0.0003, -0.00004]).reshape(1, 4))
+    fs.release()
+    assert load_config(_config(tmp_path, {"file": r.name})).camera.kind == "pinhole"
+    assert load_config(_config(tmp_path, {"file": r.name, "distortion_model": "equidistant"})).camera == cam
 
 
 def test_wrong_camera_files_are_refused_naming_file_and_problem(tmp_path: Path) -> None:

@@ -66,6 +66,8 @@ class CameraModel(ABC):
     config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height")
     #: ROS CameraInfo ``distortion_model`` names this model reads (bags); () for none
     ros_models: ClassVar[tuple[str, ...]] = ()
+    #: Kalibr (``camera_model``, ``distortion_model``) pairs this model reads (camchains); () for none
+    kalibr_models: ClassVar[tuple[tuple[str, str], ...]] = ()
     width: int
     height: int
     intrinsics_sigma: np.ndarray | None = field(default=None, kw_only=True)
@@ -258,6 +260,13 @@ class CameraModel(ABC):
         """Our ``dist`` from a CameraInfo's ``D`` of one of ``ros_models``."""
         return list(D)
 
+    @classmethod
+    def kalibr_section(cls, intrinsics: list[float], coeffs: list[float]) -> dict[str, Any]:
+        """Our config section's own keys (all but model, width, height) from a Kalibr camchain's
+        ``intrinsics`` and ``distortion_coeffs`` of one of ``kalibr_models`` (the inverse of
+        ``kalibr``); ValueError when their counts do not fit."""
+        raise ValueError(f"Kalibr has no model of a {cls.kind} camera")
+
     @abstractmethod
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
         """Kalibr camchain fields (``camera_model``, ``intrinsics``, ``distortion_model``,
@@ -310,6 +319,18 @@ class LensModel(CameraModel):
         J[:, 0] = K[0, 0] * J_d[:, 0] + K[0, 1] * J_d[:, 1]
         J[:, 1] = K[1, 1] * J_d[:, 1]
         return J
+
+    @staticmethod
+    def _kalibr_K(lead: int, intrinsics: list[float], coeffs: list[float], n_coeffs: tuple[int, ...]) -> list:
+        """K from Kalibr's [..., fu, fv, pu, pv] after ``lead`` parameters of the model's own;
+        ValueError unless there are ``lead`` + 4 intrinsics and n_coeffs coefficients."""
+        if len(intrinsics) != lead + 4 or len(coeffs) not in n_coeffs:
+            raise ValueError(
+                f"expected {lead + 4} intrinsics and {' or '.join(map(str, n_coeffs))} distortion_coeffs, "
+                f"got {len(intrinsics)} and {len(coeffs)}"
+            )
+        fu, fv, pu, pv = (float(v) for v in intrinsics[lead:])
+        return [[fu, 0.0, pu], [0.0, fv, pv], [0.0, 0.0, 1.0]]
 
     def _kalibr_fxfycxcy(self) -> list[float]:
         """Kalibr's [fu, fv, pu, pv]; ValueError for a K with skew (Kalibr has none)."""

@@ -47,6 +47,7 @@ class DoubleSphere(LensModel):
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
     config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "xi", "alpha", "intrinsics_sigma")
+    kalibr_models: ClassVar[tuple[tuple[str, str], ...]] = (("ds", "none"),)
     xi: float = 0.0
     alpha: float = 0.0
 
@@ -145,6 +146,11 @@ class DoubleSphere(LensModel):
         xi = c.number(d.get("xi", MISSING), "camera.xi", lo=-1.0, hi=1.0, lo_open=True)
         alpha = c.number(d.get("alpha", MISSING), "camera.alpha", lo=0.0, hi=1.0)
         return cls(width, height, K, xi, alpha)
+
+    @classmethod
+    def kalibr_section(cls, intrinsics: list[float], coeffs: list[float]) -> dict[str, Any]:
+        K = cls._kalibr_K(2, intrinsics, coeffs, (0,))
+        return {"K": K, "xi": float(intrinsics[0]), "alpha": float(intrinsics[1])}
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
         if self.alpha >= 1.0:

@@ -31,6 +31,7 @@ class Fisheye(LensModel):
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
     ros_models: ClassVar[tuple[str, ...]] = ("equidistant", "fisheye")
+    kalibr_models: ClassVar[tuple[tuple[str, str], ...]] = (("pinhole", "equidistant"),)
     config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "dist", "intrinsics_sigma")
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
     theta_max: float = field(init=False, repr=False, default=np.pi)
@@ -130,6 +131,10 @@ class Fisheye(LensModel):
     @classmethod
     def ros_dist(cls, D: list[float]) -> list[float]:
         return ([float(v) for v in D] + [0.0] * 4)[:4]
+
+    @classmethod
+    def kalibr_section(cls, intrinsics: list[float], coeffs: list[float]) -> dict[str, Any]:
+        return {"K": cls._kalibr_K(0, intrinsics, coeffs, (4,)), "dist": [float(v) for v in coeffs]}
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
         return {

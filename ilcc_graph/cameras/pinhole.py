@@ -188,6 +188,7 @@ class Pinhole(LensModel):
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
     ros_models: ClassVar[tuple[str, ...]] = ("plumb_bob", "rational_polynomial")
+    kalibr_models: ClassVar[tuple[tuple[str, str], ...]] = (("pinhole", "radtan"), ("pinhole", "none"))
     config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "dist", "intrinsics_sigma")
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))
     r_max: float = field(init=False, repr=False, default=np.inf)
@@ -261,6 +262,11 @@ class Pinhole(LensModel):
     def ros_dist(cls, D: list[float]) -> list[float]:
         D = [float(v) for v in D]
         return (D + [0.0] * 5)[: max(5, len(D))]
+
+    @classmethod
+    def kalibr_section(cls, intrinsics: list[float], coeffs: list[float]) -> dict[str, Any]:
+        K = cls._kalibr_K(0, intrinsics, coeffs, (0, 4))
+        return {"K": K, "dist": [*map(float, coeffs), 0.0] if coeffs else []}  # radtan and k3 = 0
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
         notes = []

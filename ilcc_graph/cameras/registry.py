@@ -99,6 +99,25 @@ def camera_section_from_ros(distortion_model: str, width: int, height: int, K: A
     raise ValueError(f"CameraInfo distortion_model {distortion_model!r} is not supported (we read {known})")
 
 
+def camera_section_from_kalibr(cam: dict[str, Any]) -> dict[str, Any]:
+    """Our config's camera section from one camera of a Kalibr camchain (``camera_model``,
+    ``intrinsics``, ``distortion_model``, ``distortion_coeffs``, ``resolution``): the model whose
+    ``kalibr_models`` name its pair; ValueError naming the pairs we read otherwise, or what is wrong."""
+    pair = (str(cam.get("camera_model")), str(cam.get("distortion_model", "none")))
+    for cls in _REGISTRY.values():
+        if pair in cls.kalibr_models:
+            w, h = (int(v) for v in cam.get("resolution", ()))
+            own = cls.kalibr_section(
+                list(cam.get("intrinsics") or ()), list(cam.get("distortion_coeffs") or ())
+            )
+            return {"model": cls.kind, "width": w, "height": h, **own}
+    known = sorted(f"{a} + {b}" for cls in _REGISTRY.values() for a, b in cls.kalibr_models)
+    raise ValueError(
+        f"Kalibr camera_model {pair[0]!r} with distortion_model {pair[1]!r} is not one we read "
+        f"({', '.join(known)})"
+    )
+
+
 def make_camera(d: dict[str, Any]) -> CameraModel:
     """A camera from a ``to_dict()``-style mapping; as :func:`camera_from_config` but raises ValueError."""
     try:

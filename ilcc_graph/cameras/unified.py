@@ -42,6 +42,7 @@ class Unified(LensModel):
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
     config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "xi", "dist", "intrinsics_sigma")
+    kalibr_models: ClassVar[tuple[tuple[str, str], ...]] = (("omni", "radtan"), ("omni", "none"))
     xi: float = 0.0
     dist: np.ndarray = field(default_factory=lambda: np.zeros(4))
     r_max: float = field(init=False, repr=False, default=np.inf)
@@ -129,6 +130,11 @@ class Unified(LensModel):
         K = config_K(c, d.get("K", MISSING), "camera.K")
         xi = c.number(d.get("xi", MISSING), "camera.xi", lo=0.0)
         return cls(width, height, K, xi, config_dist(c, d, (4,), []))
+
+    @classmethod
+    def kalibr_section(cls, intrinsics: list[float], coeffs: list[float]) -> dict[str, Any]:
+        K = cls._kalibr_K(1, intrinsics, coeffs, (0, 4))
+        return {"K": K, "xi": float(intrinsics[0]), "dist": [float(v) for v in coeffs] or [0.0] * 4}
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
         return {

@@ -7,14 +7,15 @@ reads, recognised by their keys:
   ``image_height``, ``camera_matrix.data``, ``distortion_model``, ``distortion_coefficients.data``;
   the model by its ``distortion_model``, as a bag's CameraInfo (``cameras.camera_section_from_ros``);
 - Kalibr's camchain (``cam0: {camera_model, intrinsics, distortion_model, distortion_coeffs,
-  resolution}``; ``name: cam1`` picks another camera): pinhole + radtan / equidistant / none, omni +
-  radtan / none (``unified``), ds (``double_sphere``); the inverse of ``CameraModel.kalibr``;
+  resolution}``; ``name: cam1`` picks another camera): the model whose ``kalibr_models`` name the
+  pair (``cameras.camera_section_from_kalibr``, the inverse of ``CameraModel.kalibr``);
 - OpenCV's ``cv::FileStorage`` YAML or XML (``camera_matrix`` or ``cameraMatrix`` or ``K``,
   ``distortion_coefficients`` or ``dist_coeffs`` or ``D``, ``image_width`` and ``image_height``
-  or ``image_size``), as OpenCV's calibration samples write it: ``pinhole``, or ``fisheye`` when the
-  file says ``fisheye_model: 1`` or the section says ``model: fisheye``.
+  or ``image_size``), as OpenCV's calibration samples write it: read as a CameraInfo of
+  ``distortion_model`` ``plumb_bob``, or ``equidistant`` when the file says ``fisheye_model: 1``.
 
-Besides ``file``, the section may hold ``name`` (Kalibr), ``model`` (an OpenCV file's model) and
+Besides ``file``, the section may hold ``name`` (Kalibr), ``distortion_model`` (an OpenCV file's
+model in ROS's names, e.g. ``equidistant`` for a ``cv::fisheye`` result without the flag) and
 ``intrinsics_sigma`` (as in an inline section). The result is our inline camera section
 (docs/config.md), checked as one.
 """
@@ -26,26 +27,16 @@ from typing import Any
 
 import numpy as np
 
-from ..cameras import camera_section_from_ros
-from ..checks import MISSING, Checker
+from ..cameras import camera_section_from_kalibr, camera_section_from_ros
+from ..checks import Checker
 from ..errors import InputError
 from ..io import read_yaml
 
 __all__ = ["FILE_KEYS", "camera_section"]
 
 #: the keys a section naming a file may hold
-FILE_KEYS = ("file", "name", "model", "intrinsics_sigma")
+FILE_KEYS = ("file", "name", "distortion_model", "intrinsics_sigma")
 
-#: Kalibr's (camera_model, distortion_model) -> our model, and how its intrinsics list reads:
-#: the leading parameters' names before [fu, fv, pu, pv]
-_KALIBR = {
-    ("pinhole", "radtan"): ("pinhole", ()),
-    ("pinhole", "none"): ("pinhole", ()),
-    ("pinhole", "equidistant"): ("fisheye", ()),
-    ("omni", "radtan"): ("unified", ("xi",)),
-    ("omni", "none"): ("unified", ("xi",)),
-    ("ds", "none"): ("double_sphere", ("xi", "alpha")),
-}
 _CV_K = ("camera_matrix", "cameraMatrix", "K", "intrinsic", "intrinsics", "M")
 _CV_D = ("distortion_coefficients", "dist_coeffs", "distCoeffs", "distortion", "D")
 _N_DIST = (0, 4, 5, 8, 12, 14)  # OpenCV's distortion vectors
@@ -66,17 +57,17 @@ def camera_section(c: Checker, d: Any, base: Path | None) -> Any:
     path = path if path.is_absolute() or base is None else base / path
     if not path.is_file():
         raise c.fail("camera.file", d["file"], f"an existing file ({path} not found)")
-    section = _read(path, d.get("name"), d.get("model"))
+    section = _read(path, d.get("name"), d.get("distortion_model"))
     if d.get("intrinsics_sigma") is not None:
         section["intrinsics_sigma"] = d["intrinsics_sigma"]
     return section
 
 
-def _read(path: Path, name: Any, model: Any) -> dict[str, Any]:
+def _read(path: Path, name: Any, distortion_model: Any) -> dict[str, Any]:
     """Our inline section from the file at ``path`` (its kind by its keys)."""
     raw = path.read_bytes()
     if raw.lstrip().startswith((b"%YAML:1.", b"<?xml", b"<opencv_storage")) or b"!!opencv-matrix" in raw:
-        return _opencv(path, model)  # OpenCV 3 writes %YAML:1.0, OpenCV 4 %YAML 1.2 with its own tags
+        return _opencv(path, distortion_model)  # OpenCV 3 writes %YAML:1.0, 4 %YAML 1.2 with its tags
     doc = read_yaml(path, "camera file")
     if not isinstance(doc, dict):
         raise InputError(f"{path}: a camera file is a mapping (ost.yaml, a Kalibr camchain or OpenCV's YAML)")
@@ -124,30 +115,13 @@ def _kalibr(path: Path, cams: dict[str, dict], name: Any) -> dict[str, Any]:
     key = next(iter(cams)) if name is None else str(name)
     if key not in cams:
         raise InputError(f"{path}: no camera {key!r} in this camchain (it has {', '.join(cams)})")
-    cam = cams[key]
-    kind = (str(cam.get("camera_model")), str(cam.get("distortion_model", "none")))
-    if kind not in _KALIBR:
-        raise InputError(
-            f"{path}: {key}: Kalibr camera_model {kind[0]!r} with distortion_model {kind[1]!r} is not one we "
-            f"read ({', '.join(f'{a} + {b}' for a, b in _KALIBR)})"
-        )
-    model, lead = _KALIBR[kind]
-    intr = _matrix(path, cam.get("intrinsics"), f"{key}.intrinsics", (len(lead) + 4,))
-    res = _matrix(path, cam.get("resolution"), f"{key}.resolution", (2,))
-    fu, fv, pu, pv = intr[len(lead) :]
-    out: dict[str, Any] = {"model": model, "width": int(res[0]), "height": int(res[1]),
-                           "K": [[fu, 0.0, pu], [0.0, fv, pv], [0.0, 0.0, 1.0]]}  # fmt: skip
-    out.update(zip(lead, intr[: len(lead)], strict=True))
-    if model != "double_sphere":
-        n = (0,) if kind[1] == "none" else (4,)
-        coeffs = _matrix(path, cam.get("distortion_coeffs", []), f"{key}.distortion_coeffs", n)
-        if model == "pinhole" and coeffs:
-            coeffs = coeffs + [0.0]  # radtan's k1, k2, p1, p2 and OpenCV's k3 = 0 (as a CameraInfo's five)
-        out["dist"] = coeffs or ([0.0] * 4 if model == "unified" else [])
-    return out
+    try:
+        return camera_section_from_kalibr(cams[key])
+    except (ValueError, TypeError) as e:
+        raise InputError(f"{path}: {key}: {e}") from None
 
 
-def _opencv(path: Path, model: Any) -> dict[str, Any]:
+def _opencv(path: Path, distortion_model: Any) -> dict[str, Any]:
     import cv2
 
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
@@ -170,13 +144,15 @@ def _opencv(path: Path, model: Any) -> dict[str, Any]:
             w, h = (float(v) for v in size.mat().ravel())
         else:
             w, h = fs.getNode("image_width").real(), fs.getNode("image_height").real()
-        flag = fs.getNode("fisheye_model")
-        is_fisheye = model == "fisheye" if isinstance(model, str) else (not flag.empty() and flag.real() != 0)
+        flag = fs.getNode("fisheye_model")  # OpenCV's calibration sample marks its cv::fisheye results
+        fisheye = not flag.empty() and flag.real() != 0
     finally:
         fs.release()
     if not (w >= 1 and h >= 1):
         raise InputError(f"{path}: no image size (looked for image_width and image_height, or image_size)")
-    if model not in (None, MISSING, "pinhole", "fisheye"):
-        raise InputError(f"{path}: an OpenCV file holds a pinhole or fisheye camera, not {model!r}")
-    return {"model": "fisheye" if is_fisheye else "pinhole", "width": int(w), "height": int(h),
-            "K": np.asarray(K).reshape(3, 3).tolist(), "dist": D[:4] if is_fisheye else D}  # fmt: skip
+    model = "equidistant" if fisheye else "plumb_bob"
+    model = model if distortion_model is None else str(distortion_model)
+    try:
+        return camera_section_from_ros(model, int(w), int(h), K, D)
+    except ValueError as e:
+        raise InputError(f"{path}: {e}") from None
