@@ -108,6 +108,8 @@ class BoardReturns:
     inplane_cov: (3, 3) covariance of the intensity fit's in-plane pose (rz, tx, ty), board frame.
     inplane_coupling: (3, 3) K: the in-plane error caused by a plane error (rx, ry, tz), so that
         the in-plane measurement is ``e_in + K e_plane`` (``lidar.covariance.ray_coupling``).
+    outline: the in-plane pose comes from the board's outline alone (the LiDAR shows no print):
+        its covariance gets a variance component of its own in the graph (``estimation.noise_loop``).
     """
 
     points: np.ndarray
@@ -116,6 +118,7 @@ class BoardReturns:
     sigma_m: float
     inplane_cov: np.ndarray
     inplane_coupling: np.ndarray
+    outline: bool = False
 
 
 @dataclass(frozen=True)

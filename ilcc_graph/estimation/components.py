@@ -27,6 +27,7 @@ from ilcc_graph.estimation import plane
 from ilcc_graph.estimation.assembly import Assembly
 from ilcc_graph.estimation.keys import I, L, O, X
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
+from ilcc_graph.estimation.noise_loop import component_floor
 
 __all__ = ["LOG_STEP", "MIN_POSTERIOR_REDUNDANCY", "component_uncertainty", "estimated_components"]
 
@@ -41,12 +42,13 @@ def estimated_components(
     redundancy: Mapping[tuple[str, str], float],
     lidar_errors: LidarErrorOptions | None,
 ) -> dict[tuple[str, str], float]:
-    """The components a solve estimated, with their redundancies: those above their floor (1; a
-    board plane's: its configured floor) with a redundancy above one half."""
+    """The components a solve estimated, with their redundancies: those above their floor
+    (``noise_loop.component_floor``; a board plane's: its configured floor) with a redundancy above
+    one half."""
     out = {}
     for key, s in comps.items():
         r = redundancy.get(key, 0.0)
-        floored = plane.at_floor(lidar_errors, key, s) if key[0] in plane.KINDS else s <= 1.0
+        floored = plane.at_floor(lidar_errors, key, s) if key[0] in plane.KINDS else s <= component_floor(key)
         if r > 0.5 and not floored:
             out[key] = r
     return out

@@ -206,9 +206,10 @@ class Solution:
 
     def components(self, group: str = "") -> tuple[float, float]:
         """(board priors, bearings) variance components of ``group`` (with the boards' returns in the
-        graph, the first is that of their in-plane priors; with a component per view, the second is
-        their median)."""
-        board = self.scales.get(("board", group), self.scales.get(("inplane", group), 1.0))
+        graph, the first is that of their in-plane priors, the intensity fit's or else the outline's;
+        with a component per view, the second is their median)."""
+        inplane = self.scales.get(("inplane", group), self.scales.get(("outline", group), 1.0))
+        board = self.scales.get(("board", group), inplane)
         views = [
             v
             for (k, g), v in self.scales.items()

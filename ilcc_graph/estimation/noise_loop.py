@@ -23,10 +23,31 @@ from ilcc_graph.estimation.solver import SolverOptions, optimize
 
 log = logging.getLogger(__name__)
 
-__all__ = ["COMPONENT_KINDS", "Fitted", "Fits", "Gated", "VIEW_MAX_RATIO"]
+__all__ = [
+    "COMPONENT_FLOORS",
+    "COMPONENT_KINDS",
+    "Fitted",
+    "Fits",
+    "Gated",
+    "VIEW_MAX_RATIO",
+    "component_floor",
+]
 
 #: kinds of residual rows with a variance component each (per noise group)
-COMPONENT_KINDS = ("board", "bearing", "points", "inplane")
+COMPONENT_KINDS = ("board", "bearing", "points", "inplane", "outline")
+#: the least each component may be (its stated noise as a bound: 1), but for the outline's in-plane
+#: priors: their covariance is the spread of a flat-topped posterior whose edges' blur and growth are
+#: stated wide on purpose (a footprint's mixed returns, ``lidar.shape``), so the residuals may say
+#: it is narrower (down to a third in sigma); estimated only with the redundancy to tell
+#: (``components.component_uncertainty`` carries the estimate's own uncertainty)
+COMPONENT_FLOORS = {"outline": 0.1}
+
+
+def component_floor(key: tuple[str, str]) -> float:
+    """The floor of the variance component ``key`` = (kind, group): 1, or the kind's own."""
+    return COMPONENT_FLOORS.get(key[0], 1.0)
+
+
 #: with a component per view, a view fails only above this multiple of its dof (recorded views: to 5.5x)
 VIEW_MAX_RATIO = 8.0
 
@@ -151,7 +172,8 @@ class Fits:
             new = dict(comps)
             for key, (c2, r) in ratios.items():
                 if key[0] in COMPONENT_KINDS:
-                    new[key] = max(1.0, comps.get(key, 1.0) * (c2 / r if r > 0.5 else 1.0))
+                    s = comps.get(key, 1.0) * (c2 / r if r > 0.5 else 1.0)
+                    new[key] = max(component_floor(key), s)
             if planes and opts is not None:  # planes are estimated only with the LiDAR's errors
                 new.update(plane.components(ratios, comps, opts, info))
             self.redundancy.update({k: r for k, (_, r) in ratios.items()})

@@ -411,5 +411,6 @@ def _returns(points, ring, cls, pf, b_raw, cov, inten, levels) -> BoardReturns: 
         else:
             dark = (cls[keep] == 0).astype(np.float64)
     return BoardReturns(
-        points[keep], np.asarray(ring)[keep], dark, float(pf.sigma), 0.5 * (cov_in + cov_in.T), K
-    )
+        points[keep], np.asarray(ring)[keep], dark, float(pf.sigma), 0.5 * (cov_in + cov_in.T), K,
+        outline=levels is None,
+    )  # fmt: skip

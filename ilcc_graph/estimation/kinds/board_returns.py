@@ -66,16 +66,24 @@ class BoardReturns(FactorKind):
                 graph.add(f.factor())
                 m = f.n_points
                 group = self.asm.problem.boards[i].group
-                terms.append(Term(self.term, group, i, f.dim, (("points", 0, m), ("inplane", m, m + 3))))
+                terms.append(
+                    Term(self.term, group, i, f.dim, (("points", 0, m), (self.inplane_kind(i), m, m + 3)))
+                )
         return graph, terms
 
+    def inplane_kind(self, i: int) -> str:
+        """The variance component of board ``i``'s in-plane prior: ``outline`` when the outline alone
+        placed it (no print), else ``inplane`` (the intensity fit's)."""
+        r = self.asm.problem.boards[i].returns
+        return "outline" if r is not None and r.outline else "inplane"
+
     def points_factor(self, i: int, scales: Scales) -> BoardPointsFactor:
-        """Board ``i``'s returns factor under the variance scales (points, in-plane, its plane's
-        offset and tilt, its beams' offsets: ``plane.KINDS``)."""
+        """Board ``i``'s returns factor under the variance scales (points, in-plane or outline, its
+        plane's offset and tilt, its beams' offsets: ``plane.KINDS``)."""
         g = self.asm.problem.boards[i].group
         plane = (scales.get(("plane_offset", g), 1.0), scales.get(("plane_tilt", g), 1.0))
         beam = scales.get(("board_beam", g), 1.0)
-        key = (scales.get(("points", g), 1.0), scales.get(("inplane", g), 1.0), *plane, beam)
+        key = (scales.get(("points", g), 1.0), scales.get((self.inplane_kind(i), g), 1.0), *plane, beam)
         last = self._scaled.get(i)
         if last is None or last[0] != key:  # the noise policy builds each scaling twice in a row
             f = self.points[i].scaled(key[0], key[1], plane, beam)
