@@ -8,6 +8,13 @@ read). ``CalibrationImpossible`` means no result can come from the data given (e
 
 from __future__ import annotations
 
+#: how the reasons of frames dropped for disagreeing with the others begin (the corner-order checks
+#: of ``init``, the graph's chi-square gate): reports and ``verify`` tell such frames apart by them
+ORDER_INCONSISTENT = "corner order inconsistent"
+ORDER_AMBIGUOUS = "corner order ambiguous"
+GATE_DROPPED = "chi-square gate"
+DISAGREEING = (ORDER_INCONSISTENT, ORDER_AMBIGUOUS, GATE_DROPPED)
+
 
 class CalibrationError(Exception):
     """Base of every error the toolkit raises on purpose."""

@@ -304,6 +304,12 @@ def report(sets: Sequence[dict], argv: Sequence[str]) -> str:
         f"**{'met' if met else 'not met'}** ({inv['rot_median']:.3f} deg, {inv['trans_median']:.2f} mm, "
         f"NEES {inv['nees_mean']:.2f}).",
         "",
+        "The outline's in-plane priors have a variance component of their own in the graph (`outline`, "
+        "floored at 0.1 where every other is floored at 1: `estimation/noise_loop.py`): the LiDAR stage "
+        "states them wider than their errors (in-plane NEES "
+        f"{inv['board_inplane_mean']:.2f} for 3 dof in the stage's table below), and the graph's residuals "
+        "say by how much. Before it, on the same seeds (2026-12-02): 0.012 deg / 0.81 mm, NEES 3.64.",
+        "",
         f"Print visible, the outline's evidence on against off, same sets ({p['n']}): the set's rotation "
         "error "
         f"smaller or equal with it in {p['rot_better']:.0%} of the sets (median difference "

@@ -9,6 +9,7 @@ from typing import cast
 import gtsam
 import numpy as np
 
+from ilcc_graph.errors import GATE_DROPPED
 from ilcc_graph.estimation.assembly import Assembly, Term
 
 from . import chi2 as chi2_dist
@@ -166,7 +167,7 @@ def gate_failures(
             if value > bound:
                 scaled = f" (divided by the frames' median chi2/dof {scale:.2f})" if scale > 1.0 else ""
                 reason = (
-                    f"chi-square gate: residual {what}{scaled} {value:.1f} > {bound:.1f} ({dof} dof, "
+                    f"{GATE_DROPPED}: residual {what}{scaled} {value:.1f} > {bound:.1f} ({dof} dof, "
                     f"p={prob}); rms bearing error {s.rms_bearing_error_mrad:.3f} mrad"
                 )
                 logp = float(chi2_dist.logsf(value, dof))

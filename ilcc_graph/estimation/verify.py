@@ -46,7 +46,7 @@ from scipy.special import chndtrinc
 
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import CameraModel
-from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.errors import ORDER_INCONSISTENT, CalibrationImpossible
 from ilcc_graph.estimation import chi2
 from ilcc_graph.estimation.keys import POSE3_DOF
 from ilcc_graph.estimation.rig_solve import RigOptions, RigSolution, solve_rig, to_reference
@@ -290,7 +290,7 @@ def verify_rig(
             if sol is None
             else [m for m in seen if m in sol.T_base_board and flips.get(m, {}).get(s) is not None]
         )
-        off = [r for _, x, r in dropped if x == s and r.startswith("corner order inconsistent")]
+        off = [r for _, x, r in dropped if x == s and r.startswith(ORDER_INCONSISTENT)]
         if seen and len(off) == len(seen):  # every board it saw is far from where the others put it
             checks[s] = _unchecked(s, "fail", f"every board it saw disagrees with the stored poses: {off[0]}")
         elif s not in solved:

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ilcc_graph.errors import ORDER_AMBIGUOUS, ORDER_INCONSISTENT
 from ilcc_graph.init.consensus import (
     Consensus,
     Frames,
@@ -208,7 +209,7 @@ def resolve_half_turns(
         why = "no two frames agree on one extrinsic under either corner order"
         if len(alive) == 2:
             why = "the two frames disagree under either corner order; cannot tell which one is wrong"
-        dropped += [(names[j], f"corner order inconsistent with the other frames: {why}") for j in alive]
+        dropped += [(names[j], f"{ORDER_INCONSISTENT} with the other frames: {why}") for j in alive]
         return OrderResult({}, dropped, {}, None, why)
     best = finals[0]
     ambiguous = _rival(best, finals, [names[j] for j in alive], options)
@@ -261,7 +262,7 @@ def _own_poses(
             alive.append(j)
         except ValueError as e:
             dropped.append(
-                (names[j], f"corner order inconsistent with the other frames: no pose from its corners ({e})")
+                (names[j], f"{ORDER_INCONSISTENT} with the other frames: no pose from its corners ({e})")
             )
     return own, own_rms, alive, dropped
 
@@ -355,12 +356,9 @@ def _decide(best: Consensus, fr: Frames, a: int) -> tuple[tuple[float, float], i
     why = None
     if not best.inliers[a]:
         why = (
-            f"corner order inconsistent with the other frames: {e_list} "
+            f"{ORDER_INCONSISTENT} with the other frames: {e_list} "
             f"under the extrinsic of {int(best.inliers.sum())} frames (gate {limit:.1f} mrad)"
         )
     elif np.isfinite(E[a, 1 - o]) and E[a, 1 - o] < fr.g[a]:
-        why = (
-            f"corner order ambiguous: both orders fit the other frames ({e_list}, "
-            f"gate {1e3 * fr.g[a]:.1f} mrad)"
-        )
+        why = f"{ORDER_AMBIGUOUS}: both orders fit the other frames ({e_list}, gate {1e3 * fr.g[a]:.1f} mrad)"
     return (float(e0), float(e1)), o, why

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ilcc_graph.board import Board
+from ilcc_graph.errors import ORDER_AMBIGUOUS, ORDER_INCONSISTENT
 from ilcc_graph.init.consensus import bearing_errors, half_turn_size, rms
 from ilcc_graph.init.correspondence import OrderOptions, resolve_half_turns
 from ilcc_graph.init.upnp import upnp
@@ -300,13 +301,13 @@ def _place(
                     f", {scale * e1:.1f} {unit} half-turned" if np.isfinite(e1) else ""
                 )
                 if ok0 and ok1:
-                    bad.append((o, f"corner order ambiguous: both orders fit the board's place ({listed}, "
+                    bad.append((o, f"{ORDER_AMBIGUOUS}: both orders fit the board's place ({listed}, "
                                    f"gate {scale * gate:.1f} {unit})"))  # fmt: skip
                 elif ok0 or ok1:
                     flips[o] = bool(ok1)
                     errs += (e1 if ok1 else e0) / max(size, 1e-12)
                 else:
-                    bad.append((o, f"corner order inconsistent with the other sensors: {listed} from where "
+                    bad.append((o, f"{ORDER_INCONSISTENT} with the other sensors: {listed} from where "
                                    f"they put the board (gate {scale * gate:.1f} {unit})"))  # fmt: skip
             score = (len(flips), -errs)
             if best is None or score > best[0]:

@@ -18,6 +18,7 @@ import math
 import textwrap
 from dataclasses import dataclass
 
+from ..errors import DISAGREEING
 from ..io.rig_results import RigCalibration
 from .summary import MIN_FRAMES, NEED_DEG_MM, WIDTH, _worst
 
@@ -39,7 +40,7 @@ USED = "used"
 NO_DATA = "no data at this moment"
 #: how the reasons of an observation that disagreed with the other sensors begin: the start's
 #: corner-order check (``init.rig_start``) and the graph's chi-square gate (``estimation.gate``)
-DISAGREE = ("corner order", "chi-square gate")
+DISAGREE = DISAGREEING
 _RANK = {"GOOD": 0, "FAIR": 1, "POOR": 2}
 
 
