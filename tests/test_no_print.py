@@ -132,3 +132,24 @@ def test_boards_partly_above_the_top_beam(tmp_path: Path) -> None:
     _boards_trustworthy(cal, board)
     rot, trans, nees = _extrinsic_error(cal.T_cam_lidar, cal.covariance, np.asarray(spec.T_cam_lidar))
     assert rot < 0.3 and trans < 10.0 and nees < CHI2_6_999, (rot, trans, nees)
+
+
+def test_simulate_writes_scans_without_intensity_or_ring(tmp_path: Path) -> None:
+    """``ilcc-graph simulate --intensity-field none --no-ring-field`` writes x y z alone, as a folder
+    and as a bag; the readers take them as scans without intensity or ring."""
+    from ilcc_graph.io import read_scan
+
+    common = ["--lidar", "vlp16", "--camera", "pinhole", "--width", "320", "--frames", "2"]
+    flags = ["--intensity-field", "none", "--no-ring-field"]
+    assert main(["simulate", str(tmp_path / "set"), *common, *flags]) == 0
+    pcd = sorted((tmp_path / "set" / "pcd").iterdir())[0]
+    assert b"FIELDS x y z\n" in pcd.read_bytes()[:300]
+    scan = read_scan(pcd)
+    assert not scan.has_intensity and scan.ring is None
+    assert main(["simulate", str(tmp_path / "run.bag"), *common, *flags, "--bag"]) == 0
+    src = open_source(tmp_path / "run.bag")
+    scan = src.read_scan(src.frames()[0], src.config())
+    assert not scan.has_intensity and scan.ring is None
+    assert main(["simulate", str(tmp_path / "ring"), *common, "--intensity-field", "ring"]) == 0
+    scan = read_scan(sorted((tmp_path / "ring" / "pcd").iterdir())[0])
+    assert scan.has_intensity and np.array_equal(scan.intensity, scan.ring)

@@ -18,6 +18,7 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
     from ilcc_graph.cameras import camera_kinds
     from ilcc_graph.io.pcd import PCD_STYLES
     from ilcc_graph.lidars.tables import MODEL_NAMES as LIDAR_NAMES
+    from ilcc_graph.simulate.spec import INTENSITY_FIELDS
 
     sp.add_argument("out", metavar="OUT")
     lidars = [m for m in LIDAR_NAMES if m != "generic"]
@@ -53,6 +54,14 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
     sp.add_argument("--intrinsics-error", type=NON_NEGATIVE, default=0.0, metavar="SCALE", help=wrong_k)
     help = "every range reads MM long (a LiDAR's zero error), on top of the per-beam and dark-print offsets"
     sp.add_argument("--range-offset-mm", type=float, default=0.0, metavar="MM", help=help)
+    help = (
+        "what the scans' intensity holds: print (default), invisible (a print the LiDAR cannot see), "
+        "zero, none (no intensity field: x y z only), ring (the ring number)"
+    )
+    sp.add_argument("--intensity-field", default="print", choices=INTENSITY_FIELDS, help=help)
+    sp.add_argument(
+        "--no-ring-field", dest="ring_field", action="store_false", help="scans without a ring field"
+    )
     g = sp.add_argument_group("as a ROS bag (docs/datasets.md)")
     help = "OUT is a new ROS bag (OUT.bag: ROS 1, else a ROS 2 folder); OUT.yaml, OUT.ground_truth.yaml by it"
     g.add_argument("--bag", action="store_true", help=help)
@@ -78,6 +87,8 @@ def run(args: argparse.Namespace) -> int:
         "intrinsics_error",
         "pcd_style",
         "range_offset_mm",
+        "intensity_field",
+        "ring_field",
     )
     spec = write_standard_set(
         args.out,
@@ -109,6 +120,8 @@ def _bag(args: argparse.Namespace) -> int:
         "noise_scale",
         "intrinsics_error",
         "range_offset_mm",
+        "intensity_field",
+        "ring_field",
     )
     spec = standard_set_spec(**{k: getattr(args, k) for k in names})
     kw = {"storage": args.storage, "image_format": args.bag_images, "flag": "simulate"}

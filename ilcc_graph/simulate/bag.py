@@ -130,6 +130,8 @@ class RosMessages:
             layout = layout[:4]
         else:
             rec["ring"] = scan.ring
+        if not scan.has_intensity:  # x y z (and ring) only
+            layout = tuple(f for f in layout if f[0] != "intensity")
         fields = [self.make(pf, name=c, offset=o, datatype=d, count=1) for c, o, d in layout]
         return self.make("sensor_msgs/msg/PointCloud2", header=self.header(t_ns, "lidar"), height=1, width=n,
                          fields=fields, is_bigendian=False, point_step=32, row_step=32 * n,
