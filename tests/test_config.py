@@ -268,3 +268,27 @@ def test_ilcc_config_errors(tmp_path: Path, old: str, new: str, words: list) -> 
     assert str(p) in msg
     for w in words:
         assert w in msg, msg
+
+
+@pytest.mark.parametrize(
+    "written, name",
+    [("VLP-16", "vlp16"), ("Velodyne VLP-16", "vlp16"), ("velodyne_puck", "vlp16"), ("HDL-32E", "hdl32"),
+     ("hdl64e", "hdl64"), ("VLP-32C", "vlp32c"), ("Ouster OS1-64", "os1-64"), ("os1_64_gen2", "os1-64-gen2"),
+     ("Hesai Pandar XT-32", "pandar-xt32"), ("Pandar40P", "pandar40p"), ("Livox Mid-70", "livox-mid70")],
+)  # fmt: skip
+def test_lidar_model_as_users_and_data_sheets_write_it(written: str, name: str) -> None:
+    d = {"board": {"squares": [6, 8], "square_size": 0.1}, "lidar": {"model": written},
+         "camera": {"model": "equirectangular", "width": 2000, "height": 1000}}  # fmt: skip
+    assert parse_config(d).lidar.name == name
+
+
+def test_lidar_model_of_several_revisions_takes_the_newest_and_says_so(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    d = {"board": {"squares": [6, 8], "square_size": 0.1}, "lidar": {"model": "OS1-128"},
+         "camera": {"model": "equirectangular", "width": 2000, "height": 1000}}  # fmt: skip
+    assert parse_config(d, "c.yaml").lidar.name == "os1-128-rev6"
+    assert "c.yaml: lidar.model 'OS1-128' read as os1-128-rev6 (also os1-128-gen2)" in caplog.text
+    d["lidar"]["model"] = "VLP-17"
+    with pytest.raises(InputError, match=r"c\.yaml: lidar\.model = 'VLP-17': expected one of \['hdl32'"):
+        parse_config(d, "c.yaml")

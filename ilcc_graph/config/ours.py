@@ -16,15 +16,18 @@ Our schema (see interface.md)::
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Any
 
 from ..board import Board
 from ..cameras import camera_from_config
 from ..checks import MISSING, Checker
-from ..lidars import MODEL_NAMES, LidarModel, lidar_model, read_calibration_file
+from ..lidars import MODEL_NAMES, LidarModel, lidar_model, model_name, read_calibration_file
 from .camera_file import camera_section
 from .model import Config, Roi
+
+log = logging.getLogger(__name__)
 
 __all__ = ["TOP_KEYS", "intensity_column", "parse_board", "parse_lidar", "parse_ours", "parse_roi"]
 
@@ -76,10 +79,24 @@ def parse_roi(c: Checker, v: Any, key: str) -> Roi | None:
     return None if roi.is_empty() else roi
 
 
+def _model_name(c: Checker, written: Any) -> str:
+    """Our table's name for ``lidar.model`` as the user wrote it (``lidars.model_name``: ``VLP-16``,
+    ``Velodyne HDL-32E``, ``OS1-128``); one warning when it picks one revision of several."""
+    name, others = model_name(written) if isinstance(written, str) else (None, ())
+    if name is None:
+        why = "case, spaces, '-', '_' and the vendor's name do not matter"
+        raise c.fail("lidar.model", written, f"one of {list(MODEL_NAMES)} ({why})")
+    if others:
+        log.warning(
+            "%s: lidar.model %r read as %s (also %s); the scans' own beam table is measured and used where "
+            "it differs", c.source, written, name, ", ".join(others),
+        )  # fmt: skip
+    return name
+
+
 def parse_lidar(c: Checker, d: dict, base: Path | None = None) -> tuple[LidarModel | None, int | None]:
     c.unknown(d, _LIDAR_KEYS, "lidar")
-    raw_name = d.get("model")
-    name = None if raw_name is None else c.choice(raw_name, "lidar.model", MODEL_NAMES)
+    name = None if d.get("model") is None else _model_name(c, d["model"])
     angles = d.get("vertical_angles_deg")
     res = d.get("horizontal_resolution_deg")
     if name == "generic":

@@ -24,11 +24,12 @@ from .tables import (
     NON_REPETITIVE,
     LidarModel,
     lidar_model,
+    model_name,
     ring_from_points,
 )
 
 __all__ = [
-    "LidarModel", "lidar_model", "ring_from_points", "MODEL_NAMES", "ILCC_ALIASES",
+    "LidarModel", "lidar_model", "ring_from_points", "MODEL_NAMES", "ILCC_ALIASES", "model_name",
     "LASER_ID_ELEVATIONS_DEG", "MeasuredBeams", "measure_beams", "beam_index", "table_difference",
     "choose_model", "scanline_free", "NON_REPETITIVE", "read_calibration_file", "read_calibration_table",
     "CalibrationTable",

@@ -56,6 +56,7 @@ Rule used for ``range_sigma_m``: the data sheet's accuracy figure is taken as on
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,7 +65,7 @@ from ..errors import InputError
 
 __all__ = [
     "LidarModel", "lidar_model", "ring_from_points", "MODEL_NAMES", "ILCC_ALIASES", "LASER_ID_ELEVATIONS_DEG",
-    "NON_REPETITIVE", "PATTERNS",
+    "NON_REPETITIVE", "PATTERNS", "model_name",
 ]  # fmt: skip
 
 #: scan patterns a LidarModel may have
@@ -312,6 +313,37 @@ LASER_ID_ELEVATIONS_DEG: dict[str, np.ndarray] = {
 MODEL_NAMES: tuple[str, ...] = (*_TABLES, "generic")
 #: ILCC's ``LiDAR_type`` values -> our names.
 ILCC_ALIASES: dict[str, str] = {"hdl32": "hdl32", "hdl64": "hdl64", "vlp16_puck": "vlp16", "vlp16": "vlp16"}
+#: vendors' names a user may write before the model (ignored), and product names of our tables
+_VENDORS = ("velodyne", "ouster", "hesai", "livox")
+_PRODUCTS = {
+    "hdl32e": "hdl32", "hdl64e": "hdl64", "puck": "vlp16", "ultrapuck": "vlp32c", "vlp32": "vlp32c",
+    "xt32": "pandar-xt32", "pandarxt": "pandar-xt32", "mid40": "livox-mid40", "mid70": "livox-mid70",
+}  # fmt: skip
+
+
+def _key(name: str) -> str:
+    """A model name as letters and digits only, lower case, without a vendor's name in front."""
+    k = re.sub(r"[^a-z0-9]", "", str(name).lower())
+    for v in _VENDORS:
+        if k.startswith(v) and len(k) > len(v):
+            return k[len(v) :]
+    return k
+
+
+def model_name(written: str) -> tuple[str | None, tuple[str, ...]]:
+    """Our table's name for a LiDAR model as a user or a data sheet writes it: case, spaces, ``-``,
+    ``_`` and a vendor's name do not matter (``Velodyne VLP-16``, ``HDL-32E``, ``OS1_64``). Returns
+    (name, others): ``others`` the other revisions when the name fits a family of several (``OS1-128``:
+    gen2 and rev6; the newest is taken), or (None, ()) when nothing fits."""
+    k = _key(written)
+    k = _key(_PRODUCTS.get(k, k))
+    exact = [m for m in MODEL_NAMES if _key(m) == k]
+    if exact:
+        return exact[0], ()
+    family = [
+        m for m in MODEL_NAMES if _key(m).startswith(k) and re.fullmatch(r"(gen|rev)\d+", _key(m)[len(k) :])
+    ]
+    return (family[-1], tuple(family[:-1])) if family else (None, ())
 
 
 def lidar_model(
