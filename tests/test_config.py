@@ -292,3 +292,27 @@ def test_lidar_model_of_several_revisions_takes_the_newest_and_says_so(
     d["lidar"]["model"] = "VLP-17"
     with pytest.raises(InputError, match=r"c\.yaml: lidar\.model = 'VLP-17': expected one of \['hdl32'"):
         parse_config(d, "c.yaml")
+
+
+@pytest.mark.parametrize(
+    "written, kind",
+    [("Pinhole", "pinhole"), ("OpenCV", "pinhole"), ("plumb_bob", "pinhole"), ("radtan", "pinhole"),
+     ("kannala-brandt", "fisheye"), ("equidistant", "fisheye"), ("Double Sphere", "double_sphere"),
+     ("ds", "double_sphere"), ("omni", "unified"), ("Mei", "unified")],
+)  # fmt: skip
+def test_camera_model_by_the_names_tools_give_it(written: str, kind: str) -> None:
+    cam = {"model": written, "width": 640, "height": 480, "K": [[300, 0, 320], [0, 300, 240], [0, 0, 1]]}
+    cam |= {"pinhole": {}, "fisheye": {"dist": [0, 0, 0, 0]}, "double_sphere": {"xi": -0.2, "alpha": 0.6},
+            "unified": {"xi": 0.9}}[kind]  # fmt: skip
+    d = {"board": {"squares": [6, 8], "square_size": 0.1}, "camera": cam}
+    assert parse_config(d).camera.kind == kind
+
+
+def test_panorama_by_its_common_names_and_an_unknown_name_refused() -> None:
+    d = {"board": {"squares": [6, 8], "square_size": 0.1}, "camera": {"width": 2000, "height": 1000}}
+    for written in ("Panorama", "spherical", "equirect", "360"):
+        d["camera"]["model"] = written
+        assert parse_config(d).camera.kind == "equirectangular"
+    d["camera"]["model"] = "cylindrical"
+    with pytest.raises(InputError, match=r"camera\.model = 'cylindrical': expected one of .*\(panorama, "):
+        parse_config(d, "c.yaml")

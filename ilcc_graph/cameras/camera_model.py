@@ -64,6 +64,8 @@ class CameraModel(ABC):
     periodic_u: ClassVar[bool] = False
     #: Keys of this kind's ``camera:`` config section.
     config_keys: ClassVar[tuple[str, ...]] = ("model", "width", "height")
+    #: other names users and tools give this model (``camera.model``; case, ``-``, ``_``, spaces ignored)
+    aliases: ClassVar[tuple[str, ...]] = ()
     #: ROS CameraInfo ``distortion_model`` names this model reads (bags); () for none
     ros_models: ClassVar[tuple[str, ...]] = ()
     #: Kalibr (``camera_model``, ``distortion_model``) pairs this model reads (camchains); () for none

@@ -48,6 +48,7 @@ class DoubleSphere(LensModel):
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
     config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "xi", "alpha", "intrinsics_sigma")
     kalibr_models: ClassVar[tuple[tuple[str, str], ...]] = (("ds", "none"),)
+    aliases: ClassVar[tuple[str, ...]] = ("ds",)
     xi: float = 0.0
     alpha: float = 0.0
 

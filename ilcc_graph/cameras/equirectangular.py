@@ -33,6 +33,7 @@ class Equirectangular(CameraModel):
 
     R_flu_cam: ClassVar[np.ndarray] = np.eye(3)
     periodic_u: ClassVar[bool] = True
+    aliases: ClassVar[tuple[str, ...]] = ("panorama", "panoramic", "spherical", "equirect", "360")
 
     def __post_init__(self) -> None:
         w, h = check_size(self.width, self.height)

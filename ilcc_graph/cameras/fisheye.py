@@ -31,6 +31,7 @@ class Fisheye(LensModel):
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
     ros_models: ClassVar[tuple[str, ...]] = ("equidistant", "fisheye")
+    aliases: ClassVar[tuple[str, ...]] = ("kannala_brandt", "kb4", "equidistant", "opencv_fisheye")
     kalibr_models: ClassVar[tuple[tuple[str, str], ...]] = (("pinhole", "equidistant"),)
     config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "dist", "intrinsics_sigma")
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))

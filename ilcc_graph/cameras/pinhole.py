@@ -188,6 +188,9 @@ class Pinhole(LensModel):
 
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
     ros_models: ClassVar[tuple[str, ...]] = ("plumb_bob", "rational_polynomial")
+    aliases: ClassVar[tuple[str, ...]] = (
+        "perspective", "opencv", "plumb_bob", "rational_polynomial", "radtan", "brown", "brown_conrady",
+    )  # fmt: skip
     kalibr_models: ClassVar[tuple[tuple[str, str], ...]] = (("pinhole", "radtan"), ("pinhole", "none"))
     config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "dist", "intrinsics_sigma")
     dist: np.ndarray = field(default_factory=lambda: np.zeros(0))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import replace
 from typing import Any, TypeVar
@@ -58,6 +59,22 @@ def camera_class(kind: str) -> type[CameraModel]:
     return cls
 
 
+def _plain(name: str) -> str:
+    return re.sub(r"[^a-z0-9]", "", name.lower())
+
+
+def _named(written: Any) -> type[CameraModel] | None:
+    """The model a ``camera.model`` value names: its kind or one of its ``aliases`` (case, ``-``,
+    ``_`` and spaces do not matter: ``Pinhole``, ``kannala-brandt``, ``Double Sphere``); None if none."""
+    if not isinstance(written, str):
+        return None
+    key = _plain(written)
+    for cls in _REGISTRY.values():
+        if key in {_plain(n) for n in (cls.kind, *cls.aliases)}:
+            return cls
+    return None
+
+
 def camera_from_config(d: Any, source: str = "<config>") -> CameraModel:
     """A camera from our config's ``camera:`` section ``d``.
 
@@ -66,7 +83,12 @@ def camera_from_config(d: Any, source: str = "<config>") -> CameraModel:
     """
     c = Checker(source)
     d = c.section(d, "camera")
-    cls = _REGISTRY[c.choice(d.get("model", MISSING), "camera.model", camera_kinds())]
+    cls = _named(d.get("model", MISSING))
+    if cls is None:
+        names = ", ".join(f"{k} ({', '.join(m.aliases)})" if m.aliases else k for k, m in _REGISTRY.items())
+        raise c.fail(
+            "camera.model", d.get("model", MISSING), f"one of {list(_REGISTRY)}, or a name of one: {names}"
+        )
     c.unknown(d, {*cls.config_keys, "intrinsics_sigma"}, "camera")
     w = c.number(d.get("width", MISSING), "camera.width", lo=1, hi=100000, integer=True)
     h = c.number(d.get("height", MISSING), "camera.height", lo=1, hi=100000, integer=True)

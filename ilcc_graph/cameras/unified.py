@@ -43,6 +43,7 @@ class Unified(LensModel):
     R_flu_cam: ClassVar[np.ndarray] = R_FLU_OPENCV
     config_keys: ClassVar[tuple[str, ...]] = (*LensModel.config_keys, "xi", "dist", "intrinsics_sigma")
     kalibr_models: ClassVar[tuple[tuple[str, str], ...]] = (("omni", "radtan"), ("omni", "none"))
+    aliases: ClassVar[tuple[str, ...]] = ("omni", "mei", "ucm", "unified_camera_model")
     xi: float = 0.0
     dist: np.ndarray = field(default_factory=lambda: np.zeros(4))
     r_max: float = field(init=False, repr=False, default=np.inf)
