@@ -146,8 +146,10 @@ def test_wrong_camera_files_are_refused_naming_file_and_problem(tmp_path: Path) 
         "short": ({"file": "short.yaml"}, r"short\.yaml: camera_matrix = .*: expected 9 finite numbers"),
         "eucm": ({"file": "eucm.yaml"}, r"eucm\.yaml: cam0: Kalibr camera_model 'eucm'"),
         "key": ({"file": "short.yaml", "dist": [0, 0, 0, 0]}, r"camera\.dist = .*: expected no such key"),
+        "cut": ({"file": "cut.yml"}, r"cut\.yml: OpenCV cannot read this FileStorage file"),
     }
     (tmp_path / "other.yaml").write_text("board: 1\n")
+    (tmp_path / "cut.yml").write_text("%YAML:1.0\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: [")
     (tmp_path / "short.yaml").write_text(OST.replace("0.     ,    0.     ,    1.     ]", "1.]"))
     (tmp_path / "eucm.yaml").write_text(yaml.safe_dump({"cam0": {
         "camera_model": "eucm", "intrinsics": [0.6, 1.1, 300, 300, 320, 240], "distortion_model": "none",

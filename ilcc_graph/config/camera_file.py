@@ -124,6 +124,15 @@ def _kalibr(path: Path, cams: dict[str, dict], name: Any) -> dict[str, Any]:
 def _opencv(path: Path, distortion_model: Any) -> dict[str, Any]:
     import cv2
 
+    try:
+        return _opencv_read(cv2, path, distortion_model)
+    except (cv2.error, SystemError) as e:  # OpenCV's parser on a damaged file (SystemError wraps it)
+        raise InputError(
+            f"{path}: OpenCV cannot read this FileStorage file ({' '.join(str(e).split())})"
+        ) from None
+
+
+def _opencv_read(cv2: Any, path: Path, distortion_model: Any) -> dict[str, Any]:
     fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
     try:
         if not fs.isOpened():
