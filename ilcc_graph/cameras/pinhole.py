@@ -269,7 +269,7 @@ class Pinhole(LensModel):
     @classmethod
     def kalibr_section(cls, intrinsics: list[float], coeffs: list[float]) -> dict[str, Any]:
         K = cls._kalibr_K(0, intrinsics, coeffs, (0, 4))
-        return {"K": K, "dist": [*map(float, coeffs), 0.0] if coeffs else []}  # radtan and k3 = 0
+        return {"K": K, "dist": cls.ros_dist(coeffs) if coeffs else []}  # radtan: k1, k2, p1, p2 and k3 = 0
 
     def kalibr(self) -> tuple[dict[str, Any], list[str]]:
         notes = []

@@ -270,11 +270,11 @@ class BagSource(FrameSource):
         lasts: dict[str, tuple[int, Any]] = {}
         damaged: list[str] = []
         for topic, t, msg in self._messages(list(streams)):
-            s, where = streams[topic], f"{self.path}:{topic}"
+            s, where, at = streams[topic], f"{self.path}:{topic}", self._where(topic, t)
             s.bag_ns.append(t)
             s.stamp_ns.append(int(msg.header.stamp.sec) * 10**9 + int(msg.header.stamp.nanosec))
             try:  # a damaged cloud: no sweep offset and no motion sample; its frame says so when read
-                s.offset_s.append(sweep_offset(msg, self._where(topic, t)) if topic in clouds else 0.0)
+                s.offset_s.append(sweep_offset(msg, at) if topic in clouds else 0.0)
             except InputError as err:
                 s.offset_s.append(0.0)
                 damaged.append(str(err))
@@ -285,7 +285,7 @@ class BagSource(FrameSource):
             if topic not in clouds:
                 check_image_format(msg, where)  # the topic's images cannot be read: said for the bag
             try:  # one damaged message: no motion sample; its frame says so
-                sig = self._motion_signal(msg, self._where(topic, t), topic in clouds, model)
+                sig = self._motion_signal(msg, at, topic in clouds, model)
             except InputError as err:
                 damaged.append(str(err))
                 continue
