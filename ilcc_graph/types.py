@@ -110,6 +110,9 @@ class BoardReturns:
         the in-plane measurement is ``e_in + K e_plane`` (``lidar.covariance.ray_coupling``).
     outline: the in-plane pose comes from the board's outline alone (the LiDAR shows no print):
         its covariance gets a variance component of its own in the graph (``estimation.noise_loop``).
+    corrected: the pose was fitted on the ranges corrected by an estimate of the LiDAR's errors
+        (``run.range_refit``; ``points`` are the measured returns all the same): it rests on that
+        estimate, so only a sensor model with range terms may use it (``estimation.selection``).
     """
 
     points: np.ndarray
@@ -119,6 +122,7 @@ class BoardReturns:
     inplane_cov: np.ndarray
     inplane_coupling: np.ndarray
     outline: bool = False
+    corrected: bool = False
 
 
 @dataclass(frozen=True)
@@ -305,6 +309,35 @@ class ExpectedBoard:
         if not (self.position_tol_m > 0 and 0 < self.angle_tol_deg <= 180):
             raise ValueError("position_tol_m must be > 0 and angle_tol_deg in (0, 180]")
         object.__setattr__(self, "T_lidar_board", T)
+
+
+@dataclass(frozen=True)
+class RangeCorrection:
+    """What a LiDAR's ranges read too long, as the graph estimated it (``estimation.lidar_errors``):
+    a return of beam ``b`` at range ``rho`` reads ``offset_m + beam_offsets_m[b] + scale * rho``
+    metres too long (beams not listed: no beam term). The dark print's offset is left out: the LiDAR
+    stage fits the plane to the white print and finds the black's offset itself.
+    """
+
+    offset_m: float = 0.0
+    beam_offsets_m: tuple[tuple[int, float], ...] = ()
+    scale: float = 0.0
+
+    def along_ray(self, ring: np.ndarray, rho: np.ndarray) -> np.ndarray:
+        """(N,) metres each return (beam ``ring``, range ``rho``) reads too long."""
+        r = np.asarray(ring).ravel()
+        per_beam = np.zeros(len(r), dtype=np.float64)
+        for b, v in self.beam_offsets_m:
+            per_beam[r == b] = v
+        return self.offset_m + per_beam + self.scale * np.asarray(rho, dtype=np.float64)
+
+    def corrected(self, points: np.ndarray, ring: np.ndarray, sign: float = 1.0) -> np.ndarray:
+        """(N, 3) ``points`` (LiDAR frame, metres) moved along their rays by the correction
+        (``sign`` -1: the correction undone, the measured returns again)."""
+        P = np.asarray(points, dtype=np.float64)
+        rho = np.linalg.norm(P, axis=1)
+        c = self.along_ray(ring, rho)
+        return P * (1.0 - sign * c / np.maximum(rho, 1e-9))[:, None]
 
 
 def to_plain(x: Any) -> Any:

@@ -41,10 +41,11 @@ from ilcc_graph.estimation.held_out import HeldOut, held_out
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.noise import solve_problem
 from ilcc_graph.estimation.problem import frames_problem
-from ilcc_graph.estimation.selection import AUTO, MODELS, choose, mixture
+from ilcc_graph.estimation.selection import AUTO, MODELS, candidates, choose, mixture
 from ilcc_graph.image import detect_corners
-from ilcc_graph.lidar import estimate_board
+from ilcc_graph.lidar import LidarOptions, estimate_board
 from ilcc_graph.run.prepare import prepare
+from ilcc_graph.run.range_refit import correction_of, refit_frames, significant
 from ilcc_graph.simulate import (
     ImageRenderer,
     SceneOptions,
@@ -56,7 +57,7 @@ from ilcc_graph.simulate import (
     standard_spec,
 )
 from ilcc_graph.simulate.intrinsics_error import IntrinsicsError, stated_camera
-from ilcc_graph.types import FrameResult
+from ilcc_graph.types import ExpectedBoard, FrameResult
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "bench_sensor_model.md"
@@ -157,6 +158,8 @@ def cached_set(rig: str, seed: int, cache: Path | None) -> ObservedSet:
 
 #: the board subsets solved: all frames, and every 4th (5 of 20, spread over the directions)
 SUBSETS = {"all": 1, "few": 4}
+#: the key suffix of the solves after the boards were fitted again on corrected ranges
+REFIT = "/refit"
 #: every model solved per LiDAR and subset; the choice among any of them is made from these solves
 SOLVED = ("none", "offset", "range", "beams")
 
@@ -172,6 +175,7 @@ class ModelSolve:
     held_out: dict[str, HeldOut] = field(default_factory=dict)
     seconds: float = 0.0
     failure: str | None = None
+    lidar: dict[str, list] | None = None  # the LiDAR's errors: names, values (m)
 
 
 @dataclass
@@ -205,32 +209,78 @@ def corner_rms_mm(T_est: np.ndarray, T_true: np.ndarray, board) -> float:  # noq
     )
 
 
+def _solve_all(frames: list[FrameResult], config: Config) -> dict[str, ModelSolve]:
+    """Every model of ``SOLVED`` on the frames: its solve and held-out scores."""
+    try:
+        prep = prepare(frames, config)
+    except CalibrationImpossible as err:
+        return {m: ModelSolve(failure=str(err)) for m in SOLVED}
+    base = frames_problem(prep.frames, config.camera, prep.T_init)
+    names = [b.name for b in base.boards]
+    out = {}
+    for m in SOLVED:
+        t0 = time.perf_counter()
+        try:
+            sol = solve_problem(MODELS[m].problem(base))
+            est = sol.extrinsic()
+            ho = {names[k]: h for k, h in held_out(sol).items()}
+        except (CalibrationImpossible, IndeterminateSystem, np.linalg.LinAlgError) as err:
+            out[m] = ModelSolve(failure=str(err))
+            continue
+        boards = {names[i]: sol.board_pose(i) for i in sol.boards}
+        lid = sol.lidar(0)
+        le = None if lid is None else {"names": list(lid[0]), "values": [float(v) for v in lid[1]]}
+        out[m] = ModelSolve(est.T, est.covariance, boards, ho, time.perf_counter() - t0, lidar=le)
+    return out
+
+
+def _refit(
+    obs: ObservedSet, lidar: str, frames: list[FrameResult], solves: dict[str, ModelSolve]
+) -> list[FrameResult] | None:
+    """The frames with their boards fitted again as ``run.range_refit`` does it (the scans simulated
+    again, corrected by the default's chosen model's estimate of the LiDAR's range errors), or None
+    when that correction is not significant."""
+    ok = {n: solves[n] for n in AUTO if solves[n].failure is None}
+    if not ok:
+        return None
+    sel = choose({n: s.held_out for n, s in ok.items()}, {n: len(s.boards) for n, s in ok.items()}, AUTO)
+    le = ok[sel.chosen].lidar
+    correction = None if le is None else correction_of({"lidar_errors": le})
+    if not significant(frames, correction, obs.config.board):
+        return None
+    spec = rig_spec(obs.rig, obs.seed).with_(systematics=LIDARS[lidar])
+    biases = beam_biases(spec)
+    index = {name: i for i, name in enumerate(obs.T_lidar_board)}
+    fits: dict[str, object] = {}
+    for f in frames:
+        if f.board is None:
+            continue
+        i = index[f.name]
+        scan = simulate_scan(spec, frame_scene(spec, obs.T_lidar_board[f.name], i), i, biases)
+        try:
+            expected = ExpectedBoard(f.board.T_lidar_board)
+            fits[f.name] = estimate_board(
+                scan, spec.board, spec.lidar_model, None, LidarOptions(), expected, correction
+            )
+        except FrameError as err:
+            fits[f.name] = err
+    return refit_frames(frames, fits)
+
+
 def solve_models(obs: ObservedSet) -> dict[tuple[str, str, str], ModelSolve]:
-    """Per (LiDAR, subset, model of ``SOLVED``) its solve and held-out scores."""
+    """Per (LiDAR, subset, model of ``SOLVED``) its solve and held-out scores; and per
+    (LiDAR, subset + ``REFIT``, model) the same after the boards were fitted again on the ranges
+    corrected by the default's estimate (``run.range_refit``), where that correction is significant."""
     logging.getLogger("ilcc_graph").setLevel(logging.ERROR)
     out: dict[tuple[str, str, str], ModelSolve] = {}
     for lidar, frames in obs.frames.items():
         for subset, stride in SUBSETS.items():
-            try:
-                prep = prepare(frames[::stride], obs.config)
-            except CalibrationImpossible as err:
-                out.update({(lidar, subset, m): ModelSolve(failure=str(err)) for m in SOLVED})
-                continue
-            base = frames_problem(prep.frames, obs.config.camera, prep.T_init)
-            names = [b.name for b in base.boards]
-            for m in SOLVED:
-                t0 = time.perf_counter()
-                try:
-                    sol = solve_problem(MODELS[m].problem(base))
-                    est = sol.extrinsic()
-                    ho = {names[k]: h for k, h in held_out(sol).items()}
-                except (CalibrationImpossible, IndeterminateSystem, np.linalg.LinAlgError) as err:
-                    out[(lidar, subset, m)] = ModelSolve(failure=str(err))
-                    continue
-                boards = {names[i]: sol.board_pose(i) for i in sol.boards}
-                out[(lidar, subset, m)] = ModelSolve(
-                    est.T, est.covariance, boards, ho, time.perf_counter() - t0
-                )
+            part = frames[::stride]
+            first = _solve_all(part, obs.config)
+            out.update({(lidar, subset, m): s for m, s in first.items()})
+            again = _refit(obs, lidar, part, first)
+            if again is not None:
+                out.update({(lidar, subset + REFIT, m): s for m, s in _solve_all(again, obs.config).items()})
     return out
 
 
@@ -315,8 +365,13 @@ def solve_camera(obs: ObservedSet) -> dict[tuple[str, str], Solved]:
 # ----------------------------------------------------------------------------------------------
 # Tables
 
-#: the default and the variants the tables show: name -> the models chosen among
-SHOWN = {"default (auto)": AUTO, **{f"{m} forced": (m,) for m in SOLVED}}
+#: the default and the variants the tables show: name -> the models chosen among, and whether the
+#: boards fitted again on corrected ranges are used where the default fitted them again
+SHOWN: dict[str, tuple[tuple[str, ...], bool]] = {
+    "default (auto)": (AUTO, True),
+    "default, first fits only": (AUTO, False),
+    **{f"{m} forced (first fits)": ((m,), False) for m in SOLVED},
+}
 CORNER_TARGET = {"hdl32": 0.5, "vlp16": 0.75}
 CHI2_6_95 = 12.59
 
@@ -336,13 +391,19 @@ def _row(name: str, rs: list[Solved], fails: int, target: float) -> str:
     )
 
 
-def variants_of(results: dict, rig: str, lidar: str, subset: str, names: tuple[str, ...]) -> tuple[list, int]:
+def variants_of(
+    results: dict, rig: str, lidar: str, subset: str, names: tuple[str, ...], refit: bool = True
+) -> tuple[list, int]:
+    """The sets' ``variant`` of ``names`` (with ``refit``: on the boards fitted again where the default
+    fitted them again) and the number that failed."""
     rs, fails = [], 0
     for (r, _), res in sorted(results.items()):
         if r != rig:
             continue
         obs_like = res["truth"]
-        v = variant(obs_like, {m: res["models"][(lidar, subset, m)] for m in SOLVED}, names)
+        key = subset + REFIT if refit and (lidar, subset + REFIT, names[0]) in res["models"] else subset
+        chosen_among = tuple(m.name for m in candidates([MODELS[n] for n in names], key != subset))
+        v = variant(obs_like, {m: res["models"][(lidar, key, m)] for m in SOLVED}, chosen_among)
         if v.failure is None:
             rs.append(v)
         else:
@@ -378,10 +439,13 @@ def tables(results: dict) -> list[str]:
                     head,
                     "|" + "---|" * (head.count("|") - 1),
                 ]
-                for name, names in SHOWN.items():
-                    rs, fails = variants_of(results, rig, lidar, subset, names)
+                for name, (names, refit) in SHOWN.items():
+                    rs, fails = variants_of(results, rig, lidar, subset, names, refit)
                     if rs:
                         lines.append(_row(name, rs, fails, CORNER_TARGET[rig]))
+                key = (lidar, subset + REFIT, "none")
+                n_refit = sum(key in res["models"] for (r, _), res in results.items() if r == rig)
+                lines += ["", f"Boards fitted again on corrected ranges in {n_refit} of {len(seeds)} sets."]
                 lines.append("")
     return lines
 
@@ -427,7 +491,7 @@ def figure(results: dict, path: Path) -> None:
         for j, subset in enumerate(SUBSETS):
             ax = axes[i, j]
             for name, names, colour in (("default (auto)", AUTO, "C0"), ("none forced", ("none",), "C3")):
-                rs, _ = variants_of(results, rig, "full", subset, names)
+                rs, _ = variants_of(results, rig, "full", subset, names, name == "default (auto)")
                 ne = np.clip([r.nees for r in rs], 0, 30)
                 if len(ne):
                     ax.hist(

@@ -50,6 +50,7 @@ __all__ = [
     "Selection",
     "SensorModel",
     "averaged_covariance",
+    "candidates",
     "choose",
     "mixture",
     "select_model",
@@ -291,6 +292,17 @@ def choose(
     return Selection(chosen, tuple(cands), forced=False, averaged=averaged)
 
 
+def candidates(models: Sequence[SensorModel], corrected: bool) -> list[SensorModel]:
+    """The models to choose among: ``models``, or with boards fitted on corrected ranges
+    (``corrected``) only those with range terms (when a choice remains): those boards' poses rest on
+    the LiDAR's estimated errors, whose uncertainty only the range terms carry."""
+    with_terms = [m for m in models if m.lidar_errors is not None or m.range_offset_m is not None]
+    if not corrected or len(models) < 2 or not with_terms or len(with_terms) == len(models):
+        return list(models)
+    log.info("sensor model: the boards were fitted on corrected ranges; only the models with range terms")
+    return with_terms
+
+
 def select_model(
     base: Problem,
     models: Sequence[SensorModel] = AUTO_MODELS,
@@ -299,7 +311,10 @@ def select_model(
 ) -> tuple[dict[str, Solution], Selection]:
     """Solve ``base`` (a problem without sensor terms) under each of ``models`` and choose (module
     docstring). Returns the solutions by model name (failed candidates left out) and the selection.
-    With one model the choice is forced. Raises the first candidate's error when every one fails."""
+    With one model the choice is forced. Raises the first candidate's error when every one fails.
+    Boards fitted on corrected ranges (``BoardReturns.corrected``) rest on the LiDAR's estimated
+    errors: only the models with range terms are candidates then."""
+    models = candidates(models, any(b.returns is not None and b.returns.corrected for b in base.boards))
     names = [m.name for m in models]
     sols: dict[str, Solution] = {}
     failures: dict[str, str] = {}

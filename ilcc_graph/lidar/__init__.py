@@ -21,7 +21,7 @@ import numpy as np
 from ..board import Board
 from ..errors import BoardNotFound, InputError
 from ..lidars import LidarModel, beam_index, choose_model, measure_beams
-from ..types import BoardFit, ExpectedBoard, Scan
+from ..types import BoardFit, ExpectedBoard, RangeCorrection, Scan
 from .board_tests import print_visible
 from .choice import candidate_order, expected_mask, fit_score
 from .detection import Candidate, find_candidates
@@ -114,6 +114,7 @@ def estimate_board(
     roi: Any | None = None,
     options: LidarOptions = LidarOptions(),
     expected: ExpectedBoard | None = None,
+    correction: RangeCorrection | None = None,
 ) -> BoardFit:
     """Find the chessboard in one scan; its pose, covariance and inner corners in the LiDAR frame.
 
@@ -124,6 +125,9 @@ def estimate_board(
     expected: optional predicted board (e.g. from the image and an extrinsic): the search keeps to
     a box around it and candidates are ranked by closeness to it; a fit beyond its tolerances is
     refused.
+    correction: what the ranges read too long (the graph's estimate of the LiDAR's own errors): the
+    board is found and fitted on the returns moved back along their rays by it, so that its plane and
+    in-plane pose are the board's; the fit's points and returns stay the measured ones.
     Of the candidates that pass the board tests, the chessboard is fitted to at most
     ``options.max_fits`` and the fit that explains the intensities best is returned (choice.py).
     A scan whose intensity cannot show a print (``check_intensity``) is searched by the board's shape
@@ -145,6 +149,8 @@ def estimate_board(
     if lidar_model is None:
         lidar_model = choose_model(measure_beams(scan), None, scan.source)[0]
     ring = pseudo_rings(pts) if lidar_model.ringless else beam_index(scan, lidar_model)  # no scanlines
+    if correction is not None:
+        pts = correction.corrected(pts, np.zeros(len(pts), np.int64) if lidar_model.ringless else ring)
     inputs = (pts, np.nan_to_num(inten), ring, board, lidar_model, roi, expected)
     found, why = None, ""
     if not unusable:  # the print first: the paper's search with the contrast test
@@ -163,6 +169,8 @@ def estimate_board(
             ) from None
     score, cand, fit, n_cands, n_fitted = found
     fit = one_pseudo_beam(fit) if lidar_model.ringless else fit
+    if correction is not None:
+        fit = _measured(fit, correction, lidar_model)
     t_all, c_all = time.perf_counter() - t0, time.process_time() - c0
     fit.diagnostics.update(
         {"time_total_s": t_all, "cpu_total_s": c_all,
@@ -173,6 +181,20 @@ def estimate_board(
          "candidates_fitted": float(n_fitted), "choice_score": score, "intensity_unusable": unusable}
     )  # fmt: skip
     return fit
+
+
+def _measured(fit: BoardFit, correction: RangeCorrection, model: LidarModel) -> BoardFit:
+    """A fit made on corrected returns with its points and returns the measured ones again (its pose,
+    corners and covariance stay the corrected fit's)."""
+    pts = np.asarray(fit.points_lidar, dtype=np.float64)
+    ring = np.zeros(len(pts), np.int64) if model.ringless else model.ring_from_points(pts)
+    c = correction.along_ray(ring, np.linalg.norm(pts, axis=1))
+    fit.diagnostics["range_correction_mm"] = 1e3 * float(np.mean(c)) if len(c) else 0.0
+    returns = fit.returns
+    if returns is not None:
+        measured = correction.corrected(returns.points, returns.ring, sign=-1.0)
+        returns = replace(returns, points=measured, corrected=True)
+    return replace(fit, points_lidar=correction.corrected(pts, ring, sign=-1.0), returns=returns)
 
 
 def _search(

@@ -160,6 +160,12 @@ def sensors_text(cal: Calibration) -> str:
                 lines.append(f"LiDAR {n}: {1e3 * v[i]:+.2f} mm, sigma {1e3 * s[i]:.2f} mm")
             else:
                 lines.append(f"LiDAR {n}: {v[i]:+.3g}, sigma {s[i]:.2g}")
+    refit = (cal.diagnostics or {}).get("lidar_boards_on_corrected_ranges")
+    if refit:
+        lines.append(
+            f"{refit:.0f} boards fitted again on their ranges corrected by these errors "
+            f"({cal.diagnostics.get('lidar_range_correction_mm', 0.0):+.1f} mm on average)"
+        )
     if lid is not None and lid.get("board_plane"):
         lines.append(board_plane_text(lid["board_plane"]))
     if lid is not None and lid.get("left_out"):

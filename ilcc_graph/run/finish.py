@@ -101,14 +101,19 @@ def finish(
 
 def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:
     """How the LiDAR saw the used frames' boards: ``lidar_boards_no_print`` (fitted by the outline
-    alone) and ``lidar_boards_beyond_fov`` (partly above the top beam or below the lowest), counts,
+    alone), ``lidar_boards_beyond_fov`` (partly above the top beam or below the lowest) and
+    ``lidar_boards_on_corrected_ranges`` (fitted again on the ranges corrected by the LiDAR's
+    estimated errors, ``run.range_refit``; with ``lidar_range_correction_mm``, their mean), counts,
     each only when not 0."""
     boards = [f.board.diagnostics for f in frames if f.used and f.board is not None]
+    corrected = [d["range_correction_mm"] for d in boards if "range_correction_mm" in d]
     counts = {
         "lidar_boards_no_print": float(sum(1 for d in boards if d.get("no_contrast"))),
         "lidar_boards_beyond_fov": float(
             sum(1 for d in boards if d.get("outside_fov_share", 0.0) > BEYOND_FOV_SHARE)
         ),
+        "lidar_boards_on_corrected_ranges": float(len(corrected)),
+        "lidar_range_correction_mm": float(np.mean(corrected)) if corrected else 0.0,
     }
     return {k: v for k, v in counts.items() if v}
 

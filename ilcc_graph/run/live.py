@@ -38,8 +38,10 @@ from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.estimation.incremental import FrameUpdate
 from ilcc_graph.estimation.selection import AUTO
 from ilcc_graph.run.colour import colour_warning, other_colour
+from ilcc_graph.run.finish import from_batch
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.prepare import graph_frame, prepare
+from ilcc_graph.run.range_refit import refit_pass
 from ilcc_graph.run.second_look import second_pass
 from ilcc_graph.run.source import open_run
 from ilcc_graph.run.stages import StageOptions, observe_image, observe_lidar
@@ -292,20 +294,37 @@ class LiveCheck:
         self._used = [f for f in prep.frames if f.name in sol.per_frame]
         return update, why
 
-    def finish(self) -> FrameUpdate | None:
-        """The solve of every distinct frame (``calibrate``'s noise policy), after ``calibrate``'s
-        second look (``second_look.second_pass``: the boards the LiDAR stage missed, or saw far from
-        where the image and the extrinsic put them, searched there; those found are solved with the
-        rest); None when they cannot calibrate (fewer than three distinct poses, or the solver
-        refuses)."""
-        if len(self._distinct) < 3 or self._last is None or self._source is None:
-            return None
-        sol = self._last.solution
+    def _calibration(self) -> tuple[Calibration, list[FrameResult]]:
+        """The last solve as a ``Calibration`` (every frame with its fate, the sensors' own errors)
+        and the frames in input order."""
+        sol = self._last.solution if self._last is not None else None
         assert sol is not None
         frames = sorted([*self._found, *self._image_only], key=lambda f: self._order.get(f.name, 0))
         fates = tuple(dataclasses.replace(f, used=f.name in sol.per_frame) for f in frames)
-        cal = Calibration(sol.T_cam_lidar, sol.covariance, fates)
-        again = second_pass(Observation(self._source, self.config, frames), cal, self.stages)
+        sensors = from_batch(sol, self.config).sensors
+        return Calibration(sol.T_cam_lidar, sol.covariance, fates, sensors=sensors), frames
+
+    def finish(self) -> FrameUpdate | None:
+        """The solve of every distinct frame (``calibrate``'s noise policy), after ``calibrate``'s
+        boards on corrected ranges (``range_refit``: when the LiDAR's estimated range errors are
+        large, every board fitted again on its ranges corrected by them) and its second look
+        (``second_look.second_pass``: the boards the LiDAR stage missed, or saw far from where the
+        image and the extrinsic put them, searched there; those found are solved with the rest);
+        None when they cannot calibrate (fewer than three distinct poses, or the solver refuses)."""
+        if len(self._distinct) < 3 or self._last is None or self._source is None:
+            return None
+        cal, frames = self._calibration()
+        refit = refit_pass(Observation(self._source, self.config, frames), cal, self.stages)
+        if refit is not None:  # calibrate's boards on corrected ranges (run.range_refit)
+            boards = {f.name: f.board for f in refit.frames}
+            first = self._found
+            self._found = [dataclasses.replace(f, board=boards.get(f.name) or f.board) for f in first]
+            if isinstance(self._solve(), str):
+                log.warning("the boards fitted on corrected ranges do not calibrate: their first fits kept")
+                self._found, refit = first, None
+            cal, frames = self._calibration()
+        obs = Observation(self._source, self.config, frames)
+        again = second_pass(obs, cal, self.stages, refit=refit is not None)
         if again is None:
             return self._last
         found = {f.name: f for f in again.frames if f.board is not None}

@@ -1,11 +1,14 @@
-"""The run: sources -> open and observe -> the strategy of the mode -> the second look -> a Result.
+"""The run: sources -> open and observe -> the strategy of the mode -> the boards on corrected ranges
+-> the second look -> a Result.
 
 ``run(sources, options)`` observes each source once (``observe.observe``; a streaming strategy
 reads ``observe.FrameStream`` as it solves), hands the observations to the strategy the registry
-gives for the mode (``strategies.choose``), looks again for the boards the LiDAR stage missed where
-the answer puts them (``second_look``) and solves again when some are found, and says which set-up
-mistake explains a failure (``setup_mistakes``). ``solve_observations``: the same on observations
-made once (studies, benchmarks). Only sources read files; ``app.write`` writes the ``Result``.
+gives for the mode (``strategies.choose``), fits the boards again on corrected ranges when the LiDAR's
+estimated range errors are large (``range_refit``), looks again for the boards the LiDAR stage
+missed where the answer puts them (``second_look``), solving again after each that changed a board,
+and says which set-up mistake explains a failure (``setup_mistakes``). ``solve_observations``: the
+same on observations made once (studies, benchmarks). Only sources read files; ``app.write`` writes
+the ``Result``.
 """
 
 from __future__ import annotations
@@ -17,9 +20,10 @@ from collections.abc import Callable, Sequence
 from ilcc_graph import signals
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameSource
-from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.run.observe import FrameStream, Observation, observe
+from ilcc_graph.run.range_refit import refit_pass
 from ilcc_graph.run.result import Result, RunOptions
 from ilcc_graph.run.second_look import second_pass
 from ilcc_graph.run.setup_mistakes import diagnose_failure, diagnose_result
@@ -83,8 +87,11 @@ def solve_observations(
 ) -> Result:
     """The strategy of ``options.mode`` on observed sources (``sessions`` for several, or with a
     range offset); ``names`` label the sessions (default: the observations' names, else the
-    sources' labels). With ``options.second_pass`` the boards the LiDAR stage missed are searched
-    where the first answer puts them, and the data solved again when some are found."""
+    sources' labels). With ``options.range_refit`` the boards are fitted again on the ranges
+    corrected by the LiDAR's estimated errors when those are large, and solved again. With
+    ``options.second_pass`` the boards the LiDAR stage missed are searched where the answer puts
+    them, and the data solved again when some are found. A solve again that cannot calibrate leaves
+    the answer before it (a warning says so)."""
     if names is None and not all(o.name for o in observations):
         names = session_names([o.source for o in observations])
     if names is not None:
@@ -95,13 +102,35 @@ def solve_observations(
     options = _without_print(observations, dataclasses.replace(options, mode=chosen.mode), chosen)
     log.debug("estimating the extrinsic (%s) from %d source(s)", chosen.mode, len(observations))
     result = chosen.solve(observations, options, None)
-    if not (options.second_pass and chosen.second_pass):
+    if not chosen.second_pass:
         return result
-    again = [second_pass(s.observation, s.calibration, options.stages) for s in result.sessions]
-    if all(a is None for a in again):
+    corrected = False  # the boards on corrected ranges: the second look searches on them too
+    if options.range_refit:
+        refit = [refit_pass(s.observation, s.calibration, options.stages) for s in result.sessions]
+        what = "fitted on corrected ranges"
+        result, observations, corrected = _solve_again(chosen, options, result, observations, refit, what)
+    if not options.second_pass:
         return result
-    observations = [o if a is None else a for o, a in zip(observations, again, strict=True)]
-    return chosen.solve(observations, options, None)
+    stages = options.stages
+    again = [second_pass(s.observation, s.calibration, stages, refit=corrected) for s in result.sessions]
+    return _solve_again(chosen, options, result, observations, again, "found by the second look")[0]
+
+
+def _solve_again(
+    chosen: Strategy, options: RunOptions, result: Result, observations: Sequence[Observation],
+    changed: Sequence[Observation | None], what: str,
+) -> tuple[Result, list[Observation], bool]:  # fmt: skip
+    """(the result, the observations, True) with the ``changed`` ones (None: unchanged) solved again;
+    ``result``, the observations as they were and False when none changed or the solve of the changed
+    ones fails (said)."""
+    if all(a is None for a in changed):
+        return result, list(observations), False
+    again = [o if a is None else a for o, a in zip(observations, changed, strict=True)]
+    try:
+        return chosen.solve(again, options, None), again, True
+    except (CalibrationImpossible, IndeterminateSystem) as err:
+        log.warning("the boards %s do not calibrate (%s): the answer without them stands", what, err)
+        return result, list(observations), False
 
 
 def _without_print(observations: Sequence[Observation], options: RunOptions, chosen: Strategy) -> RunOptions:

@@ -42,6 +42,9 @@ class RunOptions:
     target_sigma: incremental mode's (deg, mm) target; stop_at_target: read no frame after it.
     second_pass: once an extrinsic is known, search the boards the LiDAR stage missed (or found
         elsewhere than the image says) near where the image and the extrinsic put them, and solve again.
+    range_refit: when the LiDAR's estimated range errors stretch some board's pattern by more than
+        three of its in-plane sigmas (``run.range_refit.REFIT_RATIO``), fit every board again on its
+        ranges corrected by them and solve again.
     lidar_errors: the LiDAR's own errors the graph estimates from the boards' returns (None: none,
         the default: on the recorded sets the boards' 6-dof LiDAR priors gave halves that agree,
         the returns with these terms did not; docs/bench_real.md).
@@ -64,6 +67,7 @@ class RunOptions:
     target_sigma: tuple[float, float] | None = None
     stop_at_target: bool = False
     second_pass: bool = True
+    range_refit: bool = True
     lidar_errors: LidarErrorOptions | None = None
     lidar_errors_without_print: bool = True
     intrinsics: IntrinsicsOptions = IntrinsicsOptions()

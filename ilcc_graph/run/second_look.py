@@ -20,8 +20,9 @@ from ilcc_graph.errors import FrameError
 from ilcc_graph.init import upnp
 from ilcc_graph.lidar import LidarOptions
 from ilcc_graph.run.observe import Observation
+from ilcc_graph.run.range_refit import correction_of, significant
 from ilcc_graph.run.stages import StageOptions, attempt, observe_lidar
-from ilcc_graph.types import Calibration, ExpectedBoard, FrameResult, ImageCorners
+from ilcc_graph.types import Calibration, ExpectedBoard, FrameResult, ImageCorners, RangeCorrection
 
 log = logging.getLogger(__name__)
 
@@ -29,22 +30,23 @@ __all__ = ["look_again", "second_pass"]
 
 
 def _expected_lidar(source: FrameSource, ref: FrameRef, config: Config, options: LidarOptions,
-                    expected: ExpectedBoard) -> object:  # fmt: skip
-    return attempt(observe_lidar, source, ref, config, options, expected)
+                    expected: ExpectedBoard, correction: RangeCorrection | None) -> object:  # fmt: skip
+    return attempt(observe_lidar, source, ref, config, options, expected, False, correction)
 
 
 def look_again(
     source: FrameSource, config: Config, frames: Sequence[FrameResult], expected: dict[str, ExpectedBoard],
-    options: StageOptions = StageOptions(),
+    options: StageOptions = StageOptions(), correction: RangeCorrection | None = None,
 ) -> list[FrameResult]:  # fmt: skip
-    """The frames again, the LiDAR stage searching near ``expected[name]`` for the frames named there.
+    """The frames again, the LiDAR stage searching near ``expected[name]`` for the frames named there
+    (on the ranges corrected by ``correction`` when given, as ``range_refit`` fits the others).
 
     A frame whose board is then found gets it (with ``diagnostics["found_near_prediction"] = 1``);
     the others stay as they were. Frames are matched to the source's by name.
     """
     refs = {r.name: r for r in source.frames()}
     names = [n for n in expected if n in refs]
-    items = [(source, refs[n], config, options.lidar, expected[n]) for n in names]
+    items = [(source, refs[n], config, options.lidar, expected[n], correction) for n in names]
     found = dict(zip(names, workers.map_processes(_expected_lidar, items, options.jobs, None), strict=True))
     out = []
     for f in frames:
@@ -70,12 +72,14 @@ def _predicted_board(corners: ImageCorners, config: Config, T_cam_lidar: np.ndar
 
 
 def second_pass(
-    obs: Observation, cal: Calibration, stages: StageOptions, far_m: float = 0.15
+    obs: Observation, cal: Calibration, stages: StageOptions, far_m: float = 0.15, refit: bool = True
 ) -> Observation | None:
     """The observation with the boards found near their predicted place, or None when none changed.
 
     Frames with image corners whose LiDAR board is missing, or lies more than ``far_m`` from where
-    the image and ``cal``'s extrinsic put it, are searched again near that place.
+    the image and ``cal``'s extrinsic put it, are searched again near that place (on the ranges
+    corrected by ``cal``'s estimate of the LiDAR's errors when ``refit`` and those are
+    ``range_refit.significant``).
     """
     expected: dict[str, ExpectedBoard] = {}
     centre = obs.config.board.corners_board().mean(axis=0)
@@ -93,7 +97,10 @@ def second_pass(
         expected[f.name] = ExpectedBoard(pred)
     if not expected:
         return None
-    frames = look_again(obs.source, obs.config, obs.frames, expected, stages)
+    correction = correction_of(cal.sensors) if refit else None
+    if not significant(obs.frames, correction, obs.config.board):
+        correction = None
+    frames = look_again(obs.source, obs.config, obs.frames, expected, stages, correction)
     found = [f.name for f, g in zip(frames, obs.frames, strict=True) if f is not g]
     if not found:
         return None

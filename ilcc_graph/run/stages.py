@@ -25,7 +25,7 @@ from ilcc_graph.image.previews import make_views
 from ilcc_graph.lidar import LidarOptions, estimate_board
 from ilcc_graph.run.pattern_check import KEYS as PATTERN_KEYS
 from ilcc_graph.run.pattern_check import pattern_continues
-from ilcc_graph.types import BoardFit, ExpectedBoard, FrameResult, ImageCorners
+from ilcc_graph.types import BoardFit, ExpectedBoard, FrameResult, ImageCorners, RangeCorrection
 
 __all__ = [
     "StageOptions",
@@ -111,10 +111,12 @@ def observe_lidar(
     options: LidarOptions,
     expected: ExpectedBoard | None = None,
     strict: bool = False,
+    correction: RangeCorrection | None = None,
 ) -> BoardFit:
-    """The LiDAR stage on one frame's scan (near ``expected`` when given); FrameError says why not."""
+    """The LiDAR stage on one frame's scan (near ``expected`` when given, on the ranges corrected by
+    ``correction`` when given); FrameError says why not."""
     scan = read_frame_file(source.read_scan, ref, config, strict=strict)
-    return estimate_board(scan, config.board, config.lidar, config.roi, options, expected)  # type: ignore[arg-type]
+    return estimate_board(scan, config.board, config.lidar, config.roi, options, expected, correction)  # type: ignore[arg-type]
 
 
 def observe_image(
