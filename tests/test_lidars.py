@@ -20,6 +20,7 @@ from ilcc_graph.lidars import (
     read_calibration_file,
     table_difference,
 )
+from ilcc_graph.lidars.measure import _clusters_on_beams
 from ilcc_graph.simulate import SimulationSpec, simulate_frame
 from ilcc_graph.simulate.lidar import laser_ids
 from ilcc_graph.types import Scan
@@ -70,6 +71,43 @@ def test_elevation_clusters_give_the_table_without_a_ring_field() -> None:
     assert near.max() < 0.05 and m.model.n_beams >= 28  # the top beams may see nothing
     assert table_difference(m, spec.lidar_model) is None
     assert table_difference(m, lidar_model("vlp16")) is not None
+
+
+def test_two_beams_merged_into_one_cluster_keep_the_named_table() -> None:
+    """An OS1-64 scan without its ring field: beams 0.53 deg apart, some neighbours found as one
+    elevation cluster between them. The named table stays (it did not: the scan's merged table
+    replaced it and the board tests then failed on 7 of 12 simulated frames); a table that only
+    some clusters fit, or whose clusters all sit between its beams, is still contradicted."""
+    spec = SimulationSpec(lidar="os1-64", n_frames=1, seed=1)
+    scan = simulate_frame(spec, 0).scan
+    m = measure_beams(Scan(scan.points, scan.intensity, None))
+    a = spec.lidar_model.vertical_angles_deg
+    spacing = float(np.median(np.diff(a)))
+    off_beam = np.abs(m.model.vertical_angles_deg[:, None] - a).min(axis=1) >= spacing / 3
+    assert m.method == "elevation clusters" and off_beam.any()  # a merged pair, as on the frames
+    assert table_difference(m, spec.lidar_model) is None
+    used, warning = choose_model(m, spec.lidar_model, "pcd/0001.pcd")
+    assert warning is None and used.n_beams == 64
+    merged = np.concatenate([a[:10], [0.5 * (a[10] + a[11])], a[12:40]])
+    assert _clusters_on_beams(merged, a, spacing)
+    assert not _clusters_on_beams(0.5 * (a[1:] + a[:-1]), a, spacing)  # all between beams
+    assert not _clusters_on_beams(a[:40] + 0.4 * spacing, a, spacing)  # a table shifted off the named
+
+
+def test_an_ouster_scan_without_its_ring_field_calibrates(simulated, tmp_path: Path, capsys) -> None:
+    """``ilcc-graph calibrate`` of an OS1-128 set exported without the ring field (as PCL or MATLAB
+    write it): the named table is kept and every board found (before: the first scan's merged
+    clusters replaced it, no board passed the tests, exit 3)."""
+    from ilcc_graph.app import main
+    from ilcc_graph.io.results import read_calibration
+
+    data = simulated("pinhole", "--lidar", "os1-128-gen2", "--no-ring-field", frames=4, seed=7)
+    out = tmp_path / "out"
+    assert main(["calibrate", str(data), "--out", str(out), "--no-report", "--jobs", "1"]) == 0
+    captured = capsys.readouterr()
+    assert "beams span" not in captured.err  # no table replaced
+    cal = read_calibration(out / "calibration.yaml")
+    assert sum(f.used for f in cal.frames) == 4
 
 
 def test_organised_pcd_round_trip(tmp_path: Path) -> None:

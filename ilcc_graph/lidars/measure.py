@@ -274,13 +274,31 @@ def _describe(model: LidarModel) -> str:
     return f"{model.n_beams} beams over {span} deg, {model.horizontal_resolution_deg:.3f} deg"
 
 
+#: of the elevation clusters of a scan without a ring field, at least this share must sit on a named
+#: beam; the others may be two neighbouring beams seen as one cluster (near their midpoint)
+ON_BEAM_SHARE = 0.8
+
+
+def _clusters_on_beams(m: np.ndarray, a: np.ndarray, spacing: float) -> bool:
+    """Whether elevation clusters ``m`` (deg) are the named beams ``a``'s: every cluster within a third
+    of the beam spacing of a beam, or (at most ``1 - ON_BEAM_SHARE`` of them) within a quarter of it
+    of the midpoint of two neighbouring beams, which the clustering merges where their returns'
+    elevations overlap (the 0.53 deg of an OS1-64 in a scan without its ring field)."""
+    on = np.abs(m[:, None] - a[None, :]).min(axis=1) < spacing / 3
+    if a.size < 2:
+        return bool(np.all(on))
+    mids = 0.5 * (a[1:] + a[:-1])
+    merged = ~on & (np.abs(m[:, None] - mids[None, :]).min(axis=1) < spacing / 4)
+    return bool(np.all(on | merged) and on.mean() >= ON_BEAM_SHARE)
+
+
 def table_difference(measured: MeasuredBeams, named: LidarModel) -> str | None:
     """A sentence naming how the scan's table differs from ``named``, or None when they agree.
 
     They agree when the beam counts match (a clustered measurement may miss beams that saw
-    nothing: then every measured beam must sit on a named one), every beam is within a third of
-    the local beam spacing of the named one (ring from elevation stays right), and the azimuth
-    steps are within 10 %.
+    nothing, or see two neighbours as one: then its clusters must sit on named beams as
+    ``_clusters_on_beams`` says), every beam is within a third of the local beam spacing of the
+    named one (ring from elevation stays right), and the azimuth steps are within 10 %.
     """
     if measured.model.ringless or named.ringless:
         if measured.model.ringless and named.ringless:
@@ -296,8 +314,7 @@ def table_difference(measured: MeasuredBeams, named: LidarModel) -> str | None:
     step_m, step_n = measured.model.horizontal_resolution_deg, named.horizontal_resolution_deg
     spacing = float(np.median(np.diff(a))) if a.size > 1 else 1.0
     if measured.ring_values is None and m.size <= a.size:
-        near = np.abs(m[:, None] - a[None, :]).min(axis=1)
-        same_beams = bool(np.all(near < spacing / 3))
+        same_beams = _clusters_on_beams(m, a, spacing)
     else:
         same_beams = m.size == a.size and bool(np.all(np.abs(m - a) < spacing / 3))
     if same_beams and abs(step_m - step_n) <= 0.1 * step_n:
