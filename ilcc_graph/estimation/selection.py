@@ -35,6 +35,7 @@ import numpy as np
 
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.estimation.camera_choice import CameraChoice
+from ilcc_graph.estimation.chi2 import sf as chi2_sf
 from ilcc_graph.estimation.held_out import HeldOut, held_out
 from ilcc_graph.estimation.keys import POSE3_DOF
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
@@ -52,6 +53,7 @@ __all__ = [
     "averaged_covariance",
     "candidates",
     "choose",
+    "contradicted",
     "mixture",
     "select_model",
 ]
@@ -104,7 +106,7 @@ AUTO_MODELS = tuple(MODELS[n] for n in AUTO)  # select_model's default candidate
 class Candidate:
     """One candidate's result: its held-out log density and chi-square over the boards every
     candidate kept (``boards``; 6 dof each), the boards it kept itself (``used``), its weight, and
-    why it failed (then the rest are None / 0)."""
+    why it failed (then the rest are None / 0) or was left out with its scores (``left_out``: weight 0)."""
 
     name: str
     log_density: float = math.nan
@@ -114,6 +116,7 @@ class Candidate:
     weight: float = 0.0
     factor: float = 1.0
     failure: str | None = None
+    left_out: str | None = None
 
 
 @dataclass(frozen=True)
@@ -142,6 +145,8 @@ class Selection:
         for c in self.candidates:
             if c.failure is not None:
                 parts.append(f"{c.name} failed")
+            elif c.left_out is not None:
+                parts.append(f"{c.name} {c.log_density - best.log_density:+.1f} (left out: {c.left_out})")
             elif c.name != self.chosen:
                 parts.append(f"{c.name} {c.log_density - best.log_density:+.1f} (w {c.weight:.2f})")
         carried = "; covariance averaged over the models" if self.averaged else ""
@@ -168,6 +173,7 @@ class Selection:
                 num(c.get("weight"), 0.0),
                 num(c.get("factor"), 1.0),
                 c.get("failure"),
+                c.get("left_out"),
             )  # fmt: skip
             for c in d.get("candidates") or ()
         )
@@ -193,6 +199,7 @@ class Selection:
                     "weight": float(c.weight),
                     "factor": float(c.factor),
                     **({"failure": c.failure} if c.failure else {}),
+                    **({"left_out": c.left_out} if c.left_out else {}),
                 }
                 for c in self.candidates
             ],
@@ -265,10 +272,15 @@ def choose(
     used: Mapping[str, int],
     names: Sequence[str],
     failures: Mapping[str, str] | None = None,
+    left_out: Mapping[str, str] | None = None,
 ) -> Selection:
     """The choice among ``names`` from each solved candidate's held-out ``scores`` (per board) and the
-    boards it kept (``used``); ``failures``: why the others have none (module docstring)."""
+    boards it kept (``used``); ``failures``: why the others have none; ``left_out``: candidates the
+    data contradict (``contradicted``), scored but given no weight (module docstring)."""
     failures = dict(failures or {})
+    left_out = {n: why for n, why in (left_out or {}).items() if n in scores}
+    if len(left_out) == len(scores):  # nothing would remain: the choice stays with the scores
+        left_out = {}
     common = sorted(set.intersection(*(set(s) for s in scores.values())), key=str) if scores else []
     factors = {n: 1.0 for n in scores}
     if CV_FACTOR and common:
@@ -276,7 +288,7 @@ def choose(
             n: max(1.0, sum(s[k].chi2 for k in common) / (POSE3_DOF * len(common))) for n, s in scores.items()
         }
     per_board = {n: np.array([_calibrated(s[k], factors[n]) for k in common]) for n, s in scores.items()}
-    weights = _weights(per_board)
+    weights = {n: 0.0 for n in left_out} | _weights({n: x for n, x in per_board.items() if n not in left_out})
     chosen = max(weights, key=lambda n: weights[n]) if weights else next(iter(used))
     cands = []
     for name in names:
@@ -286,10 +298,49 @@ def choose(
         s = scores[name]
         cands.append(
             Candidate(name, float(per_board[name].sum()), sum(s[k].chi2 for k in common), len(common),
-                      used[name], weights[name], factors[name])
+                      used[name], weights[name], factors[name], left_out=left_out.get(name))
         )  # fmt: skip
     averaged = sum(w >= MIN_WEIGHT for w in weights.values()) > 1
     return Selection(chosen, tuple(cands), forced=False, averaged=averaged)
+
+
+#: a model without range terms is left out of the choice when another model's range terms are this
+#: far from zero (the p-value of their Wald chi-square): the boards then show a range error the model
+#: ignores, and the held-out score cannot see an error that every board shares (a dense LiDAR's dark
+#: print moves each board's plane by ~0.7 mm, 15 of its sigmas, all boards alike; docs/estimation.md)
+TERMS_P = 1e-3
+
+
+def _range_terms(sol: Solution) -> tuple[float, int]:
+    """Wald chi-square and dof of the LiDARs' own error terms of ``sol`` against zero ((0, 0): none)."""
+    chi2, dof = 0.0, 0
+    for lidar in sol.assembly.layouts:
+        C = sol.lidar_covariance(lidar)
+        got = sol.lidar(lidar)
+        if C is None or got is None:
+            continue
+        v = got[1]
+        try:
+            chi2 += float(v @ np.linalg.solve(C, v))
+        except np.linalg.LinAlgError:
+            continue
+        dof += v.size
+    return chi2, dof
+
+
+def contradicted(sols: Mapping[str, Solution], models: Sequence[SensorModel]) -> dict[str, str]:
+    """The models without range terms that the range terms of the solved model with the fewest of them
+    contradict (``TERMS_P``; per-beam terms that few boards barely determine are not tested), each
+    with the reason; empty when those terms are not significant."""
+    with_terms = [m.name for m in models if m.lidar_errors is not None and m.name in sols]
+    terms = {n: _range_terms(sols[n]) for n in with_terms}
+    tested = min((n for n in terms if terms[n][1]), key=lambda n: terms[n][1], default=None)
+    if tested is None or chi2_sf(*terms[tested]) >= TERMS_P:
+        return {}
+    chi2, dof = terms[tested]
+    why = f"the {tested} model's range terms are far from zero (chi2 {chi2:.0f} for {dof})"
+    plain = [m.name for m in models if m.lidar_errors is None and m.range_offset_m is None]
+    return {n: why for n in plain if n in sols}
 
 
 def candidates(models: Sequence[SensorModel], corrected: bool) -> list[SensorModel]:
@@ -339,4 +390,7 @@ def select_model(
             scores[name] = {(e, k): h for e in sol.problem.extrinsics for k, h in held_out(sol, e).items()}
         except np.linalg.LinAlgError as err:  # a singular held-out system: no score, no weight
             failures[name] = f"held-out score: {err}"
-    return sols, choose(scores, {n: len(sol.boards) for n, sol in sols.items()}, names, failures)
+    left_out = contradicted(sols, models)
+    for name, why in left_out.items():
+        log.info("sensor model %s left out: %s", name, why)
+    return sols, choose(scores, {n: len(sol.boards) for n, sol in sols.items()}, names, failures, left_out)
