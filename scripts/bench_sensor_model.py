@@ -41,7 +41,16 @@ from ilcc_graph.estimation.held_out import HeldOut, held_out
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.noise import solve_problem
 from ilcc_graph.estimation.problem import frames_problem
-from ilcc_graph.estimation.selection import AUTO, MODELS, candidates, choose, mixture
+from ilcc_graph.estimation.selection import (
+    AUTO,
+    MODELS,
+    Selection,
+    candidates,
+    choose,
+    contradicted,
+    mixture,
+    range_terms,
+)
 from ilcc_graph.image import detect_corners
 from ilcc_graph.lidar import LidarOptions, estimate_board
 from ilcc_graph.run.prepare import prepare
@@ -176,6 +185,7 @@ class ModelSolve:
     seconds: float = 0.0
     failure: str | None = None
     lidar: dict[str, list] | None = None  # the LiDAR's errors: names, values (m)
+    terms: tuple[float, int] = (0.0, 0)  # their Wald chi-square against zero, dof (selection.range_terms)
 
 
 @dataclass
@@ -230,8 +240,18 @@ def _solve_all(frames: list[FrameResult], config: Config) -> dict[str, ModelSolv
         boards = {names[i]: sol.board_pose(i) for i in sol.boards}
         lid = sol.lidar(0)
         le = None if lid is None else {"names": list(lid[0]), "values": [float(v) for v in lid[1]]}
-        out[m] = ModelSolve(est.T, est.covariance, boards, ho, time.perf_counter() - t0, lidar=le)
+        dt = time.perf_counter() - t0
+        out[m] = ModelSolve(est.T, est.covariance, boards, ho, dt, lidar=le, terms=range_terms(sol))
     return out
+
+
+def _choose(ok: dict[str, ModelSolve], names: tuple[str, ...]) -> Selection:
+    """The choice ``select_model`` makes, from the cached solves ``ok`` (models whose range terms
+    contradict the others' left out: ``selection.contradicted``)."""
+    models = [MODELS[n] for n in ok]
+    left_out = contradicted({n: s.terms for n, s in ok.items() if MODELS[n].lidar_errors is not None}, models)
+    held = {n: s.held_out for n, s in ok.items()}
+    return choose(held, {n: len(s.boards) for n, s in ok.items()}, names, None, left_out)
 
 
 def _refit(
@@ -243,7 +263,7 @@ def _refit(
     ok = {n: solves[n] for n in AUTO if solves[n].failure is None}
     if not ok:
         return None
-    sel = choose({n: s.held_out for n, s in ok.items()}, {n: len(s.boards) for n, s in ok.items()}, AUTO)
+    sel = _choose(ok, AUTO)
     le = ok[sel.chosen].lidar
     correction = None if le is None else correction_of({"lidar_errors": le})
     if not significant(frames, correction, obs.config.board):
@@ -293,7 +313,7 @@ def variant(obs: ObservedSet, solves: dict[str, ModelSolve], names: tuple[str, .
         sel, C = None, ok[names[0]].C
         chosen = names[0]
     else:
-        sel = choose({n: s.held_out for n, s in ok.items()}, {n: len(s.boards) for n, s in ok.items()}, names)
+        sel = _choose(ok, names)
         chosen = sel.chosen
         C = mixture({n: (s.T, s.C) for n, s in ok.items()}, sel)
     s = ok[chosen]

@@ -16,7 +16,15 @@ from ilcc_graph.estimation import NoiseOptions, solve, solve_problem
 from ilcc_graph.estimation.held_out import held_out
 from ilcc_graph.estimation.keys import X
 from ilcc_graph.estimation.problem import frames_problem
-from ilcc_graph.estimation.selection import MODELS, Candidate, Selection, contradicted, mixture, select_model
+from ilcc_graph.estimation.selection import (
+    MODELS,
+    Candidate,
+    Selection,
+    contradicted,
+    mixture,
+    range_terms,
+    select_model,
+)
 
 AUTO = ("none", "range", "beams")
 
@@ -118,7 +126,11 @@ def test_a_dark_print_every_board_shares_leaves_none_out() -> None:
         assert next(c for c in back.candidates if c.name == "none").left_out == none.left_out
     base = frames_problem(_frames(2, np.zeros(16)), CAMERA, T_TRUE.matrix())
     sols, _ = select_model(base, [MODELS[n] for n in AUTO])
-    assert contradicted(sols, [MODELS[n] for n in AUTO]) == {}
+    terms = {n: range_terms(sols[n]) for n in ("range", "beams")}
+    assert terms["range"][1] == 2 and contradicted(terms, [MODELS[n] for n in AUTO]) == {}
+    # chi2 30 for 2 dof (p 3e-7): none left out; 12 for 2 (p 0.0025) keeps it
+    assert set(contradicted({"range": (30.0, 2)}, [MODELS[n] for n in AUTO])) == {"none"}
+    assert contradicted({"range": (12.0, 2), "beams": (90.0, 13)}, [MODELS[n] for n in AUTO]) == {}
 
 
 def test_a_dense_lidar_whose_boards_share_a_range_error_is_not_overconfident(tmp_path, capsys) -> None:

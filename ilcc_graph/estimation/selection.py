@@ -55,6 +55,7 @@ __all__ = [
     "choose",
     "contradicted",
     "mixture",
+    "range_terms",
     "select_model",
 ]
 
@@ -311,7 +312,7 @@ def choose(
 TERMS_P = 1e-3
 
 
-def _range_terms(sol: Solution) -> tuple[float, int]:
+def range_terms(sol: Solution) -> tuple[float, int]:
     """Wald chi-square and dof of the LiDARs' own error terms of ``sol`` against zero ((0, 0): none)."""
     chi2, dof = 0.0, 0
     for lidar in sol.assembly.layouts:
@@ -328,19 +329,17 @@ def _range_terms(sol: Solution) -> tuple[float, int]:
     return chi2, dof
 
 
-def contradicted(sols: Mapping[str, Solution], models: Sequence[SensorModel]) -> dict[str, str]:
-    """The models without range terms that the range terms of the solved model with the fewest of them
-    contradict (``TERMS_P``; per-beam terms that few boards barely determine are not tested), each
-    with the reason; empty when those terms are not significant."""
-    with_terms = [m.name for m in models if m.lidar_errors is not None and m.name in sols]
-    terms = {n: _range_terms(sols[n]) for n in with_terms}
+def contradicted(terms: Mapping[str, tuple[float, int]], models: Sequence[SensorModel]) -> dict[str, str]:
+    """The models of ``models`` without range terms that the range terms of the model with the fewest
+    of them contradict (``terms``: each solved model's ``range_terms``; ``TERMS_P``; per-beam terms
+    that few boards barely determine are not tested), each with the reason; empty when those terms
+    are not significant."""
     tested = min((n for n in terms if terms[n][1]), key=lambda n: terms[n][1], default=None)
     if tested is None or chi2_sf(*terms[tested]) >= TERMS_P:
         return {}
     chi2, dof = terms[tested]
     why = f"the {tested} model's range terms are far from zero (chi2 {chi2:.0f} for {dof})"
-    plain = [m.name for m in models if m.lidar_errors is None and m.range_offset_m is None]
-    return {n: why for n in plain if n in sols}
+    return {m.name: why for m in models if m.lidar_errors is None and m.range_offset_m is None}
 
 
 def candidates(models: Sequence[SensorModel], corrected: bool) -> list[SensorModel]:
@@ -390,7 +389,9 @@ def select_model(
             scores[name] = {(e, k): h for e in sol.problem.extrinsics for k, h in held_out(sol, e).items()}
         except np.linalg.LinAlgError as err:  # a singular held-out system: no score, no weight
             failures[name] = f"held-out score: {err}"
-    left_out = contradicted(sols, models)
+    solved = [m for m in models if m.name in sols]
+    terms = {m.name: range_terms(sols[m.name]) for m in solved if m.lidar_errors is not None}
+    left_out = contradicted(terms, solved)
     for name, why in left_out.items():
         log.info("sensor model %s left out: %s", name, why)
     return sols, choose(scores, {n: len(sol.boards) for n, sol in sols.items()}, names, failures, left_out)
