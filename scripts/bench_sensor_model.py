@@ -248,8 +248,7 @@ def _solve_all(frames: list[FrameResult], config: Config) -> dict[str, ModelSolv
 def _choose(ok: dict[str, ModelSolve], names: tuple[str, ...]) -> Selection:
     """The choice ``select_model`` makes, from the cached solves ``ok`` (models whose range terms
     contradict the others' left out: ``selection.contradicted``)."""
-    models = [MODELS[n] for n in ok]
-    left_out = contradicted({n: s.terms for n, s in ok.items() if MODELS[n].lidar_errors is not None}, models)
+    left_out = contradicted({n: s.terms for n, s in ok.items()}, [MODELS[n] for n in ok])
     held = {n: s.held_out for n, s in ok.items()}
     return choose(held, {n: len(s.boards) for n, s in ok.items()}, names, None, left_out)
 

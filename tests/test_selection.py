@@ -12,6 +12,7 @@ import yaml
 from test_lidar_errors import CAMERA, T_TRUE, lidar_frames, nees
 
 from ilcc_graph.app import main
+from ilcc_graph.errors import IndeterminateSystem
 from ilcc_graph.estimation import NoiseOptions, solve, solve_problem
 from ilcc_graph.estimation.held_out import held_out
 from ilcc_graph.estimation.keys import X
@@ -131,6 +132,21 @@ def test_a_dark_print_every_board_shares_leaves_none_out() -> None:
     # chi2 30 for 2 dof (p 3e-7): none left out; 12 for 2 (p 0.0025) keeps it
     assert set(contradicted({"range": (30.0, 2)}, [MODELS[n] for n in AUTO])) == {"none"}
     assert contradicted({"range": (12.0, 2), "beams": (90.0, 13)}, [MODELS[n] for n in AUTO]) == {}
+
+
+def test_range_terms_the_boards_do_not_determine_are_not_tested() -> None:
+    """A candidate whose LiDAR terms the boards barely determine (the marginal refused as
+    ``IndeterminateSystem``) gives no test (0, 0): the choice goes on instead of failing the run."""
+    base = frames_problem(_frames(0, np.zeros(16), dark=0.004), CAMERA, T_TRUE.matrix())
+    sol = solve_problem(MODELS["beams"].problem(base))
+    chi2, dof = range_terms(sol)
+    assert dof == sol.lidar_estimate(0)[0].size and chi2 > 0  # type: ignore[index]
+
+    def barely(lidar: int = 0) -> np.ndarray:
+        raise IndeterminateSystem("the data barely determine the errors of LiDAR 0")
+
+    sol.lidar_covariance = barely  # type: ignore[method-assign]
+    assert range_terms(sol) == (0.0, 0)
 
 
 def test_a_dense_lidar_whose_boards_share_a_range_error_is_not_overconfident(tmp_path, capsys) -> None:

@@ -226,11 +226,18 @@ class Solution:
 
     def lidar(self, lidar: int = 0) -> tuple[list[str], np.ndarray, np.ndarray] | None:
         """(names, values, sigmas) of LiDAR ``lidar``'s own errors (``lidar_errors``), or None."""
+        got = self.lidar_estimate(lidar)
+        if got is None:
+            return None
+        v, C = got
+        return self.assembly.layouts[lidar].names, v, np.sqrt(np.diag(C))
+
+    def lidar_estimate(self, lidar: int = 0) -> tuple[np.ndarray, np.ndarray] | None:
+        """(values, covariance) of LiDAR ``lidar``'s own errors (layout order), or None."""
         C = self.lidar_covariance(lidar)
         if C is None:
             return None
-        v = np.asarray(self.values.atVector(L(lidar)), dtype=np.float64)
-        return self.assembly.layouts[lidar].names, v, np.sqrt(np.diag(C))
+        return np.asarray(self.values.atVector(L(lidar)), dtype=np.float64), C
 
     def lidar_covariance(self, lidar: int = 0) -> np.ndarray | None:
         """(n, n) marginal covariance of LiDAR ``lidar``'s own errors (layout order), or None."""

@@ -313,17 +313,17 @@ TERMS_P = 1e-3
 
 
 def range_terms(sol: Solution) -> tuple[float, int]:
-    """Wald chi-square and dof of the LiDARs' own error terms of ``sol`` against zero ((0, 0): none)."""
+    """Wald chi-square and dof of the LiDARs' own error terms of ``sol`` against zero ((0, 0): none;
+    a LiDAR whose terms the boards do not determine is left out of the sum, not tested)."""
     chi2, dof = 0.0, 0
     for lidar in sol.assembly.layouts:
-        C = sol.lidar_covariance(lidar)
-        got = sol.lidar(lidar)
-        if C is None or got is None:
-            continue
-        v = got[1]
         try:
+            got = sol.lidar_estimate(lidar)
+            if got is None:
+                continue
+            v, C = got
             chi2 += float(v @ np.linalg.solve(C, v))
-        except np.linalg.LinAlgError:
+        except (IndeterminateSystem, np.linalg.LinAlgError):
             continue
         dof += v.size
     return chi2, dof
@@ -389,9 +389,8 @@ def select_model(
             scores[name] = {(e, k): h for e in sol.problem.extrinsics for k, h in held_out(sol, e).items()}
         except np.linalg.LinAlgError as err:  # a singular held-out system: no score, no weight
             failures[name] = f"held-out score: {err}"
-    solved = [m for m in models if m.name in sols]
-    terms = {m.name: range_terms(sols[m.name]) for m in solved if m.lidar_errors is not None}
-    left_out = contradicted(terms, solved)
+    terms = {n: range_terms(sol) for n, sol in sols.items()}  # (0, 0) for a model without range terms
+    left_out = contradicted(terms, [m for m in models if m.name in sols])
     for name, why in left_out.items():
         log.info("sensor model %s left out: %s", name, why)
     return sols, choose(scores, {n: len(sol.boards) for n, sol in sols.items()}, names, failures, left_out)
