@@ -161,6 +161,9 @@ def test_no_board_anywhere_is_exit_3(small_panoramic_set, tmp_path, capsys):
     rows = [line for line in lines if line[:1].isdigit() and line.split()[1] == "image"]
     assert len(rows) == n and all(len(line) < 120 for line in lines if not line.startswith("advice"))
     assert sum(line.startswith("advice: ") for line in lines) == 1
+    # a blank image is said as such at once (not searched), and the advice is about the camera
+    assert all("the image is blank (every pixel grey level 128)" in line for line in rows)
+    assert any(line.startswith("advice: most images are blank") for line in lines)
     doc = yaml.safe_load((tmp_path / "out" / "failure.yaml").read_text())
     assert len(doc["frames"]) >= n and {f["stage"] for f in doc["frames"]} >= {"image"}
     assert len(lines[-1]) < 200  # the message itself stays short

@@ -14,10 +14,10 @@ from ilcc_graph.io.output_folders import MARKER
 
 def test_the_demo_says_what_it_stores(tmp_path, capsys):
     cache, out = tmp_path / "cache", tmp_path / "out"
-    argv = ["demo", "--width", "1000", "--cache", str(cache), "--out", str(out), "--no-report", "--jobs", "1"]
+    argv = ["demo", "--width", "1200", "--cache", str(cache), "--out", str(out), "--no-report", "--jobs", "1"]
     assert main(argv) == 0
     printed = capsys.readouterr().out
-    data = cache / "demo-hdl32-equirect1000-seed0"
+    data = cache / "demo-hdl32-equirect1200-seed0"
     stored = [ln for ln in printed.splitlines() if ln.startswith("kept in ")]
     assert len(stored) == 1 and str(data) in stored[0] and "deletable" in stored[0], printed
     size = sum(p.stat().st_size for p in data.rglob("*") if p.is_file()) / 1e6

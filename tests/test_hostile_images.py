@@ -84,9 +84,9 @@ def test_size_and_read_say_the_same_of_a_bad_file(tmp_path):
 
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory) -> Path:
-    """A small simulated panoramic set (7 frames, 1000 x 500 px)."""
+    """A small simulated panoramic set (7 frames, 1200 x 600 px)."""
     out = tmp_path_factory.mktemp("hostile") / "sim"
-    assert main(["simulate", str(out), "--frames", "7", "--seed", "1", "--width", "1000"]) == 0
+    assert main(["simulate", str(out), "--frames", "7", "--seed", "1", "--width", "1200"]) == 0
     return out
 
 

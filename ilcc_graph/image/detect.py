@@ -30,7 +30,7 @@ import numpy as np
 
 from ..board import Board
 from ..cameras import CameraModel
-from ..errors import BoardColourMismatch, CornersNotFound
+from ..errors import BLANK_IMAGE, BoardColourMismatch, CornersNotFound
 from ..types import ImageCorners
 from .coarse import Candidate, downscaled_candidates, tile_candidates
 from .detectors import ContrastCache, check_attempts, grid_problem, grid_spacing, run_attempt
@@ -296,13 +296,17 @@ def detect_corners(
     ------
     ValueError : ``image`` is not an image of the camera's size.
     CornersNotFound : no chessboard of this size in the image (``BoardColourMismatch`` when the
-        print's colours contradict ``board.lower_left``).
+        print's colours contradict ``board.lower_left``; ``errors.BLANK_IMAGE`` when every pixel has
+        one grey level: a covered lens, a driver's placeholder frame; said at once, not searched).
     """
     opts = ImageOptions() if options is None else options
     if min(board.inner_shape) < 2 or board.n_corners < 6:
         raise ValueError(f"detect_corners: a {board.rows}x{board.cols}-square board is too small to detect")
     t0 = time.perf_counter()
     gray = to_gray(image, camera)
+    lo, hi = cv2.minMaxLoc(gray)[:2]
+    if lo == hi:
+        raise CornersNotFound(f"{BLANK_IMAGE} (every pixel grey level {lo:.0f}): the camera gave no picture")
     cascade = tuple(opts.cascade)
     candidates: Iterator[Candidate] = downscaled_candidates(
         gray, camera, board, cascade, int(opts.coarse_width)

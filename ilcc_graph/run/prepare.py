@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcc_graph.config import Config
-from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.errors import BLANK_IMAGE, CalibrationImpossible
 from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.init import resolve_half_turns, upnp
 from ilcc_graph.types import FrameResult, GraphFrame, ImageCorners
@@ -181,6 +181,12 @@ def _stage_advice(issues: Sequence[tuple[str, str, str]]) -> str:
     image = sum(1 for _, s, _ in issues if s == "image")
     if not issues:
         return "no frames: put scans in DATA/pcd and images with the same names in DATA/img"
+    blank = sum(1 for _, s, why in issues if s == "image" and why.startswith(BLANK_IMAGE))
+    if image >= lidar and 2 * blank > image:
+        return (
+            "most images are blank (one grey level): check the camera (lens cap, exposure, the driver's "
+            "first frames) and that DATA/img holds the pictures taken with the scans"
+        )
     if image >= lidar:
         return (
             "the image stage found no chessboard: check board.squares (squares, not inner corners) and the "
