@@ -146,12 +146,18 @@ def rig_from_config(
     cfg: Config, base_dir: Path | str | None = None, data: RigData | None = None
 ) -> RigConfig:
     """A single-pair config as a rig of two sensors, ``lidar`` (the reference, folder ``pcd``) and
-    ``camera`` (folder ``img``): interface.md's folder layout is this rig's folder layout."""
+    ``camera`` (folder ``img``; or the folders of other common names the data set has,
+    ``io.data_folders``): interface.md's folder layout is this rig's folder layout."""
+    from ..io.frame_pairs import data_folders
+
     base = Path(cfg.source).parent if base_dir is None else Path(base_dir)
+    on_disk = base.is_dir() and (data is None or data.bag is None)  # a bag's folder holds no frames
+    scans, images = data_folders(base) if on_disk else (None, None)
     lidar = RigSensor(
-        "lidar", "lidar", lidar=cfg.lidar, intensity_column=cfg.intensity_column, roi=cfg.roi, folder="pcd"
-    )
-    camera = RigSensor("camera", "camera", camera=cfg.camera, folder="img")
+        "lidar", "lidar", lidar=cfg.lidar, intensity_column=cfg.intensity_column, roi=cfg.roi,
+        folder=scans or PAIR_FOLDERS["lidar"],
+    )  # fmt: skip
+    camera = RigSensor("camera", "camera", camera=cfg.camera, folder=images or PAIR_FOLDERS["camera"])
     return RigConfig(cfg.board, (lidar, camera), "lidar", data or RigData(), base, cfg.source)
 
 

@@ -2,10 +2,10 @@
 
 ``GrowingFolder`` is a :class:`FolderSource` whose :meth:`~GrowingFolder.poll` lists the frames that
 became complete since the last call. A frame is complete when its scan (``pcd/<stem>.*``) and its
-image (``img/<stem>.*``) both exist, are not empty, and neither has changed size or modification
-time for ``settle_s`` seconds (a writer that streams a file is still writing it). Hidden files and
-files with other suffixes (``0001.pcd.part``) are ignored. A stem with two scans or two images
-waits until one of them goes.
+image (``img/<stem>.*``; or the folders of another common name, ``io.data_folders``) both exist,
+are not empty, and neither has changed size or modification time for ``settle_s`` seconds (a writer
+that streams a file is still writing it). Hidden files and files with other suffixes
+(``0001.pcd.part``) are ignored. A stem with two scans or two images waits until one of them goes.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from pathlib import Path
 
 from ilcc_graph.datasets.folder import FolderSource
 from ilcc_graph.datasets.frame_source import FrameRef
-from ilcc_graph.io import IMAGE_SUFFIXES, natural_key, supported_scan_suffixes
+from ilcc_graph.io import IMAGE_SUFFIXES, data_folders, natural_key, supported_scan_suffixes
 
 __all__ = ["Arrival", "GrowingFolder"]
 
@@ -84,8 +84,9 @@ class GrowingFolder(FolderSource):
     def poll(self) -> list[Arrival]:
         """The frames that became complete since the last call, in natural stem order."""
         now = time.monotonic()
-        scans = self._scan_dir("pcd", self._scan_suffixes, now)
-        images = self._scan_dir("img", IMAGE_SUFFIXES, now)
+        scan_dir, image_dir = data_folders(self.path) if self.path.is_dir() else (None, None)
+        scans = self._scan_dir(scan_dir or "pcd", self._scan_suffixes, now)
+        images = self._scan_dir(image_dir or "img", IMAGE_SUFFIXES, now)
         ready = []
         for stem in sorted(scans.keys() & images.keys() - self._done, key=natural_key):
             if len(scans[stem]) != 1 or len(images[stem]) != 1:

@@ -6,7 +6,7 @@ Readers raise ``InputError`` naming the file and the problem; writers are atomic
 from __future__ import annotations
 
 from .files import atomic_write, dump_yaml, read_yaml, to_plain, write_yaml
-from .frame_pairs import FramePaths, list_frames, natural_key
+from .frame_pairs import FramePaths, data_folders, list_frames, natural_key
 from .images import IMAGE_SUFFIXES, read_image, write_image
 from .lzf import lzf_compress, lzf_decompress
 from .pcd import PCD_STYLES, read_pcd, write_pcd
@@ -31,6 +31,7 @@ __all__ = [
     "atomic_write",
     "calibration_to_dict",
     "dump_yaml",
+    "data_folders",
     "list_frames",
     "lzf_compress",
     "lzf_decompress",

@@ -10,7 +10,15 @@ from ..errors import InputError
 from .images import IMAGE_SUFFIXES
 from .scans import supported_scan_suffixes
 
-__all__ = ["FramePaths", "list_frames", "natural_key"]
+__all__ = ["IMAGE_FOLDERS", "SCAN_FOLDERS", "FramePaths", "data_folders", "list_frames", "natural_key"]
+
+#: where a data set's scans may be, first the layout's own (interface.md), then the names other
+#: tools and labs use (KITTI odometry's ``velodyne``, KITTI raw's ``velodyne_points/data``)
+SCAN_FOLDERS = ("pcd", "lidar", "velodyne", "velodyne_points", "pointclouds", "point_clouds", "points",
+                "clouds", "scans")  # fmt: skip
+#: where its images may be (KITTI's ``image_2``, KITTI raw's ``image_02/data``)
+IMAGE_FOLDERS = ("img", "images", "image", "camera", "cam", "rgb", "image_0", "image_1", "image_2",
+                 "image_3", "image_00", "image_01", "image_02", "image_03")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -43,14 +51,53 @@ def _rank(p: Path) -> tuple[int, str]:
     return (PREFERENCE.index(s) if s in PREFERENCE else len(PREFERENCE), p.name)
 
 
+def _holds(folder: Path, suffixes: tuple[str, ...] | list[str]) -> bool:
+    return any(f.suffix.lower() in suffixes and not f.name.startswith(".") for f in folder.iterdir())
+
+
+def _one_folder(
+    d: Path, names: tuple[str, ...], suffixes: tuple[str, ...] | list[str], what: str
+) -> str | None:
+    """The folder of ``d`` (relative name) holding its ``what``: ``names[0]`` when it exists, else the
+    one of the other ``names`` that holds such files (or whose ``data/`` does, as in KITTI raw); None
+    when none does. Two such folders: InputError naming them."""
+    if (d / names[0]).is_dir():
+        return names[0]
+    found = []
+    for n in names[1:]:
+        for sub in (n, f"{n}/data"):
+            if (d / sub).is_dir() and _holds(d / sub, suffixes):
+                found.append(sub)
+                break
+    if len(found) > 1:
+        listed = ", ".join(f"{n}/" for n in found)
+        raise InputError(
+            f"{d}: the {what} could be in any of {listed}: name the one to use {names[0]}/ "
+            f"(e.g. ln -s {found[0]} {d / names[0]})"
+        )
+    return found[0] if found else None
+
+
+def data_folders(data_dir: str | Path) -> tuple[str | None, str | None]:
+    """(scan folder, image folder) of a data set, relative to it: ``pcd`` and ``img`` (interface.md),
+    else the one folder of ``SCAN_FOLDERS`` / ``IMAGE_FOLDERS`` there is; None for a kind with none.
+    Raises InputError when two folders could hold the same kind."""
+    d = Path(data_dir)
+    scans = _one_folder(d, SCAN_FOLDERS, supported_scan_suffixes(), "scans")
+    images = _one_folder(d, IMAGE_FOLDERS, IMAGE_SUFFIXES, "images")
+    return scans, images
+
+
 def _by_stem(
     folder: Path,
     suffixes: tuple[str, ...] | list[str],
     kind: str,
+    what: str,
     skipped: list[tuple[str, str]],
     notes: dict[str, str],
 ) -> dict[str, Path]:
-    """stem -> the file of that stem (the preferred one when there are several, noted in ``notes``)."""
+    """stem -> the file of that stem (the preferred one when there are several, noted in ``notes``);
+    ``kind``: the folder's name in messages, ``what``: "scans" or "images"."""
     out: dict[str, list[Path]] = {}
     for f in folder.iterdir():
         if f.name.startswith(".") or not (f.is_file() or (f.is_symlink() and not f.exists())):
@@ -60,7 +107,6 @@ def _by_stem(
             continue
         out.setdefault(f.stem, []).append(f)
     single: dict[str, Path] = {}
-    what = "scans" if kind == "pcd" else "images"
     for stem, files in out.items():
         files.sort(key=_rank)
         single[stem] = files[0]
@@ -76,27 +122,39 @@ def _by_stem(
 def list_frames(
     data_dir: str | Path, require_image: bool = True, require_scan: bool = True
 ) -> tuple[list[FramePaths], list[tuple[str, str]]]:
-    """Pair ``data_dir/pcd/<stem>.*`` with ``data_dir/img/<stem>.*``.
+    """Pair ``data_dir/pcd/<stem>.*`` with ``data_dir/img/<stem>.*`` (or the folders of another
+    common name, ``data_folders``).
 
     Returns (frames in natural stem order, skipped [(stem, reason)]). A stem with several scans (or
-    images) uses the preferred file (``PREFERENCE``) and says so in the frame's ``note``. A missing ``pcd`` or
-    ``img`` folder, or no frame at all, raises ``InputError``.
+    images) uses the preferred file (``PREFERENCE``) and says so in the frame's ``note``. A missing
+    folder of scans or images, two candidates for one, or no frame at all, raises ``InputError``.
     require_image=False (LiDAR-only runs): every scan is a frame, ``image`` is None when it has
-    no partner and ``img/`` may be absent. require_scan=False likewise for image-only runs.
+    no partner and the images' folder may be absent. require_scan=False likewise for image-only runs.
     """
     d = Path(data_dir)
     if not d.is_dir():
         raise InputError(f"{d}: data folder not found")
-    for sub, required in (("pcd", require_scan), ("img", require_image)):
-        if required and not (d / sub).is_dir():
-            raise InputError(f"{d}: no '{sub}' folder (expected {d / 'pcd'} and {d / 'img'})")
+    scan_dir, image_dir = data_folders(d)
+    for sub, required, names in (
+        (scan_dir, require_scan, SCAN_FOLDERS),
+        (image_dir, require_image, IMAGE_FOLDERS),
+    ):
+        if required and sub is None:
+            raise InputError(
+                f"{d}: no '{names[0]}' folder (expected {d / 'pcd'} and {d / 'img'}; also taken: "
+                f"{', '.join(n + '/' for n in names[1:])})"
+            )
     skipped: list[tuple[str, str]] = []
     notes: dict[str, str] = {}
     scans = (
-        _by_stem(d / "pcd", supported_scan_suffixes(), "pcd", skipped, notes) if (d / "pcd").is_dir() else {}
+        _by_stem(d / scan_dir, supported_scan_suffixes(), scan_dir, "scans", skipped, notes)
+        if scan_dir
+        else {}
     )
     img_notes: dict[str, str] = {}
-    images = _by_stem(d / "img", IMAGE_SUFFIXES, "img", skipped, img_notes) if (d / "img").is_dir() else {}
+    images = (
+        _by_stem(d / image_dir, IMAGE_SUFFIXES, image_dir, "images", skipped, img_notes) if image_dir else {}
+    )
     stems = scans.keys() & images.keys()
     if not require_image:
         stems |= scans.keys()
@@ -109,17 +167,21 @@ def list_frames(
         for s in stems
     ]  # type: ignore[arg-type]
     skipped += [
-        (s, f"scan {scans[s].name} has no image in img/") for s in scans.keys() - images.keys() - stems
+        (s, f"scan {scans[s].name} has no image in {image_dir or 'img'}/")
+        for s in scans.keys() - images.keys() - stems
     ]
     skipped += [
-        (s, f"image {images[s].name} has no scan in pcd/") for s in images.keys() - scans.keys() - stems
+        (s, f"image {images[s].name} has no scan in {scan_dir or 'pcd'}/")
+        for s in images.keys() - scans.keys() - stems
     ]
     frames.sort(key=lambda f: natural_key(f.name))
     skipped.sort(key=lambda t: natural_key(t[0]))
     if not frames:
         detail = "; ".join(f"{s}: {r}" for s, r in skipped[:5]) or "the folders hold no scans or images"
         what = (
-            "has both a scan in pcd/ and an image in img/" if require_image and require_scan else "was found"
+            f"has both a scan in {scan_dir}/ and an image in {image_dir}/"
+            if require_image and require_scan
+            else "was found"
         )
         raise InputError(f"{d}: no frame {what} ({detail})")
     return frames, skipped

@@ -1,0 +1,90 @@
+"""A lab's first recording in its own folder names: KITTI's ``velodyne/`` + ``image_2/`` (and KITTI
+raw's ``velodyne_points/data``), ``lidar/`` + ``camera/``, ... are taken where ``pcd/`` and ``img/``
+are not there (``io.data_folders``); two folders that could hold the same kind are refused with
+both named and the way to choose (docs/datasets.md)."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from ilcc_graph.app import main
+from ilcc_graph.datasets import open_source
+from ilcc_graph.datasets.watch import GrowingFolder
+from ilcc_graph.errors import InputError
+from ilcc_graph.io import data_folders, list_frames
+
+
+def _renamed(src: Path, dst: Path, scans: str, images: str) -> Path:
+    """A copy of the data set ``src`` with its pcd/ and img/ moved to ``scans`` and ``images``."""
+    dst.mkdir(parents=True)
+    shutil.copy(src / "config.yaml", dst / "config.yaml")
+    shutil.copytree(src / "pcd", dst / scans)
+    shutil.copytree(src / "img", dst / images)
+    return dst
+
+
+def test_kitti_folder_names_calibrate_as_pcd_and_img(simulated, calibrated, tmp_path, capsys) -> None:
+    src = simulated("pinhole")
+    data = _renamed(src, tmp_path / "kitti", "velodyne", "image_2")
+    out = tmp_path / "out"
+    assert main(["calibrate", str(data), "--out", str(out), "--jobs", "1", "--no-report"]) == 0
+    capsys.readouterr()
+    got = yaml.safe_load((out / "calibration.yaml").read_text())
+    want = yaml.safe_load((calibrated(src) / "calibration.yaml").read_text())
+    np.testing.assert_array_equal(np.array(got["T_cam_lidar"]), np.array(want["T_cam_lidar"]))
+    assert [f["used"] for f in got["frames"]] == [f["used"] for f in want["frames"]]
+    # the same set opened as the rig of one pair reads the same folders
+    rig = open_source(data, rig=True)
+    assert len(rig.moments()) == len(want["frames"])
+
+
+def test_kitti_raw_nesting_and_other_names(simulated, tmp_path) -> None:
+    src = simulated("pinhole")
+    raw = _renamed(src, tmp_path / "raw", "velodyne_points/data", "image_02/data")
+    (raw / "velodyne_points" / "timestamps.txt").write_text("2011-09-26 13:02:25.9\n")
+    assert data_folders(raw) == ("velodyne_points/data", "image_02/data")
+    frames, skipped = list_frames(raw)
+    assert [f.name for f in frames] == [p.stem for p in sorted((src / "pcd").iterdir())] and skipped == []
+    mine = _renamed(src, tmp_path / "mine", "lidar", "images")
+    (mine / "camera").mkdir()  # a folder of that name holding no image: not a candidate
+    (mine / "camera" / "intrinsics.yaml").write_text("K: []\n")
+    assert data_folders(mine) == ("lidar", "images")
+    # the layout's own names win over any other
+    both = _renamed(src, tmp_path / "both", "pcd", "img")
+    shutil.copytree(src / "img", both / "camera")
+    assert data_folders(both) == ("pcd", "img")
+
+
+def test_two_folders_of_images_are_refused_naming_both(simulated, tmp_path, capsys) -> None:
+    src = simulated("pinhole")
+    data = _renamed(src, tmp_path / "two", "velodyne", "image_2")
+    shutil.copytree(src / "img", data / "image_3")
+    with pytest.raises(InputError, match=r"images could be in any of image_2/, image_3/: name the one"):
+        list_frames(data)
+    assert main(["calibrate", str(data), "--out", str(tmp_path / "out"), "--jobs", "1"]) == 2
+    err = capsys.readouterr().err
+    assert str(data) in err and "ln -s image_2" in err and not (tmp_path / "out").exists()
+    shutil.rmtree(data / "image_3")
+    shutil.rmtree(data / "velodyne")
+    with pytest.raises(InputError, match=r"no 'pcd' folder .*also taken: lidar/, velodyne/"):
+        list_frames(data)
+
+
+def test_a_growing_folder_with_other_names(simulated, tmp_path) -> None:
+    src = simulated("pinhole")
+    dst = tmp_path / "g"
+    (dst / "lidar").mkdir(parents=True)
+    (dst / "camera").mkdir()
+    stem = sorted((src / "pcd").iterdir())[0].stem
+    image = next((src / "img").glob(f"{stem}.*"))
+    shutil.copyfile(image, dst / "camera" / image.name)
+    folder = GrowingFolder(dst, settle_s=0.0)
+    assert folder.poll() == []  # the image alone
+    shutil.copyfile(src / "pcd" / f"{stem}.pcd", dst / "lidar" / f"{stem}.pcd")
+    got = folder.poll()
+    assert [a.ref.name for a in got] == [stem] and got[0].ref.scan.parent.name == "lidar"
