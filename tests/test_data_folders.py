@@ -16,7 +16,7 @@ from ilcc_graph.app import main
 from ilcc_graph.datasets import open_source
 from ilcc_graph.datasets.watch import GrowingFolder
 from ilcc_graph.errors import InputError
-from ilcc_graph.io import data_folders, list_frames
+from ilcc_graph.io import data_folders, list_frames, read_ground_truth, read_scan
 
 
 def _renamed(src: Path, dst: Path, scans: str, images: str) -> Path:
@@ -41,6 +41,28 @@ def test_kitti_folder_names_calibrate_as_pcd_and_img(simulated, calibrated, tmp_
     # the same set opened as the rig of one pair reads the same folders
     rig = open_source(data, rig=True)
     assert len(rig.moments()) == len(want["frames"])
+
+
+def test_a_kitti_style_recording_calibrates(simulated, tmp_path, capsys) -> None:
+    """velodyne/<stem>.bin (float32 x y z reflectance in [0, 1], no ring) + image_2/<stem>.png:
+    KITTI's layout and scan format, through the command line, near the truth."""
+    src = simulated("pinhole")
+    data = tmp_path / "kitti"
+    (data / "velodyne").mkdir(parents=True)
+    shutil.copytree(src / "img", data / "image_2")
+    shutil.copy(src / "config.yaml", data / "config.yaml")
+    for p in sorted((src / "pcd").iterdir()):
+        scan = read_scan(p)
+        rec = np.column_stack([scan.points, scan.intensity / scan.intensity.max()]).astype("<f4")
+        rec.tofile(data / "velodyne" / f"{p.stem}.bin")
+    out = tmp_path / "out"
+    assert main(["calibrate", str(data), "--out", str(out), "--jobs", "1", "--no-report"]) == 0
+    capsys.readouterr()
+    got = yaml.safe_load((out / "calibration.yaml").read_text())
+    E = np.linalg.inv(read_ground_truth(src).T_cam_lidar) @ np.array(got["T_cam_lidar"])
+    rot_deg = np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1.0, 1.0)))
+    assert sum(f["used"] for f in got["frames"]) >= 4
+    assert rot_deg < 0.1 and np.linalg.norm(E[:3, 3]) < 0.005, (rot_deg, E[:3, 3])
 
 
 def test_kitti_raw_nesting_and_other_names(simulated, tmp_path) -> None:
