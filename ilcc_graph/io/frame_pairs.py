@@ -52,7 +52,11 @@ def _rank(p: Path) -> tuple[int, str]:
 
 
 def _holds(folder: Path, suffixes: tuple[str, ...] | list[str]) -> bool:
-    return any(f.suffix.lower() in suffixes and not f.name.startswith(".") for f in folder.iterdir())
+    """``folder`` holds a file of one of ``suffixes`` (an unreadable folder holds none)."""
+    try:
+        return any(f.suffix.lower() in suffixes and not f.name.startswith(".") for f in folder.iterdir())
+    except OSError:
+        return False
 
 
 def _one_folder(
