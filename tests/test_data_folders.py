@@ -1,7 +1,8 @@
 """A lab's first recording in its own folder names: KITTI's ``velodyne/`` + ``image_2/`` (and KITTI
 raw's ``velodyne_points/data``), ``lidar/`` + ``camera/``, ... are taken where ``pcd/`` and ``img/``
 are not there (``io.data_folders``); two folders that could hold the same kind are refused with
-both named and the way to choose (docs/datasets.md)."""
+both named and the way to choose; scans and images named by their times (recorders, bag_to_pcd)
+pair by those times when no name is shared (docs/datasets.md)."""
 
 from __future__ import annotations
 
@@ -110,3 +111,69 @@ def test_a_growing_folder_with_other_names(simulated, tmp_path) -> None:
     shutil.copyfile(src / "pcd" / f"{stem}.pcd", dst / "lidar" / f"{stem}.pcd")
     got = folder.poll()
     assert [a.ref.name for a in got] == [stem] and got[0].ref.scan.parent.name == "lidar"
+
+
+def _timed(src: Path, dst: Path, late_s: dict[int, float], digits: int | None = None) -> Path:
+    """A copy of ``src`` whose files are named by times, as recorders and bag_to_pcd name them: scan
+    k at 1700000000 + 2 k s, its image 12 ms later (``late_s``: other delays by k); ``digits``: whole
+    microseconds (16 digits) instead of seconds with a fraction."""
+    dst.mkdir(parents=True)
+    shutil.copy(src / "config.yaml", dst / "config.yaml")
+    (dst / "pcd").mkdir()
+    (dst / "img").mkdir()
+
+    def name(t: float) -> str:
+        return f"{round(t * 1e6):d}" if digits == 16 else f"{t:.6f}"
+
+    for k, scan in enumerate(sorted((src / "pcd").iterdir())):
+        image = next((src / "img").glob(f"{scan.stem}.*"))
+        t = 1700000000 + 2.0 * k
+        shutil.copy(scan, dst / "pcd" / f"{name(t)}{scan.suffix}")
+        shutil.copy(image, dst / "img" / f"{name(t + late_s.get(k, 0.012))}{image.suffix}")
+    return dst
+
+
+def test_files_named_by_their_times_pair_by_time(simulated, calibrated, tmp_path, capsys, caplog) -> None:
+    src = simulated("pinhole")
+    data = _timed(src, tmp_path / "timed", {})
+    out = tmp_path / "out"
+    assert main(["calibrate", str(data), "--out", str(out), "--jobs", "1", "--no-report"]) == 0
+    capsys.readouterr()
+    got = yaml.safe_load((out / "calibration.yaml").read_text())
+    want = yaml.safe_load((calibrated(src) / "calibration.yaml").read_text())
+    n = len(want["frames"])
+    assert f"{n} of {n} scans paired with the image nearest in time" in caplog.text
+    np.testing.assert_allclose(
+        np.array(got["T_cam_lidar"]), np.array(want["T_cam_lidar"]), rtol=0, atol=1e-12
+    )
+    assert [f["name"] for f in got["frames"]][0] == "1700000000.000000"
+    # an image 0.3 s late pairs with nothing: its scan and it are skipped, saying how far
+    late = open_source(_timed(src, tmp_path / "late", {1: 0.3}))
+    frames, skipped = late.frames(), late.skipped()
+    assert len(frames) == n - 1
+    assert any("1700000002.000000" == s and "0.300 s away" in why for s, why in skipped), skipped
+    # whole microseconds pair alike; a name that is no time leaves the pairing by names
+    micro = _timed(src, tmp_path / "micro", {}, digits=16)
+    assert len(open_source(micro).frames()) == n
+    first = sorted((micro / "img").iterdir())[0]
+    first.rename(first.with_name("left" + first.suffix))
+    with pytest.raises(InputError, match="no frame has both a scan in pcd/ and an image in img/"):
+        list_frames(micro, by_time=lambda ts, ti: {})
+
+
+def test_a_warning_is_said_once_per_command() -> None:
+    """The command line's log says each line once (``console.SaidOnce``), anew for each command (in a
+    process of its own: the logging of this one stays as pytest set it)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import logging; from ilcc_graph.app.console import setup_logging\n"
+        "log = logging.getLogger('ilcc_graph.x')\n"
+        "for verbose in (False, True):\n"
+        "    setup_logging(verbose)\n"
+        "    for _ in range(3): log.warning('only 3 usable frame(s)')\n"
+        "    log.warning('another')\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert done.stderr.splitlines() == ["WARNING: only 3 usable frame(s)", "WARNING: another"] * 2

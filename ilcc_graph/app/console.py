@@ -108,12 +108,32 @@ def _not_estimation_notes(record: logging.LogRecord) -> bool:
     return record.levelno >= logging.WARNING or not record.name.startswith("ilcc_graph.estimation")
 
 
+class SaidOnce(logging.Filter):
+    """Lets a line through once per command: the same warning from each candidate model's solve (only
+    3 usable frames, say) is said once."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.said: set[tuple[int, str]] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        key = (record.levelno, record.getMessage())
+        if key in self.said:
+            return False
+        self.said.add(key)
+        return True
+
+
 def setup_logging(verbose: bool) -> None:
     """INFO on stderr; DEBUG for our own loggers with ``verbose`` (not every library's). The estimation
-    core's INFO notes only with ``verbose`` (a filter on the handlers: the loggers' levels stay theirs)."""
+    core's INFO notes only with ``verbose`` (a filter on the handlers: the loggers' levels stay theirs);
+    each line once per command (``SaidOnce``, made anew for each command)."""
     logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(message)s")
     logging.getLogger("ilcc_graph").setLevel(logging.DEBUG if verbose else logging.INFO)
     for handler in logging.getLogger().handlers:
+        for old in [f for f in handler.filters if isinstance(f, SaidOnce)]:
+            handler.removeFilter(old)
+        handler.addFilter(SaidOnce())
         if verbose:
             handler.removeFilter(_not_estimation_notes)
         elif _not_estimation_notes not in handler.filters:

@@ -1,6 +1,7 @@
 """The folder layout of interface.md as a frame source: ``DATA/config.yaml``, ``DATA/pcd``, ``DATA/img``.
 
-Frames pair by file stem (``io.list_frames``); scans are read by extension (``io.read_scan``).
+Frames pair by file stem (``io.list_frames``), or, when no scan and image share a name and every name
+is a time, by those times (within ``TIME_TOLERANCE_S``); scans are read by extension (``io.read_scan``).
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import numpy as np
 
 from ilcc_graph.config import Config, load_config
 from ilcc_graph.datasets.frame_source import FrameRef, FrameSource
+from ilcc_graph.datasets.timeline import pair_by_time
 from ilcc_graph.errors import InputError
 from ilcc_graph.io import list_frames, read_ground_truth, read_image, read_scan
 from ilcc_graph.io.files import broken_link
@@ -22,6 +24,14 @@ from ilcc_graph.types import Scan
 __all__ = ["FolderSource", "is_folder_source"]
 
 log = logging.getLogger(__name__)
+
+#: scans and images named by their times pair when that far apart at most (s; a bag's default
+#: ``sync_tolerance``): the board is held still, the sensors need not be triggered together
+TIME_TOLERANCE_S = 0.05
+
+
+def _by_time(ts: np.ndarray, ti: np.ndarray) -> dict[int, int]:
+    return pair_by_time(ts, ti, TIME_TOLERANCE_S)
 
 
 def is_folder_source(path: Path) -> bool:
@@ -47,7 +57,9 @@ class FolderSource(FrameSource):
         return load_config(self.path / "config.yaml")
 
     def frames(self, require_scan: bool = True, require_image: bool = True) -> list[FrameRef]:
-        frames, self._skipped = list_frames(self.path, require_image=require_image, require_scan=require_scan)
+        frames, self._skipped = list_frames(
+            self.path, require_image=require_image, require_scan=require_scan, by_time=_by_time
+        )
         for f in frames:
             if f.note and f.note not in self._noted:
                 log.warning("%s: %s", self.path, f.note)

@@ -3,14 +3,26 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from ..errors import InputError
 from .images import IMAGE_SUFFIXES
 from .scans import supported_scan_suffixes
 
-__all__ = ["IMAGE_FOLDERS", "SCAN_FOLDERS", "FramePaths", "data_folders", "list_frames", "natural_key"]
+__all__ = [
+    "IMAGE_FOLDERS",
+    "SCAN_FOLDERS",
+    "FramePaths",
+    "TimePairing",
+    "data_folders",
+    "list_frames",
+    "name_seconds",
+    "natural_key",
+]
 
 #: where a data set's scans may be, first the layout's own (interface.md), then the names other
 #: tools and labs use (KITTI odometry's ``velodyne``, KITTI raw's ``velodyne_points/data``)
@@ -123,8 +135,61 @@ def _by_stem(
     return single
 
 
+#: a name that is a time: seconds with a fraction (``1510868224.123456``, ``1510868224_123456789``),
+#: or whole seconds, milli-, micro- or nanoseconds (10, 13, 16, 19 digits: ``1510868224123456``)
+_TIME_NAME = re.compile(r"^(\d{9,10})(?:[._](\d{1,9}))?$|^(\d{13}|\d{16}|\d{19})$")
+
+#: ``by_time(scan seconds, image seconds) -> {scan index: image index}`` (``datasets.timeline.pair_by_time``)
+TimePairing = Callable[[np.ndarray, np.ndarray], dict[int, int]]
+
+
+def name_seconds(stem: str) -> float | None:
+    """The time a file's name gives, in seconds (``_TIME_NAME``), or None when the name is no time."""
+    m = _TIME_NAME.match(stem)
+    if m is None:
+        return None
+    if m.group(3) is not None:
+        digits = m.group(3)
+        return int(digits) / {13: 1e3, 16: 1e6, 19: 1e9}[len(digits)]
+    return float(f"{m.group(1)}.{m.group(2) or 0}")
+
+
+def _paired_by_time(
+    scans: dict[str, Path], images: dict[str, Path], by_time: TimePairing
+) -> tuple[dict[str, Path], list[tuple[str, str]], str] | None:
+    """Images renamed to the stems of the scans they pair with by the times in their names, the
+    scans and images left alone (stem, reason), and the note saying so; None when some name is no
+    time."""
+    s_names, i_names = sorted(scans), sorted(images)
+    ts = [name_seconds(n) for n in s_names]
+    ti = [name_seconds(n) for n in i_names]
+    if any(t is None for t in ts + ti):
+        return None
+    t_s, t_i = np.array(ts, dtype=np.float64), np.array(ti, dtype=np.float64)
+    pairs = by_time(t_s, t_i)
+    renamed = {s_names[a]: images[i_names[b]] for a, b in pairs.items()}
+    gap = np.abs(t_i[None, :] - t_s[:, None]).min(axis=1)
+    left = [
+        (n, f"scan {scans[n].name}: no image near its time (the nearest {gap[a]:.3f} s away)")
+        for a, n in enumerate(s_names)
+        if a not in pairs
+    ]
+    taken = set(pairs.values())
+    left += [
+        (n, f"image {images[n].name}: no scan near its time") for b, n in enumerate(i_names) if b not in taken
+    ]
+    note = (
+        f"no scan and image share a name: {len(pairs)} of {len(s_names)} scans paired with the image "
+        "nearest in time, by the times their names give (a frame is named by its scan)"
+    )
+    return renamed, left, note
+
+
 def list_frames(
-    data_dir: str | Path, require_image: bool = True, require_scan: bool = True
+    data_dir: str | Path,
+    require_image: bool = True,
+    require_scan: bool = True,
+    by_time: TimePairing | None = None,
 ) -> tuple[list[FramePaths], list[tuple[str, str]]]:
     """Pair ``data_dir/pcd/<stem>.*`` with ``data_dir/img/<stem>.*`` (or the folders of another
     common name, ``data_folders``).
@@ -134,6 +199,8 @@ def list_frames(
     folder of scans or images, two candidates for one, or no frame at all, raises ``InputError``.
     require_image=False (LiDAR-only runs): every scan is a frame, ``image`` is None when it has
     no partner and the images' folder may be absent. require_scan=False likewise for image-only runs.
+    ``by_time``: when no scan and image share a name and every name is a time (``name_seconds``), each
+    scan is paired with the image it gives (the frame named by the scan; said in every frame's note).
     """
     d = Path(data_dir)
     if not d.is_dir():
@@ -160,6 +227,14 @@ def list_frames(
         _by_stem(d / image_dir, IMAGE_SUFFIXES, image_dir, "images", skipped, img_notes) if image_dir else {}
     )
     stems = scans.keys() & images.keys()
+    timed = None
+    if by_time is not None and require_image and require_scan and scans and images and not stems:
+        timed = _paired_by_time(scans, images, by_time)
+    if timed is not None:
+        images, left, note = timed
+        skipped += left
+        stems = set(images)
+        notes = {n: "; ".join(x for x in (notes.get(n), note) if x) for n in stems}
     if not require_image:
         stems |= scans.keys()
     if not require_scan:
@@ -170,14 +245,15 @@ def list_frames(
         )
         for s in stems
     ]  # type: ignore[arg-type]
-    skipped += [
-        (s, f"scan {scans[s].name} has no image in {image_dir or 'img'}/")
-        for s in scans.keys() - images.keys() - stems
-    ]
-    skipped += [
-        (s, f"image {images[s].name} has no scan in {scan_dir or 'pcd'}/")
-        for s in images.keys() - scans.keys() - stems
-    ]
+    if timed is None:  # by time, the ones left alone are listed already
+        skipped += [
+            (s, f"scan {scans[s].name} has no image in {image_dir or 'img'}/")
+            for s in scans.keys() - images.keys() - stems
+        ]
+        skipped += [
+            (s, f"image {images[s].name} has no scan in {scan_dir or 'pcd'}/")
+            for s in images.keys() - scans.keys() - stems
+        ]
     frames.sort(key=lambda f: natural_key(f.name))
     skipped.sort(key=lambda t: natural_key(t[0]))
     if not frames:
