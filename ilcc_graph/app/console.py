@@ -127,13 +127,17 @@ class SaidOnce(logging.Filter):
 def setup_logging(verbose: bool) -> None:
     """INFO on stderr; DEBUG for our own loggers with ``verbose`` (not every library's). The estimation
     core's INFO notes only with ``verbose`` (a filter on the handlers: the loggers' levels stay theirs);
-    each line once per command (``SaidOnce``, made anew for each command)."""
+    each line once per command on the handler made here (``SaidOnce``, anew for each command; a
+    handler of the caller's, pytest's say, is left to say every line)."""
+    ours = not logging.getLogger().handlers
     logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(message)s")
     logging.getLogger("ilcc_graph").setLevel(logging.DEBUG if verbose else logging.INFO)
     for handler in logging.getLogger().handlers:
-        for old in [f for f in handler.filters if isinstance(f, SaidOnce)]:
+        said = [f for f in handler.filters if isinstance(f, SaidOnce)]
+        for old in said:
             handler.removeFilter(old)
-        handler.addFilter(SaidOnce())
+        if ours or said:
+            handler.addFilter(SaidOnce())
         if verbose:
             handler.removeFilter(_not_estimation_notes)
         elif _not_estimation_notes not in handler.filters:
