@@ -113,10 +113,12 @@ def test_a_growing_folder_with_other_names(simulated, tmp_path) -> None:
     assert [a.ref.name for a in got] == [stem] and got[0].ref.scan.parent.name == "lidar"
 
 
-def _timed(src: Path, dst: Path, late_s: dict[int, float], digits: int | None = None) -> Path:
+def _timed(
+    src: Path, dst: Path, late_s: dict[int, float], digits: int | None = None, prefix: str = ""
+) -> Path:
     """A copy of ``src`` whose files are named by times, as recorders and bag_to_pcd name them: scan
     k at 1700000000 + 2 k s, its image 12 ms later (``late_s``: other delays by k); ``digits``: whole
-    microseconds (16 digits) instead of seconds with a fraction."""
+    microseconds (16 digits) instead of seconds with a fraction; ``prefix`` before every scan's name."""
     dst.mkdir(parents=True)
     shutil.copy(src / "config.yaml", dst / "config.yaml")
     (dst / "pcd").mkdir()
@@ -128,7 +130,7 @@ def _timed(src: Path, dst: Path, late_s: dict[int, float], digits: int | None = 
     for k, scan in enumerate(sorted((src / "pcd").iterdir())):
         image = next((src / "img").glob(f"{scan.stem}.*"))
         t = 1700000000 + 2.0 * k
-        shutil.copy(scan, dst / "pcd" / f"{name(t)}{scan.suffix}")
+        shutil.copy(scan, dst / "pcd" / f"{prefix}{name(t)}{scan.suffix}")
         shutil.copy(image, dst / "img" / f"{name(t + late_s.get(k, 0.012))}{image.suffix}")
     return dst
 
@@ -155,6 +157,9 @@ def test_files_named_by_their_times_pair_by_time(simulated, calibrated, tmp_path
     # whole microseconds pair alike; a name that is no time leaves the pairing by names
     micro = _timed(src, tmp_path / "micro", {}, digits=16)
     assert len(open_source(micro).frames()) == n
+    # a prefix every scan's name shares (a recorder's) is not part of the time
+    frames = open_source(_timed(src, tmp_path / "prefixed", {}, prefix="cloud_")).frames()
+    assert len(frames) == n and frames[0].name == "cloud_1700000000.000000"
     first = sorted((micro / "img").iterdir())[0]
     first.rename(first.with_name("left" + first.suffix))
     with pytest.raises(InputError, match="no frame has both a scan in pcd/ and an image in img/"):

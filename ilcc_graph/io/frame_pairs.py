@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -154,15 +155,22 @@ def name_seconds(stem: str) -> float | None:
     return float(f"{m.group(1)}.{m.group(2) or 0}")
 
 
+def _prefix_length(names: list[str]) -> int:
+    """Length of the run of non-digits all ``names`` begin with alike (``frame_``, ``cloud-``): what
+    a recorder put before the time."""
+    common = os.path.commonprefix(names)
+    return next((i for i, c in enumerate(common) if c.isdigit()), len(common))
+
+
 def _paired_by_time(
     scans: dict[str, Path], images: dict[str, Path], by_time: TimePairing
 ) -> tuple[dict[str, Path], list[tuple[str, str]], str] | None:
-    """Images renamed to the stems of the scans they pair with by the times in their names, the
-    scans and images left alone (stem, reason), and the note saying so; None when some name is no
-    time."""
+    """Images renamed to the stems of the scans they pair with by the times in their names (after a
+    prefix every scan's, or every image's, name shares), the scans and images left alone (stem,
+    reason), and the note saying so; None when some name is no time."""
     s_names, i_names = sorted(scans), sorted(images)
-    ts = [name_seconds(n) for n in s_names]
-    ti = [name_seconds(n) for n in i_names]
+    ts = [name_seconds(n[_prefix_length(s_names) :]) for n in s_names]
+    ti = [name_seconds(n[_prefix_length(i_names) :]) for n in i_names]
     if any(t is None for t in ts + ti):
         return None
     t_s, t_i = np.array(ts, dtype=np.float64), np.array(ti, dtype=np.float64)
