@@ -144,7 +144,7 @@ def test_files_named_by_their_times_pair_by_time(simulated, calibrated, tmp_path
     got = yaml.safe_load((out / "calibration.yaml").read_text())
     want = yaml.safe_load((calibrated(src) / "calibration.yaml").read_text())
     n = len(want["frames"])
-    assert f"{n} of {n} scans paired with the image nearest in time" in caplog.text
+    assert f"{n} of {n} scans paired with an image of another name" in caplog.text
     np.testing.assert_allclose(
         np.array(got["T_cam_lidar"]), np.array(want["T_cam_lidar"]), rtol=0, atol=1e-12
     )
@@ -157,6 +157,10 @@ def test_files_named_by_their_times_pair_by_time(simulated, calibrated, tmp_path
     # whole microseconds pair alike; a name that is no time leaves the pairing by names
     micro = _timed(src, tmp_path / "micro", {}, digits=16)
     assert len(open_source(micro).frames()) == n
+    # names that happen to coincide (ms stamps of a 10 Hz and a 30 Hz sensor) pair as the rest do
+    same = _timed(src, tmp_path / "same", {0: 0.0, 2: 0.0})
+    frames = open_source(same).frames()
+    assert len(frames) == n and [f.name for f in frames] == sorted(p.stem for p in (same / "pcd").iterdir())
     # a prefix every scan's name shares (a recorder's) is not part of the time
     frames = open_source(_timed(src, tmp_path / "prefixed", {}, prefix="cloud_")).frames()
     assert len(frames) == n and frames[0].name == "cloud_1700000000.000000"

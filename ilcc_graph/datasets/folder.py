@@ -1,7 +1,8 @@
 """The folder layout of interface.md as a frame source: ``DATA/config.yaml``, ``DATA/pcd``, ``DATA/img``.
 
-Frames pair by file stem (``io.list_frames``), or, when no scan and image share a name and every name
-is a time, by those times (within ``TIME_TOLERANCE_S``); scans are read by extension (``io.read_scan``).
+Frames pair by file stem (``io.list_frames``), or, when some scan has no image of its name and every
+name is a time, by those times (within ``TIME_TOLERANCE_S``); scans are read by extension
+(``io.read_scan``).
 """
 
 from __future__ import annotations

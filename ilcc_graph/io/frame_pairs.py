@@ -166,17 +166,22 @@ def _paired_by_time(
     scans: dict[str, Path], images: dict[str, Path], by_time: TimePairing
 ) -> tuple[dict[str, Path], list[tuple[str, str]], str] | None:
     """Images renamed to the stems of the scans they pair with by the times in their names (after a
-    prefix every scan's, or every image's, name shares), the scans and images left alone (stem,
-    reason), and the note saying so; None when some name is no time."""
+    prefix every scan's, or every image's, name shares; equal names pair at distance 0), the scans
+    and images left alone (stem, reason), and the note saying how many pairs differ in name (empty
+    when none); None when some name is no time."""
     s_names, i_names = sorted(scans), sorted(images)
-    ts = [name_seconds(n[_prefix_length(s_names) :]) for n in s_names]
-    ti = [name_seconds(n[_prefix_length(i_names) :]) for n in i_names]
+    ks, ki = _prefix_length(s_names), _prefix_length(i_names)
+    ts = [name_seconds(n[ks:]) for n in s_names]
+    ti = [name_seconds(n[ki:]) for n in i_names]
     if any(t is None for t in ts + ti):
         return None
     t_s, t_i = np.array(ts, dtype=np.float64), np.array(ti, dtype=np.float64)
     pairs = by_time(t_s, t_i)
     renamed = {s_names[a]: images[i_names[b]] for a, b in pairs.items()}
-    gap = np.abs(t_i[None, :] - t_s[:, None]).min(axis=1)
+    sorted_i = np.sort(t_i)  # each scan's gap to its nearest image, without an n x m table
+    below = np.clip(np.searchsorted(sorted_i, t_s), 1, len(sorted_i)) - 1
+    above = np.minimum(below + 1, len(sorted_i) - 1)
+    gap = np.minimum(np.abs(t_s - sorted_i[below]), np.abs(sorted_i[above] - t_s))
     left = [
         (n, f"scan {scans[n].name}: no image near its time (the nearest {gap[a]:.3f} s away)")
         for a, n in enumerate(s_names)
@@ -186,9 +191,12 @@ def _paired_by_time(
     left += [
         (n, f"image {images[n].name}: no scan near its time") for b, n in enumerate(i_names) if b not in taken
     ]
+    other = sum(1 for a, b in pairs.items() if s_names[a] != i_names[b])
     note = (
-        f"no scan and image share a name: {len(pairs)} of {len(s_names)} scans paired with the image "
-        "nearest in time, by the times their names give (a frame is named by its scan)"
+        f"{other} of {len(s_names)} scans paired with an image of another name, the one nearest in "
+        "time by the times the names give (a frame is named by its scan)"
+        if other
+        else ""
     )
     return renamed, left, note
 
@@ -207,8 +215,9 @@ def list_frames(
     folder of scans or images, two candidates for one, or no frame at all, raises ``InputError``.
     require_image=False (LiDAR-only runs): every scan is a frame, ``image`` is None when it has
     no partner and the images' folder may be absent. require_scan=False likewise for image-only runs.
-    ``by_time``: when no scan and image share a name and every name is a time (``name_seconds``), each
-    scan is paired with the image it gives (the frame named by the scan; said in every frame's note).
+    ``by_time``: when some scan has no image of its name and every name is a time (``name_seconds``),
+    scans and images pair as it says (the frame named by the scan; said in every frame's note when
+    some pair's names differ).
     """
     d = Path(data_dir)
     if not d.is_dir():
@@ -236,13 +245,14 @@ def list_frames(
     )
     stems = scans.keys() & images.keys()
     timed = None
-    if by_time is not None and require_image and require_scan and scans and images and not stems:
+    if by_time is not None and require_image and require_scan and images and len(stems) < len(scans):
         timed = _paired_by_time(scans, images, by_time)
     if timed is not None:
         images, left, note = timed
         skipped += left
         stems = set(images)
-        notes = {n: "; ".join(x for x in (notes.get(n), note) if x) for n in stems}
+        if note:
+            notes = {n: "; ".join(x for x in (notes.get(n), note) if x) for n in stems}
     if not require_image:
         stems |= scans.keys()
     if not require_scan:
