@@ -46,8 +46,7 @@ from ilcc_graph.estimation.selection import (
     MODELS,
     Selection,
     candidates,
-    choose,
-    contradicted,
+    decide,
     mixture,
     range_terms,
 )
@@ -246,11 +245,10 @@ def _solve_all(frames: list[FrameResult], config: Config) -> dict[str, ModelSolv
 
 
 def _choose(ok: dict[str, ModelSolve], names: tuple[str, ...]) -> Selection:
-    """The choice ``select_model`` makes, from the cached solves ``ok`` (models whose range terms
-    contradict the others' left out: ``selection.contradicted``)."""
-    left_out = contradicted({n: s.terms for n, s in ok.items()}, [MODELS[n] for n in ok])
+    """The choice ``select_model`` makes (``selection.decide``), from the cached solves ``ok``."""
     held = {n: s.held_out for n, s in ok.items()}
-    return choose(held, {n: len(s.boards) for n, s in ok.items()}, names, None, left_out)
+    used = {n: len(s.boards) for n, s in ok.items()}
+    return decide(held, used, names, None, {n: s.terms for n, s in ok.items()}, [MODELS[n] for n in ok])
 
 
 def _refit(

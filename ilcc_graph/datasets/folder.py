@@ -14,7 +14,7 @@ import numpy as np
 
 from ilcc_graph.config import Config, load_config
 from ilcc_graph.datasets.frame_source import FrameRef, FrameSource
-from ilcc_graph.datasets.timeline import pair_by_time
+from ilcc_graph.datasets.timeline import nearest, pair_by_time
 from ilcc_graph.errors import InputError
 from ilcc_graph.io import list_frames, read_ground_truth, read_image, read_scan
 from ilcc_graph.io.files import broken_link
@@ -31,8 +31,9 @@ log = logging.getLogger(__name__)
 TIME_TOLERANCE_S = 0.05
 
 
-def _by_time(ts: np.ndarray, ti: np.ndarray) -> dict[int, int]:
-    return pair_by_time(ts, ti, TIME_TOLERANCE_S)
+def _by_time(ts: np.ndarray, ti: np.ndarray) -> tuple[dict[int, int], np.ndarray]:
+    """``io.TimePairing``: scans paired with images within ``TIME_TOLERANCE_S``, each scan's gap (s)."""
+    return pair_by_time(ts, ti, TIME_TOLERANCE_S), np.abs(ti[nearest(ti, ts)] - ts)
 
 
 def is_folder_source(path: Path) -> bool:

@@ -54,6 +54,7 @@ __all__ = [
     "candidates",
     "choose",
     "contradicted",
+    "decide",
     "mixture",
     "range_terms",
     "select_model",
@@ -390,7 +391,22 @@ def select_model(
         except np.linalg.LinAlgError as err:  # a singular held-out system: no score, no weight
             failures[name] = f"held-out score: {err}"
     terms = {n: range_terms(sol) for n, sol in sols.items()}  # (0, 0) for a model without range terms
-    left_out = contradicted(terms, [m for m in models if m.name in sols])
+    used = {n: len(sol.boards) for n, sol in sols.items()}
+    return sols, decide(scores, used, names, failures, terms, [m for m in models if m.name in sols])
+
+
+def decide(
+    scores: Mapping[str, Mapping[_Board, HeldOut]],
+    used: Mapping[str, int],
+    names: Sequence[str],
+    failures: Mapping[str, str] | None,
+    terms: Mapping[str, tuple[float, int]],
+    solved: Sequence[SensorModel],
+) -> Selection:
+    """``choose`` with the models the ``terms`` (each solved model's ``range_terms``) contradict left
+    out (``contradicted``, said at INFO): the choice ``select_model`` makes, also from cached solves
+    (scripts/bench_sensor_model.py)."""
+    left_out = contradicted(terms, solved)
     for name, why in left_out.items():
         log.info("sensor model %s left out: %s", name, why)
-    return sols, choose(scores, {n: len(sol.boards) for n, sol in sols.items()}, names, failures, left_out)
+    return choose(scores, used, names, failures, left_out)

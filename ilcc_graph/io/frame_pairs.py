@@ -140,8 +140,9 @@ def _by_stem(
 #: or whole seconds, milli-, micro- or nanoseconds (10, 13, 16, 19 digits: ``1510868224123456``)
 _TIME_NAME = re.compile(r"^(\d{9,10})(?:[._](\d{1,9}))?$|^(\d{13}|\d{16}|\d{19})$")
 
-#: ``by_time(scan seconds, image seconds) -> {scan index: image index}`` (``datasets.timeline.pair_by_time``)
-TimePairing = Callable[[np.ndarray, np.ndarray], dict[int, int]]
+#: ``by_time(scan seconds, image seconds) -> ({scan index: image index}, each scan's gap to its
+#: nearest image in s)`` (``datasets.folder``, by ``datasets.timeline.pair_by_time``)
+TimePairing = Callable[[np.ndarray, np.ndarray], tuple[dict[int, int], np.ndarray]]
 
 
 def name_seconds(stem: str) -> float | None:
@@ -176,12 +177,8 @@ def _paired_by_time(
     if any(t is None for t in ts + ti):
         return None
     t_s, t_i = np.array(ts, dtype=np.float64), np.array(ti, dtype=np.float64)
-    pairs = by_time(t_s, t_i)
+    pairs, gap = by_time(t_s, t_i)
     renamed = {s_names[a]: images[i_names[b]] for a, b in pairs.items()}
-    sorted_i = np.sort(t_i)  # each scan's gap to its nearest image, without an n x m table
-    below = np.clip(np.searchsorted(sorted_i, t_s), 1, len(sorted_i)) - 1
-    above = np.minimum(below + 1, len(sorted_i) - 1)
-    gap = np.minimum(np.abs(t_s - sorted_i[below]), np.abs(sorted_i[above] - t_s))
     left = [
         (n, f"scan {scans[n].name}: no image near its time (the nearest {gap[a]:.3f} s away)")
         for a, n in enumerate(s_names)
@@ -251,6 +248,7 @@ def list_frames(
         images, left, note = timed
         skipped += left
         stems = set(images)
+        img_notes = {n: img_notes[p.stem] for n, p in images.items() if p.stem in img_notes}
         if note:
             notes = {n: "; ".join(x for x in (notes.get(n), note) if x) for n in stems}
     if not require_image:
