@@ -242,7 +242,9 @@ class MomentResult:
 
     name: the moment's name. boards: {LiDAR: BoardFit} (its own frame). corners: {camera:
     ImageCorners}. failures: {sensor: reason} for the sensors that had data but no board (or whose
-    file could not be read). damaged: the sensors whose file could not be read.
+    file could not be read). damaged: the sensors whose file could not be read. contradicted: the
+    cameras whose image showed the print's lower-left square in the other colour than the board's
+    ``lower_left`` (``errors.BoardColourMismatch``; the rig's start turns the colour on their vote).
     Each observation's corner order is its own stage's (known up to the board's half turn when
     ``half_turn_ambiguous``); ``init.rig_start`` makes them agree.
     """
@@ -252,6 +254,7 @@ class MomentResult:
     corners: dict[str, ImageCorners] = field(default_factory=dict)
     failures: dict[str, str] = field(default_factory=dict)
     damaged: tuple[str, ...] = ()
+    contradicted: tuple[str, ...] = ()
 
     @property
     def sensors(self) -> tuple[str, ...]:

@@ -251,7 +251,8 @@ def check_command(
 
     result = run_check(source, options, on_verdict, on_idle)
     status.clear()
-    print("\n" + _wrapped(f"{format_progress(result.verdicts, target)} ({result.stopped})"))
+    line = format_progress(result.verdicts, target)
+    print("\n" + _wrapped(line if result.stopped in line else f"{line} ({result.stopped})"))
     proposal = None
     if result.final is not None:
         s = sigmas_deg_mm(result.final.covariance)

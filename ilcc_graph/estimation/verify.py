@@ -1,8 +1,9 @@
 """Verify a stored rig calibration against a short new capture (issue 24): has a sensor moved?
 
-Method: the new capture is solved **alone** (``rig_solve.solve_rig``; the stored poses serve only as
-the start that orders its corners, ``init.rig_start.place_boards``) and compared with the stored
-poses. For each sensor s other than the reference, with ``T0`` stored and ``T1`` new (both
+Method: the new capture is solved **alone** (a rig: ``rig_solve.solve_rig``, the stored poses serving
+only as the start that orders its corners, ``init.rig_start.place_boards``; a pair of one camera and
+one LiDAR: by the caller as ``calibrate`` solves a pair, then ``verify_pair``) and compared with the
+stored poses. For each sensor s other than the reference, with ``T0`` stored and ``T1`` new (both
 ``T_ref_s``), the change is ``d = Log(T0^-1 T1)`` (rotation first, rad and m, about and along the
 sensor's own axes) and, the two estimates being independent (different boards), its covariance is
 ``C = Ad(D^-1) P0 Ad(D^-1)^T + P1`` (``sessions.compare_estimates``; P0 the stored covariance, P1
@@ -63,6 +64,7 @@ __all__ = [
     "VerifyOptions",
     "VerifyResult",
     "detectable_change",
+    "verify_pair",
     "verify_rig",
 ]
 
@@ -303,6 +305,33 @@ def verify_rig(
         glob = _global_test(stored, sol, solved)
     worst = max((VERDICTS.index(c.verdict) for c in checks.values()), default=1)
     return VerifyResult(VERDICTS[worst], stored.reference, checks, alpha, glob, sol, RULE, notes)
+
+
+def verify_pair(
+    stored: StoredRig,
+    sensor: str,
+    new: Estimate | None,
+    boards: int,
+    options: VerifyOptions = VerifyOptions(),
+    notes: Sequence[str] = (),
+) -> VerifyResult:
+    """Check a stored pair's non-reference ``sensor`` against the capture's own calibration of it
+    (``new``: its pose in the reference's frame with covariance, solved as ``calibrate`` solves a
+    pair; None when the capture could not be solved, ``notes`` saying why). ``boards``: the boards
+    the capture's solve used. The verdicts and the rule as ``verify_rig``'s (module docstring)."""
+    if sensor not in stored.sensors or sensor == stored.reference:
+        raise ValueError(f"verify: {sensor!r} is not a checked sensor of {list(stored.sensors)}")
+    if new is None:
+        why = notes[0] if notes else "the capture could not be solved"
+        check = _unchecked(sensor, "warn", f"unchecked: {why}", boards)
+        return VerifyResult(
+            "warn", stored.reference, {sensor: check}, options.alpha, None, None, RULE, list(notes)
+        )
+    check = _check(sensor, stored.pose(sensor), new, options.alpha, options, boards)
+    glob = (check.chi2, POSE3_DOF, check.p_value)
+    return VerifyResult(
+        check.verdict, stored.reference, {sensor: check}, options.alpha, glob, None, RULE, list(notes)
+    )
 
 
 def _global_test(stored: StoredRig, sol: RigSolution, sensors: Sequence[str]) -> tuple[float, int, float]:

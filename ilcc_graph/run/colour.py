@@ -13,8 +13,9 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Iterable, Iterator, Sequence
+from typing import TypeVar
 
-from ilcc_graph.config import Config
+from ilcc_graph.config import Config, RigConfig
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import BoardColourMismatch, FrameError
 from ilcc_graph.image import ImageOptions
@@ -25,8 +26,12 @@ log = logging.getLogger(__name__)
 __all__ = ["check_board_colour", "colour_votes", "colour_warning", "other_colour"]
 
 
-def other_colour(config: Config) -> Config:
-    """The config with the other ``board.lower_left`` colour."""
+#: a pair's ``Config`` or a rig's ``RigConfig``: both hold the one ``board`` and their ``source``
+C = TypeVar("C", Config, RigConfig)
+
+
+def other_colour(config: C) -> C:
+    """The config (a pair's or a rig's) with the other ``board.lower_left`` colour."""
     board = config.board
     other = "white" if board.lower_left == "black" else "black"
     return dataclasses.replace(config, board=dataclasses.replace(board, lower_left=other))
@@ -81,8 +86,9 @@ def colour_votes(results: Iterable[object], needed: int = 2) -> tuple[int, int]:
     return agree, disagree
 
 
-def colour_warning(config: Config, evidence: str) -> Config:
-    """The config with the other print colour, said once (``evidence``: where the images say so)."""
+def colour_warning(config: C, evidence: str) -> C:
+    """The config (a pair's or a rig's) with the other print colour, said once (``evidence``: where
+    the images say so)."""
     turned = other_colour(config)
     log.warning(
         "%s: board.lower_left is %s, but the print's lower-left square (seen from the front, long side "

@@ -4,14 +4,16 @@ every camera's image, each with that sensor's own settings; failures kept per (m
 ``observe_moment`` is pure (scans and images in memory, e.g. the simulator's ``RigMoment``);
 ``observe_source_moment`` reads one moment through a ``RigSource`` first (picklable arguments, for
 ``workers.map_processes`` as the single-pair pass runs ``observe.observe_frame``); ``observe_rig``
-runs it over every moment of a source. A LiDAR's stage config is the rig's board, its beam table
-(None: measured from the scan) and its ROI (``RigConfig.pair_config``'s LiDAR half); a camera's is
-the board and its model.
+runs it over every moment of a source after the start a pair's run has too (``open_rig``: each
+LiDAR's beam table from its scans; the print's colour from the first images). A LiDAR's stage config
+is the rig's board, its beam table and its ROI (``RigConfig.pair_config``'s LiDAR half); a camera's
+is the board and its model.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import dataclasses
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,13 +21,15 @@ import numpy as np
 from ilcc_graph import workers
 from ilcc_graph.config import RigConfig
 from ilcc_graph.datasets.rig import Moment, RigSource
-from ilcc_graph.errors import DamagedFile, FrameError
+from ilcc_graph.errors import BoardColourMismatch, DamagedFile, FrameError, InputError
 from ilcc_graph.image import detect_corners
 from ilcc_graph.lidar import estimate_board
+from ilcc_graph.run.colour import colour_votes, colour_warning
+from ilcc_graph.run.source import resolve_beams
 from ilcc_graph.run.stages import StageOptions, read_frame_file
 from ilcc_graph.types import BoardFit, ImageCorners, MomentResult, Scan
 
-__all__ = ["RigObservation", "observe_moment", "observe_rig", "observe_source_moment"]
+__all__ = ["RigObservation", "observe_moment", "observe_rig", "observe_source_moment", "open_rig"]
 
 
 @dataclass(frozen=True)
@@ -79,11 +83,14 @@ def observe_moment(
     corners: dict[str, ImageCorners] = {}
     failures: dict[str, str] = {}
     damaged: list[str] = []
+    contradicted: list[str] = []
 
     def failed(sensor: str, err: FrameError) -> None:
         failures[sensor] = str(err)
         if isinstance(err, DamagedFile):
             damaged.append(sensor)
+        if isinstance(err, BoardColourMismatch):
+            contradicted.append(sensor)
 
     for lid in (x for x in rig.lidars if x in scans):
         try:
@@ -95,7 +102,7 @@ def observe_moment(
             corners[cam] = _camera(images[cam], rig, cam, options, f"{name}/{cam}")
         except FrameError as err:
             failed(cam, err)
-    return MomentResult(name, boards, corners, failures, tuple(damaged))
+    return MomentResult(name, boards, corners, failures, tuple(damaged), tuple(contradicted))
 
 
 def observe_source_moment(
@@ -122,7 +129,7 @@ def observe_source_moment(
         (scans if s in rig.lidars else images)[s] = data
     res = observe_moment(moment.name, scans, images, rig, options)
     res.failures.update(failed)
-    return MomentResult(res.name, res.boards, res.corners, res.failures, (*res.damaged, *failed))
+    return dataclasses.replace(res, damaged=(*res.damaged, *failed))
 
 
 def observe_rig(
@@ -130,9 +137,56 @@ def observe_rig(
     options: StageOptions = StageOptions(),
     progress: Callable[[int, int], None] | None = None,
 ) -> RigObservation:
-    """Every moment of a ``datasets.RigSource`` through the stages, on ``options.jobs`` processes."""
-    rig = source.config()
+    """Every moment of a ``datasets.RigSource`` through the stages, on ``options.jobs`` processes,
+    after the start every run has (``open_rig``: each LiDAR's beam table from its scans); the print's
+    colour decided on the first moments' camera results as a pair's pass decides it
+    (``colour.colour_votes``), the moments observed again with the other colour when they contradict
+    the board's ``lower_left``."""
+    if options.jobs > 1:
+        workers.prestart()
     moments = source.moments()
-    items = [(source, m, rig, options) for m in moments]
-    done = workers.map_processes(observe_source_moment, items, options.jobs, progress)
+    rig = open_rig(source, moments)
+    done = _observe_moments(source, moments, rig, options, progress)
+    agree, disagree = colour_votes(_colour_results(done[:6], rig))
+    if rig.board.half_turn_symmetric and disagree > agree:
+        rig = colour_warning(rig, "images checked")
+        done = _observe_moments(source, moments, rig, options, progress)
     return RigObservation(rig, done, list(source.skipped()))
+
+
+def open_rig(source: RigSource, moments: Sequence[Moment], look: int = 3) -> RigConfig:
+    """The rig's config with every LiDAR's beam table as its scans show it (``source.resolve_beams``
+    on the first readable of its first ``look`` scans, as a pair's run starts)."""
+    rig = source.config()
+
+    def scans(lidar: str) -> Iterator[tuple[Scan, str]]:
+        for m in [m for m in moments if m.has(lidar)][:look]:
+            try:
+                yield source.read_scan(m, lidar), f"{m.name}/{lidar}"
+            except InputError:
+                continue  # a damaged scan: its stage says so for its moment
+
+    sensors = tuple(
+        dataclasses.replace(s, lidar=resolve_beams(scans(s.name), s.lidar)) if s.kind == "lidar" else s
+        for s in rig.sensors
+    )
+    return dataclasses.replace(rig, sensors=sensors)
+
+
+def _observe_moments(
+    source: RigSource, moments: Sequence[Moment], rig: RigConfig, options: StageOptions,
+    progress: Callable[[int, int], None] | None,
+) -> list[MomentResult]:  # fmt: skip
+    items = [(source, m, rig, options) for m in moments]
+    return workers.map_processes(observe_source_moment, items, options.jobs, progress)
+
+
+def _colour_results(moments: Sequence[MomentResult], rig: RigConfig) -> Iterator[object]:
+    """Each camera's image result for ``colour.colour_votes``, moment by moment: its corners, a
+    ``BoardColourMismatch`` where the print contradicted ``lower_left``, None otherwise."""
+    for m in moments:
+        for cam in rig.cameras:
+            if cam in m.contradicted:
+                yield BoardColourMismatch(m.failures.get(cam, ""))
+            else:
+                yield m.corners.get(cam)

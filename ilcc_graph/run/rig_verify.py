@@ -2,8 +2,9 @@
 
 ``load_stored(path)`` reads a rig's calibration.yaml (``io.rig_results``) or a single pair's
 (``io.read_calibration``: the rig of ``lidar`` and ``camera``, as a single-pair data set opened as a
-rig names them); ``verify_capture(stored, source, options)`` runs the stages on the capture
-(``rig_observe``) and the test (``estimation.verify.verify_rig``); ``verify_to_dict`` and
+rig names them); ``verify_capture(stored, source, options)`` observes and solves the capture as
+``calibrate`` does (a pair: ``pipeline.run`` on it, then ``estimation.verify.verify_pair``; a larger
+rig: ``rig_observe`` and ``estimation.verify.verify_rig``); ``verify_to_dict`` and
 ``verify_text`` are what the command writes and prints. Units in the answer: deg and mm.
 """
 
@@ -19,15 +20,26 @@ import numpy as np
 
 from ilcc_graph.config.rig import PAIR_NAMES
 from ilcc_graph.datasets import open_source
-from ilcc_graph.datasets.rig import RigSource
-from ilcc_graph.errors import InputError
-from ilcc_graph.estimation.verify import StoredRig, VerifyOptions, VerifyResult, verify_rig
+from ilcc_graph.datasets.rig import RigPair, RigSource
+from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem, InputError
+from ilcc_graph.estimation.verify import StoredRig, VerifyOptions, VerifyResult, verify_pair, verify_rig
 from ilcc_graph.io import read_calibration
 from ilcc_graph.io.rig_results import is_rig_calibration, read_rig_calibration
-from ilcc_graph.run.rig_observe import RigObservation, observe_rig
+from ilcc_graph.run.pipeline import run
+from ilcc_graph.run.result import RunOptions
+from ilcc_graph.run.rig_observe import observe_rig
 from ilcc_graph.run.stages import StageOptions
+from ilcc_graph.types import Estimate
 
-__all__ = ["EXIT_CODES", "VerifyRun", "load_stored", "verify_capture", "verify_text", "verify_to_dict"]
+__all__ = [
+    "EXIT_CODES",
+    "VerifyRun",
+    "load_stored",
+    "verify_capture",
+    "verify_pair_capture",
+    "verify_text",
+    "verify_to_dict",
+]
 
 #: the command's exit status per verdict (docs/verify.md; 1, 2, 3 and the signals' as every command's)
 EXIT_CODES = {"pass": 0, "warn": 4, "fail": 5}
@@ -35,10 +47,10 @@ EXIT_CODES = {"pass": 0, "warn": 4, "fail": 5}
 
 @dataclass(frozen=True)
 class VerifyRun:
-    """A verify run: the test's answer and the capture's observations."""
+    """A verify run: the test's answer and how many moments the capture had."""
 
     result: VerifyResult
-    observation: RigObservation
+    moments: int
 
 
 def load_stored(path: str | Path) -> StoredRig:
@@ -61,7 +73,9 @@ def verify_capture(
     progress: Callable[[int, int], None] | None = None,
 ) -> VerifyRun:
     """The capture ``source`` (a rig folder, file or bag, or a single-pair data set) against
-    ``stored``; InputError when the capture's sensors are not the calibration's."""
+    ``stored``; InputError when the capture's sensors are not the calibration's. A capture of one
+    camera and one LiDAR is observed and solved as ``calibrate`` does a pair (``verify_pair_capture``);
+    a larger rig by the rig's pass and solve."""
     src = source if isinstance(source, RigSource) else open_source(source, rig=True)
     rig = src.config()
     missing = [s for s in rig.names if s not in stored.sensors]
@@ -70,10 +84,44 @@ def verify_capture(
             f"{rig.source or source}: sensors {missing} are not in the stored calibration "
             f"(it has {list(stored.sensors)})"
         )
+    if len(rig.cameras) == 1 and len(rig.lidars) == 1:
+        return verify_pair_capture(stored, src, options, stages, progress)
     obs = observe_rig(src, stages, progress)
+    rig = obs.rig  # as the capture shows it: each LiDAR's beam table, the print's colour
     cams = {c: cam for c in rig.cameras if (cam := rig.sensor(c).camera) is not None}
     res = verify_rig(stored, obs.moments, rig.board, list(rig.lidars), cams, options)
-    return VerifyRun(res, obs)
+    return VerifyRun(res, len(obs.moments))
+
+
+def verify_pair_capture(
+    stored: StoredRig,
+    source: RigSource,
+    options: VerifyOptions = VerifyOptions(),
+    stages: StageOptions = StageOptions(),
+    progress: Callable[[int, int], None] | None = None,
+) -> VerifyRun:
+    """A capture of one camera and one LiDAR calibrated as ``calibrate`` calibrates a pair (the same
+    start, observation pass, sensor model, refit, second look and gate: ``pipeline.run``), its answer
+    compared with ``stored`` (``estimation.verify.verify_pair``); a capture that does not calibrate
+    leaves the camera unchecked, saying why."""
+    rig = source.config()
+    camera, lidar = rig.cameras[0], rig.lidars[0]
+    pair = RigPair(source, camera, lidar)
+    cb = None if progress is None else (lambda _name, i, n: progress(i, n))
+    notes: list[str] = []
+    try:
+        result = run([pair], RunOptions(stages=stages), cb)
+    except (CalibrationImpossible, IndeterminateSystem) as err:
+        notes.append(f"the capture could not be calibrated: {err}")
+        res = verify_pair(stored, camera, None, 0, options, notes)
+        return VerifyRun(res, len(source.moments()))
+    cal = result.calibration
+    checked, new = camera, StoredRig.pair(cal.T_cam_lidar, cal.covariance, camera, lidar).pose(camera)
+    if stored.reference != lidar:  # the camera is the reference: the LiDAR's pose is T_cam_lidar
+        checked, new = lidar, Estimate(cal.T_cam_lidar, cal.covariance)
+    used = sum(1 for f in cal.frames if f.used)
+    res = verify_pair(stored, checked, new, used, options, notes)
+    return VerifyRun(res, len(source.moments()))
 
 
 def verify_to_dict(run: VerifyRun, options: VerifyOptions) -> dict[str, Any]:
@@ -117,7 +165,7 @@ def verify_to_dict(run: VerifyRun, options: VerifyOptions) -> dict[str, Any]:
         "tolerance_deg": options.tolerance_deg,
         "tolerance_mm": options.tolerance_mm,
         "global_test": glob,
-        "moments": len(run.observation.moments),
+        "moments": run.moments,
         "notes": list(r.notes),
         "rule": r.rule,
     }
@@ -127,7 +175,7 @@ def verify_text(run: VerifyRun) -> str:
     """What the command prints: per sensor its verdict and reason, per axis the change, its sigma and
     the smallest detectable change; the verdict word last."""
     r = run.result
-    lines = [f"verify: {len(run.observation.moments)} moments; poses relative to {r.reference}"]
+    lines = [f"verify: {run.moments} moments; poses relative to {r.reference}"]
     for s, c in r.sensors.items():
         lines += textwrap.wrap(f"{s}: {c.verdict.upper()} - {c.reason}", 80, subsequent_indent="   ")
         if c.axes:

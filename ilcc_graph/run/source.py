@@ -12,15 +12,16 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import InputError
-from ilcc_graph.lidars import choose_model, measure_beams
+from ilcc_graph.lidars import LidarModel, choose_model, measure_beams
 from ilcc_graph.run.colour import check_board_colour
 from ilcc_graph.run.stages import StageOptions, size_problem
+from ilcc_graph.types import Scan
 
 log = logging.getLogger(__name__)
 
@@ -28,6 +29,7 @@ __all__ = [
     "Opened",
     "check_image_size",
     "open_run",
+    "resolve_beams",
     "resolve_lidar",
 ]
 
@@ -72,25 +74,33 @@ def open_run(
 
 
 def resolve_lidar(source: FrameSource, refs: Sequence[FrameRef], config: Config, look: int = 3) -> Config:
-    """The config with the beam table the scans show, warning once when it contradicts the config's.
+    """The config with the beam table the scans show (``resolve_beams`` on the first readable scan of
+    the first ``look`` frames); an unreadable scan is left to the LiDAR stage."""
 
-    The first readable scan of the first ``look`` frames is measured (``lidars.measure_beams``:
-    ring field, organised rows or elevation clusters) and checked against ``config.lidar`` (a named
-    model or a calibration file); the measured table is used where they differ. With no model in
-    the config the measured one is used silently. An unreadable scan is left to the LiDAR stage.
-    """
-    for ref in refs[:look]:
-        if ref.scan is None:
-            continue
-        try:
-            scan = source.read_scan(ref, config)
-        except InputError:
-            continue
-        model, warning = choose_model(measure_beams(scan), config.lidar, scan.source or ref.name)
+    def scans() -> Iterator[tuple[Scan, str]]:
+        for ref in refs[:look]:
+            if ref.scan is None:
+                continue
+            try:
+                yield source.read_scan(ref, config), ref.name
+            except InputError:
+                continue
+
+    return dataclasses.replace(config, lidar=resolve_beams(scans(), config.lidar))
+
+
+def resolve_beams(scans: Iterable[tuple[Scan, str]], given: LidarModel | None) -> LidarModel | None:
+    """The beam table the first of ``scans`` ((scan, where) pairs) shows, warning once when it
+    contradicts ``given`` (a named model or a calibration file; ``lidars.measure_beams``: ring
+    field, organised rows or elevation clusters; the measured table is used where they differ).
+    With no ``given`` the measured one is used silently; ``given`` when there is no scan. The one
+    rule of every run's start: a pair's (``resolve_lidar``) and each LiDAR of a rig's."""
+    for scan, where in scans:
+        model, warning = choose_model(measure_beams(scan), given, scan.source or where)
         if warning:
             log.warning("%s", warning)
-        return dataclasses.replace(config, lidar=model)
-    return config
+        return model
+    return given
 
 
 def check_image_size(source: FrameSource, refs: Sequence[FrameRef], config: Config, look: int = 3) -> None:
