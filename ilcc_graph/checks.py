@@ -1,6 +1,6 @@
 """Checks of configuration values with messages ``<file>: <key> = <value>: expected <what>``.
 
-Shared by ``config.py`` and the sections it hands to other modules (``cameras/``): every failure
+Shared by ``config/`` and the sections it hands to other modules (``cameras/``): every failure
 is an ``InputError`` naming the file, the key path (``camera.K``), the value found and what was
 expected.
 """

@@ -1,4 +1,4 @@
-"""The registry of camera kinds: ``@register("<kind>")`` and the look-ups config.py and others use."""
+"""The registry of camera kinds: ``@register("<kind>")`` and the look-ups ``config/`` and others use."""
 
 from __future__ import annotations
 

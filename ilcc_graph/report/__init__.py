@@ -1,7 +1,7 @@
 """Is the result right? The paper's re-projection metric, studies, overlays, coloured clouds, report.
 
 - :mod:`.metric`: the paper's intensity-based re-projection error (Eq. 14) per point and frame;
-  :mod:`.evaluation`: ``evaluate(frames, camera, board, T_cam_lidar) -> Evaluation`` (per frame and
+  :mod:`.frame_errors`: ``evaluate(frames, camera, board, T_cam_lidar) -> Evaluation`` (per frame and
   overall, with corner errors in px and mrad).
 - :mod:`.studies`: ``cross_validate`` and ``frames_vs_accuracy`` (take the observations and a
   solver callable ``solve(frames) -> (T, cov)``).
@@ -9,7 +9,7 @@
 - :mod:`.plots`: charts as PNG bytes.
 - :mod:`.figures`: a frame's pictures (on the image stage's kept views, compressed);
   :mod:`.sections`: the page's parts; :mod:`.html`: ``build_report(...) -> {relative path: bytes}``
-  (``index.html`` and ``figures/``); :mod:`.rig`: the rig and the next board pose, from above and aside.
+  (``index.html``, ``figures/``); :mod:`.next_pose_picture`: the rig and the next board pose, above and aside.
 - A rig (several sensors): :mod:`.rig_verdict` (``rig_verdict``, ``rig_verdict_lines``), :mod:`.rig_report`
   (``write_rig_report``: its page), :mod:`.rig_pictures` (LiDAR boards on the images, ``board_share``).
 
