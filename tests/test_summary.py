@@ -212,3 +212,16 @@ def test_the_report_in_a_browser(run, tmp_path):
     shown = re.search(r'<pre id="r">(.*?)</pre>', dom, re.S).group(1).splitlines()
     assert [line.rsplit(" ", 1)[0] for line in shown] == images
     assert [line for line in shown if not line.endswith(" ok")] == []
+
+
+def test_a_stage_table_of_long_reasons_fits_80_columns() -> None:
+    """``lidar-corners`` / ``image-corners`` tables: a reason of hundreds of characters (the LiDAR
+    stage's, on a real scan) wraps under its column; no line and no rule is wider than 80 columns."""
+    from ilcc_graph.report.text import STAGE_HEADERS, format_table
+
+    reason = "no segment passed the chessboard tests (43 board-sized candidates); " * 12
+    text = format_table([("pose01", "no", 12, reason), ("pose02", "yes", 4000, "")], STAGE_HEADERS["lidar"])
+    lines = text.splitlines()
+    assert max(len(line) for line in lines) <= 80, text
+    assert " ".join(" ".join(line[23:].split()) for line in lines[2:-1]) == " ".join(reason.split())
+    assert lines[-1].split() == ["pose02", "yes", "4000"]

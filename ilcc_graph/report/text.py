@@ -3,6 +3,7 @@ summary of ``calibrate`` is ``summary``)."""
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 
 from ..lidar.outline import BEYOND_FOV_SHARE
@@ -27,13 +28,20 @@ STAGE_HEADERS = {
 }
 
 
-def format_table(rows: Sequence[Sequence[object]], header: Sequence[str]) -> str:
-    """Left-aligned columns with a rule under the header."""
+def format_table(rows: Sequence[Sequence[object]], header: Sequence[str], width: int = 80) -> str:
+    """Left-aligned columns with a rule under the header; the last column (a reason, as long as it
+    needs) wrapped to ``width`` columns below its own start, its rule no wider than that."""
     cells = [[str(c) for c in header]] + [[str(c) for c in r] for r in rows]
     widths = [max(len(r[i]) for r in cells) for i in range(len(header))]
+    start = sum(w + 2 for w in widths[:-1])
+    room = max(width - start, len(cells[0][-1]), 20)
+    widths[-1] = min(widths[-1], room)
     lines = []
     for j, r in enumerate(cells):
-        lines.append("  ".join(c.ljust(w) for c, w in zip(r, widths)).rstrip())
+        last = textwrap.wrap(r[-1], room, break_long_words=True) or [""]
+        head = "  ".join(c.ljust(w) for c, w in zip(r[:-1], widths[:-1]))
+        lines.append(f"{head}  {last[0]}".rstrip() if r[:-1] else last[0])
+        lines += [" " * start + more for more in last[1:]]
         if j == 0:
             lines.append("  ".join("-" * w for w in widths))
     return "\n".join(lines)
