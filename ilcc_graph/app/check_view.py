@@ -201,10 +201,15 @@ class LiveAdvice:
             moved = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1))) > 0.5
             moved = moved or np.linalg.norm(d[:3, 3]) > 0.02
             moved = moved or bool(np.any(np.abs(np.log(noise / self._noise)) > np.log(1.2)))
+            moved = moved or (adv.solved is None) != (sol.solved is None)  # the sensor model's terms
+            moved = moved or (sol.solved is not None and adv.solved.dim != sol.solved.dim)
         if adv is None or moved or len(frames) >= 2 * self._fitted_on:
             rig = next_pose.Rig(config.camera, np.asarray(T_cam_lidar), config.lidar, config.board)
-            adv = self._advisor = next_pose.Advisor(rig, frames, information_scale=noise[2])
+            adv = self._advisor = next_pose.Advisor(
+                rig, frames, information_scale=noise[2], solved=sol.solved
+            )
             self._fitted_on, self._noise = len(frames), noise
+        adv.solved = sol.solved  # the gain through the shared terms from this solve's covariance
         return adv.propose(covariance, self.target_sigma, frames)
 
 

@@ -19,6 +19,7 @@ from ilcc_graph.estimation.camera_choice import choose_intrinsics
 from ilcc_graph.estimation.effects import Effect, ScaleEffect, sensor_effects, square_size_effect
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions, LidarLayout
+from ilcc_graph.estimation.next_board import SolvedGlobals, solved_globals
 from ilcc_graph.estimation.noise import BoardStats, NoiseOptions, Solution, solve_problem
 from ilcc_graph.estimation.plane import BoardPlane
 from ilcc_graph.estimation.problem import frames_problem
@@ -44,7 +45,8 @@ class BatchSolution:
     configured; ``plane.BoardPlane``), None without the board-plane term. square_size: what a print
     0.1 % larger than the board's model would move (``effects.square_size_effect``; with ``effects``).
     selection: which sensor model was chosen and the evidence (``selection.Selection``); with
-    candidates the boards could not tell apart, ``covariance`` is averaged over them.
+    candidates the boards could not tell apart, ``covariance`` is averaged over them. solved: the
+    chosen model's globals a new board would touch (``next_board``: what one more board promises).
     """
 
     T_cam_lidar: np.ndarray
@@ -64,6 +66,7 @@ class BatchSolution:
     board_plane: BoardPlane | None = None
     square_size: ScaleEffect | None = None
     selection: Selection | None = None
+    solved: SolvedGlobals | None = None
 
     @property
     def extrinsic(self) -> Estimate:
@@ -166,6 +169,7 @@ def solve(
     moved = sensor_effects(sol, options) if effects else None
     square = square_size_effect(sol) if effects else None
     out = replace(batch_solution(sol, effects=moved, square_size=square), selection=selection)
+    out = replace(out, solved=solved_globals(sol))
     if refined is not None:  # refined: its covariance, times the model's held-out factor
         factor = next(c.factor for c in selection.candidates if c.name == selection.chosen)
         out = replace(out, covariance=factor * out.covariance)

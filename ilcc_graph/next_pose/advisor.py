@@ -9,9 +9,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ilcc_graph.config import Config
-from ilcc_graph.estimation.graphs import frame_bearing_factor
+from ilcc_graph.estimation.graphs import board_face_samples, frame_bearing_factor
+from ilcc_graph.estimation.next_board import SolvedGlobals, board_information, extrinsic_gain
 from ilcc_graph.next_pose.lidar_noise import BoardNoiseModel, fit_noise_model
-from ilcc_graph.next_pose.pose_geometry import Rig, board_pose, in_view
+from ilcc_graph.next_pose.pose_geometry import Rig, board_outline, board_pose, in_view
 from ilcc_graph.types import Calibration, GraphFrame, sigmas_deg_mm
 
 __all__ = [
@@ -170,6 +171,9 @@ class Advisor:
 
     frames: the boards so far (their pixel covariances; the LiDAR noise model unless ``noise``).
     information_scale: divides each new frame's information (e.g. the run's variance factor).
+    solved: the solved problem's globals (``estimation.next_board``): a candidate's information then
+    goes through the chosen sensor model's shared terms (the range offset) into the extrinsic's
+    marginal; None: the extrinsic's own information, as if the boards shared no sensor term.
     """
 
     def __init__(
@@ -179,8 +183,11 @@ class Advisor:
         noise: BoardNoiseModel | None = None,
         information_scale: float = 1.0,
         distances: Sequence[float] = (1.3, 2.0, 3.0),
+        solved: SolvedGlobals | None = None,
     ) -> None:
         self.rig = rig
+        self.solved = solved
+        self._face = board_face_samples(rig.board)
         self.frames = list(frames)
         self.noise = noise or fit_noise_model(frames, rig.board, rig.lidar)
         self.cov_px = median_pixel_cov(frames)
@@ -204,10 +211,41 @@ class Advisor:
             p_cam = in_view(self.rig, T)
             if p_cam is not None:
                 cov_b = self.noise.covariance(T, self.rig.board, self.rig.lidar)
-                dI = None if cov_b is None else frame_information(self.rig, T, cov_b, self.cov_px, p_cam)
-                val = None if dI is None else (T, dI / self.information_scale)
+                dI = None if cov_b is None else self._information(T, cov_b, p_cam)
+                val = None if dI is None else (T, dI)
             self._cache[key] = val
         return self._cache[key]
+
+    def _information(self, T: np.ndarray, cov_b: np.ndarray, p_cam: np.ndarray) -> np.ndarray | None:
+        """What a board at ``T`` (LiDAR covariance ``cov_b``, corners at ``p_cam`` in the camera
+        frame) adds, divided by ``information_scale``: (6, 6) on the extrinsic, or with ``solved`` on
+        its globals (``estimation.next_board.board_information``; ``gain`` maps it to the extrinsic)."""
+        if self.solved is None:
+            dI = frame_information(self.rig, T, cov_b, self.cov_px, p_cam)
+            return None if dI is None else dI / self.information_scale
+        b = p_cam / np.linalg.norm(p_cam, axis=1, keepdims=True)
+        cov_px = np.broadcast_to(self.cov_px, (len(p_cam), 2, 2))
+        corners = self.rig.board.corners_board()
+        a = self._coefficients(T) if self.solved.terms else None
+        info = board_information(self.solved, T, cov_b, corners, b, cov_px, self.rig.camera, a)
+        return None if info is None else info / self.information_scale
+
+    def _coefficients(self, T: np.ndarray) -> np.ndarray:
+        """The range terms' mean coefficients over a board at ``T``'s returns: the beams its outline
+        spans in elevation, the dark share of its face, its centre's range."""
+        rig, solved = self.rig, self.solved
+        assert solved is not None
+        out = board_outline(rig.board) @ T[:3, :3].T + T[:3, 3]
+        el = np.degrees(np.arctan2(out[:, 2] - rig.lidar.beam_origin_z_m, np.hypot(out[:, 0], out[:, 1])))
+        va = np.asarray(rig.lidar.vertical_angles_deg)
+        beams = [int(k) for k in np.flatnonzero((va >= el.min()) & (va <= el.max()))]
+        dark = float(np.mean(rig.board.colour_at(self._face) == 0.0))
+        centre = T[:3, :3] @ rig.board.pattern_centre + T[:3, 3]
+        return solved.coefficients(dark, beams, float(np.linalg.norm(centre)))
+
+    def gain(self, information: np.ndarray) -> np.ndarray:
+        """(6, 6) the extrinsic's marginal information gain from a candidate's ``information``."""
+        return information if self.solved is None else extrinsic_gain(self.solved, information)
 
     def propose(
         self, covariance: np.ndarray, target_sigma: tuple[float, float] | None = None,
@@ -238,7 +276,7 @@ class Advisor:
         def try_(centre: np.ndarray, yaw: float, pitch: float) -> None:
             got = self.candidate(centre, yaw, pitch)
             if got is not None and not repeats(got[0]):
-                after = np.linalg.inv(info + got[1])
+                after = np.linalg.inv(info + self.gain(got[1]))
                 scored.append((_score(after, scale), (yaw, pitch), got[0], after))
 
         for c, yaw, pitch in self._coarse:
@@ -309,7 +347,10 @@ def held_out_factor(calibration: Calibration) -> float:
 
 
 def from_calibration(
-    calibration: Calibration, config: Config, target_sigma: tuple[float, float] | None = None
+    calibration: Calibration,
+    config: Config,
+    target_sigma: tuple[float, float] | None = None,
+    solved: SolvedGlobals | None = None,
 ) -> Proposal | None:
     """The next board pose after a calibration (its used frames, its covariance); None without a
     covariance, a LiDAR beam table or a valid candidate.
@@ -319,7 +360,8 @@ def from_calibration(
     (on the recorded Ouster set the board priors' is about 37: unscaled, one more board promised
     the translation's sigma 22 mm -> 0.8 mm), the new frame's information divided by the final
     variance factor or the chosen sensor model's held-out factor, whichever is larger (the covariance
-    is the one the run reports: its sensor model's, averaged over the models when they were close)."""
+    is the one the run reports: its sensor model's, averaged over the models when they were close).
+    ``solved``: the solve's globals, so that the promise keeps the sensor model's shared terms."""
     if config.lidar is None:
         return None
     diag = calibration.diagnostics
@@ -342,7 +384,9 @@ def from_calibration(
     )
     rig = Rig(config.camera, calibration.T_cam_lidar, config.lidar, config.board)
     scale = max(float(diag.get("variance_factor", 1.0)), held_out_factor(calibration), 1.0)
-    return Advisor(rig, frames, information_scale=scale).propose(calibration.covariance, target_sigma)
+    return Advisor(rig, frames, information_scale=scale, solved=solved).propose(
+        calibration.covariance, target_sigma
+    )
 
 
 def for_run(result, target_sigma: tuple[float, float] | None = None) -> Proposal | None:  # noqa: ANN001
@@ -350,4 +394,5 @@ def for_run(result, target_sigma: tuple[float, float] | None = None) -> Proposal
     None for several sessions, the paper's refinement (no covariance) or no valid candidate."""
     if len(result.sessions) != 1 or not np.all(np.isfinite(result.calibration.covariance)):
         return None
-    return from_calibration(result.calibration, result.sessions[0].observation.config, target_sigma)
+    config = result.sessions[0].observation.config
+    return from_calibration(result.calibration, config, target_sigma, result.solved)

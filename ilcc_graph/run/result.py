@@ -17,6 +17,7 @@ import numpy as np
 from ilcc_graph.estimation import NoiseOptions
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
+from ilcc_graph.estimation.next_board import SolvedGlobals
 from ilcc_graph.estimation.selection import AUTO, MODELS
 from ilcc_graph.estimation.sessions import JointOptions
 from ilcc_graph.run.observe import Observation
@@ -118,6 +119,8 @@ class Result:
     folder (``joint.yaml``, ``incremental.yaml``). poses: further named extrinsics with their
     covariance (each session's; a rig: each sensor's, named ``<sensor>`` in the reference's frame).
     per_session: each session's own calibration is written too (``sessions/<name>/``).
+    solved: the batch solve's globals a new board would touch (``estimation.next_board``; the next
+    pose's promise), None where the strategy gives none.
     """
 
     mode: str
@@ -129,3 +132,4 @@ class Result:
     poses: dict[str, Estimate] = field(default_factory=dict)
     per_session: bool = False
     timings: dict[str, float] = field(default_factory=dict)
+    solved: SolvedGlobals | None = None

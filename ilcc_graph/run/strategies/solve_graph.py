@@ -28,7 +28,9 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
         effects=True, models=options.models, intrinsics_choice=options.intrinsics_choice,
     )  # fmt: skip
     cal = finish(prep, obs.frames, config, "graph", from_batch(sol, config))
-    return Result("graph", cal, (SessionResult(obs.name, obs, cal),), options, cal.covariance)
+    return Result(
+        "graph", cal, (SessionResult(obs.name, obs, cal),), options, cal.covariance, solved=sol.solved
+    )
 
 
 register(Strategy("graph", solve, joint="sessions"))
