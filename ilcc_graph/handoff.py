@@ -16,8 +16,8 @@ import gtsam
 import numpy as np
 
 from ilcc_graph.errors import InputError
-from ilcc_graph.io import read_calibration
-from ilcc_graph.types import sigma_dict
+from ilcc_graph.io.stored import read_stored
+from ilcc_graph.types import Calibration, sigma_dict
 
 __all__ = [
     "load_calibration", "extrinsic_prior", "invert_with_covariance", "check_rigid", "check_covariance",
@@ -105,9 +105,9 @@ def load_calibration(path: str | Path) -> tuple[gtsam.Pose3, np.ndarray]:
         covariance not symmetric positive definite).
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: calibration file not found")
-    cal = read_calibration(path)  # InputError for unreadable YAML, missing keys, wrong shapes
+    cal = read_stored(path)  # the one reader and validation of a stored calibration (io.stored)
+    if not isinstance(cal, Calibration):
+        raise InputError(f"{path}: a rig's calibration: its poses go into a graph with handoff_rig.rig_prior")
     T, cov = cal.T_cam_lidar, cal.covariance
     try:
         return gtsam.Pose3(check_rigid(T, "T_cam_lidar")), check_covariance(cov, "covariance")

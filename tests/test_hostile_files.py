@@ -27,7 +27,10 @@ distortion_coefficients: {rows: 1, cols: 5, data: [-0.05, 0.01, 0.0, 0.0, 0.0]}
 def pair(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A small simulated pinhole set (5 frames, 640 px)."""
     d = tmp_path_factory.mktemp("pair") / "sim"
-    assert main(["simulate", str(d), "--camera", "pinhole", "--width", "640", "--frames", "5", "--seed", "3"]) == 0
+    assert (
+        main(["simulate", str(d), "--camera", "pinhole", "--width", "640", "--frames", "5", "--seed", "3"])
+        == 0
+    )
     return d
 
 
@@ -61,7 +64,8 @@ def test_a_section_pasted_twice_into_config_yaml_is_refused(
     run ended POOR): refused naming the key and both lines."""
     text = (pair / "config.yaml").read_text()
     n = len(text.splitlines())
-    second = "camera:\n  model: pinhole\n  width: 640\n  height: 400\n  K: [[300, 0, 319.5], [0, 300, 199.5], [0, 0, 1]]\n"
+    second = "camera:\n  model: pinhole\n  width: 640\n  height: 400\n"
+    second += "  K: [[300, 0, 320], [0, 300, 200], [0, 0, 1]]\n"
     d = _data(pair, tmp_path / "config", text + second)
     err = _refused(["calibrate", str(d), "--out", str(tmp_path / "o1"), "--jobs", "1"], capsys)
     assert "config.yaml" in err and "'camera' appears twice" in err and f"lines 8 and {n + 1}" in err
@@ -85,9 +89,10 @@ def test_a_sensor_named_twice_in_rig_yaml_is_refused(
     for s in ("lidar", "cam"):
         shutil.copytree(pair / ("pcd" if s == "lidar" else "img"), rig / s)
     doc = yaml.safe_load((pair / "config.yaml").read_text())
+    camera = yaml.safe_dump(doc["camera"], default_flow_style=True).strip()
+    other = "{model: pinhole, width: 640, height: 400, K: [[300, 0, 320], [0, 300, 200], [0, 0, 1]]}"
     sensors = (
-        f"  lidar:\n    lidar: {{model: hdl32}}\n  cam:\n    camera: {yaml.safe_dump(doc['camera'], default_flow_style=True).strip()}\n"
-        "  cam:\n    camera: {model: pinhole, width: 640, height: 400, K: [[300, 0, 320], [0, 300, 200], [0, 0, 1]]}\n"
+        f"  lidar:\n    lidar: {{model: hdl32}}\n  cam:\n    camera: {camera}\n  cam:\n    camera: {other}\n"
     )
     board = yaml.safe_dump({"board": doc["board"]}, default_flow_style=None)
     (rig / "rig.yaml").write_text(f"reference: lidar\n{board}sensors:\n{sensors}")
@@ -118,7 +123,9 @@ def test_a_path_that_is_no_file_is_named_for_what_it_is(
         config = config.replace("  model: hdl32\n", f"  calibration_file: {path}\n")
     d = _data(pair, tmp_path / "data", config)
     err = _refused(["calibrate", str(d), "--out", str(tmp_path / "o"), "--jobs", "1"], capsys)
-    what = {"folder": "is a folder", "fifo": "is a FIFO (named pipe)", "device": "is a character device"}[kind]
+    what = {"folder": "is a folder", "fifo": "is a FIFO (named pipe)", "device": "is a character device"}[
+        kind
+    ]
     assert f"{path} {what}" in err and "not found" not in err
 
 
@@ -135,12 +142,20 @@ def test_alias_bombs_and_huge_files_are_refused_at_once(
     """An alias bomb in a camera file (before: the message held all 10**6 values, megabytes) and in
     board.squares; a camera file of 2 MB (before: read whole, 60 MB of memory per MB); each refused
     with a short line."""
-    cam = "bomb:\n" + _bomb(6) + OST.replace("data: [320.0, 0.0, 319.5, 0.0, 320.0, 199.5, 0.0, 0.0, 1.0]", "data: *a5")
+    cam = (
+        "bomb:\n"
+        + _bomb(6)
+        + OST.replace("data: [320.0, 0.0, 319.5, 0.0, 320.0, 199.5, 0.0, 0.0, 1.0]", "data: *a5")
+    )
     d = _data(pair, tmp_path / "cam", _without_camera(pair) + "camera: {file: ost.yaml}\n", {"ost.yaml": cam})
     err = _refused(["calibrate", str(d), "--out", str(tmp_path / "o1"), "--jobs", "1"], capsys)
     assert "ost.yaml" in err and "alias" in err
 
-    config = "x-anchors:\n" + _bomb(6) + (pair / "config.yaml").read_text().replace("squares: [6, 8]", "squares: *a5")
+    config = (
+        "x-anchors:\n"
+        + _bomb(6)
+        + (pair / "config.yaml").read_text().replace("squares: [6, 8]", "squares: *a5")
+    )
     d = _data(pair, tmp_path / "squares", config)
     err = _refused(["calibrate", str(d), "--out", str(tmp_path / "o2"), "--jobs", "1"], capsys)
     assert "config.yaml" in err and "alias" in err
@@ -160,7 +175,11 @@ def test_a_huge_value_is_quoted_by_a_short_prefix(
     d = _data(pair, tmp_path / "sq", (pair / "config.yaml").read_text().replace("[6, 8]", squares))
     err = _refused(["calibrate", str(d), "--out", str(tmp_path / "o1"), "--jobs", "1"], capsys)
     assert "board.squares = [6, 6, 6" in err and "..." in err
-    cam = "bomb:\n" + _bomb(4) + OST.replace("data: [320.0, 0.0, 319.5, 0.0, 320.0, 199.5, 0.0, 0.0, 1.0]", "data: *a3")
+    cam = (
+        "bomb:\n"
+        + _bomb(4)
+        + OST.replace("data: [320.0, 0.0, 319.5, 0.0, 320.0, 199.5, 0.0, 0.0, 1.0]", "data: *a3")
+    )
     d = _data(pair, tmp_path / "cam", _without_camera(pair) + "camera: {file: ost.yaml}\n", {"ost.yaml": cam})
     err = _refused(["calibrate", str(d), "--out", str(tmp_path / "o2"), "--jobs", "1"], capsys)
     assert "camera_matrix = [[[[" in err and "..." in err

@@ -118,7 +118,9 @@ def camera_section_from_ros(distortion_model: str, width: int, height: int, K: A
                 "dist": cls.ros_dist(list(D)),
             }
     known = sorted(m for cls in _REGISTRY.values() for m in cls.ros_models)
-    raise ValueError(f"CameraInfo distortion_model {quote(distortion_model)} is not supported (we read {known})")
+    raise ValueError(
+        f"CameraInfo distortion_model {quote(distortion_model)} is not supported (we read {known})"
+    )
 
 
 def camera_section_from_kalibr(cam: dict[str, Any]) -> dict[str, Any]:

@@ -201,13 +201,15 @@ def _check_nodes(root: yaml.Node, src: str) -> None:
                 _duplicates(node, src)
             continue
         if any(size.get(id(c), 0) < 0 for c in children):
-            raise InputError(f"{src}: line {node.start_mark.line + 1}: an alias refers to the value that holds it")
+            raise InputError(
+                f"{src}: line {node.start_mark.line + 1}: an alias refers to the value that holds it"
+            )
         size[id(node)] = 1 + sum(size[id(c)] for c in children)
     expanded = size[id(root)]
     if expanded > len(size) + ALIAS_MAX_VALUES:
         raise InputError(
-            f"{src}: its aliases (*name) would add more than {ALIAS_MAX_VALUES:,} values to its {len(size):,} "
-            "(an alias bomb?); not read"
+            f"{src}: its aliases (*name) would add more than {ALIAS_MAX_VALUES:,} values to its "
+            f"{len(size):,} (an alias bomb?); not read"
         )
 
 
@@ -228,8 +230,8 @@ def _duplicates(node: yaml.MappingNode, src: str) -> None:
         first = seen.setdefault((k.tag, k.value), line)
         if first != line:
             raise InputError(
-                f"{src}: the key {quote(k.value, 60)} appears twice in one mapping (lines {first} and {line}); "
-                "YAML would keep only the last: remove one"
+                f"{src}: the key {quote(k.value, 60)} appears twice in one mapping (lines {first} and "
+                f"{line}); YAML would keep only the last: remove one"
             )
 
 

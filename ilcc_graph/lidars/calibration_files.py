@@ -22,8 +22,8 @@ ascending; the azimuth step comes from the Ouster mode, else from ``default_reso
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -78,7 +78,9 @@ def _ouster(path: Path, d: dict) -> CalibrationTable:
         try:
             columns = int(str(mode).lower().split("x")[0])
         except ValueError:
-            raise _fail(path, f"lidar_mode {quote(mode)} is not '<columns>x<rate>' (e.g. '1024x10')") from None
+            raise _fail(
+                path, f"lidar_mode {quote(mode)} is not '<columns>x<rate>' (e.g. '1024x10')"
+            ) from None
     if columns is not None and not (isinstance(columns, int) and columns > 0):
         raise _fail(path, f"columns per frame must be a positive integer, got {quote(columns)}")
     return CalibrationTable(alt, azi, columns, "ouster-json")

@@ -61,7 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, quote
 
 __all__ = [
     "LidarModel", "lidar_model", "ring_from_points", "MODEL_NAMES", "ILCC_ALIASES", "LASER_ID_ELEVATIONS_DEG",
@@ -105,7 +105,9 @@ class LidarModel:
             raise ValueError(f"pattern must be one of {PATTERNS}, got {self.pattern!r}")
         a = np.asarray(self.vertical_angles_deg, dtype=np.float64).reshape(-1)
         if a.size < 1 or not np.all(np.isfinite(a)):
-            raise ValueError(f"vertical_angles_deg must be finite numbers, got {quote(self.vertical_angles_deg)}")
+            raise ValueError(
+                f"vertical_angles_deg must be finite numbers, got {quote(self.vertical_angles_deg)}"
+            )
         if np.any(np.diff(a) <= 0):
             raise ValueError(f"vertical_angles_deg must be strictly ascending, got {a.tolist()}")
         if np.any(np.abs(a) >= 90):
