@@ -1,0 +1,57 @@
+"""Issue 36: a closed stdout (``ilcc-graph calibrate DATA | true``, a pager quit early) ends the run
+quietly with its outputs written: exit 0, no "internal error: BrokenPipeError", no error log. Real
+processes with a real pipe whose reading end is closed."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from ilcc_graph.app import main
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("pair") / "sim"
+    argv = ["simulate", str(d), "--camera", "pinhole", "--width", "640", "--frames", "5", "--seed", "3"]
+    assert main(argv) == 0
+    return d
+
+
+def _closed_stdout(argv: list[str], cwd: Path) -> tuple[int, str]:
+    """Run ``ilcc-graph argv`` with its stdout a pipe closed at once (as ``| true``); (exit status,
+    stderr)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    p = subprocess.Popen(
+        [sys.executable, "-m", "ilcc_graph.app", *argv],
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert p.stdout is not None and p.stderr is not None
+    p.stdout.close()
+    err = p.stderr.read()
+    return p.wait(timeout=600), err
+
+
+def test_calibrate_into_a_closed_pipe_writes_its_outputs_and_exits_0(pair: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    code, err = _closed_stdout(
+        ["calibrate", str(pair), "--out", str(out), "--jobs", "1", "--no-report"], tmp_path
+    )
+    assert code == 0, err
+    assert "internal error" not in err and "BrokenPipe" not in err and "Exception ignored" not in err, err
+    assert (out / "calibration.yaml").is_file() and not (tmp_path / "out.error.log").exists()
+
+
+def test_export_into_a_closed_pipe_exits_0(pair: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    assert main(["calibrate", str(pair), "--out", str(out), "--jobs", "1", "--no-report"]) == 0
+    code, err = _closed_stdout(["export", str(out / "calibration.yaml"), "--format", "json"], tmp_path)
+    assert code == 0 and err == "", err
