@@ -9,10 +9,13 @@ import os
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
 from ilcc_graph.app import main
+from ilcc_graph.io.scans import read_scan, write_csv
+from ilcc_graph.types import Scan
 
 OST = """image_width: 640
 image_height: 400
@@ -183,3 +186,30 @@ def test_a_huge_value_is_quoted_by_a_short_prefix(
     d = _data(pair, tmp_path / "cam", _without_camera(pair) + "camera: {file: ost.yaml}\n", {"ost.yaml": cam})
     err = _refused(["calibrate", str(d), "--out", str(tmp_path / "o2"), "--jobs", "1"], capsys)
     assert "camera_matrix = [[[[" in err and "..." in err
+
+
+def test_a_scan_with_impossible_coordinates_is_a_damaged_file(
+    pair: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A KITTI .bin written as float64 records (read as float32: points at 1e19 m; before: skipped as
+    "no object of board size in the scan") and a CSV with a point at infinity: each frame skipped as a
+    damaged file, named, its values called impossible; the other frames calibrate."""
+    d = _data(pair, tmp_path / "data", (pair / "config.yaml").read_text())
+    scan = read_scan(d / "pcd" / "0002.pcd")
+    (d / "pcd" / "0002.pcd").unlink()
+    np.c_[scan.points, scan.intensity].astype("<f8").tofile(d / "pcd" / "0002.bin")
+    scan = read_scan(d / "pcd" / "0004.pcd")
+    (d / "pcd" / "0004.pcd").unlink()
+    xyz = scan.points.copy()
+    xyz[7] = [np.inf, 0.0, 1.0]
+    write_csv(d / "pcd" / "0004.csv", Scan(xyz, scan.intensity, scan.ring))
+    out = tmp_path / "out"
+    assert main(["calibrate", str(d), "--out", str(out), "--jobs", "1", "--no-report"]) == 0
+    frames = {f["name"]: f for f in yaml.safe_load((out / "calibration.yaml").read_text())["frames"]}
+    for name, file in (("0002", "0002.bin"), ("0004", "0004.csv")):
+        f = frames[name]
+        assert not f["used"] and f.get("damaged"), f
+        assert file in f["reason"] and "farther than any LiDAR reaches" in f["reason"], f["reason"]
+    assert "KITTI's .bin is float32" in frames["0002"]["reason"]
+    assert sum(f["used"] for f in frames.values()) == 3
+    capsys.readouterr()
