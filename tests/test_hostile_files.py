@@ -213,3 +213,23 @@ def test_a_scan_with_impossible_coordinates_is_a_damaged_file(
     assert "KITTI's .bin is float32" in frames["0002"]["reason"]
     assert sum(f["used"] for f in frames.values()) == 3
     capsys.readouterr()
+
+
+def test_a_key_twice_in_an_opencv_camera_file_is_refused(
+    pair: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """OpenCV's FileStorage YAML (read by OpenCV, which keeps the last of two keys silently)."""
+    import cv2
+
+    p = tmp_path / "out_camera_data.yml"
+    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", 640)
+    fs.write("image_height", 400)
+    fs.write("camera_matrix", np.array([[320, 0, 319.5], [0, 320, 199.5], [0, 0, 1.0]]))
+    fs.write("distortion_coefficients", np.zeros((5, 1)))
+    fs.release()
+    text = p.read_text() + "image_width: 1280\n"
+    d = _data(pair, tmp_path / "cv", _without_camera(pair) + "camera: {file: cam.yml}\n", {"cam.yml": text})
+    last = len(text.splitlines())
+    err = _refused(["calibrate", str(d), "--out", str(tmp_path / "o"), "--jobs", "1"], capsys)
+    assert "cam.yml: the key 'image_width' appears twice" in err and f"lines 3 and {last}" in err

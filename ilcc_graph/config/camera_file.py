@@ -30,7 +30,7 @@ import numpy as np
 from ..cameras import camera_section_from_kalibr, camera_section_from_ros
 from ..checks import Checker
 from ..errors import InputError, quote
-from ..io.files import SMALL_FILE, not_a_file, read_bounded, read_yaml
+from ..io.files import SMALL_FILE, check_yaml_keys, not_a_file, read_bounded, read_yaml
 
 __all__ = ["FILE_KEYS", "camera_section"]
 
@@ -68,6 +68,9 @@ def _read(path: Path, name: Any, distortion_model: Any) -> dict[str, Any]:
     """Our inline section from the file at ``path`` (its kind by its keys)."""
     raw = read_bounded(path, "camera file", SMALL_FILE)
     if raw.lstrip().startswith((b"%YAML:1.", b"<?xml", b"<opencv_storage")) or b"!!opencv-matrix" in raw:
+        if raw.lstrip().startswith(b"%YAML"):  # OpenCV 3 writes %YAML:1.0 (not YAML to PyYAML), 4 %YAML 1.2
+            body = "\n" + raw.decode("utf-8", errors="replace").lstrip().partition("\n")[2]  # lines kept
+            check_yaml_keys(body, str(path))  # a key twice in it: refused as in every YAML file
         return _opencv(path, distortion_model)  # OpenCV 3 writes %YAML:1.0, 4 %YAML 1.2 with its tags
     doc = read_yaml(path, "camera file", SMALL_FILE)
     if not isinstance(doc, dict):

@@ -17,7 +17,7 @@ from ..types import to_plain
 
 __all__ = [
     "atomic_write", "broken_link", "new_mode", "write_yaml", "read_yaml", "dump_yaml", "to_plain",
-    "not_a_file", "read_bounded", "load_yaml_text", "SMALL_FILE",
+    "not_a_file", "read_bounded", "load_yaml_text", "check_yaml_keys", "SMALL_FILE",
 ]  # fmt: skip
 
 
@@ -251,6 +251,23 @@ def load_yaml_text(text: str, src: str) -> Any:
     finally:
         if loader is not None:
             loader.dispose()
+
+
+def check_yaml_keys(text: str, src: str) -> None:
+    """The checks of ``load_yaml_text`` (a key twice, alias bombs) on YAML another parser will read
+    (OpenCV's FileStorage: its tags are only composed here, never built); text that is not YAML to
+    PyYAML is left to that parser."""
+    loader: yaml.SafeLoader | None = None
+    try:
+        loader = yaml.SafeLoader(text)
+        node = loader.get_single_node()
+    except yaml.YAMLError:
+        return
+    finally:
+        if loader is not None:
+            loader.dispose()
+    if node is not None:
+        _check_nodes(node, src)
 
 
 def read_yaml(path: str | Path, what: str = "file", max_bytes: int = YAML_MAX_BYTES) -> Any:
