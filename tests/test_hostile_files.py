@@ -233,3 +233,24 @@ def test_a_key_twice_in_an_opencv_camera_file_is_refused(
     last = len(text.splitlines())
     err = _refused(["calibrate", str(d), "--out", str(tmp_path / "o"), "--jobs", "1"], capsys)
     assert "cam.yml: the key 'image_width' appears twice" in err and f"lines 3 and {last}" in err
+
+
+@pytest.mark.parametrize("case", ["config-folder", "rig-fifo", "data-device"])
+def test_a_data_set_file_that_is_no_file_is_named(
+    pair: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], case: str
+) -> None:
+    """config.yaml a folder, rig.yaml a FIFO (never opened), the data set /dev/zero (before: "no
+    config.yaml in this folder", "not a data set")."""
+    d = tmp_path / "data"
+    shutil.copytree(pair / "pcd", d / "pcd")
+    shutil.copytree(pair / "img", d / "img")
+    if case == "config-folder":
+        (d / "config.yaml").mkdir()
+        want = f"{d / 'config.yaml'} is a folder: a data set's config.yaml is a file"
+    elif case == "rig-fifo":
+        os.mkfifo(d / "rig.yaml")
+        want = f"{d / 'rig.yaml'} is a FIFO (named pipe): a data set's rig.yaml is a file"
+    else:
+        d, want = Path("/dev/zero"), "/dev/zero is a character device: expected a data set"
+    err = _refused(["calibrate", str(d), "--out", str(tmp_path / "o"), "--jobs", "1"], capsys)
+    assert want in err
