@@ -22,29 +22,32 @@ def pair(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return d
 
 
-def _closed_stdout(argv: list[str], cwd: Path) -> tuple[int, str]:
-    """Run ``ilcc-graph argv`` with its stdout a pipe closed at once (as ``| true``); (exit status,
-    stderr)."""
+def _closed_stdout(argv: list[str], cwd: Path, both: bool = False) -> tuple[int, str]:
+    """Run ``ilcc-graph argv`` with its stdout a pipe closed at once (as ``| true``; ``both``: stderr
+    into it too, as ``2>&1 | true``); (exit status, stderr, "" with ``both``)."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     p = subprocess.Popen(
         [sys.executable, "-m", "ilcc_graph.app", *argv],
         cwd=cwd,
         env=env,
         stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
+        stderr=subprocess.STDOUT if both else subprocess.PIPE,
         text=True,
     )
-    assert p.stdout is not None and p.stderr is not None
+    assert p.stdout is not None
     p.stdout.close()
-    err = p.stderr.read()
+    err = "" if p.stderr is None else p.stderr.read()
     return p.wait(timeout=600), err
 
 
-def test_calibrate_into_a_closed_pipe_writes_its_outputs_and_exits_0(pair: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("both", [False, True])
+def test_calibrate_into_a_closed_pipe_writes_its_outputs_and_exits_0(
+    pair: Path, tmp_path: Path, both: bool
+) -> None:
+    """``| true`` and ``2>&1 | true`` (the progress bar and the log meet the closed pipe too)."""
     out = tmp_path / "out"
-    code, err = _closed_stdout(
-        ["calibrate", str(pair), "--out", str(out), "--jobs", "1", "--no-report"], tmp_path
-    )
+    argv = ["calibrate", str(pair), "--out", str(out), "--jobs", "1", "--no-report"]
+    code, err = _closed_stdout(argv, tmp_path, both)
     assert code == 0, err
     assert "internal error" not in err and "BrokenPipe" not in err and "Exception ignored" not in err, err
     assert (out / "calibration.yaml").is_file() and not (tmp_path / "out.error.log").exists()

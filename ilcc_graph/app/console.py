@@ -239,16 +239,20 @@ class _QuietStdout:
 
 @contextlib.contextmanager
 def _quiet_stdout() -> Iterator[_QuietStdout]:
-    """``_QuietStdout`` as sys.stdout for the block (the original put back after it)."""
-    original = sys.stdout
-    quiet = _QuietStdout(original)
-    sys.stdout = quiet
+    """``_QuietStdout`` as sys.stdout, and one as sys.stderr (``2>&1 | head``: the progress bar and the
+    log meet the closed pipe too), for the block (the originals put back after it); yields stdout's."""
+    originals = sys.stdout, sys.stderr
+    quiet = _QuietStdout(sys.stdout), _QuietStdout(sys.stderr)
+    sys.stdout, sys.stderr = quiet
     try:
-        yield quiet
+        yield quiet[0]
     finally:
-        if sys.stdout is quiet:
-            sys.stdout = original
-        quiet.flush()
+        if sys.stdout is quiet[0]:
+            sys.stdout = originals[0]
+        if sys.stderr is quiet[1]:
+            sys.stderr = originals[1]
+        for q in quiet:
+            q.flush()
 
 
 def _failure(err: Exception, out: Callable[[], Path | None], debug: Callable[[], bool]) -> int:
