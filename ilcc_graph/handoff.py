@@ -82,7 +82,8 @@ def load_calibration(path: str | Path) -> tuple[gtsam.Pose3, np.ndarray]:
     Parameters
     ----------
     path : the calibration file written by ``ilcc-graph calibrate`` (read with
-        ``ilcc_graph.io.read_calibration``; only ``T_cam_lidar`` and ``covariance`` are used).
+        ``ilcc_graph.io.stored.read_stored``, the one reader and validation; only ``T_cam_lidar`` and
+        ``covariance`` are used).
 
     Returns
     -------

@@ -18,9 +18,9 @@ from ilcc_graph.app import main
 SECS = 1510868224
 
 
-def _timed(src: Path, dst: Path, padded: bool = False) -> list[tuple[str, str]]:
-    """A copy of ``src`` whose scan k is named ``<secs>_<nanoseconds unpadded>`` (17 ms + k ms past
-    second SECS + 2 k; ``padded``: to 9 digits, as ROS writes them) and its image 12 ms later;
+def _timed(src: Path, dst: Path, padded: bool = False, first_ns: int = 17_000_000) -> list[tuple[str, str]]:
+    """A copy of ``src`` whose scan k is named ``<secs>_<nanoseconds unpadded>`` (``first_ns`` + k ms
+    past second SECS + 2 k; ``padded``: to 9 digits, as ROS writes them) and its image 12 ms later;
     [(scan stem, image stem)]."""
     (dst / "pcd").mkdir(parents=True)
     (dst / "img").mkdir()
@@ -28,7 +28,7 @@ def _timed(src: Path, dst: Path, padded: bool = False) -> list[tuple[str, str]]:
     names = []
     for k, scan in enumerate(sorted((src / "pcd").iterdir())):
         image = next((src / "img").glob(f"{scan.stem}.*"))
-        ns = 17_000_000 + 1_000_000 * k
+        ns = first_ns + 1_000_000 * k
         width = 9 if padded else 0
         names.append((f"{SECS + 2 * k}_{ns:0{width}d}", f"{SECS + 2 * k}_{ns + 12_000_000:0{width}d}"))
         shutil.copy(scan, dst / "pcd" / f"{names[-1][0]}{scan.suffix}")
@@ -43,17 +43,30 @@ def _calibrate(data: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> dic
     return {f["name"]: f for f in yaml.safe_load((out / "calibration.yaml").read_text())["frames"]}
 
 
+@pytest.mark.parametrize(
+    ("first_ns", "why"),
+    [(17_000_000, "both readings possible): it pairs 5 scans, a decimal fraction 0"),
+     (5_000_000, "their digits vary in number, as a recorder that does not pad writes them)")],
+)  # fmt: skip
 def test_unpadded_nanoseconds_pair_and_the_reading_is_said(
-    simulated, tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+    simulated,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+    first_ns: int,
+    why: str,
 ) -> None:
-    """Before: read as 0.17 s, pairs 12 ms apart were "no image near its time (the nearest 0.120 s
-    away)" and the run ended with exit 2."""
-    names = _timed(simulated("pinhole"), tmp_path / "data")
+    """Before: ``1510868224_17000000`` read as 0.17 s, pairs 12 ms apart were "no image near its time
+    (the nearest 0.120 s away)" and the run ended with exit 2. 8 digits in every name: both readings
+    are possible, the one that pairs is used; 7 and 8 digits (5 ms, images at 17 ms): the digits say
+    the recorder did not pad."""
+    names = _timed(simulated("pinhole"), tmp_path / "data", first_ns=first_ns)
     with caplog.at_level(logging.WARNING):
         frames = _calibrate(tmp_path / "data", tmp_path / "out", capsys)
     assert all(frames[s]["used"] for s, _ in names), frames
-    assert f"names like {names[0][0]} read as unpadded nanoseconds ({SECS}.017000000 s)" in caplog.text
-    assert "as a decimal fraction 0" in caplog.text
+    example = min(n for pair in names for n in pair if len(n.split("_")[1]) < 9)
+    secs, ns = example.split("_")
+    assert f"names like {example} read as unpadded nanoseconds ({secs}.{int(ns):09d} s; {why}" in caplog.text
 
 
 def test_a_stray_file_is_named_and_set_aside(
@@ -90,3 +103,26 @@ def test_equal_times_are_a_conflict_and_a_lost_image_says_why(
     why = frames[f"{SECS}_010000000"]["reason"]
     assert f"its nearest image {names[0][1]}.png (0.019 s away) pairs with scan {first}.pcd" in why, why
     assert all(frames[s]["used"] for s, _ in names[:-1])
+
+
+def test_padded_microseconds_stay_a_decimal_fraction(
+    simulated, tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """``<secs>_<microseconds padded to 6>`` (``1510868224_007000``): the leading zero says padded, so
+    the field is a decimal fraction (7 ms), not 7000 unpadded nanoseconds, and the run says so."""
+    src, data = simulated("pinhole"), tmp_path / "data"
+    (data / "pcd").mkdir(parents=True)
+    (data / "img").mkdir()
+    shutil.copy(src / "config.yaml", data / "config.yaml")
+    for k, scan in enumerate(sorted((src / "pcd").iterdir())):
+        image = next((src / "img").glob(f"{scan.stem}.*"))
+        us = 7_000 + 1_000 * k
+        shutil.copy(scan, data / "pcd" / f"{SECS + 2 * k}_{us:06d}{scan.suffix}")
+        shutil.copy(image, data / "img" / f"{SECS + 2 * k}_{us + 12_000:06d}{image.suffix}")
+    with caplog.at_level(logging.WARNING):
+        frames = _calibrate(data, tmp_path / "out", capsys)
+    assert all(f["used"] for f in frames.values()) and len(frames) == 5
+    assert (
+        f"names like {SECS}_007000 read as a decimal fraction ({SECS}.007000 s; some begin with 0"
+        in caplog.text
+    )

@@ -221,11 +221,10 @@ def _paired_by_time(
     (s_time, s_stray), (i_time, i_stray) = _time_names(scans), _time_names(images)
     if 2 * len(s_time) <= len(scans) or 2 * len(i_time) <= len(images):
         return None
-    both = any(_ambiguous(r) for r in [*s_time.values(), *i_time.values()])
-    tries = [
-        _try_reading(scans, images, s_time, i_time, u, by_time) for u in ((False, True) if both else (False,))
-    ]
-    best = max(tries, key=lambda t: (len(t[0]), -t[3]))
+    times = [*s_time.values(), *i_time.values()]
+    readings, why = _readings(times)
+    tries = [_try_reading(scans, images, s_time, i_time, u, by_time) for u in readings]
+    best = max(tries, key=lambda t: len(t[0]))  # the first (the conventional reading) on a tie
     renamed, left, other, _ = best
     stray = "its name is no time like the others' ({}); set aside, the others pair by time"
     left += [(n, f"scan {scans[n].name}: " + stray.format(next(iter(s_time)))) for n in s_stray]
@@ -236,14 +235,37 @@ def _paired_by_time(
             f"{other} of {len(scans)} scans paired with an image of another name, the one nearest in "
             "time by the times the names give (a frame is named by its scan)"
         )
-    if both:
-        k = tries.index(best)
-        example = next(r for r in [*s_time.values(), *i_time.values()] if _ambiguous(r))
+    if why:
+        k = int(readings[tries.index(best)])
+        example = min(r for r in times if _ambiguous(r))
+        counts = (
+            ""
+            if len(tries) == 1
+            else f": it pairs {len(best[0])} scans, {READINGS[1 - k]} {len(tries[1 - k][0])}"
+        )
         notes.append(
-            f"names like {example} read as {READINGS[k]} ({_seconds_text(example, bool(k))} s), which "
-            f"pairs {len(best[0])} scans; as {READINGS[1 - k]} {len(tries[1 - k][0])}"
+            f"names like {example} read as {READINGS[k]} ({_seconds_text(example, bool(k))} s; {why}){counts}"
         )
     return renamed, left, "; ".join(notes)
+
+
+def _readings(times: list[str]) -> tuple[tuple[bool, ...], str]:
+    """The readings of the names' ``_`` fields to try (``READINGS``: False the decimal fraction, True
+    unpadded nanoseconds) and why ("" when no name is ambiguous), by their digits: a field with a
+    leading zero was padded; fields of several lengths below 9 were not (a padded writer writes one
+    length); neither or both: the reading that pairs more scans, the decimal fraction on a tie."""
+    fields = [m.group(3) for r in times if (m := _TIME_NAME.match(r)) and m.group(2) == "_" and m.group(3)]
+    if not any(len(f) < 9 for f in fields):
+        return (False,), ""
+    padded = any(f.startswith("0") and len(f) > 1 for f in fields)
+    unpadded = len({len(f) for f in fields}) > 1
+    if padded != unpadded:
+        return (unpadded,), (
+            "their digits vary in number, as a recorder that does not pad writes them"
+            if unpadded
+            else "some begin with 0: padded"
+        )
+    return (False, True), "both readings possible"
 
 
 def _try_reading(
