@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import textwrap
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -64,7 +64,8 @@ def load_stored(path: str | Path) -> StoredCalibration:
     if not np.all(np.isfinite(cal.covariance)):
         raise InputError(f"{path}: the calibration has no covariance (method {cal.method}); verify needs one")
     lidar, camera = PAIR_NAMES
-    return replace(StoredCalibration.pair(cal.T_cam_lidar, cal.covariance, camera, lidar), setup=setup)
+    p = StoredRig.pair(cal.T_cam_lidar, cal.covariance, camera, lidar)
+    return StoredCalibration(p.sensors, p.reference, p.T_ref_sensor, p.covariance, setup)
 
 
 def check_comparable(stored: StoredRig, rig: RigConfig, where: str) -> None:
