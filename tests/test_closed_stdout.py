@@ -36,8 +36,13 @@ def _closed_stdout(argv: list[str], cwd: Path, both: bool = False) -> tuple[int,
     )
     assert p.stdout is not None
     p.stdout.close()
-    err = "" if p.stderr is None else p.stderr.read()
-    return p.wait(timeout=600), err
+    try:
+        err = "" if p.stderr is None else p.stderr.read()
+        return p.wait(timeout=300), err
+    finally:
+        if p.poll() is None:  # still running: the test fails, and leaves no process behind
+            p.kill()
+            p.wait()
 
 
 @pytest.mark.parametrize("both", [False, True])
@@ -58,3 +63,20 @@ def test_export_into_a_closed_pipe_exits_0(pair: Path, tmp_path: Path) -> None:
     assert main(["calibrate", str(pair), "--out", str(out), "--jobs", "1", "--no-report"]) == 0
     code, err = _closed_stdout(["export", str(out / "calibration.yaml"), "--format", "json"], tmp_path)
     assert code == 0 and err == "", err
+
+
+@pytest.mark.parametrize("watch", [False, True])
+def test_check_into_a_closed_pipe(pair: Path, tmp_path: Path, watch: bool) -> None:
+    """``check DATA | true`` goes on to its end and writes check.yaml (exit 0); ``check --watch`` would
+    follow the folder until Ctrl-C printing into nothing, so it ends quietly with 141 and no output
+    (before: exit 1 "internal error: BrokenPipeError" for both)."""
+    out = tmp_path / "out"
+    code, err = _closed_stdout(
+        ["check", str(pair), "--out", str(out), *(["--watch"] if watch else [])], tmp_path
+    )
+    assert "internal error" not in err and "Traceback" not in err, err
+    assert not (tmp_path / "out.error.log").exists()
+    if watch:
+        assert code == 141 and not out.exists(), err
+    else:
+        assert code == 0 and (out / "check.yaml").is_file(), err

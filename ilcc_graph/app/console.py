@@ -37,6 +37,7 @@ from ilcc_graph.errors import (
 )
 
 __all__ = [
+    "stdout_closed",
     "COUNT",
     "DEG_MM",
     "NON_NEGATIVE",
@@ -204,12 +205,12 @@ class _QuietStdout:
 
     def __init__(self, stream: Any) -> None:
         self.stream = stream
-        self.closed = False
+        self.pipe_closed = False
 
     def closed_pipe(self) -> None:
         """Drop the rest: file descriptor 1 onto /dev/null, so that no flush (ours or the
         interpreter's at exit) meets the closed pipe again."""
-        self.closed = True
+        self.pipe_closed = True
         try:
             fd = self.stream.fileno()
         except (AttributeError, OSError, ValueError):
@@ -219,7 +220,7 @@ class _QuietStdout:
         os.close(devnull)
 
     def write(self, text: str) -> int:
-        if not self.closed:
+        if not self.pipe_closed:
             try:
                 return self.stream.write(text)
             except BrokenPipeError:
@@ -227,7 +228,7 @@ class _QuietStdout:
         return len(text)
 
     def flush(self) -> None:
-        if not self.closed:
+        if not self.pipe_closed:
             try:
                 self.stream.flush()
             except BrokenPipeError:
@@ -253,6 +254,12 @@ def _quiet_stdout() -> Iterator[_QuietStdout]:
             sys.stderr = originals[1]
         for q in quiet:
             q.flush()
+
+
+def stdout_closed() -> bool:
+    """Whether the reader of standard output has gone (``_QuietStdout``): a command that would go on
+    only to print (``check --watch``) ends then (``BrokenPipeError``: exit 141, quietly)."""
+    return bool(getattr(sys.stdout, "pipe_closed", False))
 
 
 def _failure(err: Exception, out: Callable[[], Path | None], debug: Callable[[], bool]) -> int:
