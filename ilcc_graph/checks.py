@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, quote
 
 __all__ = ["MISSING", "Checker"]
 
@@ -27,9 +27,7 @@ class Checker:
         self.source = source
 
     def fail(self, key: str, value: Any, expected: str) -> InputError:
-        shown = "missing" if value is MISSING else repr(value)
-        if len(shown) > 120:
-            shown = shown[:117] + "..."
+        shown = "missing" if value is MISSING else quote(value)
         return InputError(f"{self.source}: {key} = {shown}: expected {expected}")
 
     def section(self, d: Any, key: str) -> dict:

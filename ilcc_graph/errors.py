@@ -86,3 +86,42 @@ EXIT_OK = 0
 EXIT_BUG = 1
 EXIT_INPUT = 2
 EXIT_IMPOSSIBLE = 3
+
+
+def quote(value: object, limit: int = 120) -> str:
+    """At most ``limit`` characters of ``repr(value)`` (``...`` at the end when cut), computed without
+    formatting the whole value: a list or mapping is walked only as far as the prefix needs, so a
+    YAML alias bomb (a list of lists of ... that expands to billions of values) costs no more than a
+    short one (issue 36)."""
+    out: list[str] = []
+    room = [limit + 1]  # one more than shown: whether anything was cut is known without a full repr
+
+    def put(s: str) -> bool:
+        out.append(s[: room[0]])
+        room[0] -= min(len(s), room[0])
+        return room[0] > 0
+
+    def walk(v: object, depth: int) -> bool:
+        if isinstance(v, (list, tuple, dict)):
+            if depth > 50:
+                return put("...")
+            opened, closed = "{}" if isinstance(v, dict) else "()" if isinstance(v, tuple) else "[]"
+            items = v.items() if isinstance(v, dict) else v
+            if not put(opened):
+                return False
+            for k, item in enumerate(items):
+                if k and not put(", "):
+                    return False
+                if isinstance(v, dict):
+                    if not (walk(item[0], depth + 1) and put(": ") and walk(item[1], depth + 1)):
+                        return False
+                elif not walk(item, depth + 1):
+                    return False
+            return put(closed)
+        if isinstance(v, str) and len(v) > room[0]:
+            return put(repr(v[: room[0]]))
+        return put(repr(v))
+
+    walk(value, 0)
+    text = "".join(out)
+    return text if len(text) <= limit else text[: limit - 3] + "..."

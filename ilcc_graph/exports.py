@@ -19,6 +19,7 @@ import gtsam
 import numpy as np
 
 from ilcc_graph.cameras import CameraModel, camera_class, make_camera
+from ilcc_graph.errors import InputError
 from ilcc_graph.handoff import check_covariance, check_rigid, invert_with_covariance
 from ilcc_graph.types import Calibration, sigma_dict
 
@@ -349,9 +350,12 @@ def export_calibration(cal: CalibrationLike, fmt: str, *, camera: Any = None, **
         if name not in allowed:
             raise ValueError(f"export format {fmt!r} has no option {name!r}; options: {allowed or 'none'}")
     if isinstance(cal, (str, Path)):
-        from ilcc_graph.io import read_calibration_with_camera
+        from ilcc_graph.io.stored import read_stored
 
-        cal = read_calibration_with_camera(cal)
+        stored = read_stored(cal)
+        if not isinstance(stored, Calibration):
+            raise InputError(f"{cal}: a rig's calibration: export it with exports_rig.export_rig")
+        cal = stored
     if fmt in _SENSOR_EXPORTERS:
         if not isinstance(cal, Calibration):
             raise ValueError(f"export format {fmt!r} needs a Calibration or a calibration.yaml")

@@ -16,8 +16,8 @@ import gtsam
 import numpy as np
 
 from ilcc_graph.errors import InputError
-from ilcc_graph.io import read_calibration
-from ilcc_graph.types import sigma_dict
+from ilcc_graph.io.stored import covariance_problem, read_stored
+from ilcc_graph.types import Calibration, sigma_dict
 
 __all__ = [
     "load_calibration", "extrinsic_prior", "invert_with_covariance", "check_rigid", "check_covariance",
@@ -26,7 +26,6 @@ __all__ = [
 
 POSE3_DOF = 6
 _RIGID_TOL = 1e-6  # max |R^T R - I| and |last row - [0 0 0 1]| accepted in a file
-_SYM_TOL = 1e-9  # relative asymmetry accepted in a covariance
 
 
 def check_rigid(T: np.ndarray, what: str = "T_cam_lidar") -> np.ndarray:
@@ -64,19 +63,10 @@ def check_covariance(cov: np.ndarray, what: str = "covariance") -> np.ndarray:
     cov = np.asarray(cov, dtype=np.float64)
     if cov.shape != (POSE3_DOF, POSE3_DOF):
         raise ValueError(f"{what}: expected a 6x6 matrix, got shape {cov.shape}")
-    if not np.all(np.isfinite(cov)):
-        raise ValueError(f"{what}: contains non-finite numbers")
-    scale = max(float(np.max(np.abs(cov))), np.finfo(float).tiny)
-    asym = float(np.max(np.abs(cov - cov.T))) / scale
-    if asym > _SYM_TOL:
-        raise ValueError(f"{what}: not symmetric (max relative |C - C^T| = {asym:.3g})")
-    cov = 0.5 * (cov + cov.T)
-    try:
-        np.linalg.cholesky(cov)
-    except np.linalg.LinAlgError:
-        eig = np.linalg.eigvalsh(cov)
-        raise ValueError(f"{what}: not positive definite (smallest eigenvalue {eig[0]:.3g})") from None
-    return cov
+    problem = covariance_problem(cov)  # the one validation (io.stored), as a stored file's
+    if problem is not None:
+        raise ValueError(f"{what}: {problem}")
+    return 0.5 * (cov + cov.T)
 
 
 def to_pose3(T: gtsam.Pose3 | np.ndarray, what: str = "T_cam_lidar") -> gtsam.Pose3:
@@ -92,7 +82,8 @@ def load_calibration(path: str | Path) -> tuple[gtsam.Pose3, np.ndarray]:
     Parameters
     ----------
     path : the calibration file written by ``ilcc-graph calibrate`` (read with
-        ``ilcc_graph.io.read_calibration``; only ``T_cam_lidar`` and ``covariance`` are used).
+        ``ilcc_graph.io.stored.read_stored``, the one reader and validation; only ``T_cam_lidar`` and
+        ``covariance`` are used).
 
     Returns
     -------
@@ -105,9 +96,9 @@ def load_calibration(path: str | Path) -> tuple[gtsam.Pose3, np.ndarray]:
         covariance not symmetric positive definite).
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: calibration file not found")
-    cal = read_calibration(path)  # InputError for unreadable YAML, missing keys, wrong shapes
+    cal = read_stored(path)  # the one reader and validation of a stored calibration (io.stored)
+    if not isinstance(cal, Calibration):
+        raise InputError(f"{path}: a rig's calibration: its poses go into a graph with handoff_rig.rig_prior")
     T, cov = cal.T_cam_lidar, cal.covariance
     try:
         return gtsam.Pose3(check_rigid(T, "T_cam_lidar")), check_covariance(cov, "covariance")

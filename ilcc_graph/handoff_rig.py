@@ -18,7 +18,9 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from ilcc_graph.io.rig_results import RigCalibration, read_rig_calibration
+from ilcc_graph.errors import InputError
+from ilcc_graph.io.rig_results import RigCalibration
+from ilcc_graph.io.stored import read_stored
 
 __all__ = ["add_rig_prior", "rig_prior"]
 
@@ -31,7 +33,7 @@ def rig_prior(
     calibration: a rig's calibration (or its calibration.yaml). inflate: factor on the sigmas (e.g.
     for mounts that may have moved since). ValueError for the reference sensor (its pose is the
     frame), an unknown sensor or a bad ``inflate``."""
-    cal = calibration if isinstance(calibration, RigCalibration) else read_rig_calibration(calibration)
+    cal = calibration if isinstance(calibration, RigCalibration) else _read(calibration)
     if not np.isfinite(inflate) or inflate <= 0.0:
         raise ValueError(f"inflate must be a positive number, got {inflate!r}")
     bad = [s for s in keys if s not in cal.sensors or s == cal.reference]
@@ -71,7 +73,7 @@ def add_rig_prior(
 ) -> gtsam.CustomFactor:
     """``rig_prior`` added to ``graph``; with ``initial``, each sensor's stored pose inserted where
     the key has no value yet. Returns the factor."""
-    cal = calibration if isinstance(calibration, RigCalibration) else read_rig_calibration(calibration)
+    cal = calibration if isinstance(calibration, RigCalibration) else _read(calibration)
     factor = rig_prior(keys, cal, inflate)
     graph.add(factor)
     if initial is not None:
@@ -79,3 +81,14 @@ def add_rig_prior(
             if not initial.exists(int(key)):
                 initial.insert(int(key), gtsam.Pose3(np.asarray(cal.T_ref_sensor[s], dtype=np.float64)))
     return factor
+
+
+def _read(path: str | Path) -> RigCalibration:
+    """A rig's calibration.yaml through the one reader and validation (``io.stored.read_stored``)."""
+    cal = read_stored(path)
+    if not isinstance(cal, RigCalibration):
+        raise InputError(
+            f"{path}: a single pair's calibration; its extrinsic goes into a graph with "
+            "handoff.extrinsic_prior"
+        )
+    return cal

@@ -16,6 +16,7 @@ from typing import TextIO
 
 import numpy as np
 
+from ilcc_graph.app.console import stdout_closed
 from ilcc_graph.config import Config
 from ilcc_graph.errors import InputError
 from ilcc_graph.estimation.incremental import FrameUpdate
@@ -213,6 +214,14 @@ class LiveAdvice:
         return adv.propose(covariance, self.target_sigma, frames)
 
 
+def _stop_when_unread(watch: bool) -> None:
+    """End a ``check --watch`` nobody reads any more (its stdout's pipe closed: a pager quit):
+    ``BrokenPipeError``, which the command line turns into a quiet exit 141 (issue 36: it would follow
+    the folder until Ctrl-C, printing into nothing). A check of the frames there goes on to its end."""
+    if watch and stdout_closed():
+        raise BrokenPipeError("standard output closed")
+
+
 def check_command(
     data: str, options: CheckOptions, out: object = None, advise_live: bool = False, command: str = ""
 ) -> int:
@@ -234,12 +243,14 @@ def check_command(
     print(VERDICT_HEADER, flush=True)
 
     def on_verdict(v: Verdict, checker: LiveCheck) -> None:
+        _stop_when_unread(options.watch)
         seen.append(v)
         status.clear()
         print(format_verdict(v, target), flush=True)
         status.show(_short(format_progress(seen, target)))
 
     def on_idle(waited: float, checker: LiveCheck | None) -> None:
+        _stop_when_unread(options.watch)
         if checker is None:
             if status.tty:
                 status.show(_short(f"waiting for {Path(data) / 'config.yaml'}"))

@@ -12,6 +12,7 @@ from ilcc_graph.app.arguments import add_bag_arguments, add_frames_arguments
 from ilcc_graph.app.console import Progress
 from ilcc_graph.app.flags import bag_options, stage_options
 from ilcc_graph.app.folders import claim_given
+from ilcc_graph.errors import InputError
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -30,13 +31,18 @@ def run(args: argparse.Namespace) -> int:
     """The paper's metric and corner errors of a calibration on a data set's frames."""
     from ilcc_graph.app.write import write_evaluation
     from ilcc_graph.datasets import open_source
-    from ilcc_graph.io import read_calibration
+    from ilcc_graph.io.rig_results import RigCalibration
+    from ilcc_graph.io.stored import read_stored
     from ilcc_graph.report import evaluation_rows
     from ilcc_graph.report.text import evaluation_text
     from ilcc_graph.run.evaluate import evaluate_on
 
     claim_given(args, reads=[args.data])
-    cal = read_calibration(Path(args.calibration))
+    cal = read_stored(Path(args.calibration))  # the one reader and validation of a stored calibration
+    if isinstance(cal, RigCalibration):
+        raise InputError(
+            f"{args.calibration}: a rig's calibration; evaluate judges a single pair's (verify checks a rig)"
+        )
     source = open_source(args.data, **bag_options(args))
     ev, skipped = evaluate_on(source, cal.T_cam_lidar, stage_options(args), Progress("frames"))
     print(evaluation_text(evaluation_rows(ev), skipped))

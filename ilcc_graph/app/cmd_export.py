@@ -5,8 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ilcc_graph.errors import InputError
+
+if TYPE_CHECKING:
+    from ilcc_graph.io.rig_results import RigCalibration
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -28,14 +32,14 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ilcc_graph.exports import export_calibration
-    from ilcc_graph.io import read_calibration_with_camera
-    from ilcc_graph.io.rig_results import is_rig_calibration
+    from ilcc_graph.io.rig_results import RigCalibration
+    from ilcc_graph.io.stored import read_stored
 
-    if is_rig_calibration(args.calibration):
-        return _rig(args)
+    cal = read_stored(args.calibration)  # the one reader and validation of a stored calibration
+    if isinstance(cal, RigCalibration):
+        return _rig(args, cal)
     if args.format == "urdf":
         raise InputError(f"{args.calibration}: urdf is an export of a rig's calibration (docs/rig.md)")
-    cal = read_calibration_with_camera(args.calibration)
     names = ("parent", "lidar_frame", "camera_frame", "ros") if args.format == "ros-tf" else ()
     options = {k: getattr(args, k) for k in names if getattr(args, k)}
     if args.format == "lidar-offsets":  # a table: CSV when the output file says so
@@ -47,17 +51,16 @@ def run(args: argparse.Namespace) -> int:
     return _emit(args, text)
 
 
-def _rig(args: argparse.Namespace) -> int:
+def _rig(args: argparse.Namespace, cal: RigCalibration) -> int:
     """A rig's calibration.yaml in one of ``exports_rig.RIG_FORMATS``."""
     from ilcc_graph.exports_rig import RIG_FORMATS, export_rig
-    from ilcc_graph.io.rig_results import read_rig_calibration
 
     if args.format not in RIG_FORMATS:
         raise InputError(
             f"{args.calibration}: a rig's calibration exports as {', '.join(RIG_FORMATS)}, not {args.format}"
         )
     try:
-        text = export_rig(read_rig_calibration(args.calibration), args.format)
+        text = export_rig(cal, args.format)
     except ValueError as err:
         raise InputError(f"{args.calibration}: {err}") from None
     return _emit(args, text)

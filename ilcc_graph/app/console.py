@@ -15,14 +15,16 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import math
 import os
 import sys
 import tempfile
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 from ilcc_graph import signals
 from ilcc_graph.errors import (
@@ -35,6 +37,7 @@ from ilcc_graph.errors import (
 )
 
 __all__ = [
+    "stdout_closed",
     "COUNT",
     "DEG_MM",
     "NON_NEGATIVE",
@@ -169,11 +172,14 @@ def run_command(
     out: where the command's output folder is (once it has decided), for an internal error's log;
     debug: whether to show that error's traceback.
     """
-    with signals.stop_on_signals():
+    with signals.stop_on_signals(), _quiet_stdout() as stdout:
         try:
             code = fn()
             signals.check()  # a stop swallowed on its way (signals.py) still stops
             return code
+        except BrokenPipeError:  # a closed stdout where our wrapper does not see it: the run stops
+            stdout.closed_pipe()
+            return EXIT_PIPE
         except signals.Stopped as err:
             signals.announce(err)
             return err.exit_code
@@ -186,6 +192,74 @@ def run_command(
         except KeyboardInterrupt:  # outside the main thread: no handler of ours
             print("interrupted", file=sys.stderr)
             return 130
+
+
+#: the exit status of a run ended by a closed stdout before it finished (128 + SIGPIPE, as a shell's)
+EXIT_PIPE = 141
+
+
+class _QuietStdout:
+    """sys.stdout while a command runs: when the reader goes away (``calibrate DATA | head``, a pager
+    quit early: EPIPE), what is printed later is dropped and the run goes on to write its outputs
+    (issue 36: it ended with exit 1 "internal error: BrokenPipeError" and an error log)."""
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+        self.pipe_closed = False
+
+    def closed_pipe(self) -> None:
+        """Drop the rest: file descriptor 1 onto /dev/null, so that no flush (ours or the
+        interpreter's at exit) meets the closed pipe again."""
+        self.pipe_closed = True
+        try:
+            fd = self.stream.fileno()
+        except (AttributeError, OSError, ValueError):
+            return  # not a real file (a test's capture)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, fd)
+        os.close(devnull)
+
+    def write(self, text: str) -> int:
+        if not self.pipe_closed:
+            try:
+                return self.stream.write(text)
+            except BrokenPipeError:
+                self.closed_pipe()
+        return len(text)
+
+    def flush(self) -> None:
+        if not self.pipe_closed:
+            try:
+                self.stream.flush()
+            except BrokenPipeError:
+                self.closed_pipe()
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.stream, name)
+
+
+@contextlib.contextmanager
+def _quiet_stdout() -> Iterator[_QuietStdout]:
+    """``_QuietStdout`` as sys.stdout, and one as sys.stderr (``2>&1 | head``: the progress bar and the
+    log meet the closed pipe too), for the block (the originals put back after it); yields stdout's."""
+    originals = sys.stdout, sys.stderr
+    quiet = _QuietStdout(sys.stdout), _QuietStdout(sys.stderr)
+    sys.stdout, sys.stderr = quiet
+    try:
+        yield quiet[0]
+    finally:
+        if sys.stdout is quiet[0]:
+            sys.stdout = originals[0]
+        if sys.stderr is quiet[1]:
+            sys.stderr = originals[1]
+        for q in quiet:
+            q.flush()
+
+
+def stdout_closed() -> bool:
+    """Whether the reader of standard output has gone (``_QuietStdout``): a command that would go on
+    only to print (``check --watch``) ends then (``BrokenPipeError``: exit 141, quietly)."""
+    return bool(getattr(sys.stdout, "pipe_closed", False))
 
 
 def _failure(err: Exception, out: Callable[[], Path | None], debug: Callable[[], bool]) -> int:

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from ..checks import MISSING, Checker
+from ..errors import quote
 
 _FLU_AXIS_NAMES = (("backward", "forward"), ("right", "left"), ("down", "up"))
 
@@ -36,7 +37,7 @@ def check_K(K: Any) -> np.ndarray:
 def check_size(width: Any, height: Any) -> tuple[int, int]:
     for name, v in (("width", width), ("height", height)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
-            raise ValueError(f"camera {name} must be a positive integer (pixels), got {v!r}")
+            raise ValueError(f"camera {name} must be a positive integer (pixels), got {quote(v)}")
     return int(width), int(height)
 
 

@@ -30,6 +30,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..checks import MISSING, Checker
+from ..errors import quote
 from .camera_model import R_FLU_OPENCV, LensModel, Normalised
 from .common import config_K
 from .registry import register
@@ -57,12 +58,12 @@ class DoubleSphere(LensModel):
         for name in ("xi", "alpha"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-                raise ValueError(f"double_sphere {name} must be a number, got {v!r}")
+                raise ValueError(f"double_sphere {name} must be a number, got {quote(v)}")
             object.__setattr__(self, name, float(v))
         if not -1.0 < self.xi <= 1.0:
-            raise ValueError(f"double_sphere xi must be in (-1, 1], got {self.xi!r}")
+            raise ValueError(f"double_sphere xi must be in (-1, 1], got {quote(self.xi)}")
         if not 0.0 <= self.alpha <= 1.0:
-            raise ValueError(f"double_sphere alpha must be in [0, 1], got {self.alpha!r}")
+            raise ValueError(f"double_sphere alpha must be in [0, 1], got {quote(self.alpha)}")
         self._check_intrinsics_sigma()
 
     @property

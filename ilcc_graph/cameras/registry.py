@@ -10,7 +10,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from ..checks import MISSING, Checker
-from ..errors import InputError
+from ..errors import InputError, quote
 from .camera_model import CameraModel
 from .common import config_intrinsics_sigma
 
@@ -55,7 +55,7 @@ def camera_class(kind: str) -> type[CameraModel]:
     """The model class of a kind; ValueError naming the known kinds otherwise."""
     cls = _REGISTRY.get(str(kind).lower())
     if cls is None:
-        raise ValueError(f"camera: unknown model {kind!r}; expected one of {'|'.join(_REGISTRY)}")
+        raise ValueError(f"camera: unknown model {quote(kind)}; expected one of {'|'.join(_REGISTRY)}")
     return cls
 
 
@@ -118,7 +118,9 @@ def camera_section_from_ros(distortion_model: str, width: int, height: int, K: A
                 "dist": cls.ros_dist(list(D)),
             }
     known = sorted(m for cls in _REGISTRY.values() for m in cls.ros_models)
-    raise ValueError(f"CameraInfo distortion_model {distortion_model!r} is not supported (we read {known})")
+    raise ValueError(
+        f"CameraInfo distortion_model {quote(distortion_model)} is not supported (we read {known})"
+    )
 
 
 def camera_section_from_kalibr(cam: dict[str, Any]) -> dict[str, Any]:
@@ -135,7 +137,7 @@ def camera_section_from_kalibr(cam: dict[str, Any]) -> dict[str, Any]:
             return {"model": cls.kind, "width": w, "height": h, **own}
     known = sorted(f"{a} + {b}" for cls in _REGISTRY.values() for a, b in cls.kalibr_models)
     raise ValueError(
-        f"Kalibr camera_model {pair[0]!r} with distortion_model {pair[1]!r} is not one we read "
+        f"Kalibr camera_model {quote(pair[0])} with distortion_model {quote(pair[1])} is not one we read "
         f"({', '.join(known)})"
     )
 

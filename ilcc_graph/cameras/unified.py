@@ -24,6 +24,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from ..checks import MISSING, Checker
+from ..errors import quote
 from .camera_model import R_FLU_OPENCV, LensModel, Normalised
 from .common import config_dist, config_K, finite_vector
 from .pinhole import DIST_NAMES, RadTan
@@ -53,9 +54,9 @@ class Unified(LensModel):
         self._check_lens()
         xi = self.xi
         if isinstance(xi, bool) or not isinstance(xi, (int, float, np.integer, np.floating)):
-            raise ValueError(f"unified xi must be a number, got {xi!r}")
+            raise ValueError(f"unified xi must be a number, got {quote(xi)}")
         if not (np.isfinite(xi) and xi >= 0):
-            raise ValueError(f"unified xi must be finite and >= 0, got {xi!r}")
+            raise ValueError(f"unified xi must be finite and >= 0, got {quote(xi)}")
         object.__setattr__(self, "xi", float(xi))
         dist = finite_vector(self.dist, "dist")
         if dist.size not in (0, 4):

@@ -16,7 +16,7 @@ from typing import Any
 
 from ..checks import Checker
 from ..errors import InputError
-from ..io.files import read_yaml
+from ..io.files import SMALL_FILE, read_yaml
 from .ilcc import is_ilcc, parse_ilcc
 from .model import Config, Roi, config_to_dict
 from .ours import TOP_KEYS, parse_ours
@@ -54,7 +54,7 @@ def parse_config(d: Any, source: str = "<config>", base_dir: Path | str | None =
 def load_config(path: str | Path) -> Config:
     """Read and validate ``config.yaml`` (ours or ILCC's). Raises ``InputError`` naming file and key."""
     p = Path(path)
-    d = read_yaml(p, "config file")
+    d = read_yaml(p, "config file", SMALL_FILE)
     if d is None:
         raise InputError(f"{p}: config file is empty; expected sections board, lidar, camera")
     return parse_config(d, str(p), p.parent)

@@ -29,8 +29,8 @@ import numpy as np
 
 from ..cameras import camera_section_from_kalibr, camera_section_from_ros
 from ..checks import Checker
-from ..errors import InputError
-from ..io import read_yaml
+from ..errors import InputError, quote
+from ..io.files import SMALL_FILE, check_yaml_keys, not_a_file, read_bounded, read_yaml
 
 __all__ = ["FILE_KEYS", "camera_section"]
 
@@ -55,8 +55,9 @@ def camera_section(c: Checker, d: Any, base: Path | None) -> Any:
         raise c.fail("camera.file", d["file"], "the path of a camera calibration file (config.yaml's folder)")
     path = Path(d["file"]).expanduser()
     path = path if path.is_absolute() or base is None else base / path
-    if not path.is_file():
-        raise c.fail("camera.file", d["file"], f"an existing file ({path} not found)")
+    problem = not_a_file(path)
+    if problem is not None:
+        raise c.fail("camera.file", d["file"], f"an existing file ({path} {problem})")
     section = _read(path, d.get("name"), d.get("distortion_model"))
     if d.get("intrinsics_sigma") is not None:
         section["intrinsics_sigma"] = d["intrinsics_sigma"]
@@ -65,10 +66,13 @@ def camera_section(c: Checker, d: Any, base: Path | None) -> Any:
 
 def _read(path: Path, name: Any, distortion_model: Any) -> dict[str, Any]:
     """Our inline section from the file at ``path`` (its kind by its keys)."""
-    raw = path.read_bytes()
+    raw = read_bounded(path, "camera file", SMALL_FILE)
     if raw.lstrip().startswith((b"%YAML:1.", b"<?xml", b"<opencv_storage")) or b"!!opencv-matrix" in raw:
+        if raw.lstrip().startswith(b"%YAML"):  # OpenCV 3 writes %YAML:1.0 (not YAML to PyYAML), 4 %YAML 1.2
+            body = "\n" + raw.decode("utf-8", errors="replace").lstrip().partition("\n")[2]  # lines kept
+            check_yaml_keys(body, str(path))  # a key twice in it: refused as in every YAML file
         return _opencv(path, distortion_model)  # OpenCV 3 writes %YAML:1.0, 4 %YAML 1.2 with its tags
-    doc = read_yaml(path, "camera file")
+    doc = read_yaml(path, "camera file", SMALL_FILE)
     if not isinstance(doc, dict):
         raise InputError(f"{path}: a camera file is a mapping (ost.yaml, a Kalibr camchain or OpenCV's YAML)")
     if "camera_matrix" in doc and "image_width" in doc:
@@ -91,7 +95,7 @@ def _matrix(path: Path, v: Any, key: str, n: tuple[int, ...]) -> list[float]:
     except (TypeError, ValueError):
         out = []
     if len(out) not in n or not np.all(np.isfinite(out)):
-        raise InputError(f"{path}: {key} = {data!r}: expected {' or '.join(map(str, n))} finite numbers")
+        raise InputError(f"{path}: {key} = {quote(data)}: expected {' or '.join(map(str, n))} finite numbers")
     return out
 
 
@@ -114,7 +118,7 @@ def _kalibr(path: Path, cams: dict[str, dict], name: Any) -> dict[str, Any]:
         )
     key = next(iter(cams)) if name is None else str(name)
     if key not in cams:
-        raise InputError(f"{path}: no camera {key!r} in this camchain (it has {', '.join(cams)})")
+        raise InputError(f"{path}: no camera {quote(key)} in this camchain (it has {', '.join(cams)})")
     try:
         return camera_section_from_kalibr(cams[key])
     except (ValueError, TypeError) as e:

@@ -23,6 +23,8 @@ from typing import Any
 from ..board import Board
 from ..cameras import camera_from_config
 from ..checks import MISSING, Checker
+from ..errors import InputError
+from ..io.files import load_yaml_text, not_a_file, read_bounded
 from ..lidars import MODEL_NAMES, LidarModel, lidar_model, model_name, read_calibration_file
 from .camera_file import camera_section
 from .model import Config, Roi
@@ -32,6 +34,8 @@ log = logging.getLogger(__name__)
 __all__ = ["TOP_KEYS", "intensity_column", "parse_board", "parse_lidar", "parse_ours", "parse_roi"]
 
 TOP_KEYS = ("board", "lidar", "camera")
+#: the largest LiDAR calibration file read (Velodyne db.xml ~50 kB, Ouster metadata ~100 kB)
+LIDAR_FILE_MAX_BYTES = 8 << 20
 _BOARD_KEYS = ("squares", "square_size", "margin", "lower_left", "roi")
 _ROI_KEYS = ("azimuth_deg", "elevation_deg", "range_m")
 _LIDAR_KEYS = (
@@ -137,16 +141,31 @@ def parse_lidar(c: Checker, d: dict, base: Path | None = None) -> tuple[LidarMod
     model = None if name is None else lidar_model(name, angles, res, sigma)
     if calib is not None:
         path = Path(calib) if base is None or Path(calib).is_absolute() else base / calib
+        problem = not_a_file(path)
+        if problem is not None:
+            raise c.fail("lidar.calibration_file", calib, f"an existing file ({path} {problem})")
         ref = model
         ref_res = 0.2 if ref is None else ref.horizontal_resolution_deg
         model = read_calibration_file(
             path,
+            text=_lidar_file_text(path),
+            load_yaml=lambda text: load_yaml_text(text, str(path)),
             name="measured" if ref is None else ref.name,
             default_resolution_deg=res if res is not None else ref_res,
             range_sigma_m=sigma if sigma is not None else (0.03 if ref is None else ref.range_sigma_m),
             beam_divergence_rad=3e-3 if ref is None else ref.beam_divergence_rad,
         )
     return model, col
+
+
+def _lidar_file_text(path: Path) -> str:
+    """A LiDAR's calibration file read with a bound (``io.read_bounded``: a folder, a FIFO or a device
+    named for what it is; an Ouster metadata JSON is some 100 kB)."""
+    raw = read_bounded(path, "LiDAR calibration file", LIDAR_FILE_MAX_BYTES)
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise InputError(f"{path}: cannot read the LiDAR calibration file ({e})") from None
 
 
 def intensity_column(c: Checker, v: Any, key: str) -> int:

@@ -33,7 +33,7 @@ import numpy as np
 from ..cameras import camera_from_config
 from ..checks import MISSING, Checker
 from ..errors import InputError
-from ..io.files import read_yaml
+from ..io.files import SMALL_FILE, read_yaml
 from .camera_file import camera_section
 from .ours import parse_board, parse_lidar, parse_roi
 from .rig import SELECT, RigConfig, RigData, RigSensor, pose_from_flu, rig_from_config
@@ -203,7 +203,7 @@ def load_rig_config(path: str | Path) -> RigConfig:
 
     Raises ``InputError`` naming the file, the key, the value and what was expected."""
     p = Path(path)
-    d = read_yaml(p, "rig file")
+    d = read_yaml(p, "rig file", SMALL_FILE)
     if d is None:
         raise InputError(f"{p}: rig file is empty; expected reference, board and sensors (docs/rig.md)")
     return parse_rig_config(d, str(p), p.parent)

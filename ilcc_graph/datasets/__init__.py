@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import replace
 from pathlib import Path
 from typing import Literal, overload
@@ -20,6 +21,7 @@ from ilcc_graph.datasets.frame_source import FrameRef, FrameSource
 from ilcc_graph.datasets.rig import Moment, RigPair, RigSource, is_rig_source
 from ilcc_graph.datasets.rosbag import BagSource, is_bag
 from ilcc_graph.errors import InputError
+from ilcc_graph.io.files import not_a_file
 
 __all__ = [
     "BagSource", "FolderSource", "FrameRef", "FrameSource", "Moment", "RigPair", "RigSource", "open_source",
@@ -48,6 +50,7 @@ def open_source(path: str | Path, *, rig: bool = False, **options: object) -> Fr
         return FolderSource(p)
     if is_rig_source(p):
         raise InputError(f"{p}: a rig data set (several sensors, docs/rig.md), not one camera-LiDAR pair")
+    _no_file_where_one_belongs(p)
     if p.is_dir():
         raise InputError(
             f"{p}: no config.yaml in this folder (expected a data set with config.yaml, pcd/ and img/)"
@@ -76,8 +79,21 @@ def _open_rig(p: Path, given: dict[str, object]) -> RigSource:
         return RigSource(p)  # a rig file, or a single-pair config file (the rig of two beside it)
     if is_folder_source(p):
         return RigSource(p, rig_from_config(load_config(p / "config.yaml"), p))
+    _no_file_where_one_belongs(p)
     if not p.exists():
         raise InputError(f"{p}: not found")
     raise InputError(
         f"{p}: not a rig (expected a rig file, a folder with rig.yaml or config.yaml, or a ROS bag)"
     )
+
+
+def _no_file_where_one_belongs(p: Path) -> None:
+    """InputError naming what is there when ``p`` (or its config.yaml / rig.yaml) exists but is no
+    regular file or folder: a FIFO, a device, a folder named config.yaml (issue 36: "not found" or
+    "no config.yaml in this folder" before)."""
+    for q in (p / "config.yaml", p / "rig.yaml") if p.is_dir() else (p,):
+        problem = not_a_file(q) if os.path.lexists(q) else None
+        if problem is not None and q != p:
+            raise InputError(f"{q} {problem}: a data set's {q.name} is a file")
+        if problem is not None and not p.is_dir():
+            raise InputError(f"{p} {problem}: expected a data set (a folder with config.yaml, or a ROS bag)")

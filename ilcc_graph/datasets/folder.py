@@ -31,9 +31,11 @@ log = logging.getLogger(__name__)
 TIME_TOLERANCE_S = 0.05
 
 
-def _by_time(ts: np.ndarray, ti: np.ndarray) -> tuple[dict[int, int], np.ndarray]:
-    """``io.TimePairing``: scans paired with images within ``TIME_TOLERANCE_S``, each scan's gap (s)."""
-    return pair_by_time(ts, ti, TIME_TOLERANCE_S), np.abs(ti[nearest(ti, ts)] - ts)
+def _by_time(ts: np.ndarray, ti: np.ndarray) -> tuple[dict[int, int], np.ndarray, np.ndarray]:
+    """``io.TimePairing``: scans paired with images within ``TIME_TOLERANCE_S``, each scan's gap (s) to
+    its nearest image and that image's index."""
+    near = nearest(ti, ts)
+    return pair_by_time(ts, ti, TIME_TOLERANCE_S), np.abs(ti[near] - ts), near
 
 
 def is_folder_source(path: Path) -> bool:

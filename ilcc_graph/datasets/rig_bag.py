@@ -29,7 +29,7 @@ from ilcc_graph.datasets.timeline import (
     nearest,
     pair_by_time,
 )
-from ilcc_graph.errors import InputError
+from ilcc_graph.errors import InputError, quote
 
 __all__ = ["RigBag"]
 
@@ -44,7 +44,7 @@ class RigBag(BagSource):
         if path is None:
             raise ValueError("RigBag: the rig has no data.bag")
         if not path.exists():
-            raise InputError(f"{rig.source}: data.bag = {d.bag!r}: expected a ROS bag; {path} not found")
+            raise InputError(f"{rig.source}: data.bag = {quote(d.bag)}: expected a ROS bag; {path} not found")
         super().__init__(path, sync_tolerance=d.sync_tolerance, min_pause=d.min_pause, select=d.select,
                          max_frames=d.max_moments)  # fmt: skip
         self.rig = rig
@@ -63,7 +63,7 @@ class RigBag(BagSource):
             if s.topic is not None:
                 if found.get(s.topic) not in types:
                     what = "no such topic" if s.topic not in found else f"its type is {found[s.topic]}"
-                    raise InputError(f"{key} = {s.topic!r}: {what} in {self.path}; topics: {listing}")
+                    raise InputError(f"{key} = {quote(s.topic)}: {what} in {self.path}; topics: {listing}")
                 out[s.name] = s.topic
                 continue
             cands = sorted(n for n, t in found.items() if t in types and n not in given)

@@ -45,7 +45,7 @@ from ilcc_graph.datasets.timeline import (
     range_image,
     unpaired,
 )
-from ilcc_graph.errors import InputError
+from ilcc_graph.errors import InputError, quote
 from ilcc_graph.io import read_ground_truth, read_yaml
 from ilcc_graph.types import Scan
 
@@ -95,9 +95,9 @@ class BagSource(FrameSource):
             ("sync_tolerance", "min_pause", "max_frames"), (sync_tolerance, min_pause, max_frames)
         ):
             if not v > 0:
-                raise InputError(f"{self.path}: {name} must be > 0, got {v!r}")
+                raise InputError(f"{self.path}: {name} must be > 0, got {quote(v)}")
         if select not in SELECT:
-            raise InputError(f"{self.path}: select must be one of {SELECT}, got {select!r}")
+            raise InputError(f"{self.path}: select must be one of {SELECT}, got {quote(select)}")
         self.config_path = None if config is None else Path(config)
         self.topics = {"lidar": lidar_topic, "image": image_topic, "info": camera_info_topic}
         self.tolerance, self.min_pause = float(sync_tolerance), float(min_pause)

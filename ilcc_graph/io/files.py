@@ -12,10 +12,13 @@ from typing import Any
 import yaml
 
 from .. import signals
-from ..errors import InputError
+from ..errors import InputError, quote
 from ..types import to_plain
 
-__all__ = ["atomic_write", "broken_link", "new_mode", "write_yaml", "read_yaml", "dump_yaml", "to_plain"]
+__all__ = [
+    "atomic_write", "broken_link", "new_mode", "write_yaml", "read_yaml", "dump_yaml", "to_plain",
+    "not_a_file", "read_bounded", "load_yaml_text", "check_yaml_keys", "SMALL_FILE",
+]  # fmt: skip
 
 
 def _umask() -> int:
@@ -126,17 +129,155 @@ def write_yaml(path: str | Path, obj: Any) -> Path:
     return atomic_write(path, dump_yaml(obj))
 
 
-def read_yaml(path: str | Path, what: str = "file") -> Any:
-    """Load a YAML file (safe loader). Missing file or bad YAML -> ``InputError`` naming the file
-    (``what`` it is, e.g. ``config file``)."""
+#: the largest YAML file read (calibration.yaml of a long run is a few MB); config.yaml, rig.yaml and a
+#: camera's calibration file are read with the smaller ``SMALL_FILE``
+YAML_MAX_BYTES = 64 << 20
+SMALL_FILE = 1 << 20
+#: how many values YAML's aliases (``*name``) may add to a document when expanded (an alias bomb adds
+#: billions); a hand-written file has none or a few
+ALIAS_MAX_VALUES = 100_000
+
+_KINDS = (
+    (stat.S_ISDIR, "is a folder"),
+    (stat.S_ISFIFO, "is a FIFO (named pipe)"),
+    (stat.S_ISCHR, "is a character device"),
+    (stat.S_ISBLK, "is a block device"),
+    (stat.S_ISSOCK, "is a socket"),
+)
+
+
+def not_a_file(path: str | Path) -> str | None:
+    """Why ``path`` cannot be read as a file, or None when it is a regular one: ``not found``, ``is a
+    broken link (to ...)``, ``is a folder``, ``is a FIFO (named pipe)``, ``is a character device``
+    (/dev/zero), ... (issue 36: these were all "not found"). Never opens it (a FIFO would block)."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        mode = os.stat(p).st_mode
     except FileNotFoundError:
-        raise InputError(f"{p}: {what} not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{p}: cannot read {what} ({e})") from None
+        link = broken_link(p)
+        return "is " + link[len(str(p)) + 2 :] if link else "not found"
+    except OSError as e:
+        return f"cannot be read ({e.strerror})"
+    if stat.S_ISREG(mode):
+        return None
+    return next((what for test, what in _KINDS if test(mode)), "is not a regular file")
+
+
+def read_bounded(path: str | Path, what: str = "file", max_bytes: int = YAML_MAX_BYTES) -> bytes:
+    """The bytes of the regular file ``path``; InputError naming it when it is something else (a
+    folder, a FIFO, a device), cannot be read or is larger than ``max_bytes`` (read no further)."""
+    p = Path(path)
+    problem = not_a_file(p)
+    if problem is not None:
+        raise InputError(f"{p}: {what} {problem}")
     try:
-        return yaml.safe_load(text)
+        with open(p, "rb") as f:
+            raw = f.read(max_bytes + 1)
+    except OSError as e:
+        raise InputError(f"{p}: cannot read {what} ({e.strerror or e})") from None
+    if len(raw) > max_bytes:
+        raise InputError(
+            f"{p}: {what} is larger than {max_bytes / 2**20:g} MiB, far more than such a file holds; not read"
+        )
+    return raw
+
+
+def _check_nodes(root: yaml.Node, src: str) -> None:
+    """Refuse a mapping that names a key twice (YAML keeps the last silently; a section pasted twice
+    replaced the first) and aliases that expand to more than ``ALIAS_MAX_VALUES`` values; each node
+    is visited once however often it is referred to."""
+    size: dict[int, int] = {}
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        if id(node) in size and not done:
+            continue
+        children = _children(node)
+        if not done:
+            size[id(node)] = -1  # on the way: an alias back to it makes a cycle
+            stack.append((node, True))
+            stack.extend((c, False) for c in children if size.get(id(c)) is None)
+            if isinstance(node, yaml.MappingNode):
+                _duplicates(node, src)
+            continue
+        if any(size.get(id(c), 0) < 0 for c in children):
+            raise InputError(
+                f"{src}: line {node.start_mark.line + 1}: an alias refers to the value that holds it"
+            )
+        size[id(node)] = 1 + sum(size[id(c)] for c in children)
+    expanded = size[id(root)]
+    if expanded > len(size) + ALIAS_MAX_VALUES:
+        raise InputError(
+            f"{src}: its aliases (*name) would add more than {ALIAS_MAX_VALUES:,} values to its "
+            f"{len(size):,} (an alias bomb?); not read"
+        )
+
+
+def _children(node: yaml.Node) -> list[yaml.Node]:
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    if isinstance(node, yaml.MappingNode):
+        return [n for kv in node.value for n in kv]
+    return []
+
+
+def _duplicates(node: yaml.MappingNode, src: str) -> None:
+    seen: dict[tuple[str, str], int] = {}
+    for k, _ in node.value:
+        if not isinstance(k, yaml.ScalarNode) or k.tag == "tag:yaml.org,2002:merge":
+            continue
+        line = k.start_mark.line + 1
+        first = seen.setdefault((k.tag, k.value), line)
+        if first != line:
+            raise InputError(
+                f"{src}: the key {quote(k.value, 60)} appears twice in one mapping (lines {first} and "
+                f"{line}); YAML would keep only the last: remove one"
+            )
+
+
+def load_yaml_text(text: str, src: str) -> Any:
+    """The document in ``text`` (safe loader), refusing duplicate keys and alias bombs
+    (``_check_nodes``); InputError naming ``src`` when it is not valid YAML."""
+    loader: yaml.SafeLoader | None = None
+    try:
+        loader = yaml.SafeLoader(text)  # its reader refuses characters YAML does not allow
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _check_nodes(node, src)
+        return loader.construct_document(node)
     except yaml.YAMLError as e:
-        raise InputError(f"{p}: not valid YAML ({' '.join(str(e).split())})") from None
+        raise InputError(f"{src}: not valid YAML ({' '.join(str(e).split())})") from None
+    finally:
+        if loader is not None:
+            loader.dispose()
+
+
+def check_yaml_keys(text: str, src: str) -> None:
+    """The checks of ``load_yaml_text`` (a key twice, alias bombs) on YAML another parser will read
+    (OpenCV's FileStorage: its tags are only composed here, never built); text that is not YAML to
+    PyYAML is left to that parser."""
+    loader: yaml.SafeLoader | None = None
+    try:
+        loader = yaml.SafeLoader(text)
+        node = loader.get_single_node()
+    except yaml.YAMLError:
+        return
+    finally:
+        if loader is not None:
+            loader.dispose()
+    if node is not None:
+        _check_nodes(node, src)
+
+
+def read_yaml(path: str | Path, what: str = "file", max_bytes: int = YAML_MAX_BYTES) -> Any:
+    """Load a YAML file (safe loader). Missing file, something else than a file, more than
+    ``max_bytes``, bad YAML, a key twice in a mapping or an alias bomb -> ``InputError`` naming the file
+    (``what`` it is, e.g. ``config file``)."""
+    p = Path(path)
+    raw = read_bounded(p, what, max_bytes)
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise InputError(f"{p}: cannot read {what} ({e})") from None
+    return load_yaml_text(text, str(p))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -138,64 +137,172 @@ def _by_stem(
 
 #: a name that is a time: seconds with a fraction (``1510868224.123456``, ``1510868224_123456789``),
 #: or whole seconds, milli-, micro- or nanoseconds (10, 13, 16, 19 digits: ``1510868224123456``)
-_TIME_NAME = re.compile(r"^(\d{9,10})(?:[._](\d{1,9}))?$|^(\d{13}|\d{16}|\d{19})$")
+_TIME_NAME = re.compile(r"^(\d{9,10})(?:([._])(\d{1,9}))?$|^(\d{13}|\d{16}|\d{19})$")
 
 #: ``by_time(scan seconds, image seconds) -> ({scan index: image index}, each scan's gap to its
-#: nearest image in s)`` (``datasets.folder``, by ``datasets.timeline.pair_by_time``)
-TimePairing = Callable[[np.ndarray, np.ndarray], tuple[dict[int, int], np.ndarray]]
+#: nearest image in s, the index of that image)`` (``datasets.folder``, by ``datasets.timeline``)
+TimePairing = Callable[[np.ndarray, np.ndarray], tuple[dict[int, int], np.ndarray, np.ndarray]]
+
+#: the two readings of a nanosecond field after ``_`` with fewer than 9 digits (``1510868224_17000000``):
+#: a decimal fraction (0.17 s), or nanoseconds a recorder did not pad to 9 digits (0.017 s; ROS
+#: writes ``secs_nsecs`` padded, where both readings agree)
+READINGS = ("a decimal fraction", "unpadded nanoseconds")
+_NON_DIGITS = "".join(chr(c) for c in range(32, 127) if not chr(c).isdigit())
 
 
-def name_seconds(stem: str) -> float | None:
-    """The time a file's name gives, in seconds (``_TIME_NAME``), or None when the name is no time."""
+def name_seconds(stem: str, unpadded: bool = False) -> float | None:
+    """The time a file's name gives, in seconds (``_TIME_NAME``), or None when the name is no time;
+    ``unpadded``: a field after ``_`` read as a whole number of nanoseconds (``READINGS``)."""
     m = _TIME_NAME.match(stem)
     if m is None:
         return None
-    if m.group(3) is not None:
-        digits = m.group(3)
+    if m.group(4) is not None:
+        digits = m.group(4)
         return int(digits) / {13: 1e3, 16: 1e6, 19: 1e9}[len(digits)]
-    return float(f"{m.group(1)}.{m.group(2) or 0}")
+    secs, sep, frac = m.group(1), m.group(2), m.group(3)
+    if frac is not None and unpadded and sep == "_":
+        return int(secs) + int(frac) * 1e-9
+    return float(f"{secs}.{frac or 0}")
 
 
-def _prefix_length(names: list[str]) -> int:
-    """Length of the run of non-digits all ``names`` begin with alike (``frame_``, ``cloud-``): what
-    a recorder put before the time."""
-    common = os.path.commonprefix(names)
-    return next((i for i, c in enumerate(common) if c.isdigit()), len(common))
+def _seconds_text(rest: str, unpadded: bool) -> str:
+    """The time of a name's time part as written, in seconds, every digit kept (no float rounding)."""
+    m = _TIME_NAME.match(rest)
+    if m is None or m.group(4) is not None or m.group(3) is None:
+        return f"{name_seconds(rest, unpadded):.9f}".rstrip("0").rstrip(".")
+    secs, sep, frac = m.groups()[:3]
+    return f"{secs}.{int(frac):09d}" if unpadded and sep == "_" else f"{secs}.{frac}"
+
+
+def _ambiguous(rest: str) -> bool:
+    """Whether the two ``READINGS`` of this time differ (``_`` and fewer than 9 digits after it)."""
+    m = _TIME_NAME.match(rest)
+    return m is not None and m.group(2) == "_" and len(m.group(3)) < 9
+
+
+def _time_names(files: dict[str, Path]) -> tuple[dict[str, str], list[str]]:
+    """({name: its time part}, names set aside): the run of non-digits before the time (a recorder's
+    ``cloud_``) must be the one most names have; a name that is no time or has another is a stray."""
+    parts = {n: (n[: len(n) - len(n.lstrip(_NON_DIGITS))], n.lstrip(_NON_DIGITS)) for n in files}
+    prefixes = [pre for pre, rest in parts.values() if name_seconds(rest) is not None]
+    if not prefixes:
+        return {}, sorted(files)
+    common = max(set(prefixes), key=prefixes.count)
+    timed = {n: rest for n, (pre, rest) in parts.items() if pre == common and name_seconds(rest) is not None}
+    return timed, sorted(files.keys() - timed.keys())
+
+
+def _conflicts(timed: dict[str, str], unpadded: bool, files: dict[str, Path], what: str) -> dict[str, str]:
+    """{name: reason} of the names whose times equal another's: both set aside, each naming the other."""
+    by_t: dict[float, list[str]] = {}
+    for n in sorted(timed):
+        by_t.setdefault(name_seconds(timed[n], unpadded), []).append(n)  # type: ignore[arg-type]
+    out = {}
+    for names in by_t.values():
+        for n in names if len(names) > 1 else ():
+            others = ", ".join(files[o].name for o in names if o != n)
+            out[n] = (
+                f"{what} {files[n].name}: its name gives the same time as {others} "
+                f"({_seconds_text(timed[n], unpadded)} s): a conflict (a copy, or files of two "
+                "recordings?); both set aside"
+            )
+    return out
 
 
 def _paired_by_time(
     scans: dict[str, Path], images: dict[str, Path], by_time: TimePairing
 ) -> tuple[dict[str, Path], list[tuple[str, str]], str] | None:
-    """Images renamed to the stems of the scans they pair with by the times in their names (after a
-    prefix every scan's, or every image's, name shares; equal names pair at distance 0), the scans
-    and images left alone (stem, reason), and the note saying how many pairs differ in name (empty
-    when none); None when some name is no time."""
-    s_names, i_names = sorted(scans), sorted(images)
-    ks, ki = _prefix_length(s_names), _prefix_length(i_names)
-    ts = [name_seconds(n[ks:]) for n in s_names]
-    ti = [name_seconds(n[ki:]) for n in i_names]
-    if any(t is None for t in ts + ti):
+    """Images renamed to the stems of the scans they pair with by the times in their names (after the
+    run of non-digits most names begin with; equal names pair at distance 0), the scans and images
+    left alone (stem, reason: strays whose name is no time, equal times, no partner near), and the
+    note saying how many pairs differ in name and which reading of the names was used when both are
+    possible (``READINGS``; the one that pairs more scans, then the nearer); None when most names
+    are no times."""
+    (s_time, s_stray), (i_time, i_stray) = _time_names(scans), _time_names(images)
+    if 2 * len(s_time) <= len(scans) or 2 * len(i_time) <= len(images):
         return None
-    t_s, t_i = np.array(ts, dtype=np.float64), np.array(ti, dtype=np.float64)
-    pairs, gap = by_time(t_s, t_i)
-    renamed = {s_names[a]: images[i_names[b]] for a, b in pairs.items()}
-    left = [
-        (n, f"scan {scans[n].name}: no image near its time (the nearest {gap[a]:.3f} s away)")
-        for a, n in enumerate(s_names)
-        if a not in pairs
-    ]
-    taken = set(pairs.values())
+    times = [*s_time.values(), *i_time.values()]
+    readings, why = _readings(times)
+    tries = [_try_reading(scans, images, s_time, i_time, u, by_time) for u in readings]
+    best = max(tries, key=lambda t: len(t[0]))  # the first (the conventional reading) on a tie
+    renamed, left, other, _ = best
+    stray = "its name is no time like the others' ({}); set aside, the others pair by time"
+    left += [(n, f"scan {scans[n].name}: " + stray.format(next(iter(s_time)))) for n in s_stray]
+    left += [(n, f"image {images[n].name}: " + stray.format(next(iter(i_time)))) for n in i_stray]
+    notes = []
+    if other:
+        notes.append(
+            f"{other} of {len(scans)} scans paired with an image of another name, the one nearest in "
+            "time by the times the names give (a frame is named by its scan)"
+        )
+    if why:
+        k = int(readings[tries.index(best)])
+        example = min(r for r in times if _ambiguous(r))
+        counts = (
+            ""
+            if len(tries) == 1
+            else f": it pairs {len(best[0])} scans, {READINGS[1 - k]} {len(tries[1 - k][0])}"
+        )
+        notes.append(
+            f"names like {example} read as {READINGS[k]} ({_seconds_text(example, bool(k))} s; {why}){counts}"
+        )
+    return renamed, left, "; ".join(notes)
+
+
+def _readings(times: list[str]) -> tuple[tuple[bool, ...], str]:
+    """The readings of the names' ``_`` fields to try (``READINGS``: False the decimal fraction, True
+    unpadded nanoseconds) and why ("" when no name is ambiguous), by their digits: a field with a
+    leading zero was padded; fields of several lengths below 9 were not (a padded writer writes one
+    length); neither or both: the reading that pairs more scans, the decimal fraction on a tie."""
+    fields = [m.group(3) for r in times if (m := _TIME_NAME.match(r)) and m.group(2) == "_" and m.group(3)]
+    if not any(len(f) < 9 for f in fields):
+        return (False,), ""
+    padded = any(f.startswith("0") and len(f) > 1 for f in fields)
+    unpadded = len({len(f) for f in fields}) > 1
+    if padded != unpadded:
+        return (unpadded,), (
+            "their digits vary in number, as a recorder that does not pad writes them"
+            if unpadded
+            else "some begin with 0: padded"
+        )
+    return (False, True), "both readings possible"
+
+
+def _try_reading(
+    scans: dict[str, Path],
+    images: dict[str, Path],
+    s_time: dict[str, str],
+    i_time: dict[str, str],
+    unpadded: bool,
+    by_time: TimePairing,
+) -> tuple[dict[str, Path], list[tuple[str, str]], int, float]:
+    """One reading of the names: (images renamed to their scans' stems, those left alone, how many
+    pairs differ in name, the pairs' summed gap in s)."""
+    s_bad, i_bad = _conflicts(s_time, unpadded, scans, "scan"), _conflicts(i_time, unpadded, images, "image")
+    s_names = sorted(s_time.keys() - s_bad.keys())
+    i_names = sorted(i_time.keys() - i_bad.keys())
+    t_s = np.array([name_seconds(s_time[n], unpadded) for n in s_names], dtype=np.float64)
+    t_i = np.array([name_seconds(i_time[n], unpadded) for n in i_names], dtype=np.float64)
+    pairs, gap, near = by_time(t_s, t_i) if len(t_s) and len(t_i) else ({}, np.zeros(0), np.zeros(0, int))
+    taken = {b: a for a, b in pairs.items()}
+    left = [(n, why) for n, why in [*s_bad.items(), *i_bad.items()]]
+    for a, n in enumerate(s_names):
+        if a in pairs:
+            continue
+        why = f"scan {scans[n].name}: no image near its time (the nearest {gap[a]:.3f} s away)"
+        if int(near[a]) in taken:
+            b = int(near[a])
+            why = (
+                f"scan {scans[n].name}: its nearest image {images[i_names[b]].name} ({gap[a]:.3f} s away) "
+                f"pairs with scan {scans[s_names[taken[b]]].name}, nearer to it"
+            )
+        left.append((n, why))
     left += [
         (n, f"image {images[n].name}: no scan near its time") for b, n in enumerate(i_names) if b not in taken
     ]
+    renamed = {s_names[a]: images[i_names[b]] for a, b in pairs.items()}
     other = sum(1 for a, b in pairs.items() if s_names[a] != i_names[b])
-    note = (
-        f"{other} of {len(s_names)} scans paired with an image of another name, the one nearest in "
-        "time by the times the names give (a frame is named by its scan)"
-        if other
-        else ""
-    )
-    return renamed, left, note
+    return renamed, left, other, float(sum(gap[a] for a in pairs))
 
 
 def list_frames(

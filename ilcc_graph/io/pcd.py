@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, quote
 from ..types import Scan
 from .files import atomic_write
 from .lzf import LzfError, lzf_compress, lzf_decompress
@@ -87,7 +87,7 @@ def _ints(path: Path, h: dict[str, list[str]], key: str) -> list[int] | None:
     try:
         return [int(v) for v in h[key]]
     except ValueError:
-        raise InputError(f"{path}: PCD header line {key} {' '.join(h[key])!r} is not integers") from None
+        raise InputError(f"{path}: PCD header line {key} {quote(' '.join(h[key]))} is not integers") from None
 
 
 def _shape(path: Path, h: dict[str, list[str]]) -> tuple[int, int, int]:
@@ -95,7 +95,7 @@ def _shape(path: Path, h: dict[str, list[str]]) -> tuple[int, int, int]:
     width, height, points = (_ints(path, h, k) for k in ("WIDTH", "HEIGHT", "POINTS"))
     for key, v in (("WIDTH", width), ("HEIGHT", height), ("POINTS", points)):
         if v is not None and (len(v) != 1 or v[0] < 0):
-            raise InputError(f"{path}: PCD header line {key} {' '.join(h[key])!r} is not one count")
+            raise InputError(f"{path}: PCD header line {key} {quote(' '.join(h[key]))} is not one count")
     if points is None and width is None:
         raise InputError(f"{path}: PCD header has neither WIDTH nor POINTS")
     h_ = 1 if height is None else height[0]

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, quote
 from ..types import Scan
 from .files import atomic_write
 from .scans import find_fields, make_scan, reader
@@ -85,7 +85,7 @@ def _header(path: Path, raw: bytes) -> tuple[str, list[tuple[str, int, list[tupl
             try:
                 elements.append((tok[1], int(tok[2]), [], False))
             except ValueError:
-                raise InputError(f"{path}: bad PLY element line {lineno} {ln!r}") from None
+                raise InputError(f"{path}: bad PLY element line {lineno} {quote(ln)}") from None
         elif tok[0] == "property" and elements and len(tok) >= 3:
             name, count, props, has_list = elements[-1]
             if tok[1] == "list":
@@ -94,9 +94,9 @@ def _header(path: Path, raw: bytes) -> tuple[str, list[tuple[str, int, list[tupl
             elif len(tok) == 3 and tok[1] in _PLY_TYPES:
                 props.append((tok[2], _PLY_TYPES[tok[1]]))
             else:
-                raise InputError(f"{path}: unsupported PLY property line {lineno} {ln!r}")
+                raise InputError(f"{path}: unsupported PLY property line {lineno} {quote(ln)}")
         else:
-            raise InputError(f"{path}: unexpected PLY header line {lineno} {ln!r}")
+            raise InputError(f"{path}: unexpected PLY header line {lineno} {quote(ln)}")
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise InputError(
             f"{path}: unsupported PLY format {fmt!r}; expected ascii or binary_little/big_endian"

@@ -38,6 +38,7 @@ __all__ = [
     "write_calibration",
     "read_calibration",
     "read_calibration_with_camera",
+    "calibration_from_doc",
     "calibration_to_dict",
     "refined_corners",
     "GroundTruth",
@@ -241,10 +242,14 @@ def _matrix(src: str, v: Any, key: str, shape: tuple[int, ...], pose: bool = Fal
 
 
 def read_calibration(path: str | Path) -> Calibration:
-    """Read ``calibration.yaml`` written by :func:`write_calibration` (InputError on bad content)."""
+    """Read ``calibration.yaml`` written by :func:`write_calibration` (InputError on bad content; its
+    covariance is validated by ``io.stored.read_stored``, the commands' reader)."""
     p = Path(path)
-    src = str(p)
-    d = read_yaml(p)
+    return calibration_from_doc(read_yaml(p, "calibration file"), str(p))
+
+
+def calibration_from_doc(d: Any, src: str = "calibration.yaml") -> Calibration:
+    """The ``Calibration`` of a calibration.yaml's content; InputError naming ``src`` and the key."""
     if not isinstance(d, dict):
         raise InputError(f"{src}: expected a mapping with T_cam_lidar, covariance, frames")
     for k in ("T_cam_lidar", "covariance", "frames"):

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from ilcc_graph.errors import InputError
+from ilcc_graph.errors import InputError, quote
 from ilcc_graph.io.files import read_yaml, write_yaml
 from ilcc_graph.types import sigma_dict
 
@@ -118,9 +118,11 @@ def rig_calibration_from_doc(d: Any, src: str = "calibration.yaml") -> RigCalibr
         or not all(isinstance(s, str) for s in sensors)
         or d["reference"] not in sensors
     ):
-        raise InputError(f"{src}: sensors must be a list of names holding the reference {d['reference']!r}")
+        raise InputError(
+            f"{src}: sensors must be a list of names holding the reference {quote(d['reference'])}"
+        )
     if not isinstance(d["T_ref_sensor"], dict) or set(d["T_ref_sensor"]) != set(sensors):
-        raise InputError(f"{src}: T_ref_sensor must give a 4x4 pose for every sensor of {sensors}")
+        raise InputError(f"{src}: T_ref_sensor must give a 4x4 pose for every sensor of {quote(sensors)}")
     T = {s: _matrix(src, d["T_ref_sensor"][s], f"T_ref_sensor.{s}", (4, 4)) for s in sensors}
     n = 6 * len(sensors)
     C = _matrix(src, d["covariance"], "covariance", (n, n))

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, quote
 from .files import read_yaml, write_yaml
 from .results import _matrix
 
@@ -77,7 +77,9 @@ def read_rig_ground_truth(path: str | Path) -> RigGroundTruth:
             raise InputError(f"{src}: {key} must map names to 4x4 matrices")
         poses[key] = {str(k): _matrix(src, v, f"{key}.{k}", (4, 4), pose=True) for k, v in d[key].items()}
     if str(d["reference"]) not in poses["T_ref_sensor"]:
-        raise InputError(f"{src}: reference = {d['reference']!r}: expected one of T_ref_sensor's sensors")
+        raise InputError(
+            f"{src}: reference = {quote(d['reference'])}: expected one of T_ref_sensor's sensors"
+        )
     seen = d.get("seen_by") or {}
     if not isinstance(seen, dict) or not all(isinstance(v, list) for v in seen.values()):
         raise InputError(f"{src}: seen_by must map moments to lists of sensor names")

@@ -26,6 +26,9 @@ from ..types import Scan
 __all__ = ["read_scan", "reader", "supported_scan_suffixes", "FIELD_ALIASES", "write_csv"]
 
 ReadFn = Callable[[Path, "int | None"], Scan]
+#: farther than any LiDAR reaches (automotive ones 200-1000 m, survey scanners some 6 km): a point
+#: beyond is not a measurement but a damaged or misread file
+MAX_RANGE_M = 10_000.0
 _READERS: dict[str, ReadFn] = {}
 
 #: canonical field -> accepted names (lower case)
@@ -115,6 +118,7 @@ def make_scan(
     n = xyz.shape[0]
     if n == 0:
         raise InputError(f"{path}: the file holds no points")
+    _impossible(path, xyz)
     ok = np.isfinite(xyz).all(axis=1) & np.isfinite(inten)
     if not ok.any():
         raise InputError(f"{path}: all {n} points have non-finite x, y, z or intensity (NaN/inf)")
@@ -147,6 +151,21 @@ def make_scan(
     )
 
 
+def _impossible(path: Path, xyz: np.ndarray) -> None:
+    """InputError naming ``path`` when some point is at infinity or beyond ``MAX_RANGE_M`` (NaN is
+    a driver's "no return" and is dropped by the caller)."""
+    with np.errstate(invalid="ignore"):
+        far = (np.abs(xyz) > MAX_RANGE_M).any(axis=1)  # NaN compares False, infinity True
+    if far.any():
+        k = int(np.flatnonzero(far)[0])
+        x, y, z = (f"{v:.3g}" for v in xyz[k])
+        raise InputError(
+            f"{path}: {int(far.sum())} of {len(xyz)} points are at infinity or farther than any LiDAR "
+            f"reaches ({MAX_RANGE_M / 1000:g} km; point {k}: ({x}, {y}, {z}) m): the values are impossible, "
+            "the file is damaged or not in the format its name says"
+        )
+
+
 # --------------------------------------------------------------------------- KITTI .bin
 @reader(".bin")
 def read_kitti_bin(path: Path, intensity_column: int | None = None) -> Scan:
@@ -157,7 +176,22 @@ def read_kitti_bin(path: Path, intensity_column: int | None = None) -> Scan:
             f"{path}: size {len(raw)} bytes is not a multiple of 16 (float32 x y z intensity); truncated?"
         )
     a = np.frombuffer(raw, dtype="<f4").reshape(-1, 4)
-    return make_scan(path, a[:, :3], a[:, 3], None)
+    try:
+        return make_scan(path, a[:, :3], a[:, 3], None)
+    except InputError as err:
+        if len(raw) % 32 == 0 and _as_float64(raw):
+            raise InputError(
+                f"{err}; read as float64 records it holds plausible points: KITTI's .bin is float32 x y z "
+                "intensity (write it as float32)"
+            ) from None
+        raise
+
+
+def _as_float64(raw: bytes) -> bool:
+    """Whether ``raw`` read as float64 records x y z intensity gives points a LiDAR could measure."""
+    a = np.frombuffer(raw, dtype="<f8").reshape(-1, 4)[:, :3]
+    with np.errstate(invalid="ignore"):
+        return bool(np.all(np.isnan(a) | (np.abs(a) <= MAX_RANGE_M)))
 
 
 # --------------------------------------------------------------------------- CSV of many tools

@@ -23,13 +23,15 @@ from __future__ import annotations
 
 import json
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
 
-from ..errors import InputError
+from ..errors import InputError, quote
 from .tables import LidarModel
 
 __all__ = ["read_calibration_file", "read_calibration_table", "CalibrationTable"]
@@ -76,9 +78,11 @@ def _ouster(path: Path, d: dict) -> CalibrationTable:
         try:
             columns = int(str(mode).lower().split("x")[0])
         except ValueError:
-            raise _fail(path, f"lidar_mode {mode!r} is not '<columns>x<rate>' (e.g. '1024x10')") from None
+            raise _fail(
+                path, f"lidar_mode {quote(mode)} is not '<columns>x<rate>' (e.g. '1024x10')"
+            ) from None
     if columns is not None and not (isinstance(columns, int) and columns > 0):
-        raise _fail(path, f"columns per frame must be a positive integer, got {columns!r}")
+        raise _fail(path, f"columns per frame must be a positive integer, got {quote(columns)}")
     return CalibrationTable(alt, azi, columns, "ouster-json")
 
 
@@ -150,15 +154,22 @@ def _hesai_csv(path: Path, text: str) -> CalibrationTable:
     return CalibrationTable(np.array([r[1] for r in rows]), np.array([r[2] for r in rows]), None, "hesai-csv")
 
 
-def read_calibration_table(path: str | Path) -> CalibrationTable:
-    """Parse a calibration file (any of the module's formats); InputError naming the problem."""
+def read_calibration_table(
+    path: str | Path, text: str | None = None, load_yaml: Callable[[str], Any] = yaml.safe_load
+) -> CalibrationTable:
+    """Parse a calibration file (any of the module's formats); InputError naming the problem.
+
+    text: the file's content when the caller read it already (``config`` reads it bounded in size:
+    ``io.read_bounded``); load_yaml: the YAML loader (``config``'s refuses duplicate keys and
+    alias bombs)."""
     p = Path(path)
-    if not p.is_file():
-        raise _fail(p, "calibration file not found")
-    try:
-        text = p.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as e:
-        raise _fail(p, f"cannot read the calibration file ({e})") from None
+    if text is None:
+        if not p.is_file():
+            raise _fail(p, "calibration file not found")
+        try:
+            text = p.read_text(encoding="utf-8-sig")
+        except (OSError, UnicodeDecodeError) as e:
+            raise _fail(p, f"cannot read the calibration file ({e})") from None
     head = text.lstrip()[:200].lower()
     if head.startswith("{"):
         try:
@@ -171,7 +182,7 @@ def read_calibration_table(path: str | Path) -> CalibrationTable:
     if head.startswith("laser id") or head.startswith("eeff"):
         return _hesai_csv(p, text)
     try:
-        d = yaml.safe_load(text)
+        d = load_yaml(text)
     except yaml.YAMLError as e:
         raise _fail(p, f"not an Ouster JSON, Velodyne XML/YAML or Hesai CSV calibration file ({e})") from None
     if isinstance(d, dict) and "lasers" in d:
@@ -187,9 +198,12 @@ def read_calibration_file(
     default_resolution_deg: float = 0.2,
     range_sigma_m: float = 0.03,
     beam_divergence_rad: float = 3e-3,
+    text: str | None = None,
+    load_yaml: Callable[[str], Any] = yaml.safe_load,
 ) -> LidarModel:
-    """The :class:`LidarModel` of a calibration file: its elevations sorted ascending (ring = index)."""
-    t = read_calibration_table(path)
+    """The :class:`LidarModel` of a calibration file: its elevations sorted ascending (ring = index);
+    ``text`` and ``load_yaml`` as :func:`read_calibration_table`'s."""
+    t = read_calibration_table(path, text, load_yaml)
     a = np.sort(t.elevations_deg)
     if np.any(np.diff(a) <= 0):
         a = a + 1e-6 * np.arange(a.size)  # two lasers at one elevation (rare): keep both

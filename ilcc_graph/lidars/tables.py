@@ -61,7 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, quote
 
 __all__ = [
     "LidarModel", "lidar_model", "ring_from_points", "MODEL_NAMES", "ILCC_ALIASES", "LASER_ID_ELEVATIONS_DEG",
@@ -105,7 +105,9 @@ class LidarModel:
             raise ValueError(f"pattern must be one of {PATTERNS}, got {self.pattern!r}")
         a = np.asarray(self.vertical_angles_deg, dtype=np.float64).reshape(-1)
         if a.size < 1 or not np.all(np.isfinite(a)):
-            raise ValueError(f"vertical_angles_deg must be finite numbers, got {self.vertical_angles_deg!r}")
+            raise ValueError(
+                f"vertical_angles_deg must be finite numbers, got {quote(self.vertical_angles_deg)}"
+            )
         if np.any(np.diff(a) <= 0):
             raise ValueError(f"vertical_angles_deg must be strictly ascending, got {a.tolist()}")
         if np.any(np.abs(a) >= 90):
@@ -376,7 +378,7 @@ def lidar_model(
         if horizontal_resolution_deg is not None:
             res = float(horizontal_resolution_deg)
     else:
-        raise InputError(f"unknown lidar model {name!r}; expected one of {list(MODEL_NAMES)}")
+        raise InputError(f"unknown lidar model {quote(name)}; expected one of {list(MODEL_NAMES)}")
     if range_sigma_m is not None:
         sigma = float(range_sigma_m)
     pattern = "non-repetitive" if key in NON_REPETITIVE else "spinning"
@@ -390,4 +392,4 @@ def lidar_model(
             pattern=pattern,
         )
     except ValueError as e:
-        raise InputError(f"lidar model {name!r}: {e}") from None
+        raise InputError(f"lidar model {quote(name)}: {e}") from None

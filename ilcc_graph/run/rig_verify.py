@@ -1,10 +1,12 @@
 """Verify a stored calibration against a short new capture (``ilcc-graph verify``; docs/verify.md).
 
-``load_stored(path)`` reads a rig's calibration.yaml (``io.rig_results``) or a single pair's
-(``io.read_calibration``: the rig of ``lidar`` and ``camera``, as a single-pair data set opened as a
-rig names them); ``verify_capture(stored, source, options)`` observes and solves the capture as
-``calibrate`` does (a pair: ``pipeline.run`` on it, then ``estimation.verify.verify_pair``; a larger
-rig: ``rig_observe`` and ``estimation.verify.verify_rig``); ``verify_to_dict`` and
+``load_stored(path)`` reads a rig's calibration.yaml or a single pair's (the rig of ``lidar`` and
+``camera``, as a single-pair data set opened as a rig names them) through the one reader and
+validation of a stored calibration (``io.stored.read_stored``), with the board and sensor kinds it
+was made with; ``verify_capture(stored, source, options)`` refuses a capture that is not comparable
+(``check_comparable``: other sensors, another board, another camera model), then observes and solves
+it as ``calibrate`` does (a pair: ``pipeline.run`` on it, then ``estimation.verify.verify_pair``; a
+larger rig: ``rig_observe`` and ``estimation.verify.verify_rig``); ``verify_to_dict`` and
 ``verify_text`` are what the command writes and prints. Units in the answer: deg and mm.
 """
 
@@ -12,19 +14,19 @@ from __future__ import annotations
 
 import textwrap
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ilcc_graph.config.rig import PAIR_NAMES
+from ilcc_graph.config.rig import PAIR_NAMES, RigConfig
 from ilcc_graph.datasets import open_source
 from ilcc_graph.datasets.rig import RigPair, RigSource
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem, InputError
 from ilcc_graph.estimation.verify import StoredRig, VerifyOptions, VerifyResult, verify_pair, verify_rig
-from ilcc_graph.io import read_calibration
-from ilcc_graph.io.rig_results import is_rig_calibration, read_rig_calibration
+from ilcc_graph.io.rig_results import RigCalibration
+from ilcc_graph.io.stored import StoredSetup, read_stored, stored_setup
 from ilcc_graph.run.pipeline import run
 from ilcc_graph.run.result import RunOptions
 from ilcc_graph.run.rig_observe import observe_rig
@@ -32,14 +34,9 @@ from ilcc_graph.run.stages import StageOptions
 from ilcc_graph.types import Estimate
 
 __all__ = [
-    "EXIT_CODES",
-    "VerifyRun",
-    "load_stored",
-    "verify_capture",
-    "verify_pair_capture",
-    "verify_text",
-    "verify_to_dict",
-]
+    "EXIT_CODES", "StoredCalibration", "VerifyRun", "check_comparable", "load_stored", "verify_capture",
+    "verify_pair_capture", "verify_text", "verify_to_dict",
+]  # fmt: skip
 
 #: the command's exit status per verdict (docs/verify.md; 1, 2, 3 and the signals' as every command's)
 EXIT_CODES = {"pass": 0, "warn": 4, "fail": 5}
@@ -53,16 +50,82 @@ class VerifyRun:
     moments: int
 
 
-def load_stored(path: str | Path) -> StoredRig:
-    """A stored calibration: a rig's calibration.yaml or a single pair's (InputError otherwise)."""
-    if is_rig_calibration(path):
-        cal = read_rig_calibration(path)
-        return StoredRig(cal.sensors, cal.reference, cal.T_ref_sensor, cal.covariance)
-    c = read_calibration(path)
-    if not np.all(np.isfinite(c.covariance)):
-        raise InputError(f"{path}: the calibration has no covariance (method {c.method}); verify needs one")
+@dataclass(frozen=True)
+class StoredCalibration(StoredRig):
+    """A stored calibration as ``verify`` reads it: the poses and covariance (``StoredRig``) and what it
+    was made with (``io.stored.StoredSetup``: board, sensor kinds), for ``check_comparable``."""
+
+    setup: StoredSetup = field(default_factory=StoredSetup)
+
+
+def load_stored(path: str | Path) -> StoredCalibration:
+    """A stored calibration: a rig's calibration.yaml or a single pair's, validated
+    (``io.stored.read_stored``); InputError naming the file otherwise or when it has no covariance."""
+    cal = read_stored(path)
+    setup = stored_setup(path, cal, PAIR_NAMES)
+    if isinstance(cal, RigCalibration):
+        return StoredCalibration(cal.sensors, cal.reference, cal.T_ref_sensor, cal.covariance, setup)
+    if not np.all(np.isfinite(cal.covariance)):
+        raise InputError(f"{path}: the calibration has no covariance (method {cal.method}); verify needs one")
     lidar, camera = PAIR_NAMES
-    return StoredRig.pair(c.T_cam_lidar, c.covariance, camera, lidar)
+    p = StoredRig.pair(cal.T_cam_lidar, cal.covariance, camera, lidar)
+    return StoredCalibration(p.sensors, p.reference, p.T_ref_sensor, p.covariance, setup)
+
+
+def check_comparable(stored: StoredRig, rig: RigConfig, where: str) -> None:
+    """InputError (exit 2) naming the difference when the capture ``rig`` (read from ``where``) cannot
+    be judged against ``stored``: a sensor the calibration does not have, a sensor of another kind or
+    camera model, another board (squares or square size). What the calibration does not record is
+    not compared."""
+    missing = [s for s in rig.names if s not in stored.sensors]
+    if missing:
+        raise InputError(
+            f"{where}: sensors {missing} are not in the stored calibration (it has {list(stored.sensors)})"
+        )
+    setup = stored.setup if isinstance(stored, StoredCalibration) else StoredSetup()
+    for s in rig.names:
+        cam = rig.sensor(s).camera
+        have, had = ("lidar" if cam is None else cam.kind), setup.sensors.get(s)
+        if had is not None and had != have:
+            raise InputError(
+                f"{where}: sensor {s} is a {_kind(have)} in the capture but a {_kind(had)} in the stored "
+                f"calibration ({setup.where}): not comparable; verify checks the same sensors against "
+                "their calibration (calibrate again after changing a camera or lens)"
+            )
+    if setup.board is not None:
+        b = rig.board
+        want = (sorted(_ints(setup.board.get("squares"))), _float(setup.board.get("square_size")))
+        if not _same_board(want, b.rows, b.cols, b.square_size):
+            raise InputError(
+                f"{where}: the capture's board is [{b.rows}, {b.cols}] squares of {b.square_size:g} m, the "
+                f"stored calibration's {list(want[0])} of {want[1]:g} m ({setup.board_where}): not "
+                "comparable; take the capture with the calibration's board"
+            )
+
+
+def _kind(k: str) -> str:
+    return "LiDAR" if k == "lidar" else f"{k} camera"
+
+
+def _ints(v: Any) -> list[int]:
+    try:
+        return [int(x) for x in v]
+    except (TypeError, ValueError):
+        return []
+
+
+def _float(v: Any) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _same_board(want: tuple[list[int], float], rows: int, cols: int, size: float) -> bool:
+    squares, s = want
+    return squares in ([], sorted((rows, cols))) and (
+        not np.isfinite(s) or abs(s - size) <= 1e-6 * max(s, size)
+    )
 
 
 def verify_capture(
@@ -73,17 +136,12 @@ def verify_capture(
     progress: Callable[[int, int], None] | None = None,
 ) -> VerifyRun:
     """The capture ``source`` (a rig folder, file or bag, or a single-pair data set) against
-    ``stored``; InputError when the capture's sensors are not the calibration's. A capture of one
+    ``stored``; InputError when the capture is not comparable (``check_comparable``). A capture of one
     camera and one LiDAR is observed and solved as ``calibrate`` does a pair (``verify_pair_capture``);
     a larger rig by the rig's pass and solve."""
     src = source if isinstance(source, RigSource) else open_source(source, rig=True)
     rig = src.config()
-    missing = [s for s in rig.names if s not in stored.sensors]
-    if missing:
-        raise InputError(
-            f"{rig.source or source}: sensors {missing} are not in the stored calibration "
-            f"(it has {list(stored.sensors)})"
-        )
+    check_comparable(stored, rig, str(rig.source or source))
     if len(rig.cameras) == 1 and len(rig.lidars) == 1:
         return verify_pair_capture(stored, src, options, stages, progress)
     obs = observe_rig(src, stages, progress)
