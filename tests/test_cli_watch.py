@@ -64,16 +64,11 @@ def _row(lines: list[str], stem: str) -> str | None:
     return next((line for line in lines if line.startswith(f"{stem} ")), None)
 
 
-def test_check_watch_stops_at_its_target_and_advises_from_its_sigmas(simulated, tmp_path):
-    src = simulated("pinhole", frames=8, seed=4)
-    dst, out = tmp_path / "recording", tmp_path / "check"
-    (dst / "pcd").mkdir(parents=True)
-    (dst / "img").mkdir()
-    shutil.copyfile(src / "config.yaml", dst / "config.yaml")
+def _record(check: Check, src, dst) -> tuple[list[str], dict[str, tuple[str, str]]]:  # noqa: ANN001
+    """Write ``src``'s frames into ``dst`` one by one as a user records them: the next once the check
+    has judged this one and, once it calibrates, said where the board goes next; none after the frame
+    that reaches the target. (frames written, {frame: (its row, the lines after it)} of the advised)."""
     stems = sorted(p.stem for p in (src / "pcd").iterdir())
-    target = ",".join(map(str, TARGET))
-    check = Check(["check", str(dst), "--watch", "--advise", "--target-sigma", target, "--until", "8",
-                   "--out", str(out)])  # fmt: skip
     written, advised = [], {}
     for stem in stems:
         for sub in ("pcd", "img"):
@@ -92,7 +87,27 @@ def test_check_watch_stops_at_its_target_and_advises_from_its_sigmas(simulated, 
             f"advice after {stem}", lambda s=stem: EXPECTED.search(check.after(s)) is not None, 30.0
         )
         advised[stem] = (row, check.after(stem))
-    assert check.p.wait(timeout=60) == 0
+    return written, advised
+
+
+def test_check_watch_stops_at_its_target_and_advises_from_its_sigmas(simulated, tmp_path):
+    src = simulated("pinhole", frames=8, seed=4)
+    dst, out = tmp_path / "recording", tmp_path / "check"
+    (dst / "pcd").mkdir(parents=True)
+    (dst / "img").mkdir()
+    shutil.copyfile(src / "config.yaml", dst / "config.yaml")
+    stems = sorted(p.stem for p in (src / "pcd").iterdir())
+    target = ",".join(map(str, TARGET))
+    check = Check(["check", str(dst), "--watch", "--advise", "--target-sigma", target, "--until", "8",
+                   "--out", str(out)])  # fmt: skip
+    try:
+        written, advised = _record(check, src, dst)
+        code = check.p.wait(timeout=60)
+    finally:  # a check that does not stop is ended here, not left running
+        if check.p.poll() is None:
+            check.p.kill()
+            check.p.wait()
+    assert code == 0
     doc = yaml.safe_load((out / "check.yaml").read_text())
     # it stopped by itself at the first frame within the target, before the recording's end
     assert doc["stopped"] == "target reached", doc["stopped"]
