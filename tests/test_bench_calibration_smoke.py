@@ -9,17 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from accuracy import NEES_BOUND
-from scipy.stats import chi2
+from accuracy import NEES_BOUND, mean_band
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
 
 from bench_calibration import CHI2_6_95, run_set, summarize  # noqa: E402
-
-
-def _mean_band(dof: int, n: int, p: float = 0.001) -> tuple[float, float]:
-    """Two-sided band (probability p outside it) of the mean of n chi-square(dof) draws."""
-    return chi2.ppf(p / 2, dof * n) / n, chi2.ppf(1 - p / 2, dof * n) / n
 
 
 @pytest.mark.slow
@@ -35,14 +29,14 @@ def test_one_small_set_solves_three_ways() -> None:
     # each board's LiDAR pose against the truth: the mean NEES of the boards (6 dof each, ~independent)
     # in the two-sided 99.9 % band of chi2(6 n) / n (8 boards: 2.8 .. 10.9): fails a board covariance
     # 2 x too small or too large in sigma (mean ~24 or ~1.5)
-    lo, hi = _mean_band(6, len(res.board_nees))
+    lo, hi = mean_band(6, len(res.board_nees))
     assert len(res.board_nees) == len(res.board_z) >= 4
     assert lo < np.mean(res.board_nees) < hi, (lo, np.mean(res.board_nees), hi)
     # the corners' covariance is conservative by design (docs/bench_calibration.md: corner NEES mean
     # 0.5-1 against 2 at 3000-8000 px, ~1.6 here): never above chi2(2 n) / n at 99.95 %, and not 4 x
     # too wide in variance (mean 0.5)
     assert len(res.corner_nees) == len(res.corner_err_px) >= 4 * 35
-    assert 0.5 < np.mean(res.corner_nees) < _mean_band(2, len(res.corner_nees))[1], np.mean(res.corner_nees)
+    assert 0.5 < np.mean(res.corner_nees) < mean_band(2, len(res.corner_nees))[1], np.mean(res.corner_nees)
     s = summarize([res])
     assert s["sets"] == 1 and s["failed"] == 0
     assert s["nees_mean"] == res.graph_nees and s["coverage"] == 1.0
