@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from accuracy import NEES_BOUND, pose_nees
 
 from ilcc_graph.app import main
 from ilcc_graph.datasets import BagSource, FolderSource, open_source
@@ -348,4 +349,7 @@ def test_cli_calibrates_a_bag(sets, tmp_path) -> None:
     cal = yaml.safe_load((out / "calibration.yaml").read_text())
     assert [f["name"] for f in cal["frames"]][:2] == ["t000000.000", "t000000.100"]
     assert all(f["used"] for f in cal["frames"]) and cal["camera"]["model"] == "pinhole"
+    # as accurate as it says: within its covariance of the truth the folder of the same frames holds
+    truth = yaml.safe_load((sets["folder"] / "ground_truth.yaml").read_text())["T_cam_lidar"]
+    assert pose_nees(cal["T_cam_lidar"], cal["covariance"], truth) < NEES_BOUND
     assert main(["calibrate", str(sets["ros1"]), "--out", str(tmp_path / "o2"), "--image-topic", "/no"]) == 2

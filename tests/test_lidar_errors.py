@@ -240,8 +240,13 @@ def test_calibrate_with_lidar_errors_writes_terms_refined_corners_and_exports_th
     assert len(z) >= 8 and np.mean(np.abs(z) < 3) >= 0.9
     assert "lidar_errors" in cal["sensor_errors"]["effect_on_extrinsic"]
     bp = lid["board_plane"]  # 6 frames: more than the 5 boards the plane's estimate needs
-    assert bp["estimated"] and 0.5 <= bp["offset_mm"] <= 40.0 and bp["offset_sd_mm"] > 0, bp
-    assert 0.2 <= bp["beam_mm"] <= 20.0 and bp["beam_sd_mm"] > 0, bp  # each beam's offset on a board
+    # the simulated print is flat and each beam's bias the same on every board: the estimated sigmas
+    # of a board's own plane offset and of a beam's offset changing from board to board are the
+    # truth's (0) within 3 of their own sigmas (the estimates are held at >= floors of 0.5, 0.2 mm)
+    true_plane_mm = 1e3 * truth["simulation"]["systematics"]["board_plane_sigma"][0]
+    assert bp["estimated"] and bp["offset_sd_mm"] > 0 and bp["beam_sd_mm"] > 0, bp
+    assert abs(bp["offset_mm"] - true_plane_mm) < 3 * bp["offset_sd_mm"], bp
+    assert bp["beam_mm"] < 3 * bp["beam_sd_mm"], bp
     used = [f for f in cal["frames"] if f["used"]]
     assert used and all("lidar_corners_stage" in f for f in used)
     assert (

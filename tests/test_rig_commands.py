@@ -139,18 +139,66 @@ def test_calibrate_a_rig_through_the_command_line(
         if s != got.reference:
             T_true = truth.T_a_b(got.reference, s)
             assert pose_nees(got.T_ref_sensor[s], got.block(s), T_true) < NEES_BOUND, s
-    # export reads what calibrate wrote: each rig format, parsed back; a pair's format refused
-    import json
-    import xml.etree.ElementTree as ET
-
-    parse = {"ros-tf": ET.parse, "urdf": ET.parse, "json": lambda p: json.loads(p.read_text())}
-    for fmt, load in parse.items():
+    # export reads what calibrate wrote: each rig format, read back, holds every sensor's pose
+    for fmt in ("ros-tf", "urdf", "json"):
         f = tmp_path / f"rig.{fmt}"
         assert main(["export", str(out / "calibration.yaml"), "--format", fmt, "--out", str(f)]) == 0
-        assert load(f) is not None, fmt
+        _exported_poses_are_the_calibration(f, fmt, got)
     assert main(["export", str(out / "calibration.yaml"), "--format", "kitti"]) == 2
     # the backpack's camera is a panorama, which Kalibr has no model for: refused, not written wrong
     assert main(["export", str(out / "calibration.yaml"), "--format", "kalibr"]) == 2
     # verify reads what calibrate wrote
     code = main(["verify", str(out / "calibration.yaml"), str(folders), "--out", str(tmp_path / "v")])
     assert code in (0, 4) and (tmp_path / "v" / "verdict.txt").read_text().strip() in ("pass", "warn")
+
+
+def _tree_poses(edges: dict[str, tuple[str, np.ndarray]], root: str) -> dict[str, np.ndarray]:
+    """{frame: T_root_frame} of a transform tree given as {child: (parent, T_parent_child)}."""
+
+    def pose(frame: str) -> np.ndarray:
+        if frame == root:
+            return np.eye(4)
+        parent, T = edges[frame]
+        return pose(parent) @ T
+
+    return {frame: pose(frame) for frame in [root, *edges]}
+
+
+def _exported_poses_are_the_calibration(f: Path, fmt: str, cal) -> None:  # noqa: ANN001
+    """The file ``f`` (rig export ``fmt``) read back with a parser of its own format: every sensor's
+    frame (a camera's ``_optical`` frame when it has one: OpenCV axes, as ``T_ref_sensor``) sits at
+    the calibration's ``T_ref_sensor`` from the reference, to the printed digits."""
+    import json
+    import xml.etree.ElementTree as ET
+
+    from scipy.spatial.transform import Rotation
+
+    def T_of(R: np.ndarray, t) -> np.ndarray:  # noqa: ANN001
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, np.asarray(t, float)
+        return T
+
+    if fmt == "json":
+        doc = json.loads(f.read_text())
+        assert doc["reference"] == cal.reference and doc["sensors"] == list(cal.sensors)
+        np.testing.assert_allclose(np.array(doc["covariance"]), cal.covariance, rtol=1e-12, atol=0)
+        poses = {s: np.array(doc["T_ref_sensor"][s]) for s in cal.sensors}
+    else:
+        edges = {}
+        if fmt == "ros-tf":  # static_transform_publisher args: x y z qx qy qz qw parent child
+            for node in ET.parse(f).getroot().iter("node"):
+                *v, parent, child = node.get("args").split()
+                R = Rotation.from_quat([float(x) for x in v[3:]]).as_matrix()
+                edges[child] = (parent, T_of(R, [float(x) for x in v[:3]]))
+        else:  # URDF fixed joints: origin xyz, rpy about fixed axes
+            for joint in ET.parse(f).getroot().iter("joint"):
+                o = joint.find("origin")
+                R = Rotation.from_euler("xyz", [float(x) for x in o.get("rpy").split()]).as_matrix()
+                xyz = [float(x) for x in o.get("xyz").split()]
+                edges[joint.find("child").get("link")] = (joint.find("parent").get("link"), T_of(R, xyz))
+        tree = _tree_poses(edges, cal.reference)
+        poses = {s: tree.get(f"{s}_optical", tree.get(s)) for s in cal.sensors}
+    T_ref = np.asarray(cal.T_ref_sensor[cal.reference])
+    for s in cal.sensors:
+        want = np.linalg.solve(T_ref, np.asarray(cal.T_ref_sensor[s]))
+        np.testing.assert_allclose(poses[s], want, atol=1e-9, err_msg=f"{fmt}: {s}")

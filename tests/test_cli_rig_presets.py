@@ -1,0 +1,82 @@
+"""A rig preset other than the backpack (test_rig_commands.py) through the command line: the
+ring of four pinhole cameras around an HDL-32E (``simulate-rig --rig ring-pinhole``, 400 px, 12
+moments: three boards per camera), calibrated by ``calibrate`` and judged against the simulated
+truth; then ``verify`` of that calibration on new captures: one whose left camera moved 40 mm along its
+optical axis (``--translation-mm``, two boards per camera, written as a ROS 2 mcap rig bag:
+``--as bag --storage mcap``), and an unchanged one of one board per camera."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from accuracy import NEES_BOUND, mean_band, pose_nees
+
+from ilcc_graph.app import main
+from ilcc_graph.io.rig_results import read_rig_calibration
+from ilcc_graph.io.rig_truth import read_rig_ground_truth
+
+RING = ["--rig", "ring-pinhole", "--width", "400"]
+CAMERAS = ("front", "left", "back", "right")
+
+
+@pytest.fixture(scope="module")
+def ring(tmp_path_factory) -> tuple[Path, Path]:
+    """(the simulated ring, its calibration.yaml by ``calibrate``)."""
+    d = tmp_path_factory.mktemp("ring")
+    assert main(["simulate-rig", str(d / "rig"), *RING, "--seed", "1"]) == 0
+    assert main(["calibrate", str(d / "rig"), "--out", str(d / "cal"), "--jobs", "1", "--no-report"]) == 0
+    return d / "rig", d / "cal" / "calibration.yaml"
+
+
+def test_the_ring_calibrates_within_its_covariance_both_ways(ring):
+    """Every camera's pose in the LiDAR frame against the truth: each NEES under the 99.9 % bound of
+    one draw, their mean (4 cameras, each on its own boards) in chi2(24)/4's two-sided 99.9 % band,
+    1.9 .. 13.4 (measured 10.6, 5.2, 6.5, 13.8: mean 9.0)."""
+    data, stored = ring
+    got, truth = read_rig_calibration(stored), read_rig_ground_truth(data)
+    assert got.reference == "lidar" and got.sensors == ("lidar", *CAMERAS)
+    nees = np.array([pose_nees(got.T_ref_sensor[s], got.block(s), truth.T_a_b("lidar", s)) for s in CAMERAS])
+    assert np.all(nees < NEES_BOUND), nees
+    lo, hi = mean_band(6, len(CAMERAS))
+    assert lo < nees.mean() < hi, nees
+
+
+def _verify(stored: Path, capture: Path, out: Path) -> tuple[int, dict]:
+    code = main(["verify", str(stored), str(capture), "--out", str(out), "--jobs", "1"])
+    doc = yaml.safe_load((out / "verify.yaml").read_text())
+    assert code == doc["exit_status"]
+    return code, doc
+
+
+def test_verify_finds_the_one_camera_moved_40_mm(ring, tmp_path):
+    """A capture of 8 moments (two boards per camera) whose left camera moved 40 mm along its own z,
+    as a ROS 2 mcap rig bag: verify fails the left camera alone, its tz change the shift within 4 of
+    its sigmas (measured 39.97 +- 2.5 mm); the unchanged cameras do not fail."""
+    _, stored = ring
+    moved = tmp_path / "moved"
+    argv = ["simulate-rig", str(moved), *RING, "--seed", "9", "--moments", "8", "--moved", "left"]
+    assert main([*argv, "--translation-mm", "0,0,40", "--as", "bag", "--storage", "mcap"]) == 0
+    meta = yaml.safe_load((moved / "rig" / "metadata.yaml").read_text())
+    assert meta["rosbag2_bagfile_information"]["storage_identifier"] == "mcap"
+    assert (moved / "rig" / "rig.mcap").is_file()
+    code, doc = _verify(stored, moved, tmp_path / "v")
+    assert code == 5 and [s for s, c in doc["sensors"].items() if c["verdict"] == "fail"] == ["left"]
+    tz = doc["sensors"]["left"]["axes"]["tz_mm"]
+    assert abs(tz["change"] - 40.0) < 4 * tz["sigma"] and tz["change"] > 4 * tz["sigma"], tz
+    assert doc["sensors"]["left"]["translation_mm"] > 20.0
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="bug: verify fails every camera of an unchanged ring captured with one board per camera "
+    "(4 moments): 'changes' of 155-394 mm along the optical axis, chi2 24-130 (exit 5); with two "
+    "boards per camera the same rig gets warn",
+)
+def test_verify_does_not_fail_an_unchanged_ring_on_one_board_per_camera(ring, tmp_path):
+    _, stored = ring
+    assert main(["simulate-rig", str(tmp_path / "same"), *RING, "--seed", "9", "--moments", "4"]) == 0
+    code, doc = _verify(stored, tmp_path / "same", tmp_path / "v")
+    assert code != 5, {s: c["reason"] for s, c in doc["sensors"].items()}
