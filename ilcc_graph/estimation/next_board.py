@@ -96,12 +96,14 @@ def board_information(
     cov_px: np.ndarray,
     camera: CameraModel,
     coefficients: np.ndarray | None = None,
+    samples: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """(g.dim, g.dim) information a board at ``T_lidar_board`` (LiDAR frame) adds to the globals:
     its LiDAR covariance ``board_cov`` (6, 6), its corners ``points_board`` (K, 3, board frame) seen
     along ``bearings`` (K, 3, camera frame, predicted at ``g.T_cam_lidar``) with pixel covariances
-    ``cov_px`` (K, 2, 2), ``coefficients`` ``a`` of the range terms (``SolvedGlobals.coefficients``);
-    None when the view gives no factor (too few usable corners)."""
+    ``cov_px`` (K, 2, 2), ``coefficients`` ``a`` of the range terms (``SolvedGlobals.coefficients``;
+    ``samples``: the board-face points of its range prior, default ``samples_from_corners`` as the
+    graph's); None when the view gives no factor (too few usable corners)."""
     fac, _ = frame_bearing_factor(0, 1, points_board, bearings, cov_px, camera)
     if fac is None:
         return None
@@ -116,7 +118,7 @@ def board_information(
     if not np.any(a):
         H[g.dim :, g.dim :] += W
     else:  # the board prior through its mean range error beta = a . theta (RangeOffsetBoardFactor)
-        samples = samples_from_corners(points_board)
+        samples = samples_from_corners(points_board) if samples is None else samples
         beta = float(a @ g.theta)
         measured = shifted_board_pose(T_lb, beta, samples)
         H_T, H_b = np.zeros((POSE3_DOF, POSE3_DOF), order="F"), np.zeros((POSE3_DOF, 1), order="F")

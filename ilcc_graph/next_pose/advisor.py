@@ -9,7 +9,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ilcc_graph.config import Config
-from ilcc_graph.estimation.graphs import board_face_samples, frame_bearing_factor
+from ilcc_graph.estimation.graphs import board_face_samples, frame_bearing_factor, samples_from_corners
 from ilcc_graph.estimation.next_board import SolvedGlobals, board_information, extrinsic_gain
 from ilcc_graph.next_pose.lidar_noise import BoardNoiseModel, fit_noise_model
 from ilcc_graph.next_pose.pose_geometry import Rig, board_outline, board_pose, in_view
@@ -187,7 +187,8 @@ class Advisor:
     ) -> None:
         self.rig = rig
         self.solved = solved
-        self._face = board_face_samples(rig.board)
+        self._dark = float(np.mean(rig.board.colour_at(board_face_samples(rig.board)) == 0.0))
+        self._samples = samples_from_corners(rig.board.corners_board())
         self.frames = list(frames)
         self.noise = noise or fit_noise_model(frames, rig.board, rig.lidar)
         self.cov_px = median_pixel_cov(frames)
@@ -227,7 +228,7 @@ class Advisor:
         cov_px = np.broadcast_to(self.cov_px, (len(p_cam), 2, 2))
         corners = self.rig.board.corners_board()
         a = self._coefficients(T) if self.solved.terms else None
-        info = board_information(self.solved, T, cov_b, corners, b, cov_px, self.rig.camera, a)
+        info = board_information(self.solved, T, cov_b, corners, b, cov_px, self.rig.camera, a, self._samples)
         return None if info is None else info / self.information_scale
 
     def _coefficients(self, T: np.ndarray) -> np.ndarray:
@@ -239,9 +240,8 @@ class Advisor:
         el = np.degrees(np.arctan2(out[:, 2] - rig.lidar.beam_origin_z_m, np.hypot(out[:, 0], out[:, 1])))
         va = np.asarray(rig.lidar.vertical_angles_deg)
         beams = [int(k) for k in np.flatnonzero((va >= el.min()) & (va <= el.max()))]
-        dark = float(np.mean(rig.board.colour_at(self._face) == 0.0))
         centre = T[:3, :3] @ rig.board.pattern_centre + T[:3, 3]
-        return solved.coefficients(dark, beams, float(np.linalg.norm(centre)))
+        return solved.coefficients(self._dark, beams, float(np.linalg.norm(centre)))
 
     def gain(self, information: np.ndarray) -> np.ndarray:
         """(6, 6) the extrinsic's marginal information gain from a candidate's ``information``."""
