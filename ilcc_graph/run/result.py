@@ -98,11 +98,19 @@ class RunOptions:
 
 @dataclass(frozen=True)
 class SessionResult:
-    """One source's part of a run: its observation and its calibration (its own frames)."""
+    """One source's part of a run: its observation and its calibration (its own frames); ``own``:
+    with joint sessions, the source's own solve (under the sensor model chosen for all), which the
+    boards on corrected ranges and the second look read (None: ``calibration``)."""
 
     name: str
     observation: Observation
     calibration: Calibration
+    own: Calibration | None = None
+
+    @property
+    def alone(self) -> Calibration:
+        """The calibration of this source alone: ``own``, else ``calibration``."""
+        return self.own if self.own is not None else self.calibration
 
 
 @dataclass(frozen=True)
