@@ -326,14 +326,16 @@ def _held_out_factor(got: Chosen) -> float:
 
 
 def _covariance(got: Chosen, si: int, est: Estimate) -> Estimate:
-    """Session ``si``'s own estimate with its covariance as the one-source solve gives it: times the
-    held-out factor with refined intrinsics, averaged over the models the boards cannot tell apart."""
+    """Session ``si``'s own estimate with its covariance as ``calibrate`` of it alone gives it: times
+    the held-out factor with refined intrinsics, averaged over the models its own boards cannot tell
+    apart (``Chosen.own``)."""
     if got.refined:
         return Estimate(est.T, _held_out_factor(got) * est.covariance)
-    if got.selection.forced or not got.selection.averaged:
+    sel = replace(got.own[si], chosen=got.selection.chosen) if got.own else got.selection
+    if sel.forced or not sel.averaged:
         return est
     models = {n: (s.extrinsic(0).T, s.extrinsic(0).covariance) for n, s in got.sols[si].items()}
-    return Estimate(est.T, mixture(models, got.selection))
+    return Estimate(est.T, mixture(models, sel))
 
 
 def _joint_covariance(got: Chosen, names: list[str], est: Estimate, noise: NoiseOptions) -> Estimate:

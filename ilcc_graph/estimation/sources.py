@@ -12,7 +12,7 @@ sources' answers under the noise each found.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 from ilcc_graph.estimation.camera_choice import CameraChoice, choose_intrinsics
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
@@ -35,12 +35,15 @@ __all__ = ["Chosen", "solve_sources"]
 class Chosen:
     """The sources solved: per source its solutions by model (``sols``) and its answer under the
     chosen model (``chosen``: with the intrinsics refined when ``refined``, else ``sols[k][chosen
-    model]``); the selection (the model, the evidence, the camera's choice)."""
+    model]``); the selection (the model, the evidence, the camera's choice); per source the choice
+    its own boards make (``own``: the weights its own covariance is averaged with, as ``calibrate``
+    of it alone averages)."""
 
     sols: list[dict[str, Solution]]
     chosen: list[Solution]
     selection: Selection
     refined: bool = False
+    own: list[Selection] = field(default_factory=list)
 
 
 def solve_sources(
@@ -63,19 +66,20 @@ def solve_sources(
     bases = [replace(b, intrinsics=stated) for b in bases]
     if len(bases) == 1:
         one, selection = select_model(bases[0], models, options, solve)
-        sols = [one]
+        sols, own = [one], [selection]
     else:
-        sols, selection = _select_joint(bases, models, options, solve)
+        sols, selection, own = _select_joint(bases, models, options, solve)
     plain = [s[selection.chosen] for s in sols]
     if refine and len(models) > 1:  # refined as asked, with the LiDAR model chosen
         again = [solve(replace(s.problem, intrinsics=intrinsics), options) for s in plain]
-        return Chosen(sols, again, selection, True)
+        return Chosen(sols, again, selection, True, own)
     if intrinsics_choice != "auto" or refine:
-        return Chosen(sols, plain, selection)
+        return Chosen(sols, plain, selection, False, own)
     choices = [choose_intrinsics(s.problem, options) for s in plain]
     refined = all(r is not None for r, _ in choices)
     selection = replace(selection, camera=_camera(choices, refined))
-    return Chosen(sols, [r for r, _ in choices] if refined else plain, selection, refined)  # type: ignore[misc]
+    answers = [r for r, _ in choices] if refined else plain
+    return Chosen(sols, answers, selection, refined, own)  # type: ignore[arg-type]
 
 
 def _camera(
@@ -92,10 +96,10 @@ def _select_joint(
     models: Sequence[SensorModel],
     options: NoiseOptions,
     solve: Callable[..., Solution],
-) -> tuple[list[dict[str, Solution]], Selection]:
+) -> tuple[list[dict[str, Solution]], Selection, list[Selection]]:
     """Several sources: each solved under every candidate, one choice from the boards of all (held-out
-    scores keyed by source; range terms' chi-squares summed, independent sources). A candidate that
-    fails for some source fails."""
+    scores keyed by source; range terms' chi-squares summed, independent sources; a candidate that
+    fails for some source fails), and each source's own choice."""
     got: list[Solved] = [solve_models(b, models, options, solve) for b in bases]
     for g in got:
         if not g.sols:
@@ -109,9 +113,23 @@ def _select_joint(
     failures = {n: why for g in got for n, why in g.failures.items()}
     used = {n: sum(len(s[n].boards) for s in sols) for n in common}
     if len(names) == 1:
-        return sols, Selection(names[0], (Candidate(names[0], used=used[names[0]], weight=1.0),), True)
+        name = names[0]
+        return sols, _forced(name, used[name]), [_forced(name, len(s[name].boards)) for s in sols]
     scored = [n for n in common if all(n in g.scores for g in got)]
     scores = {n: {(k, *key): h for k, g in enumerate(got) for key, h in g.scores[n].items()} for n in scored}
     terms = {n: (sum(g.terms[n][0] for g in got), sum(g.terms[n][1] for g in got)) for n in common}
     solved = [m for m in got[0].models if m.name in common]
-    return sols, decide(scores, used, names, failures, terms, solved)
+    own = [_own(g, s, scored, solved) for g, s in zip(got, sols, strict=True)]
+    return sols, decide(scores, used, names, failures, terms, solved), own
+
+
+def _forced(name: str, used: int) -> Selection:
+    """The selection of a forced model that kept ``used`` boards."""
+    return Selection(name, (Candidate(name, used=used, weight=1.0),), True)
+
+
+def _own(got: Solved, sols: dict[str, Solution], scored: list[str], solved: list[SensorModel]) -> Selection:
+    """One source's own choice among the candidates every source solved and scored."""
+    used = {n: len(s.boards) for n, s in sols.items()}
+    scores = {n: got.scores[n] for n in scored}
+    return decide(scores, used, got.names, got.failures, {n: got.terms[n] for n in sols}, solved)
