@@ -85,7 +85,7 @@ class RunOptions:
 
     @property
     def models(self) -> tuple[str, ...]:
-        """The sensor models the batch strategy chooses among (one: forced)."""
+        """The sensor models the batch and the sessions choose among (one: forced)."""
         if self.sensor_model != "auto":
             return (self.sensor_model,)
         return ("beams",) if self.lidar_errors is not None else AUTO
