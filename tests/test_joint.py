@@ -240,6 +240,8 @@ def test_one_capture_twice_is_that_capture_under_the_model_it_chooses() -> None:
         assert np.all(np.abs(gtsam.Pose3(ref.T_cam_lidar).localCoordinates(est.pose)) < 1e-6 * d)
     for n in "AB":  # alone: the batch's answer, its covariance averaged over the models as there
         assert np.all(np.abs(np.sqrt(np.diag(sol.alone[n].covariance)) / d - 1) < 1e-6)
+    # "the others" of A is B with B's own prior on the LiDAR's terms: B alone, so A agrees with it
+    assert all(t.mahalanobis < 1e-9 for t in sol.session_tests), [t.mahalanobis for t in sol.session_tests]
     z = (sol.lidar_errors["lidar"][1] - ref.lidar[1]) / ref.lidar[2]
     assert np.all(np.abs(z) < 1e-6), z
 

@@ -216,15 +216,16 @@ def _models(options: JointOptions) -> list[SensorModel]:
 @dataclass
 class _Sub:
     """Sub-problems of the sessions solved under the noise each session's own solve found (its
-    components with its final factor folded in, no gate, the LiDAR terms some session determined,
-    the components' uncertainty as there): ``sep`` every session on its own extrinsic, ``kept`` each
-    session's kept boards; ``iterations`` counts every solve's."""
+    components with its final factor folded in, no gate, the LiDAR terms some session of the
+    sub-problem determined with each such session's prior, the components' uncertainty as there):
+    ``sep`` every session on its own extrinsic, ``kept`` each session's kept boards, ``layouts`` each
+    session's LiDAR layouts; ``iterations`` counts every solve's."""
 
     noise: NoiseOptions
     sep: Problem
     kept: dict[str, list[str]]
     fixed: dict[tuple[str, str], float]
-    layouts: dict[int, LidarLayout]
+    layouts: dict[str, dict[int, LidarLayout]]
     uncertain: dict[tuple[str, str], float]
     iterations: int
 
@@ -238,20 +239,23 @@ class _Sub:
                              intrinsics=first.intrinsics)  # fmt: skip
         fixed: dict[tuple[str, str], float] = {}
         uncertain: dict[tuple[str, str], float] = {}
-        layouts: dict[int, list[LidarLayout]] = {}
         for s in alone:
             fixed.update(replace_scales(s, s.variance_factor))
             uncertain.update(s.uncertain)
-            for lid, lay in s.assembly.layouts.items():
-                layouts.setdefault(lid, []).append(lay)
         kept = {n: [s.problem.boards[i].name for i in s.boards] for n, s in zip(names, alone, strict=True)}
-        merged = {lid: merge_layouts(lays) for lid, lays in layouts.items()}
-        return cls(noise, sep, kept, fixed, merged, uncertain, sum(s.iterations for s in alone))
+        layouts = {n: dict(s.assembly.layouts) for n, s in zip(names, alone, strict=True)}
+        return cls(noise, sep, kept, fixed, layouts, uncertain, sum(s.iterations for s in alone))
 
-    def __call__(self, problem: Problem, boards: list[str], start: dict) -> Solution:
+    def __call__(self, problem: Problem, names: Sequence[str], start: dict) -> Solution:
+        """``problem`` on the kept boards of the sessions ``names``."""
+        per: dict[int, list[LidarLayout]] = {}
+        for n in names:
+            for lid, lay in self.layouts[n].items():
+                per.setdefault(lid, []).append(lay)
         s = solve_problem(
-            problem, self.noise, boards=boards, scales=self.fixed, variance_factor=1.0, gate=False,
-            start=start, layouts=self.layouts, uncertain=self.uncertain,
+            problem, self.noise, boards=[b for n in names for b in self.kept[n]], scales=self.fixed,
+            variance_factor=1.0, gate=False, start=start, uncertain=self.uncertain,
+            layouts={lid: merge_layouts(lays) for lid, lays in per.items()},
         )  # fmt: skip
         self.iterations += s.iterations
         return s
@@ -259,8 +263,7 @@ class _Sub:
     def rigid(self, start: Estimate, names: Sequence[str] | None = None) -> Solution:
         """All sessions (or ``names``) on one extrinsic ``X(0)``, started at ``start``."""
         rigid = self.sep.with_extrinsics({e: 0 for e in self.sep.T_init}, {0: start.T})
-        boards = [b for n in (names if names is not None else self.kept) for b in self.kept[n]]
-        return self(rigid, boards, {0: start.pose})
+        return self(rigid, list(self.kept) if names is None else names, {0: start.pose})
 
 
 def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOptions()) -> JointSolution:
@@ -298,7 +301,7 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
     if options.mode == "rigid":
         joint, per_session = T_rigid, {n: T_rigid for n in names}
     else:
-        final, joint, per_session = _drift(sub.sep, names, sub.kept, T_rigid, alone, options, sub)
+        final, joint, per_session = _drift(sub.sep, names, T_rigid, alone, options, sub)
     range_offsets = {}
     if final.problem.range_offset_sigma_m is not None:
         for lid, lab in enumerate(sub.sep.lidar_names):
@@ -357,7 +360,6 @@ def _joint_covariance(got: Chosen, names: list[str], est: Estimate, noise: Noise
 def _drift(
     sep: Problem,
     names: list[str],
-    kept: dict[str, list[str]],
     T_rigid: Estimate,
     alone: dict[str, Estimate],
     options: JointOptions,
@@ -376,7 +378,7 @@ def _drift(
         hub = S - 1
         ties = [Tie(si, si + 1, sig) for si in range(S - 1)]
     drift = sep.with_ties(ties, init)
-    final = sub(drift, [b for n in names for b in kept[n]], {e: check_pose(T, "") for e, T in init.items()})
+    final = sub(drift, names, {e: check_pose(T, "") for e, T in init.items()})
     return final, final.extrinsic(hub), {n: final.extrinsic(si) for si, n in enumerate(names)}
 
 
