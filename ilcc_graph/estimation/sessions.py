@@ -330,12 +330,13 @@ def _held_out_factor(got: Chosen) -> float:
 
 def _covariance(got: Chosen, si: int, est: Estimate) -> Estimate:
     """Session ``si``'s own estimate with its covariance as ``calibrate`` of it alone gives it: times
-    the held-out factor with refined intrinsics, averaged over the models its own boards cannot tell
-    apart (``Chosen.own``)."""
+    the held-out factor with refined intrinsics, else (a choice made) the mixture over the models by
+    the weights its own boards give (``Chosen.own``; one model weighing: its covariance times its
+    held-out factor)."""
     if got.refined:
         return Estimate(est.T, _held_out_factor(got) * est.covariance)
     sel = replace(got.own[si], chosen=got.selection.chosen) if got.own else got.selection
-    if sel.forced or not sel.averaged:
+    if sel.forced:
         return est
     models = {n: (s.extrinsic(0).T, s.extrinsic(0).covariance) for n, s in got.sols[si].items()}
     return Estimate(est.T, mixture(models, sel))
@@ -347,7 +348,7 @@ def _joint_covariance(got: Chosen, names: list[str], est: Estimate, noise: Noise
     if got.refined:
         return Estimate(est.T, _held_out_factor(got) * est.covariance)
     sel = got.selection
-    if sel.forced or not sel.averaged:
+    if sel.forced:
         return est
     models = {sel.chosen: (est.T, est.covariance)}
     for c in sel.candidates:
