@@ -279,3 +279,32 @@ def test_config_of_the_data_set_is_resolved_and_exported(pano, calibrated, tmp_p
         == 0
     )
     assert _yaml(tmp_path / "j")["camera"] == camera
+
+
+def test_rigid_sessions_of_one_capture_twice_are_its_calibration(simulated, calibrated, tmp_path, capsys):
+    """``calibrate A A --mode rigid`` (one capture given twice) chooses the sensor model as the single
+    run does, says so, and gives the single run's T_cam_lidar (issue 34: one path for every door)."""
+    data = simulated("pinhole", "--range-offset-mm", "20", seed=3)  # a LiDAR reading 20 mm long
+    single = _yaml(calibrated(data) / "calibration.yaml")
+    chosen = single["sensor_errors"]["model"]["chosen"]
+    assert chosen != "none"  # the offset is there to be modelled: a joint solve without it differs
+    out = tmp_path / "twice"
+    capsys.readouterr()
+    argv = [
+        "calibrate",
+        str(data),
+        str(data),
+        "--mode",
+        "rigid",
+        "--out",
+        str(out),
+        "--jobs",
+        "1",
+        "--no-report",
+    ]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert f"sensor model: {chosen} " in printed
+    twice = _yaml(out / "calibration.yaml")
+    assert twice["sensor_errors"]["model"]["chosen"] == chosen
+    assert np.abs(np.array(twice["T_cam_lidar"]) - np.array(single["T_cam_lidar"])).max() < 1e-6

@@ -7,12 +7,16 @@ import gtsam
 import numpy as np
 import pytest
 from synthetic_graph import session_frames
+from test_lidar_errors import CAMERA as LIDAR_CAMERA
+from test_lidar_errors import lidar_frames
 
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import Equirectangular
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation import NoiseOptions, solve, solve_problem
+from ilcc_graph.estimation.lidar_errors import LidarLayout, merge_layouts
 from ilcc_graph.estimation.problem import frames_problem
+from ilcc_graph.estimation.selection import AUTO
 from ilcc_graph.estimation.sessions import JointOptions, Session, compare_estimates, solve_sessions
 from ilcc_graph.types import Estimate
 
@@ -217,3 +221,40 @@ def test_repeatability_widens_the_tests() -> None:
     assert strict.global_test.moved and not loose.global_test.moved
     with pytest.raises(ValueError, match="repeatability"):
         solve_sessions(sessions, JointOptions(repeatability_mm=-1.0))
+
+
+@pytest.mark.parametrize("seed, beam_sd, averaged", [(4, 0.001, True), (0, 0.004, False)])
+def test_one_capture_twice_is_that_capture_under_the_model_it_chooses(
+    seed: int, beam_sd: float, averaged: bool
+) -> None:
+    """Sessions choose the sensor model as the batch does; one capture given twice is the batch's
+    answer: the LiDAR's terms shared, each session bringing their prior (issue 34)."""
+    rng = np.random.default_rng(seed)
+    offsets = 0.02 + rng.normal(0, beam_sd, 16)  # the unit reads ~20 mm long, each beam its own way
+    frames, _ = lidar_frames(rng, 10, offsets)
+    T0 = T_TRUE.compose(gtsam.Pose3.Expmap(rng.normal(0, 0.01, 6))).matrix()
+    ref = solve(frames, LIDAR_CAMERA, T0, models=AUTO)
+    # 1 mm: range and beams both weigh, the covariance carries both; seed 0 at 4 mm: range alone, its
+    # covariance times its held-out factor (1.34)
+    assert ref.selection.averaged == averaged
+    twice = [Session(n, frames, LIDAR_CAMERA, T0) for n in "AB"]
+    sol = solve_sessions(twice, JointOptions(models=AUTO))
+    assert sol.selection is not None and sol.selection.chosen == ref.selection.chosen != "none"
+    d = np.sqrt(np.diag(ref.covariance))
+    for est in (sol.joint, sol.alone["A"], sol.alone["B"]):  # 1e-7 rad and m: doors.py asks 1e-6
+        assert np.all(np.abs(gtsam.Pose3(ref.T_cam_lidar).localCoordinates(est.pose)) < 1e-7)
+    for n in "AB":  # alone: the batch's answer, its covariance averaged over the models as there
+        assert np.all(np.abs(np.sqrt(np.diag(sol.alone[n].covariance)) / d - 1) < 1e-6)
+    # "the others" of A is B with B's own prior on the LiDAR's terms: B alone, so A agrees with it
+    assert all(t.mahalanobis < 1e-9 for t in sol.session_tests), [t.mahalanobis for t in sol.session_tests]
+    z = (sol.lidar_errors["lidar"][1] - ref.lidar[1]) / ref.lidar[2]
+    assert np.all(np.abs(z) < 1e-5), z  # in their sigmas: the solver stops at ~1e-6
+
+
+def test_merged_layout_enters_what_some_session_determined_with_the_prior_once_per_session() -> None:
+    a = LidarLayout(beams=(1, 2), dark=True, excluded=(("beam 3", "few"), ("offset[4]", "weak")))
+    b = LidarLayout(beams=(2, 3), excluded=(("beam 1", "few"), ("offset[4]", "weak")))
+    m = merge_layouts([a, b])
+    assert m.beams == (1, 2, 3) and m.dark and dict(m.excluded) == {"offset[4]": "weak"}
+    assert np.allclose(m.prior_sigmas(), a.prior_sigmas()[[0, 1, 1, 2]] / np.sqrt(2))
+    assert merge_layouts([a]) is a

@@ -43,17 +43,19 @@ def _same(a, b, rel: float = 1e-6) -> None:
 
 
 def test_batch_sessions_range_offset_at_zero_and_incremental_agree(pinhole_set, observed) -> None:
-    # the sessions strategy does not choose a sensor model: against the batch with none forced
+    # one session is the batch: the sensor model chosen as calibrate chooses it (issue 34)
+    auto = solve_observations([observed]).calibration
+    one = solve_observations([observed], RunOptions(mode="sessions"))
+    assert one.calibration.sensors["model"]["chosen"] == auto.sensors["model"]["chosen"]
+    _same(auto, one.calibration)
+    # the range offset forced and held at zero: the batch with no sensor terms
     batch = solve_observations([observed], RunOptions(sensor_model="none")).calibration
     assert sum(f.used for f in batch.frames) >= 5
-    one = solve_observations([observed], RunOptions(mode="sessions"))
-    _same(batch, one.calibration)
     held = RunOptions(joint=JointOptions(range_offset=True, range_offset_prior_sigma_m=1e-10))
     offset = solve_observations([observed], held)
     assert abs(offset.documents["joint.yaml"]["range_offsets"]["hdl32"]["value_mm"]) < 1e-6
     _same(batch, offset.calibration)
     # incremental mode ends with the batch strategy's answer, the model chosen as calibrate chooses it
-    auto = solve_observations([observed]).calibration
     inc = run([FolderSource(pinhole_set)], RunOptions(mode="incremental"))
     _same(auto, inc.calibration)
     assert [f.used for f in inc.calibration.frames] == [f.used for f in auto.frames]
@@ -85,8 +87,9 @@ def test_every_mode_writes_the_same_outputs_and_exports_alike(pinhole_set, obser
     assert (tmp_path / "two-sessions" / "joint.yaml").is_file()
     assert (tmp_path / "two-sessions" / "sessions" / "b" / "calibration.yaml").is_file()
     assert (tmp_path / "incremental" / "incremental.yaml").is_file()
-    # incremental ends with the default's answer; sessions do not choose a sensor model: none's
-    for mode, same in (("sessions", "graph-none"), ("incremental", "graph")):
+    # incremental ends with the default's answer; sessions (one, or the same twice) choose the sensor
+    # model as the default does and give its answer
+    for mode, same in (("sessions", "graph"), ("two-sessions", "graph"), ("incremental", "graph")):
         for key in ("R", "T"):
             ref = np.array(exports[same][key].split(), float)
             assert np.allclose(np.array(exports[mode][key].split(), float), ref, atol=1e-6), (mode, key)

@@ -15,16 +15,16 @@ import gtsam
 import numpy as np
 
 from ilcc_graph.cameras import CameraModel
-from ilcc_graph.estimation.camera_choice import choose_intrinsics
 from ilcc_graph.estimation.effects import Effect, ScaleEffect, sensor_effects, square_size_effect
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions, LidarLayout
 from ilcc_graph.estimation.next_board import SolvedGlobals, solved_globals
-from ilcc_graph.estimation.noise import BoardStats, NoiseOptions, Solution, solve_problem
+from ilcc_graph.estimation.noise import BoardStats, NoiseOptions, Solution
 from ilcc_graph.estimation.plane import BoardPlane
 from ilcc_graph.estimation.problem import frames_problem
-from ilcc_graph.estimation.selection import MODELS, Selection, SensorModel, averaged_covariance, select_model
+from ilcc_graph.estimation.selection import MODELS, Selection, SensorModel, averaged_covariance
 from ilcc_graph.estimation.solver import check_pose
+from ilcc_graph.estimation.sources import solve_sources
 from ilcc_graph.types import Estimate, GraphFrame
 
 __all__ = ["BatchSolution", "batch_solution", "sensor_models", "solve"]
@@ -153,26 +153,17 @@ def solve(
     """
     check_pose(T_init, "T_init")
     cands = sensor_models(models, lidar_errors)
-    refine = intrinsics is not None and intrinsics.refine
-    # a choice among LiDAR models is made with the intrinsics as stated (the held-out images' poses
-    # need them); a forced model is solved as asked
-    stated = intrinsics if len(cands) == 1 or intrinsics is None else replace(intrinsics, refine=False)
-    sols, selection = select_model(frames_problem(frames, camera, T_init, intrinsics=stated), cands, options)
-    sol = sols[selection.chosen]
-    refined = None
-    if refine and len(cands) > 1:  # refined as asked, with the LiDAR model chosen
-        refined = solve_problem(replace(sol.problem, intrinsics=intrinsics), options)
-    elif intrinsics_choice == "auto" and not refine:
-        refined, choice = choose_intrinsics(sol.problem, options)
-        selection = replace(selection, camera=choice)
-    sol = refined or sol
+    got = solve_sources(
+        [frames_problem(frames, camera, T_init)], cands, options, intrinsics, intrinsics_choice
+    )
+    sol, selection = got.chosen[0], got.selection
     moved = sensor_effects(sol, options) if effects else None
     square = square_size_effect(sol) if effects else None
     out = replace(batch_solution(sol, effects=moved, square_size=square), selection=selection)
     out = replace(out, solved=solved_globals(sol))
-    if refined is not None:  # refined: its covariance, times the model's held-out factor
+    if got.refined:  # refined: its covariance, times the model's held-out factor
         factor = next(c.factor for c in selection.candidates if c.name == selection.chosen)
         out = replace(out, covariance=factor * out.covariance)
     elif not selection.forced:
-        out = replace(out, covariance=averaged_covariance(sols, selection))
+        out = replace(out, covariance=averaged_covariance(got.sols[0], selection))
     return out

@@ -22,6 +22,7 @@ barely shrinks below its prior's) is left out and said so (``noise.solve_problem
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
@@ -29,7 +30,7 @@ import numpy as np
 
 from ilcc_graph.types import BoardReturns
 
-__all__ = ["LidarErrorOptions", "LidarLayout", "layout_for"]
+__all__ = ["LidarErrorOptions", "LidarLayout", "layout_for", "merge_layouts"]
 
 
 @dataclass(frozen=True)
@@ -240,4 +241,28 @@ def layout_for(returns: Sequence[BoardReturns], options: LidarErrorOptions) -> L
             options.prior_elevation_rad,
         ),
         excluded=tuple(excluded),
+    )
+
+
+def merge_layouts(layouts: Sequence[LidarLayout]) -> LidarLayout:
+    """One LiDAR's layout in a joint problem from its layouts in the sessions solved alone: a term
+    enters when it entered some session's (the same data twice determine no term that once did
+    not); left out, with a session's reason, when it entered none. Each session brings the terms'
+    prior: the joint's is that prior once per session (sigmas over sqrt(sessions)), so that the joint
+    objective is the sum of the sessions' own and a session given twice is that session."""
+    first = layouts[0]
+    if len(layouts) == 1:
+        return first
+    entered = {n for lay in layouts for n in lay.names} | {f"beam {b}" for lay in layouts for b in lay.beams}
+    out = {n: why for lay in reversed(layouts) for n, why in lay.excluded if n not in entered}
+    k = math.sqrt(len(layouts))
+    return replace(
+        first,
+        beams=tuple(sorted({b for lay in layouts for b in lay.beams})),
+        global_offset=any(lay.global_offset for lay in layouts),
+        dark=any(lay.dark for lay in layouts),
+        scale=any(lay.scale for lay in layouts),
+        elevations=tuple(sorted({b for lay in layouts for b in lay.elevations})),
+        priors=tuple(p / k for p in first.priors),  # type: ignore[arg-type]
+        excluded=tuple(out.items()),
     )

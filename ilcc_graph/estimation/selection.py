@@ -50,6 +50,7 @@ __all__ = [
     "Candidate",
     "Selection",
     "SensorModel",
+    "Solved",
     "averaged_covariance",
     "candidates",
     "choose",
@@ -58,6 +59,7 @@ __all__ = [
     "mixture",
     "range_terms",
     "select_model",
+    "solve_models",
 ]
 
 #: the prior sigma of the ``offset`` model's range offset (m): weak, the boards determine it
@@ -354,6 +356,54 @@ def candidates(models: Sequence[SensorModel], corrected: bool) -> list[SensorMod
     return with_terms
 
 
+@dataclass
+class Solved:
+    """Each candidate model solved on one problem: the candidates (``candidates``' rule applied), the
+    solutions by name (failed ones left out), why the others failed and the first error, with
+    several candidates each one's held-out ``scores`` (per (extrinsic, board)) and ``range_terms``."""
+
+    models: list[SensorModel]
+    sols: dict[str, Solution]
+    failures: dict[str, str]
+    first: Exception | None
+    scores: dict[str, dict[tuple[int, int], HeldOut]]
+    terms: dict[str, tuple[float, int]]
+
+    @property
+    def names(self) -> list[str]:
+        return [m.name for m in self.models]
+
+
+def solve_models(
+    base: Problem,
+    models: Sequence[SensorModel] = AUTO_MODELS,
+    options: NoiseOptions = NoiseOptions(),
+    solve: Callable[..., Solution] = solve_problem,
+) -> Solved:
+    """``base`` (a problem without sensor terms) solved under each of ``models``, scored when there
+    are several (``select_model`` chooses from it; the sessions choose from every session's)."""
+    models = candidates(models, any(b.returns is not None and b.returns.corrected for b in base.boards))
+    out = Solved(list(models), {}, {}, None, {}, {})
+    for model in models:
+        try:
+            out.sols[model.name] = solve(model.problem(base), options)
+        except (CalibrationImpossible, IndeterminateSystem, np.linalg.LinAlgError) as err:
+            out.failures[model.name] = str(err)
+            out.first = out.first or err
+            log.info("sensor model %s: cannot solve: %s", model.name, err)
+    if len(models) == 1:
+        return out
+    for name, sol in out.sols.items():
+        try:  # every camera's views (a rig's): (extrinsic, board)
+            out.scores[name] = {
+                (e, k): h for e in sol.problem.extrinsics for k, h in held_out(sol, e).items()
+            }
+        except np.linalg.LinAlgError as err:  # a singular held-out system: no score, no weight
+            out.failures[name] = f"held-out score: {err}"
+    out.terms = {n: range_terms(sol) for n, sol in out.sols.items()}  # (0, 0): no range terms
+    return out
+
+
 def select_model(
     base: Problem,
     models: Sequence[SensorModel] = AUTO_MODELS,
@@ -365,34 +415,18 @@ def select_model(
     With one model the choice is forced. Raises the first candidate's error when every one fails.
     Boards fitted on corrected ranges (``BoardReturns.corrected``) rest on the LiDAR's estimated
     errors: only the models with range terms are candidates then."""
-    models = candidates(models, any(b.returns is not None and b.returns.corrected for b in base.boards))
-    names = [m.name for m in models]
-    sols: dict[str, Solution] = {}
-    failures: dict[str, str] = {}
-    first: Exception | None = None
-    for model in models:
-        try:
-            sols[model.name] = solve(model.problem(base), options)
-        except (CalibrationImpossible, IndeterminateSystem, np.linalg.LinAlgError) as err:
-            failures[model.name] = str(err)
-            first = first or err
-            log.info("sensor model %s: cannot solve: %s", model.name, err)
+    got = solve_models(base, models, options, solve)
+    sols, names = got.sols, got.names
     if not sols:
-        assert first is not None
-        raise first
+        assert got.first is not None
+        raise got.first
     if len(names) == 1:
         return sols, Selection(
             names[0], (Candidate(names[0], used=len(sols[names[0]].boards), weight=1.0),), True
         )
-    scores: dict[str, dict[tuple[int, int], HeldOut]] = {}
-    for name, sol in sols.items():
-        try:  # every camera's views (a rig's): (extrinsic, board)
-            scores[name] = {(e, k): h for e in sol.problem.extrinsics for k, h in held_out(sol, e).items()}
-        except np.linalg.LinAlgError as err:  # a singular held-out system: no score, no weight
-            failures[name] = f"held-out score: {err}"
-    terms = {n: range_terms(sol) for n, sol in sols.items()}  # (0, 0) for a model without range terms
     used = {n: len(sol.boards) for n, sol in sols.items()}
-    return sols, decide(scores, used, names, failures, terms, [m for m in models if m.name in sols])
+    solved = [m for m in got.models if m.name in sols]
+    return sols, decide(got.scores, used, names, got.failures, got.terms, solved)
 
 
 def decide(

@@ -106,13 +106,13 @@ def solve_observations(
         return result
     corrected = False  # the boards on corrected ranges: the second look searches on them too
     if options.range_refit:
-        refit = [refit_pass(s.observation, s.calibration, options.stages) for s in result.sessions]
+        refit = [refit_pass(s.observation, s.alone, options.stages) for s in result.sessions]
         what = "fitted on corrected ranges"
         result, observations, corrected = _solve_again(chosen, options, result, observations, refit, what)
     if not options.second_pass:
         return result
     stages = options.stages
-    again = [second_pass(s.observation, s.calibration, stages, refit=corrected) for s in result.sessions]
+    again = [second_pass(s.observation, s.alone, stages, refit=corrected) for s in result.sessions]
     return _solve_again(chosen, options, result, observations, again, "found by the second look")[0]
 
 

@@ -86,7 +86,7 @@ class RunOptions:
 
     @property
     def models(self) -> tuple[str, ...]:
-        """The sensor models the batch strategy chooses among (one: forced)."""
+        """The sensor models the batch and the sessions choose among (one: forced)."""
         if self.sensor_model != "auto":
             return (self.sensor_model,)
         return ("beams",) if self.lidar_errors is not None else AUTO
@@ -99,11 +99,19 @@ class RunOptions:
 
 @dataclass(frozen=True)
 class SessionResult:
-    """One source's part of a run: its observation and its calibration (its own frames)."""
+    """One source's part of a run: its observation and its calibration (its own frames); ``own``:
+    with joint sessions, the source's own solve (under the sensor model chosen for all), which the
+    boards on corrected ranges and the second look read (None: ``calibration``)."""
 
     name: str
     observation: Observation
     calibration: Calibration
+    own: Calibration | None = None
+
+    @property
+    def alone(self) -> Calibration:
+        """The calibration of this source alone: ``own``, else ``calibration``."""
+        return self.own if self.own is not None else self.calibration
 
 
 @dataclass(frozen=True)

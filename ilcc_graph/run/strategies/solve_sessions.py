@@ -1,8 +1,10 @@
 """Joint sessions (``sessions``): several sources as sessions of one mount, or one with a range offset.
 
-``estimation.sessions.solve_sessions`` (rigid: one extrinsic; drift: one per session tied by a
-random walk; the moved-mount tests); each session's calibration from its part of the answer, the
-headline from the joint estimate, the tests and offsets as ``joint.yaml`` (``joint_summary``).
+``estimation.sessions.solve_sessions`` (the sensor model chosen for all sessions as the batch
+chooses it; rigid: one extrinsic; drift: one per session tied by a random walk; the LiDAR's own
+errors one set per LiDAR; the moved-mount tests); each session's calibration from its part of the
+answer as the batch's (``session_part``, ``finish.from_batch``), the headline from the joint
+estimate with the model chosen, the tests and offsets as ``joint.yaml`` (``joint_summary``).
 """
 
 from __future__ import annotations
@@ -13,8 +15,15 @@ from typing import Any
 
 import numpy as np
 
-from ilcc_graph.estimation.sessions import ConsistencyTest, JointSolution, Session, solve_sessions
-from ilcc_graph.run.finish import Answer, finish
+from ilcc_graph.estimation.sessions import (
+    ConsistencyTest,
+    JointSolution,
+    Session,
+    own_part,
+    session_part,
+    solve_sessions,
+)
+from ilcc_graph.run.finish import finish, from_batch
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.prepare import prepare
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
@@ -39,25 +48,16 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
         for p, o in zip(preps, observations, strict=True)
     ]
     joint_opts = dataclasses.replace(
-        options.joint, noise=options.noise, lidar_errors=options.lidar_errors, intrinsics=options.intrinsics
-    )
+        options.joint, noise=options.noise, lidar_errors=options.lidar_errors, intrinsics=options.intrinsics,
+        models=options.models, intrinsics_choice=options.intrinsics_choice,
+    )  # fmt: skip
     sol = solve_sessions(sessions, joint_opts)
     method = f"joint-{joint_opts.mode}"
     results = []
     for p, o in zip(preps, observations, strict=True):
-        n = o.name
-        rms = {f: s.rms_bearing_error_mrad for f, s in sol.per_frame[n].items()}
-        part = Answer(
-            sol.sessions[n].T,
-            sol.sessions[n].covariance,
-            rms,
-            sol.T_lidar_board[n],
-            sol.dropped[n],
-            sol.iterations,
-            sol.variance_factor,
-            sol.components[n],
-        )
-        results.append(SessionResult(n, o, finish(p, o.frames, o.config, method, part)))
+        part = finish(p, o.frames, o.config, method, from_batch(session_part(sol, o.name), o.config))
+        own = finish(p, o.frames, o.config, "graph", from_batch(own_part(sol, o.name), o.config))
+        results.append(SessionResult(o.name, o, part, own))
     prefix = len(observations) > 1
     frames = tuple(
         dataclasses.replace(f, name=f"{r.name}/{f.name}") if prefix else f
@@ -69,9 +69,8 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
         diag[f"range_offset_mm/{lab}"] = 1e3 * ro.value_m
         diag[f"range_offset_sigma_mm/{lab}"] = 1e3 * ro.sigma_m
     camera = observations[0].config.camera.to_dict()
-    cal = Calibration(
-        sol.joint.T, sol.joint.covariance, frames, method=method, diagnostics=diag, camera=camera
-    )
+    sensors = results[0].calibration.sensors  # the model chosen for all, the first LiDAR's errors
+    cal = Calibration(sol.joint.T, sol.joint.covariance, frames, method, diag, camera, sensors)
     poses = {f"sessions/{n}": e for n, e in sol.sessions.items()}
     return Result(
         "sessions",
