@@ -84,7 +84,7 @@ def fit_score(fit: BoardFit, board: Board, expected: ExpectedBoard | None) -> fl
     of rays passing beside the board counts the samples within reach of the outline, a band that
     widens with the plane noise (4 sigma of a return's in-plane shift, ``shape.outline_mode``) into
     the board, not beyond it where nothing returns (the sky, an open scene): the same board scored
-    0.99 at 0 mm, 0.89 at 15 mm and 0.81 at 30 mm of noise. Whether the outline places the board is
+    0.99 at 0 mm, 0.89 at 15 mm and 0.76 at 30 mm of noise. Whether the outline places the board is
     the posterior's covariance, refused beyond ``max_inplane_2sigma_squares`` (``pose``)."""
     n = max(fit.diagnostics.get("n_points", 1.0), 1.0)
     d = fit.diagnostics
