@@ -46,11 +46,11 @@ def noisy_spec(seed: int, field: str, scale: float, scene: str) -> SimulationSpe
     return replace(spec, scene=replace(spec.scene, room=None)) if scene == "open" else spec
 
 
-def run_set(seed: int, scene: str, cache: Path) -> dict:
-    """Set ``seed`` at every noise level, print invisible and visible."""
+def run_set(seed: int, scene: str, cache: Path, fields: Sequence[str] = FIELDS) -> dict:
+    """Set ``seed`` at every noise level, the print as each of ``fields`` (invisible, print)."""
     runs = {}
     for label, scale in SCALES.items():
-        for field in FIELDS:
+        for field in fields:
             tmp = Path(tempfile.mkdtemp(prefix=f"bench_noise_{seed}_", dir=cache))
             try:
                 spec = noisy_spec(seed, field, scale, scene)
@@ -62,7 +62,9 @@ def run_set(seed: int, scene: str, cache: Path) -> dict:
 
 def report(sets: Sequence[dict], argv: Sequence[str], scene: str) -> str:
     """The markdown of one scene's table."""
-    names = [f"{f}, {label}" for label in SCALES for f in FIELDS]
+    names = [
+        f"{f}, {label}" for label in SCALES for f in FIELDS if all(f"{f}, {label}" in x["runs"] for x in sets)
+    ]
     s = {n: summary(sets, n) for n in names}
     rows = [
         f"| {n} | {r['sets'] - r['failed']}/{r['sets']} | {r['used']}/{r['frames']} "
@@ -98,6 +100,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--sets", type=int, default=5)
     ap.add_argument("--seed0", type=int, default=0)
     ap.add_argument("--scene", choices=("open", "room"), default="open")
+    ap.add_argument("--fields", default=",".join(FIELDS), help="the print: invisible, print or both")
     ap.add_argument("--sink", default=str(Path(tempfile.gettempdir()) / "bench_noise.jsonl"))
     ap.add_argument("--cache", default=tempfile.gettempdir())
     ap.add_argument("--from-sink", action="store_true", help="only summarise the sink")
@@ -112,7 +115,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             if (seed, args.scene) in done:
                 continue
             t0 = time.perf_counter()
-            res = run_set(seed, args.scene, Path(args.cache))
+            res = run_set(seed, args.scene, Path(args.cache), args.fields.split(","))
             with sink.open("a") as fh:
                 fh.write(json.dumps(res) + "\n")
             brief = {
