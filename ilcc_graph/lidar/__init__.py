@@ -22,10 +22,10 @@ from ..board import Board
 from ..errors import BoardNotFound, InputError
 from ..lidars import LidarModel, beam_index, choose_model, measure_beams
 from ..types import BoardFit, ExpectedBoard, RangeCorrection, Scan
-from .board_tests import print_visible
-from .choice import candidate_order, expected_mask, fit_score
+from .board_tests import intensity_contrast, print_visible
+from .choice import beyond_expected, candidate_order, expected_mask, fit_score
 from .detection import Candidate, find_candidates
-from .options import LidarOptions
+from .options import LidarOptions, breach
 from .pose import fit_board_points
 from .ringless import find_ringless_candidates, one_pseudo_beam, pseudo_rings
 
@@ -204,7 +204,9 @@ def _search(
 ) -> tuple[float, Candidate, BoardFit, int, int]:  # fmt: skip
     """The candidates that pass the board tests, the chessboard fitted to the best few, the best fit:
     (score, candidate, fit, candidates passed, candidates fitted); BoardNotFound with the reasons.
-    contrast: as ``fit_board_points`` takes it; an outline fit must score ``good_fit_score``.
+    contrast: as ``fit_board_points`` takes it. A pattern fit must score ``min_fit_score``; an outline
+    fit is refused by the outline's own rules only (``outline.refuse_outline``, the in-plane uncertainty
+    in ``pose``), its score ranks it and ends the search at ``good_fit_score``.
     skip_printed: candidates whose intensities show a print (``board_tests.print_visible`` with these
     options' ``print_contrast_min``) are not fitted."""
     rng = np.random.default_rng(0)
@@ -228,7 +230,11 @@ def _search(
                     ring[cand.indices],
                 )[0]
             ):
-                refused.append("its intensities show a print that is not the chessboard")
+                sep = intensity_contrast(inten[cand.indices])[0]
+                refused.append(
+                    "its intensities show a print that is not the chessboard "
+                    + breach("print_contrast_min, d'", sep, ">", skip_printed.print_contrast_min)
+                )
                 continue
             try:
                 fit = _fit_candidate(cand, pts, inten, ring, board, model, options, rng, contrast)
@@ -236,16 +242,12 @@ def _search(
                 refused.append(str(e))
                 continue
             score = fit_score(fit, board, expected)
-            # an outline fit must itself be good (its distance from the prediction only ranks it)
-            plain = fit.diagnostics.get("no_contrast")
+            # an outline fit was judged by the outline's own rules (refuse_outline, the in-plane
+            # uncertainty); its score only ranks it (choice.fit_score)
             if not np.isfinite(score):
-                refused.append("the fitted board lies beyond the expected board's tolerances")
-            elif (
-                (fit_score(fit, board, None) < options.good_fit_score)
-                if plain
-                else score < options.min_fit_score
-            ):
-                refused.append(_poor_fit(fit, board))
+                refused.append(beyond_expected(fit, board, expected))
+            elif not fit.diagnostics.get("no_contrast") and score < options.min_fit_score:
+                refused.append(_poor_fit(fit, board, score, options.min_fit_score))
             else:
                 fits.append((score, cand, fit))
         return any(f[0] >= options.good_fit_score for f in fits) or budget[0] <= 0
@@ -262,17 +264,12 @@ def _search(
     return score, cand, fit, len(cands), len(fits) + len(refused)
 
 
-def _poor_fit(fit: BoardFit, board: Board) -> str:
-    """Why a fit scoring below ``min_fit_score`` is refused."""
+def _poor_fit(fit: BoardFit, board: Board, score: float, limit: float) -> str:
+    """Why a pattern fit scoring below ``min_fit_score`` is refused: the rule and its figures."""
     d = fit.diagnostics
-    if d.get("no_contrast"):
-        return (
-            f"a board-sized object at {d['range_m']:.2f} m, but its outline explains only "
-            f"{d.get('shape_agreement', 0.0):.0%} of the returns and rays about it"
-        )
     off = np.nan_to_num(fit.cost) / max(d["n_points"], 1.0) / board.square_size
     return (
-        f"a board-shaped object at {d['range_m']:.2f} m, but the fitted chessboard explains it poorly "
-        f"(colour agreement {d['colour_agreement']:.0%}, returns {off:.2f} squares off the pattern on "
-        "average)"
+        f"a board-shaped object at {d['range_m']:.2f} m, but the fitted chessboard explains it poorly: "
+        f"colour agreement {d['colour_agreement']:.2f} less {off:.2f} squares off the pattern per return "
+        + breach("min_fit_score", score, "<", limit)
     )

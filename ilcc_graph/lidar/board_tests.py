@@ -9,7 +9,7 @@ import numpy as np
 
 from ..board import Board
 from ..lidars import LidarModel
-from .options import LidarOptions
+from .options import LidarOptions, breach
 
 __all__ = ["board_tests", "intensity_contrast", "local_elevation_step", "print_visible"]
 
@@ -86,6 +86,26 @@ def print_visible(
     return True, ""
 
 
+def _count_breach(ratio: float, lo: float, hi: float) -> str:
+    """The count test's figures: below ``count_ratio``'s low end or above its widened high end."""
+    if ratio < lo:
+        return breach("count_ratio", ratio, "<", lo)
+    return breach("count_ratio, widened by a ring and a column", ratio, ">", hi)
+
+
+def _size_breaches(
+    ext: np.ndarray, sides: tuple[float, float], ratio: tuple[float, float], slack: float
+) -> list[str]:
+    """The size test's figures: each extent (long, short) below ``size_ratio``'s low end (less a ring
+    spacing ``slack``) or above its high end, times the board's side."""
+    out = []
+    for e, name, side in zip(ext, ("long side", "short side"), sides, strict=True):
+        lo, hi = ratio[0] * side - slack, ratio[1] * side
+        if e < lo or e > hi:
+            out.append(breach(f"size_ratio, {name}", e, "<" if e < lo else ">", lo if e < lo else hi, "m"))
+    return out
+
+
 def board_tests(
     p: np.ndarray,
     board: Board,
@@ -117,7 +137,13 @@ def board_tests(
     hi = options.count_ratio[1] * (1 + dist * step_el / short_side) * (1 + dist * step_az / short_side)
     ratio = m / n_theory
     if not (options.count_ratio[0] <= ratio <= hi):
-        return False, 0.0, "count", f"{m} points, {ratio:.2f} x the {n_theory:.0f} expected at {dist:.2f} m"
+        rule = _count_breach(ratio, options.count_ratio[0], hi)
+        return (
+            False,
+            0.0,
+            "count",
+            f"{m} points, {ratio:.2f} x the {n_theory:.0f} expected at {dist:.2f} m {rule}",
+        )
     # every return stands for the board area r^2 d_az d_el / cos(incidence); weighing by it makes
     # the PCA and the quadrant counts follow the board, not where the beams are dense (a board
     # tilted at close range, a table denser near the horizon)
@@ -131,20 +157,18 @@ def board_tests(
     noise_share = (0.5 * options.noise_sigmas * sigma) ** 2
     planar = (w[0] - noise_share) / w.sum()
     if planar > options.planarity_ratio:
-        return False, 0.0, "planarity", f"not flat (PCA ratio {w[0] / w.sum():.3f}) at {dist:.2f} m"
+        return (
+            False, 0.0, "planarity",
+            f"not flat at {dist:.2f} m (PCA ratio {w[0] / w.sum():.4f}, less the range noise's share) "
+            + breach("planarity_ratio", planar, ">", options.planarity_ratio),
+        )  # fmt: skip
     uv = q @ v[:, [2, 1]]
     lo, hi_ = np.quantile(uv, 0.01, axis=0), np.quantile(uv, 0.99, axis=0)
     ext = (hi_ - lo) * m / max(m - 1, 1)
-    smin, smax = options.size_ratio
-    slack = dist * step_el  # a ring spacing: the scan can miss a corner's tip between two rings
-    if not (
-        smin * long_side - slack <= ext[0] <= smax * long_side
-        and smin * short_side - slack <= ext[1] <= smax * short_side
-    ):
-        return (
-            False, 0.0, "size",
-            f"{ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m, board {long_side:.2f} x {short_side:.2f} m",
-        )  # fmt: skip
+    # (less a ring spacing: the scan can miss a corner's tip between two rings)
+    if bad := _size_breaches(ext, (long_side, short_side), options.size_ratio, dist * step_el):
+        sizes = f"{ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m, board {long_side:.2f} x {short_side:.2f} m"
+        return False, 0.0, "size", f"{sizes} {' '.join(bad)}"
     mid = 0.5 * (lo + hi_)
     quad = (uv[:, 0] >= mid[0]).astype(int) * 2 + (uv[:, 1] >= mid[1]).astype(int)
     nq = np.bincount(quad, weights=w_i, minlength=4)
@@ -154,13 +178,16 @@ def board_tests(
             False,
             uniformity,
             "uniformity",
-            f"uneven ({uniformity:.2f}) {ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m",
+            f"uneven, {ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m "
+            + breach("uniformity_min", uniformity, "<", options.uniformity_min),
         )
     if intensity is not None and options.contrast_min is not None:
         sep, frac = intensity_contrast(intensity)
         if sep < options.contrast_min or frac < 0.1:
             return (
                 False, uniformity, "contrast",
-                f"board-shaped at {dist:.2f} m but no black/white contrast (d'={sep:.1f}, {frac:.0%})",
+                f"board-shaped at {dist:.2f} m but no black/white contrast "
+                + (breach("contrast_min, d'", sep, "<", options.contrast_min) if sep < options.contrast_min
+                   else breach("share of the smaller level", frac, "<", 0.1)),
             )  # fmt: skip
     return True, float(uniformity), "", f"{m} points at {dist:.2f} m"

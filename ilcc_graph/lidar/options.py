@@ -1,4 +1,5 @@
-"""Tuning knobs of the LiDAR stage (segmentation, board tests, corner fit), with defaults.
+"""Tuning knobs of the LiDAR stage (segmentation, board tests, corner fit), with defaults, and how a
+refusal states the knob it breaks (``breach``).
 
 Every number is dimensionless or in the unit its name says. Defaults follow the paper
 (Wang et al. 2017, Section 4) where it gives one; the others are ours and documented in
@@ -8,6 +9,8 @@ docs/lidar_stage.md.
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+import numpy as np
 
 
 @dataclass(frozen=True)
@@ -133,3 +136,18 @@ class LidarOptions:
     quarter_turn_score: float = 0.85
     quarter_turn_odds: float = 20.0
     max_inplane_2sigma_squares: float = 1.0
+
+
+def breach(rule: str, value: float, op: str, limit: float, unit: str = "") -> str:
+    """A refusal's figures, ``"(rule: value op limit unit)"``: the rule that refused (an option's name,
+    or what it tests), the measured value and the limit it breaks (``op`` "<" or ">": refused because
+    value < limit, or > limit). Printed with the fewest decimals (two or more) that keep the relation,
+    so that the figures read make it a refusal (tests/test_lidar_refusals.py reads them so)."""
+    if op not in ("<", ">") or any(c in rule for c in "():"):
+        raise ValueError(f"breach: op must be '<' or '>' (not {op!r}), the rule without ( ) : ({rule!r})")
+    v, lim = f"{value:.2f}", f"{limit:.2f}"
+    for nd in range(2, 7):
+        v, lim = f"{value:.{nd}f}", f"{limit:.{nd}f}"
+        if np.isfinite(value) and ((float(v) < float(lim)) if op == "<" else (float(v) > float(lim))):
+            break
+    return f"({rule}: {v} {op} {lim}{' ' + unit if unit else ''})"

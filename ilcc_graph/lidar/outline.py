@@ -27,7 +27,7 @@ from ..board import Board
 from ..errors import BoardNotFound
 from ..lidars import LidarModel
 from .covariance import ray_coupling
-from .options import LidarOptions
+from .options import LidarOptions, breach
 from .shape import (
     OutlineSamples,
     ShapeFit,
@@ -134,7 +134,10 @@ def outline_only(
     square board fits as well (the order of the corners could not be told)."""
     s0 = outline_samples(points, T0, board, model, s_z, options.outline_blur, grow=_wide(board))
     if s0.inside.sum() < 10:
-        raise BoardNotFound("too few returns on the board's plane to fit its outline")
+        raise BoardNotFound(
+            "too few returns on the board's plane to fit its outline "
+            + breach("returns on the plane", float(s0.inside.sum()), "<", 10.0)
+        )
     starts = outline_start(s0, board, rng)
     if len(starts) < 2 or starts[1][1] < options.quarter_turn_score * starts[0][1]:
         return apply_xi(T0, starts[0][0])
@@ -147,7 +150,8 @@ def outline_only(
         x0, x1, y0, y1 = board.extent()
         raise BoardNotFound(
             f"the board's outline ({x1 - x0:.2f} x {y1 - y0:.2f} m) fits this scan as well turned by a "
-            "quarter turn, and the LiDAR shows no print to tell them apart: the corners' order is unknown"
+            "quarter turn, and the LiDAR shows no print to tell them apart: the corners' order is unknown "
+            + breach("quarter_turn_odds", float(np.exp(abs(L[0] - L[1]))), "<", options.quarter_turn_odds)
         )
     return apply_xi(T0, modes[int(np.argmax(L))][:3])
 
@@ -235,13 +239,18 @@ def fuse(
     return xi, 0.5 * (C + C.T), K
 
 
-def slid_message(check: ShapeCheck) -> str:
+def slid_message(check: ShapeCheck, board: Board, options: LidarOptions) -> str:
     """Why a pattern fit that the outline contradicts is refused."""
+    gate = float(chi2_dist.ppf(options.shape_gate_p, 3))
+    square, slide = board.square_size, options.slide_squares
     d = check.fit.xi
     return (
         f"the chessboard pattern fitted to the returns lies {1e3 * np.linalg.norm(d[1:]):.0f} mm and "
         f"{np.degrees(abs(d[0])):.1f} deg off the board's outline (chi-square {check.chi2:.0f}, 3 dof), and "
-        "no move by whole squares reconciles them: the pattern fit slid"
+        "no move by whole squares reconciles them: the pattern fit slid "
+        + breach("shape_gate_p chi-square", check.chi2, ">", gate)
+        + " "
+        + breach("slide_squares", check.shift / square, ">", slide, "squares")
     )
 
 
@@ -258,23 +267,34 @@ def refuse_outline(shape: ShapeFit, range_m: float, board: Board, options: Lidar
     if shape.agreement < options.min_shape_agreement:
         raise BoardNotFound(
             f"{what}: {shape.bad_in} returns on its plane lie outside the fitted board, {shape.bad_out} "
-            "rays pass through where it would be"
+            f"rays pass through where it would be, of {shape.n_in + shape.n_out} samples near its outline "
+            + breach("min_shape_agreement", shape.agreement, "<", options.min_shape_agreement)
         )
     if not shape.size_ok:
         raise BoardNotFound(
             f"{what}: it is {1e3 * abs(shape.growth):.0f} mm {'larger' if shape.growth > 0 else 'smaller'} "
-            "on every side (check board.squares, square_size and margin)"
+            "on every side (check board.squares, square_size and margin) "
+            + breach(
+                "outline growth, 3 footprint sigmas and 2 of its own",
+                1e3 * abs(shape.growth),
+                ">",
+                1e3 * (3.0 * shape.growth_prior + 2.0 * shape.growth_sd),
+                "mm",
+            )
         )
+    e = shape.edges_seen
     if not shape.opposite_edges_seen:
         raise BoardNotFound(
             f"a board-sized object at {range_m:.2f} m without a print the LiDAR shows, whose outline the "
             "scan does not show on two opposite sides (beyond the beams or with nothing behind): its size "
-            "and place cannot be told from its shape"
+            "and place cannot be told from its shape "
+            + breach("rays beside its edges along one axis", float(min(sum(e[:2]), sum(e[2:]))), "<", 1.0)
         )
     if shape.ess < 30:
         raise BoardNotFound(
             f"the board's outline at {range_m:.2f} m could not be fitted (its posterior's effective sample "
-            f"size is {shape.ess:.0f}): no trustworthy pose without a print the LiDAR shows"
+            f"size is {shape.ess:.0f}): no trustworthy pose without a print the LiDAR shows "
+            + breach("effective sample size", shape.ess, "<", 30.0)
         )
 
 

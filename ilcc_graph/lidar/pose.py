@@ -23,7 +23,7 @@ from .board_tests import print_visible
 from .cost import intensity_classes
 from .covariance import assemble_covariance, plane_fit, ray_coupling, sampling_covariance
 from .fit import InPlaneFit, fit_in_plane, plane_frame, pose_from_in_plane, project_on_plane
-from .options import LidarOptions
+from .options import LidarOptions, breach
 from .outline import (
     ShapeCheck,
     apply_xi,
@@ -145,7 +145,8 @@ def _plane_passes(P: np.ndarray, ring: np.ndarray, T: np.ndarray, board: Board, 
         on = _on_board(b, board)
         if on.sum() < 30:
             raise BoardNotFound(
-                f"only {int(on.sum())} points fall on the fitted board; the fit is not trustworthy"
+                f"only {int(on.sum())} points fall on the fitted board; the fit is not trustworthy "
+                + breach("returns on the board", float(on.sum()), "<", 30.0)
             )
         core = _core(b, P, T, board, s_z)
         Tinv = np.linalg.inv(T)
@@ -166,7 +167,8 @@ def _refine(P, inten, ring, T0, s_z, board, model, fit: InPlaneFit, options) -> 
     on = _on_board(b, board)
     if on.sum() < 30:
         raise BoardNotFound(
-            f"only {int(on.sum())} points fall on the fitted board; the fit is not trustworthy"
+            f"only {int(on.sum())} points fall on the fitted board; the fit is not trustworthy "
+            + breach("returns on the board", float(on.sum()), "<", 30.0)
         )
     dist = float(np.linalg.norm(P[on].mean(axis=0)))
     blur0 = 0.5 * dist * max(model.beam_divergence_rad, np.deg2rad(model.horizontal_resolution_deg))
@@ -188,7 +190,7 @@ def _refine(P, inten, ring, T0, s_z, board, model, fit: InPlaneFit, options) -> 
     if agree < options.min_agreement:
         raise BoardNotFound(
             f"a board-shaped object at {dist:.2f} m, but the fitted chessboard explains only {agree:.0%} of "
-            f"its black/white returns (need {options.min_agreement:.0%})"
+            "its black/white returns " + breach("min_agreement", agree, "<", options.min_agreement)
         )
     cov_q = sampling_covariance(b_fin[:, :2], cls, ring[on], board, soft.blur)
     K = np.zeros((3, 3))
@@ -270,7 +272,7 @@ def _moved_to_outline(
             alt.diag.update({k: res.diag[k] for k in keep})
             shift = se2_exp(xi)[:2, 2] - _centre_shift(xi, board)
             return alt, alt_chk, float(np.linalg.norm(shift)) / board.square_size
-    raise BoardNotFound(slid_message(chk))
+    raise BoardNotFound(slid_message(chk, board, options))
 
 
 def _outline(P, inten, ring, normal, offset, board, model, options, rng, scan_pts) -> _InPlane:  # noqa: ANN001
@@ -301,7 +303,14 @@ def _refuse_untrustworthy(cov: np.ndarray, board: Board, options: LidarOptions) 
     if reach > options.max_inplane_2sigma_squares * board.square_size:
         raise BoardNotFound(
             f"the scan fixes the board's position in its plane only to +-{1e3 * reach:.0f} mm (2 sigma), "
-            f"more than {options.max_inplane_2sigma_squares:g} square ({1e3 * board.square_size:.0f} mm)"
+            f"more than {options.max_inplane_2sigma_squares:g} square ({1e3 * board.square_size:.0f} mm) "
+            + breach(
+                "max_inplane_2sigma_squares",
+                reach / board.square_size,
+                ">",
+                options.max_inplane_2sigma_squares,
+                "squares",
+            )
         )
 
 

@@ -20,7 +20,7 @@ import numpy as np
 from ..board import Board
 from ..errors import BoardNotFound
 from .board_tests import intensity_contrast
-from .options import LidarOptions
+from .options import LidarOptions, breach
 
 __all__ = ["Candidate", "SearchInput", "inside_mask", "inlier_threshold", "ransac_plane", "roi_mask",
            "search_board"]  # fmt: skip
@@ -239,7 +239,10 @@ class _Search:
             if inl.mean() >= 0.9:
                 self.passed.append((uni, idx[inl], intensity_contrast(scan.intensity[idx[inl]])[0]))
                 return
-            name, detail = "plane", f"only {inl.mean():.0%} of its points on one plane; {detail}"
+            name = "plane"
+            detail = f"not one plane, {detail} " + breach(
+                f"returns within {1e3 * scan.threshold:.0f} mm of a RANSAC plane", inl.mean(), "<", 0.9
+            )
         if depth >= 1 and name in TRIMMABLE:
             for kept in scan.trims(idx, depth):
                 if depth == 1 and MIN_PIECE <= kept.size < idx.size:

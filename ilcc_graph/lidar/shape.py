@@ -5,6 +5,8 @@ at its crossing point (moved onto the plane along the ray, so range noise does n
 
 - **in**: the return lies on the plane (within ``thr_in``): the board is there;
 - **out**: the return lies well behind the plane (``thr_out``): the ray passed where the board is not;
+  so does a ray a beam fired there that returned nothing at all (``silent.silent_rays``: the sky, an
+  open scene), counted as lost with the share the LiDAR loses on the board;
 - a return in front of the plane (an occluder: a hand, a person) or just behind it says nothing, and
   rays the beams never fired (above the top beam, below the lowest) are no samples at all: the
   unscanned part of a board is unknown, not empty.
@@ -35,6 +37,7 @@ from scipy.special import ndtr
 
 from ..board import Board
 from ..lidars import LidarModel
+from .silent import silent_rays
 
 __all__ = [
     "OutlineSamples",
@@ -135,23 +138,29 @@ def outline_samples(
     thr_out = max(0.06, 2.0 * thr_in)
     inside = near & (np.abs(pz) < thr_in)
     out = near & (pz < -thr_out)
+    silent, lost = silent_rays(P - o, inside, T, o, board, model, grow)
     keep = inside | out
-    u = ub[keep]
+    n_silent = len(silent)
+    ub = np.vstack([ub[keep], silent])
+    c = np.vstack([c[keep], ob[:2] - (ob[2] / silent[:, 2])[:, None] * silent[:, :2]])
+    lam_k = np.concatenate([lam[keep], -ob[2] / silent[:, 2]])
+    pz_k = np.concatenate([pz[keep], np.full(n_silent, -np.inf)])
+    inside_k = np.concatenate([inside[keep], np.zeros(n_silent, bool)])
+    u = ub
     slope = np.abs(u[:, :2]) / np.abs(u[:, 2:3])  # in-plane shift per unit of height, along x and y
-    foot = 0.5 * (APERTURE_M + model.beam_divergence_rad * lam[keep])
+    foot = 0.5 * (APERTURE_M + model.beam_divergence_rad * lam_k)
     var = (
         SIGMA_MIN_M**2
         + (blur * foot[:, None]) ** 2
-        + np.where(inside[keep, None], (sigma_z * slope) ** 2, 0.0)
+        + np.where(inside_k[:, None], (sigma_z * slope) ** 2, 0.0)
     )
     # a return on the plane may be an attachment (a stand's head, a clamp) rather than the board: the
     # farther behind the board's plane it lies (in its noise), the likelier
-    h = pz[keep] / max(sigma_z, 1e-4)
-    behind = np.where(h < 0, 1.0 - np.exp(-0.5 * h * h), 0.0)
-    eps = np.where(inside[keep], EPS_IN + (1.0 - EPS_IN) * behind, EPS_OUT)
-    return OutlineSamples(
-        c[keep], inside[keep], np.sqrt(var), u, int((near & (pz > thr_in)).sum()), foot, eps
-    )
+    h = pz_k / max(sigma_z, 1e-4)
+    behind = np.where(h < 0, 1.0 - np.exp(-0.5 * np.minimum(h * h, 1e6)), 0.0)
+    eps = np.where(inside_k, EPS_IN + (1.0 - EPS_IN) * behind, EPS_OUT)
+    eps[len(eps) - n_silent :] = max(EPS_OUT, lost)  # a ray without return: passed, or lost
+    return OutlineSamples(c, inside_k, np.sqrt(var), u, int((near & (pz > thr_in)).sum()), foot, eps)
 
 
 def _moved(xis: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
