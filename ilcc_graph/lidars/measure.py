@@ -87,6 +87,10 @@ def _azimuth_step_deg(p: np.ndarray, beam: np.ndarray, columns: int | None) -> f
     step = float(np.median(d[d < 1.5 * np.median(d)]))
     if columns and abs(360.0 / columns - step) < 0.1 * step:
         step = 360.0 / columns
+    elif abs(360.0 / round(360.0 / step) - step) < 1e-6 * step:
+        # a whole number of firings per turn, read without its rows: the same step as the organised
+        # scan's (the last digits were the points' storage, e.g. a bag's unorganised cloud)
+        step = 360.0 / round(360.0 / step)
     return step
 
 
