@@ -15,11 +15,9 @@ from ilcc_graph.app import main
 
 
 @pytest.fixture(scope="module")
-def pair(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    d = tmp_path_factory.mktemp("pair") / "sim"
-    argv = ["simulate", str(d), "--camera", "pinhole", "--width", "640", "--frames", "5", "--seed", "3"]
-    assert main(argv) == 0
-    return d
+def pair(simulated) -> Path:  # noqa: ANN001 - conftest's factory
+    """A small simulated pinhole pair (5 frames, 640 px), the session's ``simulated`` set."""
+    return simulated("pinhole", frames=5, seed=3)
 
 
 def _closed_stdout(argv: list[str], cwd: Path, both: bool = False) -> tuple[int, str]:

@@ -27,14 +27,9 @@ distortion_coefficients: {rows: 1, cols: 5, data: [-0.05, 0.01, 0.0, 0.0, 0.0]}
 
 
 @pytest.fixture(scope="module")
-def pair(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small simulated pinhole set (5 frames, 640 px)."""
-    d = tmp_path_factory.mktemp("pair") / "sim"
-    assert (
-        main(["simulate", str(d), "--camera", "pinhole", "--width", "640", "--frames", "5", "--seed", "3"])
-        == 0
-    )
-    return d
+def pair(simulated) -> Path:  # noqa: ANN001 - conftest's factory
+    """A small simulated pinhole pair (5 frames, 640 px), the session's ``simulated`` set."""
+    return simulated("pinhole", frames=5, seed=3)
 
 
 def _data(pair: Path, dst: Path, config: str, files: dict[str, str] | None = None) -> Path:

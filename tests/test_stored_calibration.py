@@ -25,12 +25,9 @@ FISHEYE = {"model": "fisheye", "width": 640, "height": 400, "dist": [0.01, -0.00
 
 
 @pytest.fixture(scope="module")
-def pair(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A small simulated pinhole pair (5 frames, 640 px)."""
-    d = tmp_path_factory.mktemp("pair") / "sim"
-    argv = ["simulate", str(d), "--camera", "pinhole", "--width", "640", "--frames", "5", "--seed", "3"]
-    assert main(argv) == 0
-    return d
+def pair(simulated) -> Path:  # noqa: ANN001 - conftest's factory
+    """A small simulated pinhole pair (5 frames, 640 px), the session's ``simulated`` set."""
+    return simulated("pinhole", frames=5, seed=3)
 
 
 @pytest.fixture(scope="module")
