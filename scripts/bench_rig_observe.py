@@ -6,7 +6,7 @@ Per rig kind (``KINDS``) and seed: ``cal-<seed>`` a calibration capture (``n_mom
 for ``verify`` seeds: ``ver-<seed>`` a 5-board capture of the unchanged rig, ``rot-<seed>`` the same
 capture with one sensor (not the reference; cycled by seed) turned by 0.25 deg about a random axis,
 ``trans-<seed>`` shifted by 10 mm in a random direction. A moved capture has the same boards and,
-for every other sensor, the same bytes as the unchanged one (``simulate.rig``), so only the moved
+for every other sensor, the same bytes as the unchanged one (``simulate.rig_spec``), so only the moved
 sensor is observed again. Each cache file holds the moments' results, the true ``T_ref_sensor``, the
 moved mount and the rig's config. Cache: ``~/.cache/ilcc_graph/bench_rig/<kind>/`` (deletable).
 
@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from ilcc_graph.run.rig_observe import observe_moment  # noqa: E402
-from ilcc_graph.simulate.rig import Mount, RigSpec, backpack_rig, ring_rig, simulate_moments  # noqa: E402
+from ilcc_graph.simulate.rig_spec import Mount, RigSpec, backpack_rig, ring_rig, simulate_moments  # noqa: E402
 
 CACHE = Path.home() / ".cache" / "ilcc_graph" / "bench_rig"
 VERIFY_MOMENTS = 5

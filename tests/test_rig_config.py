@@ -12,7 +12,7 @@ import yaml
 
 from ilcc_graph.cameras import camera_class, camera_kinds
 from ilcc_graph.config import load_config, load_rig_config, parse_rig_config, rig_config_to_dict
-from ilcc_graph.config.rig import flu_from_pose, pose_from_flu
+from ilcc_graph.config.rig_config import flu_from_pose, pose_from_flu
 from ilcc_graph.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]

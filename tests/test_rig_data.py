@@ -18,7 +18,7 @@ from ilcc_graph.run.source import check_image_size
 from ilcc_graph.run.stages import read_frame_file
 from ilcc_graph.simulate import RenderOptions, Systematics, simulate_dataset, standard_spec
 from ilcc_graph.simulate.bag import WalkAndPause
-from ilcc_graph.simulate.rig import (
+from ilcc_graph.simulate.rig_spec import (
     RIG_PRESETS,
     Mount,
     RigSpec,

@@ -18,7 +18,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ilcc_graph.board import Board
-from ilcc_graph.datasets.rig import RigSource
+from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.io.rig_results import RigCalibration
 from ilcc_graph.report.metric import transform_points
 from ilcc_graph.report.rig_pictures import board_share, share_of_points
@@ -35,7 +35,7 @@ from ilcc_graph.report.rig_verdict import (
 from ilcc_graph.run import rig_calibrate
 from ilcc_graph.run.rig_calibrate import RigResult, calibrate_rig, solve_observed, to_calibration
 from ilcc_graph.run.rig_observe import RigObservation
-from ilcc_graph.simulate.rig import backpack_rig
+from ilcc_graph.simulate.rig_spec import backpack_rig
 from ilcc_graph.simulate.rig_export import write_rig_set
 from ilcc_graph.types import MomentResult
 

@@ -55,7 +55,7 @@ def _options(data: Sequence[str], args: argparse.Namespace) -> tuple[RunOptions,
     """The run's options and whether ``data`` is a rig (one folder with rig.yaml, or a rig file;
     docs/rig.md): a rig runs the ``rig`` strategy, and a pair's solve options given for one are an
     InputError naming them (they do not apply to a rig's graph)."""
-    from ilcc_graph.datasets.rig import is_rig_source
+    from ilcc_graph.datasets.rig_source import is_rig_source
     from ilcc_graph.run.result import RunOptions
 
     options = run_options(args)

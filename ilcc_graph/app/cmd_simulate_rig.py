@@ -1,6 +1,6 @@
 """``ilcc-graph simulate-rig``: a simulated rig data set with its ground truth (docs/rig.md).
 
-A preset rig (``simulate.rig.RIG_PRESETS``) written as a folder per sensor or as one ROS bag
+A preset rig (``simulate.rig_spec.RIG_PRESETS``) written as a folder per sensor or as one ROS bag
 (``simulate.rig_export``), with ``rig.yaml`` and ``rig_ground_truth.yaml``; ``--moved`` turns and
 shifts one sensor's mount (a capture for ``verify``: same boards as the unmoved rig of that seed).
 """
@@ -28,7 +28,7 @@ def _triple(text: str) -> tuple[float, float, float]:
 
 
 def add_arguments(sp: argparse.ArgumentParser) -> None:
-    from ilcc_graph.simulate.rig import RIG_PRESETS
+    from ilcc_graph.simulate.rig_spec import RIG_PRESETS
 
     sp.add_argument("out", metavar="OUT")
     presets = list(RIG_PRESETS)
@@ -51,7 +51,7 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ilcc_graph.errors import InputError
-    from ilcc_graph.simulate.rig import RIG_PRESETS, Mount
+    from ilcc_graph.simulate.rig_spec import RIG_PRESETS, Mount
     from ilcc_graph.simulate.rig_export import write_rig_bag, write_rig_set
 
     kw = {"n_moments": args.moments, "seed": args.seed}

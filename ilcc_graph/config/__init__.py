@@ -20,7 +20,7 @@ from ..io.files import SMALL_FILE, read_yaml
 from .ilcc import is_ilcc, parse_ilcc
 from .model import Config, Roi, config_to_dict
 from .ours import TOP_KEYS, parse_ours
-from .rig import RigConfig, RigData, RigSensor, rig_config_to_dict, rig_from_config
+from .rig_config import RigConfig, RigData, RigSensor, rig_config_to_dict, rig_from_config
 from .rig_schema import load_rig_config, parse_rig_config
 
 __all__ = [

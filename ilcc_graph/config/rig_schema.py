@@ -36,7 +36,7 @@ from ..errors import InputError
 from ..io.files import SMALL_FILE, read_yaml
 from .camera_file import camera_section
 from .ours import parse_board, parse_lidar, parse_roi
-from .rig import SELECT, RigConfig, RigData, RigSensor, pose_from_flu, rig_from_config
+from .rig_config import SELECT, RigConfig, RigData, RigSensor, pose_from_flu, rig_from_config
 
 __all__ = ["load_rig_config", "parse_rig_config"]
 

@@ -18,7 +18,7 @@ from typing import Literal, overload
 
 from ilcc_graph.datasets.folder import FolderSource, is_folder_source
 from ilcc_graph.datasets.frame_source import FrameRef, FrameSource
-from ilcc_graph.datasets.rig import Moment, RigPair, RigSource, is_rig_source
+from ilcc_graph.datasets.rig_source import Moment, RigPair, RigSource, is_rig_source
 from ilcc_graph.datasets.rosbag import BagSource, is_bag
 from ilcc_graph.errors import InputError
 from ilcc_graph.io.files import not_a_file

@@ -112,7 +112,7 @@ class RigBag(BagSource):
 
     def moments(self) -> tuple[list[Any], list[tuple[str, str]]]:
         """(moments, skipped): the chosen anchor messages with their partners (``rig.Moment``)."""
-        from ilcc_graph.datasets.rig import Moment
+        from ilcc_graph.datasets.rig_source import Moment
 
         streams = self.survey_rig()
         anchor, topics = self.anchor(), self.sensor_topics

@@ -30,7 +30,7 @@ from .summary import _propagate, lidar_in_camera
 from .text import short_reason
 
 if TYPE_CHECKING:
-    from ..datasets.rig import RigSource
+    from ..datasets.rig_source import RigSource
     from ..run.rig_observe import RigObservation
     from ..types import MomentResult
 

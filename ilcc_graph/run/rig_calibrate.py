@@ -24,7 +24,7 @@ import numpy as np
 
 from ilcc_graph.config import RigConfig, rig_config_to_dict
 from ilcc_graph.datasets import open_source
-from ilcc_graph.datasets.rig import RigSource
+from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.estimation.rig_solve import RigOptions, RigSolution, solve_rig
 from ilcc_graph.init.rig_start import RigStart, StartOptions, rig_start
 from ilcc_graph.io.rig_results import RigCalibration

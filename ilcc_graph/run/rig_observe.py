@@ -20,7 +20,7 @@ import numpy as np
 
 from ilcc_graph import workers
 from ilcc_graph.config import RigConfig
-from ilcc_graph.datasets.rig import Moment, RigSource
+from ilcc_graph.datasets.rig_source import Moment, RigSource
 from ilcc_graph.errors import BoardColourMismatch, DamagedFile, FrameError, InputError
 from ilcc_graph.image import detect_corners
 from ilcc_graph.lidar import estimate_board

@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from ilcc_graph.config.rig import PAIR_NAMES, RigConfig
+from ilcc_graph.config.rig_config import PAIR_NAMES, RigConfig
 from ilcc_graph.datasets import open_source
-from ilcc_graph.datasets.rig import RigPair, RigSource
+from ilcc_graph.datasets.rig_source import RigPair, RigSource
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem, InputError
 from ilcc_graph.estimation.verify import StoredRig, VerifyOptions, VerifyResult, verify_pair, verify_rig
 from ilcc_graph.io.rig_results import RigCalibration

@@ -25,7 +25,7 @@ from ..io import write_image, write_yaml
 from ..io.rig_truth import write_rig_ground_truth
 from .bag import START_NS, RosMessages, WalkAndPause, bag_frame_name, walk_poses
 from .frames import SimFrame
-from .rig import RigMoment, RigSpec, rig_ground_truth, simulate_moments
+from .rig_spec import RigMoment, RigSpec, rig_ground_truth, simulate_moments
 from .write_set import assemble, write_scan
 
 __all__ = ["rig_walk", "write_rig_bag", "write_rig_set"]

@@ -24,12 +24,12 @@ from scipy.spatial.transform import Rotation
 from ilcc_graph.types import BoardFit, ImageCorners, MomentResult
 
 from .placements import frame_rng
-from .rig import RigSpec
+from .rig_spec import RigSpec
 from .rig_placements import rig_placements, sees
 
 __all__ = ["LIDAR_SIGMAS", "SIGMA_PX", "observe_spec"]
 
-PURPOSE_RIG_OBSERVATION = 10  # stream key (placements.py: 0-2, rig.py: 7, 8, intrinsics.py: 9)
+PURPOSE_RIG_OBSERVATION = 10  # stream key (placements.py: 0-2, rig_spec.py: 7, 8, intrinsics.py: 9)
 #: a 16-beam LiDAR's board fit: rotation about the board's x, y, z (rad), translation along them (m)
 LIDAR_SIGMAS = (np.radians(0.35), np.radians(0.3), np.radians(0.1), 0.7e-3, 0.7e-3, 2.2e-3)
 #: a corner's pixel sigma

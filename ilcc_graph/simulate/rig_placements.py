@@ -26,11 +26,11 @@ from .placements import frame_rng, pose_facing
 from .scene import Scene
 
 if TYPE_CHECKING:
-    from .rig import RigSensorSpec, RigSpec
+    from .rig_spec import RigSensorSpec, RigSpec
 
 __all__ = ["rig_placements", "sees"]
 
-PURPOSE_RIG_PLACEMENT = 8  # stream key (placements.py: 0-2, rig.py: 7, intrinsics.py: 9)
+PURPOSE_RIG_PLACEMENT = 8  # stream key (placements.py: 0-2, rig_spec.py: 7, intrinsics.py: 9)
 GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
 ATTEMPTS = 600
 

@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ilcc_graph.datasets.rig import RigSource
+from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.io.rig_results import rig_calibration_doc
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
