@@ -69,6 +69,19 @@ def _dense_coefficients(index: np.ndarray, coef: np.ndarray, active: np.ndarray)
     return out
 
 
+def _checked_terms(
+    what: str, index: np.ndarray, coef: np.ndarray | None, M: int, n_params: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(index int64 (M, k), coef float64 (M, k)) of the ``what`` terms (``range``, ``elevation``),
+    checked: equal shapes, one row per return, indices within ``0..n_params - 1``."""
+    i, c = np.asarray(index, dtype=np.int64), np.asarray(coef, dtype=np.float64)
+    if i.shape != c.shape or i.ndim != 2 or i.shape[0] != M:
+        raise ValueError(f"BoardPointsFactor: {what}_index/coef must be (M, k), got {i.shape}, {c.shape}")
+    if i.size and (i.min() < 0 or i.max() >= n_params):
+        raise ValueError(f"BoardPointsFactor: {what}_index outside 0..{n_params - 1}")
+    return i, c
+
+
 class BoardPointsFactor(GroupedFactor[gtsam.Pose3, np.ndarray]):
     """One board's returns and in-plane prior on (``T_lidar_board``, LiDAR parameters ``l``).
 
@@ -114,13 +127,7 @@ class BoardPointsFactor(GroupedFactor[gtsam.Pose3, np.ndarray]):
         s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), (M,)).copy()
         if not np.all(s > 0):
             raise ValueError("BoardPointsFactor: sigma must be > 0")
-        ri, rc = np.asarray(range_index, dtype=np.int64), np.asarray(range_coef, dtype=np.float64)
-        if ri.shape != rc.shape or ri.ndim != 2 or ri.shape[0] != M:
-            raise ValueError(
-                f"BoardPointsFactor: range_index/coef must be (M, k), got {ri.shape}, {rc.shape}"
-            )
-        if ri.size and (ri.min() < 0 or ri.max() >= n_params):
-            raise ValueError(f"BoardPointsFactor: range_index outside 0..{n_params - 1}")
+        ri, rc = _checked_terms("range", range_index, range_coef, M, n_params)
         self.keys = (int(key_board), int(key_lidar))
         self.points = p
         self.rho = np.linalg.norm(p, axis=1)
@@ -129,12 +136,7 @@ class BoardPointsFactor(GroupedFactor[gtsam.Pose3, np.ndarray]):
         self.n_params = int(n_params)
         ei = ec = None
         if elevation_index is not None:
-            ei = np.asarray(elevation_index, dtype=np.int64)
-            ec = np.asarray(elevation_coef, dtype=np.float64)
-            if ei.shape != ec.shape or ei.ndim != 2 or ei.shape[0] != M:
-                raise ValueError("BoardPointsFactor: elevation_index/coef must be (M, k)")
-            if ei.size and (ei.min() < 0 or ei.max() >= n_params):
-                raise ValueError(f"BoardPointsFactor: elevation_index outside 0..{n_params - 1}")
+            ei, ec = _checked_terms("elevation", elevation_index, elevation_coef, M, n_params)
         # the parameters these returns depend on, and the dense (M, n_active) coefficients of a_j and
         # rho_j b_j on them: the corrections and Jacobians are then two small matrix products
         used = [ri[rc != 0]] + ([] if ei is None else [ei[ec != 0]])
@@ -156,14 +158,25 @@ class BoardPointsFactor(GroupedFactor[gtsam.Pose3, np.ndarray]):
         self.inplane_scale = 1.0
         self.plane_scale = (1.0, 1.0, 1.0)  # variance scales of the plane's offset, tilt and the beams
         # the random effects (_Effects), or None
-        self._plane: _Effects | None = None
-        cols, var, kind = [], [], []
+        self._plane: _Effects | None = self._random_effects(plane_sigma, beam_sigma, beams)
+        self._whiten = self._plane_whitening()
+
+    def _random_effects(
+        self, plane_sigma: tuple[float, float] | None, beam_sigma: float | None, beams: np.ndarray | None
+    ) -> _Effects | None:
+        """The random effects of this board (its plane's offset and tilt, each beam's range offset) as
+        (G whitened columns (M, r), its QR factors Q and R, variances (r,), kinds (r,): 0 offset, 1
+        tilt, 2 beam), or None (no effects)."""
+        M, n0 = self.n_points, self.T_measured.rotation().matrix()[:, 2]
+        cols: list[np.ndarray] = []
+        var: list[float] = []
+        kind: list[int] = []
         if plane_sigma is not None:
             so, st = (float(v) for v in plane_sigma)
             if not (so > 0 and st > 0):
                 raise ValueError(f"BoardPointsFactor: plane_sigma must be > 0, got {plane_sigma!r}")
             R0, t0 = self.T_measured.rotation().matrix(), self.T_measured.translation()
-            xy = ((p - t0) @ R0)[:, :2]
+            xy = ((self.points - t0) @ R0)[:, :2]
             # the offset as a range offset of all the board's returns (along their rays, as a
             # common range offset of the beams moves them): the boards' zero-mean offsets then
             # fix the beams' common level; along the normal, only the incidence's variation across
@@ -181,11 +194,11 @@ class BoardPointsFactor(GroupedFactor[gtsam.Pose3, np.ndarray]):
             cols.append((bm[:, None] == ids[None, :]) * np.abs(self.u @ n0)[:, None])
             var += [float(beam_sigma) ** 2] * len(ids)
             kind += [2] * len(ids)
-        if cols:
-            G = self.weight[:, None] * np.hstack(cols)
-            Q, Rg = np.linalg.qr(G)
-            self._plane = (G, Q, Rg, np.array(var), np.array(kind))
-        self._whiten = self._plane_whitening()
+        if not cols:
+            return None
+        G = self.weight[:, None] * np.hstack(cols)
+        Q, Rg = np.linalg.qr(G)
+        return (G, Q, Rg, np.array(var), np.array(kind))
 
     @property
     def n_points(self) -> int:

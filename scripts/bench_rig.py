@@ -51,8 +51,8 @@ from ilcc_graph.estimation.selection import AUTO  # noqa: E402
 from ilcc_graph.estimation.verify import StoredRig, VerifyResult, verify_rig  # noqa: E402
 from ilcc_graph.run.rig_calibrate import RigRunOptions, solve_observed  # noqa: E402
 from ilcc_graph.run.rig_observe import RigObservation  # noqa: E402
-from ilcc_graph.simulate.rig_spec import RigSpec, backpack_rig, ring_rig  # noqa: E402
 from ilcc_graph.simulate.rig_observations import observe_spec  # noqa: E402
+from ilcc_graph.simulate.rig_spec import RigSpec, backpack_rig, ring_rig  # noqa: E402
 from ilcc_graph.types import Estimate, MomentResult  # noqa: E402
 
 DOC = ROOT / "docs" / "bench_rig.md"

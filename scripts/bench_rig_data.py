@@ -28,8 +28,8 @@ from _shared import write_between  # noqa: E402
 from ilcc_graph.datasets import open_source  # noqa: E402
 from ilcc_graph.errors import CalibrationError  # noqa: E402
 from ilcc_graph.run.pipeline import run  # noqa: E402
-from ilcc_graph.simulate.rig_spec import RIG_PRESETS  # noqa: E402
 from ilcc_graph.simulate.rig_export import write_rig_bag, write_rig_set  # noqa: E402
+from ilcc_graph.simulate.rig_spec import RIG_PRESETS  # noqa: E402
 
 RIGS = {"ring-pinhole": dict(width=640, n_moments=16), "ring-fisheye": dict(width=800, n_moments=16),
         "backpack": dict(width=2400, n_moments=12)}  # fmt: skip

@@ -18,6 +18,8 @@ from ilcc_graph.run.source import check_image_size
 from ilcc_graph.run.stages import read_frame_file
 from ilcc_graph.simulate import RenderOptions, Systematics, simulate_dataset, standard_spec
 from ilcc_graph.simulate.bag import WalkAndPause
+from ilcc_graph.simulate.rig_export import write_rig_bag, write_rig_set
+from ilcc_graph.simulate.rig_placements import rig_placements, sees
 from ilcc_graph.simulate.rig_spec import (
     RIG_PRESETS,
     Mount,
@@ -27,8 +29,6 @@ from ilcc_graph.simulate.rig_spec import (
     ring_rig,
     simulate_moments,
 )
-from ilcc_graph.simulate.rig_export import write_rig_bag, write_rig_set
-from ilcc_graph.simulate.rig_placements import rig_placements, sees
 
 
 @pytest.fixture(scope="module")

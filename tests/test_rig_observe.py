@@ -13,8 +13,8 @@ from ilcc_graph.estimation.rig_solve import solve_rig
 from ilcc_graph.init.rig_start import rig_start
 from ilcc_graph.run.rig_observe import observe_moment, observe_rig
 from ilcc_graph.run.stages import StageOptions
-from ilcc_graph.simulate.rig_spec import backpack_rig, simulate_moments
 from ilcc_graph.simulate.rig_export import write_rig_set
+from ilcc_graph.simulate.rig_spec import backpack_rig, simulate_moments
 from ilcc_graph.types import Scan
 
 

@@ -23,8 +23,8 @@ from ilcc_graph.handoff_rig import add_rig_prior, rig_prior
 from ilcc_graph.io.rig_results import is_rig_calibration, read_rig_calibration, write_rig_calibration
 from ilcc_graph.run.rig_calibrate import RigResult, solve_observed, to_calibration
 from ilcc_graph.run.rig_observe import RigObservation
-from ilcc_graph.simulate.rig_spec import ring_rig
 from ilcc_graph.simulate.rig_observations import observe_spec
+from ilcc_graph.simulate.rig_spec import ring_rig
 
 
 @pytest.fixture(scope="module")

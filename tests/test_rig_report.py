@@ -35,8 +35,8 @@ from ilcc_graph.report.rig_verdict import (
 from ilcc_graph.run import rig_calibrate
 from ilcc_graph.run.rig_calibrate import RigResult, calibrate_rig, solve_observed, to_calibration
 from ilcc_graph.run.rig_observe import RigObservation
-from ilcc_graph.simulate.rig_spec import backpack_rig
 from ilcc_graph.simulate.rig_export import write_rig_set
+from ilcc_graph.simulate.rig_spec import backpack_rig
 from ilcc_graph.types import MomentResult
 
 VOID = {"meta", "img", "br", "hr", "link", "input", "col", "area", "base", "wbr", "source"}

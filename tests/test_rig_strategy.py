@@ -20,8 +20,8 @@ from ilcc_graph.run.rig_calibrate import calibrate_rig
 from ilcc_graph.run.stages import StageOptions
 from ilcc_graph.run.strategies import modes, strategy
 from ilcc_graph.simulate import simulate_dataset, standard_spec
-from ilcc_graph.simulate.rig_spec import backpack_rig
 from ilcc_graph.simulate.rig_export import write_rig_set
+from ilcc_graph.simulate.rig_spec import backpack_rig
 
 ONE = StageOptions(jobs=1)
 

@@ -51,8 +51,8 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ilcc_graph.errors import InputError
-    from ilcc_graph.simulate.rig_spec import RIG_PRESETS, Mount
     from ilcc_graph.simulate.rig_export import write_rig_bag, write_rig_set
+    from ilcc_graph.simulate.rig_spec import RIG_PRESETS, Mount
 
     kw = {"n_moments": args.moments, "seed": args.seed}
     if args.width is not None:

@@ -24,8 +24,8 @@ from scipy.spatial.transform import Rotation
 from ilcc_graph.types import BoardFit, ImageCorners, MomentResult
 
 from .placements import frame_rng
-from .rig_spec import RigSpec
 from .rig_placements import rig_placements, sees
+from .rig_spec import RigSpec
 
 __all__ = ["LIDAR_SIGMAS", "SIGMA_PX", "observe_spec"]
 
