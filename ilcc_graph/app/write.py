@@ -18,7 +18,8 @@ everything is written (so ``out`` is either the complete result or untouched):
 - with a proposal: ``next_pose.png``; ``check``: ``check.yaml``; a failed run: ``failure.yaml``.
 
 It reads only ``run.result.Result`` (no strategy's own types). The folder mechanics (staging, the
-locked commit) are ``io.output_folders``; the report's pictures and studies ``report.session``.
+locked commit) are ``io.output_folders``; the report's pictures ``app.report_writer``; the studies
+that solve again ``run.refit_studies`` (a step of the run, handed to the report as data).
 """
 
 from __future__ import annotations
@@ -32,15 +33,14 @@ from typing import Any
 
 import numpy as np
 
+from ilcc_graph.app.report_writer import write_report, write_rig_report
 from ilcc_graph.config import Config, RigConfig, config_to_dict, rig_config_to_dict
 from ilcc_graph.errors import OutputError
 from ilcc_graph.io import atomic_write, write_calibration, write_yaml
 from ilcc_graph.io.output_folders import OURS, add_file, staged, write_beside
 from ilcc_graph.io.rig_results import rig_calibration_from_doc
 from ilcc_graph.report.next_pose_picture import next_pose_png
-from ilcc_graph.report.rig_report import write_rig_report
-from ilcc_graph.report.session import write_report
-from ilcc_graph.run.pipeline import solve_observed
+from ilcc_graph.run.refit_studies import refit_studies
 from ilcc_graph.run.result import Result, RunOptions
 from ilcc_graph.types import sigma_dict, to_plain
 
@@ -128,9 +128,10 @@ def write_run(
                     continue
                 sub = (s.name,) if several else ()
                 bar = progress and progress(f"report {s.name}" if several else "report")
+                study = refit_studies(s, result, truth) if studies else None
                 proposal, png = write_report(
-                    d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, studies, truth, info,
-                    clouds, full_views, later, proposal, bar, refit=solve_observed,
+                    d.joinpath("report", *sub), d.joinpath("coloured", *sub), s, result, study, truth, info,
+                    clouds, full_views, later, proposal, bar,
                 )  # fmt: skip
                 later = None
         if later is not None:

@@ -11,7 +11,7 @@
   :mod:`.sections`: the page's parts; :mod:`.html`: ``build_report(...) -> {relative path: bytes}``
   (``index.html``, ``figures/``); :mod:`.next_pose_picture`: the rig and the next board pose, above and aside.
 - A rig (several sensors): :mod:`.rig_verdict` (``rig_verdict``, ``rig_verdict_lines``), :mod:`.rig_report`
-  (``write_rig_report``: its page), :mod:`.rig_pictures` (LiDAR boards on the images, ``board_share``).
+  (``rig_report_files``: its page's files), :mod:`.rig_pictures` (LiDAR boards on the images, ``board_share``).
 
 Pure: nothing here reads or writes files; the command line writes what these return.
 """

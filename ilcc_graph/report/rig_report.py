@@ -13,9 +13,8 @@ the type checker only (``report`` does not import the run or the data sets).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from pathlib import Path
-from typing import TYPE_CHECKING
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -30,11 +29,33 @@ from .summary import _propagate, lidar_in_camera
 from .text import short_reason
 
 if TYPE_CHECKING:
-    from ..datasets.rig_source import RigSource
-    from ..run.rig_observe import RigObservation
+    from ..config import RigConfig
     from ..types import MomentResult
 
-__all__ = ["SHARE_LOW", "pose_cells", "rig_report_files", "write_rig_report"]
+
+class RigSeen(Protocol):
+    """What the rig's stages found (``run.rig_observe.RigObservation`` is one): the rig, and each
+    moment's boards and corners."""
+
+    @property
+    def rig(self) -> RigConfig: ...
+
+    @property
+    def moments(self) -> Sequence[MomentResult]: ...
+
+
+class _Moment(Protocol):
+    def has(self, sensor: str) -> bool: ...
+
+
+class RigImages(Protocol):
+    """Where the rig's images are read (``datasets.RigSource`` is one)."""
+
+    def moment(self, name: str) -> _Moment: ...
+
+    def read_image(self, moment: str, camera: str) -> np.ndarray: ...
+
+__all__ = ["SHARE_LOW", "RigImages", "RigSeen", "pose_cells", "rig_report_files"]
 
 #: below this share of a LiDAR's board points on the detected board a picture is marked: on a right
 #: calibration nearly every point lands on it (98-100 % on simulated rigs and on recorded data)
@@ -207,7 +228,7 @@ _PICTURES_NOTE = (
 
 
 def _moment_pictures(
-    m: MomentResult, cal: RigCalibration, observation: RigObservation, source: RigSource
+    m: MomentResult, cal: RigCalibration, observation: RigSeen, source: RigImages
 ) -> list[tuple[str, str, BoardPicture | None, str]]:
     """(camera, LiDAR, its picture, a note) for every camera with a pose and a file at moment ``m``
     and every LiDAR with a pose whose board was found there (the picture None when the image could
@@ -254,7 +275,7 @@ def _share_cell(share: float) -> str:
 
 
 def _pictures_html(
-    cal: RigCalibration, observation: RigObservation, source: RigSource | None
+    cal: RigCalibration, observation: RigSeen, source: RigImages | None
 ) -> tuple[list[str], dict[str, bytes], set[str]]:
     """(the section "LiDAR boards in the images", its files {relative path: WebP bytes}, the moments
     pictured); without a source a note only."""
@@ -292,28 +313,10 @@ def _pictures_html(
     return body + [table(head, rows, left=3), *groups], files, pictured
 
 
-def write_rig_report(
-    folder: Path,
-    cal: RigCalibration,
-    observation: RigObservation,
-    source: RigSource | None,
-    info: dict[str, str],
-    *,
-    need: tuple[float, float] | None = None,
-) -> Path:
-    """Write ``folder/index.html`` and its pictures ``folder/figures/*.webp`` (``rig_report_files``);
-    returns the page's path. ``folder`` is made when missing (a staging folder: written plainly)."""
-    folder = Path(folder)
-    for rel, blob in rig_report_files(cal, observation, source, info, need=need).items():
-        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
-        (folder / rel).write_bytes(blob)
-    return folder / "index.html"
-
-
 def rig_report_files(
     cal: RigCalibration,
-    observation: RigObservation,
-    source: RigSource | None,
+    observation: RigSeen,
+    source: RigImages | None,
     info: Mapping[str, str],
     *,
     need: tuple[float, float] | None = None,

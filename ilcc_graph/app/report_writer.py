@@ -1,19 +1,19 @@
-"""The report of one session of a run, written into a staging folder (``app.write.write_run``).
+"""The report of a run's session written into a staging folder (``app.write.write_run``): the one
+place where the report's pictures are drawn from the data and its files land on disk.
 
 The frames' pictures are drawn on the views the image stage kept (no picture is read again), on
 the run's worker processes (``workers.pool``) while the caller's ``meanwhile`` runs here; the
-report's studies (accuracy against frames, cross-validation) on request; the coloured clouds and
-full-resolution views on request. The run's result types are named for the type checker only and
-the studies' solver comes from the caller (``refit``: ``run.pipeline.solve_observed``), so ``report``
-does not import the run.
+coloured clouds and full-resolution views on request. The studies that solve again (accuracy
+against frames, cross-validation) are a step of the run (``run.refit_studies``), handed in as
+data. ``report`` itself only turns these into files' bytes (``build_report``,
+``rig_report_files``).
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import logging
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -22,16 +22,18 @@ import numpy as np
 from ilcc_graph import signals, workers
 from ilcc_graph.config import Config
 from ilcc_graph.io import write_ply
+from ilcc_graph.io.rig_results import RigCalibration
+from ilcc_graph.report.rig_report import RigImages, RigSeen, rig_report_files
 
 if TYPE_CHECKING:
     from ilcc_graph.board import Board
     from ilcc_graph.cameras import CameraModel
     from ilcc_graph.report.plots import DrawnValley
     from ilcc_graph.report.studies import CrossValidation, FramesCurve
-    from ilcc_graph.run.result import Result, RunOptions, SessionResult
-    from ilcc_graph.types import Calibration, FrameResult
+    from ilcc_graph.run.result import Result, SessionResult
+    from ilcc_graph.types import Calibration
 
-__all__ = ["write_report"]
+__all__ = ["write_report", "write_rig_report"]
 
 
 def _draw_frame(source, ref, config: Config, T: np.ndarray, result, options, ply: Path | None):  # noqa: ANN001, ANN202
@@ -100,7 +102,7 @@ def write_report(
     coloured_dir: Path,
     session: SessionResult,
     result: Result,
-    studies: bool,
+    studies: tuple[FramesCurve, CrossValidation] | None,
     truth: np.ndarray | None,
     info: dict,
     clouds: bool = False,
@@ -108,24 +110,19 @@ def write_report(
     meanwhile: Callable[[], object] | None = None,
     next_pose: object | None = None,
     progress: Callable[[int, int], None] | None = None,
-    *,
-    refit: Callable[[Sequence[FrameResult], Config, RunOptions], Calibration],
 ) -> tuple[object, bytes | None]:
     """``out/index.html`` with its figures for one session; with ``clouds`` ``coloured_dir/<frame>.ply``.
-        ``meanwhile()`` runs here while the pictures are drawn on other processes and gives the next board
-        pose (``next_pose.Proposal`` or None; else ``next_pose`` is it), drawn in the report. Returns
-        (that proposal, its picture ``next_pose.png`` or None). ``progress(done, total)``: after each
-        frame's pictures, and once more when the page is built. ``refit(frames, config, options)``: a
-    subset of the frames solved again (``run.pipeline.solve_observed``), for the studies."""
+    ``studies``: the run's refit studies of this session (``run.refit_studies``) or None.
+    ``meanwhile()`` runs here while the pictures are drawn on other processes and gives the next board
+    pose (``next_pose.Proposal`` or None; else ``next_pose`` is it), drawn in the report. Returns
+    (that proposal, its picture ``next_pose.png`` or None). ``progress(done, total)``: after each
+    frame's pictures, and once more when the page is built."""
     from ilcc_graph.report import FigureOptions, build_report
     from ilcc_graph.report.next_pose_picture import next_pose_png
 
     obs, cal = session.observation, session.calibration
     config, source = obs.config, obs.source
-    curve = cv = None
-    if studies and result.covariance is not None:  # the studies: batch refits of subsets
-        curve, cv = _studies(obs.frames, config, cal, dataclasses.replace(result.options, mode="graph"),
-                             truth, refit)  # fmt: skip
+    curve, cv = studies if studies is not None else (None, None)
     damaged = {f.name for f in cal.frames if f.damaged}  # their files cannot be read
     refs = [
         r for r in source.frames() if r.scan is not None and r.image is not None and r.name not in damaged
@@ -174,28 +171,19 @@ def write_report(
     return got, png
 
 
-def _studies(
-    frames: Sequence[FrameResult],
-    config: Config,
-    cal: Calibration,
-    options: RunOptions,
-    truth: np.ndarray | None,
-    refit: Callable[[Sequence[FrameResult], Config, RunOptions], Calibration],
-) -> tuple[FramesCurve, CrossValidation]:
-    """The report's studies: each parameter against the number of frames, and a 5-fold
-    cross-validation, the subsets solved again with ``refit`` (their warnings kept quiet)."""
-    from ilcc_graph.report import cross_validate, frames_vs_accuracy
-
-    def solve(subset: Sequence[FrameResult]) -> tuple[np.ndarray, np.ndarray]:
-        c = refit(subset, config, options)
-        return c.T_cam_lidar, c.covariance
-
-    quiet = logging.getLogger("ilcc_graph")
-    level = quiet.level
-    quiet.setLevel(logging.ERROR)  # subsets of few frames warn by design
-    try:
-        curve = frames_vs_accuracy(frames, solve, config.camera, config.board, truth)
-        cv = cross_validate(frames, solve, config.camera, config.board, folds=5, T_all=cal.T_cam_lidar)
-    finally:
-        quiet.setLevel(level)
-    return curve, cv
+def write_rig_report(
+    folder: Path,
+    cal: RigCalibration,
+    observation: RigSeen,
+    source: RigImages | None,
+    info: dict[str, str],
+    *,
+    need: tuple[float, float] | None = None,
+) -> Path:
+    """Write ``folder/index.html`` and its pictures ``folder/figures/*.webp`` (``rig_report_files``);
+    returns the page's path. ``folder`` is made when missing (a staging folder: written plainly)."""
+    folder = Path(folder)
+    for rel, blob in rig_report_files(cal, observation, source, info, need=need).items():
+        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+        (folder / rel).write_bytes(blob)
+    return folder / "index.html"
