@@ -181,7 +181,7 @@ def _agree(data: Path) -> None:
     judged = [v for v in result.verdicts if v.found and not v.repeat_of and v.sigmas is not None]
     assert {v.name for v in judged if v.accepted} <= used
     assert {v.name for v in judged if not v.accepted} <= {v.name for v in result.verdicts} - used
-    np.testing.assert_allclose(sigmas_deg_mm(final.covariance), sigmas_deg_mm(cov), rtol=0.1)
+    np.testing.assert_allclose(sigmas_deg_mm(final.covariance), sigmas_deg_mm(cov), rtol=1e-9)
 
 
 def test_check_accepts_what_calibrate_uses_and_ends_at_its_sigmas(sim: Path) -> None:

@@ -89,7 +89,6 @@ def bag_options(args: argparse.Namespace) -> dict[str, Any]:
 def check_options(args: argparse.Namespace) -> CheckOptions:
     """``check``'s options: the target, when to stop, the folder followed, the sensor models tried
     (``auto``: those ``estimation.selection`` chooses among), the stages on one process."""
-    from ilcc_graph.estimation.selection import AUTO
     from ilcc_graph.run.live import CheckOptions
     from ilcc_graph.run.stages import StageOptions
 
@@ -100,5 +99,5 @@ def check_options(args: argparse.Namespace) -> CheckOptions:
         watch=args.watch,
         stop_at_target=target is not None,
         stages=StageOptions(jobs=1),
-        models=AUTO if args.sensor_model == "auto" else (args.sensor_model,),
+        sensor_model=args.sensor_model,
     )

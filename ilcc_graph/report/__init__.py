@@ -9,9 +9,11 @@
 - :mod:`.plots`: charts as PNG bytes.
 - :mod:`.figures`: a frame's pictures (on the image stage's kept views, compressed);
   :mod:`.sections`: the page's parts; :mod:`.html`: ``build_report(...) -> {relative path: bytes}``
-  (``index.html``, ``figures/``); :mod:`.next_pose_picture`: the rig and the next board pose, above and aside.
+  (``index.html``, ``figures/``); :mod:`.next_pose_picture`: the rig and the next board pose,
+  above and aside.
 - A rig (several sensors): :mod:`.rig_verdict` (``rig_verdict``, ``rig_verdict_lines``), :mod:`.rig_report`
-  (``rig_report_files``: its page's files), :mod:`.rig_pictures` (LiDAR boards on the images, ``board_share``).
+  (``rig_report_files``: its page's files), :mod:`.rig_pictures` (LiDAR boards on the images,
+  ``board_share``).
 
 Pure: nothing here reads or writes files; the command line writes what these return.
 """

@@ -30,22 +30,19 @@ import numpy as np
 
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
-from ilcc_graph.errors import BoardColourMismatch, CalibrationError, FrameError
+from ilcc_graph.errors import BoardColourMismatch, CalibrationError, DamagedFile, FrameError
 from ilcc_graph.estimation import NoiseOptions
 from ilcc_graph.estimation.batch import BatchSolution
-from ilcc_graph.estimation.batch import solve as solve_batch
 from ilcc_graph.estimation.geometry import board_geometry
 from ilcc_graph.estimation.incremental import FrameUpdate
-from ilcc_graph.estimation.selection import AUTO
 from ilcc_graph.run.colour import colour_warning, other_colour
-from ilcc_graph.run.finish import from_batch
 from ilcc_graph.run.observe import Observation
-from ilcc_graph.run.prepare import graph_frame, prepare
-from ilcc_graph.run.range_refit import refit_pass
-from ilcc_graph.run.second_look import second_pass
+from ilcc_graph.run.pipeline import solve_observations
+from ilcc_graph.run.prepare import graph_frame
+from ilcc_graph.run.result import SENSOR_MODELS, Result, RunOptions
 from ilcc_graph.run.source import open_run
 from ilcc_graph.run.stages import StageOptions, observe_image, observe_lidar
-from ilcc_graph.types import Calibration, FrameResult, GraphFrame, sigmas_deg_mm
+from ilcc_graph.types import FrameResult, GraphFrame, sigmas_deg_mm
 
 log = logging.getLogger(__name__)
 
@@ -95,8 +92,8 @@ class CheckOptions:
     target_sigma: (deg, mm) every sigma must reach; None: no target. until: stop after this many
     frames; stop_at_target: stop when the target is reached. watch: follow a folder being filled
     (poll every ``poll_s``; a file is complete once unchanged for ``settle_s``); idle_timeout_s: in
-    watch mode, stop after this long without a new frame (None: wait for Ctrl-C). models: the
-    sensor models the solves choose among (``calibrate``'s default: ``selection.AUTO``).
+    watch mode, stop after this long without a new frame (None: wait for Ctrl-C). sensor_model:
+    ``calibrate``'s ``--sensor-model`` (``RunOptions.sensor_model``: ``auto`` chooses).
     """
 
     target_sigma: tuple[float, float] | None = None
@@ -108,7 +105,15 @@ class CheckOptions:
     idle_timeout_s: float | None = None
     stages: StageOptions = StageOptions()
     noise: NoiseOptions = NoiseOptions()
-    models: tuple[str, ...] = AUTO
+    sensor_model: str = "auto"
+
+    def __post_init__(self) -> None:
+        if self.sensor_model not in SENSOR_MODELS:
+            raise ValueError(f"CheckOptions.sensor_model must be one of {SENSOR_MODELS}")
+
+    def run_options(self) -> RunOptions:
+        """The options ``calibrate`` would run with: its solve is the check's."""
+        return RunOptions(noise=self.noise, stages=self.stages, sensor_model=self.sensor_model)
 
 
 @dataclass
@@ -128,29 +133,27 @@ class CheckResult:
 
 class LiveCheck:
     """One frame at a time: both stages, the repeat test, the frames so far solved as ``calibrate``
-    solves them."""
+    solves them (``pipeline.solve_observations``: the same strategy, gate and model choice; its boards
+    on corrected ranges and its second look once, at ``finish``)."""
 
     def __init__(
         self,
         config: Config,
         target_sigma: tuple[float, float] | None = None,
-        stages: StageOptions = StageOptions(),
-        noise: NoiseOptions = NoiseOptions(),
-        models: tuple[str, ...] = AUTO,
+        options: RunOptions = RunOptions(),
     ) -> None:
         self.config = config
         self.target_sigma = target_sigma
-        self.stages = stages
-        self.noise = noise
-        self.models = models
+        self.options = options
+        self.stages = options.stages
         self._lidar_resolved = False
         self._colour_checked = not config.board.half_turn_symmetric
         self._distinct: list[GraphFrame] = []
         self._found: list[FrameResult] = []  # the distinct frames as the stages gave them
+        self._observed: list[FrameResult] = []  # every frame as the stages gave it, in arrival order
         self._last: FrameUpdate | None = None
+        self._result: Result | None = None  # the last solve's
         self._used: list[GraphFrame] = []  # the frames the last solve used (corner order chosen)
-        self._image_only: list[FrameResult] = []  # image corners but no LiDAR board: a second look
-        self._order: dict[str, int] = {}  # arrival order of every frame
         self._source: FrameSource | None = None
         self.second_look: list[str] = []  # frames whose board the second look found (``finish``)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="image-stage")
@@ -186,6 +189,12 @@ class LiveCheck:
         except FrameError as err:
             return err
 
+    def _lidar(self, source: FrameSource, ref: FrameRef) -> object:
+        try:
+            return observe_lidar(source, ref, self.config, self.stages.lidar)
+        except FrameError as err:
+            return err
+
     def add(self, source: FrameSource, ref: FrameRef, arrived: float | None = None) -> Verdict:
         """Both stages on ``ref``, then the repeat test and the solve of the frames so far;
         ``arrived``: the frame's arrival (``time.time()``) for the latency."""
@@ -195,36 +204,26 @@ class LiveCheck:
             self._lidar_resolved = True
         image = self._pool.submit(self._image, source, ref)  # decoding and detection release the GIL
         stated = self.config.board
-        try:
-            board = observe_lidar(source, ref, self.config, self.stages.lidar)
-        except FrameError as err:
-            board = err
+        board = self._lidar(source, ref)
         corners = image.result()
         if self.config.board != stated:  # the image turned the print's colour: the pattern is another
-            try:
-                board = observe_lidar(source, ref, self.config, self.stages.lidar)
-            except FrameError as err:
-                board = err
+            board = self._lidar(source, ref)
         if not isinstance(corners, FrameError):
             self._colour_checked = True
-        lidar_why = str(board) if isinstance(board, FrameError) else None
-        image_why = str(corners) if isinstance(corners, FrameError) else None
         self._source = source
-        self._order.setdefault(ref.name, len(self._order))
-        if lidar_why and not image_why:
-            self._image_only.append(FrameResult(ref.name, False, f"LiDAR: {lidar_why}", None, corners))  # type: ignore[arg-type]
+        fr = _frame_result(ref.name, board, corners)
+        self._observed.append(fr)
         last = self._last
         v = Verdict(
             ref.name,
-            lidar_why,
-            image_why,
+            str(board) if isinstance(board, FrameError) else None,
+            str(corners) if isinstance(corners, FrameError) else None,
             n_frames=0 if last is None else last.n_frames,
             n_distinct=len(self._distinct),
             sigmas=self._sigmas(last),
             model=None if last is None or last.solution is None else _model(last.solution),
         )
         if v.found:
-            fr = FrameResult(ref.name, True, None, board, corners)  # type: ignore[arg-type]
             v = self._offer(v, fr)
         return self._done(v, t0, arrived)
 
@@ -243,7 +242,7 @@ class LiveCheck:
         self._distinct.append(gf)
         self._found.append(fr)
         n = len(self._distinct)
-        got = self._solve()
+        got = self._solve(self._found, again=False)
         if isinstance(got, str):
             wait = n < 3
             note = f"{3 - n} more pose{'s' if 3 - n > 1 else ''} to calibrate" if wait else got
@@ -269,80 +268,60 @@ class LiveCheck:
             reached=update.reached_target,
         )
 
-    def _solve(self) -> tuple[FrameUpdate, dict[str, str]] | str:
-        """The frames so far solved as ``calibrate`` solves them: the update and why each frame not
+    def _solve(self, frames: list[FrameResult], again: bool) -> tuple[FrameUpdate, dict[str, str]] | str:
+        """``frames`` solved as ``calibrate`` solves them (``pipeline.solve_observations``; ``again``:
+        with its boards on corrected ranges and its second look): the update and why each frame not
         used was left out; or why they do not calibrate."""
         t0 = time.perf_counter()
+        options = self.options
+        if not again:
+            options = dataclasses.replace(options, second_pass=False, range_refit=False)
+        obs = Observation(self._source, self.config, list(frames), "check")  # type: ignore[arg-type]
         try:
-            prep = prepare(self._found, self.config)
-            choice = "auto" if self.models == AUTO else "stated"
-            sol = solve_batch(prep.frames, self.config.camera, prep.T_init, self.noise, models=self.models,
-                              intrinsics_choice=choice)  # fmt: skip
+            result = solve_observations([obs], dataclasses.replace(options, mode="graph"))
         except CalibrationError as err:
             return str(err)
-        why = {n: r.reason or "" for n, r in prep.results.items() if not r.used}
-        why.update(dict(sol.dropped))
-        sig = np.sqrt(np.diag(sol.covariance))
+        cal, sol = result.calibration, result.batch
+        assert sol is not None  # the batch strategy gives its solution
         reached = False
         if self.target_sigma is not None:
-            s = sigmas_deg_mm(sol.covariance)
+            s = sigmas_deg_mm(cal.covariance)
             reached = bool(s[:3].max() <= self.target_sigma[0] and s[3:].max() <= self.target_sigma[1])
-        n = len(sol.per_frame)
-        update = FrameUpdate(sol.T_cam_lidar, sig, reached, sol.covariance, "", True, None, n,
-                             time.perf_counter() - t0, sol)  # fmt: skip
-        self._last = update
-        self._used = [f for f in prep.frames if f.name in sol.per_frame]
-        return update, why
-
-    def _calibration(self) -> tuple[Calibration, list[FrameResult]]:
-        """The last solve as a ``Calibration`` (every frame with its fate, the sensors' own errors)
-        and the frames in input order."""
-        sol = self._last.solution if self._last is not None else None
-        assert sol is not None
-        frames = sorted([*self._found, *self._image_only], key=lambda f: self._order.get(f.name, 0))
-        fates = tuple(dataclasses.replace(f, used=f.name in sol.per_frame) for f in frames)
-        sensors = from_batch(sol, self.config).sensors
-        return Calibration(sol.T_cam_lidar, sol.covariance, fates, sensors=sensors), frames
+        sig = np.sqrt(np.diag(cal.covariance))
+        update = FrameUpdate(cal.T_cam_lidar, sig, reached, cal.covariance, "", True, None,
+                             len(sol.per_frame), time.perf_counter() - t0, sol)  # fmt: skip
+        self._last, self._used, self._result = update, list(result.used_frames), result
+        return update, {f.name: f.reason or "" for f in cal.frames if not f.used}
 
     def finish(self) -> FrameUpdate | None:
-        """The solve of every distinct frame (``calibrate``'s noise policy), after ``calibrate``'s
-        boards on corrected ranges (``range_refit``: when the LiDAR's estimated range errors are
-        large, every board fitted again on its ranges corrected by them) and its second look
-        (``second_look.second_pass``: the boards the LiDAR stage missed, or saw far from where the
-        image and the extrinsic put them, searched there; those found are solved with the rest);
-        None when they cannot calibrate (fewer than three distinct poses, or the solver refuses)."""
+        """``calibrate``'s answer on every frame seen (``pipeline.solve_observations`` on them in
+        arrival order: its boards on corrected ranges and its second look included); None when they
+        cannot calibrate (fewer than three distinct poses, or the solver refuses)."""
         if len(self._distinct) < 3 or self._last is None or self._source is None:
             return None
-        cal, frames = self._calibration()
-        refit = refit_pass(Observation(self._source, self.config, frames), cal, self.stages)
-        if refit is not None:  # calibrate's boards on corrected ranges (run.range_refit)
-            boards = {f.name: f.board for f in refit.frames}
-            first = self._found
-            self._found = [dataclasses.replace(f, board=boards.get(f.name) or f.board) for f in first]
-            if isinstance(self._solve(), str):
-                log.warning("the boards fitted on corrected ranges do not calibrate: their first fits kept")
-                self._found, refit = first, None
-            cal, frames = self._calibration()
-        obs = Observation(self._source, self.config, frames)
-        again = second_pass(obs, cal, self.stages, refit=refit is not None)
-        if again is None:
-            return self._last
-        found = {f.name: f for f in again.frames if f.board is not None}
-        for f in self._image_only:
-            g = found.get(f.name)
-            if g is None:
-                continue
-            gf = graph_frame(g, self.config)
-            if gf.name in board_geometry([*self._distinct, gf]).repeats:
-                continue
-            self._distinct.append(gf)
-            self._found.append(dataclasses.replace(g, used=True, reason=None))
-            self.second_look.append(f.name)
-        self._found = [found.get(f.name, f) if f.name not in self.second_look else f for f in self._found]
-        self._found.sort(key=lambda f: self._order.get(f.name, 0))
-        if isinstance(self._solve(), str):
-            log.warning("the frames with the second look's boards do not calibrate")
+        got = self._solve(self._observed, again=True)
+        if isinstance(got, str):
+            log.warning("the frames seen do not calibrate together (%s)", got)
+            return None
+        seen = {f.name for f in self._observed if f.board is not None}
+        assert self._result is not None
+        final = self._result.sessions[0].observation.frames
+        self.second_look = [f.name for f in final if f.board is not None and f.name not in seen]
         return self._last
+
+
+def _frame_result(name: str, board: object, corners: object) -> FrameResult:
+    """A frame's stage results as the observation pass records them (``stages.observe_frame``)."""
+    stages = (("LiDAR", board), ("image", corners))
+    reasons = [f"{what}: {r}" for what, r in stages if isinstance(r, FrameError)]
+    return FrameResult(
+        name=name,
+        used=not reasons,
+        reason="; ".join(reasons) or None,
+        board=None if isinstance(board, FrameError) else board,  # type: ignore[arg-type]
+        corners=None if isinstance(corners, FrameError) else corners,  # type: ignore[arg-type]
+        damaged=any(isinstance(r, DamagedFile) for r in (board, corners)),
+    )
 
 
 def _model(sol: BatchSolution) -> str | None:
@@ -405,9 +384,7 @@ def run_check(
                 if on_idle is not None:
                     on_idle(0.0, None)
                 time.sleep(options.poll_s)
-        checker = LiveCheck(
-            source.config(), options.target_sigma, options.stages, options.noise, options.models
-        )
+        checker = LiveCheck(source.config(), options.target_sigma, options.run_options())
         for ref, arrived in _frames(source, options, stop, lambda w: on_idle and on_idle(w, checker)):
             v = checker.add(source, ref, arrived)
             verdicts.append(v)

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ilcc_graph.estimation import NoiseOptions
+from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.next_board import SolvedGlobals
@@ -22,7 +23,7 @@ from ilcc_graph.estimation.selection import AUTO, MODELS
 from ilcc_graph.estimation.sessions import JointOptions
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.stages import StageOptions
-from ilcc_graph.types import Calibration, Estimate
+from ilcc_graph.types import Calibration, Estimate, GraphFrame
 
 __all__ = ["SENSOR_MODELS", "Result", "RunOptions", "SessionResult"]
 
@@ -128,7 +129,9 @@ class Result:
     covariance (each session's; a rig: each sensor's, named ``<sensor>`` in the reference's frame).
     per_session: each session's own calibration is written too (``sessions/<name>/``).
     solved: the batch solve's globals a new board would touch (``estimation.next_board``; the next
-    pose's promise), None where the strategy gives none.
+    pose's promise), None where the strategy gives none. batch: the batch strategy's solution (its
+    model choice, noise levels, per-frame answers; None for other strategies); used_frames: the
+    frames that solve used, in the corner order it chose (the next pose's boards so far).
     """
 
     mode: str
@@ -141,3 +144,5 @@ class Result:
     per_session: bool = False
     timings: dict[str, float] = field(default_factory=dict)
     solved: SolvedGlobals | None = None
+    batch: BatchSolution | None = None
+    used_frames: tuple[GraphFrame, ...] = ()

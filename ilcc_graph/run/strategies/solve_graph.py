@@ -28,9 +28,9 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
         effects=True, models=options.models, intrinsics_choice=options.intrinsics_choice,
     )  # fmt: skip
     cal = finish(prep, obs.frames, config, "graph", from_batch(sol, config))
-    return Result(
-        "graph", cal, (SessionResult(obs.name, obs, cal),), options, cal.covariance, solved=sol.solved
-    )
+    used = tuple(f for f in prep.frames if f.name in sol.per_frame)
+    return Result("graph", cal, (SessionResult(obs.name, obs, cal),), options, cal.covariance,
+                  solved=sol.solved, batch=sol, used_frames=used)  # fmt: skip
 
 
 register(Strategy("graph", solve, joint="sessions"))
