@@ -528,7 +528,7 @@ def _plane_note(cal: Calibration, halves: Sequence[Calibration]) -> str:
 def _held_out(halves: Sequence[Calibration], parts: Sequence[Observation]) -> str:
     """The paper's intensity metric (mrad, mean over frames) of each half's extrinsic on the other
     half's frames: a judge without ground truth that does not use our covariances."""
-    from ilcc_graph.report import eval_frames, evaluate
+    from ilcc_graph.evaluation import eval_frames, evaluate
 
     out = []
     for cal, other in ((halves[0], parts[1]), (halves[1], parts[0])):

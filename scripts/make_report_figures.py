@@ -28,16 +28,10 @@ sys.path.insert(0, str(ROOT))
 
 from ilcc_graph.cameras import camera_kinds  # noqa: E402
 from ilcc_graph.config import load_config  # noqa: E402
+from ilcc_graph.evaluation import cross_validate, eval_frames, evaluate, frames_vs_accuracy  # noqa: E402
+from ilcc_graph.evaluation.metric import transform_points  # noqa: E402
 from ilcc_graph.io import atomic_write, list_frames, read_ground_truth, read_image, read_scan, write_ply  # noqa: E402
-from ilcc_graph.report import (  # noqa: E402
-    FigureOptions,
-    build_report,
-    cross_validate,
-    eval_frames,
-    evaluate,
-    frames_vs_accuracy,
-)
-from ilcc_graph.report.metric import transform_points  # noqa: E402
+from ilcc_graph.report import FigureOptions, build_report  # noqa: E402
 from ilcc_graph.simulate import simulate_dataset, standard_spec  # noqa: E402
 from ilcc_graph.types import FrameResult, ImageCorners  # noqa: E402
 

@@ -35,7 +35,7 @@ LAYERS: tuple[tuple[tuple[str, ...], bool], ...] = (
     # evaluation, `check`), the exports and the hand-off into a user's GTSAM graph
     (("run", "exports", "handoff", "exports_rig", "handoff_rig"), False),
     (("report", "next_pose"), True),  # what the run shows and advises; the run hands them its results
-    (("estimation",), True),  # the one estimation core
+    (("estimation", "evaluation"), True),  # the one estimation core; how right an answer is (no solve)
     (("datasets", "lidar", "image", "init", "simulate"), True),  # frame sources and the stages
     (("config",), True),  # the one reader of config.yaml
     (("cameras", "lidars", "io", "workers"), True),  # sensor models, files, worker processes
@@ -66,12 +66,13 @@ ARROWS: dict[str, set[str]] = {
     "simulate": {"board", "cameras", "lidars", "io", "config"},
     "estimation": {"board", "cameras", "init"},
     "next_pose": {"estimation", "lidar", "lidars", "cameras", "board", "config"},
-    "report": {"lidar", "image", "estimation", "board", "cameras", "config", "io"},
+    "evaluation": {"board", "cameras", "image"},
+    "report": {"lidar", "image", "estimation", "evaluation", "board", "cameras", "config", "io"},
 }
 
 # The stage packages do no file I/O (docs/architecture.md: only datasets/, io/ and app/ touch the
 # disk); simulate/ writes its data sets through io/ and is not held to this.
-PURE = {"lidar", "image", "init", "estimation", "next_pose"}
+PURE = {"lidar", "image", "init", "estimation", "evaluation", "next_pose"}
 FILE_UNITS = {"io", "datasets"}
 # factors/ uses gtsam, numpy and the standard library; typing_extensions stands in for the typing
 # names of Python 3.11 on 3.10 (a dependency only there: pyproject.toml)

@@ -12,17 +12,9 @@ from scipy.spatial.transform import Rotation
 from test_report_metric import BOARD, R_OPENCV_LIDAR, board_pose_facing, pose, synthetic_frame
 
 from ilcc_graph.cameras import Pinhole
-from ilcc_graph.report import (
-    OCCLUDED_RGB,
-    build_report,
-    colour_points,
-    cross_validate,
-    draw_corners,
-    frames_vs_accuracy,
-    pose_difference,
-    visible_points,
-)
-from ilcc_graph.report.metric import transform_points
+from ilcc_graph.evaluation import cross_validate, frames_vs_accuracy, pose_difference
+from ilcc_graph.evaluation.metric import transform_points
+from ilcc_graph.report import OCCLUDED_RGB, build_report, colour_points, draw_corners, visible_points
 from ilcc_graph.types import BoardFit, Calibration, FrameResult, ImageCorners, Scan
 
 CAM = Pinhole(320, 240, np.array([[220.0, 0, 160], [0, 220.0, 120], [0, 0, 1]]), np.zeros(5))
@@ -242,8 +234,8 @@ def test_report_of_a_calibration_file_rebuilds_the_board_points_from_the_scans(t
 
 
 def test_evaluate_calibration_judges_another_extrinsic_on_the_same_frames(tmp_path) -> None:
+    from ilcc_graph.evaluation import evaluate_calibration, evaluation_rows, evaluation_to_dict
     from ilcc_graph.io import read_calibration, write_calibration
-    from ilcc_graph.report import evaluate_calibration, evaluation_rows, evaluation_to_dict
 
     rng = np.random.default_rng(16)
     frames = frame_results(rng)[:3]
@@ -309,8 +301,8 @@ def test_a_frame_with_shifted_corners_is_called_out() -> None:
 
 
 def test_the_valley_bottoms_out_at_the_right_extrinsic() -> None:
-    from ilcc_graph.report import eval_frames
-    from ilcc_graph.report.studies import valley
+    from ilcc_graph.evaluation import eval_frames
+    from ilcc_graph.evaluation.studies import valley
 
     rng = np.random.default_rng(18)
     efs = eval_frames(frame_results(rng)[:3])

@@ -8,8 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import R_FLU_OPENCV, Equirectangular, Pinhole
-from ilcc_graph.report.frame_errors import evaluate
-from ilcc_graph.report.metric import (
+from ilcc_graph.evaluation.frame_errors import evaluate
+from ilcc_graph.evaluation.metric import (
     EvalFrame,
     cell_coordinates,
     gray_zone,
@@ -188,7 +188,7 @@ def test_half_turned_image_corners_still_compare_fairly() -> None:
 
 
 def test_expected_corner_error_matches_a_monte_carlo_of_the_stated_uncertainties() -> None:
-    from ilcc_graph.report.frame_errors import corner_errors, expected_corner_px
+    from ilcc_graph.evaluation.frame_errors import corner_errors, expected_corner_px
     from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
 
     rng = np.random.default_rng(8)

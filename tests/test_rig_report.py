@@ -20,8 +20,8 @@ from scipy.spatial.transform import Rotation
 from ilcc_graph.app.report_writer import write_rig_report
 from ilcc_graph.board import Board
 from ilcc_graph.datasets.rig_source import RigSource
+from ilcc_graph.evaluation.metric import transform_points
 from ilcc_graph.io.rig_results import RigCalibration
-from ilcc_graph.report.metric import transform_points
 from ilcc_graph.report.rig_pictures import board_share, share_of_points
 from ilcc_graph.report.rig_report import pose_cells
 from ilcc_graph.report.rig_verdict import (

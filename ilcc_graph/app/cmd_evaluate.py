@@ -31,9 +31,9 @@ def run(args: argparse.Namespace) -> int:
     """The paper's metric and corner errors of a calibration on a data set's frames."""
     from ilcc_graph.app.write import write_evaluation
     from ilcc_graph.datasets import open_source
+    from ilcc_graph.evaluation import evaluation_rows
     from ilcc_graph.io.rig_results import RigCalibration
     from ilcc_graph.io.stored import read_stored
-    from ilcc_graph.report import evaluation_rows
     from ilcc_graph.report.text import evaluation_text
     from ilcc_graph.run.evaluate import evaluate_on
 

@@ -28,8 +28,8 @@ from ilcc_graph.report.rig_report import RigImages, RigSeen, rig_report_files
 if TYPE_CHECKING:
     from ilcc_graph.board import Board
     from ilcc_graph.cameras import CameraModel
+    from ilcc_graph.evaluation.studies import CrossValidation, FramesCurve
     from ilcc_graph.report.plots import DrawnValley
-    from ilcc_graph.report.studies import CrossValidation, FramesCurve
     from ilcc_graph.run.result import Result, SessionResult
     from ilcc_graph.types import Calibration
 
@@ -55,9 +55,9 @@ def _valley(cal: Calibration, camera: CameraModel, board: Board) -> DrawnValley 
     """The report's valley study on the used frames (as ``report.build_report`` makes it) with its
     chart drawn (a worker process runs it while the main process works out the next pose), or
     None when a used frame lacks its board points (the report then rebuilds them from the scans)."""
-    from ilcc_graph.report import eval_frame
+    from ilcc_graph.evaluation import eval_frame
+    from ilcc_graph.evaluation.studies import valley
     from ilcc_graph.report.plots import DrawnValley, plot_valley
-    from ilcc_graph.report.studies import valley
 
     efs = [eval_frame(f) for f in cal.frames if f.used]
     if not efs or any(e is None or not len(e.points_lidar) for e in efs):

@@ -73,8 +73,8 @@ def resolved_config(config: Config | RigConfig, options: RunOptions) -> dict[str
 def write_evaluation(out: Path, evaluation: Any, flag: str = "--out", command: str = "") -> Path:
     """``out/evaluation.yaml`` (``report.evaluation_to_dict``) in a new or empty folder, or added to an
     earlier result of ours (``io.output_folders.add_file``); returns its path."""
+    from ilcc_graph.evaluation import evaluation_to_dict
     from ilcc_graph.io import dump_yaml
-    from ilcc_graph.report import evaluation_to_dict
 
     text = dump_yaml(evaluation_to_dict(evaluation))
     return add_file(Path(out), "evaluation.yaml", text, flag, command)

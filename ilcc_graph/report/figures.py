@@ -16,10 +16,10 @@ import numpy as np
 
 from ..board import Board
 from ..cameras import CameraModel
+from ..evaluation.frame_errors import eval_frame_with_scan
+from ..evaluation.metric import EvalFrame, metric_points, transform_points
 from ..image.previews import TIGHT, WHOLE_WIDTH, WIDE, Crop, CropSpec, downscale, spec_crop, view_crop
 from ..types import FrameResult, Scan
-from .frame_errors import eval_frame_with_scan
-from .metric import EvalFrame, metric_points, transform_points
 from .overlays import (
     ColouredPoints,
     Visibility,

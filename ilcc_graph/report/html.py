@@ -15,11 +15,12 @@ import numpy as np
 
 from ..board import Board
 from ..cameras import CameraModel
+from ..evaluation.frame_errors import eval_frame, evaluate, expected_corner_px
+from ..evaluation.metric import EvalFrame, Evaluation
+from ..evaluation.studies import CrossValidation, FramesCurve, Valley, valley
 from ..image.previews import WHOLE_WIDTH
 from ..types import Calibration, FrameResult, Scan
 from .figures import FIGURES_DIR, FigureOptions, FrameFigures, frame_figures
-from .frame_errors import eval_frame, evaluate, expected_corner_px
-from .metric import EvalFrame, Evaluation
 from .plots import (
     DrawnValley,
     plot_cross_validation,
@@ -42,7 +43,6 @@ from .sections import (
     transform_section,
 )
 from .sensors import sensors_html, square_size_text
-from .studies import CrossValidation, FramesCurve, Valley, valley
 
 __all__ = ["FIGURES_DIR", "FigureOptions", "FrameFigures", "build_report", "frame_figures"]
 

@@ -15,9 +15,9 @@ import numpy as np
 
 from ..board import Board
 from ..cameras import CameraModel
+from ..evaluation.metric import MetricPoints, transform_points
 from ..image.previews import Crop, crop_around, downscale  # re-exported: the report's windows
 from ..types import Scan
-from .metric import MetricPoints, transform_points
 
 __all__ = [
     "crop_box",

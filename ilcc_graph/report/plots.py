@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .metric import Evaluation
-from .studies import CrossValidation, FramesCurve, Valley
+from ..evaluation.metric import Evaluation
+from ..evaluation.studies import CrossValidation, FramesCurve, Valley
 
 __all__ = [
     "plot_per_frame",

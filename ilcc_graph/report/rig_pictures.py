@@ -21,9 +21,9 @@ import numpy as np
 
 from ..board import Board
 from ..cameras import CameraModel
+from ..evaluation.metric import transform_points
 from ..image.previews import CropSpec, circular_mean_u, spec_crop
 from ..types import BoardFit, ImageCorners
-from .metric import transform_points
 from .overlays import colour_map, colour_range, draw_points, draw_reprojection, with_colour_bar
 
 __all__ = [

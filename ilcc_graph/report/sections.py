@@ -9,9 +9,9 @@ import math
 import numpy as np
 
 from ..cameras import make_camera
+from ..evaluation.metric import Evaluation, FrameEvaluation
+from ..evaluation.studies import pose_difference
 from ..types import Calibration
-from .metric import Evaluation, FrameEvaluation
-from .studies import pose_difference
 from .summary import camera_in_lidar, lidar_in_camera
 from .text import lidar_frame_note
 

@@ -1,7 +1,7 @@
 """A calibration judged on a data set's frames (the ``evaluate`` command): observe, then the metric.
 
 The frames may be ones the calibration did not use (hold-out frames of another recording); the
-paper's intensity re-projection error and the corner errors come from ``report.metric``.
+paper's intensity re-projection error and the corner errors come from ``evaluation.metric``.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ilcc_graph.datasets import FrameSource
-from ilcc_graph.report import Evaluation, eval_frames, evaluate
+from ilcc_graph.evaluation import Evaluation, eval_frames, evaluate
 from ilcc_graph.run.observe import Progress, observe
 from ilcc_graph.run.stages import StageOptions
 

@@ -1,5 +1,5 @@
 """The studies that solve again, as a step of the run: each parameter against the number of frames
-and a 5-fold cross-validation of one session (``report.studies`` computes them from a solver; the
+and a 5-fold cross-validation of one session (``evaluation.studies`` computes them from a solver; the
 solver here is the run's own, ``pipeline.solve_observed``, in batch mode). The report draws what this
 returns; it never solves.
 """
@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ilcc_graph.report.studies import CrossValidation, FramesCurve, cross_validate, frames_vs_accuracy
+from ilcc_graph.evaluation.studies import CrossValidation, FramesCurve, cross_validate, frames_vs_accuracy
 from ilcc_graph.run.pipeline import solve_observed
 from ilcc_graph.run.result import Result, SessionResult
 from ilcc_graph.types import FrameResult
