@@ -3,6 +3,9 @@
 - ``add_bag_arguments``: the ROS bag options (``BAG_OPTIONS``, handed to ``datasets.open_source``);
 - ``add_frames_arguments``: ``--jobs`` and ``--strict`` (how the per-frame stages run);
 - ``add_sensor_model_argument``: ``--sensor-model`` (``estimation.selection``);
+
+The choices of ``--sensor-model`` and ``--refine`` are their registries' (``run.result.SENSOR_MODELS``,
+``run.strategies.refinements``), read when first needed (``console.Choices``).
 - ``add_solve_arguments``: the output folder, the solve and the report (``calibrate``, ``demo``).
 
 Pure argparse; the value types are ``console``'s, the meaning of the flags as options ``flags``'.
@@ -13,7 +16,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from ilcc_graph.app.console import COUNT, NON_NEGATIVE, POSITIVE
+from ilcc_graph.app.console import COUNT, NON_NEGATIVE, POSITIVE, Choices
 
 __all__ = [
     "BAG_OPTIONS",
@@ -61,10 +64,21 @@ def add_frames_arguments(sp: argparse.ArgumentParser) -> None:
     sp.add_argument("--strict", action="store_true", help=help)
 
 
+def _sensor_models() -> tuple[str, ...]:
+    from ilcc_graph.run.result import SENSOR_MODELS  # the registry: auto and estimation.selection.MODELS
+
+    return SENSOR_MODELS
+
+
+def _refinements() -> tuple[str, ...]:
+    from ilcc_graph.run.strategies import refinements  # the strategies that refine one pair's frames
+
+    return refinements()
+
+
 def add_sensor_model_argument(sp: argparse.ArgumentParser) -> None:
     """--sensor-model (``estimation.selection``)."""
-    choices = ("auto", "none", "range", "beams", "offset")
-    sp.add_argument("--sensor-model", choices=choices, default="auto", help=SENSOR_MODEL_HELP)
+    sp.add_argument("--sensor-model", choices=Choices(_sensor_models), default="auto", help=SENSOR_MODEL_HELP)
 
 
 def add_solve_arguments(sp: argparse.ArgumentParser, studies: bool = False) -> None:
@@ -72,7 +86,7 @@ def add_solve_arguments(sp: argparse.ArgumentParser, studies: bool = False) -> N
     offset), the per-frame stages and the report; ``studies``: the report's studies by default."""
     sp.add_argument("--out", help="output folder (default: out/<timestamp>, linked as out/latest)")
     help = "graph: our factor graph with covariance (default); paper: the paper's refinement"
-    sp.add_argument("--refine", choices=("graph", "paper"), default="graph", help=help)
+    sp.add_argument("--refine", choices=Choices(_refinements), default="graph", help=help)
     help = "robust kernel on the bearing factors (default: none, least squares with the chi-square gate)"
     sp.add_argument("--robust", choices=("huber", "cauchy"), help=help)
     add_sensor_model_argument(sp)

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ilcc_graph.app.console import Choices
 from ilcc_graph.errors import InputError
 
 if TYPE_CHECKING:
@@ -17,11 +18,19 @@ __all__ = ["HELP", "add_arguments", "run"]
 HELP = "write a calibration in another tool's format"
 
 
+def _formats() -> tuple[str, ...]:
+    """Every export format: a pair's (``exports.FORMATS``), then a rig's not among them
+    (``exports_rig.RIG_FORMATS``)."""
+    from ilcc_graph.exports import FORMATS
+    from ilcc_graph.exports_rig import RIG_FORMATS
+
+    return FORMATS + tuple(f for f in RIG_FORMATS if f not in FORMATS)
+
+
 def add_arguments(sp: argparse.ArgumentParser) -> None:
     sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml (of a pair or a rig)")
     help = "a rig's calibration: ros-tf (a launch file), urdf, kalibr or json (docs/rig.md)"
-    choices = ("json", "ros-tf", "kitti", "kalibr", "lidar-offsets", "urdf")
-    sp.add_argument("--format", required=True, choices=choices, help=help)
+    sp.add_argument("--format", required=True, choices=Choices(_formats), help=help)
     sp.add_argument("--out", help="file to write (default: standard output)")
     sp.add_argument("--parent", choices=("lidar", "camera"), help="ros-tf: the parent frame (default lidar)")
     sp.add_argument("--lidar-frame", help="ros-tf: the LiDAR's frame id (default lidar)")

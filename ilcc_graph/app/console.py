@@ -22,7 +22,7 @@ import os
 import sys
 import tempfile
 import traceback
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -92,6 +92,29 @@ SEED = _number(int, 0, "a whole number >= 0")
 NON_NEGATIVE = _number(float, 0.0, "a number >= 0")
 POSITIVE = _number(float, 1e-12, "a number > 0")
 RATE = _number(float, 1e-12, "a number between 0 and 1", 1 - 1e-12)
+
+
+class Choices(Sequence[str]):
+    """An argparse ``choices`` read from its registry when first needed (a value checked, the help
+    shown), so that building the parser imports no registry: ``Choices(lambda: FORMATS)``."""
+
+    def __init__(self, table: Callable[[], Sequence[str]]) -> None:
+        self._table = table
+        self._got: tuple[str, ...] | None = None
+
+    def _names(self) -> tuple[str, ...]:
+        if self._got is None:
+            self._got = tuple(self._table())
+        return self._got
+
+    def __getitem__(self, k: int) -> str:  # type: ignore[override]
+        return self._names()[k]
+
+    def __len__(self) -> int:
+        return len(self._names())
+
+    def __contains__(self, value: object) -> bool:
+        return value in self._names()
 
 
 def DEG_MM(text: str) -> tuple[float, float]:  # noqa: N802 - an argparse type, named like the others

@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from ilcc_graph.run.observe import Observation
     from ilcc_graph.run.result import Result, RunOptions
 
-__all__ = ["Reporter", "Strategy", "choose", "modes", "one", "register", "strategy"]
+__all__ = ["Reporter", "Strategy", "choose", "modes", "one", "refinements", "register", "strategy"]
 
 Reporter = Callable[[str], None]
 
@@ -34,7 +34,8 @@ class Strategy:
     LiDAR stage missed once it has an extrinsic, and solves again. sensor_errors: it estimates the
     sensors' own errors (the LiDAR's are turned on when most boards show no print). observe: the
     observation pass of each source, ``(source, stages, progress) -> Observation`` (None:
-    ``observe.observe``; a multi-sensor strategy brings its own and its sources).
+    ``observe.observe``; a multi-sensor strategy brings its own and its sources). refinement: a user
+    picks it with ``calibrate --refine`` (it refines one pair's frames).
     """
 
     mode: str
@@ -44,6 +45,7 @@ class Strategy:
     second_pass: bool = True
     sensor_errors: bool = True
     observe: Callable[..., Observation] | None = None
+    refinement: bool = False
 
 
 _REGISTRY: dict[str, Strategy] = {}
@@ -60,6 +62,11 @@ def register(s: Strategy) -> Strategy:
 def modes() -> tuple[str, ...]:
     """The registered modes, in registration order."""
     return tuple(_REGISTRY)
+
+
+def refinements() -> tuple[str, ...]:
+    """The modes ``calibrate --refine`` offers (``Strategy.refinement``), in registration order."""
+    return tuple(m for m, s in _REGISTRY.items() if s.refinement)
 
 
 def strategy(mode: str) -> Strategy:

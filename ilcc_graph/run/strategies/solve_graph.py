@@ -33,4 +33,4 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
                   solved=sol.solved, batch=sol, used_frames=used)  # fmt: skip
 
 
-register(Strategy("graph", solve, joint="sessions"))
+register(Strategy("graph", solve, joint="sessions", refinement=True))

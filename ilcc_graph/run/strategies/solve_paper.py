@@ -30,4 +30,4 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     return Result("paper", cal, (SessionResult(obs.name, obs, cal),), options, None)
 
 
-register(Strategy("paper", solve, sensor_errors=False))
+register(Strategy("paper", solve, sensor_errors=False, refinement=True))
