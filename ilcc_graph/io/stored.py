@@ -130,12 +130,15 @@ def _resolved(path: Path) -> dict[str, Any]:
 class StoredSetup:
     """What a calibration was made with. board: ``squares`` and ``square_size`` as config.yaml has
     them, or None (not recorded). sensors: {name: ``"lidar"`` or the camera's model}; a sensor whose
-    kind is not recorded is absent. where, board_where: the files that say them."""
+    kind is not recorded is absent. where, board_where: the files that say them. sensor_model: the
+    model of the LiDAR's own errors the calibration chose (``selection.Selection.chosen``), or None.
+    """
 
     board: Mapping[str, Any] | None = None
     sensors: Mapping[str, str] = field(default_factory=dict)
     where: str = ""
     board_where: str = ""
+    sensor_model: str | None = None
 
 
 def _board(d: Any) -> dict[str, Any] | None:
@@ -156,11 +159,19 @@ def stored_setup(path: str | Path, cal: Calibration | RigCalibration, names: tup
                 kinds[str(s)] = str(sd["camera"].get("model"))
             elif isinstance(sd, dict) and "lidar" in sd:
                 kinds[str(s)] = "lidar"
-        return StoredSetup(_board(rig.get("board")), kinds, str(p), str(p))
+        model = _chosen(cal.extra.get("sensor_model"))
+        return StoredSetup(_board(rig.get("board")), kinds, str(p), str(p), model)
     resolved = _resolved(p)
     lidar, camera = names
     kinds = {lidar: "lidar"}
     if isinstance(cal.camera, dict) and cal.camera.get("model") is not None:
         kinds[camera] = str(cal.camera["model"])
     board = _board(resolved.get("board"))
-    return StoredSetup(board, kinds, str(p), str(p.parent / RESOLVED))
+    model = _chosen((cal.sensors or {}).get("model"))
+    return StoredSetup(board, kinds, str(p), str(p.parent / RESOLVED), model)
+
+
+def _chosen(selection: Any) -> str | None:
+    """The chosen model's name of a stored ``selection.Selection.to_dict()``, or None."""
+    got = selection.get("chosen") if isinstance(selection, dict) else None
+    return got if isinstance(got, str) else None
