@@ -160,7 +160,9 @@ def _box_entry(origin: np.ndarray, d: np.ndarray, box: Box) -> tuple[np.ndarray,
     return np.where(hit, t_in, np.inf), normal
 
 
-def _board_hit(origin: np.ndarray, d: np.ndarray, board: Board, T: np.ndarray):
+def _board_hit(
+    origin: np.ndarray, d: np.ndarray, board: Board, T: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Distance to the board rectangle (inf for a miss), front flag and board-frame xy (N, 2)."""
     R, c = T[:3, :3], T[:3, 3]
     o = R.T @ (origin - c)
