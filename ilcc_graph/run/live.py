@@ -45,7 +45,7 @@ from ilcc_graph.run.range_refit import refit_pass
 from ilcc_graph.run.second_look import second_pass
 from ilcc_graph.run.source import open_run
 from ilcc_graph.run.stages import StageOptions, observe_image, observe_lidar
-from ilcc_graph.types import Calibration, FrameResult, GraphFrame, sigmas_deg_mm
+from ilcc_graph.types import BoardFit, Calibration, FrameResult, GraphFrame, sigmas_deg_mm
 
 log = logging.getLogger(__name__)
 
@@ -195,6 +195,7 @@ class LiveCheck:
             self._lidar_resolved = True
         image = self._pool.submit(self._image, source, ref)  # decoding and detection release the GIL
         stated = self.config.board
+        board: BoardFit | FrameError
         try:
             board = observe_lidar(source, ref, self.config, self.stages.lidar)
         except FrameError as err:
@@ -246,7 +247,7 @@ class LiveCheck:
         got = self._solve()
         if isinstance(got, str):
             wait = n < 3
-            note = f"{3 - n} more pose{'s' if 3 - n > 1 else ''} to calibrate" if wait else got
+            note: str | None = f"{3 - n} more pose{'s' if 3 - n > 1 else ''} to calibrate" if wait else got
             return dataclasses.replace(v, n_distinct=n, note=note)
         update, why = got
         accepted = gf.name in update.solution.per_frame  # type: ignore[union-attr]
