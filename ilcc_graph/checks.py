@@ -8,7 +8,7 @@ expected.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -43,6 +43,16 @@ class Checker:
                 path = f"{prefix}.{k}" if prefix else str(k)
                 raise self.fail(path, d[k], f"no such key; allowed keys here: {sorted(allowed)}")
 
+    @overload
+    def number(
+        self, v: Any, key: str, lo: float | None = None, hi: float | None = None,
+        integer: Literal[False] = False, lo_open: bool = False,
+    ) -> float: ...
+    @overload
+    def number(
+        self, v: Any, key: str, lo: float | None = None, hi: float | None = None, *,
+        integer: Literal[True], lo_open: bool = False,
+    ) -> int: ...
     def number(
         self,
         v: Any,
@@ -52,6 +62,8 @@ class Checker:
         integer: bool = False,
         lo_open: bool = False,
     ) -> float:
+        """``v`` checked to be a finite number in the range (an int with ``integer``); the error
+        naming ``key`` otherwise."""
         what = "an integer" if integer else "a number"
         rng = ""
         if lo is not None or hi is not None:

@@ -35,9 +35,13 @@ CONVENTION = (
 CalibrationLike = Calibration | tuple[gtsam.Pose3 | np.ndarray, np.ndarray] | str | Path
 
 
-def _as_T_cov(cal: Calibration | tuple) -> tuple[np.ndarray, np.ndarray | None]:
+def _as_T_cov(
+    cal: Calibration | tuple[gtsam.Pose3 | np.ndarray, np.ndarray | None],
+) -> tuple[np.ndarray, np.ndarray | None]:
     """(4, 4) ``T_cam_lidar`` and (6, 6) covariance of a Calibration or a pair, checked; the
     covariance is None for a calibration that has none (the paper's refinement writes NaN)."""
+    T: gtsam.Pose3 | np.ndarray
+    cov: np.ndarray | None
     if isinstance(cal, Calibration):
         T, cov = cal.T_cam_lidar, cal.covariance
     else:
@@ -84,7 +88,8 @@ def calibration_camera(cal: Calibration) -> CameraModel | None:
 
 def _quat_xyzw(R: np.ndarray) -> np.ndarray:
     """Unit quaternion (x, y, z, w) with w >= 0 of a rotation matrix."""
-    q = np.array(gtsam.Rot3(R).toQuaternion().coeffs(), dtype=np.float64)
+    # gtsam's stub: Rot3's static method Quaternion() hides the class in toQuaternion's return type
+    q = np.array(gtsam.Rot3(R).toQuaternion().coeffs(), dtype=np.float64)  # type: ignore[attr-defined]
     q /= np.linalg.norm(q)
     return -q if q[3] < 0 else q
 

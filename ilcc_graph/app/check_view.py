@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 import textwrap
 from pathlib import Path
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
@@ -22,6 +22,9 @@ from ilcc_graph.errors import InputError
 from ilcc_graph.estimation.incremental import FrameUpdate
 from ilcc_graph.run.live import CheckOptions, LiveCheck, Verdict, run_check
 from ilcc_graph.types import GraphFrame, sigmas_deg_mm
+
+if TYPE_CHECKING:  # next_pose is imported when advice is asked for
+    from ilcc_graph.next_pose import Advisor, Proposal
 
 __all__ = [
     "VERDICT_HEADER",
@@ -178,17 +181,20 @@ class LiveAdvice:
 
     def __init__(self, target_sigma: tuple[float, float] | None = None) -> None:
         self.target_sigma = target_sigma
-        self._advisor = None
+        self._advisor: Advisor | None = None
         self._fitted_on = 0
         self._noise = np.ones(3)
 
-    def propose(self, config: Config, frames: list[GraphFrame], update: FrameUpdate):  # noqa: ANN201 - next_pose.Proposal | None
+    def propose(
+        self, config: Config | None, frames: list[GraphFrame], update: FrameUpdate
+    ) -> Proposal | None:
         """The proposal after a solve of the frames (``update.solution``): a new frame predicted with
-        the noise that solve found, as after ``calibrate`` (``next_pose.from_calibration``)."""
+        the noise that solve found, as after ``calibrate`` (``next_pose.from_calibration``); None
+        without a config (no frame read yet)."""
         from ilcc_graph import next_pose
 
         sol = update.solution
-        if config.lidar is None or len(frames) < 3 or sol is None:
+        if config is None or config.lidar is None or len(frames) < 3 or sol is None:
             return None
         T_cam_lidar, covariance = update.T_cam_lidar, update.covariance
         factor = 1.0
@@ -199,11 +205,13 @@ class LiveAdvice:
         adv, moved = self._advisor, False
         if adv is not None:
             d = np.linalg.inv(adv.rig.T_cam_lidar) @ T_cam_lidar
-            moved = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1))) > 0.5
-            moved = moved or np.linalg.norm(d[:3, 3]) > 0.02
+            moved = bool(np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1) / 2, -1, 1))) > 0.5)
+            moved = moved or bool(np.linalg.norm(d[:3, 3]) > 0.02)
             moved = moved or bool(np.any(np.abs(np.log(noise / self._noise)) > np.log(1.2)))
             moved = moved or (adv.solved is None) != (sol.solved is None)  # the sensor model's terms
-            moved = moved or (sol.solved is not None and adv.solved.dim != sol.solved.dim)
+            moved = moved or (
+                sol.solved is not None and adv.solved is not None and adv.solved.dim != sol.solved.dim
+            )
         if adv is None or moved or len(frames) >= 2 * self._fitted_on:
             rig = next_pose.Rig(config.camera, np.asarray(T_cam_lidar), config.lidar, config.board)
             adv = self._advisor = next_pose.Advisor(
@@ -223,7 +231,8 @@ def _stop_when_unread(watch: bool) -> None:
 
 
 def check_command(
-    data: str, options: CheckOptions, out: object = None, advise_live: bool = False, command: str = ""
+    data: str, options: CheckOptions, out: Path | str | None = None, advise_live: bool = False,
+    command: str = "",
 ) -> int:
     """``ilcc-graph check``: the live table on standard output, the progress line on standard error,
     then the batch answer and the next board pose; ``out`` (a folder): check.yaml and next_pose.png

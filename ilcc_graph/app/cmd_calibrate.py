@@ -21,6 +21,7 @@ from ilcc_graph.errors import CalibrationImpossible, InputError
 if TYPE_CHECKING:
     import numpy as np
 
+    from ilcc_graph.next_pose import Proposal
     from ilcc_graph.run.result import Result, RunOptions
 
 __all__ = ["HELP", "add_arguments", "calibrate", "run"]
@@ -112,9 +113,9 @@ def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray |
     t1 = time.perf_counter()
     if rig:
         return _rig_summary(result, out, args)
-    advice: dict = {}
+    advice: dict[str, Proposal | None] = {}
 
-    def propose():  # noqa: ANN202 - worked out while the report's pictures are drawn
+    def propose() -> Proposal | None:  # worked out while the report's pictures are drawn
         from ilcc_graph.next_pose import for_run as next_pose_for_run
 
         advice["next"] = next_pose_for_run(result, options.target_sigma)
@@ -130,11 +131,11 @@ def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray |
 
 
 def _pair_summary(result: Result, out: Path, options: RunOptions, truth: np.ndarray | None,
-                  seconds: tuple[float, float], proposal: object) -> None:  # fmt: skip
+                  seconds: tuple[float, float], proposal: Proposal | None) -> None:  # fmt: skip
     """The closing summary of one pair (or joint sessions): report.summary's ``run_summary``."""
     from ilcc_graph.report.summary import run_summary
 
-    notes = [proposal.describe()] if proposal is not None else []  # type: ignore[attr-defined]
+    notes = [proposal.describe()] if proposal is not None else []
     reports = sorted((out / "report").glob("**/index.html"))
     need, gate = options.target_sigma, options.noise.chi2_gate_prob
     joint = result.documents.get("joint.yaml")  # the sessions' tests, for the verdict

@@ -51,8 +51,9 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"simulating HDL-32E scans and {args.width} px panoramas, 20 frames (a minute or so)", flush=True
         )
-        kw = {"lidar": "hdl32", "camera": "equirectangular", "frames": 20, "image_format": "jpg"}
-        kw["command"] = args.command_line
-        write_standard_set(data, Progress("simulate"), width=args.width, seed=args.seed, **kw)
+        write_standard_set(
+            data, Progress("simulate"), width=args.width, seed=args.seed, lidar="hdl32",
+            camera="equirectangular", frames=20, image_format="jpg", command=args.command_line,
+        )  # fmt: skip
         print(f"kept in {_stored(data, not args.data)}")
     return calibrate([str(data)], args, read_ground_truth(data).T_cam_lidar)

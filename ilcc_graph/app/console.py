@@ -24,7 +24,7 @@ import tempfile
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ilcc_graph import signals
 from ilcc_graph.errors import (
@@ -35,6 +35,9 @@ from ilcc_graph.errors import (
     IndeterminateSystem,
     InputError,
 )
+
+if TYPE_CHECKING:  # imported when the first bar is drawn
+    from tqdm import tqdm
 
 __all__ = [
     "stdout_closed",
@@ -56,7 +59,8 @@ class Progress:
     """One progress-bar helper: a callback (done, total) drawing a tqdm bar on stderr."""
 
     def __init__(self, desc: str) -> None:
-        self.desc, self.bar = desc, None
+        self.desc = desc
+        self.bar: tqdm | None = None
 
     def __call__(self, done: int, total: int) -> None:
         if self.bar is None:

@@ -26,17 +26,25 @@ from ilcc_graph.io.rig_results import RigCalibration
 from ilcc_graph.report.rig_report import RigImages, RigSeen, rig_report_files
 
 if TYPE_CHECKING:
+    from concurrent.futures import Future, ProcessPoolExecutor
+
     from ilcc_graph.board import Board
     from ilcc_graph.cameras import CameraModel
+    from ilcc_graph.datasets import FrameRef, FrameSource
     from ilcc_graph.evaluation.studies import CrossValidation, FramesCurve
+    from ilcc_graph.next_pose import Proposal
+    from ilcc_graph.report import FigureOptions, FrameFigures
     from ilcc_graph.report.plots import DrawnValley
     from ilcc_graph.run.result import Result, SessionResult
-    from ilcc_graph.types import Calibration
+    from ilcc_graph.types import Calibration, FrameResult
 
 __all__ = ["write_report", "write_rig_report"]
 
 
-def _draw_frame(source, ref, config: Config, T: np.ndarray, result, options, ply: Path | None):  # noqa: ANN001, ANN202
+def _draw_frame(
+    source: FrameSource, ref: FrameRef, config: Config, T: np.ndarray, result: FrameResult | None,
+    options: FigureOptions, ply: Path | None,
+) -> FrameFigures:  # fmt: skip
     """One frame's pictures (``report.frame_figures``; a worker process may run it): the scan is read,
     the image only when the image stage kept no views of it or the options need it; with ``ply``
     the coloured cloud is written there."""
@@ -59,14 +67,17 @@ def _valley(cal: Calibration, camera: CameraModel, board: Board) -> DrawnValley 
     from ilcc_graph.evaluation.studies import valley
     from ilcc_graph.report.plots import DrawnValley, plot_valley
 
-    efs = [eval_frame(f) for f in cal.frames if f.used]
-    if not efs or any(e is None or not len(e.points_lidar) for e in efs):
+    got = [eval_frame(f) for f in cal.frames if f.used]
+    efs = [e for e in got if e is not None and len(e.points_lidar)]
+    if not got or len(efs) < len(got):
         return None
     study = valley(efs, camera, board, np.asarray(cal.T_cam_lidar), np.asarray(cal.covariance))
     return DrawnValley(study, plot_valley(study))
 
 
-def _drawn(items: list[tuple], pool, cal, config: Config) -> tuple[Iterator, object]:  # noqa: ANN001
+def _drawn(
+    items: list[tuple], pool: ProcessPoolExecutor | None, cal: Calibration, config: Config
+) -> tuple[Iterator[FrameFigures], Future[DrawnValley | None] | None]:
     """(``_draw_frame(*item)`` for each item in order, a future of the valley study with its chart), on
     ``pool`` (``workers.pool``; in this process when None); the valley study, the longest single job,
     goes first."""
@@ -82,7 +93,7 @@ def _drawn(items: list[tuple], pool, cal, config: Config) -> tuple[Iterator, obj
     study = pool.submit(_valley, slim, config.camera, config.board)
     futures = [pool.submit(_draw_frame, *it) for it in items]
 
-    def results() -> Iterator:
+    def results() -> Iterator[FrameFigures]:
         for fut in futures:
             yield fut.result()
             signals.check()
@@ -107,10 +118,10 @@ def write_report(
     info: dict,
     clouds: bool = False,
     full_views: bool = False,
-    meanwhile: Callable[[], object] | None = None,
-    next_pose: object | None = None,
+    meanwhile: Callable[[], Proposal | None] | None = None,
+    next_pose: Proposal | None = None,
     progress: Callable[[int, int], None] | None = None,
-) -> tuple[object, bytes | None]:
+) -> tuple[Proposal | None, bytes | None]:
     """``out/index.html`` with its figures for one session; with ``clouds`` ``coloured_dir/<frame>.ply``.
     ``studies``: the run's refit studies of this session (``run.refit_studies``) or None.
     ``meanwhile()`` runs here while the pictures are drawn on other processes and gives the next board
@@ -161,7 +172,7 @@ def write_report(
             T_ground_truth=truth,
             info=info,
             valley_study=None if study is None else study.result,
-            next_pose=None if got is None else (png, got.describe()),  # type: ignore[attr-defined]
+            next_pose=None if got is None or png is None else (png, got.describe()),
         )
     if progress is not None:
         progress(len(items) + 1, len(items) + 1)

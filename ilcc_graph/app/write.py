@@ -27,9 +27,9 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -43,6 +43,11 @@ from ilcc_graph.report.next_pose_picture import next_pose_png
 from ilcc_graph.run.refit_studies import refit_studies
 from ilcc_graph.run.result import Result, RunOptions
 from ilcc_graph.types import sigma_dict, to_plain
+
+if TYPE_CHECKING:
+    from ilcc_graph.datasets import FrameRef, FrameSource, RigSource
+    from ilcc_graph.next_pose import Proposal
+    from ilcc_graph.run.live import CheckResult
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +93,7 @@ def write_run(
     studies: bool = False,
     truth: np.ndarray | None = None,
     command: str = "",
-    next_pose=None,  # noqa: ANN001 - next_pose.Proposal, or a callable giving one
+    next_pose: Proposal | Callable[[], Proposal | None] | None = None,
     clouds: bool = False,
     full_views: bool = False,
     progress: Callable[[str], Callable[[int, int], None]] | None = None,
@@ -99,7 +104,8 @@ def write_run(
     ``clouds``: the coloured clouds; ``full_views``: the report's whole pictures at full resolution too;
     ``progress(name)``: a ``(done, total)`` callback for each session's report (``console.Progress``)."""
     later = next_pose if callable(next_pose) else None
-    proposal, png = (None, None) if later is not None else (next_pose, None)
+    proposal: Proposal | None = None if callable(next_pose) else next_pose
+    png: bytes | None = None
     with staged(out, command=command) as d:
         if "calibration.yaml" not in result.documents:  # a rig's is the strategy's own document
             write_calibration(d / "calibration.yaml", result.calibration)
@@ -124,7 +130,9 @@ def write_run(
                 }
                 if isinstance(s.observation.config, RigConfig):  # a rig: its own page (docs/rig.md)
                     cal = rig_calibration_from_doc(result.documents["calibration.yaml"])
-                    write_rig_report(d / "report", cal, s.observation.data, s.observation.source, info)
+                    # a rig's observation holds its RigSource (Observation.source's type says FrameSource)
+                    rig_source = cast("RigSource", s.observation.source)
+                    write_rig_report(d / "report", cal, s.observation.data, rig_source, info)
                     continue
                 sub = (s.name,) if several else ()
                 bar = progress and progress(f"report {s.name}" if several else "report")
@@ -141,15 +149,18 @@ def write_run(
     return out
 
 
-def write_stage(out: Path, stage: str, source, refs, results, command: str = "") -> list[tuple]:  # noqa: ANN001
+def write_stage(
+    out: Path, stage: str, source: FrameSource, refs: Sequence[FrameRef], results: list, command: str = ""
+) -> list[tuple]:
     """One stage alone (``lidar`` or ``image``) over a source's frames: per frame ``<name>.yaml`` and
     ``<name>_board.pcd`` (LiDAR) or ``<name>_corners.png`` (image). Returns one table row per frame:
-    (name, found, points, reason) or (name, found, detector, sigma px, reason)."""
+    (name, found, points, reason) or (name, found, detector, sigma px, reason). ``results``: per frame
+    the stage's answer or its FrameError, as ``run.observe.stage_alone`` gives them."""
     from ilcc_graph.io import write_image, write_pcd
     from ilcc_graph.report.overlays import draw_corners
     from ilcc_graph.types import Scan
 
-    rows = []
+    rows: list[tuple[str | int, ...]] = []
     with staged(out, command=command) as d:
         for ref, res in zip(refs, results, strict=True):
             doc: dict[str, Any] = {"name": ref.name, "found": not isinstance(res, Exception)}
@@ -185,7 +196,9 @@ def write_stage(out: Path, stage: str, source, refs, results, command: str = "")
     return rows
 
 
-def write_check(out: Path, result, proposal=None, command: str = "") -> Path:  # noqa: ANN001 - live.CheckResult, next_pose.Proposal
+def write_check(
+    out: Path, result: CheckResult, proposal: Proposal | None = None, command: str = ""
+) -> Path:
     """``check.yaml`` (every frame's verdict, the batch answer, why the check ended) and, with a
     proposal, ``next_pose.png``, into ``out`` (staged like ``write_run``)."""
     verdicts = []
@@ -214,10 +227,10 @@ def write_check(out: Path, result, proposal=None, command: str = "") -> Path:  #
         }
     if proposal is not None:
         doc["next_pose"] = {"T_lidar_board": proposal.T_lidar_board, "advice": proposal.describe()}
-    with staged(out, command=command) as d:
-        write_yaml(d / "check.yaml", doc)
+    with staged(out, command=command) as folder:
+        write_yaml(folder / "check.yaml", doc)
         if proposal is not None:
-            atomic_write(d / "next_pose.png", next_pose_png(proposal))
+            atomic_write(folder / "next_pose.png", next_pose_png(proposal))
     return out
 
 

@@ -102,9 +102,11 @@ def _matrix(path: Path, v: Any, key: str, n: tuple[int, ...]) -> list[float]:
 def _ros(path: Path, doc: dict) -> dict[str, Any]:
     K = _matrix(path, doc["camera_matrix"], "camera_matrix", (9,))
     D = _matrix(path, doc.get("distortion_coefficients", []), "distortion_coefficients", _N_DIST)
+    if doc.get("image_height") is None:
+        raise InputError(f"{path}: a ROS camera file without image_height")
     try:
         return camera_section_from_ros(
-            str(doc.get("distortion_model", "plumb_bob")), doc["image_width"], doc.get("image_height"), K, D
+            str(doc.get("distortion_model", "plumb_bob")), doc["image_width"], doc["image_height"], K, D
         )
     except (ValueError, TypeError) as e:
         raise InputError(f"{path}: {e}") from None

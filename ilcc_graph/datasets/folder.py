@@ -16,7 +16,7 @@ from ilcc_graph.config import Config, load_config
 from ilcc_graph.datasets.frame_source import FrameRef, FrameSource
 from ilcc_graph.datasets.timeline import nearest, pair_by_time
 from ilcc_graph.errors import InputError
-from ilcc_graph.io import list_frames, read_ground_truth, read_image, read_scan
+from ilcc_graph.io import GroundTruth, list_frames, read_ground_truth, read_image, read_scan
 from ilcc_graph.io.files import broken_link
 from ilcc_graph.io.images import image_size
 from ilcc_graph.io.results import GROUND_TRUTH_FILE
@@ -85,5 +85,6 @@ class FolderSource(FrameSource):
         """(width, height) from the image file's header (``io.image_size``: no pixel is decoded)."""
         return image_size(ref.image)
 
-    def ground_truth(self):  # noqa: ANN201 - io.GroundTruth | None
+    def ground_truth(self) -> GroundTruth | None:
+        """A simulated set's truth (``ground_truth.yaml`` in the folder), else None."""
         return read_ground_truth(self.path) if (self.path / GROUND_TRUTH_FILE).is_file() else None

@@ -14,7 +14,7 @@ import logging
 import os
 import struct
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -46,7 +46,7 @@ from ilcc_graph.datasets.timeline import (
     unpaired,
 )
 from ilcc_graph.errors import InputError, quote
-from ilcc_graph.io import read_ground_truth, read_yaml
+from ilcc_graph.io import GroundTruth, read_ground_truth, read_yaml
 from ilcc_graph.types import Scan
 
 log = logging.getLogger(__name__)
@@ -166,7 +166,8 @@ class BagSource(FrameSource):
         return decode_image(*(kept or self._one(ref.image, ref.name)))
 
     def image_location(self, ref: FrameRef) -> str:
-        return self._where(*ref.image, ref.name)
+        topic, t_ns = ref.image
+        return self._where(topic, t_ns, ref.name)
 
     def header_size(self, ref: FrameRef) -> tuple[int, int] | None:
         """(width, height) the image message declares, nothing decoded (``image_message_size``); the
@@ -174,7 +175,8 @@ class BagSource(FrameSource):
         msg, where = self._one(ref.image, ref.name)
         size = image_message_size(msg, where)
         _KEPT.clear()
-        _KEPT[(str(self.path), *ref.image)] = (msg, where)
+        key = (str(self.path), *ref.image)
+        _KEPT[key] = (msg, where)
         return size
 
     def image_size(self, ref: FrameRef) -> tuple[int, int]:
@@ -186,6 +188,10 @@ class BagSource(FrameSource):
         return int(w), int(h)
 
     # -- topics and config -------------------------------------------------------------------------
+    @overload
+    def _topic(self, role: str, types: tuple[str, ...], required: Literal[True] = True) -> str: ...
+    @overload
+    def _topic(self, role: str, types: tuple[str, ...], required: bool) -> str | None: ...
     def _topic(self, role: str, types: tuple[str, ...], required: bool = True) -> str | None:
         """The topic given for ``role``, else the only one of those types (info: the image's namespace)."""
         found = {name: info.msgtype for name, info in self._guard(lambda: self._reader().topics).items()}
@@ -240,7 +246,8 @@ class BagSource(FrameSource):
             raise InputError(f"{err}{note}" if ": camera" in str(err) else str(err)) from None
         return self._config
 
-    def ground_truth(self):  # noqa: ANN201 - io.GroundTruth | None
+    def ground_truth(self) -> GroundTruth | None:
+        """The simulated bag's truth (``<bag>.ground_truth.yaml`` beside it), else None."""
         p = self.path.with_suffix("") if self.path.is_file() else self.path
         gt = p.parent / f"{p.name}.ground_truth.yaml"
         return read_ground_truth(gt) if gt.is_file() else None
@@ -335,7 +342,9 @@ class BagSource(FrameSource):
             refs, self._skipped = self._frames[key]
             return list(refs)
         streams = self.survey()
-        lid, img = streams[self.topics["lidar"]], streams.get(self.topics["image"] or "")
+        lidar_topic = self.topics["lidar"]
+        assert lidar_topic is not None  # survey() sets it
+        lid, img = streams[lidar_topic], streams.get(self.topics["image"] or "")
         if img is None and require_image:
             raise InputError(f"{self.path}: no Image or CompressedImage topic; topics: {', '.join(streams)}")
         ts, ti = lid.times(), (img.times() if img else np.zeros(0))

@@ -163,15 +163,15 @@ def evaluate_many(
 def eval_frame(result: FrameResult) -> EvalFrame | None:
     """The :class:`EvalFrame` of a pipeline frame, or None when it lacks the board or the corners."""
     b, c = result.board, result.corners
-    if b is None or c is None or c.uv is None or len(c.uv) == 0:
+    if b is None or c is None or len(c.uv) == 0:
         return None
     return EvalFrame(
         name=result.name,
         points_lidar=np.asarray(b.points_lidar, dtype=np.float64).reshape(-1, 3),
         intensity=np.asarray(b.intensity, dtype=np.float64).ravel(),
         uv=np.asarray(c.uv, dtype=np.float64),
-        corners_lidar=None if b.corners_lidar is None else np.asarray(b.corners_lidar, dtype=np.float64),
-        T_lidar_board=None if b.T_lidar_board is None else np.asarray(b.T_lidar_board, dtype=np.float64),
+        corners_lidar=np.asarray(b.corners_lidar, dtype=np.float64),
+        T_lidar_board=np.asarray(b.T_lidar_board, dtype=np.float64),
     )
 
 
@@ -250,12 +250,14 @@ def evaluate_calibration(
 
 def evaluation_rows(ev: Evaluation) -> tuple[tuple[str, ...], list[tuple[str, ...]]]:
     """(header, rows) of a plain-text table: one row per frame, then the mean and 3 x the SD over frames."""
-    header = ("frame", "intensity mrad", "corner px", "corner mrad", "attendance", "inside/points")
+    header: tuple[str, ...] = (
+        "frame", "intensity mrad", "corner px", "corner mrad", "attendance", "inside/points"
+    )  # fmt: skip
 
     def f(x: float, fmt: str = ".3f") -> str:
         return "inf" if np.isinf(x) else "-" if np.isnan(x) else format(x, fmt)
 
-    rows = [
+    rows: list[tuple[str, ...]] = [
         (e.name, f(e.intensity_mrad), f(e.corner_rms_px), f(e.corner_rms_mrad), f(e.attendance, ".2f"),
          f"{e.n_inside}/{e.n_points}")
         for e in ev.frames

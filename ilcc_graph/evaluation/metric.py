@@ -320,10 +320,10 @@ def cell_coordinates(uv: np.ndarray, corners_uv: np.ndarray, board: Board) -> tu
         xy[got, 0], xy[got, 1] = x[hit], y[hit]
     any_hit = cell < len(quads)
     idx = np.flatnonzero(finite)[any_hit]
-    c = cell[any_hit]
+    hit_cell = cell[any_hit]
     inside[idx] = True
-    ab[idx, 0] = cj[c] + 1 + xy[any_hit, 0]
-    ab[idx, 1] = ci[c] + 1 + xy[any_hit, 1]
+    ab[idx, 0] = cj[hit_cell] + 1 + xy[any_hit, 0]
+    ab[idx, 1] = ci[hit_cell] + 1 + xy[any_hit, 1]
     return inside, ab
 
 

@@ -61,8 +61,8 @@ def fit_in_view(
         return None, "grid folded in the pinhole view"
     src = board.corners_board()[:, :2]
     H, _ = cv2.findHomography(src, xy, cv2.LMEDS)
-    if H is None:
-        return None, "corners fit no homography"
+    if H is None:  # cv2's stub types the result as never None; it is None when nothing fits
+        return None, "corners fit no homography"  # type: ignore[unreachable]
     fit = cv2.perspectiveTransform(src[None], H)[0]
     sq = float(np.median(np.linalg.norm(np.diff(fit.reshape(*board.inner_shape, 2), axis=1), axis=-1)))
     bad = np.linalg.norm(xy - fit, axis=1) > tol * sq
@@ -94,9 +94,9 @@ def downscaled_candidates(
             uv = wrap_image_u(
                 camera, np.stack([(c[:, 0] + 0.5) / sx - 0.5, (c[:, 1] + 0.5) / sy - 0.5], axis=1)
             )
-            uv, _ = fit_in_view(camera, uv, board)
-            if uv is not None:
-                yield Candidate(uv, name, 0)
+            fitted, _ = fit_in_view(camera, uv, board)
+            if fitted is not None:
+                yield Candidate(fitted, name, 0)
 
 
 def tile_directions(camera: CameraModel) -> np.ndarray:
@@ -150,6 +150,6 @@ def tile_candidates(
             if c is None:
                 continue
             uv = view_to_image(view, camera, c)
-            uv, _ = fit_in_view(camera, uv, board) if np.all(np.isfinite(uv)) else (None, "")
-            if uv is not None:
-                yield Candidate(uv, name, 1)
+            fitted, _ = fit_in_view(camera, uv, board) if np.all(np.isfinite(uv)) else (None, "")
+            if fitted is not None:
+                yield Candidate(fitted, name, 1)

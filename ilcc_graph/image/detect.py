@@ -95,7 +95,8 @@ class ImageOptions:
             raise ValueError("ImageOptions: max_view_px and tile_size_px must be >= 200 px")
         if not (20.0 <= float(self.tile_fov_deg) < 170.0):
             raise ValueError(f"ImageOptions: tile_fov_deg must be in [20, 170), got {self.tile_fov_deg!r}")
-        if isinstance(self.cascade, str):
+        given: object = self.cascade  # what a caller passed, which the field's type does not promise
+        if isinstance(given, str):
             raise ValueError(
                 f"ImageOptions: cascade must be a tuple of names, got the string {self.cascade!r}"
             )

@@ -197,6 +197,8 @@ def view_crop(views: tuple[ImageView, ...], purpose: str) -> Crop | None:
     if v is None:
         return None
     img = cv2.imdecode(np.frombuffer(v.jpeg, np.uint8), cv2.IMREAD_COLOR)
+    if img is None:  # the view's JPEG is our own encoding: it always decodes
+        raise ValueError(f"the {purpose!r} view's JPEG does not decode")
     crop = Crop(img, v.x0, v.y0, v.width_full, v.wrap, v.zoom)
     spec = {"tight": TIGHT, "wide": WIDE}.get(purpose)
     return crop if spec is None else crop.zoomed(spec.zoom_to, spec.max_zoom, spec.max_size)

@@ -43,8 +43,8 @@ class FramePaths:
     """
 
     name: str
-    scan: Path
-    image: Path
+    scan: Path | None
+    image: Path | None
     note: str | None = None
 
 
@@ -367,7 +367,7 @@ def list_frames(
             s, scans.get(s), images.get(s), "; ".join(n[s] for n in (notes, img_notes) if s in n) or None
         )
         for s in stems
-    ]  # type: ignore[arg-type]
+    ]
     if timed is None:  # by time, the ones left alone are listed already
         skipped += [
             (s, f"scan {scans[s].name} has no image in {image_dir or 'img'}/")

@@ -31,8 +31,9 @@ _PNG = b"\x89PNG\r\n\x1a\n"
 _SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
 
 
-def _jpeg_size(f) -> tuple[int, int] | None:  # noqa: ANN001 - a binary file positioned after SOI
-    """(width, height) from the first SOF segment, walking the marker segments; None if none."""
+def _jpeg_size(f: BinaryIO) -> tuple[int, int] | None:
+    """(width, height) from the first SOF segment of ``f`` (positioned after SOI), walking the marker
+    segments; None if none."""
     while True:
         b = f.read(1)
         if b != b"\xff":
@@ -100,8 +101,10 @@ def _declared(p: Path | BinaryIO, where: str) -> tuple[int, int] | None:
             with Image.open(p) as im:
                 return int(im.width), int(im.height)
     except Image.DecompressionBombError:
+        limit = Image.MAX_IMAGE_PIXELS
+        assert limit is not None  # Pillow refuses a size only while it has a limit
         raise InputError(
-            f"{where}: the image's header declares more than {2 * Image.MAX_IMAGE_PIXELS / 1e6:.0f} Mpx; "
+            f"{where}: the image's header declares more than {2 * limit / 1e6:.0f} Mpx; "
             "not decoded (a damaged or forged file)"
         ) from None
     except (UnidentifiedImageError, ValueError, SyntaxError, struct.error, EOFError):
@@ -144,7 +147,8 @@ def encoded_image_size(data: bytes | np.ndarray, where: str) -> tuple[int, int] 
     """(width, height) the header of an encoded image in memory (PNG, JPEG, ...) declares, checked as a
     file's, or None when the header does not tell; ``InputError`` starting with ``where`` when it
     declares a size of zero or more than ``MAX_PIXELS``."""
-    size = _declared(io.BytesIO(bytes(memoryview(data))), where)
+    raw = data.tobytes() if isinstance(data, np.ndarray) else bytes(data)
+    size = _declared(io.BytesIO(raw), where)
     return None if size is None else _checked(size, where, "message")
 
 
@@ -164,8 +168,10 @@ def image_size(path: str | Path) -> tuple[int, int]:
     return size
 
 
-def _decode(cv2, buf: np.ndarray) -> np.ndarray | None:  # noqa: ANN001 - the cv2 module
+def _decode(buf: np.ndarray) -> np.ndarray | None:
     """cv2.imdecode without OpenCV's own log lines on a damaged file (we say what is wrong)."""
+    import cv2
+
     log = getattr(getattr(cv2, "utils", None), "logging", None)
     if log is None:
         return cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
@@ -204,7 +210,7 @@ def read_image(path: str | Path) -> np.ndarray:
         raise _unreadable(p, e) from None
     if buf.size == 0:
         raise InputError(f"{p}: empty image file")
-    img = _decode(cv2, buf)
+    img = _decode(buf)
     if img is None:
         raise InputError(f"{p}: cannot decode image (corrupt or not an image)")
     if img.dtype == np.uint16:
@@ -228,10 +234,11 @@ def write_image(path: str | Path, img: np.ndarray) -> Path:
 
     p = Path(path)
     ext = p.suffix.lower() or ".png"
+    cannot = f"{p}: OpenCV cannot encode an image as {ext!r}"
     try:
         ok, enc = cv2.imencode(ext, np.asarray(img))
     except cv2.error:
-        ok = False
+        raise ValueError(cannot) from None
     if not ok:
-        raise ValueError(f"{p}: OpenCV cannot encode an image as {ext!r}")
+        raise ValueError(cannot)
     return atomic_write(p, enc.tobytes())

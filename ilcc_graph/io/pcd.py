@@ -211,7 +211,8 @@ def read_pcd(path: Path, intensity_column: int | None = None) -> Scan:
 
 
 def _read_ascii(path: Path, body: bytes, names: list[str], dtype: np.dtype, n: int) -> np.ndarray:
-    ncol = sum(max(1, int(np.prod(dtype.fields[k][0].shape))) for k in dtype.names or ())  # type: ignore[index]
+    fields = dtype.fields  # None only for an unstructured dtype, which has no names either
+    ncol = 0 if fields is None else sum(max(1, int(np.prod(fields[k][0].shape))) for k in dtype.names or ())
     text = body.decode("ascii", errors="replace")
     try:
         with warnings.catch_warnings():
@@ -320,8 +321,9 @@ def write_pcd(
     if offsets is None:
         rec = np.empty(n, dtype=[(f, t) for f, t, _ in fields])
     else:
-        layout = {"names": names, "formats": [t for _, t, _ in fields], "offsets": offsets}
-        rec = np.zeros(n, dtype=np.dtype({**layout, "itemsize": _PCL_STEP}))
+        formats = [t for _, t, _ in fields]
+        layout = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": _PCL_STEP})
+        rec = np.zeros(n, dtype=layout)
     for name, _, values in fields:
         rec[name] = values
     header = _FIRST_LINE[style] + (

@@ -271,7 +271,8 @@ def read_csv(path: Path, intensity_column: int | None = None) -> Scan:
         cols = {"x": 0, "y": 1, "z": 2, "intensity": intensity_column, "ring": None}
     if not body_lines:
         raise InputError(f"{path}: the file holds no points")
-    want = [cols["x"], cols["y"], cols["z"]] + [c for c in (cols["intensity"], cols["ring"]) if c is not None]
+    # x, y and z are never None (find_fields refuses a file without them)
+    want = [c for c in (cols["x"], cols["y"], cols["z"], cols["intensity"], cols["ring"]) if c is not None]
     try:
         data = np.loadtxt(
             io.StringIO("\n".join(body_lines)), delimiter=sep, usecols=want, ndmin=2, dtype=np.float64

@@ -5,6 +5,8 @@ See detection.py for the list; every intensity rule here is scale-free (measured
 
 from __future__ import annotations
 
+from typing import overload
+
 import numpy as np
 
 from ..board import Board
@@ -14,7 +16,11 @@ from .options import LidarOptions, breach
 __all__ = ["board_tests", "intensity_contrast", "local_elevation_step", "print_visible"]
 
 
-def local_elevation_step(model: LidarModel, elevation):  # noqa: ANN001, ANN202 - float or array
+@overload
+def local_elevation_step(model: LidarModel, elevation: float) -> float: ...
+@overload
+def local_elevation_step(model: LidarModel, elevation: np.ndarray) -> np.ndarray: ...
+def local_elevation_step(model: LidarModel, elevation: float | np.ndarray) -> float | np.ndarray:
     """Ring spacing (rad) of the model's beam table at an elevation (rad), scalar or array."""
     el = model.vertical_angles_rad
     if el.size < 2:

@@ -98,10 +98,10 @@ def fit_score(fit: BoardFit, board: Board, expected: ExpectedBoard | None) -> fl
         score = d.get("colour_agreement", 0.0) - cost / (n * board.square_size)
     if expected is not None:
         T = fit.T_lidar_board
-        d, a = prediction_error(T[:3, :3] @ _centre_board(board) + T[:3, 3], T[:3, 2], board, expected)
-        if d > expected.position_tol_m or a > expected.angle_tol_deg:
+        dist, a = prediction_error(T[:3, :3] @ _centre_board(board) + T[:3, 3], T[:3, 2], board, expected)
+        if dist > expected.position_tol_m or a > expected.angle_tol_deg:
             return -np.inf
-        score -= 0.5 * (d / expected.position_tol_m + a / expected.angle_tol_deg)
+        score -= 0.5 * (dist / expected.position_tol_m + a / expected.angle_tol_deg)
     return float(score)
 
 

@@ -131,9 +131,10 @@ def plane_fit(b_xyz: np.ndarray, black: np.ndarray | None = None, ring: np.ndarr
     """
     x, y, z = b_xyz[:, 0], b_xyz[:, 1], b_xyz[:, 2]
     cols = [y, -x, np.ones_like(x)]
-    use_dark = black is not None and 0.1 < float(np.mean(black)) < 0.9
-    if use_dark:
-        cols.append(black.astype(np.float64))
+    dark = black if black is not None and 0.1 < float(np.mean(black)) < 0.9 else None
+    use_dark = dark is not None
+    if dark is not None:
+        cols.append(dark.astype(np.float64))
     A = np.column_stack(cols)
     sol, *_ = np.linalg.lstsq(A, z, rcond=None)
     res = z - A @ sol

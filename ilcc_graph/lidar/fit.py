@@ -12,6 +12,7 @@ In-plane convention: plane coordinates ``q`` (metres, origin at the points' cent
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,7 +76,7 @@ def plane_frame(points: np.ndarray, normal: np.ndarray, offset: float) -> PlaneF
 
 
 def powell_batched(
-    fun,
+    fun: Callable[[np.ndarray], np.ndarray],
     x0: np.ndarray,
     scales: np.ndarray,
     xtol: float = 1e-3,

@@ -10,6 +10,7 @@ the pose is ``T_lidar_board`` with the covariance in its Pose3 tangent.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,7 +22,7 @@ from ..lidars import LidarModel
 from ..types import BoardFit, BoardReturns
 from .board_tests import print_visible
 from .cost import intensity_classes
-from .covariance import assemble_covariance, plane_fit, ray_coupling, sampling_covariance
+from .covariance import PlaneFit, assemble_covariance, plane_fit, ray_coupling, sampling_covariance
 from .fit import InPlaneFit, fit_in_plane, plane_frame, pose_from_in_plane, project_on_plane
 from .options import LidarOptions, breach
 from .outline import (
@@ -136,7 +137,8 @@ class _InPlane:
 
 
 def _plane_passes(P: np.ndarray, ring: np.ndarray, T: np.ndarray, board: Board, options: LidarOptions,
-                  black_of=None) -> tuple[np.ndarray, float]:  # fmt: skip  # noqa: ANN001
+                  black_of: Callable[[np.ndarray], np.ndarray] | None = None,
+                  ) -> tuple[np.ndarray, float]:  # fmt: skip
     """The plane refitted twice on the returns well inside the board at T (the white print's plane
     when ``black_of(mask)`` says which are black), T aligned to it; and the plane noise."""
     s_z = 0.02
@@ -160,7 +162,10 @@ def _plane_passes(P: np.ndarray, ring: np.ndarray, T: np.ndarray, board: Board, 
     return T, s_z
 
 
-def _refine(P, inten, ring, T0, s_z, board, model, fit: InPlaneFit, options) -> _InPlane:  # noqa: ANN001
+def _refine(
+    P: np.ndarray, inten: np.ndarray, ring: np.ndarray, T0: np.ndarray, s_z: float, board: Board,
+    model: LidarModel, fit: InPlaneFit, options: LidarOptions,
+) -> _InPlane:  # fmt: skip
     """The soft-edged intensity refinement from T0, its covariance (plus the edges' sampling) and
     coupling; BoardNotFound when the fitted pattern does not explain the intensities."""
     b = _to_board(P, T0, options.projection)
@@ -209,7 +214,10 @@ def _refine(P, inten, ring, T0, s_z, board, model, fit: InPlaneFit, options) -> 
     return _InPlane(T, P, inten, ring, s_z, soft.cov + cov_q, K, fit.tau, levels, diag)
 
 
-def _pattern(P, inten, ring, normal, offset, board, model, options, rng, scan_pts) -> _InPlane:  # noqa: ANN001
+def _pattern(
+    P: np.ndarray, inten: np.ndarray, ring: np.ndarray, normal: np.ndarray, offset: float, board: Board,
+    model: LidarModel, options: LidarOptions, rng: np.random.Generator, scan_pts: np.ndarray,
+) -> _InPlane:  # fmt: skip
     """The paper's intensity fit, refined, checked against the outline (moved by whole squares to
     where the outline allows when it slid) and, with ``options.shape == "fuse"``, combined with it."""
     t0 = time.perf_counter()
@@ -275,7 +283,10 @@ def _moved_to_outline(
     raise BoardNotFound(slid_message(chk, board, options))
 
 
-def _outline(P, inten, ring, normal, offset, board, model, options, rng, scan_pts) -> _InPlane:  # noqa: ANN001
+def _outline(
+    P: np.ndarray, inten: np.ndarray, ring: np.ndarray, normal: np.ndarray, offset: float, board: Board,
+    model: LidarModel, options: LidarOptions, rng: np.random.Generator, scan_pts: np.ndarray,
+) -> _InPlane:  # fmt: skip
     """The in-plane pose from the board's outline alone (no print in the intensities)."""
     Pp = project(P, normal, offset, options.projection)
     frame = plane_frame(Pp, normal, offset)
@@ -394,7 +405,10 @@ def _finish(res: _InPlane, board: Board, model: LidarModel, options: LidarOption
     )
 
 
-def _returns(points, ring, cls, pf, b_raw, cov, inten, levels) -> BoardReturns:  # noqa: ANN001
+def _returns(
+    points: np.ndarray, ring: np.ndarray, cls: np.ndarray, pf: PlaneFit, b_raw: np.ndarray, cov: np.ndarray,
+    inten: np.ndarray, levels: tuple[float, float] | None,
+) -> BoardReturns:  # fmt: skip
     """The board's returns for the estimation core: those well inside the board (``points``, their
     board-frame coordinates ``b_raw``), clearly black or white, within 3 sigma of the plane fit ``pf``;
     and the in-plane part of the final covariance ``cov`` (same board frame):

@@ -61,7 +61,10 @@ SEARCH_POINTS = 20_000
 
 def one_pseudo_beam(fit: BoardFit) -> BoardFit:
     """The fit with its returns on the one pseudo-beam 0 (what the estimation core is given: one
-    laser, one range offset; the bands were for the fit's own covariance)."""
+    laser, one range offset; the bands were for the fit's own covariance). A fit without returns
+    has no beams to change."""
+    if fit.returns is None:
+        return fit
     return replace(fit, returns=replace(fit.returns, ring=np.zeros(len(fit.returns.ring), np.int64)))
 
 

@@ -29,6 +29,7 @@ Frames: the board frame of the pose the samples were taken in, metres, radians.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 
@@ -295,7 +296,8 @@ def _grad_hess(f: np.ndarray, h: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return g, H
 
 
-def _mode(fun, mu: np.ndarray, h: np.ndarray, max_var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+def _mode(fun: Callable[[np.ndarray], np.ndarray], mu: np.ndarray, h: np.ndarray,
+          max_var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Newton's method on ``fun`` (a log-density of (M, n) points; central differences, all stencil
     points at once), each step at most ``sqrt(max_var) / 5`` per coordinate and searched along its
     line: the mode and the negative inverse Hessian there (eigenvalues clipped to ``max_var``)."""
@@ -318,8 +320,8 @@ def _mode(fun, mu: np.ndarray, h: np.ndarray, max_var: np.ndarray) -> tuple[np.n
     return mu, 0.5 * (S + S.T)
 
 
-def _importance(  # noqa: ANN001 - fun: (M, n) -> (M,)
-    fun,
+def _importance(
+    fun: Callable[[np.ndarray], np.ndarray],
     mu: np.ndarray,
     C: np.ndarray,
     rng: np.random.Generator,
@@ -421,14 +423,14 @@ def outline_posterior(
     within reach of the outline take part (the others' likelihood does not change over the
     proposal's range).
     """
-    start = xi0
-    for _ in range(3):  # when the mass lies away from the mode found (a far corner of a flat top), again
+    start, tries = xi0, 1
+    while True:  # when the mass lies away from the mode found (a far corner of a flat top), again
         mu, S, sub, g_sd = outline_mode(s, board, start, scale0, growth_sd)
         fun = partial(outline_loglik, s=sub, board=board, growth_sd=g_sd)
         mu, C, log_ev, ess = _importance(fun, mu, S, rng, n_draws)
-        if ess >= 0.1 * n_draws:
+        if ess >= 0.1 * n_draws or tries == 3:
             break
-        start = mu[:3]
+        start, tries = mu[:3], tries + 1
     dm = signed_distance(mu[:3], sub.b, board)[0] + mu[3]
     margin = 3.0 * sub.sigma.max(axis=1) + 0.01
     return ShapeFit(

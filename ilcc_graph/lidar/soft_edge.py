@@ -17,6 +17,7 @@ tangent at the start pose, ``T_refined = T_start * Expmap((0, 0, rz, tx, ty, 0))
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, overload
 
 import numpy as np
 from scipy.special import erf
@@ -127,6 +128,16 @@ def _huber(res: np.ndarray, k: float) -> tuple[float, np.ndarray]:
     return float(rho.sum()), np.where(a <= k, 1.0, k / np.maximum(a, 1e-12))
 
 
+@overload
+def _residual(
+    r: np.ndarray, b0h: np.ndarray, board: Board, H: np.ndarray, a: float, c: float, lsig: float,
+    jac: Literal[True],
+) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def _residual(
+    r: np.ndarray, b0h: np.ndarray, board: Board, H: np.ndarray, a: float, c: float, lsig: float,
+    jac: Literal[False],
+) -> tuple[np.ndarray, None]: ...
 def _residual(
     r: np.ndarray, b0h: np.ndarray, board: Board, H: np.ndarray, a: float, c: float, lsig: float, jac: bool
 ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -181,15 +192,13 @@ def soft_edge_refine(
     b0h = np.column_stack([b0, np.ones(len(b0))])
     sig_lo, sig_hi = np.log(2e-4), np.log(0.5 * board.square_size)
 
-    def residual(
-        H: np.ndarray, a: float, c: float, lsig: float, jac: bool
-    ) -> tuple[np.ndarray, np.ndarray | None]:
-        return _residual(r, b0h, board, H, a, c, lsig, jac)
+    def residual(H: np.ndarray, a: float, c: float, lsig: float) -> tuple[np.ndarray, np.ndarray]:
+        return _residual(r, b0h, board, H, a, c, lsig, True)
 
     H = np.eye(3)
     a, c = float(levels[0]), float(levels[1] - levels[0])
     lsig = float(np.clip(np.log(max(blur0, 1e-3)), sig_lo, sig_hi))
-    res, J = residual(H, a, c, lsig, True)
+    res, J = residual(H, a, c, lsig)
     k = 1.5 * max(1.4826 * float(np.median(np.abs(res - np.median(res)))), 1e-6)
     f, W = _huber(res, k)
     lam, converged, it = 1e-3, False, 0
@@ -204,12 +213,12 @@ def soft_edge_refine(
         Hn = np.linalg.inv(se2_exp(step[:3])) @ H
         an, cn = a + step[3], c + step[4]
         ln = float(np.clip(lsig + step[5], sig_lo, sig_hi))
-        res_n, _ = residual(Hn, an, cn, ln, False)
+        res_n, _ = _residual(r, b0h, board, Hn, an, cn, ln, False)
         fn, _ = _huber(res_n, k)
         if fn < f:
             small = abs(step[0]) < 1e-6 and np.linalg.norm(step[1:3]) < 1e-6 or (f - fn) < 1e-8 * f
             H, a, c, lsig = Hn, an, cn, ln
-            res, J = residual(H, a, c, lsig, True)
+            res, J = residual(H, a, c, lsig)
             f, W = _huber(res, k)
             lam = max(lam / 3, 1e-9)
             if small:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -14,6 +15,9 @@ from ilcc_graph.estimation.next_board import SolvedGlobals, board_information, e
 from ilcc_graph.next_pose.lidar_noise import BoardNoiseModel, fit_noise_model
 from ilcc_graph.next_pose.pose_geometry import Rig, board_outline, board_pose, in_view
 from ilcc_graph.types import Calibration, GraphFrame, sigmas_deg_mm
+
+if TYPE_CHECKING:  # the run hands its result down; next_pose does not import the run
+    from ilcc_graph.run.result import Result
 
 __all__ = [
     "Advisor",
@@ -389,7 +393,7 @@ def from_calibration(
     )
 
 
-def for_run(result, target_sigma: tuple[float, float] | None = None) -> Proposal | None:  # noqa: ANN001
+def for_run(result: Result, target_sigma: tuple[float, float] | None = None) -> Proposal | None:
     """The next board pose after a run (``run.result.Result``) of one session with a covariance;
     None for several sessions, the paper's refinement (no covariance) or no valid candidate."""
     if len(result.sessions) != 1 or not np.all(np.isfinite(result.calibration.covariance)):

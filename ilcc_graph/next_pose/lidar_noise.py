@@ -110,13 +110,15 @@ def fit_noise_model(frames: Sequence[GraphFrame], board: Board, lidar: LidarMode
         C = np.asarray(f.board_cov, dtype=np.float64)
         if p is None or not np.all(np.isfinite(C)):
             continue
+        soft, samp = p.inplane
+        assert samp is not None  # _parts gives the sampling part when asked (the default)
         Co = C[np.ix_(_IO, _IO)]
         Ci = C[np.ix_(_II, _II)] - p.K @ Co @ p.K.T  # what the coupling does not explain
         for k in range(3):
             if Co[k, k] > 0:
                 rows_o.append([p.plane[0][k, k] / Co[k, k], p.plane[1][k, k] / Co[k, k]])
             if Ci[k, k] > 0:
-                rows_i.append([p.inplane[0][k, k] / Ci[k, k], p.inplane[1][k, k] / Ci[k, k]])
+                rows_i.append([soft[k, k] / Ci[k, k], samp[k, k] / Ci[k, k]])
     d = BoardNoiseModel.default(lidar)
 
     def fit(rows: list, fallback: tuple[float, float]) -> tuple[float, float]:

@@ -85,10 +85,10 @@ def encode_image(image: np.ndarray, fmt: str = "webp", quality: int = 65) -> byt
         Image.fromarray(rgb).save(buf, format="WEBP", quality=int(quality), method=1)
         return buf.getvalue()
     params = [cv2.IMWRITE_JPEG_QUALITY, int(quality)] if fmt == "jpg" else [cv2.IMWRITE_PNG_COMPRESSION, 6]
-    ok, buf = cv2.imencode(f".{fmt}", img, params)
+    ok, encoded = cv2.imencode(f".{fmt}", img, params)
     if not ok:
         raise ValueError(f"encode_image: OpenCV could not encode an image of shape {image.shape} as {fmt}")
-    return buf.tobytes()
+    return encoded.tobytes()
 
 
 def _crop(
@@ -161,7 +161,7 @@ def frame_figures(
     out = _Pictures(name, options)
     uv_corners = None if cr is None else np.asarray(cr.uv, dtype=np.float64)
     uv_rep = None
-    if bf is not None and bf.corners_lidar is not None and len(bf.corners_lidar):
+    if bf is not None and len(bf.corners_lidar):
         uv_rep = camera.project(transform_points(T, bf.corners_lidar))
     ef = eval_frame_with_scan(result, scan, board) if result is not None else None
     uv_board = None

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from ..board import Board
 from ..cameras import CameraModel
 from .plots import _figure, _png
+
+if TYPE_CHECKING:  # next_pose is report's neighbour: a name for the hint only
+    from ..next_pose import Proposal
 
 __all__ = ["next_pose_png", "plot_next_pose"]
 
@@ -95,11 +100,14 @@ def plot_next_pose(
     return _png(fig)
 
 
-def next_pose_png(proposal) -> bytes:  # noqa: ANN001 - next_pose.Proposal
-    """``next_pose.png``: the rig from above and the side with the boards so far and the proposal."""
+def next_pose_png(proposal: Proposal) -> bytes:
+    """``next_pose.png``: the rig from above and the side with the boards so far and the proposal;
+    ValueError for a proposal without its rig."""
     import textwrap
 
     rig = proposal.rig
+    if rig is None:
+        raise ValueError("next_pose_png: the proposal carries no rig to draw")
     return plot_next_pose(
         rig.board,
         proposal.boards,

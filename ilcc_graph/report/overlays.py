@@ -19,6 +19,9 @@ from ..evaluation.metric import MetricPoints, transform_points
 from ..image.previews import Crop, crop_around, downscale  # re-exported: the report's windows
 from ..types import Scan
 
+#: a colour as OpenCV draws it: (blue, green, red), 0..255
+BGR = tuple[int, int, int]
+
 __all__ = [
     "crop_box",
     "draw_corners",
@@ -66,7 +69,9 @@ def _scale_for(shape: tuple[int, ...]) -> float:
     return max(1.0, max(shape[:2]) / 800.0)
 
 
-def draw_corners(image: np.ndarray, uv: np.ndarray, crop: bool = True, colour=(0, 0, 255)) -> np.ndarray:
+def draw_corners(
+    image: np.ndarray, uv: np.ndarray, crop: bool = True, colour: BGR = (0, 0, 255)
+) -> np.ndarray:
     """Corners ``uv`` (K,2, pixels) drawn and numbered on a copy of ``image`` (BGR).
 
     Corner 0 is ringed green, the last one blue, the rest red, joined in index order. With
@@ -80,7 +85,9 @@ def draw_corners(image: np.ndarray, uv: np.ndarray, crop: bool = True, colour=(0
     return out
 
 
-def _draw_numbered(out: np.ndarray, p: np.ndarray, colour=(0, 0, 255), line=(0, 200, 255)) -> None:
+def _draw_numbered(
+    out: np.ndarray, p: np.ndarray, colour: BGR = (0, 0, 255), line: BGR = (0, 200, 255)
+) -> None:
     """Corners p (K, 2) in ``out``'s pixels, joined, numbered; 0 green, last blue (in place)."""
     scale = _scale_for(out.shape)
     r, th = int(round(4 * scale)), max(1, int(round(scale)))

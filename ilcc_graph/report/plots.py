@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import io
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..evaluation.metric import Evaluation
 from ..evaluation.studies import CrossValidation, FramesCurve, Valley
+
+if TYPE_CHECKING:  # matplotlib is imported when a figure is drawn
+    from matplotlib.figure import Figure
 
 __all__ = [
     "plot_per_frame",
@@ -30,7 +35,8 @@ _LABELS = (
 _UNITS = np.array([np.degrees(1.0)] * 3 + [1000.0] * 3)
 
 
-def _figure(w: float, h: float, rows: int = 1, cols: int = 1):
+def _figure(w: float, h: float, rows: int = 1, cols: int = 1) -> tuple[Figure, np.ndarray]:
+    """A figure of ``w`` x ``h`` inches and its (rows, cols) array of axes (matplotlib imported here)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -41,13 +47,13 @@ def _figure(w: float, h: float, rows: int = 1, cols: int = 1):
     return fig, axes
 
 
-def _png(fig) -> bytes:
+def _png(fig: Figure) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     return buf.getvalue()
 
 
-def _finite(x: np.ndarray) -> np.ndarray:
+def _finite(x: np.ndarray | Sequence[float]) -> np.ndarray:
     x = np.asarray(x, dtype=np.float64)
     return np.where(np.isfinite(x), x, np.nan)
 

@@ -69,9 +69,9 @@ def esc(s: object) -> str:
 def num(x: float | None, fmt: str = ".3g") -> str:
     if x is None:
         return "–"
-    if isinstance(x, float) and math.isnan(x):
+    if math.isnan(x):  # an int is never NaN nor infinite
         return "–"
-    if isinstance(x, float) and math.isinf(x):
+    if math.isinf(x):
         return "∞"
     return format(x, fmt)
 
@@ -170,7 +170,7 @@ def transform_section(cal: Calibration, T_gt: np.ndarray | None) -> tuple[str, s
     verdict = None
     if T_gt is not None:
         d = pose_difference(T, np.asarray(T_gt, dtype=np.float64))
-        ang = math.degrees(float(np.linalg.norm(d[:3])))
+        off_deg = math.degrees(float(np.linalg.norm(d[:3])))
         dist = 1000 * float(np.linalg.norm(d[3:]))
         z = d / np.where(s > 0, s, np.nan)
         try:
@@ -193,7 +193,7 @@ def transform_section(cal: Calibration, T_gt: np.ndarray | None) -> tuple[str, s
         ok = within and bool(m2 < CHI2_6DOF_3SIGMA)
         verdict = (
             f'<div class="verdict {"ok" if ok else "bad"}">Against the ground truth: rotation off by '
-            f"{ang:.3f} deg, translation by {dist:.1f} mm. "
+            f"{off_deg:.3f} deg, translation by {dist:.1f} mm. "
             + ("Every parameter lies within 3 sigma" if within else "Some parameter lies beyond 3 sigma")
             + f"; Mahalanobis distance squared {m2:.1f} (6 on average for an honest covariance, "
             f"{'below' if m2 < CHI2_6DOF_3SIGMA else 'above'} its 3-sigma bound "

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import textwrap
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import gtsam
@@ -124,7 +124,9 @@ def verdict(
 
 
 # ------------------------------------------------------------------------------------ the poses
-def _propagate(f, xi_cov: np.ndarray, dim: int, eps: float = 1e-7) -> np.ndarray:
+def _propagate(
+    f: Callable[[np.ndarray], np.ndarray], xi_cov: np.ndarray, dim: int, eps: float = 1e-7
+) -> np.ndarray:
     """1-sigma of ``f(xi)`` (a vector) for ``xi ~ N(0, xi_cov)``, by a central-difference Jacobian."""
     J = np.empty((len(f(np.zeros(dim))), dim))
     for i in range(dim):
@@ -289,7 +291,7 @@ def run_summary(
     cal: Calibration,
     joint: dict | None,
     truth: np.ndarray | None,
-    out: object,
+    out: Path | str,
     seconds: tuple[float, float],
     reports: Sequence[Path] = (),
     notes: Sequence[str] = (),

@@ -122,11 +122,11 @@ def _dropped_causes(
     results: dict[str, FrameResult], dropped: Sequence[str], config: Config, T_cam_lidar: np.ndarray
 ) -> dict[str, str]:
     """Per dropped frame the likely cause (``diagnose``), judged against the used frames' images."""
-    used = [r for n, r in results.items() if r.used and n not in dropped and r.corners is not None]
+    used = [r.corners for n, r in results.items() if r.used and n not in dropped and r.corners is not None]
     if len(used) < 3:
         return {}
     corners = config.board.corners_board()
-    typical = float(np.median([fit_image_alone(r.corners.bearings, corners).rms_mrad for r in used]))
+    typical = float(np.median([fit_image_alone(c.bearings, corners).rms_mrad for c in used]))
     return {
         n: dropped_frame_cause(results[n], config.board, config.camera, T_cam_lidar, typical) for n in dropped
     }
@@ -145,8 +145,8 @@ def _sensors(sol: BatchSolution, config: Config) -> dict:
         out["lidar_errors"] = {"names": list(names), "values": values, "sigmas": sigmas, "left_out": left}
         if sol.lidar_covariance is not None:
             out["lidar_errors"]["covariance"] = sol.lidar_covariance
-        if getattr(sol, "board_plane", None) is not None:
-            out["lidar_errors"]["board_plane"] = dataclasses.asdict(sol.board_plane)
+        if (plane := getattr(sol, "board_plane", None)) is not None:
+            out["lidar_errors"]["board_plane"] = dataclasses.asdict(plane)
         if config.lidar is not None:  # each beam's nominal elevation (beam index 0 = lowest)
             el = config.lidar.vertical_angles_deg
             beams = {n: int(n[n.index("[") + 1 : -1]) for n in names if "[" in n}

@@ -245,7 +245,7 @@ class LiveCheck:
         got = self._solve(self._found, again=False)
         if isinstance(got, str):
             wait = n < 3
-            note = f"{3 - n} more pose{'s' if 3 - n > 1 else ''} to calibrate" if wait else got
+            note: str | None = f"{3 - n} more pose{'s' if 3 - n > 1 else ''} to calibrate" if wait else got
             return dataclasses.replace(v, n_distinct=n, note=note)
         update, why = got
         accepted = gf.name in update.solution.per_frame  # type: ignore[union-attr]

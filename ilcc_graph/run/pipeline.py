@@ -16,10 +16,11 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, cast
 
 from ilcc_graph import signals
 from ilcc_graph.config import Config
-from ilcc_graph.datasets import FrameSource
+from ilcc_graph.datasets import FrameSource, RigSource
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.run.observe import FrameStream, Observation, observe
@@ -30,19 +31,23 @@ from ilcc_graph.run.setup_mistakes import diagnose_failure, diagnose_result
 from ilcc_graph.run.strategies import Reporter, Strategy, choose, strategy
 from ilcc_graph.types import Calibration, FrameResult
 
+if TYPE_CHECKING:
+    import gtsam
+    import numpy as np
+
 log = logging.getLogger(__name__)
 
 __all__ = ["calibrate", "run", "session_names", "solve_observations", "solve_observed"]
 
 
-def session_names(sources: Sequence[FrameSource]) -> list[str]:
+def session_names(sources: Sequence[FrameSource | RigSource]) -> list[str]:
     """Source labels made unique (with an index where two share one)."""
     labels = [s.label or f"session{i + 1}" for i, s in enumerate(sources)]
     return [f"{n}#{i + 1}" if labels.count(n) > 1 else n for i, n in enumerate(labels)]
 
 
 def run(
-    sources: Sequence[FrameSource],
+    sources: Sequence[FrameSource] | Sequence[RigSource],
     options: RunOptions = RunOptions(),
     progress: Callable[[str, int, int], None] | None = None,
     report: Reporter | None = None,
@@ -58,13 +63,15 @@ def run(
     names = session_names(sources)
     chosen = choose(options, len(sources))
     if chosen.streams:
-        stream = FrameStream(sources[0], options.stages)
-        obs = Observation(sources[0], stream.config, [], names[0], stream)
+        first = cast(FrameSource, sources[0])  # a streaming strategy reads one pair's frames
+        stream = FrameStream(first, options.stages)
+        obs = Observation(first, stream.config, [], names[0], stream)
         return chosen.solve([obs], dataclasses.replace(options, mode=chosen.mode), report)
     observations = []
     for name, src in zip(names, sources, strict=True):
         cb = None if progress is None else (lambda i, n, name=name: progress(name, i, n))
-        observed = (chosen.observe or observe)(src, options.stages, cb)
+        observe_source: Callable[..., Observation] = chosen.observe or observe  # a rig's: its own
+        observed = observe_source(src, options.stages, cb)
         observations.append(dataclasses.replace(observed, name=name))
     signals.check()
     try:
@@ -159,7 +166,7 @@ def solve_observed(
     return strategy(options.mode).solve([obs], options, None).calibration
 
 
-def calibrate(data: str, options: RunOptions = RunOptions()):  # noqa: ANN201 - (gtsam.Pose3, (6, 6))
+def calibrate(data: str, options: RunOptions = RunOptions()) -> tuple[gtsam.Pose3, np.ndarray]:
     """Python API: the extrinsic of the data set at ``data`` as ``gtsam.Pose3`` (T_cam_lidar) and its
     6x6 covariance (interface.md convention)."""
     from ilcc_graph.datasets import open_source

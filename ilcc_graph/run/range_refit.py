@@ -132,15 +132,17 @@ def refit_pass(obs: Observation, cal: Calibration, stages: StageOptions) -> Obse
     correction = correction_of(cal.sensors)
     ratio = largest_stretch(obs.frames, correction, obs.config.board)
     log.debug("the LiDAR's estimated range errors stretch a board by %.2f of its in-plane sigma", ratio)
-    if correction is None or obs.source is None or ratio <= REFIT_RATIO:
+    # run.pipeline observes frames given without their source (None), which the field's type hides
+    source: FrameSource | None = obs.source
+    if correction is None or source is None or ratio <= REFIT_RATIO:
         return None
-    refs = {r.name: r for r in obs.source.frames()}
+    refs = {r.name: r for r in source.frames()}
     names, items = [], []
     for f in obs.frames:
         if f.board is not None and f.name in refs:
             names.append(f.name)
             expected = ExpectedBoard(f.board.T_lidar_board)
-            items.append((obs.source, refs[f.name], obs.config, stages.lidar, expected, correction))
+            items.append((source, refs[f.name], obs.config, stages.lidar, expected, correction))
     fits = dict(zip(names, workers.map_processes(_refit_one, items, stages.jobs, None), strict=True))
     lost = [n for n, r in fits.items() if isinstance(r, FrameError)]
     moved = [r.diagnostics.get("range_correction_mm", 0.0) for r in fits.values() if isinstance(r, BoardFit)]

@@ -110,7 +110,7 @@ def diagnose_result(obs: Observation, cal: Calibration, images: int = 2) -> list
     used = {f.name for f in cal.frames if f.used}
     frames = [f for f in obs.frames if f.name in used]
     both = [(f.corners, f.board.T_lidar_board) for f in obs.frames if f.corners is not None and f.board]
-    scale = board_scale(both, board)  # type: ignore[arg-type]
+    scale = board_scale(both, board)
     if (
         scale is not None
         and scale[2] >= 3
@@ -149,14 +149,17 @@ def _found(results: Sequence[object]) -> int:
     return sum(1 for r in results if not isinstance(r, FrameError))
 
 
-def _with_board(config: Config, **changes: object) -> Config:
-    return dataclasses.replace(config, board=dataclasses.replace(config.board, **changes))
+def _with_board(config: Config, board: Board) -> Config:
+    return dataclasses.replace(config, board=board)
 
 
 def _scaled(config: Config, k: float) -> Config:
     b = config.board
     return _with_board(
-        config, square_size=b.square_size * k, margin_long=b.margin_long * k, margin_short=b.margin_short * k
+        config,
+        dataclasses.replace(
+            b, square_size=b.square_size * k, margin_long=b.margin_long * k, margin_short=b.margin_short * k
+        ),
     )
 
 
@@ -231,7 +234,7 @@ def _board_dims_search(obs: Observation, stages: StageOptions, refs: dict) -> st
     for rows, cols in ((board.rows + 1, board.cols + 1), (board.rows - 1, board.cols - 1)):
         if rows < 3:
             continue
-        alt = _with_board(cfg, rows=rows, cols=cols)
+        alt = _with_board(cfg, dataclasses.replace(board, rows=rows, cols=cols))
         img = _found([attempt(observe_image, obs.source, refs[f.name], alt, stages.image) for f in without])
         tried = len(without)
         if rows > board.rows:

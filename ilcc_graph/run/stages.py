@@ -116,7 +116,7 @@ def observe_lidar(
     """The LiDAR stage on one frame's scan (near ``expected`` when given, on the ranges corrected by
     ``correction`` when given); FrameError says why not."""
     scan = read_frame_file(source.read_scan, ref, config, strict=strict)
-    return estimate_board(scan, config.board, config.lidar, config.roi, options, expected, correction)  # type: ignore[arg-type]
+    return estimate_board(scan, config.board, config.lidar, config.roi, options, expected, correction)
 
 
 def observe_image(
@@ -137,7 +137,7 @@ def observe_image(
         check_image(size, config, where, strict)
     image = read_frame_file(source.read_image, ref, strict=strict)
     check_image(image, config, where, strict)
-    corners = detect_corners(image, config.camera, config.board, options)  # type: ignore[arg-type]
+    corners = detect_corners(image, config.camera, config.board, options)
     extra = dict(zip(PATTERN_KEYS, pattern_continues(image, config, corners)))  # for setup_mistakes
     kept = make_views(image, corners.uv, config.camera) if views else corners.views
     return dataclasses.replace(corners, diagnostics={**corners.diagnostics, **extra}, views=kept)

@@ -8,6 +8,8 @@ writes it as a ROS 1 or ROS 2 bag, optionally as a walk-and-pause recording (``b
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from .frames import SimFrame, frame_name, ground_truth, simulate_frame, simulate_frames
 from .intrinsics_error import IntrinsicsError, stated_camera
 from .lidar import beam_biases, beam_gains, simulate_scan
@@ -26,19 +28,22 @@ from .spec import (
     standard_spec,
 )
 
+if TYPE_CHECKING:  # the type checker sees the writers' own signatures
+    from .bag import write_bag
+    from .write_set import simulate_dataset
+else:
 
-def simulate_dataset(*args, **kwargs):  # lazy: keeps io out of `import ilcc_graph.simulate`
-    """Write a data set; see :func:`ilcc_graph.simulate.write_set.simulate_dataset`."""
-    from .write_set import simulate_dataset as _write
+    def simulate_dataset(*args, **kwargs):  # lazy: keeps io out of `import ilcc_graph.simulate`
+        """Write a data set; see :func:`ilcc_graph.simulate.write_set.simulate_dataset`."""
+        from .write_set import simulate_dataset as _write
 
-    return _write(*args, **kwargs)
+        return _write(*args, **kwargs)
 
+    def write_bag(*args, **kwargs):  # lazy: keeps rosbags out of `import ilcc_graph.simulate`
+        """Write a data set as a ROS bag; see :func:`ilcc_graph.simulate.bag.write_bag`."""
+        from .bag import write_bag as _write
 
-def write_bag(*args, **kwargs):  # lazy: keeps rosbags out of `import ilcc_graph.simulate`
-    """Write a data set as a ROS bag; see :func:`ilcc_graph.simulate.bag.write_bag`."""
-    from .bag import write_bag as _write
-
-    return _write(*args, **kwargs)
+        return _write(*args, **kwargs)
 
 
 __all__ = [

@@ -21,18 +21,25 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from ..io import write_yaml
 from ..io.output_folders import staged_files
+from ..types import Scan
 from .frames import SimFrame, ground_truth, simulate_frames
 from .lidar import beam_biases, simulate_scan
 from .placements import board_placements, frame_scene
 from .render import ImageRenderer
 from .spec import SimulationSpec
 from .write_set import config_dict
+
+if TYPE_CHECKING:  # rosbags is imported when a bag is written
+    from rosbags.rosbag1 import Writer as Writer1
+    from rosbags.rosbag2 import Writer as Writer2
+    from rosbags.typesys.store import Msg, Msgarg
 
 __all__ = ["RosMessages", "WalkAndPause", "bag_frame_name", "simulate_walk", "walk_poses", "write_bag"]
 
@@ -103,12 +110,12 @@ class RosMessages:
         self.ros1 = ros1
         self.ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
 
-    def make(self, msgtype: str, /, **values: object) -> object:
+    def make(self, msgtype: str, /, **values: Msgarg) -> Msg:
         """A message of ``msgtype`` (``sensor_msgs/msg/Image``); field names matched case-insensitively."""
         fields = {f.lower(): f for f, _ in self.ts.fielddefs[msgtype][1]}
         return self.ts.types[msgtype](**{fields[k.lower()]: v for k, v in values.items()})
 
-    def header(self, t_ns: int, frame: str) -> object:
+    def header(self, t_ns: int, frame: str) -> Msg:
         stamp = self.make("builtin_interfaces/msg/Time", sec=t_ns // 10**9, nanosec=t_ns % 10**9)
         extra = {"seq": 0} if self.ros1 else {}
         return self.make("std_msgs/msg/Header", stamp=stamp, frame_id=frame, **extra)
@@ -117,15 +124,19 @@ class RosMessages:
         ser = self.ts.serialize_ros1 if self.ros1 else self.ts.serialize_cdr
         return bytes(ser(msg, msgtype))
 
-    def cloud(self, frame: SimFrame, t_ns: int) -> object:
-        scan, n = frame.scan, len(frame.scan)
+    def cloud(self, frame: SimFrame | Scan, t_ns: int) -> Msg:
+        """The PointCloud2 of a frame's scan (or of a scan)."""
+        scan = frame if isinstance(frame, Scan) else frame.scan
+        n = len(scan)
         rec = np.zeros(n, dtype={"names": ["x", "y", "z", "intensity", "ring"],
                                  "formats": ["<f4", "<f4", "<f4", "<f4", "<u2"],
                                  "offsets": [0, 4, 8, 16, 20], "itemsize": 32})  # fmt: skip
         rec["x"], rec["y"], rec["z"] = scan.points.T
         rec["intensity"] = scan.intensity
         pf = "sensor_msgs/msg/PointField"
-        layout = (("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 16, 7), ("ring", 20, 4))  # 7 f4, 4 u2
+        layout: tuple[tuple[str, int, int], ...] = (  # 7 f4, 4 u2
+            ("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("intensity", 16, 7), ("ring", 20, 4)
+        )  # fmt: skip
         if scan.ring is None:  # a scanline-free lidar (Livox): no ring field
             layout = layout[:4]
         else:
@@ -137,7 +148,7 @@ class RosMessages:
                          fields=fields, is_bigendian=False, point_step=32, row_step=32 * n,
                          data=rec.view(np.uint8).reshape(-1), is_dense=True)  # fmt: skip
 
-    def image(self, img: np.ndarray, t_ns: int, fmt: str) -> object:
+    def image(self, img: np.ndarray, t_ns: int, fmt: str) -> Msg:
         import cv2
 
         if fmt == "bgr8":
@@ -149,7 +160,7 @@ class RosMessages:
         return self.make("sensor_msgs/msg/CompressedImage", header=self.header(t_ns, "camera"),
                          format=f"bgr8; {fmt} compressed bgr8", data=data)  # fmt: skip
 
-    def camera_info(self, spec: SimulationSpec, t_ns: int) -> object | None:
+    def camera_info(self, spec: SimulationSpec, t_ns: int) -> Msg | None:
         cam = spec.camera
         ros = cam.ros_camera_info()
         if ros is None:
@@ -165,8 +176,9 @@ class RosMessages:
                          roi=roi)  # fmt: skip
 
 
-def _write(writer, m: RosMessages, spec: SimulationSpec, frames: Sequence[SimFrame], image_format: str,
-           times: tuple[np.ndarray, ...], progress: Callable[[int, int], None] | None) -> bool:  # fmt: skip
+def _write(writer: Writer1 | Writer2, m: RosMessages, spec: SimulationSpec, frames: Sequence[SimFrame],
+           image_format: str, times: tuple[np.ndarray, ...],
+           progress: Callable[[int, int], None] | None) -> bool:  # fmt: skip
     """Every message into an open-able ``writer``; True when CameraInfo was written."""
     t_scan, t_image, bag_scan, bag_image = times
     cloud_t, info_t = "sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/CameraInfo"

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -65,7 +65,17 @@ def simulate_frame(spec: SimulationSpec, i: int) -> SimFrame:
     return next(simulate_frames(spec, [i]))
 
 
-def ground_truth(spec: SimulationSpec, frames: Iterable[SimFrame] | None = None) -> dict[str, Any]:
+class NamedPose(Protocol):
+    """What ``ground_truth`` reads of a frame: its name and true board pose."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def T_lidar_board(self) -> np.ndarray: ...
+
+
+def ground_truth(spec: SimulationSpec, frames: Iterable[NamedPose] | None = None) -> dict[str, Any]:
     """The content of ``ground_truth.yaml`` (plain lists, ready for YAML).
 
     Keys: ``T_cam_lidar`` (4x4); ``T_lidar_board`` {stem: 4x4}; ``corners_lidar`` {stem: (K, 3)

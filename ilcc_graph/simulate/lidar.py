@@ -119,7 +119,8 @@ def _footprint_colour(
     scene: Scene, d: np.ndarray, t: np.ndarray, xy: np.ndarray, radius: np.ndarray
 ) -> np.ndarray:
     """Mean printed colour over each beam's footprint on the board (NaN-free where ``xy`` is on it)."""
-    R = scene.T_lidar_board[:3, :3]
+    board, T = scene.placed_board()
+    R = T[:3, :3]
     db = d @ R  # beam direction in the board frame
     # two unit vectors perpendicular to the beam, in the board frame
     ref = np.where(np.abs(db[:, 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
@@ -132,7 +133,7 @@ def _footprint_colour(
     for a, b in _FOOT:
         off = radius[:, None] * (a * e1 + b * e2)
         q = p + off - (off[:, 2] / db[:, 2])[:, None] * db  # slide along the beam onto z = 0
-        c = scene.board.colour_at(q[:, :2])
+        c = board.colour_at(q[:, :2])
         ok = np.isfinite(c)
         total[ok] += c[ok]
         count[ok] += 1
@@ -181,7 +182,7 @@ def simulate_scan(
     p = d * np.where(np.isfinite(t), t, 0.0)[:, None]
     s = spec.noise_scale
     if board.any():
-        R = scene.T_lidar_board[:3, :3]
+        R = scene.placed_board()[1][:3, :3]
         p[board] += (z_geo[board] * (s * np.asarray(spec.board_noise_sigma_m))) @ R.T
     other = ~board
     p[other] += d[other] * (s * model.range_sigma_m * z_geo[other, 2])[:, None]
@@ -192,9 +193,8 @@ def simulate_scan(
     if board.any() and (so > 0 or st > 0):  # the board's returns from a face off its print
         z = frame_rng(spec.seed, PURPOSE_FRAME, frame, 1, 5).standard_normal(3)
         delta, alpha, beta = z * np.array([so, st, st])
-        xy = hits.board_xy[board] - np.array(
-            [np.mean(scene.board.extent()[:2]), np.mean(scene.board.extent()[2:])]
-        )
+        extent = scene.placed_board()[0].extent()
+        xy = hits.board_xy[board] - np.array([np.mean(extent[:2]), np.mean(extent[2:])])
         height = delta + alpha * xy[:, 0] + beta * xy[:, 1]
         extra[board] -= height / np.maximum(cos_inc[board], 0.05)
     p += d * extra[:, None]

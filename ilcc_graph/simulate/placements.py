@@ -55,9 +55,14 @@ def camera_centre_lidar(T_cam_lidar: np.ndarray) -> np.ndarray:
 def static_scene(spec: SimulationSpec) -> Scene:
     """The room without board, stand or person."""
     so = spec.scene
-    ground = -float(so.lidar_height_m)
+    ground = _ground_z(spec)
     ceiling = None if so.room is None else ground + float(so.ceiling_height_m)
     return Scene(ground, so.room, ceiling)
+
+
+def _ground_z(spec: SimulationSpec) -> float:
+    """Height of the ground (LiDAR frame z): the static scene always has one."""
+    return -float(spec.scene.lidar_height_m)
 
 
 def _rot_z(a: float) -> np.ndarray:
@@ -77,7 +82,7 @@ def _rot_y(a: float) -> np.ndarray:
 
 def _pose(spec: SimulationSpec, centre: np.ndarray, roll: float, pitch: float, yaw: float) -> np.ndarray:
     """T_lidar_board with the pattern centre at ``centre`` facing the sensors, then tilted and rolled."""
-    target = 0.5 * camera_centre_lidar(spec.T_cam_lidar)  # between LiDAR and camera
+    target = 0.5 * camera_centre_lidar(spec.true_T_cam_lidar)  # between LiDAR and camera
     return pose_facing(spec.board, centre, target, roll, pitch, yaw)
 
 
@@ -109,26 +114,23 @@ def _azimuth_range(spec: SimulationSpec) -> tuple[float, float] | None:
     cone); None for a panorama (columns wrap) with a spinning lidar."""
     cam = spec.camera
     cone = _cone_half_angle(spec)
-    if cone is not None:
-        lim_c = 0.8 * cone
-        if cam.periodic_u:
-            return -lim_c, lim_c
-    elif cam.periodic_u:
-        return None
+    lim = float(np.deg2rad(80.0)) if cone is None else 0.8 * cone
+    if cam.periodic_u:
+        return None if cone is None else (-lim, lim)
     uv = np.column_stack([np.linspace(0, cam.width - 1, 81), np.full(81, (cam.height - 1) / 2)])
     b = cam.bearing(uv)
-    d = b[np.all(np.isfinite(b), axis=1)] @ spec.T_cam_lidar[:3, :3]  # rows: R_lidar_cam b
+    d = b[np.all(np.isfinite(b), axis=1)] @ spec.true_T_cam_lidar[:3, :3]  # rows: R_lidar_cam b
     az = np.arctan2(d[:, 1], d[:, 0])
-    lim = np.deg2rad(80.0) if cone is None else lim_c
     return float(max(az.min(), -lim)), float(min(az.max(), lim))
 
 
 def _acceptable(spec: SimulationSpec, T: np.ndarray) -> bool:
-    scene = Scene(static_scene(spec).ground_z, None, None, spec.board, T)
+    ground = _ground_z(spec)
+    scene = Scene(ground, None, None, spec.board, T)
     pts = scene.board_outline_samples(16)
     el = np.degrees(np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1])))
     va = spec.lidar_model.vertical_angles_deg
-    if el.min() < va[0] + 0.3 or el.max() > va[-1] - 0.3 or pts[:, 2].min() < scene.ground_z + 0.3:
+    if el.min() < va[0] + 0.3 or el.max() > va[-1] - 0.3 or pts[:, 2].min() < ground + 0.3:
         return False
     cone = _cone_half_angle(spec)
     if cone is not None:
@@ -144,7 +146,8 @@ def _acceptable(spec: SimulationSpec, T: np.ndarray) -> bool:
             return False
     cam = spec.camera
     if not cam.periodic_u:
-        uv = cam.project(pts @ spec.T_cam_lidar[:3, :3].T + spec.T_cam_lidar[:3, 3])
+        T_cam_lidar = spec.true_T_cam_lidar
+        uv = cam.project(pts @ T_cam_lidar[:3, :3].T + T_cam_lidar[:3, 3])
         bw, bh = 0.03 * cam.width, 0.03 * cam.height
         if not np.all(np.isfinite(uv)):
             return False
@@ -231,12 +234,12 @@ def _occludes(box: Box, origins: list[np.ndarray], targets: np.ndarray) -> bool:
 
 def frame_scene(spec: SimulationSpec, T_lidar_board: np.ndarray, frame: int) -> Scene:
     """The full scene of one frame: room, board at ``T_lidar_board``, its stand and maybe a person."""
-    base = static_scene(spec)
+    base, ground = static_scene(spec), _ground_z(spec)
     probe = Scene(base.ground_z, base.room, base.ceiling_z, spec.board, T_lidar_board)
     boxes: list[Box] = []
     outline = probe.board_outline_samples(16)
     if spec.scene.stand:
-        boxes.append(_pole(base.ground_z, T_lidar_board, outline))
+        boxes.append(_pole(ground, T_lidar_board, outline))
     rng = frame_rng(spec.seed, PURPOSE_FRAME, frame, 0)
     if spec.scene.clutter and rng.random() < spec.scene.person_probability:
         centre = T_lidar_board[:3, :3] @ spec.board.pattern_centre + T_lidar_board[:3, 3]
@@ -244,7 +247,7 @@ def frame_scene(spec: SimulationSpec, T_lidar_board: np.ndarray, frame: int) -> 
         az_board = float(np.arctan2(centre[1], centre[0]))
         x0, x1, y0, y1 = spec.board.extent()
         a_board = np.arcsin(min(1.0, 0.5 * np.hypot(x1 - x0, y1 - y0) / d_board))
-        origins = [np.zeros(3), camera_centre_lidar(spec.T_cam_lidar)]
+        origins = [np.zeros(3), camera_centre_lidar(spec.true_T_cam_lidar)]
         targets = np.vstack([outline, centre])
         for _ in range(20):
             d = d_board + rng.uniform(-0.2, 1.2)
@@ -253,7 +256,7 @@ def frame_scene(spec: SimulationSpec, T_lidar_board: np.ndarray, frame: int) -> 
             )
             T = np.eye(4)
             T[:3, :3] = _rot_z(rng.uniform(-np.pi, np.pi))
-            T[:3, 3] = [d * np.cos(az), d * np.sin(az), base.ground_z + PERSON_HALF[2]]
+            T[:3, 3] = [d * np.cos(az), d * np.sin(az), ground + PERSON_HALF[2]]
             person = Box(T, PERSON_HALF.copy(), SURF_PERSON)
             if base.room is not None:
                 xmin, xmax, ymin, ymax = base.room

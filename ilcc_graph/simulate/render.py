@@ -96,8 +96,8 @@ class ImageRenderer:
     def __init__(self, spec: SimulationSpec) -> None:
         self.spec = spec
         self.camera = spec.camera
-        self.R_lidar_cam = spec.T_cam_lidar[:3, :3].T
-        self.centre = camera_centre_lidar(spec.T_cam_lidar)
+        self.R_lidar_cam = spec.true_T_cam_lidar[:3, :3].T
+        self.centre = camera_centre_lidar(spec.true_T_cam_lidar)
         self.texture = (
             _Texture(frame_rng(spec.seed, PURPOSE_UNIT, 1)) if spec.image.textured_background else None
         )
@@ -190,7 +190,7 @@ class ImageRenderer:
         """
         cam = self.camera
         W, H = cam.width, cam.height
-        T = self.spec.T_cam_lidar
+        T = self.spec.true_T_cam_lidar
         uv = cam.project(pts_lidar @ T[:3, :3].T + T[:3, 3])
         finite = np.all(np.isfinite(uv), axis=1)
         if not finite.any():

@@ -24,7 +24,6 @@ from ..config import rig_config_to_dict
 from ..io import write_image, write_yaml
 from ..io.rig_truth import write_rig_ground_truth
 from .bag import START_NS, RosMessages, WalkAndPause, bag_frame_name, walk_poses
-from .frames import SimFrame
 from .rig_spec import RigMoment, RigSpec, rig_ground_truth, simulate_moments
 from .write_set import assemble, write_scan
 
@@ -127,14 +126,7 @@ def write_rig_bag(
                 msgs = []
                 for n, scan in moment.scans.items():
                     stamp = t0 + round(offset_s[n] * 1e9)
-                    msgs.append(
-                        (
-                            stamp + latency_ns[n],
-                            n,
-                            m.cloud(SimFrame(n, scan, None, np.eye(4)), stamp),
-                            CLOUD_T,
-                        )
-                    )  # type: ignore[arg-type]
+                    msgs.append((stamp + latency_ns[n], n, m.cloud(scan, stamp), CLOUD_T))
                 for n, img in moment.images.items():
                     stamp = t0 + round(offset_s[n] * 1e9)
                     msgs.append((stamp + latency_ns[n], n, m.image(img, stamp, image_format), image_t))

@@ -187,7 +187,7 @@ class RigSpec:
         camera = s.camera if s.camera is not None else Equirectangular(64, 32)
         T_cam_body = np.linalg.inv(poses[name]) if s.camera is not None else np.eye(4)
         return SimulationSpec(
-            lidar=lidar, camera=camera, board=self.board, n_frames=1, seed=self.sensor_seed(name),  # type: ignore[arg-type]
+            lidar=lidar, camera=camera, board=self.board, n_frames=1, seed=self.sensor_seed(name),
             noise_scale=self.noise_scale, T_cam_lidar=T_cam_body, systematics=self.systematics,
             scene=self.scene, image=self.image, sensor_format=s.sensor_format,
         )  # fmt: skip
@@ -206,8 +206,8 @@ class RigSpec:
                 folder=s.name,
                 topic=None if topics is None else topics[s.name],
                 T_ref_sensor=None
-                if ref is None or poses[s.name] is None
-                else np.linalg.solve(ref, poses[s.name]),
+                if ref is None or (pose := poses[s.name]) is None
+                else np.linalg.solve(ref, pose),
             )  # fmt: skip
             for s in self.sensors
         )
@@ -306,6 +306,7 @@ def ring_rig(
         tweak = np.array([1.0, -1.5, 2.0]) * (1.0 if k % 2 == 0 else -0.7)
         sensors.append(_mounted(name, xyz, (yaw, 0.0, 0.0), tweak, camera=cam))
     F, L, B, R = names
+    views: tuple[tuple[str, ...], ...]
     if horizontal_fov_deg(cam) > 100.0:
         views = ((F,), (F, L), (L,), (L, B), (B,), (R,), (F, L), (R,))
     else:

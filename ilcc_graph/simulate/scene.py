@@ -77,6 +77,12 @@ class Scene:
         """The same scene without ground, walls and ceiling (what changes from frame to frame)."""
         return Scene(None, None, None, self.board, self.T_lidar_board, self.boxes)
 
+    def placed_board(self) -> tuple[Board, np.ndarray]:
+        """The board and its pose T_lidar_board; ValueError for a scene without a board."""
+        if self.board is None or self.T_lidar_board is None:
+            raise ValueError("the scene has no board")
+        return self.board, self.T_lidar_board
+
     def board_outline_samples(self, n: int = 24) -> np.ndarray:
         """(4 n, 3) points along the physical board's outline, LiDAR frame (empty without a board)."""
         if self.board is None or self.T_lidar_board is None:
@@ -160,7 +166,9 @@ def _box_entry(origin: np.ndarray, d: np.ndarray, box: Box) -> tuple[np.ndarray,
     return np.where(hit, t_in, np.inf), normal
 
 
-def _board_hit(origin: np.ndarray, d: np.ndarray, board: Board, T: np.ndarray):
+def _board_hit(
+    origin: np.ndarray, d: np.ndarray, board: Board, T: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Distance to the board rectangle (inf for a miss), front flag and board-frame xy (N, 2)."""
     R, c = T[:3, :3], T[:3, 3]
     o = R.T @ (origin - c)

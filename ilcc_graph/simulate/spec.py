@@ -275,6 +275,14 @@ class SimulationSpec:
         object.__setattr__(self, "board_noise_sigma_m", sig)
 
     @property
+    def true_T_cam_lidar(self) -> np.ndarray:
+        """(4, 4) the true extrinsic: ``T_cam_lidar`` as resolved at construction (never None)."""
+        T = self.T_cam_lidar
+        if T is None:
+            raise AssertionError("SimulationSpec.__post_init__ sets T_cam_lidar")
+        return T
+
+    @property
     def lidar_model(self) -> LidarModel:
         """The resolved :class:`LidarModel`."""
         return self._lidar_model  # type: ignore[attr-defined]
@@ -289,7 +297,7 @@ class SimulationSpec:
         if (
             cam is not None
             and "T_cam_lidar" not in changes
-            and np.array_equal(self.T_cam_lidar, default_T_cam_lidar(self.camera))
+            and np.array_equal(self.true_T_cam_lidar, default_T_cam_lidar(self.camera))
         ):
             changes["T_cam_lidar"] = None
         return replace(self, **changes)

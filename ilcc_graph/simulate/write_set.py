@@ -16,6 +16,8 @@ from dataclasses import replace
 from functools import partial
 from pathlib import Path
 
+import numpy as np
+
 from ..errors import InputError
 from ..io import PCD_STYLES, write_image, write_pcd, write_yaml
 from ..io.output_folders import DATA_SET, staged
@@ -118,7 +120,7 @@ def write_scan(folder: Path, stem: str, scan: Scan, sensor_format: str, pcd_styl
 class _Pose:
     """Name and pose of a written frame (what :func:`ground_truth` reads from a frame)."""
 
-    def __init__(self, name: str, T) -> None:
+    def __init__(self, name: str, T: np.ndarray) -> None:
         self.name, self.T_lidar_board = name, T
 
 

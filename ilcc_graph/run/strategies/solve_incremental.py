@@ -65,9 +65,10 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     results = {f.name: f for f in observed}
     for name in cal.flipped:  # the corner order the calibrator chose
         f = results[name]
+        assert f.corners is not None  # the calibrator turned the corners of a frame it was offered
         results[name] = dataclasses.replace(
             f, corners=permute_corners(f.corners, config.board.half_turn_permutation())
-        )  # type: ignore[arg-type]
+        )
     offered = {f.name for f in cal.offered}
     sol = final.solution
     assert sol is not None
