@@ -5,6 +5,14 @@ the estimation core's ``BatchSolution``; the paper's refinement gives no covaria
 ``finish``: every frame in input order with its fate (used, or why not, with the likely cause of a
 dropped frame, ``diagnose``), the refined board poses, the sensors' own errors. calibration.yaml
 writes a covariance the method does not give as NaN (interface.md).
+
+No answer the data do not support: when the frames that agree within their noise are fewer than
+``MIN_DISTINCT_POSES`` distinct board poses (each used frame is one: ``prepare`` drops repeats) and
+others disagree beyond it, nothing tells which group is right, and a covariance from two poses
+cannot reveal a placement's error: ``finish`` raises ``CalibrationImpossible`` (exit 3) naming the
+frames that agree, those that disagree with each one's likely cause, and the likely cause over
+all frames (``diagnose.residual_causes``). When the residuals are far above the detectors' stated
+noise (``gate.FAR_ABOVE``) the calibration carries those causes (``Calibration.causes``).
 """
 
 from __future__ import annotations
@@ -17,11 +25,14 @@ from typing import Any
 import numpy as np
 
 from ilcc_graph.config import Config
+from ilcc_graph.errors import DISAGREEING, CalibrationImpossible
 from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.effects import SQUARE_SIZE_KEY
+from ilcc_graph.estimation.gate import far_above
+from ilcc_graph.estimation.geometry import MIN_DISTINCT_POSES
 from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
-from ilcc_graph.run.diagnose import dropped_frame_cause, fit_image_alone
-from ilcc_graph.run.prepare import Prepared, drop
+from ilcc_graph.run.diagnose import dropped_frame_cause, fit_image_alone, residual_causes
+from ilcc_graph.run.prepare import Prepared, drop, frame_issues
 from ilcc_graph.types import Calibration, FrameResult, GraphFrame, rotation_angle_deg
 
 __all__ = ["Answer", "finish", "from_batch", "lidar_view_counts", "rms_bearing_mrad"]
@@ -68,9 +79,13 @@ def from_batch(sol: BatchSolution, config: Config) -> Answer:
 
 
 def finish(
-    prep: Prepared, observed: Sequence[FrameResult], config: Config, method: str, answer: Answer
-) -> Calibration:
-    """The Calibration of one source from a strategy's answer: every frame in input order with its fate."""
+    prep: Prepared, observed: Sequence[FrameResult], config: Config, method: str, answer: Answer,
+    agree: bool = True,
+) -> Calibration:  # fmt: skip
+    """The Calibration of one source from a strategy's answer: every frame in input order with its fate.
+
+    agree: raise ``CalibrationImpossible`` when fewer than ``MIN_DISTINCT_POSES`` frames agree and
+    others disagree beyond their noise (module docstring; a session of several is judged with them)."""
     results = dict(prep.results)
     if answer.dropped:
         causes = _dropped_causes(results, [n for n, _ in answer.dropped], config, answer.T_cam_lidar)
@@ -85,6 +100,8 @@ def finish(
                 T_lidar_board_refined=answer.T_lidar_board.get(r.name),
             )
         frames.append(r)
+    if agree:
+        require_agreement(frames, config, answer.T_cam_lidar)
     diagnostics = {
         **lidar_view_counts(frames),
         "iterations": float(answer.iterations),
@@ -96,7 +113,46 @@ def finish(
     }
     cov = np.full((6, 6), np.nan) if answer.covariance is None else answer.covariance
     cam = config.camera.to_dict()
-    return Calibration(answer.T_cam_lidar, cov, tuple(frames), method, diagnostics, cam, answer.sensors)
+    causes = ()
+    if answer.covariance is not None and far_above(answer.variance_components):
+        causes = tuple(residual_causes(frames, config.board, config.camera, answer.T_cam_lidar))
+    sensors = answer.sensors
+    return Calibration(answer.T_cam_lidar, cov, tuple(frames), method, diagnostics, cam, sensors, causes)
+
+
+def require_agreement(frames: Sequence[FrameResult], config: Config, T_cam_lidar: np.ndarray) -> None:
+    """Raise ``CalibrationImpossible`` when the frames used (one per distinct board pose) are fewer
+    than ``MIN_DISTINCT_POSES`` and frames seen by both sensors were dropped for disagreeing with
+    them (``errors.DISAGREEING``): which frames agree, which disagree and why, the likely cause."""
+    used = [f for f in frames if f.used]
+    disagree = [f for f in frames if not f.used and (f.reason or "").startswith(DISAGREEING)]
+    if len(used) >= MIN_DISTINCT_POSES or not disagree:
+        return
+    agree_names, other_names = [f.name for f in used], [f.name for f in disagree]
+    k = len(used)
+    message = (
+        f"only {k} distinct board pose{'s' * (k != 1)} agree ({', '.join(agree_names)}) and "
+        f"{len(disagree)} disagree with {'them' if k != 1 else 'it'} beyond their noise "
+        f"({', '.join(other_names)}): with fewer than {MIN_DISTINCT_POSES} poses that agree nothing tells "
+        "which frames are right, and their covariance could not reveal a placement's error"
+    )
+    issues = [
+        (f.name, "agreement", "agrees with " + (", ".join(n for n in agree_names if n != f.name) or "none"))
+        for f in used
+    ]
+    issues += [(f.name, "agreement", _with_cause(f, frames, config, T_cam_lidar)) for f in disagree]
+    issues += [i for i in frame_issues(frames) if i[0] not in agree_names and i[0] not in other_names]
+    order = {f.name: i for i, f in enumerate(frames)}
+    issues.sort(key=lambda i: order.get(i[0], len(order)))
+    causes = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
+    advice = (
+        f"likely: {causes[0]}"
+        if causes
+        else "check what differs between the frames that agree and those that do not (the board cut off "
+        "in the image, the board moving while captured, the camera's intrinsics, board.square_size and "
+        "its margin) before capturing more poses"
+    )
+    raise CalibrationImpossible(message, tuple(issues), advice)
 
 
 def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:
@@ -118,11 +174,26 @@ def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:
     return {k: v for k, v in counts.items() if v}
 
 
+def _with_cause(
+    f: FrameResult, frames: Sequence[FrameResult], config: Config, T_cam_lidar: np.ndarray
+) -> str:
+    """A disagreeing frame's reason with its likely cause (``diagnose``) when it has none yet (the
+    corner order's drops), judged against every frame's image."""
+    reason = f.reason or "disagrees"
+    if "likely cause" in reason:
+        return reason
+    results = {r.name: r for r in frames}
+    cause = _dropped_causes(results, [f.name], config, T_cam_lidar).get(f.name)
+    return f"{reason}; {cause}" if cause else reason
+
+
 def _dropped_causes(
     results: dict[str, FrameResult], dropped: Sequence[str], config: Config, T_cam_lidar: np.ndarray
 ) -> dict[str, str]:
     """Per dropped frame the likely cause (``diagnose``), judged against the used frames' images."""
     used = [r for n, r in results.items() if r.used and n not in dropped and r.corners is not None]
+    if len(used) < 3:  # too few to tell the typical image fit: every frame's with corners judges it
+        used = [r for n, r in results.items() if r.corners is not None and (r.used or n in dropped)]
     if len(used) < 3:
         return {}
     corners = config.board.corners_board()
