@@ -65,7 +65,9 @@ def verdict(
     ``need`` (deg, mm; default ``NEED_DEG_MM``). POOR: fewer than 3 frames used, more than half
     disagreeing, or a 1-sigma above 3 x ``need``. FAIR: in between. MOVED: sessions whose mount
     moved (``joint``: the sessions' ``joint.yaml`` document). NO UNCERTAINTY: a method without a
-    covariance (the paper's refinement).
+    covariance (the paper's refinement). When the residuals are far above the detectors' stated
+    noise (``gate.FAR_ABOVE``) the text says more poses will not mend that and names the likely
+    cause (``Calibration.causes``) or what to check, instead of asking for more poses.
     """
     need = NEED_DEG_MM if need is None else need
     used = [f for f in cal.frames if f.used]

@@ -91,6 +91,13 @@ def finish(
         causes = _dropped_causes(results, [n for n, _ in answer.dropped], config, answer.T_cam_lidar)
         for name, reason in answer.dropped:
             drop(results, name, f"{reason}; {causes[name]}" if causes.get(name) else reason)
+    order = [n for n, r in results.items() if not r.used and (r.reason or "").startswith(DISAGREEING)]
+    order = [n for n in order if "likely cause" not in (results[n].reason or "")]  # the corner order's
+    if order:
+        causes = _dropped_causes(results, order, config, answer.T_cam_lidar)
+        for name in order:
+            if causes.get(name):
+                drop(results, name, f"{results[name].reason}; {causes[name]}")
     frames = []
     for r in (results[o.name] for o in observed):
         if r.used:
@@ -140,7 +147,7 @@ def require_agreement(frames: Sequence[FrameResult], config: Config, T_cam_lidar
         (f.name, "agreement", "agrees with " + (", ".join(n for n in agree_names if n != f.name) or "none"))
         for f in used
     ]
-    issues += [(f.name, "agreement", _with_cause(f, frames, config, T_cam_lidar)) for f in disagree]
+    issues += [(f.name, "agreement", f.reason or "disagrees") for f in disagree]
     issues += [i for i in frame_issues(frames) if i[0] not in agree_names and i[0] not in other_names]
     order = {f.name: i for i, f in enumerate(frames)}
     issues.sort(key=lambda i: order.get(i[0], len(order)))
@@ -172,19 +179,6 @@ def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:
         "lidar_range_correction_mm": float(np.mean(corrected)) if corrected else 0.0,
     }
     return {k: v for k, v in counts.items() if v}
-
-
-def _with_cause(
-    f: FrameResult, frames: Sequence[FrameResult], config: Config, T_cam_lidar: np.ndarray
-) -> str:
-    """A disagreeing frame's reason with its likely cause (``diagnose``) when it has none yet (the
-    corner order's drops), judged against every frame's image."""
-    reason = f.reason or "disagrees"
-    if "likely cause" in reason:
-        return reason
-    results = {r.name: r for r in frames}
-    cause = _dropped_causes(results, [f.name], config, T_cam_lidar).get(f.name)
-    return f"{reason}; {cause}" if cause else reason
 
 
 def _dropped_causes(
