@@ -10,12 +10,19 @@ elsewhere), as when the board moved between the scan and the photo. The set as s
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
+import pytest
 import yaml
+from test_diagnose import BOARD, CAMERA, T_CL, frame
 
 from ilcc_graph.app import main
+from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.run.finish import require_covered
 
 FRAMES = 4
 MOVED = ("0003", "0004")
@@ -60,3 +67,25 @@ def test_two_agreeing_frames_and_two_disagreeing_exit_3_naming_them(simulated, t
         assert rows[name]["reason"].startswith("agrees with"), rows[name]
     # the likely cause over all frames: the images fit flat boards, the scans put them elsewhere
     assert "synchronisation" in (failure.get("advice") or "") and "0003, 0004" in failure["advice"], failure
+
+
+def test_frames_the_gate_could_not_drop_give_no_result():
+    """Used frames still failing the chi-square gate when it may drop no more (``Answer.failing``):
+    no majority agrees, so no covariance covers the frames used: exit 3 naming them, each with its
+    likely cause (here two boards moved 50 mm between scan and photo), and the cause over all frames."""
+    rng = np.random.default_rng(4)
+    frames = [dataclasses.replace(frame(rng), name=f"c{i}", used=True) for i in range(3)]
+    frames += [dataclasses.replace(frame(rng, moved_m=0.05), name=f"m{i}", used=True) for i in range(2)]
+    gone = dataclasses.replace(frame(rng, moved_m=0.08), name="g0", used=False, reason="chi-square gate: x")
+    frames.append(gone)
+    config = SimpleNamespace(board=BOARD, camera=CAMERA)
+    failing = [("m0", "chi-square gate: residual 90 > 24"), ("m1", "chi-square gate: residual 80 > 24")]
+    require_covered(frames, [], config, T_CL.matrix())  # nothing failing: no error
+    with pytest.raises(CalibrationImpossible) as got:
+        require_covered(frames, failing, config, T_CL.matrix())
+    err = got.value
+    assert str(err).startswith("2 of the 5 frames left (m0, m1) still disagree beyond their noise"), err
+    rows = {f: why for f, _, why in err.frames}
+    assert set(rows) == {"m0", "m1", "g0"}, rows
+    assert all("moved between the scan and the photo" in rows[n] for n in ("m0", "m1")), rows
+    assert err.advice.startswith("likely: synchronisation: the images of m0, m1, g0"), err.advice

@@ -47,6 +47,8 @@ LENS_RATIO = 2.0
 #: ``MOVED_MIN_MM``) from where the scan saw it, through the one extrinsic, moved between them
 MOVED_SIGMAS = 5.0
 MOVED_MIN_MM = 10.0
+#: the board's size is named only from this many pairs of frames (a moved board spoils its pairs)
+SCALE_PAIRS = 6
 
 
 @dataclass(frozen=True)
@@ -181,7 +183,12 @@ def residual_causes(
         return []
     causes = [c for c in (_partial(seen, camera),) if c]
     scale = board_scale([(f.corners, f.board.T_lidar_board) for f in seen], board)  # type: ignore[misc, union-attr]
-    if scale is not None and abs(scale[0] - 1) > SCALE_TOL and scale[1] < abs(scale[0] - 1) / 3:
+    if (
+        scale is not None
+        and scale[2] >= SCALE_PAIRS
+        and abs(scale[0] - 1) > SCALE_TOL
+        and scale[1] < abs(scale[0] - 1) / 3
+    ):
         causes.append(
             f"the board's size: the images make its moves between frames {scale[0]:.3f} x what the scans "
             f"give ({scale[2]} pairs): board.square_size is not the print's (measure the whole pattern)"

@@ -46,7 +46,9 @@ class Answer:
     none. rms_mrad: each used frame's RMS bearing error (mrad). T_lidar_board: refined board poses.
     dropped: ``(frame, reason)`` the strategy left out. iterations, variance_factor,
     variance_components (board priors, bearings): the solve's figures. diagnostics: further
-    calibration.yaml diagnostics; sensors: ``Calibration.sensors``.
+    calibration.yaml diagnostics; sensors: ``Calibration.sensors``. failing: ``(frame, reason)`` of
+    used frames that fail the chi-square gate though it may drop no more (the noise found does not
+    cover them).
     """
 
     T_cam_lidar: np.ndarray
@@ -59,6 +61,7 @@ class Answer:
     variance_components: tuple[float, float] = (1.0, 1.0)
     diagnostics: dict[str, float] = field(default_factory=dict)
     sensors: dict[str, Any] = field(default_factory=dict)
+    failing: list[tuple[str, str]] = field(default_factory=list)
 
 
 def from_batch(sol: BatchSolution, config: Config) -> Answer:
@@ -74,7 +77,7 @@ def from_batch(sol: BatchSolution, config: Config) -> Answer:
     rms = {n: s.rms_bearing_error_mrad for n, s in sol.per_frame.items()}
     return Answer(
         sol.T_cam_lidar, sol.covariance, rms, sol.T_lidar_board, list(sol.dropped), sol.iterations,
-        sol.variance_factor, sol.variance_components, diagnostics, _sensors(sol, config),
+        sol.variance_factor, sol.variance_components, diagnostics, _sensors(sol, config), list(sol.failing),
     )  # fmt: skip
 
 
@@ -109,6 +112,7 @@ def finish(
         frames.append(r)
     if agree:
         require_agreement(frames, config, answer.T_cam_lidar)
+        require_covered(frames, answer.failing, config, answer.T_cam_lidar)
     diagnostics = {
         **lidar_view_counts(frames),
         "iterations": float(answer.iterations),
@@ -152,14 +156,16 @@ def require_agreement(frames: Sequence[FrameResult], config: Config, T_cam_lidar
     order = {f.name: i for i, f in enumerate(frames)}
     issues.sort(key=lambda i: order.get(i[0], len(order)))
     causes = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
-    advice = (
-        f"likely: {causes[0]}"
-        if causes
-        else "check what differs between the frames that agree and those that do not (the board cut off "
-        "in the image, the board moving while captured, the camera's intrinsics, board.square_size and "
-        "its margin) before capturing more poses"
-    )
+    advice = f"likely: {causes[0]}" if causes else _CHECK
     raise CalibrationImpossible(message, tuple(issues), advice)
+
+
+#: the advice of an exit 3 for disagreeing frames when no cause shows in them
+_CHECK = (
+    "check what differs between the frames that agree and those that do not (the board cut off in the "
+    "image, the board moving while captured, the camera's intrinsics, board.square_size and its margin) "
+    "before capturing more poses"
+)
 
 
 def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:
@@ -179,6 +185,34 @@ def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:
         "lidar_range_correction_mm": float(np.mean(corrected)) if corrected else 0.0,
     }
     return {k: v for k, v in counts.items() if v}
+
+
+def require_covered(
+    frames: Sequence[FrameResult], failing: Sequence[tuple[str, str]], config: Config, T_cam_lidar: np.ndarray
+) -> None:
+    """Raise ``CalibrationImpossible`` when used frames fail the chi-square gate though it may drop no
+    more (``Answer.failing``): no majority of the frames agrees within the noise the solve found, so
+    the covariance would not cover the frames the result uses."""
+    if not failing:
+        return
+    used = [f for f in frames if f.used]
+    gone = [f for f in frames if not f.used and (f.reason or "").startswith(DISAGREEING)]
+    names = [n for n, _ in failing]
+    message = (
+        f"{len(failing)} of the {len(used)} frames left ({', '.join(names)}) still disagree beyond their "
+        f"noise after {len(gone)} were dropped for disagreeing, the most the test may drop: no majority of "
+        "the frames agrees, so no covariance would cover the frames a result uses"
+    )
+    results = {f.name: f for f in frames}
+    causes = _dropped_causes(results, names, config, T_cam_lidar)
+    issues = [(n, "agreement", f"{why}; {causes[n]}" if causes.get(n) else why) for n, why in failing]
+    issues += [(f.name, "agreement", f.reason or "disagrees") for f in gone]
+    issues += [i for i in frame_issues(frames) if i[0] not in {n for n, _, _ in issues}]
+    order = {f.name: i for i, f in enumerate(frames)}
+    issues.sort(key=lambda i: order.get(i[0], len(order)))
+    found = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
+    advice = f"likely: {found[0]}" if found else _CHECK
+    raise CalibrationImpossible(message, tuple(issues), advice)
 
 
 def _dropped_causes(
