@@ -22,7 +22,7 @@ from test_diagnose import BOARD, CAMERA, T_CL, frame
 
 from ilcc_graph.app import main
 from ilcc_graph.errors import CalibrationImpossible
-from ilcc_graph.run.finish import require_covered
+from ilcc_graph.run.finish import require_covered, require_within_noise
 
 FRAMES = 4
 MOVED = ("0003", "0004")
@@ -89,3 +89,22 @@ def test_frames_the_gate_could_not_drop_give_no_result():
     assert set(rows) == {"m0", "m1", "g0"}, rows
     assert all("moved between the scan and the photo" in rows[n] for n in ("m0", "m1")), rows
     assert err.advice.startswith("likely: synchronisation: the images of m0, m1, g0"), err.advice
+
+
+def test_a_used_frame_hidden_by_residuals_far_above_the_noise_gives_no_result():
+    """Residuals far above the stated noise (LiDAR board poses' component 32, 5.7 x their sigma, as a
+    simulated set of 8 frames with 4 boards moved before the photo gave) and a used frame whose image
+    puts the board 50 mm from where its scan saw it: exit 3 naming it; none when no used frame is off."""
+    rng = np.random.default_rng(5)
+    clean = [dataclasses.replace(frame(rng), name=f"c{i}", used=True) for i in range(4)]
+    moved = dataclasses.replace(frame(rng, moved_m=0.05), name="m0", used=True)
+    config = SimpleNamespace(board=BOARD, camera=CAMERA)
+    require_within_noise(clean, {"board": 32.0}, config, T_CL.matrix())  # nothing off: no error
+    with pytest.raises(CalibrationImpossible) as got:
+        require_within_noise([*clean, moved], {"board": 32.0}, config, T_CL.matrix())
+    err = got.value
+    assert "(LiDAR board poses 5.7 x their stated sigma)" in str(err), err
+    assert "the result uses frames whose image puts the board far from where the scan saw it (m0)" in str(err)
+    (row,) = err.frames
+    assert row[0] == "m0" and row[2].startswith("used, but its image puts the board"), row
+    assert err.advice.startswith("likely: synchronisation: the images of m0"), err.advice

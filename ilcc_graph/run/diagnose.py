@@ -32,7 +32,14 @@ from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
 from ilcc_graph.run.setup_mistakes import SCALE_TOL, board_scale
 from ilcc_graph.types import FrameResult, ImageCorners
 
-__all__ = ["ImageAlone", "dropped_frame_cause", "fit_image_alone", "residual_causes", "stated_noise_mrad"]
+__all__ = [
+    "ImageAlone",
+    "dropped_frame_cause",
+    "fit_image_alone",
+    "moved_boards",
+    "residual_causes",
+    "stated_noise_mrad",
+]
 
 #: an image fits a flat board "clearly worse" above this multiple of the used frames' median
 OWN_FIT_RATIO = 2.0
@@ -152,6 +159,28 @@ def _partial(seen: list[FrameResult], camera: CameraModel) -> str | None:
     )
 
 
+def _image_fits(
+    seen: list[FrameResult], board: Board, camera: CameraModel
+) -> dict[str, tuple[ImageAlone, float]]:
+    """Per frame its image fitted alone and that fit's RMS over the stated corner noise."""
+    corners = board.corners_board()
+    fits = {}
+    for f in seen:
+        alone = fit_image_alone(f.corners.bearings, corners)  # type: ignore[union-attr]
+        fits[f.name] = (alone, alone.rms_mrad / max(stated_noise_mrad(f.corners, camera), 1e-9))  # type: ignore[arg-type]
+    return fits
+
+
+def moved_boards(
+    frames: list[FrameResult], board: Board, camera: CameraModel, T_cam_lidar: np.ndarray
+) -> list[tuple[str, float, float]]:
+    """(frame, gap mm, gap in the LiDAR pose's stated sigmas) of the frames whose image fits a flat
+    board alone as its stated noise says but puts it ``MOVED_SIGMAS`` x the LiDAR fit's stated sigma
+    (and ``MOVED_MIN_MM``) or more from where the scan saw it, through ``T_cam_lidar``."""
+    seen = [f for f in frames if f.board is not None and f.corners is not None]
+    return _moved(seen, board, T_cam_lidar, _image_fits(seen, board, camera))
+
+
 def _moved(
     seen: list[FrameResult], board: Board, T_cam_lidar: np.ndarray, fits: dict
 ) -> list[tuple[str, float, float]]:
@@ -193,11 +222,7 @@ def residual_causes(
             f"the board's size: the images make its moves between frames {scale[0]:.3f} x what the scans "
             f"give ({scale[2]} pairs): board.square_size is not the print's (measure the whole pattern)"
         )
-    corners = board.corners_board()
-    fits = {}
-    for f in seen:
-        alone = fit_image_alone(f.corners.bearings, corners)  # type: ignore[union-attr]
-        fits[f.name] = (alone, alone.rms_mrad / max(stated_noise_mrad(f.corners, camera), 1e-9))  # type: ignore[arg-type]
+    fits = _image_fits(seen, board, camera)
     bad = sorted(r for _, r in fits.values() if r > LENS_RATIO)
     if 2 * len(bad) > len(seen):
         causes.append(

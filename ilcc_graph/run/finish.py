@@ -31,7 +31,7 @@ from ilcc_graph.estimation.effects import SQUARE_SIZE_KEY
 from ilcc_graph.estimation.gate import far_above
 from ilcc_graph.estimation.geometry import MIN_DISTINCT_POSES
 from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
-from ilcc_graph.run.diagnose import dropped_frame_cause, fit_image_alone, residual_causes
+from ilcc_graph.run.diagnose import dropped_frame_cause, fit_image_alone, moved_boards, residual_causes
 from ilcc_graph.run.prepare import Prepared, drop, frame_issues
 from ilcc_graph.types import Calibration, FrameResult, GraphFrame, rotation_angle_deg
 
@@ -125,7 +125,9 @@ def finish(
     cov = np.full((6, 6), np.nan) if answer.covariance is None else answer.covariance
     cam = config.camera.to_dict()
     causes = ()
-    if answer.covariance is not None and far_above(answer.variance_components):
+    if answer.covariance is not None and (far := far_above(answer.variance_components)):
+        if agree:
+            require_within_noise(frames, far, config, answer.T_cam_lidar)
         causes = tuple(residual_causes(frames, config.board, config.camera, answer.T_cam_lidar))
     sensors = answer.sensors
     return Calibration(answer.T_cam_lidar, cov, tuple(frames), method, diagnostics, cam, sensors, causes)
@@ -208,6 +210,38 @@ def require_covered(
     issues = [(n, "agreement", f"{why}; {causes[n]}" if causes.get(n) else why) for n, why in failing]
     issues += [(f.name, "agreement", f.reason or "disagrees") for f in gone]
     issues += [i for i in frame_issues(frames) if i[0] not in {n for n, _, _ in issues}]
+    order = {f.name: i for i, f in enumerate(frames)}
+    issues.sort(key=lambda i: order.get(i[0], len(order)))
+    found = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
+    advice = f"likely: {found[0]}" if found else _CHECK
+    raise CalibrationImpossible(message, tuple(issues), advice)
+
+
+def require_within_noise(
+    frames: Sequence[FrameResult], far: dict[str, float], config: Config, T_cam_lidar: np.ndarray
+) -> None:
+    """Raise ``CalibrationImpossible`` when the residuals are far above the detectors' stated noise
+    (``far``: the variance components, ``gate.far_above``) and used frames' images put their board
+    far from where the scans saw it (``diagnose.moved_boards``): the noise estimated from the frames
+    then hides those frames from the gate, so the covariance would not cover them."""
+    moved = {n: (g, s) for n, g, s in moved_boards(list(frames), config.board, config.camera, T_cam_lidar)}
+    used = [f for f in frames if f.used and f.name in moved]
+    if not used:
+        return
+    what = {"bearing": "image corners", "board": "LiDAR board poses"}
+    sizes = ", ".join(f"{what[k]} {np.sqrt(v):.1f} x their stated sigma" for k, v in far.items())
+    names = [f.name for f in used]
+    message = (
+        f"the residuals are far above the detectors' stated noise ({sizes}) and the result uses frames whose "
+        f"image puts the board far from where the scan saw it ({', '.join(names)}): the noise estimated "
+        "from the frames hides them from the test, so no covariance would cover the frames used"
+    )
+    issues = [
+        (n, "agreement", f"used, but its image puts the board {moved[n][0]:.0f} mm ({moved[n][1]:.0f} x the "
+         "LiDAR fit's stated sigma) from where the scan saw it: the board moved between the scan and the "
+         "photo, or the LiDAR's fit is off there") for n in names
+    ]  # fmt: skip
+    issues += [i for i in frame_issues(frames) if i[0] not in names]
     order = {f.name: i for i, f in enumerate(frames)}
     issues.sort(key=lambda i: order.get(i[0], len(order)))
     found = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
