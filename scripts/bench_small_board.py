@@ -15,8 +15,10 @@ message, the frames it names and its advice. The target (issue 38): either >= 80
 with mean NEES 4.5-7.5, or exit 3 with the reason; never a written result outside its 99.9 % bound
 in more than 1 % of sets.
 
-    nice python3 scripts/bench_small_board.py --sets 20 --sink /tmp/bench_small_board.jsonl
-    python3 scripts/bench_small_board.py --from-sink --sink /tmp/bench_small_board.jsonl --write
+    nice python3 scripts/bench_small_board.py --sets 50 --sink /tmp/small.jsonl
+    nice python3 scripts/bench_small_board.py --sets 30 --moved 4 --sink /tmp/small_moved4.jsonl
+    python3 scripts/bench_small_board.py --write --section "as simulated=/tmp/small.jsonl" \
+        --section "4 boards moved before the photo=/tmp/small_moved4.jsonl"
 
 ``--moved K``: in each set K frames (drawn per seed) show in their image the board moved by 20-60 mm
 and 1-3 deg from where the scan saw it (a hand-held board that moved between the scan and the
@@ -24,7 +26,8 @@ photo; the images of a second simulation with those poses): the gate should drop
 is written must still lie within its bound.
 
 Each finished set is appended to the sink at once (a JSON line), so a run can be stopped and resumed.
-``--write`` writes docs/bench_small_board.md and docs/bench_small_board.png.
+``--write`` writes docs/bench_small_board.md (a section per ``--section LABEL=SINK``) and
+docs/bench_small_board.png (a row of panels per section).
 """
 
 from __future__ import annotations
@@ -44,7 +47,7 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
-from bench_shape import load, pose_error  # (scripts/ is the running script's folder)
+from bench_shape import board_nees, load, pose_error  # (scripts/ is the running script's folder)
 from scipy.stats import chi2
 
 from ilcc_graph.board import Board
@@ -84,6 +87,9 @@ def run_one(data: Path, spec: SimulationSpec) -> dict:
         return out
     cal = res.calibration
     T_true = np.asarray(spec.T_cam_lidar)
+    truth = board_placements(spec)
+    boards = [(int(f.name) - 1, f.board) for f in res.sessions[0].observation.frames if f.board is not None]
+    nb = [board_nees(b, truth[i], spec.board) for i, b in boards]
     xi = pose_error(cal.T_cam_lidar, T_true)
     level, text = verdict(cal)
     out.update(
@@ -96,6 +102,9 @@ def run_one(data: Path, spec: SimulationSpec) -> dict:
         sigma_deg=float(np.degrees(np.sqrt(np.linalg.eigvalsh(cal.covariance[:3, :3])[-1]))),
         sigma_mm=float(1e3 * np.sqrt(np.linalg.eigvalsh(cal.covariance[3:, 3:])[-1])),
         nees=float(xi @ np.linalg.solve(cal.covariance, xi)),
+        board_nees=[float(a) for a, _ in nb],
+        board_nees_inplane=[float(b) for _, b in nb],
+        components=[cal.diagnostics.get(f"variance_component_{k}", 1.0) for k in ("board", "bearing")],
         verdict=level,
         verdict_text=text,
         dropped=[f"{f.name}: {f.reason}" for f in cal.frames if not f.used],
@@ -147,8 +156,13 @@ def _reason_kind(s: dict) -> str:
     return msg.split(" (")[0].split(";")[0][:110]
 
 
-def report(sets: Sequence[dict], argv: Sequence[str]) -> str:
-    """The markdown of docs/bench_small_board.md."""
+def _mean(sets: Sequence[dict], key: str) -> float:
+    values = [x for s in sets for x in s.get(key, [])]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def report(sets: Sequence[dict], label: str) -> str:
+    """One section of docs/bench_small_board.md: the sets of one sink."""
     written = [s for s in sets if s["exit"] == 0]
     failed = [s for s in sets if s["exit"] != 0]
     frames = sum(s["n_frames"] for s in written)
@@ -167,14 +181,15 @@ def report(sets: Sequence[dict], argv: Sequence[str]) -> str:
         f"| {s['seed']} | {s['n_frames']} | {_reason_kind(s)} | {s.get('advice') or ''} |" for s in failed
     ]
     kinds = Counter(_reason_kind(s) for s in failed)
-    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    moved = {len(s.get("moved", [])) for s in sets}
+    moved_text = f"; {', '.join(map(str, sorted(moved)))} frames per set moved before the photo"
+    met = (not written or (share >= 0.8 and 4.5 <= mean_nees <= 7.5)) and len(outside) <= 0.01 * len(sets)
     return "\n".join([
-        "# A small hand-held board: Monte Carlo",
+        f"## {label}",
         "",
-        f"`python scripts/bench_small_board.py {' '.join(argv)}` ({stamp}); {len(sets)} sets (seeds "
-        f"{', '.join(str(s['seed']) for s in sets)}), the issue asks 50: the machine's two shared cores "
-        "gave time for these. VLP-16 + wide-angle fisheye (1920 x 1536, f = 576 px), a 7 x 8 board of "
-        "50 mm squares without a margin (0.35 x 0.40 m), 2-4 m, no stand, 8-12 frames, print visible.",
+        f"{len(sets)} sets (seeds {min(s['seed'] for s in sets)}-{max(s['seed'] for s in sets)}"
+        + (moved_text if moved != {0} else "")
+        + ").",
         "",
         f"- results written: {len(written)} of {len(sets)} sets; exit 3: {len(failed)}",
         f"- frames used in the written sets: {used} of {frames} ({share:.0%}; target >= 80 %)",
@@ -183,15 +198,20 @@ def report(sets: Sequence[dict], argv: Sequence[str]) -> str:
         f"- written results outside their 99.9 % bound (NEES > {BOUND_999:.2f}): {len(outside)} of "
         f"{len(sets)} sets ({len(outside) / max(len(sets), 1):.0%}; target <= 1 %)"
         + (f": seeds {', '.join(str(s['seed']) for s in outside)}" if outside else ""),
+        f"- the LiDAR stage's boards against the truth (sets written): mean NEES "
+        f"{_mean(sets, 'board_nees'):.2f} (6 dof, honest 6), in-plane "
+        f"{_mean(sets, 'board_nees_inplane'):.2f} (3 dof, honest 3)",
+        f"- the issue's target (>= 80 % of frames used with mean NEES 4.5-7.5, or exit 3 with the reason; "
+        f"a written result outside its 99.9 % bound in at most 1 % of sets): {'met' if met else 'NOT met'}",
         "",
-        "## Results written",
+        "### Results written",
         "",
         "| seed | frames | boards LiDAR / image | used | verdict | rotation error deg | translation error mm "
         "| 1-sigma deg (largest) | 1-sigma mm (largest) | NEES |",
         "|---|---|---|---|---|---|---|---|---|---|",
         *rows,
         "",
-        "## Exit 3",
+        "### Exit 3",
         "",
         "Reasons: " + ("; ".join(f"{k} ({v})" for k, v in kinds.most_common()) or "none."),
         "",
@@ -199,20 +219,25 @@ def report(sets: Sequence[dict], argv: Sequence[str]) -> str:
         "|---|---|---|---|",
         *frows,
         "",
-        f"![NEES and frames used per set]({FIGURE.name})",
-        "",
     ])  # fmt: skip
 
 
-def figure(sets: Sequence[dict]) -> None:
-    """docs/bench_small_board.png: each written set's NEES against its 99.9 % bound, and the share of
-    frames used per set (exit 3 marked)."""
+def figure(sections: dict[str, list[dict]]) -> None:
+    """docs/bench_small_board.png: per section (a row) each written set's NEES against its 99.9 %
+    bound, and the share of frames used per set (exit 3 hatched)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.6))
+    fig, axes = plt.subplots(len(sections), 2, figsize=(10, 3.4 * len(sections)), squeeze=False)
+    for (label, sets), (a, b) in zip(sections.items(), axes, strict=True):
+        _panels(sets, a, b, label)
+    fig.tight_layout()
+    fig.savefig(FIGURE, dpi=90)
+
+
+def _panels(sets: Sequence[dict], a, b, label: str) -> None:  # noqa: ANN001 - matplotlib axes
     seeds = [s["seed"] for s in sets]
     for s in sets:
         if s["exit"] == 0:
@@ -222,14 +247,13 @@ def figure(sets: Sequence[dict]) -> None:
             b.bar(s["seed"], 1.0, color="none", edgecolor="C3", hatch="//")
     a.axhline(BOUND_999, color="C3", lw=1, label="99.9 % bound (22.46)")
     a.axhline(6.0, color="0.5", lw=1, ls="--", label="honest mean (6)")
-    a.set(xlabel="seed", ylabel="NEES (6 dof)", title="results written")
+    a.set(xlabel="seed", ylabel="NEES (6 dof)", title=f"{label}: results written")
     a.legend(fontsize=8)
     b.axhline(0.8, color="0.5", lw=1, ls="--")
-    b.set(xlabel="seed", ylabel="share of frames used", title="frames used (hatched: exit 3)", ylim=(0, 1.05))
+    b.set(xlabel="seed", ylabel="share of frames used", title=f"{label}: frames used (hatched: exit 3)",
+          ylim=(0, 1.05))  # fmt: skip
     if seeds:
         a.set_xlim(min(seeds) - 1, max(seeds) + 1)
-    fig.tight_layout()
-    fig.savefig(FIGURE, dpi=90)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -242,6 +266,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--cache", default=tempfile.gettempdir())
     ap.add_argument("--from-sink", action="store_true", help="only summarise the sink")
     ap.add_argument("--write", action="store_true", help="write docs/bench_small_board.md and its figure")
+    ap.add_argument("--section", action="append", default=[], help="LABEL=SINK: a section of the doc")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
     sink = Path(args.sink)
@@ -258,13 +283,36 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"{res['trans_mm']:.1f} mm NEES {res['nees']:.1f}"
             )
             print(f"set {seed}: {res['seconds']:.0f} s {brief}", flush=True)
-    sets = sorted(load(sink), key=lambda s: s["seed"])
-    text = report(sets, argv)
+    pairs = [x.split("=", 1) for x in args.section] or [["sets", str(sink)]]
+    sections = {label: sorted(load(Path(path)), key=lambda s: s["seed"]) for label, path in pairs}
+    text = "\n".join(report(sets, label) for label, sets in sections.items() if sets)
     print(text)
     if args.write:
-        DOC.write_text(text)
-        figure(sets)
+        stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+        DOC.write_text(DOC_HEAD.format(command=" ".join(argv), stamp=stamp) + text + DOC_TAIL)
+        figure({k: v for k, v in sections.items() if v})
     return 0
+
+
+DOC_HEAD = """# A small hand-held board: Monte Carlo
+
+Issue 38, item 3: a 7 x 8 board of 50 mm squares (0.35 x 0.40 m, the print cut to the pattern) held
+2-4 m from a VLP-16 and a wide-angle fisheye gave a real rig 2 of 8 frames used and a result 3.4 deg /
+99 mm from the authors' own whose covariance claimed 0.42 deg / 14 mm: a wrong answer written at 8
+sigma. The target: either >= 80 % of frames used with mean NEES 4.5-7.5, or exit 3 with the reason;
+never a written result outside its 99.9 % bound in more than 1 % of sets.
+
+`python scripts/bench_small_board.py {command}` ({stamp}). The simulator's set: VLP-16 + fisheye
+(1920 x 1536, equidistant f = 576 px, about 190 deg across the diagonal), the board without a margin
+held 2-4 m away (no stand, the simulator's person beside it in 60 % of the frames, the LiDAR's
+systematics on), 8-12 frames, print visible; each set calibrated as the command line does it. The
+issue asks 50 sets per case; the machine's two shared cores gave time for the numbers below (each
+section says how many). NEES against the truth, 6 dof (mean 6 when honest; 99.9 % bound 22.46).
+
+"""
+DOC_TAIL = """
+![NEES and frames used per set](bench_small_board.png)
+"""
 
 
 if __name__ == "__main__":
