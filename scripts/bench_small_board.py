@@ -312,6 +312,36 @@ section says how many). NEES against the truth, 6 dof (mean 6 when honest; 99.9 
 """
 DOC_TAIL = """
 ![NEES and frames used per set](bench_small_board.png)
+
+## Reading
+
+- **As simulated** the simulator's small board is found and placed in almost every frame (494 of 500
+  frames used; the 6 not used are scans where the LiDAR stage found no board, "no segment passed the
+  chessboard tests"), and the covariance is honest on average (mean NEES 6.50 over 50 sets), so the
+  first branch of the target holds, but one set in 50 (seed 0, NEES 23.8, every frame used, verdict
+  GOOD) lies just outside its 99.9 % bound: 2 % of sets against the target's 1 %, **not met** by one
+  set. An honest covariance puts 0.1 % of sets there, so 1 in 50 has a 5 % chance; the LiDAR stage's
+  boards are somewhat over-confident at 2-6 beams (mean 6-dof NEES 7.80 against 6 over these boards;
+  seed 0's eight boards 2.5-22.0, mean 10.2, while the graph's board component stays 1.02, its
+  redundancy too low to notice), which makes such tails likelier. That is the LiDAR stage's covariance
+  (issue 38's first item), not changed here. None of these sets reaches the new exits: no frame is
+  dropped for disagreeing and no residual is far above the stated noise, so the results are the same
+  as before the change (section "as simulated, before").
+- **With 4 boards of 8-12 moved 20-60 mm and 1-3 deg before the photo** (a hand-held board, sensors
+  not synchronised: a third to a half of the frames wrong by construction, so the 80 % branch cannot
+  hold) the gate or the corner-order check drops most moved frames, and what they leave decides:
+  before this change 4 of the first 20 sets wrote a result outside its 99.9 % bound (seeds 0, 3, 11,
+  17: NEES 24.3, 49.6, 27.8, 89.4; 0.38 deg / 20 mm off with 0.15 deg / 11 mm claimed in seed 0);
+  now seeds 0 and 17 (and 21 of the ten sets run only after it) exit 3 naming the used frames whose
+  image puts the board 27-49 mm from where the scan saw it, under residuals far above the stated
+  noise (LiDAR board poses 5.7 x their stated sigma in seed 0), with synchronisation as the likely
+  cause. Seeds 3 and 11 are still written outside their bound (2 of 30 sets, 7 %): a moved board the
+  gate kept inflated the LiDAR boards' variance component itself (14.0 in seed 3, below the 16 that
+  counts as far above; 138 in seed 11, where the two kept moved boards pulled the extrinsic so that
+  no frame's image lies more than 2.8 of its LiDAR fit's sigmas from its scan), so no per-frame test
+  here isolates them. Five sets exit 3 in the corner-order check before the graph ("cannot be
+  decided", advice: turn the board in its plane), whose advice does not see the moved boards (issue
+  38's fifth item).
 """
 
 
