@@ -11,7 +11,7 @@ compared with the one the LiDAR saw, carried into the camera by the extrinsic.
   and the photo (sensors not synchronised), or the LiDAR's fit is off (its metric picture shows it).
 
 ``residual_causes``: what explains residuals far above the detectors' stated noise over all frames
-(more poses do not mend them), in the order a user checks: boards cut off (partial boards), a
+(more poses do not mend them), in the order a user checks: boards cut off by the image's border, a
 board size the print does not have, intrinsics or a lens model that do not fit the images, boards
 placed by an outline whose margin may not be the configured one, boards that moved between the
 scan and the photo (synchronisation).
@@ -28,7 +28,6 @@ from scipy.spatial.transform import Rotation
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import CameraModel
 from ilcc_graph.init.upnp import upnp
-from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
 from ilcc_graph.run.setup_mistakes import SCALE_TOL, board_scale
 from ilcc_graph.types import FrameResult, ImageCorners
 
@@ -140,22 +139,20 @@ def _names(names: list[str], most: int = 6) -> str:
 
 
 def _partial(seen: list[FrameResult], camera: CameraModel) -> str | None:
-    """Boards cut off by the image's border or beyond the LiDAR's top or bottom beam."""
+    """Boards whose corners reach the image's border (the detector may have found part of the
+    pattern). Boards partly beyond the LiDAR's top or bottom beam are not named: the LiDAR stage
+    fits them as such (``lidar.outline``)."""
     size = np.array([camera.width - 1.0, camera.height - 1.0])
     edge = [
         f.name
         for f in seen
         if np.any(np.minimum(f.corners.uv, size - f.corners.uv) < BORDER_PX)  # type: ignore[union-attr]
     ]
-    beyond = [f.name for f in seen if f.board.diagnostics.get("outside_fov_share", 0.0) > BEYOND_FOV_SHARE]  # type: ignore[union-attr]
-    if not edge and not beyond:
+    if not edge:
         return None
-    where = [f"{_names(edge)} at the image's border"] * bool(edge) + [
-        f"{_names(beyond)} beyond the LiDAR's top or bottom beam"
-    ] * bool(beyond)
     return (
-        f"partial boards ({'; '.join(where)}): a board cut off is placed from the part that shows; "
-        "leave such frames out or capture the whole board"
+        f"partial boards ({_names(edge)} reach the image's border): a board cut off may be placed from "
+        "the part that shows; leave such frames out or capture the whole board"
     )
 
 
