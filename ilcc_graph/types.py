@@ -275,6 +275,8 @@ class Calibration:
     sensors: the sensors' own errors the graph estimated, as plain data: ``lidar_errors`` (``names``,
         ``values``, ``sigmas`` in metres / rad / -, ``left_out``: [term, reason]) and
         ``camera_intrinsics`` (``names``, ``stated``, ``values``, ``sigmas``), each when present.
+    causes: when the residuals are far above the detectors' stated noise, what likely explains them
+        (``run.diagnose.residual_causes``), one sentence each; the verdict names them.
     """
 
     T_cam_lidar: np.ndarray
@@ -284,6 +286,7 @@ class Calibration:
     diagnostics: dict[str, float] = field(default_factory=dict)
     camera: dict[str, Any] | None = None
     sensors: dict[str, Any] = field(default_factory=dict)
+    causes: tuple[str, ...] = ()
 
     @property
     def extrinsic(self) -> Estimate:

@@ -47,6 +47,7 @@ class BatchSolution:
     selection: which sensor model was chosen and the evidence (``selection.Selection``); with
     candidates the boards could not tell apart, ``covariance`` is averaged over them. solved: the
     chosen model's globals a new board would touch (``next_board``: what one more board promises).
+    failing: ``(name, reason)`` of used frames that fail the gate though it may drop no more.
     """
 
     T_cam_lidar: np.ndarray
@@ -67,6 +68,7 @@ class BatchSolution:
     square_size: ScaleEffect | None = None
     selection: Selection | None = None
     solved: SolvedGlobals | None = None
+    failing: list[tuple[str, str]] = field(default_factory=list)
 
     @property
     def extrinsic(self) -> Estimate:
@@ -105,6 +107,7 @@ def batch_solution(
         effects=dict(effects or {}),
         square_size=square_size,
         board_plane=sol.board_plane(group) if sol.assembly.point_lidars(sol.boards) else None,
+        failing=list(sol.failing),
     )
 
 

@@ -17,8 +17,10 @@ from . import chi2 as chi2_dist
 __all__ = [
     "PRIOR_MAX_RATIO",
     "RETURNS_MAX_RATIO",
+    "FAR_ABOVE",
     "BoardStats",
     "board_stats",
+    "far_above",
     "gate_failures",
     "gate_scale",
     "graph_variance_factor",
@@ -30,6 +32,17 @@ RETURNS_MAX_RATIO = 2.0
 #: LiDAR fit's errors are heavy-tailed (recorded sets: 35-41 on 6 dof for boards whose views and
 #: returns are fine); a wrong correspondence moves a board by a square (chi2 in the hundreds)
 PRIOR_MAX_RATIO = 8.0
+#: variance components (residuals against the detectors' stated noise) above which more poses do not
+#: mend the residuals and a cause is named: the image corners' at 4 (2 x their stated sigma; the
+#: recorded sets 1.6), the LiDAR boards' poses at 16 (4 x; the recorded sets 5.5-6.7, the LiDAR fit's
+#: errors being heavy-tailed, see ``PRIOR_MAX_RATIO``)
+FAR_ABOVE = {"board": 16.0, "bearing": 4.0}
+
+
+def far_above(components: tuple[float, float]) -> dict[str, float]:
+    """The variance components (board priors, bearings) at or above ``FAR_ABOVE``, by kind."""
+    got = dict(zip(("board", "bearing"), components, strict=True))
+    return {k: float(v) for k, v in got.items() if v >= FAR_ABOVE[k]}
 
 
 @dataclass(frozen=True)

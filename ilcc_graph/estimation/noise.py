@@ -103,7 +103,9 @@ class Solution:
     covariance returned is multiplied by it). redundancy: per (kind, group) with a component, its
     redundancy at the last estimate. uncertain: the estimated components (key: redundancy) whose
     uncertainty the covariances carry (module docstring step 5): ``covariance_scales`` and
-    ``spread``, computed with the first covariance asked for.
+    ``spread``, computed with the first covariance asked for. failing: ``(name, reason)`` of kept
+    boards that fail the gate though it may drop no more (``max_dropped_fraction``): the noise found
+    does not cover them.
     """
 
     problem: Problem
@@ -119,6 +121,7 @@ class Solution:
     timings: dict[str, float] = field(default_factory=dict)
     redundancy: dict[tuple[str, str], float] = field(default_factory=dict)
     uncertain: dict[tuple[str, str], float] = field(default_factory=dict)
+    failing: list[tuple[str, str]] = field(default_factory=list)
     _marginals: MarginalCovariances | None = None
     _uncertainty: tuple[dict[tuple[str, str], float] | None, list] | None = None
 
@@ -322,7 +325,8 @@ def solve_problem(
         uncertain = estimated_components(comps, fits.redundancy, problem.lidar_errors)
     fits.timings["total"] = time.perf_counter() - t_start
     sol = Solution(problem, asm, kept, fitted.graph, fitted.values, st, dropped, comps, float(vf),
-                   fits.iterations, fits.timings, fits.redundancy, dict(uncertain or {}))  # fmt: skip
+                   fits.iterations, fits.timings, fits.redundancy, dict(uncertain or {}),
+                   run.failing)  # fmt: skip
     weak = _unobservable(sol) if layouts is None else {}
     if weak:
         for lid, (terms_out, why) in weak.items():

@@ -64,12 +64,14 @@ class Fitted:
 @dataclass
 class Gated:
     """The boards the gate kept, those it dropped (``(name, reason)``, in order), the last fit and
-    its per-board statistics."""
+    its per-board statistics; failing: ``(name, reason)`` of kept boards that still fail the gate
+    when it may drop no more (``allowed_drops``)."""
 
     kept: list[int]
     gone: list[tuple[str, str]]
     fitted: Fitted
     stats: dict[int, BoardStats]
+    failing: list[tuple[str, str]] = field(default_factory=list)
 
 
 @dataclass
@@ -130,7 +132,7 @@ class Fits:
     def gated(self, kept0: Sequence[int], comps: Scales) -> Gated:
         """Fit the boards ``kept0``, dropping the one that fails the chi-square gate worst and fitting
         again until none fails or no more may be dropped."""
-        kept, gone = list(kept0), list[tuple[str, str]]()
+        kept, gone, left = list(kept0), list[tuple[str, str]](), list[tuple[str, str]]()
         while True:
             fitted = self.fit(kept, comps)
             st = self.stats_of(kept, comps, fitted)
@@ -149,12 +151,13 @@ class Fits:
                     "chi-square gate fails for %d frame(s) (%s) but at most %d frames may be dropped; kept",
                     len(failing), ", ".join(self.names[i] for _, i, _ in failing), self.allowed_drops,
                 )  # fmt: skip
+                left = [(self.names[i], why) for _, i, why in failing]
                 break
             _, worst, reason = failing[0]
             log.info("dropping frame %s: %s", self.names[worst], reason)
             gone.append((self.names[worst], reason))
             kept = [i for i in kept if i != worst]
-        return Gated(kept, gone, fitted, st)
+        return Gated(kept, gone, fitted, st, left)
 
     def with_components(
         self, kept: Sequence[int], comps: dict[tuple[str, str], float]

@@ -24,6 +24,7 @@ import gtsam
 import numpy as np
 
 from ..cameras import CameraModel, make_camera
+from ..estimation.gate import far_above
 from ..types import Calibration
 from .sensors import sensors_text, square_size_text
 from .text import format_joint, lidar_view_lines, short_reason
@@ -64,7 +65,9 @@ def verdict(
     ``need`` (deg, mm; default ``NEED_DEG_MM``). POOR: fewer than 3 frames used, more than half
     disagreeing, or a 1-sigma above 3 x ``need``. FAIR: in between. MOVED: sessions whose mount
     moved (``joint``: the sessions' ``joint.yaml`` document). NO UNCERTAINTY: a method without a
-    covariance (the paper's refinement).
+    covariance (the paper's refinement). When the residuals are far above the detectors' stated
+    noise (``gate.FAR_ABOVE``) the text says more poses will not mend that and names the likely
+    cause (``Calibration.causes``) or what to check, instead of asking for more poses.
     """
     need = NEED_DEG_MM if need is None else need
     used = [f for f in cal.frames if f.used]
@@ -102,13 +105,15 @@ def verdict(
         problems.append(f"{sigma}, above the {need[0]:g} deg / {need[1]:g} mm needed")
     poor = k < 3 or d > 0.5 * max(len(seen), 1) or not (rot <= 3 * need[0] and mm <= 3 * need[1])
     level = "GOOD" if not problems else "POOR" if poor else "FAIR"
+    far = _far_text(cal)
     if level == "GOOD":
         head = f"GOOD: {agree}; {sigma} (needed: {need[0]:g} deg, {need[1]:g} mm)."
     else:
         more = k < MIN_FRAMES or not (rot <= need[0] and mm <= need[1])  # frames or sigma: more poses help
         head = f"{level}: {'; '.join(problems)}." + (
-            " More board poses would help (see below)." if more else ""
+            " More board poses would help (see below)." if more and not far else ""
         )
+    head += far
     basis = (
         "each frame's residuals pass a chi-square test"
         + ("" if gate_prob is None else f" ({100 * gate_prob:g} %)")
@@ -121,6 +126,25 @@ def verdict(
     if joint is not None and (g := joint["consistency"]["global"]) is not None:
         basis += f"; no evidence that the mount moved between sessions (p = {g['p_value']:.2g})"
     return level, f"{head}\n  Rests on: {basis}."
+
+
+def _far_text(cal: Calibration) -> str:
+    """When the residuals are far above the detectors' stated noise (``gate.FAR_ABOVE``): that more
+    poses do not mend them, and the likely cause (``Calibration.causes``) or what to check; else ""."""
+    diag = cal.diagnostics or {}
+    far = far_above((diag.get("variance_component_board", 1.0), diag.get("variance_component_bearing", 1.0)))
+    if not far:
+        return ""
+    what = {"bearing": "image corners", "board": "LiDAR board poses"}
+    sizes = ", ".join(f"{what[k]} {math.sqrt(v):.1f} x" for k, v in far.items())
+    text = f" The residuals are far above the detectors' stated noise ({sizes} their stated sigma): "
+    if cal.causes:
+        return text + "more poses will not mend that. Likely: " + "; or ".join(cal.causes) + "."
+    return text + (
+        "more poses will not mend that, and no cause shows in the frames: check the camera's intrinsics, "
+        "board.square_size and the margin, boards cut off at the image's edge, and that both sensors "
+        "capture at the same moment."
+    )
 
 
 # ------------------------------------------------------------------------------------ the poses

@@ -9,6 +9,12 @@ compared with the one the LiDAR saw, carried into the camera by the extrinsic.
   print.
 - The image fits, but its board sits elsewhere than the LiDAR's: the board moved between the scan
   and the photo (sensors not synchronised), or the LiDAR's fit is off (its metric picture shows it).
+
+``residual_causes``: what explains residuals far above the detectors' stated noise over all frames
+(more poses do not mend them), in the order a user checks: boards cut off by the image's border, a
+board size the print does not have, intrinsics or a lens model that do not fit the images, boards
+placed by an outline whose margin may not be the configured one, boards that moved between the
+scan and the photo (synchronisation).
 """
 
 from __future__ import annotations
@@ -22,14 +28,33 @@ from scipy.spatial.transform import Rotation
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import CameraModel
 from ilcc_graph.init.upnp import upnp
-from ilcc_graph.types import FrameResult
+from ilcc_graph.run.setup_mistakes import SCALE_TOL, board_scale
+from ilcc_graph.types import FrameResult, ImageCorners
 
-__all__ = ["ImageAlone", "dropped_frame_cause", "fit_image_alone"]
+__all__ = [
+    "ImageAlone",
+    "dropped_frame_cause",
+    "fit_image_alone",
+    "moved_boards",
+    "residual_causes",
+    "stated_noise_mrad",
+]
 
 #: an image fits a flat board "clearly worse" above this multiple of the used frames' median
 OWN_FIT_RATIO = 2.0
 #: corners beyond this fraction of the half-diagonal from the image centre are "near the edge"
 EDGE_RADIUS = 0.75
+#: a corner within this many pixels of the image's border: the board may be cut off there
+BORDER_PX = 3.0
+#: an image whose corners fit a flat board alone at this multiple of their stated noise (RMS) or more
+#: does not fit the camera model (intrinsics, lens model, blur, a curled print)
+LENS_RATIO = 2.0
+#: a board whose image puts it this many of the LiDAR pose's stated sigmas (and at least
+#: ``MOVED_MIN_MM``) from where the scan saw it, through the one extrinsic, moved between them
+MOVED_SIGMAS = 5.0
+MOVED_MIN_MM = 10.0
+#: the board's size is named only from this many pairs of frames (a moved board spoils its pairs)
+SCALE_PAIRS = 6
 
 
 @dataclass(frozen=True)
@@ -98,3 +123,124 @@ def dropped_frame_cause(
         f"{gap_mm:.0f} mm (corner rms) from where the LiDAR saw it: the board moved between the scan and "
         "the photo (sensors not synchronised), or the LiDAR's pattern fit is off (see its metric picture)"
     )
+
+
+def stated_noise_mrad(corners: ImageCorners, camera: CameraModel) -> float:
+    """RMS over the corners of the image stage's stated 1-sigma (``cov_px``) as an angle (mrad)."""
+    uv = np.asarray(corners.uv, dtype=np.float64)
+    a, b = camera.bearing(uv), camera.bearing(uv + np.array([1.0, 0.0]))
+    per_px = np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.sum(a * b, axis=1))
+    sigma_px = np.sqrt(0.5 * np.trace(np.asarray(corners.cov_px), axis1=1, axis2=2))
+    return float(1e3 * np.sqrt(np.nanmean((sigma_px * per_px) ** 2)))
+
+
+def _names(names: list[str], most: int = 6) -> str:
+    return ", ".join(names[:most]) + (f" and {len(names) - most} more" if len(names) > most else "")
+
+
+def _partial(seen: list[FrameResult], camera: CameraModel) -> str | None:
+    """Boards whose corners reach the image's border (the detector may have found part of the
+    pattern). Boards partly beyond the LiDAR's top or bottom beam are not named: the LiDAR stage
+    fits them as such (``lidar.outline``)."""
+    size = np.array([camera.width - 1.0, camera.height - 1.0])
+    edge = [
+        f.name
+        for f in seen
+        if np.any(np.minimum(f.corners.uv, size - f.corners.uv) < BORDER_PX)  # type: ignore[union-attr]
+    ]
+    if not edge:
+        return None
+    return (
+        f"partial boards ({_names(edge)} reach the image's border): a board cut off may be placed from "
+        "the part that shows; leave such frames out or capture the whole board"
+    )
+
+
+def _image_fits(
+    seen: list[FrameResult], board: Board, camera: CameraModel
+) -> dict[str, tuple[ImageAlone, float]]:
+    """Per frame its image fitted alone and that fit's RMS over the stated corner noise."""
+    corners = board.corners_board()
+    fits = {}
+    for f in seen:
+        alone = fit_image_alone(f.corners.bearings, corners)  # type: ignore[union-attr]
+        fits[f.name] = (alone, alone.rms_mrad / max(stated_noise_mrad(f.corners, camera), 1e-9))  # type: ignore[arg-type]
+    return fits
+
+
+def moved_boards(
+    frames: list[FrameResult], board: Board, camera: CameraModel, T_cam_lidar: np.ndarray
+) -> list[tuple[str, float, float]]:
+    """(frame, gap mm, gap in the LiDAR pose's stated sigmas) of the frames whose image fits a flat
+    board alone as its stated noise says but puts it ``MOVED_SIGMAS`` x the LiDAR fit's stated sigma
+    (and ``MOVED_MIN_MM``) or more from where the scan saw it, through ``T_cam_lidar``."""
+    seen = [f for f in frames if f.board is not None and f.corners is not None]
+    return _moved(seen, board, T_cam_lidar, _image_fits(seen, board, camera))
+
+
+def _moved(
+    seen: list[FrameResult], board: Board, T_cam_lidar: np.ndarray, fits: dict
+) -> list[tuple[str, float, float]]:
+    """(frame, gap mm, gap in the LiDAR pose's stated sigmas) of the boards whose image fits alone
+    but sits far from where the scan saw them, through ``T_cam_lidar``."""
+    radius = 0.5 * float(np.linalg.norm(np.ptp(board.corners_board(), axis=0)))
+    out = []
+    for f in seen:
+        alone, ratio = fits[f.name]
+        if ratio > LENS_RATIO:
+            continue
+        lidar = f.board.corners_lidar @ T_cam_lidar[:3, :3].T + T_cam_lidar[:3, 3]  # type: ignore[union-attr]
+        gap = np.linalg.norm(alone.corners_cam[:, None, :] - lidar[None, :, :], axis=2).min(axis=1)
+        gap_mm = float(1e3 * np.sqrt(np.mean(gap**2)))
+        C = np.asarray(f.board.covariance)  # type: ignore[union-attr]
+        sigma_mm = 1e3 * float(np.sqrt(max(np.trace(C[3:, 3:]) + radius**2 * np.trace(C[:3, :3]), 1e-12)))
+        if gap_mm > max(MOVED_MIN_MM, MOVED_SIGMAS * sigma_mm):
+            out.append((f.name, gap_mm, gap_mm / sigma_mm))
+    return out
+
+
+def residual_causes(
+    frames: list[FrameResult], board: Board, camera: CameraModel, T_cam_lidar: np.ndarray
+) -> list[str]:
+    """The likely causes of residuals far above the detectors' stated noise (module docstring), one
+    sentence each, from the frames both sensors saw; [] when none shows."""
+    seen = [f for f in frames if f.board is not None and f.corners is not None]
+    if not seen:
+        return []
+    causes = [c for c in (_partial(seen, camera),) if c]
+    scale = board_scale([(f.corners, f.board.T_lidar_board) for f in seen], board)  # type: ignore[misc, union-attr]
+    if (
+        scale is not None
+        and scale[2] >= SCALE_PAIRS
+        and abs(scale[0] - 1) > SCALE_TOL
+        and scale[1] < abs(scale[0] - 1) / 3
+    ):
+        causes.append(
+            f"the board's size: the images make its moves between frames {scale[0]:.3f} x what the scans "
+            f"give ({scale[2]} pairs): board.square_size is not the print's (measure the whole pattern)"
+        )
+    fits = _image_fits(seen, board, camera)
+    bad = sorted(r for _, r in fits.values() if r > LENS_RATIO)
+    if 2 * len(bad) > len(seen):
+        causes.append(
+            f"the camera's intrinsics or lens model: {len(bad)} of {len(seen)} images alone fit a flat board "
+            f"at {np.median(bad):.1f} x their stated corner noise (median; check camera.K, dist and the "
+            "model, or --refine-intrinsics; blur or a curled print do this too)"
+        )
+    outline = len([f for f in seen if f.board is not None and f.board.diagnostics.get("no_contrast")])
+    if 2 * outline > len(seen):
+        causes.append(
+            f"the board's margin: {outline} of {len(seen)} boards were placed by their outline, which "
+            "board.margin_long and board.margin_short define with the squares: a margin other than the "
+            "board's moves every one"
+        )
+    if moved := _moved(seen, board, T_cam_lidar, fits):
+        names = [n for n, _, _ in moved]
+        gaps = [g for _, g, _ in moved]
+        causes.append(
+            f"synchronisation: the images of {_names(names)} fit a flat board as their stated noise says, "
+            f"but it sits {min(gaps):.0f}-{max(gaps):.0f} mm from where the scans saw it (more than "
+            f"{MOVED_SIGMAS:g} x the LiDAR fit's stated sigma): the board moved between the scan and the "
+            "photo (sensors not synchronised), or the LiDAR's fit is off there"
+        )
+    return causes

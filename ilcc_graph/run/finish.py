@@ -5,6 +5,14 @@ the estimation core's ``BatchSolution``; the paper's refinement gives no covaria
 ``finish``: every frame in input order with its fate (used, or why not, with the likely cause of a
 dropped frame, ``diagnose``), the refined board poses, the sensors' own errors. calibration.yaml
 writes a covariance the method does not give as NaN (interface.md).
+
+No answer the data do not support: when the frames that agree within their noise are fewer than
+``MIN_DISTINCT_POSES`` distinct board poses (each used frame is one: ``prepare`` drops repeats) and
+others disagree beyond it, nothing tells which group is right, and a covariance from two poses
+cannot reveal a placement's error: ``finish`` raises ``CalibrationImpossible`` (exit 3) naming the
+frames that agree, those that disagree with each one's likely cause, and the likely cause over
+all frames (``diagnose.residual_causes``). When the residuals are far above the detectors' stated
+noise (``gate.FAR_ABOVE``) the calibration carries those causes (``Calibration.causes``).
 """
 
 from __future__ import annotations
@@ -17,11 +25,14 @@ from typing import Any
 import numpy as np
 
 from ilcc_graph.config import Config
+from ilcc_graph.errors import DISAGREEING, CalibrationImpossible
 from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.effects import SQUARE_SIZE_KEY
+from ilcc_graph.estimation.gate import far_above
+from ilcc_graph.estimation.geometry import MIN_DISTINCT_POSES
 from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
-from ilcc_graph.run.diagnose import dropped_frame_cause, fit_image_alone
-from ilcc_graph.run.prepare import Prepared, drop
+from ilcc_graph.run.diagnose import dropped_frame_cause, fit_image_alone, moved_boards, residual_causes
+from ilcc_graph.run.prepare import Prepared, drop, frame_issues
 from ilcc_graph.types import Calibration, FrameResult, GraphFrame, rotation_angle_deg
 
 __all__ = ["Answer", "finish", "from_batch", "lidar_view_counts", "rms_bearing_mrad"]
@@ -35,7 +46,9 @@ class Answer:
     none. rms_mrad: each used frame's RMS bearing error (mrad). T_lidar_board: refined board poses.
     dropped: ``(frame, reason)`` the strategy left out. iterations, variance_factor,
     variance_components (board priors, bearings): the solve's figures. diagnostics: further
-    calibration.yaml diagnostics; sensors: ``Calibration.sensors``.
+    calibration.yaml diagnostics; sensors: ``Calibration.sensors``. failing: ``(frame, reason)`` of
+    used frames that fail the chi-square gate though it may drop no more (the noise found does not
+    cover them).
     """
 
     T_cam_lidar: np.ndarray
@@ -48,6 +61,7 @@ class Answer:
     variance_components: tuple[float, float] = (1.0, 1.0)
     diagnostics: dict[str, float] = field(default_factory=dict)
     sensors: dict[str, Any] = field(default_factory=dict)
+    failing: list[tuple[str, str]] = field(default_factory=list)
 
 
 def from_batch(sol: BatchSolution, config: Config) -> Answer:
@@ -63,19 +77,30 @@ def from_batch(sol: BatchSolution, config: Config) -> Answer:
     rms = {n: s.rms_bearing_error_mrad for n, s in sol.per_frame.items()}
     return Answer(
         sol.T_cam_lidar, sol.covariance, rms, sol.T_lidar_board, list(sol.dropped), sol.iterations,
-        sol.variance_factor, sol.variance_components, diagnostics, _sensors(sol, config),
+        sol.variance_factor, sol.variance_components, diagnostics, _sensors(sol, config), list(sol.failing),
     )  # fmt: skip
 
 
 def finish(
-    prep: Prepared, observed: Sequence[FrameResult], config: Config, method: str, answer: Answer
-) -> Calibration:
-    """The Calibration of one source from a strategy's answer: every frame in input order with its fate."""
+    prep: Prepared, observed: Sequence[FrameResult], config: Config, method: str, answer: Answer,
+    agree: bool = True,
+) -> Calibration:  # fmt: skip
+    """The Calibration of one source from a strategy's answer: every frame in input order with its fate.
+
+    agree: raise ``CalibrationImpossible`` when fewer than ``MIN_DISTINCT_POSES`` frames agree and
+    others disagree beyond their noise (module docstring; a session of several is judged with them)."""
     results = dict(prep.results)
     if answer.dropped:
         causes = _dropped_causes(results, [n for n, _ in answer.dropped], config, answer.T_cam_lidar)
         for name, reason in answer.dropped:
             drop(results, name, f"{reason}; {causes[name]}" if causes.get(name) else reason)
+    order = [n for n, r in results.items() if not r.used and (r.reason or "").startswith(DISAGREEING)]
+    order = [n for n in order if "likely cause" not in (results[n].reason or "")]  # the corner order's
+    if order:
+        causes = _dropped_causes(results, order, config, answer.T_cam_lidar)
+        for name in order:
+            if causes.get(name):
+                drop(results, name, f"{results[name].reason}; {causes[name]}")
     frames = []
     for r in (results[o.name] for o in observed):
         if r.used:
@@ -85,6 +110,9 @@ def finish(
                 T_lidar_board_refined=answer.T_lidar_board.get(r.name),
             )
         frames.append(r)
+    if agree:
+        require_agreement(frames, config, answer.T_cam_lidar)
+        require_covered(frames, answer.failing, config, answer.T_cam_lidar)
     diagnostics = {
         **lidar_view_counts(frames),
         "iterations": float(answer.iterations),
@@ -96,7 +124,50 @@ def finish(
     }
     cov = np.full((6, 6), np.nan) if answer.covariance is None else answer.covariance
     cam = config.camera.to_dict()
-    return Calibration(answer.T_cam_lidar, cov, tuple(frames), method, diagnostics, cam, answer.sensors)
+    residual: tuple[str, ...] = ()
+    if answer.covariance is not None and (far := far_above(answer.variance_components)):
+        if agree:
+            require_within_noise(frames, far, config, answer.T_cam_lidar)
+        residual = tuple(residual_causes(frames, config.board, config.camera, answer.T_cam_lidar))
+    sensors = answer.sensors
+    return Calibration(answer.T_cam_lidar, cov, tuple(frames), method, diagnostics, cam, sensors, residual)
+
+
+def require_agreement(frames: Sequence[FrameResult], config: Config, T_cam_lidar: np.ndarray) -> None:
+    """Raise ``CalibrationImpossible`` when the frames used (one per distinct board pose) are fewer
+    than ``MIN_DISTINCT_POSES`` and frames seen by both sensors were dropped for disagreeing with
+    them (``errors.DISAGREEING``): which frames agree, which disagree and why, the likely cause."""
+    used = [f for f in frames if f.used]
+    disagree = [f for f in frames if not f.used and (f.reason or "").startswith(DISAGREEING)]
+    if len(used) >= MIN_DISTINCT_POSES or not disagree:
+        return
+    agree_names, other_names = [f.name for f in used], [f.name for f in disagree]
+    k = len(used)
+    message = (
+        f"only {k} distinct board pose{'s' * (k != 1)} agree ({', '.join(agree_names)}) and "
+        f"{len(disagree)} disagree with {'them' if k != 1 else 'it'} beyond their noise "
+        f"({', '.join(other_names)}): with fewer than {MIN_DISTINCT_POSES} poses that agree nothing tells "
+        "which frames are right, and their covariance could not reveal a placement's error"
+    )
+    issues = [
+        (f.name, "agreement", "agrees with " + (", ".join(n for n in agree_names if n != f.name) or "none"))
+        for f in used
+    ]
+    issues += [(f.name, "agreement", f.reason or "disagrees") for f in disagree]
+    issues += [i for i in frame_issues(frames) if i[0] not in agree_names and i[0] not in other_names]
+    order = {f.name: i for i, f in enumerate(frames)}
+    issues.sort(key=lambda i: order.get(i[0], len(order)))
+    causes = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
+    advice = f"likely: {causes[0]}" if causes else _CHECK
+    raise CalibrationImpossible(message, tuple(issues), advice)
+
+
+#: the advice of an exit 3 for disagreeing frames when no cause shows in them
+_CHECK = (
+    "check what differs between the frames that agree and those that do not (the board cut off in the "
+    "image, the board moving while captured, the camera's intrinsics, board.square_size and its margin) "
+    "before capturing more poses"
+)
 
 
 def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:
@@ -118,11 +189,73 @@ def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:
     return {k: v for k, v in counts.items() if v}
 
 
+def require_covered(
+    frames: Sequence[FrameResult], failing: Sequence[tuple[str, str]], config: Config, T_cam_lidar: np.ndarray
+) -> None:
+    """Raise ``CalibrationImpossible`` when used frames fail the chi-square gate though it may drop no
+    more (``Answer.failing``): no majority of the frames agrees within the noise the solve found, so
+    the covariance would not cover the frames the result uses."""
+    if not failing:
+        return
+    used = [f for f in frames if f.used]
+    gone = [f for f in frames if not f.used and (f.reason or "").startswith(DISAGREEING)]
+    names = [n for n, _ in failing]
+    message = (
+        f"{len(failing)} of the {len(used)} frames left ({', '.join(names)}) still disagree beyond their "
+        f"noise after {len(gone)} were dropped for disagreeing, the most the test may drop: no majority of "
+        "the frames agrees, so no covariance would cover the frames a result uses"
+    )
+    results = {f.name: f for f in frames}
+    causes = _dropped_causes(results, names, config, T_cam_lidar)
+    issues = [(n, "agreement", f"{why}; {causes[n]}" if causes.get(n) else why) for n, why in failing]
+    issues += [(f.name, "agreement", f.reason or "disagrees") for f in gone]
+    issues += [i for i in frame_issues(frames) if i[0] not in {n for n, _, _ in issues}]
+    order = {f.name: i for i, f in enumerate(frames)}
+    issues.sort(key=lambda i: order.get(i[0], len(order)))
+    found = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
+    advice = f"likely: {found[0]}" if found else _CHECK
+    raise CalibrationImpossible(message, tuple(issues), advice)
+
+
+def require_within_noise(
+    frames: Sequence[FrameResult], far: dict[str, float], config: Config, T_cam_lidar: np.ndarray
+) -> None:
+    """Raise ``CalibrationImpossible`` when the residuals are far above the detectors' stated noise
+    (``far``: the variance components, ``gate.far_above``) and used frames' images put their board
+    far from where the scans saw it (``diagnose.moved_boards``): the noise estimated from the frames
+    then hides those frames from the gate, so the covariance would not cover them."""
+    moved = {n: (g, s) for n, g, s in moved_boards(list(frames), config.board, config.camera, T_cam_lidar)}
+    used = [f for f in frames if f.used and f.name in moved]
+    if not used:
+        return
+    what = {"bearing": "image corners", "board": "LiDAR board poses"}
+    sizes = ", ".join(f"{what[k]} {np.sqrt(v):.1f} x their stated sigma" for k, v in far.items())
+    names = [f.name for f in used]
+    message = (
+        f"the residuals are far above the detectors' stated noise ({sizes}) and the result uses frames whose "
+        f"image puts the board far from where the scan saw it ({', '.join(names)}): the noise estimated "
+        "from the frames hides them from the test, so no covariance would cover the frames used"
+    )
+    issues = [
+        (n, "agreement", f"used, but its image puts the board {moved[n][0]:.0f} mm ({moved[n][1]:.0f} x the "
+         "LiDAR fit's stated sigma) from where the scan saw it: the board moved between the scan and the "
+         "photo, or the LiDAR's fit is off there") for n in names
+    ]  # fmt: skip
+    issues += [i for i in frame_issues(frames) if i[0] not in names]
+    order = {f.name: i for i, f in enumerate(frames)}
+    issues.sort(key=lambda i: order.get(i[0], len(order)))
+    found = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
+    advice = f"likely: {found[0]}" if found else _CHECK
+    raise CalibrationImpossible(message, tuple(issues), advice)
+
+
 def _dropped_causes(
     results: dict[str, FrameResult], dropped: Sequence[str], config: Config, T_cam_lidar: np.ndarray
 ) -> dict[str, str]:
     """Per dropped frame the likely cause (``diagnose``), judged against the used frames' images."""
     used = [r.corners for n, r in results.items() if r.used and n not in dropped and r.corners is not None]
+    if len(used) < 3:  # too few to tell the typical image fit: every frame's with corners judges it
+        used = [r.corners for n, r in results.items() if r.corners is not None and (r.used or n in dropped)]
     if len(used) < 3:
         return {}
     corners = config.board.corners_board()

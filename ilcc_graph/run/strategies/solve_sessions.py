@@ -55,8 +55,8 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     method = f"joint-{joint_opts.mode}"
     results = []
     for p, o in zip(preps, observations, strict=True):
-        part = finish(p, o.frames, o.config, method, from_batch(session_part(sol, o.name), o.config))
-        own = finish(p, o.frames, o.config, "graph", from_batch(own_part(sol, o.name), o.config))
+        part = finish(p, o.frames, o.config, method, from_batch(session_part(sol, o.name), o.config), False)
+        own = finish(p, o.frames, o.config, "graph", from_batch(own_part(sol, o.name), o.config), False)
         results.append(SessionResult(o.name, o, part, own))
     prefix = len(observations) > 1
     frames = tuple(

@@ -1,0 +1,357 @@
+"""A small hand-held board (issue 38, item 3): Monte Carlo of whole calibrations whose answer the data
+may not support.
+
+Each set: a VLP-16 and a wide-angle fisheye (``Fisheye.default(1920)``: 1920 x 1536, equidistant
+f = 576 px, about 190 deg across the diagonal), a 7 x 8 board of 50 mm squares with no margin (0.35 x
+0.40 m, the print cut to the pattern), held 2-4 m away (no stand; the simulator's person beside it in
+60 % of the frames, its LiDAR systematics on), 8-12 frames (8 + seed mod 5), the print visible to the
+LiDAR. At 2 m the VLP-16's 2-degree beams put 5-6 lines on the board, at 4 m 2-3. Each set is
+calibrated as the command line does it (``pipeline.run``: the stages, the second look, the graph with
+its noise policy); a ``CalibrationImpossible`` is the command line's exit 3.
+
+Per set: frames, boards found by each stage, frames used, the verdict, the extrinsic's errors and
+NEES against the truth (6 dof; outside the 99.9 % bound above chi2(6) 0.999 = 22.46), or the exit 3's
+message, the frames it names and its advice. The target (issue 38): either >= 80 % of frames used
+with mean NEES 4.5-7.5, or exit 3 with the reason; never a written result outside its 99.9 % bound
+in more than 1 % of sets.
+
+    nice python3 scripts/bench_small_board.py --sets 50 --sink /tmp/small.jsonl
+    nice python3 scripts/bench_small_board.py --sets 30 --moved 4 --sink /tmp/small_moved4.jsonl
+    python3 scripts/bench_small_board.py --write --section "as simulated=/tmp/small.jsonl" \
+        --section "4 boards moved before the photo=/tmp/small_moved4.jsonl"
+
+``--moved K``: in each set K frames (drawn per seed) show in their image the board moved by 20-60 mm
+and 1-3 deg from where the scan saw it (a hand-held board that moved between the scan and the
+photo; the images of a second simulation with those poses): the gate should drop them, and whatever
+is written must still lie within its bound.
+
+Each finished set is appended to the sink at once (a JSON line), so a run can be stopped and resumed.
+``--write`` writes docs/bench_small_board.md (a section per ``--section LABEL=SINK``) and
+docs/bench_small_board.png (a row of panels per section).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import shutil
+import sys
+import tempfile
+import time
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import replace
+from datetime import datetime, timezone
+from pathlib import Path
+
+import gtsam
+import numpy as np
+from bench_shape import board_nees, load, pose_error  # (scripts/ is the running script's folder)
+from scipy.stats import chi2
+
+from ilcc_graph.board import Board
+from ilcc_graph.cameras import Fisheye
+from ilcc_graph.datasets import open_source
+from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
+from ilcc_graph.report.summary import verdict
+from ilcc_graph.run.pipeline import run
+from ilcc_graph.run.result import RunOptions
+from ilcc_graph.simulate import SceneOptions, SimulationSpec, board_placements, simulate_dataset
+
+ROOT = Path(__file__).resolve().parents[1]
+DOC = ROOT / "docs" / "bench_small_board.md"
+FIGURE = ROOT / "docs" / "bench_small_board.png"
+BOUND_999 = float(chi2.ppf(0.999, 6))
+
+
+def spec_for(seed: int) -> SimulationSpec:
+    """Set ``seed`` (module docstring)."""
+    return SimulationSpec(
+        lidar="vlp16", camera=Fisheye.default(1920), board=Board(7, 8, 0.05), n_frames=8 + seed % 5,
+        seed=seed, scene=SceneOptions(board_distance_m=(2.0, 4.0), stand=False), intensity_field="print",
+    )  # fmt: skip
+
+
+def run_one(data: Path, spec: SimulationSpec) -> dict:
+    """One calibration of ``data`` as the command line runs it; its numbers against the truth."""
+    t0 = time.perf_counter()
+    out: dict = {"n_frames": int(spec.n_frames)}
+    try:
+        res = run([open_source(data)], RunOptions())
+    except (CalibrationImpossible, IndeterminateSystem) as err:
+        out.update(
+            exit=3, failure=f"{type(err).__name__}: {err}", advice=getattr(err, "advice", None),
+            frames=[list(f) for f in getattr(err, "frames", ())], seconds=time.perf_counter() - t0,
+        )  # fmt: skip
+        return out
+    cal = res.calibration
+    T_true = np.asarray(spec.T_cam_lidar)
+    truth = board_placements(spec)
+    boards = [(int(f.name) - 1, f.board) for f in res.sessions[0].observation.frames if f.board is not None]
+    nb = [board_nees(b, truth[i], spec.board) for i, b in boards]
+    xi = pose_error(cal.T_cam_lidar, T_true)
+    level, text = verdict(cal)
+    out.update(
+        exit=0,
+        used=int(sum(f.used for f in cal.frames)),
+        lidar_boards=int(sum(f.board is not None for f in cal.frames)),
+        image_boards=int(sum(f.corners is not None for f in cal.frames)),
+        rot_deg=float(np.degrees(np.linalg.norm(xi[:3]))),
+        trans_mm=float(1e3 * np.linalg.norm(cal.T_cam_lidar[:3, 3] - T_true[:3, 3])),
+        sigma_deg=float(np.degrees(np.sqrt(np.linalg.eigvalsh(cal.covariance[:3, :3])[-1]))),
+        sigma_mm=float(1e3 * np.sqrt(np.linalg.eigvalsh(cal.covariance[3:, 3:])[-1])),
+        nees=float(xi @ np.linalg.solve(cal.covariance, xi)),
+        board_nees=[float(a) for a, _ in nb],
+        board_nees_inplane=[float(b) for _, b in nb],
+        components=[cal.diagnostics.get(f"variance_component_{k}", 1.0) for k in ("board", "bearing")],
+        verdict=level,
+        verdict_text=text,
+        dropped=[f"{f.name}: {f.reason}" for f in cal.frames if not f.used],
+        seconds=time.perf_counter() - t0,
+    )
+    return out
+
+
+def moved_poses(spec: SimulationSpec, k: int) -> dict[int, np.ndarray]:
+    """``k`` frames of ``spec`` (drawn from its seed) with their board moved 20-60 mm and 1-3 deg
+    (random directions, about the board's centre): frame index -> the moved ``T_lidar_board``."""
+    rng = np.random.default_rng([spec.seed, 38])
+    poses = board_placements(spec)
+    centre = np.append(spec.board.pattern_centre, 1.0)
+    out = {}
+    for i in sorted(rng.choice(len(poses), size=min(k, len(poses)), replace=False)):
+        axis, way = rng.normal(size=3), rng.normal(size=3)
+        turn = gtsam.Rot3.Expmap(np.radians(rng.uniform(1.0, 3.0)) * axis / np.linalg.norm(axis)).matrix()
+        T = np.array(poses[i], dtype=np.float64)
+        c = (T @ centre)[:3]
+        moved = np.eye(4)
+        moved[:3, :3] = turn @ T[:3, :3]
+        moved[:3, 3] = turn @ (T[:3, 3] - c) + c + rng.uniform(0.02, 0.06) * way / np.linalg.norm(way)
+        out[int(i)] = moved
+    return out
+
+
+def run_set(seed: int, cache: Path, moved: int = 0) -> dict:
+    """Set ``seed`` written (``moved`` frames' images from the board moved), calibrated, the cache removed."""
+    tmp = Path(tempfile.mkdtemp(prefix=f"bench_small_board_{seed}_", dir=cache))
+    try:
+        spec = spec_for(seed)
+        data = simulate_dataset(tmp / "set", spec)
+        frames = moved_poses(spec, moved) if moved else {}
+        if frames:  # the images of the moved boards, from a second simulation of just those poses
+            other = simulate_dataset(tmp / "moved", replace(spec, placements=list(frames.values())))
+            for j, i in enumerate(frames):
+                (image,) = sorted((other / "img").glob(f"{j + 1:04d}.*"))
+                shutil.copy(image, data / "img" / f"{i + 1:04d}{image.suffix}")
+        names = [f"{i + 1:04d}" for i in frames]
+        return {"seed": seed, "moved": names, **run_one(data, spec)}
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _reason_kind(s: dict) -> str:
+    """A short label of an exit 3's message."""
+    msg = s["failure"].split(": ", 1)[-1]
+    return msg.split(" (")[0].split(";")[0][:110]
+
+
+def _mean(sets: Sequence[dict], key: str) -> float:
+    values = [x for s in sets for x in s.get(key, [])]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def report(sets: Sequence[dict], label: str) -> str:
+    """One section of docs/bench_small_board.md: the sets of one sink."""
+    written = [s for s in sets if s["exit"] == 0]
+    failed = [s for s in sets if s["exit"] != 0]
+    frames = sum(s["n_frames"] for s in written)
+    used = sum(s["used"] for s in written)
+    nees = np.array([s["nees"] for s in written])
+    outside = [s for s in written if s["nees"] > BOUND_999]
+    share = used / frames if frames else float("nan")
+    mean_nees = float(nees.mean()) if len(nees) else float("nan")
+    rows = [
+        f"| {s['seed']} | {s['n_frames']} | {s['lidar_boards']} / {s['image_boards']} | {s['used']} | "
+        f"{s['verdict']} | {s['rot_deg']:.3f} | {s['trans_mm']:.1f} | {s['sigma_deg']:.3f} | "
+        f"{s['sigma_mm']:.1f} | {s['nees']:.1f} |"
+        for s in written
+    ]
+    frows = [
+        f"| {s['seed']} | {s['n_frames']} | {_reason_kind(s)} | {s.get('advice') or ''} |" for s in failed
+    ]
+    kinds = Counter(_reason_kind(s) for s in failed)
+    moved = {len(s.get("moved", [])) for s in sets}
+    moved_text = f"; {', '.join(map(str, sorted(moved)))} frames per set moved before the photo"
+    met = (not written or (share >= 0.8 and 4.5 <= mean_nees <= 7.5)) and len(outside) <= 0.01 * len(sets)
+    return "\n".join([
+        f"## {label}",
+        "",
+        f"{len(sets)} sets (seeds {min(s['seed'] for s in sets)}-{max(s['seed'] for s in sets)}"
+        + (moved_text if moved != {0} else "")
+        + ").",
+        "",
+        f"- results written: {len(written)} of {len(sets)} sets; exit 3: {len(failed)}",
+        f"- frames used in the written sets: {used} of {frames} ({share:.0%}; target >= 80 %)",
+        f"- mean NEES of the written sets: {mean_nees:.2f} (target 4.5-7.5; median "
+        f"{float(np.median(nees)) if len(nees) else float('nan'):.2f})",
+        f"- written results outside their 99.9 % bound (NEES > {BOUND_999:.2f}): {len(outside)} of "
+        f"{len(sets)} sets ({len(outside) / max(len(sets), 1):.0%}; target <= 1 %)"
+        + (f": seeds {', '.join(str(s['seed']) for s in outside)}" if outside else ""),
+        f"- the LiDAR stage's boards against the truth (sets written): mean NEES "
+        f"{_mean(sets, 'board_nees'):.2f} (6 dof, honest 6), in-plane "
+        f"{_mean(sets, 'board_nees_inplane'):.2f} (3 dof, honest 3)",
+        f"- the issue's target (>= 80 % of frames used with mean NEES 4.5-7.5, or exit 3 with the reason; "
+        f"a written result outside its 99.9 % bound in at most 1 % of sets): {'met' if met else 'NOT met'}",
+        "",
+        "### Results written",
+        "",
+        "| seed | frames | boards LiDAR / image | used | verdict | rotation error deg | translation error mm "
+        "| 1-sigma deg (largest) | 1-sigma mm (largest) | NEES |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+        *rows,
+        "",
+        "### Exit 3",
+        "",
+        "Reasons: " + ("; ".join(f"{k} ({v})" for k, v in kinds.most_common()) or "none."),
+        "",
+        "| seed | frames | reason | advice |",
+        "|---|---|---|---|",
+        *frows,
+        "",
+    ])  # fmt: skip
+
+
+def figure(sections: dict[str, list[dict]]) -> None:
+    """docs/bench_small_board.png: per section (a row) each written set's NEES against its 99.9 %
+    bound, and the share of frames used per set (exit 3 hatched)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(sections), 2, figsize=(10, 3.4 * len(sections)), squeeze=False)
+    for (label, sets), (a, b) in zip(sections.items(), axes, strict=True):
+        _panels(sets, a, b, label)
+    fig.tight_layout()
+    fig.savefig(FIGURE, dpi=90)
+
+
+def _panels(sets: Sequence[dict], a, b, label: str) -> None:  # noqa: ANN001 - matplotlib axes
+    seeds = [s["seed"] for s in sets]
+    for s in sets:
+        if s["exit"] == 0:
+            a.semilogy(s["seed"], max(s["nees"], 1e-2), "o", color="C3" if s["nees"] > BOUND_999 else "C0")
+            b.bar(s["seed"], s["used"] / s["n_frames"], color="C0")
+        else:
+            b.bar(s["seed"], 1.0, color="none", edgecolor="C3", hatch="//")
+    a.axhline(BOUND_999, color="C3", lw=1, label="99.9 % bound (22.46)")
+    a.axhline(6.0, color="0.5", lw=1, ls="--", label="honest mean (6)")
+    a.set(xlabel="seed", ylabel="NEES (6 dof)")
+    a.set_title(f"{label}\nNEES of the results written", fontsize=9)
+    a.legend(fontsize=8)
+    b.axhline(0.8, color="0.5", lw=1, ls="--")
+    b.set(xlabel="seed", ylabel="share of frames used", ylim=(0, 1.05))
+    b.set_title(f"{label}\nframes used (hatched: exit 3)", fontsize=9)
+    if seeds:
+        a.set_xlim(min(seeds) - 1, max(seeds) + 1)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sets", type=int, default=20)
+    ap.add_argument("--moved", type=int, default=0, help="frames per set whose board moved before the photo")
+    ap.add_argument("--seed0", type=int, default=0)
+    ap.add_argument("--sink", default=str(Path(tempfile.gettempdir()) / "bench_small_board.jsonl"))
+    ap.add_argument("--cache", default=tempfile.gettempdir())
+    ap.add_argument("--from-sink", action="store_true", help="only summarise the sink")
+    ap.add_argument("--write", action="store_true", help="write docs/bench_small_board.md and its figure")
+    ap.add_argument("--section", action="append", default=[], help="LABEL=SINK: a section of the doc")
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.ERROR)
+    sink = Path(args.sink)
+    if not args.from_sink:
+        done = {s["seed"] for s in load(sink)}
+        for seed in range(args.seed0, args.seed0 + args.sets):
+            if seed in done:
+                continue
+            res = run_set(seed, Path(args.cache), args.moved)
+            with sink.open("a") as fh:
+                fh.write(json.dumps(res) + "\n")
+            brief = res.get("failure") or (
+                f"{res['used']}/{res['n_frames']} {res['verdict']} {res['rot_deg']:.3f} deg "
+                f"{res['trans_mm']:.1f} mm NEES {res['nees']:.1f}"
+            )
+            print(f"set {seed}: {res['seconds']:.0f} s {brief}", flush=True)
+    pairs = [x.split("=", 1) for x in args.section] or [["sets", str(sink)]]
+    sections = {label: sorted(load(Path(path)), key=lambda s: s["seed"]) for label, path in pairs}
+    text = "\n".join(report(sets, label) for label, sets in sections.items() if sets)
+    print(text)
+    if args.write:
+        stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+        shown = [a.split("=", 1)[0] + "=" + Path(a.split("=", 1)[1]).name if "=" in a else a for a in argv]
+        shown = [f'"{a}"' if " " in a else a for a in shown]  # the sinks by their names, not where they lay
+        DOC.write_text(DOC_HEAD.format(command=" ".join(shown), stamp=stamp) + text + DOC_TAIL)
+        figure({k: v for k, v in sections.items() if v})
+    return 0
+
+
+DOC_HEAD = """# A small hand-held board: Monte Carlo
+
+Issue 38, item 3: a 7 x 8 board of 50 mm squares (0.35 x 0.40 m, the print cut to the pattern) held
+2-4 m from a VLP-16 and a wide-angle fisheye gave a real rig 2 of 8 frames used and a result 3.4 deg /
+99 mm from the authors' own whose covariance claimed 0.42 deg / 14 mm: a wrong answer written at 8
+sigma. The target: either >= 80 % of frames used with mean NEES 4.5-7.5, or exit 3 with the reason;
+never a written result outside its 99.9 % bound in more than 1 % of sets.
+
+`python scripts/bench_small_board.py {command}` ({stamp}). The simulator's set: VLP-16 + fisheye
+(1920 x 1536, equidistant f = 576 px, about 190 deg across the diagonal), the board without a margin
+held 2-4 m away (no stand, the simulator's person beside it in 60 % of the frames, the LiDAR's
+systematics on), 8-12 frames, print visible; each set calibrated as the command line does it. The
+issue asks 50 sets per case; the machine's two shared cores gave time for the numbers below (each
+section says how many). NEES against the truth, 6 dof (mean 6 when honest; 99.9 % bound 22.46).
+
+"""
+DOC_TAIL = """
+![NEES and frames used per set](bench_small_board.png)
+
+## Reading
+
+The sections marked ab3efc9 ran this change as committed there (the later 8aa718b changes only which
+cause is named first, partial boards at the image's border alone, not when a run exits 3); those
+marked db61abc ran the code before it, on the same seeds.
+
+- **As simulated** the simulator's small board is found and placed in almost every frame (494 of 500
+  frames used; the 6 not used are scans where the LiDAR stage found no board, "no segment passed the
+  chessboard tests"), and the covariance is honest on average (mean NEES 6.50 over 50 sets), so the
+  first branch of the target holds, but one set in 50 (seed 0, NEES 23.8, every frame used, verdict
+  GOOD) lies just outside its 99.9 % bound: 2 % of sets against the target's 1 %, **not met** by one
+  set. An honest covariance puts 0.1 % of sets there, so 1 in 50 has a 5 % chance; the LiDAR stage's
+  boards are somewhat over-confident at 2-6 beams (mean 6-dof NEES 7.80 against 6 over these boards;
+  seed 0's eight boards 2.5-22.0, mean 10.2, while the graph's board component stays 1.02, its
+  redundancy too low to notice), which makes such tails likelier. That is the LiDAR stage's covariance
+  (issue 38's first item), not changed here. None of these sets reaches the new exits: no frame is
+  dropped for disagreeing and no residual is far above the stated noise, so the results are the same
+  as before the change (section "as simulated, before": each of the 50 sets' frames used, NEES and
+  exit identical).
+- **With 4 boards of 8-12 moved 20-60 mm and 1-3 deg before the photo** (a hand-held board, sensors
+  not synchronised: a third to a half of the frames wrong by construction, so the 80 % branch cannot
+  hold) the gate or the corner-order check drops most moved frames, and what they leave decides:
+  before this change 4 of the first 20 sets wrote a result outside its 99.9 % bound (seeds 0, 3, 11,
+  17: NEES 24.3, 49.6, 27.8, 89.4; 0.38 deg / 20 mm off with 0.15 deg / 11 mm claimed in seed 0);
+  now seeds 0 and 17 (and 21 of the ten sets run only after it) exit 3 naming the used frames whose
+  image puts the board 27-49 mm from where the scan saw it, under residuals far above the stated
+  noise (LiDAR board poses 5.7 x their stated sigma in seed 0), with synchronisation as the likely
+  cause. Seeds 3 and 11 are still written outside their bound (2 of 30 sets, 7 %): a moved board the
+  gate kept inflated the LiDAR boards' variance component itself (14.0 in seed 3, below the 16 that
+  counts as far above; 138 in seed 11, where the two kept moved boards pulled the extrinsic so that
+  no frame's image lies more than 2.8 of its LiDAR fit's sigmas from its scan), so no per-frame test
+  here isolates them. Five sets exit 3 in the corner-order check before the graph ("cannot be
+  decided", advice: turn the board in its plane), whose advice does not see the moved boards (issue
+  38's fifth item).
+"""
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

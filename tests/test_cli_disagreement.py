@@ -1,0 +1,110 @@
+"""No answer the data do not support (issue 38): two frames that agree and two that disagree with
+them beyond their noise give no calibration.yaml but exit 3, naming which frames agree, which
+disagree and the likely cause, through the command line.
+
+The data: a simulated set of four distinct board poses (HDL-32E + 640-px pinhole); in a copy, the
+images of frames 0003 and 0004 are those of another capture of the same rig (seed 2: the board
+elsewhere), as when the board moved between the scan and the photo. The set as simulated calibrates
+(exit 0, every frame used), so the exit 3 is the corrupted frames' doing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import yaml
+from test_diagnose import BOARD, CAMERA, T_CL, frame
+
+from ilcc_graph.app import main
+from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.run.finish import require_covered, require_within_noise
+
+FRAMES = 4
+MOVED = ("0003", "0004")
+
+
+def _with_moved_boards(good: Path, other: Path, out: Path) -> Path:
+    """A copy of ``good`` whose frames ``MOVED`` show ``other``'s images (the board elsewhere)."""
+    shutil.copytree(good, out)
+    for name in MOVED:
+        (image,) = sorted((other / "img").glob(f"{name}.*"))
+        (out / "img" / image.name).unlink()
+        shutil.copy(image, out / "img" / image.name)
+    return out
+
+
+def test_the_set_as_simulated_calibrates_with_every_frame(simulated, calibrated):
+    out = calibrated(simulated("pinhole", frames=FRAMES, seed=1))
+    doc = yaml.safe_load((out / "calibration.yaml").read_text())
+    assert [f["used"] for f in doc["frames"]] == [True] * FRAMES, doc["frames"]
+
+
+def test_two_agreeing_frames_and_two_disagreeing_exit_3_naming_them(simulated, tmp_path, capsys):
+    good = simulated("pinhole", frames=FRAMES, seed=1)
+    data = _with_moved_boards(good, simulated("pinhole", frames=FRAMES, seed=2), tmp_path / "data")
+    out = tmp_path / "out"
+    assert main(["calibrate", str(data), "--out", str(out), "--jobs", "1", "--no-report"]) == 3
+    err = capsys.readouterr().err
+    assert not (out / "calibration.yaml").exists()
+    failure = yaml.safe_load((out / "failure.yaml").read_text())
+    message = failure["error"]
+    # which frames agree and which disagree, in the message and per frame
+    assert "only 2 distinct board poses agree (0001, 0002)" in message, message
+    assert "2 disagree with them beyond their noise (0003, 0004)" in message, message
+    assert "only 2 distinct board poses agree" in err, err
+    rows = {f["frame"]: f for f in failure["frames"]}
+    assert set(rows) >= {"0001", "0002", *MOVED}, failure
+    for name in MOVED:
+        reason = rows[name]["reason"]
+        assert reason.startswith("chi-square gate") or reason.startswith("corner order"), reason
+        assert "moved between the scan and the photo" in reason, reason  # the frame's likely cause
+    for name in ("0001", "0002"):
+        assert rows[name]["reason"].startswith("agrees with"), rows[name]
+    # the likely cause over all frames: the images fit flat boards, the scans put them elsewhere
+    assert "synchronisation" in (failure.get("advice") or "") and "0003, 0004" in failure["advice"], failure
+
+
+def test_frames_the_gate_could_not_drop_give_no_result():
+    """Used frames still failing the chi-square gate when it may drop no more (``Answer.failing``):
+    no majority agrees, so no covariance covers the frames used: exit 3 naming them, each with its
+    likely cause (here two boards moved 50 mm between scan and photo), and the cause over all frames."""
+    rng = np.random.default_rng(4)
+    frames = [dataclasses.replace(frame(rng), name=f"c{i}", used=True) for i in range(3)]
+    frames += [dataclasses.replace(frame(rng, moved_m=0.05), name=f"m{i}", used=True) for i in range(2)]
+    gone = dataclasses.replace(frame(rng, moved_m=0.08), name="g0", used=False, reason="chi-square gate: x")
+    frames.append(gone)
+    config = SimpleNamespace(board=BOARD, camera=CAMERA)
+    failing = [("m0", "chi-square gate: residual 90 > 24"), ("m1", "chi-square gate: residual 80 > 24")]
+    require_covered(frames, [], config, T_CL.matrix())  # nothing failing: no error
+    with pytest.raises(CalibrationImpossible) as got:
+        require_covered(frames, failing, config, T_CL.matrix())
+    err = got.value
+    assert str(err).startswith("2 of the 5 frames left (m0, m1) still disagree beyond their noise"), err
+    rows = {f: why for f, _, why in err.frames}
+    assert set(rows) == {"m0", "m1", "g0"}, rows
+    assert all("moved between the scan and the photo" in rows[n] for n in ("m0", "m1")), rows
+    assert err.advice.startswith("likely: synchronisation: the images of m0, m1, g0"), err.advice
+
+
+def test_a_used_frame_hidden_by_residuals_far_above_the_noise_gives_no_result():
+    """Residuals far above the stated noise (LiDAR board poses' component 32, 5.7 x their sigma, as a
+    simulated set of 8 frames with 4 boards moved before the photo gave) and a used frame whose image
+    puts the board 50 mm from where its scan saw it: exit 3 naming it; none when no used frame is off."""
+    rng = np.random.default_rng(5)
+    clean = [dataclasses.replace(frame(rng), name=f"c{i}", used=True) for i in range(4)]
+    moved = dataclasses.replace(frame(rng, moved_m=0.05), name="m0", used=True)
+    config = SimpleNamespace(board=BOARD, camera=CAMERA)
+    require_within_noise(clean, {"board": 32.0}, config, T_CL.matrix())  # nothing off: no error
+    with pytest.raises(CalibrationImpossible) as got:
+        require_within_noise([*clean, moved], {"board": 32.0}, config, T_CL.matrix())
+    err = got.value
+    assert "(LiDAR board poses 5.7 x their stated sigma)" in str(err), err
+    assert "the result uses frames whose image puts the board far from where the scan saw it (m0)" in str(err)
+    (row,) = err.frames
+    assert row[0] == "m0" and row[2].startswith("used, but its image puts the board"), row
+    assert err.advice.startswith("likely: synchronisation: the images of m0"), err.advice
