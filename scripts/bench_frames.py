@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 from bench_shape import spec_for  # (scripts/ is the running script's folder)
-from bench_speed import DOC, ROOT, run_measured
+from bench_speed import DOC, ROOT, replace_section, run_measured
 
 HEADING = "\n## Cost that grows with the work: VLP-16 + 1280 x 720 pinhole\n"
 
@@ -95,8 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     text = section(rows, args, rev, head)
     print(text)
     if args.write:
-        old = DOC.read_text() if DOC.is_file() else ""
-        DOC.write_text(old.split(HEADING)[0].rstrip("\n") + "\n" + text)
+        replace_section(HEADING, text)
         print(f"wrote {DOC}")
     shutil.rmtree(work, ignore_errors=True)
     return 0

@@ -13,7 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bench_speed import DOC  # (scripts/ is the running script's folder)
+from bench_speed import DOC, replace_section  # (scripts/ is the running script's folder)
 
 HEADING = "\n## Accuracy of the image stage before and after the cheap search (scripts/bench_image.py)\n"
 
@@ -82,8 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(section)
     if args.write:
-        old = DOC.read_text() if DOC.is_file() else ""
-        DOC.write_text(old.split(HEADING)[0].rstrip("\n") + "\n" + section)
+        replace_section(HEADING, section)
         print(f"wrote {DOC}")
     return 0
 

@@ -38,6 +38,18 @@ DOC = ROOT / "docs" / "bench_speed.md"
 SHOT = ROOT / "docs" / "bench_speed_report.jpg"
 
 
+def replace_section(heading: str, text: str) -> None:
+    """docs/bench_speed.md with its section under ``heading`` (``"\\n## ...\\n"``) replaced by ``text``
+    (appended when missing); the other sections kept."""
+    old = DOC.read_text() if DOC.is_file() else ""
+    if heading not in old:
+        DOC.write_text(old.rstrip("\n") + "\n" + text)
+        return
+    head, tail = old.split(heading, 1)
+    rest = tail[tail.index("\n## ") :] if "\n## " in tail else ""
+    DOC.write_text(head.rstrip("\n") + "\n" + text.rstrip("\n") + "\n" + rest)
+
+
 def _size(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file()) if path.exists() else 0
 
@@ -318,8 +330,9 @@ def main(argv: list[str] | None = None) -> int:
         f"{load[1]:.1f} / {load[2]:.1f} (1 / 5 / 15 min) at the end.\n"
     )
     print(text)
-    if args.write:
-        DOC.write_text(text)
+    if args.write:  # the title and the standard set's table; the other scripts' sections kept
+        old = DOC.read_text() if DOC.is_file() else ""
+        DOC.write_text(text.rstrip("\n") + "\n" + (old[old.index("\n## ") :] if "\n## " in old else ""))
         print(f"wrote {DOC}")
     shutil.rmtree(work, ignore_errors=True)
     return 0
