@@ -139,7 +139,7 @@ def test_panorama_board_near_the_pole(pole):
     spec, frames = pole
     check(spec, frames[0], exact=True)  # Geiger's detector copes with the bent grid in the raw image
     # OpenCV's SB does not: the ring of virtual views finds it
-    res, _ = check(spec, frames[0], exact=True, options=ImageOptions(cascade=("sb",)))
+    res, _ = check(spec, frames[0], exact=True, options=ImageOptions(quick=(), cascade=("sb",)))
     assert res.diagnostics["coarse_stage"] == 1.0 and res.detector == "sb"
 
 
@@ -184,7 +184,7 @@ def test_fisheye_margin_board(fisheye):
 
 def test_geiger_back_end(fisheye):
     spec, frames = fisheye
-    res, _ = check(spec, frames[0], exact=True, options=ImageOptions(cascade=("cbdetect",)))
+    res, _ = check(spec, frames[0], exact=True, options=ImageOptions(quick=(), cascade=("cbdetect",)))
     assert res.detector == "cbdetect"
 
 
@@ -263,11 +263,12 @@ def test_shaded_board(pinhole):
     shade = 1.0 - 0.7 * _board_mask(spec, f.T_lidar_board)  # the board at 30 % of its brightness
     shaded = SimpleNamespace(image=_degraded(f.image, shade), T_lidar_board=f.T_lidar_board)
     with pytest.raises(CornersNotFound):
-        detect_corners(shaded.image, spec.camera, spec.board, ImageOptions(cascade=("sb",), tile_views=False))
+        sb_only = ImageOptions(quick=(), cascade=("sb",), tile_views=False)
+        detect_corners(shaded.image, spec.camera, spec.board, sb_only)
     res, e = check(spec, shaded, exact=False)
     assert res.detector != "sb"
     bright, e_bright = check(spec, f, exact=False)
-    assert bright.detector == "sb"  # the fast path is unchanged on a bright image
+    assert bright.detector == "classic"  # the cheap search finds the bright board (issue 37)
     assert np.median(e) < np.median(e_bright) + 0.05
 
 
@@ -293,7 +294,7 @@ def test_detectors_agree_on_a_simulated_image(fisheye):
     and the same measured sigma, whichever found the board."""
     spec, frames = fisheye
     runs = {
-        n: check(spec, frames[0], exact=True, options=ImageOptions(cascade=(n,)))[0]
+        n: check(spec, frames[0], exact=True, options=ImageOptions(quick=(), cascade=(n,)))[0]
         for n in ("sb", "classic", "cbdetect")
     }
     ref = runs["sb"]
@@ -342,7 +343,7 @@ def test_a_false_grid_from_a_detector_does_not_get_through(pinhole, monkeypatch,
         return xy
 
     monkeypatch.setitem(detectors.DETECTORS, "sb", bad_sb)
-    res, _ = check(spec, frames[0], exact=False, options=ImageOptions(cascade=("sb", "cbdetect")))
+    res, _ = check(spec, frames[0], exact=False, options=ImageOptions(quick=(), cascade=("sb", "cbdetect")))
     assert res.detector == "cbdetect"
 
 
@@ -364,11 +365,11 @@ def test_detectors_on_images_without_corners(name):
 
 def test_detector_name_in_the_result(pinhole):
     spec, frames = pinhole
-    assert detect_corners(frames[0].image, spec.camera, spec.board).detector == "sb"
-    res = detect_corners(frames[0].image, spec.camera, spec.board, ImageOptions(cascade=("classic",)))
-    assert res.detector == "classic"
-    res = detect_corners(frames[0].image, spec.camera, spec.board, ImageOptions(cascade=("cbdetect+gamma",)))
-    assert res.detector == "cbdetect+gamma"
+    assert detect_corners(frames[0].image, spec.camera, spec.board).detector == "classic"  # the cheap search
+    assert detect_corners(frames[0].image, spec.camera, spec.board, ImageOptions(quick=())).detector == "sb"
+    for name in ("classic", "cbdetect+gamma"):
+        only = ImageOptions(quick=(), cascade=(name,))
+        assert detect_corners(frames[0].image, spec.camera, spec.board, only).detector == name
 
 
 # ------------------------------------------------------------------------------- failures
@@ -430,11 +431,11 @@ def test_not_an_image_raises_value_error(pinhole, bad):
 
 def test_options_are_checked():
     with pytest.raises(ValueError, match="unknown detector attempt"):
-        ImageOptions(cascade=("sb", "harris"))
+        ImageOptions(quick=(), cascade=("sb", "harris"))
     with pytest.raises(ValueError, match="unknown detector attempt"):
-        ImageOptions(cascade=("sb+sharpen",))
+        ImageOptions(quick=(), cascade=("sb+sharpen",))
     with pytest.raises(ValueError):
-        ImageOptions(cascade="sb")
+        ImageOptions(quick=(), cascade="sb")
     with pytest.raises(ValueError):
         ImageOptions(coarse_width=10)
     with pytest.raises(ValueError):

@@ -89,7 +89,7 @@ def test_detectors_agree_on_a_recorded_image(acfr_os1_fisheye):
     cfg, images = _load(acfr_os1_fisheye, ["pose10"])
     perm = cfg.board.half_turn_permutation()
     runs = {
-        name: detect_corners(images["pose10"], cfg.camera, cfg.board, ImageOptions(cascade=(name,)))
+        name: detect_corners(images["pose10"], cfg.camera, cfg.board, ImageOptions(quick=(), cascade=(name,)))
         for name in ("sb", "classic", "cbdetect")
     }
     ref = runs["sb"]

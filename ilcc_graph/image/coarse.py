@@ -9,7 +9,7 @@ whose bearings fit a board-plane homography in a virtual pinhole (:func:`fit_in_
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -36,6 +36,7 @@ class Candidate:
     uv: np.ndarray  # (K, 2) approximate image pixels, row-major as the detector returned them
     attempt: str  # detector[+contrast] that found them
     stage: int  # 0 downscaled image, 1 ring of views
+    width: int = 0  # columns of the downscaled copy searched (stage 0)
 
 
 def fit_in_view(
@@ -75,28 +76,58 @@ def fit_in_view(
     return (out, "") if np.all(np.isfinite(out)) else (None, "repaired corners outside the image")
 
 
-def downscaled_candidates(
-    gray: np.ndarray, camera: CameraModel, board: Board, cascade: tuple[str, ...], width: int
-) -> Iterator[Candidate]:
-    """Candidates from the cascade on the image downscaled to ``width`` columns (and rolled on a panorama)."""
+def downscaled(gray: np.ndarray, width: int) -> np.ndarray:
+    """``gray`` downscaled (area average) to about ``width`` columns; never upscaled.
+
+    A reduction by 2 or more is rounded to a whole factor (8000 -> 1600 for 1500, say): OpenCV's
+    area average over whole blocks of pixels is several times faster than over fractional ones."""
     H, W = gray.shape
-    s = min(1.0, int(width) / W)
-    small = gray if s == 1.0 else cv2.resize(gray, (round(W * s), round(H * s)), interpolation=cv2.INTER_AREA)
-    sx, sy = small.shape[1] / W, small.shape[0] / H
-    shifts = (0, small.shape[1] // 2) if camera.periodic_u else (0,)
-    images = {k: ContrastCache(np.roll(small, -k, axis=1) if k else small) for k in shifts}
-    for name in cascade:
-        for shift in shifts:
-            c = run_attempt(name, images[shift], board)
+    k = W / int(width)
+    if k <= 1.0:
+        return gray
+    if k >= 2.0:
+        k = float(round(k))
+    return cv2.resize(gray, (max(1, round(W / k)), max(1, round(H / k))), interpolation=cv2.INTER_AREA)
+
+
+def downscaled_candidates(
+    gray: np.ndarray,
+    camera: CameraModel,
+    board: Board,
+    plan: Sequence[tuple[str, int, bool]],
+) -> Iterator[Candidate]:
+    """Candidates from each step ``(attempt, width, roll)`` of ``plan`` in turn: the attempt on the
+    image downscaled to ``width`` columns (never upscaled) and, with ``roll`` on a panorama, also
+    rolled by half its width. Each downscaled copy (and its contrast variants) is made once; a step
+    that repeats one already tried on the same copy is skipped (the cheap search's full-size copy
+    of a small image is the coarse search's too)."""
+    H, W = gray.shape
+    copies: dict[tuple[int, int], ContrastCache] = {}  # (columns, shift) -> the copy's variants
+    tried: set[tuple[str, int, int]] = set()
+    smalls: dict[int, np.ndarray] = {}
+    src = gray  # the unrolled steps' copies (the cheap search: always made) each from the next larger
+    for width in sorted({int(w) for _, w, roll in plan if not roll}, reverse=True):
+        smalls[width] = src = downscaled(src, width)
+    for name, width, roll in plan:
+        small = smalls[width] if width in smalls else smalls.setdefault(width, downscaled(gray, width))
+        rows, cols = small.shape
+        for shift in (0, cols // 2) if (roll and camera.periodic_u) else (0,):
+            if (name, cols, shift) in tried:
+                continue
+            tried.add((name, cols, shift))
+            if (cols, shift) not in copies:
+                copies[(cols, shift)] = ContrastCache(np.roll(small, -shift, axis=1) if shift else small)
+            c = run_attempt(name, copies[(cols, shift)], board)
             if c is None:
                 continue
             c[:, 0] += shift
+            sx, sy = cols / W, rows / H
             uv = wrap_image_u(
                 camera, np.stack([(c[:, 0] + 0.5) / sx - 0.5, (c[:, 1] + 0.5) / sy - 0.5], axis=1)
             )
             fitted, _ = fit_in_view(camera, uv, board)
             if fitted is not None:
-                yield Candidate(fitted, name, 0)
+                yield Candidate(fitted, name, 0, cols)
 
 
 def tile_directions(camera: CameraModel) -> np.ndarray:

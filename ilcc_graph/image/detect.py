@@ -2,6 +2,11 @@
 
 Two passes (docs/image_stage.md):
 
+0. **cheap**: a few cheap attempts first (``ImageOptions.quick``: OpenCV's classic detector, gated
+   by its fast check, on a copy about 1000 columns wide; the SB detector on one about 1500 wide);
+   the board they find goes to the fine pass below like any other, which refines every corner at
+   the source's full resolution and measures their noise there, so a cheap find costs no accuracy.
+   Only when they find nothing that passes the fine pass does the search go on:
 1. **coarse**: a cascade of detector attempts (``detectors.py``: OpenCV's SB and classic
    detectors, Geiger's libcbdetect, on the image and on contrast variants of it) on a copy of the
    image downscaled to about ``ImageOptions.coarse_width`` columns; a panorama is also tried
@@ -47,13 +52,18 @@ from .views import (
 _SNAP_PX = 2.0  # lattice of the final fine view (view px), see _fine
 
 DEFAULT_CASCADE = ("sb", "cbdetect", "classic", "sb+gamma", "cbdetect+gamma")
+#: the cheap search (issue 37): (attempt, width px) tried in turn before the coarse search, unrolled
+DEFAULT_QUICK = (("classic", 1000), ("sb", 1500))
 
 
 @dataclass(frozen=True)
 class ImageOptions:
     """Tuning of :func:`detect_corners`.
 
-    coarse_width: width (px) of the downscaled copy searched first (never upscaled).
+    quick: the cheap search, ``(attempt, width)`` pairs tried in turn on the image downscaled to
+        ``width`` columns (never upscaled; a panorama not rolled) before the coarse search; each
+        find is refined at full resolution by the fine pass; () searches as before issue 37.
+    coarse_width: width (px) of the downscaled copy the coarse cascade searches.
     view_scale: focal length of the fine view relative to the source's angular resolution there.
     max_view_px: largest side of the fine view (px); a nearer board gets a coarser view.
     tile_views: search a ring of virtual views when the downscaled image shows no board.
@@ -73,6 +83,7 @@ class ImageOptions:
         order (z towards the camera), flags it half-turn ambiguous and reports ``colour_score`` < 0.
     """
 
+    quick: tuple[tuple[str, int], ...] = DEFAULT_QUICK
     coarse_width: int = 2000
     view_scale: float = 1.0
     max_view_px: int = 3000
@@ -101,6 +112,16 @@ class ImageOptions:
                 f"ImageOptions: cascade must be a tuple of names, got the string {self.cascade!r}"
             )
         check_attempts(tuple(self.cascade))
+        quick: object = self.quick  # as passed, likewise
+        pairs: tuple[object, ...] = () if isinstance(quick, str) else tuple(self.quick)
+        if isinstance(quick, str) or not all(
+            isinstance(q, tuple) and len(q) == 2 and int(q[1]) >= 200 for q in pairs
+        ):
+            raise ValueError(
+                f"ImageOptions: quick must be (attempt, width >= 200 px) pairs, got {self.quick!r}"
+            )
+        if self.quick:
+            check_attempts(tuple(q[0] for q in self.quick))
         if not (np.isfinite(self.floor_px) and self.floor_px >= 0):
             raise ValueError(f"ImageOptions: floor_px must be finite and >= 0, got {self.floor_px!r}")
         if not (np.isfinite(self.max_sigma_view_px) and self.max_sigma_view_px > 0):
@@ -261,6 +282,7 @@ def _fine(
         "view_height_px": float(view.height),
         "square_px": sq,
         "coarse_stage": float(cand.stage),
+        "coarse_width_px": float(cand.width),
         "fine_redetected": redetected,
     }
     return ImageCorners(
@@ -309,9 +331,9 @@ def detect_corners(
     if lo == hi:
         raise CornersNotFound(f"{BLANK_IMAGE} (every pixel grey level {lo:.0f}): the camera gave no picture")
     cascade = tuple(opts.cascade)
-    candidates: Iterator[Candidate] = downscaled_candidates(
-        gray, camera, board, cascade, int(opts.coarse_width)
-    )
+    plan = [(name, int(w), False) for name, w in opts.quick]
+    plan += [(name, int(opts.coarse_width), True) for name in cascade]
+    candidates: Iterator[Candidate] = downscaled_candidates(gray, camera, board, plan)
     if opts.tile_views:
         tiles = tile_candidates(
             gray, camera, board, cascade, int(opts.tile_size_px), float(opts.tile_fov_deg)
