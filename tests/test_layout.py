@@ -60,14 +60,3 @@ def test_nothing_below_the_command_line_imports_it() -> None:
             wrong[p.relative_to(ROOT).as_posix()] = found
     assert len(below) > 100 and not wrong, f"modules below app/ that import it: {wrong}"
 
-
-def test_each_module_basename_is_used_once() -> None:
-    """A module's file name tells which module it is (issue 34: ``rig.py`` was three modules);
-    a package's ``__init__.py`` and ``__main__.py`` excepted."""
-    seen: dict[str, list[str]] = {}
-    for pkg in ("ilcc_graph", "factors"):
-        for p in sorted((ROOT / pkg).rglob("*.py")):
-            if p.name not in ("__init__.py", "__main__.py"):
-                seen.setdefault(p.name, []).append(p.relative_to(ROOT).as_posix())
-    twice = {name: paths for name, paths in seen.items() if len(paths) > 1}
-    assert not twice, f"module file names used more than once: {twice}"

@@ -193,13 +193,21 @@ def test_calibrate_prints_and_writes_the_model_chosen(offset_set, tmp_path, caps
     assert {c["name"] for c in model["candidates"]} == set(AUTO) - {"none"}
     assert abs(sum(c["weight"] for c in model["candidates"]) - 1.0) < 1e-9
     assert f"sensor model: {model['chosen']} (held-out images of" in text
+    # forced to none, the 20 mm the boards sit beyond their images is left in the residuals, far above
+    # the stated noise: no answer is written (exit 3) and the cause is named (issue 38)
     out = tmp_path / "none"
-    assert (
-        main(["calibrate", str(offset_set), "--out", str(out), "--no-report", "--sensor-model", "none"]) == 0
-    )
+    argv = ["calibrate", str(offset_set), "--out", str(out), "--no-report", "--sensor-model", "none"]
+    assert main(argv) == 3
+    assert not (out / "calibration.yaml").exists()
+    failure = yaml.safe_load((out / "failure.yaml").read_text())
+    assert "far above the detectors' stated noise" in failure["error"], failure
+    assert failure["advice"].startswith("likely: the LiDAR's ranges") and "beyond" in failure["advice"], failure
+    out = tmp_path / "beams"  # a model with range terms, forced: written and said
+    argv = ["calibrate", str(offset_set), "--out", str(out), "--no-report", "--sensor-model", "beams"]
+    assert main(argv) == 0
     model = yaml.safe_load((out / "calibration.yaml").read_text())["sensor_errors"]["model"]
-    assert model["chosen"] == "none" and model["forced"]
-    assert "sensor model: none (as asked)" in capsys.readouterr().out
+    assert model["chosen"] == "beams" and model["forced"]
+    assert "sensor model: beams (as asked)" in capsys.readouterr().out
 
 
 def _pinhole_frames(seed: int, stated_scale: float, n: int = 12):  # noqa: ANN202

@@ -69,9 +69,19 @@ def prior_sigmas(camera: CameraModel) -> np.ndarray:
 
 
 def projection(camera: CameraModel) -> Callable[[np.ndarray, np.ndarray], tuple]:
-    """The projection ``factors.FramePixelFactor`` takes: ``(p_cam, theta) -> (uv, J_p, J_theta)``."""
+    """The projection ``factors.FramePixelFactor`` takes: ``(p_cam, theta) -> (uv, J_p, J_theta)``.
+
+    The camera of the last ``theta`` is kept: every frame's factor is evaluated at the same intrinsics
+    within a linearisation, and building a camera is costly (a fisheye's or pinhole's validity limit
+    is searched on construction: 14,468 builds took 5.3 s of a 37 s calibrate of 80 frames)."""
+    last: dict[bytes, CameraModel] = {}
 
     def project(p_cam: np.ndarray, theta: np.ndarray) -> tuple:
-        return camera.with_intrinsics(theta).project_with_intrinsics_jacobian(p_cam)
+        key = np.asarray(theta, dtype=np.float64).tobytes()
+        cam = last.get(key)
+        if cam is None:
+            last.clear()
+            cam = last[key] = camera.with_intrinsics(theta)
+        return cam.project_with_intrinsics_jacobian(p_cam)
 
     return project

@@ -53,6 +53,10 @@ LENS_RATIO = 2.0
 #: ``MOVED_MIN_MM``) from where the scan saw it, through the one extrinsic, moved between them
 MOVED_SIGMAS = 5.0
 MOVED_MIN_MM = 10.0
+#: the LiDAR's ranges are named when this share of the frames shows a gap along the rays of at least
+#: ``RANGE_MIN_MM``, all to one side
+RANGE_SHARE = 0.75
+RANGE_MIN_MM = 10.0
 #: the board's size is named only from this many pairs of frames (a moved board spoils its pairs)
 SCALE_PAIRS = 6
 
@@ -199,6 +203,33 @@ def _moved(
     return out
 
 
+def _range_offset(seen: list[FrameResult], T_cam_lidar: np.ndarray, fits: dict) -> str | None:
+    """The LiDAR's ranges as the cause, or None: in most frames (``RANGE_SHARE``) the board's centre
+    as the scan saw it sits ``RANGE_MIN_MM`` or more from where the image alone puts it, along the
+    LiDAR's ray to it (at least twice the gap across the ray), all to one side."""
+    T_lc = np.linalg.inv(T_cam_lidar)
+    along = []
+    for f in seen:
+        alone, ratio = fits[f.name]
+        if ratio > LENS_RATIO or f.board is None:
+            continue
+        c_img = T_lc[:3, :3] @ alone.corners_cam.mean(axis=0) + T_lc[:3, 3]
+        d = f.board.corners_lidar.mean(axis=0) - c_img
+        u = c_img / np.linalg.norm(c_img)
+        a = float(d @ u)
+        along.append(a if abs(a) >= 2.0 * float(np.linalg.norm(d - a * u)) else 0.0)
+    a_mm = 1e3 * np.asarray(along)
+    for sign, word in ((1.0, "beyond"), (-1.0, "short of")):
+        hits = a_mm[sign * a_mm >= RANGE_MIN_MM]
+        if len(a_mm) >= 3 and len(hits) >= RANGE_SHARE * len(a_mm):
+            return (
+                f"the LiDAR's ranges: in {len(hits)} of {len(a_mm)} frames the scan puts the board a median "
+                f"{np.median(np.abs(hits)):.0f} mm {word} where the image does, along the LiDAR's ray to it: "
+                "a range offset (--sensor-model auto, range or beams estimates it)"
+            )
+    return None
+
+
 def residual_causes(
     frames: list[FrameResult], board: Board, camera: CameraModel, T_cam_lidar: np.ndarray
 ) -> list[str]:
@@ -234,6 +265,8 @@ def residual_causes(
             "board.margin_long and board.margin_short define with the squares: a margin other than the "
             "board's moves every one"
         )
+    if along := _range_offset(seen, T_cam_lidar, fits):
+        causes.append(along)
     if moved := _moved(seen, board, T_cam_lidar, fits):
         names = [n for n, _, _ in moved]
         gaps = [g for _, g, _ in moved]

@@ -88,7 +88,8 @@ def finish(
     """The Calibration of one source from a strategy's answer: every frame in input order with its fate.
 
     agree: raise ``CalibrationImpossible`` when fewer than ``MIN_DISTINCT_POSES`` frames agree and
-    others disagree beyond their noise (module docstring; a session of several is judged with them)."""
+    others disagree beyond their noise, or the answer's noise hides frames from the gate (module
+    docstring; a session of several is judged with them; off where the strategy runs without a gate)."""
     results = dict(prep.results)
     if answer.dropped:
         causes = _dropped_causes(results, [n for n, _ in answer.dropped], config, answer.T_cam_lidar)

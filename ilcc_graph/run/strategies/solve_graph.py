@@ -27,7 +27,8 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
         prep.frames, config.camera, prep.T_init, options.noise, options.lidar_errors, options.intrinsics,
         effects=True, models=options.models, intrinsics_choice=options.intrinsics_choice,
     )  # fmt: skip
-    cal = finish(prep, obs.frames, config, "graph", from_batch(sol, config))
+    gated = options.noise.chi2_gate_prob is not None  # without a gate every frame is kept as asked
+    cal = finish(prep, obs.frames, config, "graph", from_batch(sol, config), agree=gated)
     used = tuple(f for f in prep.frames if f.name in sol.per_frame)
     return Result("graph", cal, (SessionResult(obs.name, obs, cal),), options, cal.covariance,
                   solved=sol.solved, batch=sol, used_frames=used)  # fmt: skip
