@@ -201,7 +201,8 @@ def test_calibrate_prints_and_writes_the_model_chosen(offset_set, tmp_path, caps
     assert not (out / "calibration.yaml").exists()
     failure = yaml.safe_load((out / "failure.yaml").read_text())
     assert "far above the detectors' stated noise" in failure["error"], failure
-    assert failure["advice"].startswith("likely: the LiDAR's ranges") and "beyond" in failure["advice"], failure
+    advice = failure["advice"]
+    assert advice.startswith("likely: the LiDAR's ranges") and "beyond" in advice, failure
     out = tmp_path / "beams"  # a model with range terms, forced: written and said
     argv = ["calibrate", str(offset_set), "--out", str(out), "--no-report", "--sensor-model", "beams"]
     assert main(argv) == 0
