@@ -393,7 +393,7 @@ def test_board_scale_is_the_square_size_ratio_without_an_extrinsic(configured):
     assert n >= 6 and abs(k - configured / 0.075) < 1e-6 and spread < 1e-6
 
 
-def test_a_wrong_square_size_is_said_in_one_line(sim, tmp_path, capsys):
+def test_a_wrong_square_size_is_said_in_one_statement(sim, tmp_path, capsys):
     data = tmp_path / "data"
     data.mkdir()
     for sub in ("pcd", "img"):
@@ -402,9 +402,16 @@ def test_a_wrong_square_size_is_said_in_one_line(sim, tmp_path, capsys):
     cfg["board"]["square_size"] = 0.09  # the print's squares are 0.075 m
     (data / "config.yaml").write_text(yaml.safe_dump(cfg))
     assert main(["calibrate", str(data), "--out", str(tmp_path / "out"), "--no-report"]) == 3
-    likely = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip().startswith("likely:")]
-    assert len(likely) == 1 and "board.square_size 0.09 m looks wrong" in likely[0], likely
-    assert "a square of this print is about 0.07" in likely[0]
+    lines = capsys.readouterr().err.splitlines()
+    starts = [k for k, ln in enumerate(lines) if ln.startswith("likely:")]
+    assert len(starts) == 1, lines  # one statement, wrapped to the terminal's 80 columns
+    k = starts[0] + 1
+    while k < len(lines) and lines[k].startswith("  "):
+        k += 1
+    said = " ".join(ln.strip() for ln in lines[starts[0] : k])
+    assert all(len(ln) <= 80 for ln in lines[starts[0] : k]), lines
+    assert "board.square_size 0.09 m looks wrong" in said, said
+    assert "a square of this print is about 0.07" in said, said
 
 
 def test_a_part_of_a_bigger_print_is_seen(sim):

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
-from ilcc_graph.app.console import stdout_closed
+from ilcc_graph.app.console import WIDTH, stdout_closed, wrapped
 from ilcc_graph.config import Config
 from ilcc_graph.errors import InputError
 from ilcc_graph.estimation.incremental import FrameUpdate
@@ -38,8 +38,6 @@ __all__ = [
 
 
 # ----------------------------------------------------------------------------- printing
-#: the terminal width every printed line fits in (columns)
-WIDTH = 80
 #: the columns of :func:`format_verdict` (a row's note follows on lines indented by ``_NOTE_INDENT``)
 VERDICT_HEADER = (
     f"{'frame':<10s} {'scan':<4s} {'image':<5s} {'pose':<10s} {'n':>3s} "
@@ -47,23 +45,6 @@ VERDICT_HEADER = (
 )
 _NOTE_INDENT = " " * 11  # under the scan column
 _NOTE_LINES = 3  # a longer note ends with " [...]"; check.yaml has it whole
-
-
-def _wrapped(text: str, indent: str = "", more: str = "  ") -> str:
-    """``text`` wrapped to ``WIDTH`` columns, each of its lines on its own: the first line of each
-    starts with ``indent``, the following ones with ``more``. A word longer than a line (a path) is
-    kept whole."""
-    out: list[str] = []
-    for para in text.splitlines() or [""]:
-        out += textwrap.wrap(
-            para,
-            WIDTH,
-            initial_indent=indent,
-            subsequent_indent=more,
-            break_long_words=False,
-            break_on_hyphens=False,
-        ) or [indent.rstrip()]
-    return "\n".join(out)
 
 
 def _gap(sig: np.ndarray, target: tuple[float, float] | None) -> str:
@@ -270,14 +251,14 @@ def check_command(
             p = advice.propose(checker.config, checker.used, last)
             if p is not None:
                 status.clear()
-                print(_wrapped(p.describe(), "  ", "    "), flush=True)
+                print(wrapped(p.describe(), "  ", "    "), flush=True)
         if status.tty:
             status.show(_short(format_progress(seen, target, waiting=waited)))
 
     result = run_check(source, options, on_verdict, on_idle)
     status.clear()
     line = format_progress(result.verdicts, target)
-    print("\n" + _wrapped(line if result.stopped in line else f"{line} ({result.stopped})"))
+    print("\n" + wrapped(line if result.stopped in line else f"{line} ({result.stopped})"))
     proposal = None
     if result.final is not None:
         s = sigmas_deg_mm(result.final.covariance)
@@ -285,20 +266,20 @@ def check_command(
         print(f"  sigma rot {s[0]:.4f} {s[1]:.4f} {s[2]:.4f} deg, trans {s[3]:.3f} {s[4]:.3f} {s[5]:.3f} mm")
         if result.second_look:
             print(
-                _wrapped(f"second look, as calibrate's: the board found in {', '.join(result.second_look)}")
+                wrapped(f"second look, as calibrate's: the board found in {', '.join(result.second_look)}")
             )
         sol = result.final.solution
         if sol is not None and sol.selection is not None:
-            print(_wrapped(sol.selection.summary()))
+            print(wrapped(sol.selection.summary()))
         proposal = advice.propose(result.config, result.frames, result.final)
     elif result.verdicts:
         print("not calibrated yet: at least 3 distinct board poses with the board in both sensors")
         print("  are needed")
     if proposal is not None:
-        print(_wrapped(proposal.describe()))
+        print(wrapped(proposal.describe()))
     if out is not None:
         from ilcc_graph.app.write import write_check
 
         write_check(Path(out), result, proposal, command)
-        print(_wrapped(f"wrote check.yaml{' and next_pose.png' if proposal is not None else ''} to {out}"))
+        print(wrapped(f"wrote check.yaml{' and next_pose.png' if proposal is not None else ''} to {out}"))
     return 0

@@ -167,12 +167,14 @@ def _rig_summary(result: Result, out: Path, args: argparse.Namespace) -> int:
 
 def _explain_failure(err: CalibrationImpossible, out: Path, command: str) -> None:
     """A failed run: its frames as a short table and the advice on stderr, the details in a file."""
+    from ilcc_graph.app.console import wrapped
     from ilcc_graph.app.write import write_failure
     from ilcc_graph.report.text import failure_table
 
     if err.frames:
         print(failure_table(err.frames), file=sys.stderr)
     if err.advice:  # one line of advice, or the likely set-up mistakes (``likely: ...`` lines)
-        print(err.advice if err.advice.startswith("likely: ") else f"advice: {err.advice}", file=sys.stderr)
+        text = err.advice if err.advice.startswith("likely: ") else f"advice: {err.advice}"
+        print(wrapped(text), file=sys.stderr)
     where = write_failure(out, err, command)
     print(f"details: {where}" if where else "details: nowhere (no place to write them)", file=sys.stderr)

@@ -21,6 +21,7 @@ import math
 import os
 import sys
 import tempfile
+import textwrap
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -289,12 +290,33 @@ def stdout_closed() -> bool:
     return bool(getattr(sys.stdout, "pipe_closed", False))
 
 
+#: the terminal width every printed line fits in (columns)
+WIDTH = 80
+
+
+def wrapped(text: str, indent: str = "", more: str = "  ") -> str:
+    """``text`` wrapped to ``WIDTH`` columns, each of its lines on its own: the first line of each
+    starts with ``indent``, the following ones with ``more``. A word longer than a line (a path) is
+    kept whole."""
+    out: list[str] = []
+    for para in text.splitlines() or [""]:
+        out += textwrap.wrap(
+            para,
+            WIDTH,
+            initial_indent=indent,
+            subsequent_indent=more,
+            break_long_words=False,
+            break_on_hyphens=False,
+        ) or [indent.rstrip()]
+    return "\n".join(out)
+
+
 def _failure(err: Exception, out: Callable[[], Path | None], debug: Callable[[], bool]) -> int:
     """The exit code of an exception that is not a stop, its message printed."""
     if isinstance(err, InputError):
         print(f"error: {err}", file=sys.stderr)
         return EXIT_INPUT
     if isinstance(err, (CalibrationImpossible, IndeterminateSystem)):
-        print(f"calibration impossible: {err}", file=sys.stderr)
+        print(wrapped(f"calibration impossible: {err}"), file=sys.stderr)
         return EXIT_IMPOSSIBLE
     return report_bug(err, out(), debug())  # a bug: a short message, the traceback in a log
