@@ -88,3 +88,28 @@ def test_the_stated_noise_as_an_angle() -> None:
     """0.1 px (cov 0.01 px^2) at 900 px focal length near the image centre: about 0.11 mrad."""
     f = frame(np.random.default_rng(3))
     assert 0.09 < stated_noise_mrad(f.corners, CAMERA) < 0.115  # type: ignore[arg-type]
+
+
+def _long(f: FrameResult, range_m: float, name: str) -> FrameResult:
+    """``f`` with its scan reading ``range_m`` long: every LiDAR corner moved along its own ray."""
+    assert f.board is not None
+    p = f.board.corners_lidar
+    moved = p * (1.0 + range_m / np.linalg.norm(p, axis=1, keepdims=True))
+    board = dataclasses.replace(f.board, corners_lidar=moved)
+    return dataclasses.replace(f, board=board, name=name, used=True)
+
+
+def test_residual_causes_name_the_lidars_ranges_when_every_board_sits_beyond_its_image() -> None:
+    """Scans reading 30 mm long (every board beyond where its image puts it, along the LiDAR's rays)
+    name the LiDAR's ranges, beyond; 30 mm short, short of; clean frames (above) and boards moved
+    sideways do not."""
+    rng = np.random.default_rng(3)
+    T = T_CL.matrix()
+    for range_m, word in ((0.03, "beyond"), (-0.03, "short of")):
+        frames = [_long(frame(rng), range_m, f"r{i}") for i in range(5)]
+        causes = residual_causes(frames, BOARD, CAMERA, T)
+        (ranges,) = [c for c in causes if c.startswith("the LiDAR's ranges")]
+        said = f"in 5 of 5 frames the scan puts the board a median 30 mm {word} where the image"
+        assert said in ranges, ranges
+    sideways = [_named(frame(rng, moved_m=0.05), f"m{i}") for i in range(5)]
+    assert not [c for c in residual_causes(sideways, BOARD, CAMERA, T) if c.startswith("the LiDAR's ranges")]
