@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -155,11 +155,22 @@ def require_agreement(frames: Sequence[FrameResult], config: Config, T_cam_lidar
         for f in used
     ]
     issues += [(f.name, "agreement", f.reason or "disagrees") for f in disagree]
-    issues += [i for i in frame_issues(frames) if i[0] not in agree_names and i[0] not in other_names]
+    _refuse(message, issues, frames, config, T_cam_lidar)
+
+
+def _refuse(
+    message: str, issues: list[tuple[str, str, str]], frames: Sequence[FrameResult], config: Config,
+    T_cam_lidar: np.ndarray,
+) -> NoReturn:
+    """Raise the exit 3 of frames that do not agree: ``issues`` (frame, stage, reason) with every other
+    frame's own issue (``frame_issues``), in the frames' order, and the likely cause over all frames
+    (``diagnose.residual_causes``) as the advice, else ``_CHECK``."""
+    named = {n for n, _, _ in issues}
+    issues = issues + [i for i in frame_issues(frames) if i[0] not in named]
     order = {f.name: i for i, f in enumerate(frames)}
     issues.sort(key=lambda i: order.get(i[0], len(order)))
-    causes = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
-    advice = f"likely: {causes[0]}" if causes else _CHECK
+    found = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
+    advice = f"likely: {found[0]}" if found else _CHECK
     raise CalibrationImpossible(message, tuple(issues), advice)
 
 
@@ -210,12 +221,7 @@ def require_covered(
     causes = _dropped_causes(results, names, config, T_cam_lidar)
     issues = [(n, "agreement", f"{why}; {causes[n]}" if causes.get(n) else why) for n, why in failing]
     issues += [(f.name, "agreement", f.reason or "disagrees") for f in gone]
-    issues += [i for i in frame_issues(frames) if i[0] not in {n for n, _, _ in issues}]
-    order = {f.name: i for i, f in enumerate(frames)}
-    issues.sort(key=lambda i: order.get(i[0], len(order)))
-    found = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
-    advice = f"likely: {found[0]}" if found else _CHECK
-    raise CalibrationImpossible(message, tuple(issues), advice)
+    _refuse(message, issues, frames, config, T_cam_lidar)
 
 
 def require_within_noise(
@@ -242,12 +248,7 @@ def require_within_noise(
          "LiDAR fit's stated sigma) from where the scan saw it: the board moved between the scan and the "
          "photo, or the LiDAR's fit is off there") for n in names
     ]  # fmt: skip
-    issues += [i for i in frame_issues(frames) if i[0] not in names]
-    order = {f.name: i for i, f in enumerate(frames)}
-    issues.sort(key=lambda i: order.get(i[0], len(order)))
-    found = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
-    advice = f"likely: {found[0]}" if found else _CHECK
-    raise CalibrationImpossible(message, tuple(issues), advice)
+    _refuse(message, issues, frames, config, T_cam_lidar)
 
 
 def _dropped_causes(

@@ -30,7 +30,7 @@ import numpy as np
 
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
-from ilcc_graph.errors import BoardColourMismatch, CalibrationError, DamagedFile, FrameError
+from ilcc_graph.errors import BoardColourMismatch, CalibrationError, FrameError
 from ilcc_graph.estimation import NoiseOptions
 from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.geometry import board_geometry
@@ -41,7 +41,7 @@ from ilcc_graph.run.pipeline import solve_observations
 from ilcc_graph.run.prepare import graph_frame
 from ilcc_graph.run.result import SENSOR_MODELS, Result, RunOptions
 from ilcc_graph.run.source import open_run
-from ilcc_graph.run.stages import StageOptions, observe_image, observe_lidar
+from ilcc_graph.run.stages import StageOptions, frame_result, observe_image, observe_lidar
 from ilcc_graph.types import FrameResult, GraphFrame, sigmas_deg_mm
 
 log = logging.getLogger(__name__)
@@ -153,7 +153,6 @@ class LiveCheck:
         self._observed: list[FrameResult] = []  # every frame as the stages gave it, in arrival order
         self._last: FrameUpdate | None = None
         self._result: Result | None = None  # the last solve's
-        self._used: list[GraphFrame] = []  # the frames the last solve used (corner order chosen)
         self._source: FrameSource | None = None
         self.second_look: list[str] = []  # frames whose board the second look found (``finish``)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="image-stage")
@@ -166,7 +165,7 @@ class LiveCheck:
     @property
     def used(self) -> list[GraphFrame]:
         """The frames the last solve used, in the corner order it chose."""
-        return list(self._used)
+        return [] if self._result is None else list(self._result.used_frames)
 
     @property
     def last(self) -> FrameUpdate | None:
@@ -211,7 +210,7 @@ class LiveCheck:
         if not isinstance(corners, FrameError):
             self._colour_checked = True
         self._source = source
-        fr = _frame_result(ref.name, board, corners)
+        fr = frame_result(ref.name, board, corners)
         self._observed.append(fr)
         last = self._last
         v = Verdict(
@@ -290,7 +289,7 @@ class LiveCheck:
         sig = np.sqrt(np.diag(cal.covariance))
         update = FrameUpdate(cal.T_cam_lidar, sig, reached, cal.covariance, "", True, None,
                              len(sol.per_frame), time.perf_counter() - t0, sol)  # fmt: skip
-        self._last, self._used, self._result = update, list(result.used_frames), result
+        self._last, self._result = update, result
         return update, {f.name: f.reason or "" for f in cal.frames if not f.used}
 
     def finish(self) -> FrameUpdate | None:
@@ -308,20 +307,6 @@ class LiveCheck:
         final = self._result.sessions[0].observation.frames
         self.second_look = [f.name for f in final if f.board is not None and f.name not in seen]
         return self._last
-
-
-def _frame_result(name: str, board: object, corners: object) -> FrameResult:
-    """A frame's stage results as the observation pass records them (``stages.observe_frame``)."""
-    stages = (("LiDAR", board), ("image", corners))
-    reasons = [f"{what}: {r}" for what, r in stages if isinstance(r, FrameError)]
-    return FrameResult(
-        name=name,
-        used=not reasons,
-        reason="; ".join(reasons) or None,
-        board=None if isinstance(board, FrameError) else board,  # type: ignore[arg-type]
-        corners=None if isinstance(corners, FrameError) else corners,  # type: ignore[arg-type]
-        damaged=any(isinstance(r, DamagedFile) for r in (board, corners)),
-    )
 
 
 def _model(sol: BatchSolution) -> str | None:

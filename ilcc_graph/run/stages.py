@@ -31,6 +31,7 @@ __all__ = [
     "StageOptions",
     "attempt",
     "check_image",
+    "frame_result",
     "observe_frame",
     "observe_image",
     "observe_lidar",
@@ -157,11 +158,17 @@ def observe_frame(
         if image is not None
         else attempt(observe_image, source, ref, config, options.image, options.strict)
     )
+    return frame_result(ref.name, board, corners)
+
+
+def frame_result(name: str, board: object, corners: object) -> FrameResult:
+    """A frame's stage results (each a result or its ``FrameError``) as the observation records them:
+    unused with both reasons when a stage failed, ``damaged`` when a file could not be read."""
     reasons = [
         f"{what}: {r}" for what, r in (("LiDAR", board), ("image", corners)) if isinstance(r, FrameError)
     ]
     return FrameResult(
-        name=ref.name,
+        name=name,
         used=not reasons,
         reason="; ".join(reasons) or None,
         board=None if isinstance(board, FrameError) else board,  # type: ignore[arg-type]
