@@ -1,13 +1,15 @@
-"""What several benchmark scripts share: processes from /proc (the package's), and a block of a doc
-between markers."""
+"""What several benchmark scripts share: processes from /proc (the package's), a block of a doc
+between markers, and today's code extracted beside this tree."""
 
 from __future__ import annotations
 
+import subprocess
+import tempfile
 from pathlib import Path
 
 from ilcc_graph.workers import processes_where
 
-__all__ = ["processes_where", "write_between"]
+__all__ = ["baseline_tree", "processes_where", "write_between"]
 
 
 def write_between(doc: Path, begin: str, end: str, text: str) -> None:
@@ -20,3 +22,22 @@ def write_between(doc: Path, begin: str, end: str, text: str) -> None:
     else:
         body = body.rstrip() + "\n\n" + block + "\n"
     doc.write_text(body)
+
+
+def baseline_tree(root: Path, baseline: str | None, prefix: str) -> tuple[str, str, Path, Path]:
+    """(today's revision, this tree's short HEAD, a new work folder, today's code extracted in it):
+    ``baseline`` (a git revision; None: the merge-base with main) from the repository at ``root``,
+    with ``git archive``, into ``<work>/baseline``."""
+    git = ["git", "-C", str(root)]
+    rev = baseline or subprocess.run(
+        git + ["merge-base", "HEAD", "main"], capture_output=True, text=True, check=True
+    ).stdout.strip()
+    head = subprocess.run(
+        git + ["rev-parse", "--short", "HEAD"], capture_output=True, text=True
+    ).stdout.strip()
+    work = Path(tempfile.mkdtemp(prefix=prefix))
+    base = work / "baseline"
+    base.mkdir()
+    arch = subprocess.run(git + ["archive", rev], capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(base)], input=arch, check=True)
+    return rev, head, work, base

@@ -18,12 +18,12 @@ import argparse
 import dataclasses
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
 import numpy as np
+from _shared import baseline_tree
 from bench_shape import spec_for  # (scripts/ is the running script's folder)
 from bench_speed import DOC, ROOT, replace_section, run_measured
 
@@ -63,21 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     both = [int(x) for x in args.frames.split(",") if x]
     new_only = [int(x) for x in args.new_only.split(",") if x]
-    git = ["git", "-C", str(ROOT)]
-    rev = (
-        args.baseline
-        or subprocess.run(
-            git + ["merge-base", "HEAD", "main"], capture_output=True, text=True, check=True
-        ).stdout.strip()
-    )
-    head = subprocess.run(
-        git + ["rev-parse", "--short", "HEAD"], capture_output=True, text=True
-    ).stdout.strip()
-    work = Path(tempfile.mkdtemp(prefix="bench_frames_"))
-    base = work / "baseline"
-    base.mkdir()
-    arch = subprocess.run(git + ["archive", rev], capture_output=True, check=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(base)], input=arch, check=True)
+    rev, head, work, base = baseline_tree(ROOT, args.baseline, "bench_frames_")
     codes = {f"today ({rev[:7]})": base, f"this tree ({head})": ROOT}
     modes = {"--no-report": ["--no-report"], **({"report": []} if args.report else {})}
     rows = []

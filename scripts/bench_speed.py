@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from _shared import baseline_tree  # (scripts/ is the running script's folder)
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "bench_speed.md"
@@ -293,17 +294,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     data = standard_set(args.data)
     sets = {"jpg": data} if args.no_png else {"jpg": data, "png": png_twin(data)}
-    git = ["git", "-C", str(ROOT)]
-    rev = args.baseline or subprocess.run(git + ["merge-base", "HEAD", "main"], capture_output=True,
-                                          text=True, check=True).stdout.strip()  # fmt: skip
-    head = subprocess.run(
-        git + ["rev-parse", "--short", "HEAD"], capture_output=True, text=True
-    ).stdout.strip()
-    work = Path(tempfile.mkdtemp(prefix="bench_speed_"))
-    base = work / "baseline"
-    base.mkdir()
-    arch = subprocess.run(git + ["archive", rev], capture_output=True, check=True).stdout
-    subprocess.run(["tar", "-x", "-C", str(base)], input=arch, check=True)
+    rev, head, work, base = baseline_tree(ROOT, args.baseline, "bench_speed_")
     runs = measure(sets, {"today": base, "this tree": ROOT}, args.repeats, work)
     labels = {"today": f"today ({rev[:7]})", "this tree": f"this tree ({head})"}
     same = {fmt: compare(*(next(r["cal"] for r in reversed(runs) if (r["format"], r["code"]) == (fmt, c))
