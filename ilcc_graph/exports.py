@@ -21,7 +21,7 @@ import numpy as np
 from ilcc_graph.cameras import CameraModel, camera_class, make_camera
 from ilcc_graph.errors import InputError
 from ilcc_graph.handoff import check_covariance, check_rigid, invert_with_covariance
-from ilcc_graph.types import Calibration, sigma_dict
+from ilcc_graph.types import Calibration, lidar_term_units, sigma_dict
 
 CONVENTION = (
     "T_cam_lidar maps LiDAR-frame points to camera-frame points: p_cam = R @ p_lidar + t "
@@ -263,11 +263,10 @@ def _export_lidar_offsets(cal: Calibration, *, table: str = "yaml") -> str:
         )
     elev = lid.get("elevation_deg", {})
     rows = []
-    for n, v, s in zip(lid["names"], lid["values"], lid["sigmas"], strict=True):
+    shown = {"m": "mm", "rad": "mrad"}
+    for n, u, v, s in zip(lid["names"], lidar_term_units(lid), lid["values"], lid["sigmas"], strict=True):
         beam = int(n[n.index("[") + 1 : -1]) if "[" in n else None
-        unit = (
-            "mrad" if n.startswith("elevation") else "mm" if (n.startswith("offset") or n == "dark") else ""
-        )
+        unit = shown.get(u, "")
         k = 1e3 if unit else 1.0
         rows.append((n, beam, elev.get(n), k * float(v), k * float(s), unit))
     if table == "csv":

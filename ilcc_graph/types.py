@@ -65,6 +65,44 @@ class Estimate:
         return gtsam.Pose3(np.asarray(self.T, dtype=np.float64))
 
 
+@dataclass(frozen=True)
+class PoseTerms:
+    """A pose estimated jointly with the LiDAR's own range terms (the chosen sensor model's solve).
+
+    T: (4, 4) the pose (``T_cam_lidar`` unless a name says otherwise). terms: the k terms' names
+    (``offset``, ``dark``, ``offset[b]``, ``scale``). units: (k,) each term's unit (``m``; ``1`` for
+    the scale). values: (k,) their estimates in those units. covariance: (6 + k, 6 + k) the joint
+    covariance of the pose's right tangent (rotation first, rad and m) and the terms.
+    """
+
+    T: np.ndarray
+    terms: tuple[str, ...]
+    units: tuple[str, ...]
+    values: np.ndarray
+    covariance: np.ndarray
+
+    def inverse(self) -> PoseTerms:
+        """The same estimate of ``T^-1`` (its tangent is ``-Ad(T) xi``; the terms unchanged)."""
+        import gtsam
+
+        k = len(self.terms)
+        A = np.eye(6 + k)
+        A[:6, :6] = -np.asarray(gtsam.Pose3(np.asarray(self.T, dtype=np.float64)).AdjointMap())
+        C = A @ self.covariance @ A.T
+        return dataclasses.replace(self, T=np.linalg.inv(self.T), covariance=0.5 * (C + C.T))
+
+
+def lidar_term_units(lidar_errors: dict[str, Any]) -> list[str]:
+    """Each term's unit (``m``, ``rad`` or ``1``) of ``Calibration.sensors['lidar_errors']``: the
+    ``units`` the solve recorded (``LidarLayout.units``); a dict made without them (older code, by
+    hand) by the terms' names."""
+    units = lidar_errors.get("units")
+    if units is not None:
+        return [str(u) for u in units]
+    names = [str(n) for n in lidar_errors["names"]]
+    return ["rad" if n.startswith("elevation") else "1" if n == "scale" else "m" for n in names]
+
+
 def rotation_angle_deg(R: np.ndarray) -> float:
     """Angle (deg) of a (3, 3) rotation matrix."""
     return math.degrees(math.acos(float(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
@@ -277,6 +315,8 @@ class Calibration:
         ``camera_intrinsics`` (``names``, ``stated``, ``values``, ``sigmas``), each when present.
     causes: when the residuals are far above the detectors' stated noise, what likely explains them
         (``run.diagnose.residual_causes``), one sentence each; the verdict names them.
+    with_terms: ``T_cam_lidar`` with the LiDAR's range terms and their joint covariance, when the
+        chosen sensor model has such terms (``verify`` compares the mount net of them).
     """
 
     T_cam_lidar: np.ndarray
@@ -287,6 +327,7 @@ class Calibration:
     camera: dict[str, Any] | None = None
     sensors: dict[str, Any] = field(default_factory=dict)
     causes: tuple[str, ...] = ()
+    with_terms: PoseTerms | None = None
 
     @property
     def extrinsic(self) -> Estimate:

@@ -141,6 +141,13 @@ class LidarLayout:
         return out + [f"elevation[{b}]" for b in self.elevations]
 
     @property
+    def units(self) -> list[str]:
+        """Each term's unit, in ``names`` order: ``m`` (range offsets), ``1`` (scale), ``rad``
+        (elevations)."""
+        n_m = len(self.beams) + self.global_offset + self.dark
+        return ["m"] * n_m + ["1"] * self.scale + ["rad"] * len(self.elevations)
+
+    @property
     def dim(self) -> int:
         return len(self.names)
 

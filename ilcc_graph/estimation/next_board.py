@@ -40,13 +40,14 @@ class SolvedGlobals:
     T_cam_lidar: (4, 4) the extrinsic ``X(0)``. covariance: (6 + k, 6 + k) the joint marginal
     covariance in the solved graph of ``X(0)`` (rotation first) and the k range terms (metres; the
     scale unitless). terms: the k terms' names (``LidarLayout.names``, or ``offset`` for ``O(0)``).
-    theta: (k,) their estimates.
+    theta: (k,) their estimates. units: (k,) each term's unit (``LidarLayout.units``).
     """
 
     T_cam_lidar: np.ndarray
     covariance: np.ndarray
     terms: tuple[str, ...] = ()
     theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    units: tuple[str, ...] = ()
 
     @property
     def dim(self) -> int:
@@ -75,7 +76,8 @@ def solved_globals(sol: Solution) -> SolvedGlobals:
     T = np.asarray(sol.values.atPose3(X(0)).matrix(), dtype=np.float64)
     if sol.problem.range_offset_sigma_m is not None and sol.values.exists(O(0)):
         C = sol.marginals.joint([X(0), O(0)], [POSE3_DOF, 1])
-        return SolvedGlobals(T, C, ("offset",), np.asarray(sol.values.atVector(O(0)), dtype=np.float64))
+        theta0 = np.asarray(sol.values.atVector(O(0)), dtype=np.float64)
+        return SolvedGlobals(T, C, ("offset",), theta0, ("m",))
     layout = sol.assembly.layouts.get(0)
     if layout is None or not sol.values.exists(L(0)):
         return SolvedGlobals(T, sol.marginals.joint([X(0)], [POSE3_DOF]))
@@ -84,7 +86,8 @@ def solved_globals(sol: Solution) -> SolvedGlobals:
     C = sol.marginals.joint([X(0), L(0)], [POSE3_DOF, layout.dim])
     idx = np.r_[np.arange(POSE3_DOF), POSE3_DOF + np.asarray(keep, dtype=np.int64)]
     theta = np.asarray(sol.values.atVector(L(0)), dtype=np.float64)[keep]
-    return SolvedGlobals(T, C[np.ix_(idx, idx)], tuple(names[i] for i in keep), theta)
+    units = tuple(layout.units[i] for i in keep)
+    return SolvedGlobals(T, C[np.ix_(idx, idx)], tuple(names[i] for i in keep), theta, units)
 
 
 def board_information(

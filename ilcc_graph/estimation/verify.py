@@ -53,7 +53,7 @@ from ilcc_graph.estimation.keys import POSE3_DOF
 from ilcc_graph.estimation.rig_solve import RigOptions, RigSolution, solve_rig, to_reference
 from ilcc_graph.estimation.sessions import compare_estimates
 from ilcc_graph.init.rig_start import RigStart, StartOptions, adjoint, place_boards
-from ilcc_graph.types import SIGMA_NAMES, Estimate, MomentResult
+from ilcc_graph.types import SIGMA_NAMES, Estimate, MomentResult, PoseTerms
 
 __all__ = [
     "RULE",
@@ -64,6 +64,7 @@ __all__ = [
     "VerifyOptions",
     "VerifyResult",
     "detectable_change",
+    "net_of_terms",
     "verify_pair",
     "verify_rig",
 ]
@@ -223,9 +224,9 @@ def _unchecked(s: str, verdict: str, reason: str, boards: int = 0) -> SensorChec
 
 
 def _check(
-    s: str, stored: Estimate, new: Estimate, alpha: float, opts: VerifyOptions, boards: int
+    s: str, d: np.ndarray, C: np.ndarray, alpha: float, opts: VerifyOptions, boards: int
 ) -> SensorCheck:
-    d, C = compare_estimates(stored, new)
+    """Sensor ``s``'s verdict on its change ``d`` (6,) with covariance ``C`` (module docstring)."""
     m = float(d @ np.linalg.solve(C, d))
     p = chi2.sf(m, POSE3_DOF)
     det, rot, trans = detectable_change(C, alpha, opts.power)
@@ -299,7 +300,8 @@ def verify_rig(
             why = "not seen by the capture" if not seen else (sol.unsolved.get(s) if sol else notes[0])
             checks[s] = _unchecked(s, "warn", f"unchecked: {why}", len(kept))
         else:
-            checks[s] = _check(s, stored.pose(s), sol.pose(s), alpha, options, len(kept))  # type: ignore[union-attr]
+            d, C = compare_estimates(stored.pose(s), sol.pose(s))  # type: ignore[union-attr]
+            checks[s] = _check(s, d, C, alpha, options, len(kept))
     glob = None
     if sol is not None and solved:
         glob = _global_test(stored, sol, solved)
@@ -314,11 +316,14 @@ def verify_pair(
     boards: int,
     options: VerifyOptions = VerifyOptions(),
     notes: Sequence[str] = (),
+    terms: tuple[PoseTerms | None, PoseTerms | None] = (None, None),
 ) -> VerifyResult:
     """Check a stored pair's non-reference ``sensor`` against the capture's own calibration of it
     (``new``: its pose in the reference's frame with covariance, solved as ``calibrate`` solves a
     pair; None when the capture could not be solved, ``notes`` saying why). ``boards``: the boards
-    the capture's solve used. The verdicts and the rule as ``verify_rig``'s (module docstring)."""
+    the capture's solve used. ``terms``: the sensor's pose with the LiDAR's range terms, stored and
+    new, when each solve had such terms: the change is then tested net of them (``net_of_terms``).
+    The verdicts and the rule as ``verify_rig``'s (module docstring)."""
     if sensor not in stored.sensors or sensor == stored.reference:
         raise ValueError(f"verify: {sensor!r} is not a checked sensor of {list(stored.sensors)}")
     if new is None:
@@ -327,11 +332,73 @@ def verify_pair(
         return VerifyResult(
             "warn", stored.reference, {sensor: check}, options.alpha, None, None, RULE, list(notes)
         )
-    check = _check(sensor, stored.pose(sensor), new, options.alpha, options, boards)
+    d, C = compare_estimates(stored.pose(sensor), new)
+    notes = list(notes)
+    if terms[0] is not None and terms[1] is not None:
+        net = net_of_terms(terms[0], terms[1], options.alpha)
+        if net is not None:
+            d, C, note = net
+            notes.append(note)
+    check = _check(sensor, d, C, options.alpha, options, boards)
     glob = (check.chi2, POSE3_DOF, check.p_value)
-    return VerifyResult(
-        check.verdict, stored.reference, {sensor: check}, options.alpha, glob, None, RULE, list(notes)
+    sensors = {sensor: check}
+    return VerifyResult(check.verdict, stored.reference, sensors, options.alpha, glob, None, RULE, notes)
+
+
+def net_of_terms(
+    stored: PoseTerms, new: PoseTerms, alpha: float
+) -> tuple[np.ndarray, np.ndarray, str] | None:
+    """A pose's change net of the LiDAR's own range terms estimated with it: (d, C, note), or None
+    when the two solves share no term.
+
+    With ``D = T0^-1 T1`` and the terms both solves have, the joint difference ``(d, db)``, ``d =
+    Log(D)`` (rad, m) and ``db = b1 - b0``, has covariance ``S = A S0 A^T + S1`` (``A`` is
+    ``Ad(D^-1)`` on the pose, the identity on the terms; the two solves independent). The LiDAR's
+    terms are the sensor's own and do not move with its mount, so under "the terms unchanged" the
+    mount's change is ``d - S_db S_bb^-1 db`` with covariance ``S_dd - S_db S_bb^-1 S_bd``: a range
+    offset both solves leave loosely known (the translation along the rays) drops out of the test.
+    When ``db`` itself rejects "unchanged" (chi-square at ``alpha``), the terms are not taken as
+    shared: (d, C) of the poses alone, the note saying so."""
+    common = [t for t in stored.terms if t in new.terms]
+    if not common:
+        return None
+    i0 = np.r_[np.arange(POSE3_DOF), [POSE3_DOF + stored.terms.index(t) for t in common]]
+    i1 = np.r_[np.arange(POSE3_DOF), [POSE3_DOF + new.terms.index(t) for t in common]]
+    D = np.linalg.solve(stored.T, new.T)
+    A = np.eye(len(i0))
+    A[:POSE3_DOF, :POSE3_DOF] = adjoint(np.linalg.inv(D))
+    S = A @ stored.covariance[np.ix_(i0, i0)] @ A.T + new.covariance[np.ix_(i1, i1)]
+    S = 0.5 * (S + S.T)
+    import gtsam
+
+    d = np.asarray(gtsam.Pose3.Logmap(gtsam.Pose3(D)), dtype=np.float64)
+    db = np.array([new.values[new.terms.index(t)] - stored.values[stored.terms.index(t)] for t in common])
+    Sdd, Sdb, Sbb = S[:POSE3_DOF, :POSE3_DOF], S[:POSE3_DOF, POSE3_DOF:], S[POSE3_DOF:, POSE3_DOF:]
+    m = float(db @ np.linalg.solve(Sbb, db))
+    p = chi2.sf(m, len(common))
+    units = [stored.units[stored.terms.index(t)] for t in common]
+    sig = np.sqrt(np.diag(Sbb))
+    shown = ", ".join(_term_change(*x) for x in zip(common, units, db, sig, strict=True))
+    if p < alpha:
+        Ad, P0, P1 = A[:POSE3_DOF, :POSE3_DOF], stored.covariance[:6, :6], new.covariance[:6, :6]
+        C = Ad @ P0 @ Ad.T + P1
+        return d, 0.5 * (C + C.T), (
+            f"the LiDAR's own range terms changed ({shown}; chi2 {m:.1f} on {len(common)} dof, p = {p:.2g}): "
+            "the mount is tested without them"
+        )
+    K = np.linalg.solve(Sbb, Sdb.T).T
+    C = Sdd - K @ Sdb.T
+    return d - K @ db, 0.5 * (C + C.T), (
+        f"the mount's change is tested net of the LiDAR's own range terms, estimated in both solves and "
+        f"unchanged ({shown}; chi2 {m:.1f} on {len(common)} dof, p = {p:.2g})"
     )
+
+
+def _term_change(term: str, unit: str, value: float, sigma: float) -> str:
+    """``offset -0.4 +- 8.3 mm``: a term's change in the unit it is shown in."""
+    if unit == "m":
+        return f"{term} {1e3 * value:+.1f} +- {1e3 * sigma:.1f} mm"
+    return f"{term} {value:+.2g} +- {sigma:.1g}"
 
 
 def _global_test(stored: StoredRig, sol: RigSolution, sensors: Sequence[str]) -> tuple[float, int, float]:

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..types import BoardFit, Calibration, FrameResult, ImageCorners, sigma_dict
+from ..types import BoardFit, Calibration, FrameResult, ImageCorners, PoseTerms, lidar_term_units, sigma_dict
 from .files import read_yaml, write_yaml
 
 __all__ = [
@@ -102,22 +102,24 @@ def calibration_to_dict(cal: Calibration) -> dict[str, Any]:
         "method": cal.method,
         "diagnostics": {str(k): v for k, v in cal.diagnostics.items()},
         **({"camera": cal.camera} if cal.camera is not None else {}),
-        **({"sensor_errors": _sensors_dict(cal.sensors)} if cal.sensors else {}),
+        **({"sensor_errors": _sensors_dict(cal.sensors, cal.with_terms)} if cal.sensors else {}),
     }
 
 
-def _sensors_dict(sensors: dict[str, Any]) -> dict[str, Any]:
-    """``sensor_errors`` of calibration.yaml: per term its value and sigma (mm for range terms)."""
+def _sensors_dict(sensors: dict[str, Any], with_terms: PoseTerms | None = None) -> dict[str, Any]:
+    """``sensor_errors`` of calibration.yaml: per term its value and sigma (mm for range terms, mrad
+    for elevations, each term's unit as the solve gives it), and ``extrinsic_with_lidar_terms``."""
     out: dict[str, Any] = {}
     if sensors.get("model"):  # the sensor model chosen and the evidence (estimation.selection)
         out["model"] = sensors["model"]
     lid = sensors.get("lidar_errors")
     if lid is not None:
         terms = {}
-        for n, v, s in zip(lid["names"], lid["values"], lid["sigmas"], strict=True):
-            if n.startswith("offset") or n == "dark":
+        units = lidar_term_units(lid)
+        for n, u, v, s in zip(lid["names"], units, lid["values"], lid["sigmas"], strict=True):
+            if u == "m":
                 terms[n] = {"value_mm": 1e3 * float(v), "sigma_mm": 1e3 * float(s)}
-            elif n.startswith("elevation"):
+            elif u == "rad":
                 terms[n] = {"value_mrad": 1e3 * float(v), "sigma_mrad": 1e3 * float(s)}
             else:
                 terms[n] = {"value": float(v), "sigma": float(s)}
@@ -147,7 +149,31 @@ def _sensors_dict(sensors: dict[str, Any]) -> dict[str, Any]:
         out["effect_on_extrinsic"] = {
             k: {n: float(x) for n, x in v.items()} for k, v in sensors["effects"].items()
         }
+    if with_terms is not None:  # SI units as the solve has them; the covariance's rows: rx .. tz, terms
+        out["extrinsic_with_lidar_terms"] = {
+            "terms": list(with_terms.terms),
+            "units": list(with_terms.units),
+            "values": [float(x) for x in with_terms.values],
+            "covariance": np.asarray(with_terms.covariance, dtype=np.float64),
+        }
     return out
+
+
+def _with_terms_from_dict(src: str, T: np.ndarray, d: Any) -> PoseTerms | None:
+    """``Calibration.with_terms`` from ``sensor_errors.extrinsic_with_lidar_terms`` (None when absent);
+    InputError naming the file when it is malformed (``io.stored`` checks its covariance)."""
+    if d is None:
+        return None
+    where = "sensor_errors.extrinsic_with_lidar_terms"
+    if not isinstance(d, dict) or not {"terms", "units", "values", "covariance"} <= set(d):
+        raise InputError(f"{src}: {where} must be a mapping with terms, units, values and covariance")
+    terms, units = tuple(str(t) for t in d["terms"]), tuple(str(u) for u in d["units"])
+    k = len(terms)
+    values = _matrix(src, [d["values"]], f"{where}.values", (1, k))[0]
+    C = _matrix(src, d["covariance"], f"{where}.covariance", (6 + k, 6 + k))
+    if len(units) != k or k == 0:
+        raise InputError(f"{src}: {where}: {k} terms but {len(units)} units")
+    return PoseTerms(T, terms, units, values, C)
 
 
 def _sensors_from_dict(src: str, d: Any) -> dict[str, Any]:
@@ -164,21 +190,22 @@ def _sensors_from_dict(src: str, d: Any) -> dict[str, Any]:
             out["model"] = d["model"]
         lid = d.get("lidar")
         if lid is not None:
-            names, values, sigmas, elev = [], [], [], {}
+            names, units, values, sigmas, elev = [], [], [], [], {}
             for n, t in (lid.get("terms") or {}).items():
                 if "value_mm" in t:
-                    v, s = 1e-3 * float(t["value_mm"]), 1e-3 * float(t["sigma_mm"])
+                    v, s, u = 1e-3 * float(t["value_mm"]), 1e-3 * float(t["sigma_mm"]), "m"
                 elif "value_mrad" in t:
-                    v, s = 1e-3 * float(t["value_mrad"]), 1e-3 * float(t["sigma_mrad"])
+                    v, s, u = 1e-3 * float(t["value_mrad"]), 1e-3 * float(t["sigma_mrad"]), "rad"
                 else:
-                    v, s = float(t["value"]), float(t["sigma"])
+                    v, s, u = float(t["value"]), float(t["sigma"]), "1"
                 names.append(str(n))
+                units.append(u)
                 values.append(v)
                 sigmas.append(s)
                 if "elevation_deg" in t:
                     elev[str(n)] = float(t["elevation_deg"])
             out["lidar_errors"] = {
-                "names": names, "values": np.array(values), "sigmas": np.array(sigmas),
+                "names": names, "units": units, "values": np.array(values), "sigmas": np.array(sigmas),
                 "left_out": [[str(x["term"]), str(x["reason"])] for x in lid.get("left_out") or []],
                 **({"elevation_deg": elev} if elev else {}),
             }  # fmt: skip
@@ -316,6 +343,8 @@ def calibration_from_doc(d: Any, src: str = "calibration.yaml") -> Calibration:
     camera = d.get("camera")
     if camera is not None and not isinstance(camera, dict):
         raise InputError(f"{src}: camera must be a mapping (the camera section of config.yaml)")
+    errors = d.get("sensor_errors")
+    terms = errors.get("extrinsic_with_lidar_terms") if isinstance(errors, dict) else None
     return Calibration(
         T_cam_lidar=T,
         covariance=cov,
@@ -324,6 +353,7 @@ def calibration_from_doc(d: Any, src: str = "calibration.yaml") -> Calibration:
         diagnostics=dict(diag),
         camera=camera,
         sensors=_sensors_from_dict(src, d.get("sensor_errors")),
+        with_terms=_with_terms_from_dict(src, T, terms),
     )
 
 

@@ -72,6 +72,11 @@ def _check_pair(src: str, cal: Calibration) -> None:
     problem = covariance_problem(C)
     if problem is not None:
         raise InputError(f"{src}: covariance {problem}; not a covariance this tool writes: calibrate again")
+    if cal.with_terms is not None and (problem := covariance_problem(cal.with_terms.covariance)):
+        raise InputError(
+            f"{src}: sensor_errors.extrinsic_with_lidar_terms.covariance {problem}; not a covariance this "
+            "tool writes: calibrate again"
+        )
 
 
 def _check_rig(src: str, cal: RigCalibration) -> None:

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..estimation.effects import SQUARE_SIZE_KEY
 from ..estimation.selection import Selection
-from ..types import Calibration
+from ..types import Calibration, lidar_term_units
 
 __all__ = ["model_text", "sensors_html", "sensors_text", "square_size_text"]
 
@@ -34,11 +34,11 @@ def _term_rows(lid: dict[str, Any]) -> list[tuple[str, str, str, str]]:
     """(term, elevation deg, value, sigma) with units, per LiDAR term."""
     elev = lid.get("elevation_deg", {})
     rows = []
-    for n, v, s in zip(lid["names"], lid["values"], lid["sigmas"], strict=True):
+    for n, u, v, s in zip(lid["names"], lidar_term_units(lid), lid["values"], lid["sigmas"], strict=True):
         e = f"{elev[n]:+.2f}" if n in elev else ""
-        if n.startswith("offset") or n == "dark":
+        if u == "m":
             rows.append((n, e, f"{1e3 * v:+.2f} mm", f"{1e3 * s:.2f} mm"))
-        elif n.startswith("elevation"):
+        elif u == "rad":
             rows.append((n, e, f"{1e3 * v:+.3f} mrad", f"{1e3 * s:.3f} mrad"))
         else:
             rows.append((n, e, f"{v:+.2e}", f"{s:.1e}"))

@@ -33,7 +33,7 @@ from ilcc_graph.estimation.geometry import MIN_DISTINCT_POSES
 from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
 from ilcc_graph.run.diagnose import dropped_frame_cause, fit_image_alone, moved_boards, residual_causes
 from ilcc_graph.run.prepare import Prepared, drop, frame_issues
-from ilcc_graph.types import Calibration, FrameResult, GraphFrame, rotation_angle_deg
+from ilcc_graph.types import Calibration, FrameResult, GraphFrame, PoseTerms, rotation_angle_deg
 
 __all__ = ["Answer", "finish", "from_batch", "lidar_view_counts", "rms_bearing_mrad"]
 
@@ -48,7 +48,7 @@ class Answer:
     variance_components (board priors, bearings): the solve's figures. diagnostics: further
     calibration.yaml diagnostics; sensors: ``Calibration.sensors``. failing: ``(frame, reason)`` of
     used frames that fail the chi-square gate though it may drop no more (the noise found does not
-    cover them).
+    cover them). with_terms: ``T_cam_lidar`` with the LiDAR's range terms (``Calibration.with_terms``).
     """
 
     T_cam_lidar: np.ndarray
@@ -62,6 +62,7 @@ class Answer:
     diagnostics: dict[str, float] = field(default_factory=dict)
     sensors: dict[str, Any] = field(default_factory=dict)
     failing: list[tuple[str, str]] = field(default_factory=list)
+    with_terms: PoseTerms | None = None
 
 
 def from_batch(sol: BatchSolution, config: Config) -> Answer:
@@ -78,7 +79,22 @@ def from_batch(sol: BatchSolution, config: Config) -> Answer:
     return Answer(
         sol.T_cam_lidar, sol.covariance, rms, sol.T_lidar_board, list(sol.dropped), sol.iterations,
         sol.variance_factor, sol.variance_components, diagnostics, _sensors(sol, config), list(sol.failing),
+        _with_terms(sol),
     )  # fmt: skip
+
+
+def _with_terms(sol: BatchSolution) -> PoseTerms | None:
+    """The chosen model's extrinsic with its range terms (``next_board.SolvedGlobals``), or None; the
+    joint covariance times the model's held-out factor unless the model was forced, as the reported
+    covariance is (``batch.solve``)."""
+    g, sel = sol.solved, sol.selection
+    if g is None or not g.terms:
+        return None
+    factor = 1.0
+    if sel is not None and not sel.forced:
+        factor = next((c.factor for c in sel.candidates if c.name == sel.chosen), 1.0)
+    C = factor * np.asarray(g.covariance, dtype=np.float64)
+    return PoseTerms(g.T_cam_lidar, tuple(g.terms), tuple(g.units), np.asarray(g.theta), C)
 
 
 def finish(
@@ -131,7 +147,9 @@ def finish(
             require_within_noise(frames, far, config, answer.T_cam_lidar)
         residual = tuple(residual_causes(frames, config.board, config.camera, answer.T_cam_lidar))
     sensors = answer.sensors
-    return Calibration(answer.T_cam_lidar, cov, tuple(frames), method, diagnostics, cam, sensors, residual)
+    return Calibration(
+        answer.T_cam_lidar, cov, tuple(frames), method, diagnostics, cam, sensors, residual, answer.with_terms
+    )
 
 
 def require_agreement(frames: Sequence[FrameResult], config: Config, T_cam_lidar: np.ndarray) -> None:
@@ -159,7 +177,10 @@ def require_agreement(frames: Sequence[FrameResult], config: Config, T_cam_lidar
 
 
 def _refuse(
-    message: str, issues: list[tuple[str, str, str]], frames: Sequence[FrameResult], config: Config,
+    message: str,
+    issues: list[tuple[str, str, str]],
+    frames: Sequence[FrameResult],
+    config: Config,
     T_cam_lidar: np.ndarray,
 ) -> NoReturn:
     """Raise the exit 3 of frames that do not agree: ``issues`` (frame, stage, reason) with every other
@@ -278,6 +299,8 @@ def _sensors(sol: BatchSolution, config: Config) -> dict:
         names, values, sigmas = sol.lidar if sol.lidar is not None else ([], np.zeros(0), np.zeros(0))
         left = [] if lay is None else [list(x) for x in lay.excluded]
         out["lidar_errors"] = {"names": list(names), "values": values, "sigmas": sigmas, "left_out": left}
+        if lay is not None and sol.lidar is not None:
+            out["lidar_errors"]["units"] = lay.units
         if sol.lidar_covariance is not None:
             out["lidar_errors"]["covariance"] = sol.lidar_covariance
         if (plane := getattr(sol, "board_plane", None)) is not None:

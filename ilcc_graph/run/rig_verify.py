@@ -32,7 +32,7 @@ from ilcc_graph.run.pipeline import run
 from ilcc_graph.run.result import RunOptions
 from ilcc_graph.run.rig_observe import observe_rig
 from ilcc_graph.run.stages import StageOptions
-from ilcc_graph.types import Estimate
+from ilcc_graph.types import Estimate, PoseTerms
 
 __all__ = [
     "EXIT_CODES", "StoredCalibration", "VerifyRun", "check_comparable", "load_stored", "verify_capture",
@@ -53,10 +53,13 @@ class VerifyRun:
 
 @dataclass(frozen=True)
 class StoredCalibration(StoredRig):
-    """A stored calibration as ``verify`` reads it: the poses and covariance (``StoredRig``) and what it
-    was made with (``io.stored.StoredSetup``: board, sensor kinds), for ``check_comparable``."""
+    """A stored calibration as ``verify`` reads it: the poses and covariance (``StoredRig``), what it
+    was made with (``io.stored.StoredSetup``: board, sensor kinds), for ``check_comparable``, and a
+    pair's camera pose in the LiDAR's frame with the LiDAR's range terms (``Calibration.with_terms``
+    inverted), when the calibration has them."""
 
     setup: StoredSetup = field(default_factory=StoredSetup)
+    terms: PoseTerms | None = None
 
 
 def load_stored(path: str | Path) -> StoredCalibration:
@@ -70,7 +73,8 @@ def load_stored(path: str | Path) -> StoredCalibration:
         raise InputError(f"{path}: the calibration has no covariance (method {cal.method}); verify needs one")
     lidar, camera = PAIR_NAMES
     p = StoredRig.pair(cal.T_cam_lidar, cal.covariance, camera, lidar)
-    return StoredCalibration(p.sensors, p.reference, p.T_ref_sensor, p.covariance, setup)
+    terms = None if cal.with_terms is None else cal.with_terms.inverse()
+    return StoredCalibration(p.sensors, p.reference, p.T_ref_sensor, p.covariance, setup, terms)
 
 
 def check_comparable(stored: StoredRig, rig: RigConfig, where: str) -> None:
@@ -193,10 +197,12 @@ def verify_pair_capture(
         return VerifyRun(res, len(source.moments()))
     cal = result.calibration
     checked, new = camera, StoredRig.pair(cal.T_cam_lidar, cal.covariance, camera, lidar).pose(camera)
+    new_terms = None if cal.with_terms is None else cal.with_terms.inverse()
     if stored.reference != lidar:  # the camera is the reference: the LiDAR's pose is T_cam_lidar
-        checked, new = lidar, Estimate(cal.T_cam_lidar, cal.covariance)
+        checked, new, new_terms = lidar, Estimate(cal.T_cam_lidar, cal.covariance), None
     used = sum(1 for f in cal.frames if f.used)
-    res = verify_pair(stored, checked, new, used, options, notes)
+    stored_terms = stored.terms if isinstance(stored, StoredCalibration) else None
+    res = verify_pair(stored, checked, new, used, options, notes, (stored_terms, new_terms))
     return VerifyRun(res, len(source.moments()))
 
 
