@@ -13,7 +13,9 @@ as pixel factors on ``I(c)`` with the stated values as a prior) and judged twice
   same intrinsics within their covariances (``d_h^T (C_a + C_b)^-1 d_h``, chi-square)?
 
 Refined only when both pass at ``ALPHA`` (1 %): a real error of the stated intrinsics that the
-boards determine. With fewer boards than twice the intrinsics (each half must hold as many boards
+boards determine. The halves are solved only when the first test passes (otherwise the stated
+intrinsics stay whatever they say: two solves saved; ``reproducibility`` is then NaN). With fewer
+boards than twice the intrinsics (each half must hold as many boards
 as there are intrinsics, else two halves agree only because each knows little: the recorded
 fisheye's halves of 10 boards refined from quarters of 5 passed, and the two halves then disagreed
 at chi-square 106), a panorama (nothing to refine) or when a refined solve fails, the stated
@@ -125,31 +127,34 @@ def choose_intrinsics(
     opts = problem.intrinsics or IntrinsicsOptions()
     ref = replace(problem, intrinsics=replace(opts, refine=True))
     names = [b.name for b in problem.boards]
+    failed = (CalibrationImpossible, IndeterminateSystem, np.linalg.LinAlgError)
     try:
         sol, v, C = _refined(ref, options, solve)
-        halves = [_refined(ref, options, solve, names[k::2])[1:] for k in (0, 1)]
-    except (CalibrationImpossible, IndeterminateSystem, np.linalg.LinAlgError) as err:
+    except failed as err:
         return None, CameraChoice(False, reason=f"a refined solve failed ({err})")
     d = v - cam.intrinsics()
     sig, k = float(d @ np.linalg.solve(C, d)), len(d)
-    (va, Ca), (vb, Cb) = halves
+    q_sig = float(chi2_dist.ppf(1 - ALPHA, max(k, 1)))
+    if sig <= q_sig:  # stated within their sigma: stated, whatever the halves say (they are not solved)
+        why = f"the refined ones are the stated ones within their sigma ({sig:.1f} <= {q_sig:.1f}, {k} dof)"
+        return _said(None, CameraChoice(False, sig, k, reason=why))
+    try:
+        (va, Ca), (vb, Cb) = [_refined(ref, options, solve, names[j::2])[1:] for j in (0, 1)]
+    except failed as err:
+        return None, CameraChoice(False, sig, k, reason=f"a refined solve of half the boards failed ({err})")
     dh = va - vb
     rep = float(dh @ np.linalg.solve(Ca + Cb, dh))
-    q_sig, q_rep = float(chi2_dist.ppf(1 - ALPHA, max(k, 1))), float(chi2_dist.ppf(1 - ALPHA, len(dh)))
-    ok_sig, ok_rep = sig > q_sig, rep <= q_rep
-    if ok_sig and ok_rep:
-        reason = (
-            f"the boards move them ({sig:.1f} > {q_sig:.1f}) and two halves agree ({rep:.1f} <= {q_rep:.1f})"
-        )
-    elif not ok_sig:
-        reason = (
-            f"the refined ones are the stated ones within their sigma ({sig:.1f} <= {q_sig:.1f}, {k} dof)"
-        )
-    else:
-        reason = (
-            f"two halves of the boards refine them differently ({rep:.1f} > {q_rep:.1f}, {len(dh)} "
-            "dof): the boards do not determine them"
-        )
-    choice = CameraChoice(ok_sig and ok_rep, sig, k, rep, len(dh), reason)
+    q_rep = float(chi2_dist.ppf(1 - ALPHA, len(dh)))
+    if rep <= q_rep:
+        why = f"the boards move them ({sig:.1f} > {q_sig:.1f}), two halves agree ({rep:.1f} <= {q_rep:.1f})"
+        return _said(sol, CameraChoice(True, sig, k, rep, len(dh), why))
+    why = (
+        f"two halves of the boards refine them differently ({rep:.1f} > {q_rep:.1f}, {len(dh)} dof): the "
+        "boards do not determine them"
+    )
+    return _said(None, CameraChoice(False, sig, k, rep, len(dh), why))
+
+
+def _said(sol: Solution | None, choice: CameraChoice) -> tuple[Solution | None, CameraChoice]:
     log.info("%s", choice.summary())
-    return (sol if choice.refined else None), choice
+    return sol, choice
