@@ -11,6 +11,7 @@ from ilcc_graph.errors import BoardNotFound, InputError
 from ilcc_graph.lidar import estimate_board
 from ilcc_graph.lidar._synthetic import SynthScene, synth_scan
 from ilcc_graph.lidar.detection import find_candidates, intensity_contrast, roi_mask
+from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
 from ilcc_graph.lidars import lidar_model
 from ilcc_graph.types import Scan
 
@@ -173,3 +174,59 @@ def test_board_found_with_every_beam_table(name: str) -> None:
         np.sqrt(((fit.corners_lidar[BOARD.half_turn_permutation()] - truth) ** 2).sum(axis=1).mean()),
     )
     assert err < 0.008, (name, err)
+
+
+def _cropped(scan: Scan, T: np.ndarray, board: Board, margin: float, cut: float = 0.0) -> np.ndarray:
+    """(N,) bool: the returns inside a box ``margin`` (m) wider than the board about its centre and
+    inside an azimuth window about it, whose low side cuts ``cut`` of the board's azimuth span off."""
+    x0, x1, y0, y1 = board.extent()
+    c = T[:3, :3] @ np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0]) + T[:3, 3]
+    half = 0.5 * np.hypot(x1 - x0, y1 - y0)
+    az = np.arctan2(scan.points[:, 1], scan.points[:, 0]) - np.arctan2(c[1], c[0])
+    win = np.arctan2(half + margin, np.hypot(c[0], c[1]))
+    corners = np.array([[x, y, 0.0] for x in (x0, x1) for y in (y0, y1)]) @ T[:3, :3].T + T[:3, 3]
+    span = np.arctan2(corners[:, 1], corners[:, 0]) - np.arctan2(c[1], c[0])
+    lo = span.min() + cut * np.ptp(span) if cut else -win
+    return (np.abs(scan.points - c).max(axis=1) <= half + margin) & (az >= lo) & (az <= win)
+
+
+@pytest.mark.parametrize("ring_field", [True, False], ids=["ring-field", "no-ring-field"])
+def test_cropped_scan_whose_intensity_is_the_ring_is_placed_by_its_outline(ring_field: bool) -> None:
+    """A scan cut to a box about the board (an OS1-128's beams, a few thousand returns, an azimuth
+    window of ~25 deg) whose intensity holds the ring number, with and without a ring field: the
+    intensity is read as the ring, the board placed by its outline within its covariance."""
+    model = lidar_model("os1-128-rev6")
+    scan, T = synth_scan(BOARD, model, SynthScene(distance=2.0, in_plane_deg=40), np.random.default_rng(0))
+    keep = _cropped(scan, T, BOARD, 0.3)
+    ring = scan.ring[keep]
+    cropped = Scan(scan.points[keep], 127.0 - ring, 127 - ring if ring_field else None, source="c.pcd")
+    assert len(cropped) < 5000
+    fit = estimate_board(cropped, BOARD, model)
+    assert fit.diagnostics["intensity_unusable"] == 4.0 and fit.diagnostics["no_contrast"] == 1.0
+    assert fit.diagnostics["outside_fov_share"] < BEYOND_FOV_SHARE  # (a sliver: the crop's beams end near it)
+    e = _in_plane_error(fit, T, BOARD)
+    C = fit.covariance[np.ix_([2, 3, 4], [2, 3, 4])]
+    assert float(e @ np.linalg.solve(C, e)) < 16.3
+
+
+def test_board_cut_by_the_crop_is_placed_by_its_scanned_part_or_refused() -> None:
+    """A crop whose azimuth window cuts a third of the board off, nothing else beside it: the steps
+    beyond the window are no evidence (not rays that passed beside the board). Turned 40 deg in its
+    plane, the board is placed by its scanned part (its edges above and below), the cut part reported
+    beyond the field, within its covariance; upright, its scanned part is refused by the size test,
+    named with its figures."""
+    model = lidar_model("os1-128-rev6")
+    for turn in (40.0, 0.0):
+        sc = SynthScene(distance=2.0, in_plane_deg=turn)
+        scan, T = synth_scan(BOARD, model, sc, np.random.default_rng(1))
+        keep = _cropped(scan, T, BOARD, 0.3, cut=0.3)
+        cropped = Scan(scan.points[keep], scan.ring[keep].astype(float), None, source="c.pcd")
+        if turn == 0.0:
+            with pytest.raises(BoardNotFound, match=r"\(size_ratio, long side: 0\.4\d < 0\.47 m\)"):
+                estimate_board(cropped, BOARD, model)
+            continue
+        fit = estimate_board(cropped, BOARD, model)
+        assert 0.1 < fit.diagnostics["outside_fov_share"] < 0.5
+        e = _in_plane_error(fit, T, BOARD)
+        C = fit.covariance[np.ix_([2, 3, 4], [2, 3, 4])]
+        assert float(e @ np.linalg.solve(C, e)) < 16.3

@@ -20,7 +20,7 @@ import numpy as np
 
 from ..board import Board
 from ..errors import BoardNotFound, InputError
-from ..lidars import LidarModel, beam_index, choose_model, measure_beams
+from ..lidars import LidarModel, beam_index, choose_model, cropped_table, measure_beams, with_intensity_ring
 from ..types import BoardFit, ExpectedBoard, RangeCorrection, Scan
 from .board_tests import intensity_contrast, print_visible
 from .choice import beyond_expected, candidate_order, expected_mask, fit_score
@@ -120,7 +120,9 @@ def estimate_board(
 
     scan: points (N, 3) LiDAR frame, intensity (N,) in any unit, ring (N,) in the file's numbering
     or None. lidar_model: the beam table (None: measured from this scan, ``lidars.measure``); the
-    scan's rings are mapped onto it by elevation (``lidars.beam_index``).
+    scan's rings are mapped onto it by elevation (``lidars.beam_index``); a cropped scan's by its own
+    beams (``lidars.cropped_table``). An intensity that is the ring number of a scan without a ring
+    field is its ring field (``lidars.with_intensity_ring``).
     roi: optional ``config.Roi`` (azimuth_deg, elevation_deg, range_m limits) narrowing the search.
     expected: optional predicted board (e.g. from the image and an extrinsic): the search keeps to
     a box around it and candidates are ranked by closeness to it; a fit beyond its tolerances is
@@ -136,6 +138,7 @@ def estimate_board(
     no fit is good.
     """
     t0, c0 = time.perf_counter(), time.process_time()
+    scan = with_intensity_ring(scan)  # an intensity that is the ring number is the ring field
     unusable = check_intensity(scan)
     pts = np.asarray(scan.points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
@@ -149,6 +152,7 @@ def estimate_board(
         pts, inten = scan.points, inten[valid]
     if lidar_model is None:
         lidar_model = choose_model(measure_beams(scan), None, scan.source)[0]
+    lidar_model = cropped_table(scan, lidar_model)  # a cropped scan's own beams
     ring = pseudo_rings(pts) if lidar_model.ringless else beam_index(scan, lidar_model)  # no scanlines
     if correction is not None:
         pts = correction.corrected(pts, np.zeros(len(pts), np.int64) if lidar_model.ringless else ring)

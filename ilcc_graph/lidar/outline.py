@@ -9,7 +9,7 @@
   half turn) the outline allows, for a slid intensity fit; :func:`fuse`: the two combined;
 - :func:`outline_coupling`: how a plane error moves the outline's evidence (ray projection);
 - :func:`fov_share`: the part of the board the beams cannot reach (above the top beam, below the
-  lowest): unknown, not evidence, reported.
+  lowest, beyond a cropped scan's azimuth window): unknown, not evidence, reported.
 
 Poses are ``T_lidar_board`` (4, 4); in-plane corrections ``xi = (rz, tx, ty)`` in GTSAM's Pose3
 tangent, ``T' = T * Expmap((0, 0, rz, tx, ty, 0))``; covariances (3, 3) of xi.
@@ -38,6 +38,7 @@ from .shape import (
     outline_posterior,
     outline_samples,
 )
+from .silent import scan_window
 from .soft_edge import se2_exp, se2_log
 
 __all__ = [
@@ -103,9 +104,12 @@ def outline_coupling(s: OutlineSamples, shape: ShapeFit, board: Board) -> np.nda
 BEYOND_FOV_SHARE = 0.02
 
 
-def fov_share(T: np.ndarray, board: Board, model: LidarModel, n: int = 24) -> float:
+def fov_share(
+    T: np.ndarray, board: Board, model: LidarModel, scan: np.ndarray | None = None, n: int = 24
+) -> float:
     """Share of the board's area the beams cannot reach: above the top beam or below the lowest
-    (by more than half the neighbouring ring spacing). 0 for a scanline-free LiDAR."""
+    (by more than half the neighbouring ring spacing), or beyond the azimuth window of a cropped
+    ``scan`` (its returns (N, 3), LiDAR frame; ``silent.scan_window``). 0 for a scanline-free LiDAR."""
     el = np.sort(model.vertical_angles_rad)
     if model.ringless or el.size < 2:
         return 0.0
@@ -114,6 +118,12 @@ def fov_share(T: np.ndarray, board: Board, model: LidarModel, n: int = 24) -> fl
     p = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)]) @ T[:3, :3].T + T[:3, 3]
     e = np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
     out = (e > el[-1] + 0.5 * (el[-1] - el[-2])) | (e < el[0] - 0.5 * (el[1] - el[0]))
+    if scan is not None and len(scan):
+        az_c = float(np.arctan2(T[1, 3], T[0, 3]))
+        q = np.asarray(scan, np.float64)
+        lo, hi = scan_window((np.arctan2(q[:, 1], q[:, 0]) - az_c + np.pi) % (2 * np.pi) - np.pi, 0.0)
+        a = (np.arctan2(p[:, 1], p[:, 0]) - az_c + np.pi) % (2 * np.pi) - np.pi
+        out |= (a < lo) | (a > hi)
     return float(out.mean())
 
 
@@ -286,7 +296,8 @@ def refuse_outline(shape: ShapeFit, range_m: float, board: Board, options: Lidar
     if not shape.opposite_edges_seen:
         raise BoardNotFound(
             f"a board-sized object at {range_m:.2f} m without a print the LiDAR shows, whose outline the "
-            "scan does not show on two opposite sides (beyond the beams or with nothing behind): its size "
+            "scan does not show on two opposite sides (beyond the beams, cut off by a cropped scan, or with "
+            "nothing behind): its size "
             "and place cannot be told from its shape "
             + breach("rays beside its edges along one axis", float(min(sum(e[:2]), sum(e[2:]))), "<", 1.0)
         )

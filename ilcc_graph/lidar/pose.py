@@ -358,7 +358,10 @@ def fit_board_points(
     )
     how = _pattern if visible else _outline
     res = how(P, inten, ring, normal, offset, board, lidar_model, options, rng, scan_pts)
-    return _finish(res, board, lidar_model, options, not visible, t0, c0)
+    fit = _finish(res, board, lidar_model, options, not visible, t0, c0)
+    if scan_points is not None:  # the part beyond a cropped scan's window, too
+        fit.diagnostics["outside_fov_share"] = fov_share(fit.T_lidar_board, board, lidar_model, scan_pts)
+    return fit
 
 
 def _finish(res: _InPlane, board: Board, model: LidarModel, options: LidarOptions, no_print: bool,

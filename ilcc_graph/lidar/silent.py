@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..board import Board
-from ..lidars import LidarModel
+from ..lidars import CROPPED_BELOW_DEG, LidarModel
 
-__all__ = ["azimuth_noise", "silent_rays"]
+__all__ = ["azimuth_noise", "scan_window", "silent_rays"]
 
 
 def azimuth_noise(az: np.ndarray, ring: np.ndarray, step: float) -> float:
@@ -25,6 +25,28 @@ def azimuth_noise(az: np.ndarray, ring: np.ndarray, step: float) -> float:
     d = np.diff(a)[np.diff(r) == 0]
     d = d[(d > 0.3 * step) & (d < 1.7 * step)]
     return 1.4826 * float(np.median(np.abs(d - step))) / np.sqrt(2.0) if d.size >= 10 else 0.0
+
+
+def scan_window(az: np.ndarray, tol: float) -> tuple[float, float]:
+    """The azimuths (rad, about the board's, (N,)) of a scan's returns: (lo, hi) of the window a
+    cropped scan covers (``lidars.CROPPED_BELOW_DEG``), less ``tol``; (-inf, inf) for a whole turn.
+    A step beyond a crop's window was cut, not silent."""
+    if azimuth_coverage_deg_of(az) >= CROPPED_BELOW_DEG:
+        return -np.inf, np.inf
+    return float(az.min()) + tol, float(az.max()) - tol
+
+
+def azimuth_coverage_deg_of(az: np.ndarray) -> float:
+    """360 less the longest run of empty whole degrees (circular) of azimuths az (rad, (N,)): the
+    window they cover, to a degree (``lidars.azimuth_coverage_deg`` without sorting)."""
+    full = np.bincount(np.floor(np.degrees(az) % 360.0).astype(np.int64) % 360, minlength=360) > 0
+    if not full.any():
+        return 0.0
+    run, longest = 0, 0
+    for f in np.concatenate([full, full]):  # twice round: a run across 0 deg
+        run = 0 if f else run + 1
+        longest = max(longest, run)
+    return float(360 - min(longest, 360))
 
 
 def silent_rays(
@@ -44,7 +66,9 @@ def silent_rays(
     beams' origin ``o``; on: (N,) the returns on the board's plane. Returns the silent rays' unit
     directions (K, 3) in the board frame of ``T`` that cross the plane within ``grow`` of the board, and
     the share of silent steps within each beam's run of returns on the plane (the LiDAR's own loss
-    there: the chance that a silent ray is a lost return). None for a scanline-free LiDAR."""
+    there: the chance that a silent ray is a lost return). None for a scanline-free LiDAR. A cropped
+    scan's steps beyond its azimuth window (``scan_window``) are no rays: a board the crop cuts is
+    unknown beyond the cut, not absent."""
     el_tab = np.sort(np.asarray(model.vertical_angles_rad, np.float64))
     empty = np.zeros((0, 3))
     if model.ringless or el_tab.size < 2 or on.sum() < 2:
@@ -60,6 +84,7 @@ def silent_rays(
     ring -= (el - el_tab[ring - 1]) < (el_tab[ring] - el)
     tol = max(0.5 * step, 3.0 * azimuth_noise(az[on], ring[on], step))
     half = float(np.abs(az[on]).max()) + grow / dist + 2 * tol  # the azimuths about the board
+    lo, hi = scan_window(az, tol)
     rays, lost, runs = [], 0, 0
     for k in range(el_tab.size):
         mine = ring == k
@@ -69,6 +94,9 @@ def silent_rays(
         w = 2 * np.pi * a_k / step
         ph = float(np.angle(np.mean(np.exp(1j * w)))) * step / (2 * np.pi)
         g = ph + step * np.arange(-int(half / step) - 1, int(half / step) + 2)
+        g = g[(g >= lo) & (g <= hi)]  # a cropped scan: beyond its window nothing is known
+        if g.size == 0:
+            continue
         j = np.clip(np.searchsorted(a_k, g), 1, a_k.size - 1)
         near = np.minimum(np.abs(g - a_k[j - 1]), np.abs(g - a_k[np.minimum(j, a_k.size - 1)]))
         quiet = np.where(a_k.size > 1, near, np.abs(g - a_k[0])) > tol

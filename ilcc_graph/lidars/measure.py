@@ -22,6 +22,16 @@ The azimuth step is the median step between successive returns of one beam (sing
 snapped to 360 / WIDTH for an organised cloud. Medians use returns beyond 1 m where there are
 enough: an Ouster's beams leave from ~15.8 mm off the axis, which biases the elevation seen from
 the sensor origin by ``elevation * 0.0158 / range`` (0.1 deg for a +20 deg beam at 3 m).
+
+Cropped scans (a region cut out of each scan, organised or not): ``coverage_deg`` is the azimuth
+window the returns cover (360 less the widest empty sector; below ``CROPPED_BELOW_DEG``: cropped).
+An organised cloud cut to a window holds WIDTH columns of the window, not of a turn: its step is not
+snapped to 360 / WIDTH. A cropped scan's ring field shows only the beams that cross its region, all
+at about one range (where the beams' origin height and an elevation offset look alike): a named
+table with at least as many beams is kept with its azimuth step (``choose_model``), and the stage
+maps each cropped scan's rings onto that scan's own beams (``cropped_table``). An ``intensity``
+field that is the ring number (``intensity_ring``: whole numbers, each value one beam, beams in the
+order of their values) is the ring field of a scan that has none.
 """
 
 from __future__ import annotations
@@ -32,10 +42,16 @@ import numpy as np
 
 from ..errors import InputError
 from ..types import Scan
+from .scan_rings import CROPPED_BELOW_DEG, azimuth_coverage_deg, with_intensity_ring
+from .scan_rings import elevation_deg as _elevation_deg
+from .scan_rings import far_mask as _far
+from .scan_rings import group_medians as _group_medians
+from .scan_rings import sharpest_origin_height as _sharpest_origin_height
 from .tables import LidarModel
 
 __all__ = [
     "MeasuredBeams", "measure_beams", "beam_index", "table_difference", "choose_model", "scanline_free",
+    "cropped_table",
 ]  # fmt: skip
 
 
@@ -46,33 +62,20 @@ class MeasuredBeams:
     model: the measured :class:`LidarModel` (name ``measured``), elevations ascending.
     ring_values: (n,) the file's ring value of each beam (ascending elevation), or None when the
         beams were found by clustering elevations.
-    method: ``"ring field"``, ``"organised rows"``, ``"elevation clusters"`` or ``"no scanlines"``.
+    method: ``"ring field"``, ``"organised rows"``, ``"intensity as ring"``, ``"elevation clusters"``
+        or ``"no scanlines"``.
+    coverage_deg: the azimuth window the returns cover (deg; < ``CROPPED_BELOW_DEG``: a cropped scan).
     """
 
     model: LidarModel
     ring_values: np.ndarray | None
     method: str
+    coverage_deg: float = 360.0
 
-
-def _elevation_deg(p: np.ndarray, h: float = 0.0) -> np.ndarray:
-    """Elevation (deg) of points (N, 3) seen from the height ``h`` (m) above their origin."""
-    return np.degrees(np.arctan2(p[:, 2] - h, np.hypot(p[:, 0], p[:, 1])))
-
-
-def _group_medians(values: np.ndarray, groups: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(distinct group ids, median of ``values`` per group, count per group)."""
-    order = np.argsort(groups, kind="stable")
-    g, v = groups[order], values[order]
-    ids, start, counts = np.unique(g, return_index=True, return_counts=True)
-    med = np.array([np.median(v[s : s + c]) for s, c in zip(start, counts, strict=True)])
-    return ids, med, counts
-
-
-def _far(p: np.ndarray) -> np.ndarray:
-    """Mask of the returns used for elevations: beyond 1 m when at least half of them are."""
-    r = np.linalg.norm(p, axis=1)
-    far = r > 1.0
-    return far if far.sum() >= 0.5 * r.size else r > 0.05
+    @property
+    def cropped(self) -> bool:
+        """The scan was cut to a region: its beams and azimuth step are those of a part of a turn."""
+        return self.coverage_deg < CROPPED_BELOW_DEG
 
 
 def _azimuth_step_deg(p: np.ndarray, beam: np.ndarray, columns: int | None) -> float | None:
@@ -95,18 +98,6 @@ def _azimuth_step_deg(p: np.ndarray, beam: np.ndarray, columns: int | None) -> f
 
 
 _GAPS_DEG = (0.04, 0.06, 0.08, 0.1, 0.12, 0.15)
-
-
-def _sharpest_origin_height(p: np.ndarray) -> float:
-    """Height h (m) of the beams' origin that makes the elevations' histogram sharpest."""
-    best = (np.inf, 0.0)
-    rho = np.hypot(p[:, 0], p[:, 1])
-    for h in np.round(np.linspace(-0.08, 0.08, 33), 4):
-        el = np.degrees(np.arctan2(p[:, 2] - h, rho))
-        c, _ = np.histogram(el, bins=max(1, int(np.ptp(el) / 0.02)))
-        q = c[c > 0] / c.sum()
-        best = min(best, (float(-(q * np.log(q)).sum()) + 1e-9 * abs(h), float(h)))
-    return best[1]
 
 
 def _stable_clusters(el: np.ndarray, min_points: int) -> np.ndarray:
@@ -188,18 +179,22 @@ def measure_beams(scan: Scan) -> MeasuredBeams | None:
     Returns None for a scan with fewer than 2 beams found, or whose azimuth step cannot be
     measured (too few returns): the caller then keeps the named table.
     """
+    read_ring = scan.ring is None
+    scan = with_intensity_ring(scan)
+    read_ring &= scan.ring is not None
     p = np.asarray(scan.points, dtype=np.float64).reshape(-1, 3)
     valid = np.isfinite(p).all(axis=1) & (p != 0).any(axis=1)  # (0, 0, 0): no return
     p = p[valid]
     if p.shape[0] < 50:
         return None
+    coverage = azimuth_coverage_deg(p)
     far = _far(p)
     sub = p[far][:: max(1, int(far.sum()) // 20000)]  # the height search on at most ~20k returns
     h = _sharpest_origin_height(sub)
     el = _elevation_deg(p, h)
     columns = getattr(scan, "columns", None)
     if scan.ring is None and not columns and _continuous(el[far]):
-        return MeasuredBeams(_ringless_model(p, scan.source), None, "no scanlines")
+        return MeasuredBeams(_ringless_model(p, scan.source), None, "no scanlines", coverage)
     ring_values: np.ndarray | None
     if scan.ring is not None:
         ring = np.asarray(scan.ring).astype(np.int64)[valid]
@@ -218,7 +213,7 @@ def measure_beams(scan: Scan) -> MeasuredBeams | None:
         if angles.size >= 2 and np.any(np.diff(angles) <= 0):
             angles = angles + 1e-6 * np.arange(angles.size)  # two ring values at one elevation
         beam_of_point = rank[np.searchsorted(ids, ring)]
-        method = "organised rows" if columns else "ring field"
+        method = "organised rows" if columns else ("intensity as ring" if read_ring else "ring field")
     else:
         angles = _stable_clusters(el[far], max(3, int(2e-4 * far.sum())))
         if angles.size < 2:
@@ -229,7 +224,7 @@ def measure_beams(scan: Scan) -> MeasuredBeams | None:
         beam_of_point = np.searchsorted(mid, el)
     if angles.size < 2 or np.any(np.abs(angles) >= 90):
         return None
-    step = _azimuth_step_deg(p, beam_of_point, columns)
+    step = _azimuth_step_deg(p, beam_of_point, columns if coverage >= CROPPED_BELOW_DEG else None)
     if step is None:
         return None
     try:
@@ -242,7 +237,23 @@ def measure_beams(scan: Scan) -> MeasuredBeams | None:
         )
     except ValueError:
         return None
-    return MeasuredBeams(model, ring_values, method)
+    return MeasuredBeams(model, ring_values, method, coverage)
+
+
+def cropped_table(scan: Scan, model: LidarModel) -> LidarModel:
+    """``model`` with the beams a cropped scan (``MeasuredBeams.cropped``) shows through its ring
+    field (or rows; ``with_intensity_ring`` first for an intensity that is the ring number): its own
+    elevations and beams' origin height, the model's azimuth step. Each crop shows other beams (those
+    that cross its region), and its returns lie at about one range: only the scan's own table maps
+    its rings onto the elevations it shows. Any other scan (or model without beams): ``model`` itself."""
+    p = np.asarray(scan.points, dtype=np.float64).reshape(-1, 3)
+    if model.ringless or scan.ring is None or azimuth_coverage_deg(p) >= CROPPED_BELOW_DEG:
+        return model
+    measured = measure_beams(scan)
+    if measured is None or not measured.cropped or measured.ring_values is None:
+        return model
+    m = measured.model
+    return replace(model, vertical_angles_deg=m.vertical_angles_deg, beam_origin_z_m=m.beam_origin_z_m)
 
 
 def beam_index(scan: Scan, model: LidarModel) -> np.ndarray:
@@ -296,13 +307,27 @@ def _clusters_on_beams(m: np.ndarray, a: np.ndarray, spacing: float) -> bool:
     return bool(np.all(on | merged) and on.mean() >= ON_BEAM_SHARE)
 
 
+def _beam_subset(m: np.ndarray, a: np.ndarray, spacing: float) -> np.ndarray | None:
+    """(m.size,) the named beam (index into ``a``, deg ascending) each measured beam ``m`` (deg
+    ascending) sits on, within a third of the spacing and each on its own; None when they do not."""
+    j = np.abs(m[:, None] - a[None, :]).argmin(axis=1)
+    if np.any(np.abs(m - a[j]) >= spacing / 3) or np.any(np.diff(j) <= 0):
+        return None
+    return j
+
+
 def table_difference(measured: MeasuredBeams, named: LidarModel) -> str | None:
     """A sentence naming how the scan's table differs from ``named``, or None when they agree.
 
     They agree when the beam counts match (a clustered measurement may miss beams that saw
     nothing, or see two neighbours as one: then its clusters must sit on named beams as
     ``_clusters_on_beams`` says), every beam is within a third of the local beam spacing of the
-    named one (ring from elevation stays right), and the azimuth steps are within 10 %.
+    named one (ring from elevation stays right), and the azimuth steps are within 10 %. A ring field
+    may show fewer beams than the table (beams that met nothing): each must then sit on its own named
+    beam; a cropped scan's (those that cross its region) need not, since its returns lie at about one
+    range, where the beams' origin height and a common elevation offset look the same. A cropped
+    scan's step (from a window, often of a near board, whose azimuths are noisy) need only be within
+    25 %.
     """
     if measured.model.ringless or named.ringless:
         if measured.model.ringless and named.ringless:
@@ -319,9 +344,11 @@ def table_difference(measured: MeasuredBeams, named: LidarModel) -> str | None:
     spacing = float(np.median(np.diff(a))) if a.size > 1 else 1.0
     if measured.ring_values is None and m.size <= a.size:
         same_beams = _clusters_on_beams(m, a, spacing)
+    elif m.size < a.size:  # a cropped scan's beams are seen at one range: h and elevation are one
+        same_beams = measured.cropped or _beam_subset(m, a, spacing) is not None
     else:
         same_beams = m.size == a.size and bool(np.all(np.abs(m - a) < spacing / 3))
-    if same_beams and abs(step_m - step_n) <= 0.1 * step_n:
+    if same_beams and abs(step_m - step_n) <= (0.25 if measured.cropped else 0.1) * step_n:
         return None
     lo, hi = float(m[0]), float(m[-1])
     return (
@@ -338,7 +365,10 @@ def choose_model(
     Without a given table the measured one is used (range sigma and divergence defaults of
     LidarModel). A given table that agrees with the scan is kept, with the scan's own elevations
     when they come from a ring field (the unit's real angles) and the scan's azimuth step. A given
-    table that disagrees is replaced by the scan's (keeping its range sigma and divergence).
+    table that disagrees is replaced by the scan's (keeping its range sigma and divergence). A ring
+    field with fewer beams than the given table (a cropped scan) replaces the elevations of the beams
+    it shows only; a cropped scan's beams are used as they are (the stage measures each cropped scan's
+    own, ``cropped_table``) with the given azimuth step (a turn's, not a window's).
     Raises InputError when there is neither.
     """
     if measured is None:
@@ -364,10 +394,19 @@ def choose_model(
                 beam_origin_z_m=m.beam_origin_z_m,
             )
             return used, None
+        angles = m.vertical_angles_deg
+        a = given.vertical_angles_deg
+        if angles.size < a.size and not measured.cropped:  # the beams the scan shows, on the others
+            spacing = float(np.median(np.diff(a)))
+            angles = a.copy()
+            angles[_beam_subset(m.vertical_angles_deg, a, spacing)] = m.vertical_angles_deg
+            angles = angles if np.all(np.diff(angles) > 0) else a
+        step = given.horizontal_resolution_deg if measured.cropped else m.horizontal_resolution_deg
         used = replace(
             given,
-            vertical_angles_deg=m.vertical_angles_deg,
-            horizontal_resolution_deg=m.horizontal_resolution_deg,
+            vertical_angles_deg=angles,
+            horizontal_resolution_deg=step,
+            beam_origin_z_m=m.beam_origin_z_m if measured.cropped else given.beam_origin_z_m,
             source=f"{given.source}, angles {m.source}",
         )
         return used, None
