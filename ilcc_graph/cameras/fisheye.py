@@ -6,6 +6,7 @@ Camera frame OpenCV's (z forward, x right, y down). Config keys: ``model, width,
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
@@ -15,6 +16,23 @@ from ..checks import MISSING, Checker
 from .camera_model import R_FLU_OPENCV, LensModel, Normalised
 from .common import config_dist, config_K, finite_vector, first_fold, solve_increasing
 from .registry import register
+
+
+def _theta_d(dist: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """theta_d(theta) of the coefficients ``dist`` (k1..k4) and its derivative."""
+    k1, k2, k3, k4 = dist
+    t2 = t * t
+    poly = 1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))
+    dpoly = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
+    return t * poly, dpoly
+
+
+@functools.lru_cache(maxsize=1024)
+def _theta_max(dist: tuple[float, ...]) -> float:
+    """``Fisheye.theta_max`` of the coefficients: where theta_d stops increasing (< pi). Kept per
+    coefficients: a solve that refines the intrinsics builds the same camera for every view."""
+    k = np.array(dist)
+    return min(first_fold(lambda t: _theta_d(k, t)[1], np.pi), np.pi)
 
 
 @register("fisheye")
@@ -44,17 +62,12 @@ class Fisheye(LensModel):
             raise ValueError(f"fisheye dist must have 4 numbers (k1, k2, k3, k4), got {self.dist.size}")
         if self.dist.size == 0:
             object.__setattr__(self, "dist", finite_vector(np.zeros(4), "dist"))
-        th = first_fold(lambda t: self._theta_d(t)[1], np.pi)
-        object.__setattr__(self, "theta_max", min(th, np.pi))
+        object.__setattr__(self, "theta_max", _theta_max(tuple(float(k) for k in self.dist)))
         self._check_intrinsics_sigma()
 
     def _theta_d(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """theta_d(theta) and its derivative."""
-        k1, k2, k3, k4 = self.dist
-        t2 = t * t
-        poly = 1 + t2 * (k1 + t2 * (k2 + t2 * (k3 + t2 * k4)))
-        dpoly = 1 + t2 * (3 * k1 + t2 * (5 * k2 + t2 * (7 * k3 + t2 * 9 * k4)))
-        return t * poly, dpoly
+        return _theta_d(self.dist, t)
 
     # -- intrinsics after fx, fy, cx, cy: k1..k4
     @property

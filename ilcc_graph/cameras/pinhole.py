@@ -8,6 +8,7 @@ with other models that apply it to their own normalised coordinates.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar, Literal, overload
 
@@ -25,6 +26,23 @@ _THETA_HI = np.pi / 2 - 1e-6  # radii are searched as r = tan(theta) up to here
 KALIBR_PX = 0.05
 #: Names of OpenCV's distortion coefficients, in its order.
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
+
+
+@functools.lru_cache(maxsize=1024)
+def _r_max(d8: tuple[float, ...]) -> float:
+    """``RadTan.r_max`` of the coefficients ``d8``: where the radial map g(r) = r rad(r^2) stops
+    increasing, searched as r = tan(theta), theta < 90 deg. Kept per coefficients: a solve that
+    refines the intrinsics builds the same camera for every view it evaluates."""
+    rt = RadTan.__new__(RadTan)
+    object.__setattr__(rt, "d8", np.array(d8))
+
+    def dg_dtheta_sign(th: np.ndarray) -> np.ndarray:
+        r = np.tan(th)
+        rad, drad, den = rt.radial(r * r)
+        return np.where(den > 0, rad + 2 * r * r * drad, -1.0)
+
+    th = first_fold(dg_dtheta_sign, _THETA_HI)
+    return np.inf if th >= _THETA_HI else float(np.tan(th))
 
 
 @dataclass(frozen=True, eq=False)
@@ -49,14 +67,7 @@ class RadTan:
         return cls(d8)
 
     def __post_init__(self) -> None:
-        # the radial map g(r) = r rad(r^2) must increase; search r = tan(theta), theta < 90 deg
-        def dg_dtheta_sign(th: np.ndarray) -> np.ndarray:
-            r = np.tan(th)
-            rad, drad, den = self.radial(r * r)
-            return np.where(den > 0, rad + 2 * r * r * drad, -1.0)
-
-        th = first_fold(dg_dtheta_sign, _THETA_HI)
-        object.__setattr__(self, "r_max", np.inf if th >= _THETA_HI else float(np.tan(th)))
+        object.__setattr__(self, "r_max", _r_max(tuple(float(x) for x in self.d8)))
 
     def radial(self, r2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """rad(r2), d rad / d r2 and the rational denominator."""
