@@ -43,8 +43,9 @@ Sensor formats (``spec.sensor_format``), how a real driver writes the same retur
 - ``"velodyne-csv"``: ring is the hardware ``laser_id`` of VeloView's numbering (interleaved on
   the HDL-32E and VLP-16, ``lidars.LASER_ID_ELEVATIONS_DEG``); written as ILCC's CSV.
 
-Not modelled: mixed returns where a footprint straddles the board's outline (the return is the
-board's), multiple returns, the board's thickness, motion during the sweep.
+Returns where a footprint straddles the board's outline: the centre ray decides (a sharp edge), or
+with ``Systematics.edge_returns`` the board, what lies behind or a mixed return between the two
+(simulate/edges.py). Not modelled: multiple returns, the board's thickness, motion during the sweep.
 
 Every random draw has its own stream and is drawn for every beam whatever the switches, so
 turning one effect on or off leaves the others' numbers unchanged.
@@ -58,6 +59,7 @@ import numpy as np
 
 from ..lidars import LASER_ID_ELEVATIONS_DEG, LidarModel
 from ..types import Scan
+from .edges import SURF_EDGE, edge_returns
 from .placements import PURPOSE_FRAME, PURPOSE_UNIT, frame_rng
 from .rosette import rosette_directions, rosette_for
 from .scene import (
@@ -83,6 +85,7 @@ _REFLECTIVITY = {
     SURF_PERSON: 25.0,
     SURF_POLE: 8.0,
     SURF_BOARD_BACK: 15.0,
+    SURF_EDGE: 30.0,
 }
 # footprint samples: centre + 6 on a ring at 0.7 of the radius (an even cover of the disc)
 _FOOT_ANGLES = np.deg2rad(np.arange(6) * 60.0)
@@ -164,7 +167,10 @@ def simulate_scan(
     n = len(d)
     if T_scene_lidar is not None:  # cast in the scene's frame from the LiDAR's origin
         d = d @ T_scene_lidar[:3, :3].T
-    hits = cast_rays(scene, np.zeros(3) if T_scene_lidar is None else T_scene_lidar[:3, 3], d)
+    origin = np.zeros(3) if T_scene_lidar is None else T_scene_lidar[:3, 3]
+    hits = cast_rays(scene, origin, d)
+    if sy.edge_returns:
+        hits = edge_returns(scene, origin, d, hits, (spec.beam_aperture_m, model.beam_divergence_rad))
     t = hits.t
     board = hits.surface == SURF_BOARD
     # draw everything for every beam so the switches do not shift each other's numbers

@@ -75,6 +75,9 @@ class Systematics:
         LiDAR returns and its printed face (a bent print or backing, the LiDAR's errors that move a
         board's returns as a whole): the returns come from a face ``delta + alpha x + beta y``
         nearer the sensor (board-frame x, y from the pattern's centre); the camera sees the print.
+    edge_returns: beams whose footprint straddles the board's outline return from the board, from
+        behind it or as a mixed return between the two (``simulate/edges.py``); off: the centre ray
+        alone decides, a sharp edge.
     """
 
     beam_bias_sigma_m: float = 0.003
@@ -84,6 +87,7 @@ class Systematics:
     range_offset_m: float = 0.0
     beam_intensity_gain_sigma: float = 0.0
     board_plane_sigma: tuple[float, float] = (0.0, 0.0)
+    edge_returns: bool = False
 
     def __post_init__(self) -> None:
         for name in ("beam_bias_sigma_m", "dark_range_offset_m", "beam_intensity_gain_sigma"):
