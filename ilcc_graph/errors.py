@@ -58,6 +58,14 @@ class BoardColourMismatch(CornersNotFound):
     """
 
 
+class PartialPattern(CornersNotFound):
+    """The detected corner grid is not provably the whole printed pattern (``image/whole.py``).
+
+    Part of a larger checker pattern (a print with more squares than configured) or a board whose
+    outer squares leave the picture: its corners' indices cannot be told, so the image is not used.
+    """
+
+
 class CorrespondenceError(FrameError):
     """Image and LiDAR corners of a frame cannot be ordered consistently."""
 

@@ -415,16 +415,23 @@ def test_a_wrong_square_size_is_said_in_one_statement(sim, tmp_path, capsys):
 
 
 def test_a_part_of_a_bigger_print_is_seen(sim):
-    """[5, 7] configured for the [6, 8] print: the image stage finds a part of it in frame 0001, and
-    beyond those corners the checker pattern goes on by a row and a column."""
+    """[5, 7] configured for the [6, 8] print: the image stage refuses the part of it a detector finds
+    in frame 0001 (issue 38); beyond such a part (the [6, 8] corners without their last row and
+    column) the checker pattern goes on by a row and a column."""
+    from ilcc_graph.errors import PartialPattern
     from ilcc_graph.run.setup_mistakes import pattern_continues
     from ilcc_graph.run.stages import observe_image
+    from ilcc_graph.types import ImageCorners
 
     source = open_source(sim)
     ref = source.frames()[0]
     right = source.config()
     wrong = dataclasses.replace(right, board=dataclasses.replace(right.board, rows=5, cols=7))
     image = source.read_image(ref)
-    part = observe_image(source, ref, wrong, ImageOptions())
+    with pytest.raises(PartialPattern, match="the pattern continues beyond its .* board.squares \\[5, 7\\]"):
+        observe_image(source, ref, wrong, ImageOptions())
+    whole = observe_image(source, ref, right, ImageOptions())
+    keep = (np.arange(5 * 7).reshape(5, 7)[:4, :6]).ravel()
+    part = ImageCorners(whole.uv[keep], whole.bearings[keep], whole.cov_px[keep], False)
     assert pattern_continues(image, wrong, part) == (1, 1)
-    assert pattern_continues(image, right, observe_image(source, ref, right, ImageOptions())) == (0, 0)
+    assert pattern_continues(image, right, whole) == (0, 0)

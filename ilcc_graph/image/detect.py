@@ -20,7 +20,9 @@ Two passes (docs/image_stage.md):
    (``cv2.cornerSubPix``), the grid is put in canonical order (``ordering.py``), its noise
    measured (``uncertainty.py``), and the corners are mapped back to image pixels and bearings
    through ``camera.project``. A coarse grid that fails the fine pass does not end the search:
-   the next coarse candidate is tried.
+   the next coarse candidate is tried. A refined grid that is not provably the whole printed
+   pattern (``whole.py``: a part of a larger print, or a board leaving the picture) ends it with
+   ``PartialPattern``: its corners' indices cannot be told.
 """
 
 from __future__ import annotations
@@ -35,11 +37,11 @@ import numpy as np
 
 from ..board import Board
 from ..cameras import CameraModel
-from ..errors import BLANK_IMAGE, BoardColourMismatch, CornersNotFound
+from ..errors import BLANK_IMAGE, BoardColourMismatch, CornersNotFound, PartialPattern
 from ..types import ImageCorners
 from .coarse import Candidate, downscaled_candidates, tile_candidates
 from .detectors import ContrastCache, check_attempts, grid_problem, grid_spacing, run_attempt
-from .ordering import order_grid
+from .ordering import Ordering, order_grid
 from .uncertainty import homography_sigma, image_covariance
 from .views import (
     VirtualView,
@@ -48,6 +50,7 @@ from .views import (
     view_jacobian,
     view_to_image,
 )
+from .whole import WholeCheck, check_whole_pattern
 
 _SNAP_PX = 2.0  # lattice of the final fine view (view px), see _fine
 
@@ -232,6 +235,33 @@ def _fine_view(
     return view, sq
 
 
+def _order_whole(
+    gray: np.ndarray,
+    camera: CameraModel,
+    view: VirtualView,
+    vgray: np.ndarray,
+    xy: np.ndarray,
+    board: Board,
+    opts: ImageOptions,
+) -> tuple[Ordering, WholeCheck]:
+    """The refined grid xy (K, 2; view px) in canonical order, checked to be the whole pattern.
+
+    Raises PartialPattern when it is not (``whole.py``), also when the colours fail too but the
+    pattern is seen to go on beyond the grid (a part of a larger print shifted by a square has
+    the other colours), else what ``order_grid`` raises (a false grid: the search goes on).
+    """
+    whole = check_whole_pattern(gray, camera, view, xy, board)
+    try:
+        order = order_grid(xy, board, vgray, view.f, view.cx, view.cy, opts.strict_colour)
+    except CornersNotFound:
+        if whole.continues:
+            raise PartialPattern(whole.reason) from None
+        raise
+    if whole.reason is not None:
+        raise PartialPattern(whole.reason)
+    return order, whole
+
+
 def _fine(
     gray: np.ndarray, camera: CameraModel, board: Board, cand: Candidate, opts: ImageOptions
 ) -> ImageCorners:
@@ -267,7 +297,7 @@ def _fine(
     xy1, _ = _refine(vgray1, view1.to_view(b1), board, opts)
     if xy1 is not None:
         view, vgray, xy = view1, vgray1, xy1
-    order = order_grid(xy, board, vgray, view.f, view.cx, view.cy, opts.strict_colour)
+    order, whole = _order_whole(gray, camera, view, vgray, xy, board, opts)
     xy = order.corners
     sigma, _ = homography_sigma(board.corners_board()[:, :2], xy)
     uv = view_to_image(view, camera, xy)
@@ -284,6 +314,8 @@ def _fine(
         "coarse_stage": float(cand.stage),
         "coarse_width_px": float(cand.width),
         "fine_redetected": redetected,
+        "alternating_beyond": whole.alternating_beyond,
+        "border_matching": whole.border_matching,
     }
     return ImageCorners(
         uv=uv,
@@ -319,8 +351,9 @@ def detect_corners(
     ------
     ValueError : ``image`` is not an image of the camera's size.
     CornersNotFound : no chessboard of this size in the image (``BoardColourMismatch`` when the
-        print's colours contradict ``board.lower_left``; ``errors.BLANK_IMAGE`` when every pixel has
-        one grey level: a covered lens, a driver's placeholder frame; said at once, not searched).
+        print's colours contradict ``board.lower_left``; ``PartialPattern`` when the grid found is
+        not provably the whole pattern; ``errors.BLANK_IMAGE`` when every pixel has one grey level:
+        a covered lens, a driver's placeholder frame; said at once, not searched).
     """
     opts = ImageOptions() if options is None else options
     if min(board.inner_shape) < 2 or board.n_corners < 6:
@@ -344,8 +377,8 @@ def detect_corners(
         t1 = time.perf_counter()
         try:
             res = _fine(gray, camera, board, cand, opts)
-        except BoardColourMismatch:
-            raise  # a clean grid whose colours say the configuration is wrong: no other board will do
+        except (BoardColourMismatch, PartialPattern):
+            raise  # a clean grid whose colours or extent say the configuration or the view is wrong
         except CornersNotFound as exc:  # a false or unusable grid: the next candidate may be the board
             first_error = first_error or exc
             continue
