@@ -113,7 +113,9 @@ class Scan:
     """One LiDAR scan.
 
     points: (N, 3) float64, LiDAR frame, metres.
-    intensity: (N,) float64, the sensor's reflectance units (zeros when the file has none).
+    intensity: (N,) float64, the sensor's reflectance units (zeros when the file has none), or None
+        when a caller gives none (the LiDAR stage then reads zeros and judges it unusable, as
+        ``has_intensity`` False).
     ring: (N,) int32 ring value as the file gives it (the file's numbering: Ouster's ring 0 is the
         top beam, Velodyne CSVs carry the hardware laser id; an organised cloud's row), or None when
         the file has none. The LiDAR stage maps it onto its beam table (0 = lowest elevation) with
@@ -126,7 +128,7 @@ class Scan:
     """
 
     points: np.ndarray
-    intensity: np.ndarray
+    intensity: np.ndarray | None
     ring: np.ndarray | None = None
     source: str = ""
     columns: int | None = None

@@ -53,10 +53,9 @@ def check_intensity(scan: Scan) -> float:
     """Whether the scan's intensity can show a print: 0.0 when it may, else the key of the reason in
     ``INTENSITY_UNUSABLE`` (absent, no finite value, constant, the ring number or the elevation).
     InputError when it does not match the points (wrong length): a file that is wrong."""
-    given: object = scan.intensity  # a caller's Scan may carry None for "no intensity"
-    if given is None or not scan.has_intensity:
+    if scan.intensity is None or not scan.has_intensity:  # a caller's Scan may carry None
         return 1.0
-    inten = np.asarray(given)
+    inten = np.asarray(scan.intensity)
     if inten.shape != (len(scan),):
         raise InputError(
             f"{scan.source or 'scan'}: intensity has shape {inten.shape}, expected ({len(scan)},)"
@@ -143,8 +142,8 @@ def estimate_board(
     pts = np.asarray(scan.points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"{scan.source or 'scan'}: points must be (N, 3), got {pts.shape}")
-    given: object = scan.intensity  # None from a caller: no intensity (zeros)
-    inten = np.zeros(len(pts)) if given is None else np.asarray(given, np.float64)
+    # None from a caller: no intensity (zeros)
+    inten = np.zeros(len(pts)) if scan.intensity is None else np.asarray(scan.intensity, np.float64)
     valid = np.isfinite(pts).all(axis=1) & (pts != 0).any(axis=1)  # (0, 0, 0): an organised "no return"
     if not valid.all():
         ring_v = None if scan.ring is None else np.asarray(scan.ring)[valid]

@@ -231,10 +231,10 @@ def _range_and_edges(
     uv: np.ndarray,
     order: np.ndarray,
     rng_lidar: np.ndarray,
-    intensity: np.ndarray,
+    intensity: np.ndarray | None,
 ) -> None:
     """The visible points (pixels ``uv`` of the points ``order``, far first) on the board's wide crop,
-    coloured by range, and on the crop's edges, coloured by intensity."""
+    coloured by range, and on the crop's edges, coloured by intensity (none without an intensity)."""
     uvc = crop.to_crop(uv)
     h, w = crop.image.shape[:2]
     inside = (uvc[:, 0] >= -0.5) & (uvc[:, 0] < w - 0.5) & (uvc[:, 1] >= -0.5) & (uvc[:, 1] < h - 0.5)
@@ -249,6 +249,8 @@ def _range_and_edges(
         with_colour_bar(dots, lo, hi, "turbo", "range (m)"),
         "Visible LiDAR points on the image, coloured by range (scale below the picture).",
     )
+    if intensity is None:
+        return
     lo, hi = colour_range(intensity[sel])
     dots = draw_points(edge_image(crop.image), uvc, colour_map(intensity[sel], lo, hi, "jet"), radius=r)
     out.put(
