@@ -133,6 +133,30 @@ def test_second_pass_finds_a_missed_board_where_the_image_puts_it(observed) -> N
     assert np.linalg.norm(d[:3, 3]) < 0.01  # the same board pose as the first search found
 
 
+def test_frames_without_their_source_are_not_read_again(observed) -> None:
+    """An observation without its source (``Observation(None, ...)``, as ``pipeline.solve_observed``
+    makes): it solves as it is; the second look, the boards on corrected ranges and the set-up
+    mistakes' checks, which read a pair's frames again, leave it be (``Observation.pair_source``)."""
+    import dataclasses
+
+    from ilcc_graph.run.range_refit import refit_pass
+    from ilcc_graph.run.second_look import second_pass
+    from ilcc_graph.run.setup_mistakes import diagnose_failure, diagnose_result
+
+    lost = observed.frames[2]
+    missed = dataclasses.replace(lost, board=None, used=False, reason="LiDAR: no segment passed the tests")
+    frames = [missed if f.name == lost.name else f for f in observed.frames]
+    obs = dataclasses.replace(observed, source=None, frames=frames)
+    assert obs.pair_source is None and obs.rig_source is None and obs.location == ""
+    res = solve_observations([obs])  # named session1: no source, no label
+    assert res.sessions[0].name == "session1"
+    assert not next(f for f in res.calibration.frames if f.name == lost.name).used
+    stages = RunOptions().stages
+    assert second_pass(obs, res.calibration, stages) is None
+    assert refit_pass(obs, res.calibration, stages) is None
+    assert diagnose_failure([obs], stages) == [] and diagnose_result(obs, res.calibration) == []
+
+
 def test_a_new_strategy_is_one_registration(observed, tmp_path, monkeypatch) -> None:
     """A strategy registered under a new mode runs through solve_observations and the one writer:
     its further poses and documents (plain data) are written, the mode is recorded, and the paper's

@@ -13,10 +13,10 @@ import yaml
 
 from ilcc_graph.app.write import write_run
 from ilcc_graph.datasets import open_source
-from ilcc_graph.io.rig_results import read_rig_calibration
+from ilcc_graph.io.rig_results import read_rig_calibration, write_rig_calibration
 from ilcc_graph.run.pipeline import run
 from ilcc_graph.run.result import RunOptions
-from ilcc_graph.run.rig_calibrate import calibrate_rig
+from ilcc_graph.run.rig_calibrate import calibrate_rig, to_calibration
 from ilcc_graph.run.stages import StageOptions
 from ilcc_graph.run.strategies import modes, strategy
 from ilcc_graph.simulate import simulate_dataset, standard_spec
@@ -55,12 +55,29 @@ def test_the_rig_through_the_run_is_calibrate_rig(backpack: Path, tmp_path: Path
     assert [f.name for f in cal.frames] == [m.name for m in direct.observation.moments]  # type: ignore[union-attr]
     assert sum(f.used for f in cal.frames) == len(set(direct.used(cam)) & set(direct.used(lidar)))
     # the one writer writes the rig's calibration.yaml (read back as the rig's) and its config
+    assert result.rig is not None and result.rig.sensors == direct.sensors  # typed, not a document
+    assert not result.documents
     out = write_run(tmp_path / "out", result, report=False)
+    write_rig_calibration(tmp_path / "direct.yaml", to_calibration(direct))
+    assert (out / "calibration.yaml").read_bytes() == (tmp_path / "direct.yaml").read_bytes()
     back = read_rig_calibration(out / "calibration.yaml")
     assert back.sensors == direct.sensors and back.reference == direct.reference
     np.testing.assert_array_equal(back.covariance, direct.covariance)
     resolved = yaml.safe_load((out / "config.resolved.yaml").read_text())
     assert set(resolved["sensors"]) == set(direct.rig.names) and resolved["options"]["mode"] == "rig"
+
+
+def test_a_rigs_observation_is_not_read_as_a_pairs(backpack: Path) -> None:
+    """A rig's observation holds its ``RigSource``, which no check that reads a pair's frames again
+    is handed (``Observation.pair_source``): the set-up mistakes' checks judge it on its frames'
+    reasons alone."""
+    from ilcc_graph.run.setup_mistakes import diagnose_failure
+
+    rig_pass = strategy("rig").observe
+    assert rig_pass is not None
+    obs = rig_pass(open_source(backpack, rig=True), ONE, None)
+    assert obs.pair_source is None and obs.rig_source is obs.source and obs.location == str(backpack)
+    assert diagnose_failure([obs], ONE) == []
 
 
 def test_a_pair_as_a_rig_through_the_run_is_todays_result(tmp_path: Path) -> None:
@@ -75,7 +92,8 @@ def test_a_pair_as_a_rig_through_the_run_is_todays_result(tmp_path: Path) -> Non
     ]
     np.testing.assert_allclose(rig.calibration.T_cam_lidar, base.calibration.T_cam_lidar, atol=1e-9)
     np.testing.assert_allclose(rig.calibration.covariance, base.calibration.covariance, rtol=1e-6, atol=1e-14)
-    chosen = rig.documents["calibration.yaml"]["sensor_model"]
+    assert rig.rig is not None and not rig.documents  # the rig's calibration typed, no document
+    chosen = rig.rig.extra["sensor_model"]
     assert chosen["chosen"] == base.calibration.sensors["model"]["chosen"] and not chosen["forced"]
 
 

@@ -149,10 +149,11 @@ def _rig_summary(result: Result, out: Path, args: argparse.Namespace) -> int:
 
     from ilcc_graph.app.rig_view import rig_lines
     from ilcc_graph.app.write import write_run
-    from ilcc_graph.io.rig_results import rig_calibration_from_doc
     from ilcc_graph.report.rig_verdict import rig_verdict, rig_verdict_lines
 
-    cal = rig_calibration_from_doc(result.documents["calibration.yaml"])
+    cal = result.rig
+    if cal is None:
+        raise ValueError("a rig's run gave no rig calibration (Result.rig)")
     write_run(out, result, report=args.report, command=args.command_line, progress=Progress)
     written(args, out)
     print("\n".join(rig_lines(cal)))

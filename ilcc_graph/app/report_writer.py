@@ -123,6 +123,8 @@ def write_report(
     progress: Callable[[int, int], None] | None = None,
 ) -> tuple[Proposal | None, bytes | None]:
     """``out/index.html`` with its figures for one session; with ``clouds`` ``coloured_dir/<frame>.ply``.
+    The frames' pictures need the pair's source (``Observation.pair_source``): without one the page
+    has none.
     ``studies``: the run's refit studies of this session (``run.refit_studies``) or None.
     ``meanwhile()`` runs here while the pictures are drawn on other processes and gives the next board
     pose (``next_pose.Proposal`` or None; else ``next_pose`` is it), drawn in the report. Returns
@@ -132,12 +134,11 @@ def write_report(
     from ilcc_graph.report.next_pose_picture import next_pose_png
 
     obs, cal = session.observation, session.calibration
-    config, source = obs.config, obs.source
+    config, source = obs.config, obs.pair_source
     curve, cv = studies if studies is not None else (None, None)
     damaged = {f.name for f in cal.frames if f.damaged}  # their files cannot be read
-    refs = [
-        r for r in source.frames() if r.scan is not None and r.image is not None and r.name not in damaged
-    ]
+    frames = source.frames() if source is not None else []  # no pair's source: no frame's pictures
+    refs = [r for r in frames if r.scan is not None and r.image is not None and r.name not in damaged]
     results = {f.name: f for f in cal.frames}
     fig_opts = FigureOptions(colours=clouds, full_views=full_views)
     if clouds:

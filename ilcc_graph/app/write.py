@@ -4,7 +4,8 @@
 everything is written (so ``out`` is either the complete result or untouched):
 
 - ``calibration.yaml``: the extrinsic, its covariance, every frame's fate and the camera model
-  (interface.md; everything ``export`` needs);
+  (interface.md; everything ``export`` needs); a rig's: every sensor's pose and their joint
+  covariance (``Result.rig`` serialised by ``io.rig_results``; docs/rig.md);
 - ``config.resolved.yaml``: the configuration used (print colour as checked, LiDAR model as
   resolved) in our schema, plus ``options``: every stage and solver option of the run;
 - a strategy's further documents (``Result.documents``: sessions' ``joint.yaml`` with the tests
@@ -29,7 +30,7 @@ import os
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,14 +39,14 @@ from ilcc_graph.config import Config, RigConfig, config_to_dict, rig_config_to_d
 from ilcc_graph.errors import OutputError
 from ilcc_graph.io import atomic_write, write_calibration, write_yaml
 from ilcc_graph.io.output_folders import OURS, add_file, staged, write_beside
-from ilcc_graph.io.rig_results import rig_calibration_from_doc
+from ilcc_graph.io.rig_results import write_rig_calibration
 from ilcc_graph.report.next_pose_picture import next_pose_png
 from ilcc_graph.run.refit_studies import refit_studies
 from ilcc_graph.run.result import Result, RunOptions
 from ilcc_graph.types import sigma_dict, to_plain
 
 if TYPE_CHECKING:
-    from ilcc_graph.datasets import FrameRef, FrameSource, RigSource
+    from ilcc_graph.datasets import FrameRef, FrameSource
     from ilcc_graph.next_pose import Proposal
     from ilcc_graph.run.live import CheckResult
 
@@ -107,8 +108,10 @@ def write_run(
     proposal: Proposal | None = None if callable(next_pose) else next_pose
     png: bytes | None = None
     with staged(out, command=command) as d:
-        if "calibration.yaml" not in result.documents:  # a rig's is the strategy's own document
+        if result.rig is None:
             write_calibration(d / "calibration.yaml", result.calibration)
+        else:  # a rig's: every sensor's pose (docs/rig.md), serialised here and only here
+            write_rig_calibration(d / "calibration.yaml", result.rig)
         first = result.sessions[0].observation.config
         write_yaml(d / "config.resolved.yaml", resolved_config(first, result.options))
         for name, doc in result.documents.items():  # a strategy's further results (joint.yaml, ...)
@@ -123,16 +126,10 @@ def write_run(
         if report:
             several = len(result.sessions) > 1
             for s in result.sessions:
-                info = {
-                    "data": s.observation.source.location,
-                    "command": command or "ilcc-graph",
-                    "mode": result.mode,
-                }
-                if isinstance(s.observation.config, RigConfig):  # a rig: its own page (docs/rig.md)
-                    cal = rig_calibration_from_doc(result.documents["calibration.yaml"])
-                    # a rig's observation holds its RigSource (Observation.source's type says FrameSource)
-                    rig_source = cast("RigSource", s.observation.source)
-                    write_rig_report(d / "report", cal, s.observation.data, rig_source, info)
+                obs = s.observation
+                info = {"data": obs.location, "command": command or "ilcc-graph", "mode": result.mode}
+                if result.rig is not None:  # a rig: its own page (docs/rig.md)
+                    write_rig_report(d / "report", result.rig, obs.data, obs.rig_source, info)
                     continue
                 sub = (s.name,) if several else ()
                 bar = progress and progress(f"report {s.name}" if several else "report")

@@ -275,7 +275,7 @@ class LiveCheck:
         options = self.options
         if not again:
             options = dataclasses.replace(options, second_pass=False, range_refit=False)
-        obs = Observation(self._source, self.config, list(frames), "check")  # type: ignore[arg-type]
+        obs = Observation(self._source, self.config, list(frames), "check")
         try:
             result = solve_observations([obs], dataclasses.replace(options, mode="graph"))
         except CalibrationError as err:

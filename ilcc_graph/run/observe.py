@@ -17,7 +17,7 @@ from typing import Any
 
 from ilcc_graph import signals, workers
 from ilcc_graph.config import Config
-from ilcc_graph.datasets import FrameRef, FrameSource
+from ilcc_graph.datasets import FrameRef, FrameSource, RigSource
 from ilcc_graph.errors import FrameError, InputError
 from ilcc_graph.lidar import INTENSITY_UNUSABLE
 from ilcc_graph.run.colour import colour_votes, colour_warning
@@ -47,14 +47,34 @@ class Observation:
     a run (the source's label made unique); ``stream``: for a strategy that reads the frames as it
     solves, the frames still to observe (``frames`` then empty); ``data``: what a strategy's own
     observation pass gives besides (``Strategy.observe``; a rig: each moment's results per sensor).
-    Plain data a strategy interprets."""
+    Plain data a strategy interprets.
 
-    source: FrameSource
+    source: a pair's ``FrameSource``, a rig's ``RigSource`` (the rig strategy's pass; ``config``
+    then holds its ``RigConfig``), or None for frames observed elsewhere (``pipeline.solve_observed``).
+    What reads a pair's frames again takes ``pair_source`` (None for the other two) and skips
+    without it."""
+
+    source: FrameSource | RigSource | None
     config: Config
     frames: list[FrameResult]
     name: str = ""
     stream: FrameStream | None = None
     data: Any = None
+
+    @property
+    def pair_source(self) -> FrameSource | None:
+        """The source when it is a pair's, whose frames can be read again; else None."""
+        return self.source if isinstance(self.source, FrameSource) else None
+
+    @property
+    def rig_source(self) -> RigSource | None:
+        """The source when it is a rig's; else None."""
+        return self.source if isinstance(self.source, RigSource) else None
+
+    @property
+    def location(self) -> str:
+        """Where the data is, for messages and reports ("" without a source)."""
+        return "" if self.source is None else self.source.location
 
 
 def _observe_frame_errors(source: FrameSource, ref: FrameRef, config: Config, options: StageOptions,

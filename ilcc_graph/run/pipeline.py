@@ -40,9 +40,10 @@ log = logging.getLogger(__name__)
 __all__ = ["calibrate", "run", "session_names", "solve_observations", "solve_observed"]
 
 
-def session_names(sources: Sequence[FrameSource | RigSource]) -> list[str]:
-    """Source labels made unique (with an index where two share one)."""
-    labels = [s.label or f"session{i + 1}" for i, s in enumerate(sources)]
+def session_names(sources: Sequence[FrameSource | RigSource | None]) -> list[str]:
+    """Source labels made unique (with an index where two share one); ``session<k>`` for a source
+    without a label, or none (frames observed without their source)."""
+    labels = [(s.label if s is not None else "") or f"session{i + 1}" for i, s in enumerate(sources)]
     return [f"{n}#{i + 1}" if labels.count(n) > 1 else n for i, n in enumerate(labels)]
 
 
@@ -162,7 +163,7 @@ def solve_observed(
 ) -> Calibration:
     """The calibration of one source's observed frames by the strategy of ``options.mode`` (no
     second look): the report's studies and the benchmarks refit subsets with it."""
-    obs = Observation(None, config, list(observed), "frames")  # type: ignore[arg-type]
+    obs = Observation(None, config, list(observed), "frames")
     return strategy(options.mode).solve([obs], options, None).calibration
 
 

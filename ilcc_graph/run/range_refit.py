@@ -132,8 +132,7 @@ def refit_pass(obs: Observation, cal: Calibration, stages: StageOptions) -> Obse
     correction = correction_of(cal.sensors)
     ratio = largest_stretch(obs.frames, correction, obs.config.board)
     log.debug("the LiDAR's estimated range errors stretch a board by %.2f of its in-plane sigma", ratio)
-    # run.pipeline observes frames given without their source (None), which the field's type hides
-    source: FrameSource | None = obs.source
+    source = obs.pair_source  # None: frames observed without their source (pipeline.solve_observed)
     if correction is None or source is None or ratio <= REFIT_RATIO:
         return None
     refs = {r.name: r for r in source.frames()}

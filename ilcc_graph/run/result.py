@@ -3,8 +3,9 @@
 Every strategy (``run.strategies``) returns a ``Result``; the one writer (``app.write.write_run``)
 and the report read only it: the headline ``Calibration``, each source's part (``SessionResult``),
 a strategy's extra content as named YAML documents (``documents``: ``joint.yaml`` of joint
-sessions, ``incremental.yaml`` of iSAM2's states) and further named poses (``poses``: each session's
-extrinsic; a rig: each sensor's).
+sessions, ``incremental.yaml`` of iSAM2's states), further named poses (``poses``: each session's
+extrinsic; a rig: each sensor's) and a rig's whole calibration (``rig``, typed; serialised only
+when written).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.next_board import SolvedGlobals
 from ilcc_graph.estimation.selection import AUTO, MODELS
 from ilcc_graph.estimation.sessions import JointOptions
+from ilcc_graph.io.rig_results import RigCalibration
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.stages import StageOptions
 from ilcc_graph.types import Calibration, Estimate, GraphFrame
@@ -132,6 +134,9 @@ class Result:
     pose's promise), None where the strategy gives none. batch: the batch strategy's solution (its
     model choice, noise levels, per-frame answers; None for other strategies); used_frames: the
     frames that solve used, in the corner order it chose (the next pose's boards so far).
+    rig: a rig's calibration (every sensor's pose, the joint covariance, every pair; the rig
+    strategy's), which ``app.write`` writes as the rig's calibration.yaml (``io.rig_results``) in
+    place of ``calibration``'s; None for a single pair or sessions.
     """
 
     mode: str
@@ -146,3 +151,4 @@ class Result:
     solved: SolvedGlobals | None = None
     batch: BatchSolution | None = None
     used_frames: tuple[GraphFrame, ...] = ()
+    rig: RigCalibration | None = None

@@ -79,8 +79,12 @@ def second_pass(
     Frames with image corners whose LiDAR board is missing, or lies more than ``far_m`` from where
     the image and ``cal``'s extrinsic put it, are searched again near that place (on the ranges
     corrected by ``cal``'s estimate of the LiDAR's errors when ``refit`` and those are
-    ``range_refit.significant``).
+    ``range_refit.significant``). None too without a pair's source to read the scans from
+    (``Observation.pair_source``).
     """
+    source = obs.pair_source
+    if source is None:
+        return None
     expected: dict[str, ExpectedBoard] = {}
     centre = obs.config.board.corners_board().mean(axis=0)
     unused = {g.name for g in cal.frames if not g.used}
@@ -100,7 +104,7 @@ def second_pass(
     correction = correction_of(cal.sensors) if refit else None
     if not significant(obs.frames, correction, obs.config.board):
         correction = None
-    frames = look_again(obs.source, obs.config, obs.frames, expected, stages, correction)
+    frames = look_again(source, obs.config, obs.frames, expected, stages, correction)
     found = [f.name for f, g in zip(frames, obs.frames, strict=True) if f is not g]
     if not found:
         return None

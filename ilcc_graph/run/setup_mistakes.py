@@ -29,6 +29,7 @@ import numpy as np
 
 from ilcc_graph.board import Board
 from ilcc_graph.config import Config
+from ilcc_graph.datasets import FrameSource
 from ilcc_graph.errors import FrameError, InputError
 from ilcc_graph.init import upnp
 from ilcc_graph.run.observe import Observation
@@ -122,17 +123,20 @@ def diagnose_result(obs: Observation, cal: Calibration, images: int = 2) -> list
         lines.append(_square_size_line(board, 1 / k, ev))
     extra = []
     refs: dict | None = None
+    source = obs.pair_source  # a rig's, or frames without their source: no image to read again
     for f in frames[:images]:
         if f.corners is None:
             continue
         if (kept := extra_squares(f.corners)) is not None:  # the image stage looked already
             extra.append(kept)
             continue
-        refs = {r.name: r for r in obs.source.frames()} if refs is None else refs
+        if source is None:
+            continue
+        refs = {r.name: r for r in source.frames()} if refs is None else refs
         if f.name not in refs:
             continue
         try:
-            image = obs.source.read_image(refs[f.name])
+            image = source.read_image(refs[f.name])
         except InputError:
             continue
         extra.append(pattern_continues(image, obs.config, f.corners))
@@ -163,8 +167,11 @@ def _scaled(config: Config, k: float) -> Config:
     )
 
 
-def _square_size_search(obs: Observation, stages: StageOptions, refs: dict) -> str | None:
-    """When the scans show no board: the LiDAR stage with scaled square sizes, checked by the images.
+def _square_size_search(
+    obs: Observation, source: FrameSource, stages: StageOptions, refs: dict
+) -> str | None:
+    """When the scans show no board: the LiDAR stage with scaled square sizes, checked by the images
+    (the frames read again from ``source``, the pair's, by ``refs``: {name: FrameRef}).
 
     A scale at which the scans show the board gives its distances; the images' distances with the
     configured board against them say the square size the print has (k_img); the scans must show
@@ -181,9 +188,7 @@ def _square_size_search(obs: Observation, stages: StageOptions, refs: dict) -> s
         return None
 
     def lidar(k: float) -> list:
-        return [
-            attempt(observe_lidar, obs.source, refs[f.name], _scaled(cfg, k), stages.lidar) for f in frames
-        ]
+        return [attempt(observe_lidar, source, refs[f.name], _scaled(cfg, k), stages.lidar) for f in frames]
 
     found = next(
         ((k, fits) for k in sorted(SCALES, key=lambda x: abs(x - 1)) if _found(fits := lidar(k)) >= need),
@@ -210,8 +215,9 @@ def _square_size_search(obs: Observation, stages: StageOptions, refs: dict) -> s
     return _square_size_line(board, k_img, ev)
 
 
-def _board_dims_search(obs: Observation, stages: StageOptions, refs: dict) -> str | None:
-    """Other board dimensions (a square more or fewer on both sides) that both sensors prefer.
+def _board_dims_search(obs: Observation, source: FrameSource, stages: StageOptions, refs: dict) -> str | None:
+    """Other board dimensions (a square more or fewer on both sides) that both sensors prefer (the
+    frames read again from ``source``, the pair's, by ``refs``: {name: FrameRef}).
 
     Image evidence: the image stage finds the other board where the configured one is not found,
     or the checker pattern continues beyond the corners found (``pattern_continues``). LiDAR
@@ -227,7 +233,7 @@ def _board_dims_search(obs: Observation, stages: StageOptions, refs: dict) -> st
             continues.append(kept != (0, 0))
             continue
         try:
-            image = obs.source.read_image(refs[f.name])
+            image = source.read_image(refs[f.name])
         except InputError:
             continue
         continues.append(pattern_continues(image, cfg, f.corners) != (0, 0))  # type: ignore[arg-type]
@@ -235,7 +241,7 @@ def _board_dims_search(obs: Observation, stages: StageOptions, refs: dict) -> st
         if rows < 3:
             continue
         alt = _with_board(cfg, dataclasses.replace(board, rows=rows, cols=cols))
-        img = _found([attempt(observe_image, obs.source, refs[f.name], alt, stages.image) for f in without])
+        img = _found([attempt(observe_image, source, refs[f.name], alt, stages.image) for f in without])
         tried = len(without)
         if rows > board.rows:
             img, tried = img + sum(continues), tried + len(continues)
@@ -243,7 +249,7 @@ def _board_dims_search(obs: Observation, stages: StageOptions, refs: dict) -> st
             continue
         frames = (without + with_corners)[:LOOK]
         given = sum(f.board is not None for f in frames)
-        lid = _found([attempt(observe_lidar, obs.source, refs[f.name], alt, stages.lidar) for f in frames])
+        lid = _found([attempt(observe_lidar, source, refs[f.name], alt, stages.lidar) for f in frames])
         if lid <= given:
             continue
         ev = (
@@ -256,22 +262,23 @@ def _board_dims_search(obs: Observation, stages: StageOptions, refs: dict) -> st
 
 def diagnose_failure(observations: Sequence[Observation], stages: StageOptions = StageOptions()) -> list[str]:
     """Set-up mistakes that explain a calibration the data cannot give; one line each (runs the
-    stages again on a few frames with other board settings: seconds)."""
+    stages again on a few frames with other board settings: seconds). The board's settings are
+    searched on a pair's frames only (``Observation.pair_source``): a rig's observation, or one
+    without its source, is judged on its frames' reasons alone."""
     lines: list[str] = []
     for obs in observations:
-        refs = {r.name: r for r in obs.source.frames()}
-        for check in (_board_dims_search, _square_size_search):
-            line = check(obs, stages, refs)
-            if line:
+        if (source := obs.pair_source) is not None:
+            refs = {r.name: r for r in source.frames()}
+            found = (check(obs, source, stages, refs) for check in (_board_dims_search, _square_size_search))
+            if line := next((x for x in found if x), None):
                 lines.append(line)
-                break
-        else:
-            images = [f for f in obs.frames if f.reason and not f.damaged]
-            bad_fit = [f for f in images if "seen by a pinhole" in (f.reason or "")]
-            if len(bad_fit) >= max(2, len(images) // 2):
-                lines.append(
-                    f"the camera's intrinsics look wrong: in {len(bad_fit)} of {len(images)} images the "
-                    "corners do not fit a flat board seen through them (check camera.K, camera.dist, the "
-                    "model and the image size)"
-                )
+                continue
+        images = [f for f in obs.frames if f.reason and not f.damaged]
+        bad_fit = [f for f in images if "seen by a pinhole" in (f.reason or "")]
+        if len(bad_fit) >= max(2, len(images) // 2):
+            lines.append(
+                f"the camera's intrinsics look wrong: in {len(bad_fit)} of {len(images)} images the "
+                "corners do not fit a flat board seen through them (check camera.K, camera.dist, the "
+                "model and the image size)"
+            )
     return lines

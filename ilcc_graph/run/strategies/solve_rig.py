@@ -3,7 +3,8 @@
 Its own observation pass (``observe``: the stages on every sensor's data at every moment,
 ``rig_observe.observe_rig``, kept as ``Observation.data``) and its solve (``rig_calibrate.solve_observed``:
 the start, the joint graph). The ``Result`` holds every sensor's pose in the reference frame
-(``Result.poses``), the rig's ``calibration.yaml`` as a document (``io.rig_results``), and as its
+(``Result.poses``), the rig's calibration typed (``Result.rig``: ``io.rig_results.RigCalibration``,
+which the writer serialises as its ``calibration.yaml``), and as its
 headline ``Calibration`` the pair of the rig's first camera and first LiDAR (``T_cam_lidar`` with
 its covariance from the joint one; its frames are the moments), so that a rig of one camera and one
 LiDAR reads like a single pair's run.
@@ -16,7 +17,6 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ilcc_graph.datasets.rig_source import RigSource
-from ilcc_graph.io.rig_results import rig_calibration_doc
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
 from ilcc_graph.run.rig_calibrate import RigResult, RigRunOptions, solve_observed, to_calibration
@@ -36,6 +36,7 @@ def observe(
     """Every moment of a rig source through the stages (``Observation.data``: the ``RigObservation``;
     ``config``: the rig's ``RigConfig``; no single-pair frames)."""
     seen = observe_rig(source, options, progress)
+    # the source's type admits a rig's; ``config``'s says a pair's Config (its readers are the pairs')
     return Observation(source, seen.rig, [], data=seen)  # type: ignore[arg-type]
 
 
@@ -80,8 +81,8 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     res = solve_observed(obs.data, RigRunOptions(stages=options.stages))
     cal = headline(res)
     poses = {s: res.pose(s) for s in res.sensors}
-    docs = {"calibration.yaml": rig_calibration_doc(to_calibration(res))}
-    return Result("rig", cal, (SessionResult(obs.name, obs, cal),), options, cal.covariance, docs, poses)
+    session = SessionResult(obs.name, obs, cal)
+    return Result("rig", cal, (session,), options, cal.covariance, poses=poses, rig=to_calibration(res))
 
 
 register(Strategy("rig", solve, second_pass=False, sensor_errors=False, observe=observe))
