@@ -75,7 +75,9 @@ def intensity_ring(scan: Scan) -> np.ndarray | None:
     returns lie within a quarter of the spacing between neighbouring values' elevations (median
     absolute deviation over the median spacing). A reflectivity in whole numbers fails the order.
     """
-    if scan.ring is not None or scan.columns or not scan.has_intensity or len(scan) < 50:
+    if scan.ring is not None or scan.columns or scan.intensity is None or not scan.has_intensity:
+        return None
+    if len(scan) < 50:
         return None
     v = np.asarray(scan.intensity, dtype=np.float64)
     if not np.all(np.isfinite(v)) or np.any(v != np.round(v)) or v.min() < 0 or v.max() > 1023:
