@@ -111,8 +111,8 @@ def test_verify_the_recorded_set_split_in_two(acfr_data: Path, tmp_path: Path) -
     )
     if stored.with_terms is not None and new.with_terms is not None:  # the mount net of the terms
         net = net_of_terms(stored.with_terms.inverse(), new.with_terms.inverse(), 0.05)
-        if net is not None:
-            d, C, _ = net
+        if net is not None and net[0] is not None and net[1] is not None:
+            d, C = net[0], net[1]
     code, doc = _verify(cal / "calibration.yaml", rest, tmp_path / "v-same")
     cam = doc["sensors"]["camera"]
     assert "unchecked" not in cam["reason"] and cam["boards"] == sum(f.used for f in new.frames) >= 5, cam

@@ -80,12 +80,12 @@ def test_unchanged_rigs_give_chi_square_6_and_a_moved_mount_is_found_unbiased() 
 
 
 def test_terms_that_changed_are_not_taken_as_shared() -> None:
-    """An offset 60 mm apart (8 mm sigmas): the terms changed, the mount is tested on the poses
-    alone and the note says why."""
+    """An offset 60 mm apart (8 mm sigmas): the terms changed, the poses are compared alone and the
+    note says why."""
     C = _joint(0.9)
     d, Cn, note = net_of_terms(_terms(T0, [0.0, 0.0], C), _terms(T0, [0.06, 0.0], C), alpha=0.05)  # type: ignore[misc]
-    assert np.allclose(Cn, 2.0 * C[:6, :6]) and np.allclose(d, 0.0)
-    assert "terms changed" in note and "tested without them" in note
+    assert d is None and Cn is None  # the caller compares the poses alone
+    assert "terms changed" in note and "tested without them" in note and "offset +60.0" in note
     other = PoseTerms(T0, ("scale",), ("1",), np.zeros(1), np.eye(7) * 1e-6)
     assert net_of_terms(_terms(T0, [0.0, 0.0], C), other, alpha=0.05) is None  # nothing in common
 
