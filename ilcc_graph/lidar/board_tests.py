@@ -96,17 +96,18 @@ def _count_breach(ratio: float, lo: float, hi: float) -> str:
     """The count test's figures: below ``count_ratio``'s low end or above its widened high end."""
     if ratio < lo:
         return breach("count_ratio", ratio, "<", lo)
-    return breach("count_ratio, widened by a ring and a column", ratio, ">", hi)
+    return breach("count_ratio, widened by a ring, a column and margin_tolerance_m", ratio, ">", hi)
 
 
 def _size_breaches(
-    ext: np.ndarray, sides: tuple[float, float], ratio: tuple[float, float], slack: float
+    ext: np.ndarray, sides: tuple[float, float], ratio: tuple[float, float], slack: float, grow: float = 0.0
 ) -> list[str]:
     """The size test's figures: each extent (long, short) below ``size_ratio``'s low end (less a ring
-    spacing ``slack``) or above its high end, times the board's side."""
+    spacing ``slack``) or above its high end, times the board's side (grown by ``grow``: a margin
+    wider than configured)."""
     out = []
     for e, name, side in zip(ext, ("long side", "short side"), sides, strict=True):
-        lo, hi = ratio[0] * side - slack, ratio[1] * side
+        lo, hi = ratio[0] * side - slack, ratio[1] * (side + grow)
         if e < lo or e > hi:
             out.append(breach(f"size_ratio, {name}", e, "<" if e < lo else ">", lo if e < lo else hi, "m"))
     return out
@@ -140,7 +141,10 @@ def board_tests(
     step_el = float(np.mean(step_el_i))
     area = long_side * short_side
     n_theory = area / (dist**2 * step_az * step_el)
-    hi = options.count_ratio[1] * (1 + dist * step_el / short_side) * (1 + dist * step_az / short_side)
+    tol = 2.0 * options.margin_tolerance_m  # the board may be larger than configured by this per side
+    grown = (long_side + tol) * (short_side + tol) / area
+    quantised = (1 + dist * step_el / short_side) * (1 + dist * step_az / short_side)
+    hi = options.count_ratio[1] * grown * quantised
     ratio = m / n_theory
     if not (options.count_ratio[0] <= ratio <= hi):
         rule = _count_breach(ratio, options.count_ratio[0], hi)
@@ -172,7 +176,7 @@ def board_tests(
     lo, hi_ = np.quantile(uv, 0.01, axis=0), np.quantile(uv, 0.99, axis=0)
     ext = (hi_ - lo) * m / max(m - 1, 1)
     # (less a ring spacing: the scan can miss a corner's tip between two rings)
-    if bad := _size_breaches(ext, (long_side, short_side), options.size_ratio, dist * step_el):
+    if bad := _size_breaches(ext, (long_side, short_side), options.size_ratio, dist * step_el, tol):
         sizes = f"{ext[0]:.2f} x {ext[1]:.2f} m at {dist:.2f} m, board {long_side:.2f} x {short_side:.2f} m"
         return False, 0.0, "size", f"{sizes} {' '.join(bad)}"
     mid = 0.5 * (lo + hi_)

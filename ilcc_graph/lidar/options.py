@@ -32,11 +32,17 @@ class LidarOptions:
     Board tests (paper, Section 4.1)
     --------------------------------
     count_ratio: accepted (lo, hi) of points / theoretical count of a frontal board at that range;
-        hi is widened by one ring and one column of quantisation (see docs).
+        hi is widened by one ring and one column of quantisation (see docs) and by the margin
+        tolerance.
+    margin_tolerance_m: how much wider than configured the board's margin may be on each side (m):
+        the high ends of the count and size tests allow a board that much larger (a print taped to a
+        larger panel; users seldom know their margin to the centimetre; issue 38). 0.12 m: a
+        configured margin 100 mm narrower than the board's lost 109 of 135 simulated frames without
+        it, none with it.
     planarity_ratio: smallest PCA variance over the total must be below this, after removing the
         range noise's own contribution (``(noise_sigmas/2 * sigma)^2``).
     size_ratio: (lo, hi) of the segment's extent along its PCA axes over the board's sides
-        (margin included).
+        (margin included; hi over the sides grown by twice ``margin_tolerance_m``).
     uniformity_min: ``1 - (n_max - n_min) / n_all`` over the four quadrants must reach this.
     contrast_min: the board's intensities must split in two levels at least this many pooled
         sigmas apart (our addition: a plain board-sized surface is not the chessboard); None: no
@@ -106,6 +112,7 @@ class LidarOptions:
     noise_sigmas: float = 4.0
     min_links: int = 2
     count_ratio: tuple[float, float] = (0.5, 1.0)
+    margin_tolerance_m: float = 0.12
     planarity_ratio: float = 0.01
     size_ratio: tuple[float, float] = (0.8, 1.6)
     uniformity_min: float = 0.85
