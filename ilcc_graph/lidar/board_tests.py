@@ -99,6 +99,26 @@ def _count_breach(ratio: float, lo: float, hi: float) -> str:
     return breach("count_ratio, widened by a ring, a column and margin_tolerance_m", ratio, ">", hi)
 
 
+def _count_test(
+    m: int, sides: tuple[float, float], dist: float, steps: tuple[float, float], grow: float,
+    options: LidarOptions,
+) -> str | None:  # fmt: skip
+    """Why ``m`` returns at ``dist`` (m) fail the count test for a board of ``sides`` (m, margin
+    included; grown by ``grow`` for the high end) under the beams' ``steps`` (azimuth, elevation,
+    rad), or None when they pass."""
+    (long_side, short_side), (step_az, step_el) = sides, steps
+    area = long_side * short_side
+    n_theory = area / (dist**2 * step_az * step_el)
+    grown = (long_side + grow) * (short_side + grow) / area
+    quantised = (1 + dist * step_el / short_side) * (1 + dist * step_az / short_side)
+    hi = options.count_ratio[1] * grown * quantised
+    ratio = m / n_theory
+    if options.count_ratio[0] <= ratio <= hi:
+        return None
+    rule = _count_breach(ratio, options.count_ratio[0], hi)
+    return f"{m} points, {ratio:.2f} x the {n_theory:.0f} expected at {dist:.2f} m {rule}"
+
+
 def _size_breaches(
     ext: np.ndarray, sides: tuple[float, float], ratio: tuple[float, float], slack: float, grow: float = 0.0
 ) -> list[str]:
@@ -139,21 +159,9 @@ def board_tests(
     el_i = np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1]))
     step_el_i = local_elevation_step(model, el_i)
     step_el = float(np.mean(step_el_i))
-    area = long_side * short_side
-    n_theory = area / (dist**2 * step_az * step_el)
     tol = 2.0 * options.margin_tolerance_m  # the board may be larger than configured by this per side
-    grown = (long_side + tol) * (short_side + tol) / area
-    quantised = (1 + dist * step_el / short_side) * (1 + dist * step_az / short_side)
-    hi = options.count_ratio[1] * grown * quantised
-    ratio = m / n_theory
-    if not (options.count_ratio[0] <= ratio <= hi):
-        rule = _count_breach(ratio, options.count_ratio[0], hi)
-        return (
-            False,
-            0.0,
-            "count",
-            f"{m} points, {ratio:.2f} x the {n_theory:.0f} expected at {dist:.2f} m {rule}",
-        )
+    if (why := _count_test(m, (long_side, short_side), dist, (step_az, step_el), tol, options)) is not None:
+        return False, 0.0, "count", why
     # every return stands for the board area r^2 d_az d_el / cos(incidence); weighing by it makes
     # the PCA and the quadrant counts follow the board, not where the beams are dense (a board
     # tilted at close range, a table denser near the horizon)
