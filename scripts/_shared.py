@@ -1,15 +1,30 @@
 """What several benchmark scripts share: processes from /proc (the package's), a block of a doc
-between markers, and today's code extracted beside this tree."""
+between markers, today's code extracted beside this tree, and a sink of results (one JSON object a
+line, appended as each finishes, so a run can be stopped and resumed)."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import tempfile
 from pathlib import Path
 
 from ilcc_graph.workers import processes_where
 
-__all__ = ["baseline_tree", "processes_where", "write_between"]
+__all__ = ["append_sink", "baseline_tree", "load_sink", "processes_where", "write_between"]
+
+
+def load_sink(path: Path) -> list[dict]:
+    """The results in a sink (one JSON object a line); none when it does not exist."""
+    if not path.is_file():
+        return []
+    return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+
+
+def append_sink(path: Path, row: dict) -> None:
+    """Append one result to a sink."""
+    with path.open("a", encoding="utf-8") as fh:
+        fh.write(json.dumps(row) + "\n")
 
 
 def write_between(doc: Path, begin: str, end: str, text: str) -> None:

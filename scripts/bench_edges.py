@@ -26,7 +26,8 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from bench_shape import CHI2_3_95, CHI2_6_95, load, run_one, spec_for  # (scripts/ is the script's folder)
+from _shared import append_sink, load_sink
+from bench_shape import CHI2_3_95, CHI2_6_95, run_one, spec_for  # (scripts/ is the script's folder)
 
 from ilcc_graph.run.result import RunOptions
 from ilcc_graph.simulate import SimulationSpec, simulate_dataset
@@ -118,18 +119,17 @@ def main(argv: Sequence[str]) -> int:
     ap.add_argument("--write", action="store_true")
     args = ap.parse_args(argv)
     if args.from_sink is None:
-        done = {s["seed"] for s in load(args.sink)} if args.sink.is_file() else set()
+        done = {s["seed"] for s in load_sink(args.sink)}
         cache = Path(tempfile.mkdtemp(prefix="bench_edges_"))
         for seed in range(args.first, args.first + args.sets):
             if seed in done:
                 continue
             got = run_set(seed, cache, args.fields.split(","))
-            with args.sink.open("a", encoding="utf-8") as f:
-                f.write(json.dumps(got) + "\n")
+            append_sink(args.sink, got)
             print(json.dumps({k: {kk: v.get(kk) for kk in ("used", "nees", "failure")}
                               for k, v in got["runs"].items()}), flush=True)  # fmt: skip
         shutil.rmtree(cache, ignore_errors=True)
-    sets = load(args.from_sink or args.sink)
+    sets = load_sink(args.from_sink or args.sink)
     text = report(sets, argv)
     print(text)
     if args.write:

@@ -18,7 +18,6 @@ NEES per board found (6 dof and in-plane), and the reasons of frames not used.
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import sys
 import tempfile
@@ -29,7 +28,8 @@ from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 
-from bench_shape import load, run_one, spec_for, summary  # (scripts/ is the running script's folder)
+from _shared import append_sink, load_sink
+from bench_shape import run_one, spec_for, summary  # (scripts/ is the running script's folder)
 
 from ilcc_graph.run.result import RunOptions
 from ilcc_graph.simulate import SimulationSpec, simulate_dataset
@@ -110,14 +110,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     sink = Path(args.sink)
     if not args.from_sink:
-        done = {(s["seed"], s["scene"]) for s in load(sink)}
+        done = {(s["seed"], s["scene"]) for s in load_sink(sink)}
         for seed in range(args.seed0, args.seed0 + args.sets):
             if (seed, args.scene) in done:
                 continue
             t0 = time.perf_counter()
             res = run_set(seed, args.scene, Path(args.cache), args.fields.split(","))
-            with sink.open("a") as fh:
-                fh.write(json.dumps(res) + "\n")
+            append_sink(sink, res)
             brief = {
                 n: r.get("failure")
                 or f"{r['used']}/{r['n_frames']} {r['rot_deg']:.3f} deg {r['trans_mm']:.2f} mm "
@@ -125,7 +124,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 for n, r in res["runs"].items()
             }
             print(f"set {seed} ({args.scene}): {time.perf_counter() - t0:.0f} s {brief}", flush=True)
-    every = load(sink)
+    every = load_sink(sink)
     scenes = sorted({s["scene"] for s in every}) if args.write else [args.scene]
     text = "\n".join(report([s for s in every if s["scene"] == sc], argv, sc) for sc in scenes)
     print(text)

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
+from _shared import append_sink, load_sink  # (scripts/ is the script's folder)
 
 from ilcc_graph.board import Board
 from ilcc_graph.cameras.pinhole import Pinhole
@@ -114,11 +115,10 @@ def main(argv: Sequence[str]) -> int:
         a, b = (int(x) for x in args.seeds.split(":"))
         for seed in range(a, b):
             row = one(seed, args.edges)
-            with args.sink.open("a", encoding="utf-8") as f:
-                f.write(json.dumps(row) + "\n")
+            append_sink(args.sink, row)
             print(json.dumps(row)[:200], flush=True)
     paths = args.from_sink or [args.sink]
-    rows = [json.loads(line) for p in paths for line in p.read_text(encoding="utf-8").splitlines() if line]
+    rows = [row for p in paths for row in load_sink(p)]
     text = report(rows)
     print(text)
     if args.write:

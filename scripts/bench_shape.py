@@ -30,7 +30,6 @@ Each finished set is appended to the sink at once (a JSON line), so a run can be
 from __future__ import annotations
 
 import argparse
-import json
 import shutil
 import sys
 import tempfile
@@ -42,6 +41,7 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
+from _shared import append_sink, load_sink  # (scripts/ is the running script's folder)
 from scipy.stats import chi2
 
 from ilcc_graph.board import Board
@@ -213,13 +213,6 @@ def recorded(data: Path, cache: Path) -> str:
     ])  # fmt: skip
 
 
-def load(path: Path) -> list[dict]:
-    """The sets in a sink (one JSON object a line)."""
-    if not path.is_file():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-
-
 def _pct(x: Sequence[float], q: float) -> float:
     return float(np.percentile(x, q)) if len(x) else float("nan")
 
@@ -355,20 +348,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     sink = Path(args.sink)
     if not args.from_sink:
-        done = {s["seed"] for s in load(sink)}
+        done = {s["seed"] for s in load_sink(sink)}
         for seed in range(args.seed0, args.seed0 + args.sets):
             if seed in done:
                 continue
             t0 = time.perf_counter()
             res = run_set(seed, Path(args.cache))
-            with sink.open("a") as fh:
-                fh.write(json.dumps(res) + "\n")
+            append_sink(sink, res)
             brief = {
                 n: r.get("failure") or f"{r['rot_deg']:.3f} deg {r['trans_mm']:.2f} mm NEES {r['nees']:.1f}"
                 for n, r in res["runs"].items()
             }
             print(f"set {seed}: {time.perf_counter() - t0:.0f} s {brief}", flush=True)
-    sets = [s for s in load(sink) if args.seed0 <= s["seed"] < args.seed0 + args.sets]
+    sets = [s for s in load_sink(sink) if args.seed0 <= s["seed"] < args.seed0 + args.sets]
     text = report(sets, argv)
     if args.recorded:
         text += "\n" + recorded(Path(args.recorded), Path(args.cache))

@@ -33,7 +33,6 @@ docs/bench_small_board.png (a row of panels per section).
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import shutil
 import sys
@@ -47,7 +46,8 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
-from bench_shape import board_nees, load, pose_error  # (scripts/ is the running script's folder)
+from _shared import append_sink, load_sink
+from bench_shape import board_nees, pose_error  # (scripts/ is the running script's folder)
 from scipy.stats import chi2
 
 from ilcc_graph.board import Board
@@ -272,20 +272,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.ERROR)
     sink = Path(args.sink)
     if not args.from_sink:
-        done = {s["seed"] for s in load(sink)}
+        done = {s["seed"] for s in load_sink(sink)}
         for seed in range(args.seed0, args.seed0 + args.sets):
             if seed in done:
                 continue
             res = run_set(seed, Path(args.cache), args.moved)
-            with sink.open("a") as fh:
-                fh.write(json.dumps(res) + "\n")
+            append_sink(sink, res)
             brief = res.get("failure") or (
                 f"{res['used']}/{res['n_frames']} {res['verdict']} {res['rot_deg']:.3f} deg "
                 f"{res['trans_mm']:.1f} mm NEES {res['nees']:.1f}"
             )
             print(f"set {seed}: {res['seconds']:.0f} s {brief}", flush=True)
     pairs = [x.split("=", 1) for x in args.section] or [["sets", str(sink)]]
-    sections = {label: sorted(load(Path(path)), key=lambda s: s["seed"]) for label, path in pairs}
+    sections = {label: sorted(load_sink(Path(path)), key=lambda s: s["seed"]) for label, path in pairs}
     text = "\n".join(report(sets, label) for label, sets in sections.items() if sets)
     print(text)
     if args.write:
