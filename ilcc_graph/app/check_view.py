@@ -178,9 +178,7 @@ class LiveAdvice:
         if config is None or config.lidar is None or len(frames) < 3 or sol is None:
             return None
         T_cam_lidar, covariance = update.T_cam_lidar, update.covariance
-        factor = 1.0
-        if sol.selection is not None:
-            factor = next(c.factor for c in sol.selection.candidates if c.name == sol.selection.chosen)
+        factor = 1.0 if sol.selection is None else sol.selection.factor
         noise = np.array([*sol.variance_components, max(sol.variance_factor, factor, 1.0)])
         frames = next_pose.noise_scaled(frames, noise[0], noise[1])
         adv, moved = self._advisor, False

@@ -28,17 +28,27 @@ KALIBR_PX = 0.05
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6")
 
 
+def _radial(d8: np.ndarray, r2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """rad(r2) of the coefficients ``d8`` (OpenCV's order), d rad / d r2 and the rational denominator."""
+    k1, k2, _, _, k3, k4, k5, k6 = d8
+    num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
+    dnum = k1 + r2 * (2 * k2 + 3 * k3 * r2)
+    dden = k4 + r2 * (2 * k5 + 3 * k6 * r2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return num / den, (dnum * den - num * dden) / (den * den), den
+
+
 @functools.lru_cache(maxsize=1024)
 def _r_max(d8: tuple[float, ...]) -> float:
     """``RadTan.r_max`` of the coefficients ``d8``: where the radial map g(r) = r rad(r^2) stops
     increasing, searched as r = tan(theta), theta < 90 deg. Kept per coefficients: a solve that
     refines the intrinsics builds the same camera for every view it evaluates."""
-    rt = RadTan.__new__(RadTan)
-    object.__setattr__(rt, "d8", np.array(d8))
+    k = np.array(d8)
 
     def dg_dtheta_sign(th: np.ndarray) -> np.ndarray:
         r = np.tan(th)
-        rad, drad, den = rt.radial(r * r)
+        rad, drad, den = _radial(k, r * r)
         return np.where(den > 0, rad + 2 * r * r * drad, -1.0)
 
     th = first_fold(dg_dtheta_sign, _THETA_HI)
@@ -71,13 +81,7 @@ class RadTan:
 
     def radial(self, r2: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """rad(r2), d rad / d r2 and the rational denominator."""
-        k1, k2, _, _, k3, k4, k5, k6 = self.d8
-        num = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        den = 1 + r2 * (k4 + r2 * (k5 + r2 * k6))
-        dnum = k1 + r2 * (2 * k2 + 3 * k3 * r2)
-        dden = k4 + r2 * (2 * k5 + 3 * k6 * r2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return num / den, (dnum * den - num * dden) / (den * den), den
+        return _radial(self.d8, r2)
 
     @overload
     def distort(

@@ -165,8 +165,7 @@ def solve(
     out = replace(batch_solution(sol, effects=moved, square_size=square), selection=selection)
     out = replace(out, solved=solved_globals(sol))
     if got.refined:  # refined: its covariance, times the model's held-out factor
-        factor = next(c.factor for c in selection.candidates if c.name == selection.chosen)
-        out = replace(out, covariance=factor * out.covariance)
+        out = replace(out, covariance=selection.factor * out.covariance)
     elif not selection.forced:
         out = replace(out, covariance=averaged_covariance(got.sols[0], selection))
     return out

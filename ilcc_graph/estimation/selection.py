@@ -135,6 +135,11 @@ class Selection:
     averaged: bool = False
     camera: CameraChoice | None = None
 
+    @property
+    def factor(self) -> float:
+        """The chosen model's held-out factor, its own covariance's scale (1 for a forced model)."""
+        return next(c.factor for c in self.candidates if c.name == self.chosen)
+
     def summary(self) -> str:
         """One or two lines: the model and the evidence (held-out log densities against the chosen
         one), the camera's intrinsics."""
@@ -244,8 +249,7 @@ def mixture(estimates: Mapping[str, tuple[np.ndarray, np.ndarray]], selection: S
     """(6n, 6n) the mixture's covariance about the chosen model's poses: ``sum_m w_m (f_m C_m +
     d_m d_m^T)`` over the candidates' ``estimates`` (by name: T (4, 4), or (n, 4, 4) for n poses
     such as a rig's, and their (6n, 6n) joint C), ``d_m`` the poses' ``Logmap(T_chosen^-1 T_m)``
-    stacked, ``C_m`` carried into the chosen's tangents and scaled by the model's held-out factor
-    ``f_m``."""
+    stacked, ``C_m`` carried into the chosen's tangents and scaled by its held-out factor ``f_m``."""
     T0 = [gtsam.Pose3(T) for T in np.reshape(estimates[selection.chosen][0], (-1, 4, 4))]
     n = POSE3_DOF * len(T0)
     out = np.zeros((n, n))

@@ -325,7 +325,7 @@ def solve_sessions(sessions: Sequence[Session], options: JointOptions = JointOpt
 
 def _held_out_factor(got: Chosen) -> float:
     """The chosen model's held-out factor (covariances of refined intrinsics are scaled by it)."""
-    return next(c.factor for c in got.selection.candidates if c.name == got.selection.chosen)
+    return got.selection.factor
 
 
 def _covariance(got: Chosen, si: int, est: Estimate) -> Estimate:

@@ -85,14 +85,12 @@ def from_batch(sol: BatchSolution, config: Config) -> Answer:
 
 def _with_terms(sol: BatchSolution) -> PoseTerms | None:
     """The chosen model's extrinsic with its range terms (``next_board.SolvedGlobals``), or None; the
-    joint covariance times the model's held-out factor unless the model was forced, as the reported
-    covariance is (``batch.solve``)."""
-    g, sel = sol.solved, sol.selection
+    joint covariance times the model's held-out factor (``Selection.factor``; 1 for a forced model),
+    as the reported covariance is (``batch.solve``)."""
+    g = sol.solved
     if g is None or not g.terms:
         return None
-    factor = 1.0
-    if sel is not None and not sel.forced:
-        factor = next((c.factor for c in sel.candidates if c.name == sel.chosen), 1.0)
+    factor = 1.0 if sol.selection is None else sol.selection.factor
     C = factor * np.asarray(g.covariance, dtype=np.float64)
     return PoseTerms(g.T_cam_lidar, tuple(g.terms), tuple(g.units), np.asarray(g.theta), C)
 
