@@ -35,7 +35,7 @@ def backpack(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_the_rig_is_a_registered_strategy() -> None:
     s = strategy("rig")
-    assert "rig" in modes() and s.observe is not None and not s.second_pass and s.joint is None
+    assert "rig" in modes() and s.observe is not None and s.second_pass and s.joint is None
 
 
 def test_the_rig_through_the_run_is_calibrate_rig(backpack: Path, tmp_path: Path) -> None:

@@ -25,11 +25,18 @@ import numpy as np
 
 from ilcc_graph.types import GraphFrame
 
-__all__ = ["MAX_PARALLEL_DEG", "MIN_DISTINCT_POSES", "Geometry", "board_geometry"]
+__all__ = [
+    "MAX_PARALLEL_DEG", "MIN_DISTINCT_POSES", "SAME_DEG", "SAME_MM",
+    "Geometry", "board_geometry", "same_pose",
+]  # fmt: skip
 
 MIN_DISTINCT_POSES = 3
 #: normals all within this angle of their mean count as parallel (a warning)
 MAX_PARALLEL_DEG = 5.0
+#: two board poses are one when their centres are within this many mm ...
+SAME_MM = 30.0
+#: ... and their normals and long sides (modulo a half turn) within this many degrees
+SAME_DEG = 3.0
 
 
 @dataclass(frozen=True)
@@ -53,21 +60,27 @@ class Geometry:
         return {n: g[0] for g in self.groups for n in g[1:]}
 
 
-def _same(a: np.ndarray, b: np.ndarray, c_a: np.ndarray, c_b: np.ndarray, mm: float, deg: float) -> bool:
+def same_pose(
+    a: np.ndarray, b: np.ndarray, c_a: np.ndarray, c_b: np.ndarray, mm: float = SAME_MM, deg: float = SAME_DEG
+) -> bool:
+    """Whether board poses ``a`` and ``b`` ((4, 4), one frame) with centres ``c_a``, ``c_b`` (m) are
+    the same placement (module docstring)."""
     if np.linalg.norm(c_a - c_b) > 1e-3 * mm:
         return False
     cos = np.cos(np.radians(deg))
     return bool(a[:3, 2] @ b[:3, 2] > cos and abs(a[:3, 0] @ b[:3, 0]) > cos)
 
 
-def board_geometry(frames: Sequence[GraphFrame], same_mm: float = 30.0, same_deg: float = 3.0) -> Geometry:
+def board_geometry(
+    frames: Sequence[GraphFrame], same_mm: float = SAME_MM, same_deg: float = SAME_DEG
+) -> Geometry:
     """Group frames by board pose and judge whether the distinct poses can calibrate (module docstring)."""
     T = [np.asarray(f.T_lidar_board, dtype=np.float64) for f in frames]
     centres = [t[:3, :3] @ f.points_board.mean(axis=0) + t[:3, 3] for t, f in zip(T, frames, strict=True)]
     groups: list[list[int]] = []
     for i in range(len(frames)):
         for g in groups:
-            if _same(T[g[0]], T[i], centres[g[0]], centres[i], same_mm, same_deg):
+            if same_pose(T[g[0]], T[i], centres[g[0]], centres[i], same_mm, same_deg):
                 g.append(i)
                 break
         else:

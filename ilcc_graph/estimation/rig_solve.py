@@ -38,6 +38,7 @@ from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.batch import sensor_models
 from ilcc_graph.estimation.gate import BoardStats
+from ilcc_graph.estimation.geometry import same_pose
 from ilcc_graph.estimation.keys import POSE3_DOF, X
 from ilcc_graph.estimation.kinds.lidar_boards import LidarBoard, LidarBoards
 from ilcc_graph.estimation.noise import NoiseOptions, Solution
@@ -175,6 +176,8 @@ def rig_problem(
     if start.base != base:
         raise ValueError(f"rig_problem: the start's base is {start.base!r}, the rig's first LiDAR {base!r}")
     corners = board.corners_board()
+    middle = corners.mean(axis=0)
+    centres: list[np.ndarray] = []  # the kept boards' centres, base frame
     cams = list(cameras)
     boards: list[BoardPrior] = []
     views: list[View] = []
@@ -191,9 +194,16 @@ def rig_problem(
         if n_obs < 2:
             skipped.append((m.name, f"seen by one sensor only ({', '.join(o.sensors)}): relates nothing"))
             continue
-        i = len(boards)
         fit = o.boards.get(base)  # none: the board's place from the start, no LiDAR prior
         T, C = (fit.T_lidar_board, fit.covariance) if fit else (start.T_base_board[m.name], None)
+        centre = T[:3, :3] @ middle + T[:3, 3]
+        first = next((b.name for b, c in zip(boards, centres, strict=True)
+                      if same_pose(b.T_lidar_board, T, c, centre)), None)  # fmt: skip
+        if first is not None:  # as a pair's prepare: what is wrong with a placement is shared
+            skipped.append((m.name, f"same board pose as {first}: one observation, not an independent one"))
+            continue
+        i = len(boards)
+        centres.append(centre)
         boards.append(BoardPrior(m.name, T, C, base, 0, options.samples_board, fit.returns if fit else None))
         for lid, f in o.boards.items():
             if lid != base:

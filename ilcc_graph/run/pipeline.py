@@ -26,6 +26,7 @@ from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.run.observe import FrameStream, Observation, observe
 from ilcc_graph.run.range_refit import refit_pass
 from ilcc_graph.run.result import Result, RunOptions
+from ilcc_graph.run.rig_views import look_rig, refit_rig
 from ilcc_graph.run.second_look import second_pass
 from ilcc_graph.run.setup_mistakes import diagnose_failure, diagnose_result
 from ilcc_graph.run.strategies import Reporter, Strategy, choose, strategy
@@ -113,14 +114,22 @@ def solve_observations(
     if not chosen.second_pass:
         return result
     corrected = False  # the boards on corrected ranges: the second look searches on them too
+    stages = options.stages
     if options.range_refit:
-        refit = [refit_pass(s.observation, s.alone, options.stages) for s in result.sessions]
+        refit = [
+            refit_pass(s.observation, s.alone, stages) if result.rig is None
+            else refit_rig(s.observation, result.rig, s.alone, stages)
+            for s in result.sessions
+        ]  # fmt: skip
         what = "fitted on corrected ranges"
         result, observations, corrected = _solve_again(chosen, options, result, observations, refit, what)
     if not options.second_pass:
         return result
-    stages = options.stages
-    again = [second_pass(s.observation, s.alone, stages, refit=corrected) for s in result.sessions]
+    again = [
+        second_pass(s.observation, s.alone, stages, refit=corrected) if result.rig is None
+        else look_rig(s.observation, result.rig, s.alone, stages, refit=corrected)
+        for s in result.sessions
+    ]  # fmt: skip
     return _solve_again(chosen, options, result, observations, again, "found by the second look")[0]
 
 

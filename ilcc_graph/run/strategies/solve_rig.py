@@ -68,8 +68,19 @@ def headline(res: RigResult) -> Calibration:
     diagnostics = {"variance_factor": float(res.variance_factor)}
     return Calibration(
         np.asarray(e.T), np.asarray(e.covariance), tuple(frames), f"rig {a}/{b}", diagnostics,
-        None if cam is None else cam.to_dict(),
+        None if cam is None else cam.to_dict(), _lidar_errors(res),
     )  # fmt: skip
+
+
+def _lidar_errors(res: RigResult) -> dict:
+    """The base LiDAR's range errors the chosen model estimated, as a pair's ``Calibration.sensors``
+    gives them (``lidar_errors``: names, values, sigmas; the boards on corrected ranges read them)."""
+    sol = res.solution.solution
+    got = None if sol is None else sol.lidar(0)
+    if got is None:
+        return {}
+    names, values, sigmas = got
+    return {"lidar_errors": {"names": list(names), "values": values, "sigmas": sigmas}}
 
 
 def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
@@ -85,4 +96,4 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     return Result("rig", cal, (session,), options, cal.covariance, poses=poses, rig=to_calibration(res))
 
 
-register(Strategy("rig", solve, second_pass=False, sensor_errors=False, observe=observe))
+register(Strategy("rig", solve, second_pass=True, sensor_errors=False, observe=observe))
