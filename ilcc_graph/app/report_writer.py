@@ -134,7 +134,7 @@ def write_report(
     from ilcc_graph.report.next_pose_picture import next_pose_png
 
     obs, cal = session.observation, session.calibration
-    config, source = obs.config, obs.pair_source
+    config, source = obs.pair_config, obs.pair_source
     curve, cv = studies if studies is not None else (None, None)
     damaged = {f.name for f in cal.frames if f.damaged}  # their files cannot be read
     frames = source.frames() if source is not None else []  # no pair's source: no frame's pictures

@@ -129,7 +129,8 @@ def write_run(
                 obs = s.observation
                 info = {"data": obs.location, "command": command or "ilcc-graph", "mode": result.mode}
                 if result.rig is not None:  # a rig: its own page (docs/rig.md)
-                    write_rig_report(d / "report", result.rig, obs.data, obs.rig_source, info)
+                    if obs.data is not None:
+                        write_rig_report(d / "report", result.rig, obs.data, obs.rig_source, info)
                     continue
                 sub = (s.name,) if several else ()
                 bar = progress and progress(f"report {s.name}" if several else "report")

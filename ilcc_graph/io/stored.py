@@ -137,6 +137,8 @@ class StoredSetup:
     them, or None (not recorded). sensors: {name: ``"lidar"`` or the camera's model}; a sensor whose
     kind is not recorded is absent. where, board_where: the files that say them. sensor_model: the
     model of the LiDAR's own errors the calibration chose (``selection.Selection.chosen``), or None.
+    lidar_errors: the LiDAR's own errors it estimated (``names``, ``values``; a rig's also
+    ``lidar``, its base LiDAR), or None.
     """
 
     board: Mapping[str, Any] | None = None
@@ -144,6 +146,7 @@ class StoredSetup:
     where: str = ""
     board_where: str = ""
     sensor_model: str | None = None
+    lidar_errors: Mapping[str, Any] | None = None
 
 
 def _board(d: Any) -> dict[str, Any] | None:
@@ -165,7 +168,8 @@ def stored_setup(path: str | Path, cal: Calibration | RigCalibration, names: tup
             elif isinstance(sd, dict) and "lidar" in sd:
                 kinds[str(s)] = "lidar"
         model = _chosen(cal.extra.get("sensor_model"))
-        return StoredSetup(_board(rig.get("board")), kinds, str(p), str(p), model)
+        errors = _lidar_errors(cal.extra.get("lidar_errors"), p)
+        return StoredSetup(_board(rig.get("board")), kinds, str(p), str(p), model, errors)
     resolved = _resolved(p)
     lidar, camera = names
     kinds = {lidar: "lidar"}
@@ -173,7 +177,27 @@ def stored_setup(path: str | Path, cal: Calibration | RigCalibration, names: tup
         kinds[camera] = str(cal.camera["model"])
     board = _board(resolved.get("board"))
     model = _chosen((cal.sensors or {}).get("model"))
-    return StoredSetup(board, kinds, str(p), str(p.parent / RESOLVED), model)
+    errors = _lidar_errors((cal.sensors or {}).get("lidar_errors"), p)
+    return StoredSetup(board, kinds, str(p), str(p.parent / RESOLVED), model, errors)
+
+
+def _lidar_errors(d: Any, where: Path) -> dict[str, Any] | None:
+    """A stored ``lidar_errors`` (names and values of equal length, the values finite), or None when
+    there is none; InputError naming the file otherwise."""
+    if d is None:
+        return None
+    names = d.get("names") if isinstance(d, dict) else None
+    values = d.get("values") if isinstance(d, dict) else None
+    try:
+        v = np.asarray(values, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        v = np.zeros(0)
+    if not isinstance(names, list) or len(v) != len(names) or not np.all(np.isfinite(v)):
+        raise InputError(
+            f"{where}: lidar_errors must have names and as many finite values (found {d!r:.120}): "
+            "calibrate again"
+        )
+    return {**d, "names": [str(n) for n in names], "values": [float(x) for x in v]}
 
 
 def _chosen(selection: Any) -> str | None:

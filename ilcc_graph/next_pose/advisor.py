@@ -398,5 +398,5 @@ def for_run(result: Result, target_sigma: tuple[float, float] | None = None) -> 
     None for several sessions, the paper's refinement (no covariance) or no valid candidate."""
     if len(result.sessions) != 1 or not np.all(np.isfinite(result.calibration.covariance)):
         return None
-    config = result.sessions[0].observation.config
+    config = result.sessions[0].observation.pair_config
     return from_calibration(result.calibration, config, target_sigma, result.solved)

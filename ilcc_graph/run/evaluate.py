@@ -25,5 +25,6 @@ def evaluate_on(
     """(the metric of ``T_cam_lidar`` (4, 4) on the source's frames, [(frame, why not evaluated)])."""
     obs = observe(source, stages, progress)
     skipped = [(r.name, r.reason or "no board") for r in obs.frames if r.board is None or r.corners is None]
-    ev = evaluate(eval_frames(obs.frames), obs.config.camera, obs.config.board, np.asarray(T_cam_lidar))
+    config = obs.pair_config
+    ev = evaluate(eval_frames(obs.frames), config.camera, config.board, np.asarray(T_cam_lidar))
     return ev, skipped

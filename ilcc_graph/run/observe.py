@@ -13,14 +13,14 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from ilcc_graph import signals, workers
-from ilcc_graph.config import Config
+from ilcc_graph.config import Config, RigConfig
 from ilcc_graph.datasets import FrameRef, FrameSource, RigSource
 from ilcc_graph.errors import FrameError, InputError
 from ilcc_graph.lidar import INTENSITY_UNUSABLE
 from ilcc_graph.run.colour import colour_votes, colour_warning
+from ilcc_graph.run.rig_observe import RigObservation
 from ilcc_graph.run.source import Opened, open_run
 from ilcc_graph.run.stages import StageOptions, attempt, observe_frame, observe_image, observe_lidar
 from ilcc_graph.types import FrameResult
@@ -45,21 +45,29 @@ class Observation:
     """A source observed: the config used (print colour checked) and every frame's stage results
     (frames without a partner come last, unused, with the reason); ``name``: the session's name in
     a run (the source's label made unique); ``stream``: for a strategy that reads the frames as it
-    solves, the frames still to observe (``frames`` then empty); ``data``: what a strategy's own
-    observation pass gives besides (``Strategy.observe``; a rig: each moment's results per sensor).
+    solves, the frames still to observe (``frames`` then empty); ``data``: a rig's observation
+    (each moment's results per sensor: the rig strategy's own pass, ``Strategy.observe``), else None.
     Plain data a strategy interprets.
 
     source: a pair's ``FrameSource``, a rig's ``RigSource`` (the rig strategy's pass; ``config``
     then holds its ``RigConfig``), or None for frames observed elsewhere (``pipeline.solve_observed``).
-    What reads a pair's frames again takes ``pair_source`` (None for the other two) and skips
-    without it."""
+    What reads a pair's frames again takes ``pair_source`` and ``pair_config`` (a rig's pairs:
+    ``run.rig_views``)."""
 
     source: FrameSource | RigSource | None
-    config: Config
+    config: Config | RigConfig
     frames: list[FrameResult]
     name: str = ""
     stream: FrameStream | None = None
-    data: Any = None
+    data: RigObservation | None = None
+
+    @property
+    def pair_config(self) -> Config:
+        """The single pair's config, which what reads a pair's frames takes; a ValueError for a
+        rig's observation (its ``RigConfig`` is ``config``; its pairs: ``RigConfig.pair_config``)."""
+        if not isinstance(self.config, Config):
+            raise ValueError(f"{self.name or 'the observation'}: a rig's, not a single pair's")
+        return self.config
 
     @property
     def pair_source(self) -> FrameSource | None:

@@ -68,7 +68,13 @@ def run(
         first = cast(FrameSource, sources[0])  # a streaming strategy reads one pair's frames
         stream = FrameStream(first, options.stages)
         obs = Observation(first, stream.config, [], names[0], stream)
-        return chosen.solve([obs], dataclasses.replace(options, mode=chosen.mode), report)
+        opts = dataclasses.replace(options, mode=chosen.mode)
+        streamed = chosen.solve([obs], opts, report)
+        # the frames it read, as calibrate solves them once it has an answer (the batch strategy)
+        after = _after(strategy("graph"), opts, streamed, [s.observation for s in streamed.sessions])
+        if after is streamed or chosen.restate is None:
+            return streamed
+        return chosen.restate(streamed, after, report)
     observations = []
     for name, src in zip(names, sources, strict=True):
         cb = None if progress is None else (lambda i, n, name=name: progress(name, i, n))
@@ -111,6 +117,15 @@ def solve_observations(
     options = _without_print(observations, dataclasses.replace(options, mode=chosen.mode), chosen)
     log.debug("estimating the extrinsic (%s) from %d source(s)", chosen.mode, len(observations))
     result = chosen.solve(observations, options, None)
+    return _after(chosen, options, result, observations)
+
+
+def _after(
+    chosen: Strategy, options: RunOptions, result: Result, observations: Sequence[Observation]
+) -> Result:
+    """``result`` (the strategy ``chosen``'s on ``observations``) after the steps a run takes once it
+    has an answer: the boards on corrected ranges, the second look, each solved again by ``chosen``
+    when it changed a board; ``result`` itself when none did."""
     if not chosen.second_pass:
         return result
     corrected = False  # the boards on corrected ranges: the second look searches on them too
@@ -118,7 +133,7 @@ def solve_observations(
     if options.range_refit:
         refit = [
             refit_pass(s.observation, s.alone, stages) if result.rig is None
-            else refit_rig(s.observation, result.rig, s.alone, stages)
+            else refit_rig(s.observation, result.rig.T_ref_sensor, s.alone.sensors, stages)
             for s in result.sessions
         ]  # fmt: skip
         what = "fitted on corrected ranges"
@@ -127,7 +142,7 @@ def solve_observations(
         return result
     again = [
         second_pass(s.observation, s.alone, stages, refit=corrected) if result.rig is None
-        else look_rig(s.observation, result.rig, s.alone, stages, refit=corrected)
+        else look_rig(s.observation, result.rig, s.alone.sensors, stages, refit=corrected)
         for s in result.sessions
     ]  # fmt: skip
     return _solve_again(chosen, options, result, observations, again, "found by the second look")[0]

@@ -29,7 +29,7 @@ def refit_studies(
     ``truth``: T_cam_lidar (4, 4) of a simulated set, for the curve's errors."""
     if result.covariance is None:
         return None
-    config, cal = session.observation.config, session.calibration
+    config, cal = session.observation.pair_config, session.calibration
     options = dataclasses.replace(result.options, mode="graph")
     frames = session.observation.frames
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -39,6 +40,7 @@ __all__ = [
     "RigResult",
     "calibrate_rig",
     "fates",
+    "lidar_errors",
     "solve_observed",
     "to_calibration",
 ]
@@ -185,6 +187,23 @@ def calibrate_rig(
     return solve_observed(observation, options)
 
 
+def lidar_errors(result: RigResult) -> dict[str, Any]:
+    """The base LiDAR's own errors the chosen model estimated, as a pair's ``Calibration.sensors``
+    has them (``lidar``: its name; ``names``, ``units``, ``values``, ``sigmas``: metres or none),
+    or {} when the model has none."""
+    sol = result.solution.solution
+    got = None if sol is None else sol.lidar(0)
+    if sol is None or got is None:
+        return {}
+    names, values, sigmas = got
+    layout = sol.assembly.layouts.get(0)
+    return {
+        "lidar": result.solution.base, "names": list(names),
+        "units": list(layout.units) if layout is not None else ["m"] * len(names),
+        "values": [float(v) for v in values], "sigmas": [float(v) for v in sigmas],
+    }  # fmt: skip
+
+
 def to_calibration(result: RigResult) -> RigCalibration:
     """The rig's ``calibration.yaml`` content (``io.rig_results``): poses, joint covariance, every
     pair's relative pose and covariance, the rig file's mapping (intrinsics), what was used, the
@@ -210,6 +229,8 @@ def to_calibration(result: RigResult) -> RigCalibration:
     }
     if result.solution.selection is not None:  # the base LiDAR's sensor model and the evidence
         extra["sensor_model"] = result.solution.selection.to_dict()
+    if errors := lidar_errors(result):  # and its own errors (verify corrects a capture's ranges by them)
+        extra["lidar_errors"] = errors
     return RigCalibration(
         names,
         result.reference,

@@ -28,11 +28,13 @@ from ilcc_graph.estimation.selection import AUTO, MODELS
 from ilcc_graph.estimation.verify import StoredRig, VerifyOptions, VerifyResult, verify_pair, verify_rig
 from ilcc_graph.io.rig_results import RigCalibration
 from ilcc_graph.io.stored import StoredSetup, read_stored, stored_setup
+from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.pipeline import run
 from ilcc_graph.run.result import RunOptions
-from ilcc_graph.run.rig_observe import observe_rig
+from ilcc_graph.run.rig_observe import RigObservation, observe_rig
+from ilcc_graph.run.rig_views import refit_rig
 from ilcc_graph.run.stages import StageOptions
-from ilcc_graph.types import Estimate, PoseTerms
+from ilcc_graph.types import Estimate, MomentResult, PoseTerms
 
 __all__ = [
     "EXIT_CODES", "StoredCalibration", "VerifyRun", "check_comparable", "load_stored", "verify_capture",
@@ -153,11 +155,33 @@ def verify_capture(
     rig = obs.rig  # as the capture shows it: each LiDAR's beam table, the print's colour
     cams = {c: cam for c in rig.cameras if (cam := rig.sensor(c).camera) is not None}
     solve_with = _stored_model(stored, options)
-    res = verify_rig(stored, obs.moments, rig.board, list(rig.lidars), cams, solve_with)
+    moments, corrected = _on_corrected_ranges(stored, src, obs, stages)
+    res = verify_rig(stored, moments, rig.board, list(rig.lidars), cams, solve_with)
     if solve_with is not options:
         model = solve_with.rig.models[0]
         res.notes.append(f"the capture's LiDAR errors modelled as the calibration chose: {model}")
+    if corrected:
+        res.notes.append(corrected)
     return VerifyRun(res, len(obs.moments))
+
+
+def _on_corrected_ranges(
+    stored: StoredRig, source: RigSource, obs: RigObservation, stages: StageOptions
+) -> tuple[list[MomentResult], str]:
+    """The capture's moments with its base LiDAR's boards fitted again on the ranges corrected by the
+    errors the stored calibration estimated for that LiDAR, as ``calibrate`` fitted the calibration's
+    own boards (``rig_views.refit_rig``; when the correction matters), and a note saying so ("" and
+    the moments as observed otherwise)."""
+    errors = stored.setup.lidar_errors if isinstance(stored, StoredCalibration) else None
+    base = obs.rig.lidars[0]
+    if errors is None or errors.get("lidar", base) != base:
+        return obs.moments, ""
+    seen = Observation(source, obs.rig, [], "capture", data=obs)
+    again = refit_rig(seen, stored.T_ref_sensor, {"lidar_errors": errors}, stages)
+    if again is None or again.data is None:
+        return obs.moments, ""
+    note = f"the capture's boards of {base} fitted on its ranges corrected by the calibration's errors of it"
+    return again.data.moments, note
 
 
 def _stored_model(stored: StoredRig, options: VerifyOptions) -> VerifyOptions:

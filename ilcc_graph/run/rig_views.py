@@ -50,22 +50,24 @@ def _seen(obs: Observation) -> RigObservation:
 
 def pair_view(
     obs: Observation,
-    cal: RigCalibration,
+    T_ref_sensor: Mapping[str, np.ndarray],
     camera: str,
     lidar: str,
     sensors: Mapping[str, Any] | None = None,
+    fates: Mapping[str, Mapping[str, str]] | None = None,
     every_scan: bool = False,
 ) -> tuple[Observation, Calibration]:
     """The rig's ``camera`` and ``lidar`` as a single pair: the observation (one frame per moment:
     the LiDAR's board and the camera's corners, named as the moments; reasons as a pair's stages
-    give them) and the calibration (``T_cam_lidar`` from ``cal``'s poses; a frame used when the
-    LiDAR's observation entered the graph; ``sensors``: the LiDAR's estimated errors, as a pair's
-    ``Calibration.sensors``). every_scan: the source gives every moment with the LiDAR's scan."""
+    give them) and the calibration (``T_cam_lidar`` from the poses ``T_ref_sensor``; a frame used
+    when ``fates[moment][lidar]`` says its observation entered the graph; ``sensors``: the LiDAR's
+    estimated errors, as a pair's ``Calibration.sensors``). every_scan: the source gives every
+    moment with the LiDAR's scan."""
     seen = _seen(obs)
     assert obs.rig_source is not None  # _seen checked it
     kind = _LidarMoments if every_scan else RigPair
     source = kind(obs.rig_source, camera, lidar)
-    fates = cal.extra.get("moments", {})
+    fates = fates or {}
     frames, fated = [], []
     for m in seen.moments:
         board, corners = m.boards.get(lidar), m.corners.get(camera)
@@ -74,7 +76,7 @@ def pair_view(
         frames.append(FrameResult(m.name, board is not None and corners is not None, "; ".join(why) or None,
                                   board, corners))  # fmt: skip
         fated.append(FrameResult(m.name, fates.get(m.name, {}).get(lidar) == USED))
-    T = np.linalg.inv(cal.T_ref_sensor[camera]) @ cal.T_ref_sensor[lidar]
+    T = np.linalg.inv(T_ref_sensor[camera]) @ T_ref_sensor[lidar]
     config: Config = seen.rig.pair_config(camera, lidar)
     view = Observation(source, config, frames, f"{obs.name}:{camera}+{lidar}")
     return view, Calibration(T, np.full((6, 6), np.nan), tuple(fated), "rig", sensors=dict(sensors or {}))
@@ -96,38 +98,42 @@ def put_back(obs: Observation, lidar: str, before: Observation, after: Observati
     return dataclasses.replace(obs, data=dataclasses.replace(seen, moments=moments))
 
 
-def _solved(cal: RigCalibration, names: Sequence[str]) -> list[str]:
-    return [s for s in names if s in cal.T_ref_sensor]
+def _solved(T_ref_sensor: Mapping[str, np.ndarray], names: Sequence[str]) -> list[str]:
+    return [s for s in names if s in T_ref_sensor]
 
 
 def refit_rig(
-    obs: Observation, cal: RigCalibration, headline: Calibration, stages: StageOptions
+    obs: Observation, T_ref_sensor: Mapping[str, np.ndarray], sensors: Mapping[str, Any], stages: StageOptions
 ) -> Observation | None:
-    """The rig's observation with its base LiDAR's boards fitted again on the ranges corrected by the
-    errors the graph estimated (``headline.sensors``), or None when the correction does not matter
-    (``range_refit.refit_pass`` on the base LiDAR's view with the first solved camera)."""
+    """The rig's observation with its base LiDAR's boards fitted again on the ranges corrected by
+    ``sensors['lidar_errors']`` (its errors as the graph estimated them), or None when the correction
+    does not matter (``range_refit.refit_pass`` on the base LiDAR's view with the first camera
+    ``T_ref_sensor`` places)."""
     rig = _seen(obs).rig
-    cams = _solved(cal, rig.cameras)
+    cams = _solved(T_ref_sensor, rig.cameras)
     base = rig.lidars[0]
-    if not cams or base not in cal.T_ref_sensor:
+    if not cams or base not in T_ref_sensor:
         return None
-    view, pair = pair_view(obs, cal, cams[0], base, headline.sensors, every_scan=True)
+    view, pair = pair_view(obs, T_ref_sensor, cams[0], base, sensors, every_scan=True)
     again = refit_pass(view, pair, stages)
     return None if again is None else put_back(obs, base, view, again)
 
 
 def look_rig(
-    obs: Observation, cal: RigCalibration, headline: Calibration, stages: StageOptions, refit: bool = True
-) -> Observation | None:
+    obs: Observation, cal: RigCalibration, sensors: Mapping[str, Any], stages: StageOptions,
+    refit: bool = True,
+) -> Observation | None:  # fmt: skip
     """The rig's observation with the boards each LiDAR missed found where a camera and the answer
     put them (``second_look.second_pass`` on each solved LiDAR's view with each solved camera in
-    turn; the base LiDAR's search on corrected ranges as its refit), or None when none was found."""
+    turn; the base LiDAR's search on the ranges ``sensors`` corrects, as its refit), or None when
+    none was found."""
     rig = _seen(obs).rig
     out, found = obs, False
-    for lidar in _solved(cal, rig.lidars):
-        sensors = headline.sensors if lidar == rig.lidars[0] else None
-        for camera in _solved(cal, rig.cameras):
-            view, pair = pair_view(out, cal, camera, lidar, sensors)
+    fates = cal.extra.get("moments", {})
+    for lidar in _solved(cal.T_ref_sensor, rig.lidars):
+        errors = sensors if lidar == rig.lidars[0] else None
+        for camera in _solved(cal.T_ref_sensor, rig.cameras):
+            view, pair = pair_view(out, cal.T_ref_sensor, camera, lidar, errors, fates)
             again = second_pass(view, pair, stages, refit=refit)
             if again is not None:
                 out, found = put_back(out, lidar, view, again), True

@@ -91,7 +91,7 @@ def second_pass(
     for f in obs.frames:
         if f.corners is None or f.name not in unused:
             continue
-        pred = _predicted_board(f.corners, obs.config, cal.T_cam_lidar)
+        pred = _predicted_board(f.corners, obs.pair_config, cal.T_cam_lidar)
         if pred is None:
             continue
         if f.board is not None:
@@ -104,7 +104,7 @@ def second_pass(
     correction = correction_of(cal.sensors) if refit else None
     if not significant(obs.frames, correction, obs.config.board):
         correction = None
-    frames = look_again(source, obs.config, obs.frames, expected, stages, correction)
+    frames = look_again(source, obs.pair_config, obs.frames, expected, stages, correction)
     found = [f.name for f, g in zip(frames, obs.frames, strict=True) if f is not g]
     if not found:
         return None

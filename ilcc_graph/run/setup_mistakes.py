@@ -139,7 +139,7 @@ def diagnose_result(obs: Observation, cal: Calibration, images: int = 2) -> list
             image = source.read_image(refs[f.name])
         except InputError:
             continue
-        extra.append(pattern_continues(image, obs.config, f.corners))
+        extra.append(pattern_continues(image, obs.pair_config, f.corners))
     if len(extra) >= 2:
         e_rows, e_cols = (int(np.median([e[i] for e in extra])) for i in range(2))
         if e_rows or e_cols:
@@ -177,7 +177,8 @@ def _square_size_search(
     configured board against them say the square size the print has (k_img); the scans must show
     the board at that size too.
     """
-    cfg, board = obs.config, obs.config.board
+    cfg = obs.pair_config
+    board = cfg.board
     frames = [
         f
         for f in obs.frames
@@ -223,7 +224,8 @@ def _board_dims_search(obs: Observation, source: FrameSource, stages: StageOptio
     or the checker pattern continues beyond the corners found (``pattern_continues``). LiDAR
     evidence: the LiDAR stage finds the other board in more of the same frames.
     """
-    cfg, board = obs.config, obs.config.board
+    cfg = obs.pair_config
+    board = cfg.board
     usable = [f for f in obs.frames if not f.damaged and f.name in refs]
     with_corners = [f for f in usable if f.corners is not None][:LOOK]
     without = [f for f in usable if f.corners is None][:LOOK]

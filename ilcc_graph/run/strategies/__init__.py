@@ -30,7 +30,10 @@ class Strategy:
     mode: its name (``RunOptions.mode``). solve: ``(observations, options, report) -> Result``.
     joint: the mode that solves several sources (or a range offset) in its place (itself when it
     can; None: it calibrates one source). streams: it reads the frames as it solves
-    (``Observation.stream``; no second look). second_pass: the run looks again for the boards the
+    (``Observation.stream``); the frames it read are then taken as ``calibrate`` takes them once it
+    has an answer (boards on corrected ranges, second look), solved again by ``graph`` when those
+    change a board, and ``restate(streamed, again, report)`` gives its result with that answer.
+    second_pass: the run looks again for the boards the
     LiDAR stage missed once it has an extrinsic, and solves again. sensor_errors: it estimates the
     sensors' own errors (the LiDAR's are turned on when most boards show no print). observe: the
     observation pass of each source, ``(source, stages, progress) -> Observation`` (None:
@@ -46,6 +49,7 @@ class Strategy:
     sensor_errors: bool = True
     observe: Callable[..., Observation] | None = None
     refinement: bool = False
+    restate: Callable[[Result, Result, Reporter | None], Result] | None = None
 
 
 _REGISTRY: dict[str, Strategy] = {}

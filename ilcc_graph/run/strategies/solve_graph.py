@@ -21,7 +21,7 @@ __all__ = ["solve"]
 def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
     """The batch answer of one source's observation. Raises CalibrationImpossible."""
     obs = one(observations, "graph")
-    config = obs.config
+    config = obs.pair_config
     prep = prepare(obs.frames, config)
     sol = solve_batch(
         prep.frames, config.camera, prep.T_init, options.noise, options.lidar_errors, options.intrinsics,

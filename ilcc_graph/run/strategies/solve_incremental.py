@@ -3,7 +3,10 @@
 The frames come from ``Observation.stream`` (``observe.FrameStream``) as the strategy reads them, so
 that with ``RunOptions.stop_at_target`` no frame is read after the target is reached; the last
 update is the batch answer on every frame offered (``IncrementalCalibrator.finish``). Each update is
-reported as one line (``format_update``) and kept in ``incremental.yaml``.
+reported as one line (``format_update``) and kept in ``incremental.yaml``. The run then takes the
+frames read as ``calibrate`` takes them once it has an answer (``pipeline``: the boards on corrected
+ranges, the second look); when those change a board, ``restate`` makes the batch answer of the
+frames so changed the written one, with one more update, ``(again)``.
 """
 
 from __future__ import annotations
@@ -25,13 +28,13 @@ from ilcc_graph.types import FrameResult, sigma_dict, sigmas_deg_mm
 
 log = logging.getLogger(__name__)
 
-__all__ = ["format_update", "solve"]
+__all__ = ["format_update", "restate", "solve"]
 
 
 def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
     """iSAM2 over the frames of one source's stream; ``report(line)`` after each update."""
     obs = one(observations, "incremental")
-    stream, config = obs.stream, obs.config
+    stream, config = obs.stream, obs.pair_config
     if stream is None:
         raise ValueError("incremental mode observes frame by frame: give Observation.stream (run() does)")
     cal = IncrementalCalibrator(
@@ -82,6 +85,28 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
                   documents={"incremental.yaml": doc})  # fmt: skip
 
 
+def restate(streamed: Result, again: Result, report: Reporter | None = None) -> Result:
+    """``streamed`` (this strategy's result) with ``again``'s answer (its frames solved by the batch
+    strategy after the boards on corrected ranges or the second look changed them), labelled
+    ``incremental``; the change reported and kept as the update ``(again)``."""
+    cal = dataclasses.replace(again.calibration, method="incremental")
+    target = streamed.options.target_sigma
+    s = sigmas_deg_mm(cal.covariance)
+    reached = target is not None and bool(s[:3].max() <= target[0] and s[3:].max() <= target[1])
+    used = sum(1 for f in cal.frames if f.used)
+    u = FrameUpdate(cal.T_cam_lidar, np.sqrt(np.diag(cal.covariance)), reached, cal.covariance, "(again)",
+                    n_frames=used)  # fmt: skip
+    if report is not None:
+        report(format_update(u, target))
+    doc = streamed.documents.get("incremental.yaml", {})
+    doc = {**doc, "updates": [*doc.get("updates", []), _update_dict(u)]}
+    sessions = tuple(dataclasses.replace(x, calibration=cal) for x in again.sessions)
+    return dataclasses.replace(
+        again, mode="incremental", calibration=cal, sessions=sessions, covariance=cal.covariance,
+        documents={**streamed.documents, "incremental.yaml": doc},
+    )  # fmt: skip
+
+
 def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = None) -> str:
     """One line per incremental update: frame, count, sigmas in deg / mm, time, target status."""
     head = f"{u.name or '(final)':>10s}  n={u.n_frames:<4d}"
@@ -92,8 +117,10 @@ def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = Non
     s = sigmas_deg_mm(u.covariance)
     body = (
         f"sigma rot [deg] {s[0]:.3f} {s[1]:.3f} {s[2]:.3f}  "
-        f"trans [mm] {s[3]:.2f} {s[4]:.2f} {s[5]:.2f}  ({1e3 * u.seconds:.0f} ms)"
+        f"trans [mm] {s[3]:.2f} {s[4]:.2f} {s[5]:.2f}"
     )
+    if u.seconds:  # the time of an update the calibrator made (none: the run's solve again)
+        body += f"  ({1e3 * u.seconds:.0f} ms)"
     if target_sigma is not None:
         body += "  target reached" if u.reached_target else "  target not yet reached"
     return f"{head}  {body}"
@@ -114,4 +141,4 @@ def _update_dict(u: FrameUpdate) -> dict[str, Any]:
     return d
 
 
-register(Strategy("incremental", solve, streams=True, second_pass=False))
+register(Strategy("incremental", solve, streams=True, restate=restate))

@@ -20,7 +20,7 @@ __all__ = ["solve"]
 def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
     """The paper's answer on one source's observation (``Result.covariance`` None)."""
     obs = one(observations, "paper")
-    config = obs.config
+    config = obs.pair_config
     prep = prepare(obs.frames, config)
     T = refine_paper(prep.frames, prep.T_init, R_pano_cam=config.camera.R_flu_cam)
     if len(prep.frames) < 4:

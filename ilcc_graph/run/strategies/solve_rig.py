@@ -17,6 +17,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from ilcc_graph.datasets.rig_source import RigSource
+from ilcc_graph.run import rig_calibrate
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
 from ilcc_graph.run.rig_calibrate import RigResult, RigRunOptions, solve_observed, to_calibration
@@ -37,7 +38,7 @@ def observe(
     ``config``: the rig's ``RigConfig``; no single-pair frames)."""
     seen = observe_rig(source, options, progress)
     # the source's type admits a rig's; ``config``'s says a pair's Config (its readers are the pairs')
-    return Observation(source, seen.rig, [], data=seen)  # type: ignore[arg-type]
+    return Observation(source, seen.rig, [], data=seen)
 
 
 def headline(res: RigResult) -> Calibration:
@@ -66,21 +67,11 @@ def headline(res: RigResult) -> Calibration:
         frames.append(FrameResult(moment, why is None, why, board, corners))
     cam = rig.sensor(a).camera
     diagnostics = {"variance_factor": float(res.variance_factor)}
+    errors = rig_calibrate.lidar_errors(res)  # the base LiDAR's: the boards on corrected ranges read them
     return Calibration(
         np.asarray(e.T), np.asarray(e.covariance), tuple(frames), f"rig {a}/{b}", diagnostics,
-        None if cam is None else cam.to_dict(), _lidar_errors(res),
+        None if cam is None else cam.to_dict(), {"lidar_errors": errors} if errors else {},
     )  # fmt: skip
-
-
-def _lidar_errors(res: RigResult) -> dict:
-    """The base LiDAR's range errors the chosen model estimated, as a pair's ``Calibration.sensors``
-    gives them (``lidar_errors``: names, values, sigmas; the boards on corrected ranges read them)."""
-    sol = res.solution.solution
-    got = None if sol is None else sol.lidar(0)
-    if got is None:
-        return {}
-    names, values, sigmas = got
-    return {"lidar_errors": {"names": list(names), "values": values, "sigmas": sigmas}}
 
 
 def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:

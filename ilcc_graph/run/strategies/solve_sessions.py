@@ -35,15 +35,15 @@ __all__ = ["joint_summary", "solve"]
 
 def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
     """The sources as sessions of one mount (``Observation.name`` names each)."""
-    preps = [prepare(o.frames, o.config) for o in observations]
+    preps = [prepare(o.frames, o.pair_config) for o in observations]
     sessions = [
         Session(
             o.name,
             p.frames,
-            o.config.camera,
+            o.pair_config.camera,
             p.T_init,
-            o.config.lidar.name if o.config.lidar else "lidar",
-            o.config.board,
+            o.pair_config.lidar.name if o.pair_config.lidar else "lidar",
+            o.pair_config.board,
         )
         for p, o in zip(preps, observations, strict=True)
     ]
@@ -55,8 +55,9 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     method = f"joint-{joint_opts.mode}"
     results = []
     for p, o in zip(preps, observations, strict=True):
-        part = finish(p, o.frames, o.config, method, from_batch(session_part(sol, o.name), o.config), False)
-        own = finish(p, o.frames, o.config, "graph", from_batch(own_part(sol, o.name), o.config), False)
+        cfg = o.pair_config
+        part = finish(p, o.frames, cfg, method, from_batch(session_part(sol, o.name), cfg), False)
+        own = finish(p, o.frames, cfg, "graph", from_batch(own_part(sol, o.name), cfg), False)
         results.append(SessionResult(o.name, o, part, own))
     prefix = len(observations) > 1
     frames = tuple(
@@ -68,7 +69,7 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     for lab, ro in sol.range_offsets.items():
         diag[f"range_offset_mm/{lab}"] = 1e3 * ro.value_m
         diag[f"range_offset_sigma_mm/{lab}"] = 1e3 * ro.sigma_m
-    camera = observations[0].config.camera.to_dict()
+    camera = observations[0].pair_config.camera.to_dict()
     sensors = results[0].calibration.sensors  # the model chosen for all, the first LiDAR's errors
     cal = Calibration(sol.joint.T, sol.joint.covariance, frames, method, diag, camera, sensors)
     poses = {f"sessions/{n}": e for n, e in sol.sessions.items()}
