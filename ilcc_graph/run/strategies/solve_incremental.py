@@ -108,22 +108,21 @@ def restate(streamed: Result, again: Result, report: Reporter | None = None) -> 
 
 
 def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = None) -> str:
-    """One line per incremental update: frame, count, sigmas in deg / mm, time, target status."""
-    head = f"{u.name or '(final)':>10s}  n={u.n_frames:<4d}"
+    """One line per incremental update (80 columns): frame, boards in the graph, 1-sigma in deg
+    (rx ry rz) and mm (tx ty tz), the update's time, whether the target is reached."""
+    head = f"{u.name or '(final)':>8s} n={u.n_frames:<3d}"
     if not u.accepted:
-        return f"{head}  rejected: {u.reason}"
+        return f"{head} rejected: {u.reason}"
     if u.T_cam_lidar is None:
-        return f"{head}  {u.reason or 'waiting'}"
+        return f"{head} {u.reason or 'waiting'}"
     s = sigmas_deg_mm(u.covariance)
-    body = (
-        f"sigma rot [deg] {s[0]:.3f} {s[1]:.3f} {s[2]:.3f}  "
-        f"trans [mm] {s[3]:.2f} {s[4]:.2f} {s[5]:.2f}"
-    )
+    mm = " ".join(f"{v:.{2 if v < 10 else 1 if v < 100 else 0}f}" for v in s[3:])  # 4 digits
+    body = f"deg {s[0]:.3f} {s[1]:.3f} {s[2]:.3f}  mm {mm}"
     if u.seconds:  # the time of an update the calibrator made (none: the run's solve again)
-        body += f"  ({1e3 * u.seconds:.0f} ms)"
+        body += f"  {1e3 * u.seconds:.0f} ms" if u.seconds < 10 else f"  {u.seconds:.1f} s"
     if target_sigma is not None:
-        body += "  target reached" if u.reached_target else "  target not yet reached"
-    return f"{head}  {body}"
+        body += "  target reached" if u.reached_target else "  target not yet"
+    return f"{head} {body}"
 
 
 def _update_dict(u: FrameUpdate) -> dict[str, Any]:
