@@ -124,6 +124,7 @@ def test_a_rig_refits_its_boards_and_verify_corrects_a_capture_alike(tmp_path: P
     done = _cli("calibrate", str(tmp_path / "cal"), "--out", str(out), "--no-report", "--jobs", "2")
     assert done.returncode == 0, done.stderr[-2000:]
     assert "fitted again on their ranges corrected" in done.stderr
+    assert "the base LiDAR (vlp16)" in done.stdout and "LiDAR offset: +" in done.stdout  # as a pair says
     cal = out / "calibration.yaml"
     errors = yaml.safe_load(cal.read_text())["lidar_errors"]
     offset = dict(zip(errors["names"], errors["values"], strict=True))["offset"]

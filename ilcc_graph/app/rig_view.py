@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ilcc_graph.report.sensors import sensors_lines
 from ilcc_graph.report.summary import lidar_in_camera
 
 if TYPE_CHECKING:
@@ -45,4 +46,17 @@ def rig_lines(cal: RigCalibration) -> list[str]:
     counts = cal.extra.get("used") or {}
     used = ", ".join(f"{s} {counts.get(s, 0)}" for s in cal.sensors)
     lines += textwrap.wrap(f"moments in the graph per sensor: {used}", WIDTH, subsequent_indent="  ")
+    return lines + _base_lidar(cal)
+
+
+def _base_lidar(cal: RigCalibration) -> list[str]:
+    """The base LiDAR's sensor model and the errors it estimated, as a pair's summary says them."""
+    sensors = {"model": cal.extra.get("sensor_model"), "lidar_errors": cal.extra.get("lidar_errors")}
+    said = sensors_lines({k: v for k, v in sensors.items() if v}, {})
+    if not said:
+        return []
+    base = (cal.extra.get("lidar_errors") or {}).get("lidar")
+    lines = [f"the base LiDAR{f' ({base})' if base else ''}, the rig's first (its errors in the graph):"]
+    for line in said:
+        lines += textwrap.wrap(line, WIDTH, initial_indent="  ", subsequent_indent="    ")
     return lines

@@ -9,7 +9,7 @@ what the board's printed scale would move (``square_size_text``). Pure: returns 
 from __future__ import annotations
 
 import html
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -18,7 +18,7 @@ from ..estimation.effects import SQUARE_SIZE_KEY
 from ..estimation.selection import Selection
 from ..types import Calibration, lidar_term_units
 
-__all__ = ["model_text", "sensors_html", "sensors_text", "square_size_text"]
+__all__ = ["model_text", "sensors_html", "sensors_lines", "sensors_text", "square_size_text"]
 
 _GROUPS = {
     "lidar_errors": "LiDAR error terms (held at zero)",
@@ -141,8 +141,15 @@ def model_text(cal: Calibration) -> str:
 def sensors_text(cal: Calibration) -> str:
     """A few lines for the terminal: the sensor model chosen, the sensors' own errors ("" when
     neither)."""
-    sensors = cal.sensors or {}
-    lines: list[str] = [line] if (line := model_text(cal)) else []
+    return "\n".join(sensors_lines(cal.sensors or {}, cal.diagnostics or {}))
+
+
+def sensors_lines(sensors: Mapping[str, Any], diagnostics: Mapping[str, float]) -> list[str]:
+    """``sensors_text``'s lines from a calibration's ``sensors`` (a pair's ``Calibration.sensors``;
+    a rig's ``sensor_model`` and ``lidar_errors`` as ``model`` and ``lidar_errors``) and its
+    ``diagnostics`` (the boards fitted again)."""
+    model = sensors.get("model")
+    lines: list[str] = [Selection.from_dict(model).summary()] if model else []
     lid = sensors.get("lidar_errors")
     if lid is not None and lid["names"]:
         names = list(lid["names"])
@@ -161,11 +168,11 @@ def sensors_text(cal: Calibration) -> str:
                 lines.append(f"LiDAR {n}: {1e3 * v[i]:+.2f} mm, sigma {1e3 * s[i]:.2f} mm")
             else:
                 lines.append(f"LiDAR {n}: {v[i]:+.3g}, sigma {s[i]:.2g}")
-    refit = (cal.diagnostics or {}).get("lidar_boards_on_corrected_ranges")
+    refit = diagnostics.get("lidar_boards_on_corrected_ranges")
     if refit:
         lines.append(
             f"{refit:.0f} boards fitted again on their ranges corrected by these errors "
-            f"({cal.diagnostics.get('lidar_range_correction_mm', 0.0):+.1f} mm on average)"
+            f"({diagnostics.get('lidar_range_correction_mm', 0.0):+.1f} mm on average)"
         )
     if lid is not None and lid.get("board_plane"):
         lines.append(board_plane_text(lid["board_plane"]))
@@ -176,7 +183,7 @@ def sensors_text(cal: Calibration) -> str:
             f"without the {_GROUPS.get(k, k)}: the extrinsic moves {e['rotation_deg']:.4f} deg, "
             f"{e['translation_mm']:.2f} mm ({e['mahalanobis']:.1f} sigma)"
         )
-    return "\n".join(lines)
+    return lines
 
 
 def square_size_text(cal: Calibration) -> str:
