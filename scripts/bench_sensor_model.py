@@ -52,8 +52,9 @@ from ilcc_graph.estimation.selection import (
 )
 from ilcc_graph.image import detect_corners
 from ilcc_graph.lidar import LidarOptions, estimate_board
+from ilcc_graph.lidar.stretch import correction_of, significant
 from ilcc_graph.run.prepare import prepare
-from ilcc_graph.run.range_refit import correction_of, refit_frames, significant
+from ilcc_graph.run.range_refit import refit_frames
 from ilcc_graph.simulate import (
     ImageRenderer,
     SceneOptions,

@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from ilcc_graph.app import main
 from ilcc_graph.estimation.selection import AUTO, MODELS, candidates
 from ilcc_graph.lidar import estimate_board
-from ilcc_graph.run.range_refit import REFIT_RATIO, correction_of, largest_stretch, significant
+from ilcc_graph.lidar.stretch import REFIT_RATIO, correction_of, largest_stretch, significant
 from ilcc_graph.simulate import Systematics, board_placements, frame_scene, simulate_scan, standard_spec
 from ilcc_graph.types import FrameResult, RangeCorrection
 

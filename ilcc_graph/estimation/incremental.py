@@ -4,7 +4,10 @@ The graph is the batch strategy's (``X(0)`` = ``T_cam_lidar``, ``B(i)`` = ``T_li
 frame i, the LiDAR prior and one grouped bearing factor per frame, built by ``graphs``), grown by
 ``gtsam.ISAM2``. Each frame adds one variable and two factors; iSAM2 re-eliminates only the cliques
 they touch (``X(0)`` sits at the root) and relinearises only variables that moved more than
-``relinearize_threshold``. While frames arrive, the sigmas come from the stated noise. ``finish()``
+``relinearize_threshold``. While frames arrive, the sigmas come from the stated noise times the
+variance factor the frames so far show (their graph's chi-square over its redundancy, at least 1: a
+real LiDAR whose boards disagree beyond their stated noise, e.g. by its per-beam range offsets, is
+not claimed to be better known than the frames show). ``finish()``
 solves every frame offered with the batch strategy (the core's noise policy: gate, variance
 components, final factor) from the current estimate, so its answer is the batch answer.
 
@@ -14,8 +17,10 @@ UPnP start unless ``T_init`` is given); every later frame takes the order whose 
 the current estimate is smaller.
 
 A frame whose chi-square (its board re-fitted with the extrinsic held at the current estimate)
-exceeds the ``gate_prob`` quantile is rejected with the reason and changes nothing while frames
-arrive; ``finish()`` judges every frame again, as the batch strategy does.
+exceeds the ``gate_prob`` quantile times that variance factor is rejected with the reason and changes
+nothing while frames arrive; ``finish()`` judges every frame again, as the batch strategy does. (With
+the stated noise alone, 16 of the 19 frames of the recorded VLP-16 set were rejected after the first
+three: chi-square 190-500 for 70 dof, the variance factor of those three frames about 4.)
 """
 
 from __future__ import annotations
@@ -61,6 +66,8 @@ class FrameUpdate:
     name: the frame's name. accepted: False when the frame was rejected (``reason`` says why).
     n_frames: frames in the graph. seconds: wall time of this update (iSAM2 + marginal).
     solution: after ``finish()``, the batch strategy's answer on every frame offered.
+    variance_factor: the factor on the stated noise that ``covariance`` carries (the frames so far:
+    their chi-square over its redundancy, at least 1; the batch's own after ``finish()``).
     """
 
     T_cam_lidar: np.ndarray | None
@@ -73,6 +80,7 @@ class FrameUpdate:
     n_frames: int = 0
     seconds: float = 0.0
     solution: BatchSolution | None = None
+    variance_factor: float = 1.0
 
     def __iter__(self) -> Iterator[np.ndarray | bool | None]:  # unpacks as its three main fields
         return iter((self.T_cam_lidar, self.sigmas, self.reached_target))
@@ -126,6 +134,10 @@ class IncrementalCalibrator:
     _names: set[str] = field(init=False, repr=False, default_factory=set)
     _T: gtsam.Pose3 | None = field(init=False, repr=False, default=None)
     _cov: np.ndarray | None = field(init=False, repr=False, default=None)
+    _cov_stated: np.ndarray | None = field(init=False, repr=False, default=None)
+    _scale: float = field(init=False, repr=False, default=1.0)
+    _rows: int = field(init=False, repr=False, default=0)  # the bearing rows of the frames in the graph
+    _scale_frames: int = field(init=False, repr=False, default=0)  # the frames when _scale was computed
 
     def __post_init__(self) -> None:
         if self.init_frames < 1:
@@ -285,7 +297,22 @@ class IncrementalCalibrator:
         return f, fac
 
     def _gate(self, f: GraphFrame, fac: FrameBearingFactor | None) -> tuple[bool, str | None]:
-        return innovation_gate(f, fac, self._pose, self._cov, self.gate_prob)
+        return innovation_gate(f, fac, self._pose, self._cov_stated, self.gate_prob, self._scale)
+
+    def _variance_factor(self) -> float:
+        """The frames in the graph: their chi-square under the stated noise over its redundancy (the
+        bearing rows less the extrinsic's 6; each board's prior and pose cancel), at least 1. It
+        takes every frame's estimate, so it is computed again only when the frames have grown by a
+        tenth since it last was (every frame up to 20): a constant cost per frame on average."""
+        n = len(self._frames)
+        if n > 20 and n < 1.1 * self._scale_frames:
+            return self._scale
+        self._scale_frames = n
+        rows = self._rows - 6
+        if rows <= 0:
+            return 1.0
+        chi2 = 2.0 * float(self._isam.getFactorsUnsafe().error(self._isam.calculateEstimate()))
+        return max(1.0, chi2 / rows)
 
     def _insert(self, frames: Iterable[GraphFrame], first: bool) -> None:
         graph = gtsam.NonlinearFactorGraph()
@@ -302,6 +329,7 @@ class IncrementalCalibrator:
             prior = gtsam.Pose3(np.asarray(f.T_lidar_board, dtype=np.float64))
             graph.add(gtsam.PriorFactorPose3(B(i), prior, gaussian(f.board_cov)))
             graph.add(fac.factor())
+            self._rows += fac.dim
             values.insert(B(i), prior)
             self._frames.append(f)
             n += 1
@@ -333,11 +361,14 @@ class IncrementalCalibrator:
         )  # fmt: skip
         kept = [f for f in self._offered if f.name in sol.per_frame]
         self._isam = gtsam.ISAM2(self._isam.params())
-        self._frames = []
+        self._frames, self._rows = [], 0
         self._T = gtsam.Pose3(sol.T_cam_lidar)
         self._insert(kept, first=True)
         self._T = gtsam.Pose3(sol.T_cam_lidar)
         self._cov = sol.covariance
+        self._cov_stated = self._marginal()
+        self._scale_frames = 0  # the frames kept: the factor afresh
+        self._scale = self._variance_factor()
         return self._result("", t0, sol)
 
     # -------------------------------------------------------------------------------- results
@@ -345,8 +376,14 @@ class IncrementalCalibrator:
         sig = np.sqrt(np.diag(sol.covariance))
         n, dt = len(sol.per_frame), time.perf_counter() - t0
         return FrameUpdate(
-            sol.T_cam_lidar, sig, self._reached(sig), sol.covariance, name, True, None, n, dt, sol
+            sol.T_cam_lidar, sig, self._reached(sig), sol.covariance, name, True, None, n, dt, sol,
+            sol.variance_factor,
         )
+
+    def _marginal(self) -> np.ndarray:
+        """(6, 6) the extrinsic's marginal covariance under the stated noise."""
+        cov = np.asarray(self._isam.marginalCovariance(X(0)), dtype=np.float64)
+        return 0.5 * (cov + cov.T)
 
     def _reached(self, sig: np.ndarray) -> bool:
         if self.target_sigma is None:
@@ -360,12 +397,12 @@ class IncrementalCalibrator:
             return FrameUpdate(
                 None, np.full(6, np.inf), False, nan, name, accepted, reason, 0, time.perf_counter() - t0
             )
-        cov = np.asarray(self._isam.marginalCovariance(X(0)), dtype=np.float64)
-        cov = 0.5 * (cov + cov.T)
-        self._cov = cov
+        self._cov_stated = self._marginal()
+        self._scale = self._variance_factor()
+        cov = self._cov = self._scale * self._cov_stated
         sig = np.sqrt(np.diag(cov))
         T, n, dt = np.asarray(self._T.matrix()), len(self._frames), time.perf_counter() - t0
-        return FrameUpdate(T, sig, self._reached(sig), cov, name, accepted, reason, n, dt)
+        return FrameUpdate(T, sig, self._reached(sig), cov, name, accepted, reason, n, dt, None, self._scale)
 
 
 def calibrate_incrementally(

@@ -66,15 +66,18 @@ def innovation_gate(
     T_cam_lidar: gtsam.Pose3,
     cov_cam_lidar: np.ndarray | None,
     gate_prob: float | None,
+    scale: float = 1.0,
 ) -> tuple[bool, str | None]:
     """(accepted, reason): the frame passes when its chi-square is at most the ``gate_prob`` quantile
-    of its dof (None: always); a frame without a factor (too few usable corners) never does."""
+    of its dof (None: always) times ``scale`` (the variance factor of the noise the frames so far
+    show); a frame without a factor (too few usable corners) never does."""
     if fac is None:
         return False, "fewer than 3 corners with a usable bearing covariance"
     if gate_prob is None:
         return True, None
     c2, dof = innovation_chi2(f, fac, T_cam_lidar, cov_cam_lidar), fac.dim
-    bound = float(chi2_dist.ppf(gate_prob, dof))
+    bound = float(chi2_dist.ppf(gate_prob, dof)) * scale
     if c2 > bound:
-        return False, f"chi-square gate: {c2:.1f} > {bound:.1f} ({dof} dof, p={gate_prob})"
+        times = f"; noise {scale:.2f} x stated, as the frames so far show" if scale != 1.0 else ""
+        return False, f"chi-square gate: {c2:.1f} > {bound:.1f} ({dof} dof, p={gate_prob}{times})"
     return True, None

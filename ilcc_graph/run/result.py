@@ -47,7 +47,7 @@ class RunOptions:
     second_pass: once an extrinsic is known, search the boards the LiDAR stage missed (or found
         elsewhere than the image says) near where the image and the extrinsic put them, and solve again.
     range_refit: when the LiDAR's estimated range errors stretch some board's pattern by more than
-        three of its in-plane sigmas (``run.range_refit.REFIT_RATIO``), fit every board again on its
+        three of its in-plane sigmas (``lidar.stretch.REFIT_RATIO``), fit every board again on its
         ranges corrected by them and solve again.
     lidar_errors: the LiDAR's own errors the graph estimates from the boards' returns (None: none,
         the default: on the recorded sets the boards' 6-dof LiDAR priors gave halves that agree,

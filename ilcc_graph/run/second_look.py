@@ -19,8 +19,8 @@ from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import FrameError
 from ilcc_graph.init import upnp
 from ilcc_graph.lidar import LidarOptions
+from ilcc_graph.lidar.stretch import correction_of, significant
 from ilcc_graph.run.observe import Observation
-from ilcc_graph.run.range_refit import correction_of, significant
 from ilcc_graph.run.stages import StageOptions, attempt, observe_lidar
 from ilcc_graph.types import Calibration, ExpectedBoard, FrameResult, ImageCorners, RangeCorrection
 
@@ -79,7 +79,7 @@ def second_pass(
     Frames with image corners whose LiDAR board is missing, or lies more than ``far_m`` from where
     the image and ``cal``'s extrinsic put it, are searched again near that place (on the ranges
     corrected by ``cal``'s estimate of the LiDAR's errors when ``refit`` and those are
-    ``range_refit.significant``). None too without a pair's source to read the scans from
+    ``lidar.stretch.significant``). None too without a pair's source to read the scans from
     (``Observation.pair_source``).
     """
     source = obs.pair_source

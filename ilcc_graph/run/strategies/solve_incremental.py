@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import textwrap
 from collections.abc import Sequence
 from typing import Any
 
@@ -112,7 +113,7 @@ def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = Non
     (rx ry rz) and mm (tx ty tz), the update's time, whether the target is reached."""
     head = f"{u.name or '(final)':>8s} n={u.n_frames:<3d}"
     if not u.accepted:
-        return f"{head} rejected: {u.reason}"
+        return "\n".join(textwrap.wrap(f"{head} rejected: {u.reason}", 80, subsequent_indent=" " * 15))
     if u.T_cam_lidar is None:
         return f"{head} {u.reason or 'waiting'}"
     s = sigmas_deg_mm(u.covariance)
