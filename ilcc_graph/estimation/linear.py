@@ -9,7 +9,7 @@ plus one dense inverse over the globals.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import gtsam
@@ -96,11 +96,15 @@ class Reduced:
     Dinv: dict[int, np.ndarray]
     C: dict[int, np.ndarray]
     S: np.ndarray
+    _cols: dict[tuple[int, ...], np.ndarray] = field(default_factory=dict)
 
     def cols(self, keys: Sequence[int]) -> np.ndarray:
-        if not keys:
-            return np.zeros(0, int)
-        return np.concatenate([np.arange(self.index[k], self.index[k] + self.dims[k]) for k in keys])
+        """The columns of the global ``keys`` in ``S``, in that order (kept per key tuple)."""
+        got = self._cols.get(t := tuple(keys))
+        if got is None:
+            parts = [np.arange(self.index[k], self.index[k] + self.dims[k]) for k in keys]
+            got = self._cols[t] = np.concatenate(parts) if parts else np.zeros(0, int)
+        return got
 
 
 def reduce(
@@ -159,16 +163,13 @@ def redundancies(
     except np.linalg.LinAlgError:
         raise IndeterminateSystem("the graph does not determine its global variables") from None
     out: dict[tuple[str, str], list[float]] = {}
+    sigs: dict[tuple[int | None, tuple[int, ...]], np.ndarray] = {}  # a board's rows share its Sig
     for kind, group, board_key, A_b, g_keys, A_g, b, count in red.blocks:
-        c = red.cols(g_keys)
-        if board_key is not None and A_b is not None:
-            di, ci = red.Dinv[board_key], red.C[board_key]
-            S_bg = -di @ ci @ S_inv  # (6, G)
-            S_bb = di - S_bg @ ci.T @ di
-            A = np.hstack([A_b, A_g])
-            Sig = np.block([[S_bb, S_bg[:, c]], [S_bg[:, c].T, S_inv[np.ix_(c, c)]]])
-        else:
-            A, Sig = A_g, S_inv[np.ix_(c, c)]
+        bk = board_key if A_b is not None else None
+        Sig = sigs.get(sk := (bk, tuple(g_keys)))
+        if Sig is None:
+            Sig = sigs[sk] = _joint_inverse(red, S_inv, bk, g_keys)
+        A = np.hstack([A_b, A_g]) if A_b is not None and bk is not None else A_g
         acc = out.setdefault((kind, group), [0.0, 0.0])
         acc[0] += float(b @ b)
         if count is None:
@@ -179,6 +180,20 @@ def redundancies(
         if information is not None:
             information[(kind, group)] = information.get((kind, group), 0.0) + float(np.sum(ZPZ * ZPZ))
     return {k: (v[0], v[1]) for k, v in out.items()}
+
+
+def _joint_inverse(
+    red: Reduced, S_inv: np.ndarray, board_key: int | None, g_keys: Sequence[int]
+) -> np.ndarray:
+    """The inverse information of ``board_key`` (None: no board) and the global ``g_keys``, jointly
+    (the board's block first): what a factor's rows on those variables see of ``N^-1``."""
+    c = red.cols(g_keys)
+    if board_key is None:
+        return S_inv[np.ix_(c, c)]
+    di, ci = red.Dinv[board_key], red.C[board_key]
+    S_bg = -di @ ci @ S_inv  # (6, G)
+    S_bb = di - S_bg @ ci.T @ di
+    return np.block([[S_bb, S_bg[:, c]], [S_bg[:, c].T, S_inv[np.ix_(c, c)]]])
 
 
 def consider_covariance(sol: Solution, e: int = 0) -> np.ndarray:

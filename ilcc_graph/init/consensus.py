@@ -113,6 +113,10 @@ class Frames:
         self.noise = noise
         self.gk = strict_gate
         self.rounds = rounds
+        # every frame with as many corners: all frames' errors at once (the same numbers)
+        same = len({x.shape for x in L}) == 1 and len({x.shape for x in F}) == 1
+        self._stacked = (np.stack(L), np.stack(F), np.stack([self.oriented(a, 1) for a in range(len(F))])
+                         if perm is not None else None) if same and L else None  # fmt: skip
 
     def oriented(self, a: int, o: int) -> np.ndarray:
         return self.F[a][self.perm] if o else self.F[a]
@@ -120,6 +124,13 @@ class Frames:
     def errors(self, T: np.ndarray) -> np.ndarray:
         """(n, 2) RMS bearing error (rad) of each frame per order; inf where it cannot flip."""
         E = np.full((len(self.L), 2), np.inf)
+        if self._stacked is not None:
+            Ls, F0, F1 = self._stacked
+            E[:, 0] = rms(bearing_errors(T, Ls, F0))
+            if F1 is not None:
+                flip = np.asarray(self.flip_ok, dtype=bool)
+                E[flip, 1] = rms(bearing_errors(T, Ls[flip], F1[flip]))
+            return E
         for a in range(len(self.L)):
             for o in (0, 1) if self.flip_ok[a] else (0,):
                 E[a, o] = rms(bearing_errors(T, self.L[a], self.oriented(a, o)))

@@ -75,16 +75,17 @@ def board_scale(
         if c is not None:
             cam.append(c)
             lid.append(T[:3, :3] @ board.pattern_centre + T[:3, 3])
-    ratios = []
-    for i in range(len(cam)):
-        for j in range(i + 1, len(cam)):
-            d_cam, d_lid = float(np.linalg.norm(cam[i] - cam[j])), float(np.linalg.norm(lid[i] - lid[j]))
-            if d_cam >= min_apart_m and d_lid > 0:
-                ratios.append(d_cam / d_lid)
-    if not ratios:
+    C, P = np.asarray(cam).reshape(-1, 3), np.asarray(lid).reshape(-1, 3)
+    parts = []
+    for i in range(len(C) - 1):  # every pair once: frame i with the later ones, a row at a time
+        d_cam, d_lid = np.linalg.norm(C[i] - C[i + 1 :], axis=1), np.linalg.norm(P[i] - P[i + 1 :], axis=1)
+        ok = (d_cam >= min_apart_m) & (d_lid > 0)
+        parts.append(d_cam[ok] / d_lid[ok])
+    ratios = np.concatenate(parts) if parts else np.zeros(0)
+    if not len(ratios):
         return None
     k = float(np.median(ratios))
-    return k, float(np.median(np.abs(np.asarray(ratios) - k))), len(ratios)
+    return k, float(np.median(np.abs(ratios - k))), len(ratios)
 
 
 def _square_size_line(board: Board, k: float, evidence: str) -> str:
