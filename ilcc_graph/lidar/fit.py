@@ -24,6 +24,7 @@ from .options import LidarOptions
 __all__ = [
     "InPlaneFit",
     "PlaneFrame",
+    "align_to_plane",
     "fit_in_plane",
     "plane_frame",
     "pose_from_in_plane",
@@ -44,6 +45,23 @@ class PlaneFrame:
     origin: np.ndarray
     axes: np.ndarray
     offset: float
+
+
+def align_to_plane(T: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
+    """T_lidar_board turned by the smallest rotation to make its z ``normal``; its origin put on the plane."""
+    z = T[:3, 2]
+    v = np.cross(z, normal)
+    sn, cs = np.linalg.norm(v), float(z @ normal)
+    R = np.eye(3)
+    if sn > 1e-12:
+        k = v / sn
+        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        R = np.eye(3) + sn * K + (1 - cs) * K @ K
+    out = np.eye(4)
+    out[:3, :3] = R @ T[:3, :3]
+    o = T[:3, 3]
+    out[:3, 3] = o - (o @ normal - offset) * normal
+    return out
 
 
 def project_on_plane(points: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:

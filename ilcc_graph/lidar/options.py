@@ -102,6 +102,11 @@ class LidarOptions:
     quarter_turn_score, quarter_turn_odds: without a visible print, a quarter-turned outline whose
         start scores at least ``quarter_turn_score`` of the best is fitted too, and the board is
         refused when neither is ``quarter_turn_odds`` times likelier.
+    margin_search_m: where the print shows, each edge of the board's backing is sought up to this far
+        beyond the configured margin (m; margin.py: the margin measured, per side).
+    margin_contradiction_m: a margin measured on both sides of an axis contradicts the configured
+        one when they differ by more than this (m) plus 3 sigma; the outline then checks the fit as
+        the board measured (or not at all when an axis could not be measured).
     max_inplane_2sigma_squares: a fit whose in-plane uncertainty (2 sigma at the board's corners)
         exceeds this many squares is refused.
     """
@@ -142,6 +147,8 @@ class LidarOptions:
     min_shape_agreement: float = 0.9
     quarter_turn_score: float = 0.85
     quarter_turn_odds: float = 20.0
+    margin_search_m: float = 0.3
+    margin_contradiction_m: float = 0.03
     max_inplane_2sigma_squares: float = 1.0
 
 

@@ -23,7 +23,8 @@ from ..types import BoardFit, BoardReturns
 from .board_tests import print_visible
 from .cost import intensity_classes
 from .covariance import PlaneFit, assemble_covariance, plane_fit, ray_coupling, sampling_covariance
-from .fit import InPlaneFit, fit_in_plane, plane_frame, pose_from_in_plane, project_on_plane
+from .fit import InPlaneFit, align_to_plane, fit_in_plane, plane_frame, pose_from_in_plane, project_on_plane
+from .margin import outline_board
 from .options import LidarOptions, breach
 from .outline import (
     ShapeCheck,
@@ -42,23 +43,6 @@ from .shape import outline_posterior, outline_samples
 from .soft_edge import se2_exp, soft_edge_refine, soft_intensity
 
 __all__ = ["fit_board_points", "project"]
-
-
-def _align_to_plane(T: np.ndarray, normal: np.ndarray, offset: float) -> np.ndarray:
-    """T_lidar_board turned by the smallest rotation to make its z ``normal``; its origin put on the plane."""
-    z = T[:3, 2]
-    v = np.cross(z, normal)
-    sn, cs = np.linalg.norm(v), float(z @ normal)
-    R = np.eye(3)
-    if sn > 1e-12:
-        k = v / sn
-        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-        R = np.eye(3) + sn * K + (1 - cs) * K @ K
-    out = np.eye(4)
-    out[:3, :3] = R @ T[:3, :3]
-    o = T[:3, 3]
-    out[:3, 3] = o - (o @ normal - offset) * normal
-    return out
 
 
 def project(points: np.ndarray, normal: np.ndarray, offset: float, how: str) -> np.ndarray:
@@ -122,7 +106,7 @@ def _half_turn(T: np.ndarray, cov: np.ndarray, board: Board) -> tuple[np.ndarray
 class _InPlane:
     """A board's in-plane fit: pose T (on its plane), the pool's returns it used, the plane noise
     s_z, the in-plane covariance (rz, tx, ty) given the plane and the coupling K to it, the
-    intensity classes' thresholds and levels (None without a visible print), diagnostics."""
+    intensity classes' thresholds and levels (None without a visible print), diagnostics, the board."""
 
     T: np.ndarray
     P: np.ndarray
@@ -134,6 +118,7 @@ class _InPlane:
     tau: tuple[float, float] | None = None
     levels: tuple[float, float] | None = None
     diag: dict[str, float] = field(default_factory=dict)
+    board: Board | None = None  # the board as measured, when the scan contradicts the configured margin
 
 
 def _plane_passes(P: np.ndarray, ring: np.ndarray, T: np.ndarray, board: Board, options: LidarOptions,
@@ -158,7 +143,7 @@ def _plane_passes(P: np.ndarray, ring: np.ndarray, T: np.ndarray, board: Board, 
         rx, ry, tz = pf.coef[:3]
         n_b = np.array([ry, -rx, 1.0]) / np.sqrt(1 + rx * rx + ry * ry)  # plane normal, board frame
         n = T[:3, :3] @ n_b
-        T = _align_to_plane(T, n, float(n @ (T[:3, :3] @ np.array([0.0, 0.0, tz]) + T[:3, 3])))
+        T = align_to_plane(T, n, float(n @ (T[:3, :3] @ np.array([0.0, 0.0, tz]) + T[:3, 3])))
     return T, s_z
 
 
@@ -228,22 +213,29 @@ def _pattern(
     except ValueError as e:
         raise BoardNotFound(f"the board's points show no black/white contrast ({e})") from None
     t_powell = time.perf_counter() - t0
-    T, s_z = _plane_passes(P, ring, pose_from_in_plane(frame, fit.params), board, options,
-                           lambda m: intensity_classes(inten[m], *fit.tau) == 0)  # fmt: skip
+    black = lambda m: intensity_classes(inten[m], *fit.tau) == 0  # noqa: E731
+    T, s_z = _plane_passes(P, ring, pose_from_in_plane(frame, fit.params), board, options, black)
     res = _refine(P, inten, ring, T, s_z, board, model, fit, options)
     res.diag.update({"powell_evals": float(fit.n_evals), "time_powell_s": t_powell, "cost": float(fit.cost),
                      "intensity_low": fit.levels[0], "intensity_high": fit.levels[1]})  # fmt: skip
     if options.shape == "off":
         return res
-    first = chk = shape_check(scan_pts, res.T, res.cov, board, model, s_z, options, rng)
+    ob, margin = outline_board(scan_pts, res.T, res.cov, board, model, s_z, options)  # margin measured
+    res.diag.update(margin)
+    if ob is None:  # the scan contradicts the configured margin and does not show the board's own
+        return res
+    if ob is not board:  # the plane fitted again on the returns of the board as measured
+        res.T, res.s_z = _plane_passes(P, ring, res.T, ob, options, black)
+        res.board = ob
+    first = chk = shape_check(scan_pts, res.T, res.cov, ob, model, res.s_z, options, rng)
     moved = 0.0
     if chk.slid:  # the pattern moved by whole squares (or half-turned) to where the outline is
-        res, chk, moved = _moved_to_outline(res, chk, fit, scan_pts, board, model, options, rng)
+        res, chk, moved = _moved_to_outline(res, chk, fit, scan_pts, (board, ob), model, options, rng)
     res.diag.update(
         shape_diagnostics(chk.fit, first) | {"shape_chi2_final": chk.chi2, "pattern_moved_squares": moved}
     )
     if options.shape == "fuse" and chk.consistent:
-        K_s = outline_coupling(chk.samples, chk.fit, board)
+        K_s = outline_coupling(chk.samples, chk.fit, ob)
         xi, res.cov, res.K = fuse(res.cov, res.K, chk, K_s)
         res.T = apply_xi(res.T, xi)
     return res
@@ -259,22 +251,24 @@ def _centre_shift(xi: np.ndarray, board: Board) -> np.ndarray:
 
 
 def _moved_to_outline(
-    res: _InPlane, chk: ShapeCheck, fit: InPlaneFit, scan_pts: np.ndarray, board: Board, model: LidarModel,
-    options: LidarOptions, rng: np.random.Generator,
+    res: _InPlane, chk: ShapeCheck, fit: InPlaneFit, scan_pts: np.ndarray, boards: tuple[Board, Board],
+    model: LidarModel, options: LidarOptions, rng: np.random.Generator,
 ) -> tuple[_InPlane, ShapeCheck, float]:  # fmt: skip
     """A slid pattern fit moved by the whole squares (up to two along each side) and/or the half turn
     the outline allows, refined again there: the first that agrees with the outline, its check and
-    the move in squares; BoardNotFound when none does."""
+    the move in squares; BoardNotFound when none does. boards: the configured one (the pattern's)
+    and the one whose outline checks it (``margin.outline_board``)."""
+    board, ob = boards
     gate = float(chi2_dist.ppf(options.shape_gate_p, 3))
     keep = ("powell_evals", "time_powell_s", "intensity_low", "intensity_high")
-    for xi in lattice_moves(board, chk, res.cov, gate)[:4]:
+    for xi in lattice_moves(ob, chk, res.cov, gate)[:4]:
         try:
             alt = _refine(
                 res.P, res.inten, res.ring, apply_xi(res.T, xi), res.s_z, board, model, fit, options
             )
         except BoardNotFound:
             continue
-        alt_chk = shape_check(scan_pts, alt.T, alt.cov, board, model, res.s_z, options, rng)
+        alt_chk = shape_check(scan_pts, alt.T, alt.cov, ob, model, res.s_z, options, rng)
         if not alt_chk.slid:
             # (the paper's cost was Powell's, at the slid pose: not carried over)
             alt.diag.update({k: res.diag[k] for k in keep})
@@ -358,6 +352,7 @@ def fit_board_points(
     )
     how = _pattern if visible else _outline
     res = how(P, inten, ring, normal, offset, board, lidar_model, options, rng, scan_pts)
+    board = res.board or board  # the board as measured, when the scan contradicts the configured margin
     fit = _finish(res, board, lidar_model, options, not visible, t0, c0)
     if scan_points is not None:  # the part beyond a cropped scan's window, too
         fit.diagnostics["outside_fov_share"] = fov_share(fit.T_lidar_board, board, lidar_model, scan_pts)

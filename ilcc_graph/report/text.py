@@ -6,6 +6,7 @@ from __future__ import annotations
 import textwrap
 from collections.abc import Sequence
 
+from ..lidar.margin import margin_words
 from ..lidar.outline import BEYOND_FOV_SHARE
 from ..types import BoardFit, Calibration, sigmas_deg_mm
 
@@ -149,7 +150,8 @@ def lidar_frame_note(board: BoardFit | None, beyond: float = BEYOND_FOV_SHARE) -
 
 def lidar_view_lines(cal: Calibration, beyond: float = BEYOND_FOV_SHARE) -> list[str]:
     """Lines on how the LiDAR saw the used boards: placed by their outline alone (no print in its
-    intensity), partly beyond its field of view (more than ``beyond`` of the board's area)."""
+    intensity), partly beyond its field of view (more than ``beyond`` of the board's area), a margin
+    that contradicts the configured one (``lidar.margin.margin_words``)."""
     used = [f for f in cal.frames if f.used and f.board is not None]
     plain = [f.name for f in used if f.board.diagnostics.get("no_contrast")]  # type: ignore[union-attr]
     out = [f.name for f in used if f.board.diagnostics.get("outside_fov_share", 0.0) > beyond]  # type: ignore[union-attr]
@@ -158,4 +160,6 @@ def lidar_view_lines(cal: Calibration, beyond: float = BEYOND_FOV_SHARE) -> list
         lines.append(f"boards placed by their outline (no print in the LiDAR intensity): {_names(plain)}")
     if out:
         lines.append(f"boards partly beyond the LiDAR's field of view (that part unused): {_names(out)}")
+    if margin := margin_words(cal.diagnostics or {}):
+        lines.append(margin[0].upper() + margin[1:])
     return lines

@@ -24,12 +24,14 @@ from typing import Any, NoReturn
 
 import numpy as np
 
+from ilcc_graph.board import Board
 from ilcc_graph.config import Config
 from ilcc_graph.errors import DISAGREEING, CalibrationImpossible
 from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.effects import SQUARE_SIZE_KEY
 from ilcc_graph.estimation.gate import far_above
 from ilcc_graph.estimation.geometry import MIN_DISTINCT_POSES
+from ilcc_graph.lidar.margin import margin_summary
 from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
 from ilcc_graph.run.diagnose import dropped_frame_cause, fit_image_alone, moved_boards, residual_causes
 from ilcc_graph.run.prepare import Prepared, drop, frame_issues
@@ -129,7 +131,7 @@ def finish(
         require_agreement(frames, config, answer.T_cam_lidar)
         require_covered(frames, answer.failing, config, answer.T_cam_lidar)
     diagnostics = {
-        **lidar_view_counts(frames),
+        **lidar_view_counts(frames, config.board),
         "iterations": float(answer.iterations),
         "variance_factor": answer.variance_factor,
         "variance_component_board": answer.variance_components[0],
@@ -201,12 +203,13 @@ _CHECK = (
 )
 
 
-def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:
+def lidar_view_counts(frames: Sequence[FrameResult], board: Board | None = None) -> dict[str, float]:
     """How the LiDAR saw the used frames' boards: ``lidar_boards_no_print`` (fitted by the outline
     alone), ``lidar_boards_beyond_fov`` (partly above the top beam or below the lowest) and
     ``lidar_boards_on_corrected_ranges`` (fitted again on the ranges corrected by the LiDAR's
     estimated errors, ``run.range_refit``; with ``lidar_range_correction_mm``, their mean), counts,
-    each only when not 0."""
+    each only when not 0; with ``board``, the margin the boards measured when it contradicts the
+    configured one (``lidar.margin.margin_summary``)."""
     boards = [f.board.diagnostics for f in frames if f.used and f.board is not None]
     corrected = [d["range_correction_mm"] for d in boards if "range_correction_mm" in d]
     counts = {
@@ -217,7 +220,8 @@ def lidar_view_counts(frames: Sequence[FrameResult]) -> dict[str, float]:
         "lidar_boards_on_corrected_ranges": float(len(corrected)),
         "lidar_range_correction_mm": float(np.mean(corrected)) if corrected else 0.0,
     }
-    return {k: v for k, v in counts.items() if v}
+    margin = margin_summary(boards, board) if board is not None else {}
+    return {k: v for k, v in counts.items() if v} | margin
 
 
 def require_covered(

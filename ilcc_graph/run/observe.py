@@ -19,6 +19,7 @@ from ilcc_graph.config import Config, RigConfig
 from ilcc_graph.datasets import FrameRef, FrameSource, RigSource
 from ilcc_graph.errors import FrameError, InputError
 from ilcc_graph.lidar import INTENSITY_UNUSABLE
+from ilcc_graph.lidar.margin import margin_summary, margin_words
 from ilcc_graph.run.colour import colour_votes, colour_warning
 from ilcc_graph.run.rig_observe import RigObservation
 from ilcc_graph.run.source import Opened, open_run
@@ -34,6 +35,7 @@ __all__ = [
     "observe",
     "stage_alone",
     "warn_damaged",
+    "warn_margin",
     "warn_no_print",
 ]
 
@@ -120,6 +122,7 @@ def observe(
         frames = workers.map_processes(observe_frame, items, options.jobs, progress)
     warn_damaged(frames)
     warn_no_print(frames, config)
+    warn_margin(frames, config)
     frames += [FrameResult(name=n, used=False, reason=why) for n, why in source.skipped()]
     return Observation(source, config, frames)
 
@@ -177,6 +180,18 @@ def warn_no_print(frames: Sequence[FrameResult], config: Config) -> str | None:
         f"({why}); their position in their plane comes from the board's outline (its size and margin as "
         "configured)"
     )
+    log.warning("%s", msg)
+    return msg
+
+
+def warn_margin(frames: Sequence[FrameResult], config: Config) -> str | None:
+    """One warning for the whole run when the boards whose print the LiDAR shows contradict the
+    configured margin (``lidar.margin``: measured from their outlines), with the measured one;
+    returns it (None when they agree or cannot tell)."""
+    summary = margin_summary([f.board.diagnostics for f in frames if f.board is not None], config.board)
+    if not summary:
+        return None
+    msg = f"{config.source}: {margin_words(summary)}"
     log.warning("%s", msg)
     return msg
 
