@@ -3,16 +3,12 @@
 The LiDAR stage fits each board on the measured returns; the graph then estimates the LiDAR's own
 range errors (a global offset, per-beam offsets, a scale: ``estimation.lidar_errors``) and relates
 each board's in-plane pose to the corrected plane through its first-order coupling ``K``. A large
-offset (a unit reading 20 mm long) also changes the intensity fit itself: the pattern seen on a
-plane 20 mm too far is 1 % too large at 2 m, and the in-plane poses then move in common, beyond what
-their covariance states (docs/bench_sensor_model.md, finding 3). So when the estimated correction
-stretches some board's pattern by more than ``REFIT_RATIO`` in-plane sigmas, every board is
-found and fitted again on its scan corrected by it (near where it was found), and the data solved
-again. The fits keep the measured returns, so that the graph estimates the same range errors.
-
-``lidar.stretch`` says how far a correction stretches the boards and whether that matters;
-``refit_pass(observation, calibration, stages)`` gives the observation with its boards fitted
-again, or None.
+offset also changes the intensity fit itself (``lidar.stretch``: the pattern stretched on a plane
+read too far). So when the estimated correction stretches some board's pattern by more than
+``REFIT_RATIO`` in-plane sigmas, every board is found and fitted again on its scan corrected by it
+(near where it was found), and the data solved again. The fits keep the measured returns, so that
+the graph estimates the same range errors. ``refit_pass(observation, calibration, stages)`` gives
+the observation with its boards fitted again, or None.
 """
 
 from __future__ import annotations

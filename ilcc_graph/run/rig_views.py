@@ -71,8 +71,8 @@ def pair_view(
     frames, fated = [], []
     for m in seen.moments:
         board, corners = m.boards.get(lidar), m.corners.get(camera)
-        stages = (("LiDAR", lidar), ("image", camera))
-        why = [f"{what}: {m.failures[s]}" for what, s in stages if s in m.failures]
+        said = (("LiDAR", lidar), ("image", camera))  # as a pair's stages name their failures
+        why = [f"{what}: {m.failures[s]}" for what, s in said if s in m.failures]
         frames.append(FrameResult(m.name, board is not None and corners is not None, "; ".join(why) or None,
                                   board, corners))  # fmt: skip
         fated.append(FrameResult(m.name, fates.get(m.name, {}).get(lidar) == USED))

@@ -37,7 +37,6 @@ def observe(
     """Every moment of a rig source through the stages (``Observation.data``: the ``RigObservation``;
     ``config``: the rig's ``RigConfig``; no single-pair frames)."""
     seen = observe_rig(source, options, progress)
-    # the source's type admits a rig's; ``config``'s says a pair's Config (its readers are the pairs')
     return Observation(source, seen.rig, [], data=seen)
 
 

@@ -35,17 +35,11 @@ __all__ = ["joint_summary", "solve"]
 
 def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
     """The sources as sessions of one mount (``Observation.name`` names each)."""
-    preps = [prepare(o.frames, o.pair_config) for o in observations]
+    configs = [o.pair_config for o in observations]
+    preps = [prepare(o.frames, c) for o, c in zip(observations, configs, strict=True)]
     sessions = [
-        Session(
-            o.name,
-            p.frames,
-            o.pair_config.camera,
-            p.T_init,
-            o.pair_config.lidar.name if o.pair_config.lidar else "lidar",
-            o.pair_config.board,
-        )
-        for p, o in zip(preps, observations, strict=True)
+        Session(o.name, p.frames, c.camera, p.T_init, c.lidar.name if c.lidar else "lidar", c.board)
+        for p, o, c in zip(preps, observations, configs, strict=True)
     ]
     joint_opts = dataclasses.replace(
         options.joint, noise=options.noise, lidar_errors=options.lidar_errors, intrinsics=options.intrinsics,
@@ -54,8 +48,7 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     sol = solve_sessions(sessions, joint_opts)
     method = f"joint-{joint_opts.mode}"
     results = []
-    for p, o in zip(preps, observations, strict=True):
-        cfg = o.pair_config
+    for p, o, cfg in zip(preps, observations, configs, strict=True):
         part = finish(p, o.frames, cfg, method, from_batch(session_part(sol, o.name), cfg), False)
         own = finish(p, o.frames, cfg, "graph", from_batch(own_part(sol, o.name), cfg), False)
         results.append(SessionResult(o.name, o, part, own))
@@ -69,7 +62,7 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     for lab, ro in sol.range_offsets.items():
         diag[f"range_offset_mm/{lab}"] = 1e3 * ro.value_m
         diag[f"range_offset_sigma_mm/{lab}"] = 1e3 * ro.sigma_m
-    camera = observations[0].pair_config.camera.to_dict()
+    camera = configs[0].camera.to_dict()
     sensors = results[0].calibration.sensors  # the model chosen for all, the first LiDAR's errors
     cal = Calibration(sol.joint.T, sol.joint.covariance, frames, method, diag, camera, sensors)
     poses = {f"sessions/{n}": e for n, e in sol.sessions.items()}
