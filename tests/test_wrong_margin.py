@@ -102,3 +102,32 @@ def test_a_right_margin_is_not_reported(tmp_path: Path, caplog: pytest.LogCaptur
         assert d["margin_contradicted"] == 0.0, d
         measured += [d[k] for k in ("margin_long_mm", "margin_short_mm") if k in d]
     assert measured and all(abs(m - 170.0) < TOL_MM for m in measured), measured
+
+
+def test_check_and_a_rig_of_two_report_the_measured_margin_as_calibrate_does(
+    wide, tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture  # noqa: ANN001
+) -> None:
+    """The same recording through two more doors (issue 34: a fix reaches every door): ``check`` says
+    the measured margin in its closing lines; the pair given as a rig.yaml of its two sensors warns
+    once naming the LiDAR, says it in its summary and keeps it in its calibration.yaml."""
+    data, _ = wide
+    assert main(["check", str(data), "--out", str(tmp_path / "check")]) == 0
+    said = " ".join(capsys.readouterr().out.split())
+    assert "margin the LiDAR measured is 17" in said and "in config.yaml" in said, said[-1500:]
+    cfg = yaml.safe_load((data / "config.yaml").read_text(encoding="utf-8"))
+    rig_dir = tmp_path / "rig"
+    rig_dir.mkdir()
+    (rig_dir / "lidar").symlink_to((data / "pcd").resolve())
+    (rig_dir / "camera").symlink_to((data / "img").resolve())
+    rig = {"reference": "lidar", "board": cfg["board"],
+           "sensors": {"lidar": {"lidar": cfg["lidar"]}, "camera": {"camera": cfg["camera"]}}}  # fmt: skip
+    (rig_dir / "rig.yaml").write_text(yaml.safe_dump(rig), encoding="utf-8")
+    out = tmp_path / "rig_out"
+    with caplog.at_level(logging.WARNING, logger="ilcc_graph"):
+        assert main(["calibrate", str(rig_dir), "--out", str(out), "--no-report", "--jobs", "1"]) == 0
+    warned = [r.getMessage() for r in caplog.records if "margin the LiDAR measured" in r.getMessage()]
+    assert len(warned) == 1 and "(lidar)" in warned[0] and "in rig.yaml" in warned[0], warned
+    assert "lidar: the board's white margin the LiDAR measured" in " ".join(capsys.readouterr().out.split())
+    margins = yaml.safe_load((out / "calibration.yaml").read_text(encoding="utf-8"))["lidar_margin"]["lidar"]
+    for axis in ("long", "short"):
+        assert abs(margins[f"lidar_margin_{axis}_mm"] - 1e3 * REAL.margin_long) < TOL_MM, margins

@@ -20,6 +20,7 @@ from ilcc_graph.app.console import WIDTH, stdout_closed, wrapped
 from ilcc_graph.config import Config
 from ilcc_graph.errors import InputError
 from ilcc_graph.estimation.incremental import FrameUpdate
+from ilcc_graph.report.text import lidar_view_lines
 from ilcc_graph.run.live import CheckOptions, LiveCheck, Verdict, run_check
 from ilcc_graph.types import GraphFrame, sigmas_deg_mm
 
@@ -269,6 +270,8 @@ def check_command(
         sol = result.final.solution
         if sol is not None and sol.selection is not None:
             print(wrapped(sol.selection.summary()))
+        for said in lidar_view_lines(result.calibration) if result.calibration is not None else []:
+            print(wrapped(said))  # how the LiDAR saw the boards, as calibrate's summary says it
         proposal = advice.propose(result.config, result.frames, result.final)
     elif result.verdicts:
         print("not calibrated yet: at least 3 distinct board poses with the board in both sensors")

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ilcc_graph.lidar.margin import margin_words
 from ilcc_graph.report.sensors import sensors_lines
 from ilcc_graph.report.summary import lidar_in_camera
 
@@ -25,7 +26,7 @@ def rig_lines(cal: RigCalibration) -> list[str]:
     """The closing lines of a rig's calibration as written (``calibration.yaml``): poses T_ref_sensor
     (position in mm in the reference's axes with its 1-sigma; rotation as roll/pitch/yaw about the
     reference's x, y, z in degrees, its 1-sigma about the reference's axes), unsolved sensors,
-    moments used."""
+    moments used, a margin a LiDAR's boards contradict."""
     ref = cal.reference
     lines = [f"every sensor in the frame of {ref} (the reference), +- 1 sigma:"]
     for s in cal.sensors:
@@ -46,6 +47,8 @@ def rig_lines(cal: RigCalibration) -> list[str]:
     counts = cal.extra.get("used") or {}
     used = ", ".join(f"{s} {counts.get(s, 0)}" for s in cal.sensors)
     lines += textwrap.wrap(f"moments in the graph per sensor: {used}", WIDTH, subsequent_indent="  ")
+    for lidar, summary in (cal.extra.get("lidar_margin") or {}).items():  # as a pair's summary says it
+        lines += textwrap.wrap(f"{lidar}: {margin_words(summary, 'rig.yaml')}", WIDTH, subsequent_indent="  ")
     return lines + _base_lidar(cal)
 
 

@@ -183,9 +183,9 @@ def margin_summary(diagnostics: Sequence[Mapping[str, float]], board: Board) -> 
     return out
 
 
-def margin_words(summary: Mapping[str, float]) -> str:
-    """The measured margin against the configured one in words (``margin_summary``'s figures); ""
-    without a contradiction."""
+def margin_words(summary: Mapping[str, float], file: str = "config.yaml") -> str:
+    """The measured margin against the configured one in words (``margin_summary``'s figures; the
+    margin to set in ``file``); "" without a contradiction."""
     if not summary.get("lidar_margin_contradicted_boards"):
         return ""
     said = [summary[f"lidar_margin_configured_{a}_mm"] for a in ("long", "short")]
@@ -198,5 +198,5 @@ def margin_words(summary: Mapping[str, float]) -> str:
         f"the board's white margin the LiDAR measured is {axes}, the median of "
         f"{summary['lidar_margin_boards']:.0f} boards ({summary['lidar_margin_contradicted_boards']:.0f} "
         f"contradict board.margin): the boards' outlines were taken as measured; set board.margin: "
-        f"[{1e-3 * got[0]:.3f}, {1e-3 * got[1]:.3f}] in config.yaml if the board is as measured"
+        f"[{1e-3 * got[0]:.3f}, {1e-3 * got[1]:.3f}] in {file} if the board is as measured"
     )

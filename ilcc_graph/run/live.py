@@ -42,7 +42,7 @@ from ilcc_graph.run.prepare import graph_frame
 from ilcc_graph.run.result import SENSOR_MODELS, Result, RunOptions
 from ilcc_graph.run.source import open_run
 from ilcc_graph.run.stages import StageOptions, frame_result, observe_image, observe_lidar
-from ilcc_graph.types import FrameResult, GraphFrame, sigmas_deg_mm
+from ilcc_graph.types import Calibration, FrameResult, GraphFrame, sigmas_deg_mm
 
 log = logging.getLogger(__name__)
 
@@ -119,8 +119,9 @@ class CheckOptions:
 @dataclass
 class CheckResult:
     """The verdicts in arrival order, the batch answer over the frames offered (None when fewer
-    than three distinct poses calibrate), why the check ended, the state for advice, and the frames
-    whose board the final second look found (``LiveCheck.finish``)."""
+    than three distinct poses calibrate), why the check ended, the state for advice, the frames
+    whose board the final second look found (``LiveCheck.finish``) and the final answer's
+    ``Calibration`` (None with ``final``)."""
 
     verdicts: list[Verdict]
     final: FrameUpdate | None
@@ -129,6 +130,7 @@ class CheckResult:
     frames: list[GraphFrame] = field(default_factory=list)
     error: str | None = None
     second_look: list[str] = field(default_factory=list)
+    calibration: Calibration | None = None
 
 
 class LiveCheck:
@@ -292,6 +294,11 @@ class LiveCheck:
         self._last, self._result = update, result
         return update, {f.name: f.reason or "" for f in cal.frames if not f.used}
 
+    @property
+    def calibration(self) -> Calibration | None:
+        """The last solve's ``Calibration`` (after ``finish``: calibrate's answer on every frame seen)."""
+        return None if self._result is None else self._result.calibration
+
     def finish(self) -> FrameUpdate | None:
         """``calibrate``'s answer on every frame seen (``pipeline.solve_observations`` on them in
         arrival order: its boards on corrected ranges and its second look included); None when they
@@ -385,6 +392,6 @@ def run_check(
     except KeyboardInterrupt:
         final, stopped = None, "interrupted"
     frames = checker.used if final is not None else checker.distinct
-    return CheckResult(
-        verdicts, final, stopped, checker.config, frames, second_look=list(checker.second_look)
-    )
+    cal = checker.calibration if final is not None else None
+    looked = list(checker.second_look)
+    return CheckResult(verdicts, final, stopped, checker.config, frames, second_look=looked, calibration=cal)

@@ -18,12 +18,18 @@ from ilcc_graph import signals, workers
 from ilcc_graph.config import Config, RigConfig
 from ilcc_graph.datasets import FrameRef, FrameSource, RigSource
 from ilcc_graph.errors import FrameError, InputError
-from ilcc_graph.lidar import INTENSITY_UNUSABLE
-from ilcc_graph.lidar.margin import margin_summary, margin_words
 from ilcc_graph.run.colour import colour_votes, colour_warning
 from ilcc_graph.run.rig_observe import RigObservation
 from ilcc_graph.run.source import Opened, open_run
-from ilcc_graph.run.stages import StageOptions, attempt, observe_frame, observe_image, observe_lidar
+from ilcc_graph.run.stages import (
+    StageOptions,
+    attempt,
+    observe_frame,
+    observe_image,
+    observe_lidar,
+    warn_margin,
+    warn_no_print,
+)
 from ilcc_graph.types import FrameResult
 
 log = logging.getLogger(__name__)
@@ -35,8 +41,6 @@ __all__ = [
     "observe",
     "stage_alone",
     "warn_damaged",
-    "warn_margin",
-    "warn_no_print",
 ]
 
 Progress = Callable[[int, int], None]
@@ -121,8 +125,8 @@ def observe(
         items = [(source, r, config, options) for r in refs]
         frames = workers.map_processes(observe_frame, items, options.jobs, progress)
     warn_damaged(frames)
-    warn_no_print(frames, config)
-    warn_margin(frames, config)
+    warn_no_print(frames, config.source)
+    warn_margin(frames, config.board, config.source)
     frames += [FrameResult(name=n, used=False, reason=why) for n, why in source.skipped()]
     return Observation(source, config, frames)
 
@@ -162,38 +166,6 @@ def warn_damaged(frames: Sequence[FrameResult]) -> None:
             f"no frame's files can be read ({len(frames)} damaged): "
             + "; ".join(f"{f.name}: {f.reason}" for f in frames[:3])
         )
-
-
-def warn_no_print(frames: Sequence[FrameResult], config: Config) -> str | None:
-    """One warning for the whole run when boards were found without a print the LiDAR shows (their
-    in-plane pose from the board's outline), saying why; returns it (None when every board shows it)."""
-    boards = [f.board for f in frames if f.board is not None]
-    plain = [b for b in boards if b.diagnostics.get("no_contrast")]
-    if not plain:
-        return None
-    codes = sorted({b.diagnostics.get("intensity_unusable", 0.0) for b in plain} - {0.0})
-    why = "; ".join(INTENSITY_UNUSABLE.get(c, "") for c in codes) or "no black/white contrast on the board"
-    if codes:
-        why += "; for CSV scans check lidar.intensity_column"
-    msg = (
-        f"{config.source}: {len(plain)} of {len(boards)} boards show no print in the LiDAR intensity "
-        f"({why}); their position in their plane comes from the board's outline (its size and margin as "
-        "configured)"
-    )
-    log.warning("%s", msg)
-    return msg
-
-
-def warn_margin(frames: Sequence[FrameResult], config: Config) -> str | None:
-    """One warning for the whole run when the boards whose print the LiDAR shows contradict the
-    configured margin (``lidar.margin``: measured from their outlines), with the measured one;
-    returns it (None when they agree or cannot tell)."""
-    summary = margin_summary([f.board.diagnostics for f in frames if f.board is not None], config.board)
-    if not summary:
-        return None
-    msg = f"{config.source}: {margin_words(summary)}"
-    log.warning("%s", msg)
-    return msg
 
 
 def _stage(fn: Callable, source: FrameSource, ref: FrameRef, config: Config, opts: object,

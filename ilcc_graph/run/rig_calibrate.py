@@ -29,6 +29,7 @@ from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.estimation.rig_solve import RigOptions, RigSolution, solve_rig
 from ilcc_graph.init.rig_start import RigStart, StartOptions, rig_start
 from ilcc_graph.io.rig_results import RigCalibration
+from ilcc_graph.lidar.margin import margin_summary
 from ilcc_graph.run.rig_observe import RigObservation, observe_rig
 from ilcc_graph.run.stages import StageOptions
 from ilcc_graph.types import Estimate
@@ -204,6 +205,18 @@ def lidar_errors(result: RigResult) -> dict[str, Any]:
     }  # fmt: skip
 
 
+def _lidar_margins(result: RigResult) -> dict[str, dict[str, float]]:
+    """Per LiDAR whose boards contradict the configured margin, the margin they measured
+    (``lidar.margin.margin_summary``: mm, as a pair's ``lidar_margin_*`` diagnostics)."""
+    moments = result.observation.moments if result.observation is not None else []
+    out = {}
+    for lidar in result.rig.lidars:
+        boards = [m.boards[lidar].diagnostics for m in moments if lidar in m.boards]
+        if summary := margin_summary(boards, result.rig.board):
+            out[lidar] = summary
+    return out
+
+
 def to_calibration(result: RigResult) -> RigCalibration:
     """The rig's ``calibration.yaml`` content (``io.rig_results``): poses, joint covariance, every
     pair's relative pose and covariance, the rig file's mapping (intrinsics), what was used, the
@@ -231,6 +244,8 @@ def to_calibration(result: RigResult) -> RigCalibration:
         extra["sensor_model"] = result.solution.selection.to_dict()
     if errors := lidar_errors(result):  # and its own errors (verify corrects a capture's ranges by them)
         extra["lidar_errors"] = errors
+    if margins := _lidar_margins(result):
+        extra["lidar_margin"] = margins
     return RigCalibration(
         names,
         result.reference,

@@ -11,18 +11,21 @@ picklable arguments (they run on the worker processes, ``workers.py``).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+import logging
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from ilcc_graph.board import Board
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import DamagedFile, FrameError, InputError
 from ilcc_graph.image import ImageOptions, detect_corners
 from ilcc_graph.image.previews import make_views
-from ilcc_graph.lidar import LidarOptions, estimate_board
+from ilcc_graph.lidar import INTENSITY_UNUSABLE, LidarOptions, estimate_board
+from ilcc_graph.lidar.margin import margin_summary, margin_words
 from ilcc_graph.run.pattern_check import KEYS as PATTERN_KEYS
 from ilcc_graph.run.pattern_check import pattern_continues
 from ilcc_graph.types import BoardFit, ExpectedBoard, FrameResult, ImageCorners, RangeCorrection
@@ -37,7 +40,11 @@ __all__ = [
     "observe_lidar",
     "read_frame_file",
     "size_problem",
+    "warn_margin",
+    "warn_no_print",
 ]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -175,3 +182,39 @@ def frame_result(name: str, board: object, corners: object) -> FrameResult:
         corners=None if isinstance(corners, FrameError) else corners,  # type: ignore[arg-type]
         damaged=any(isinstance(r, DamagedFile) for r in (board, corners)),
     )
+
+
+def warn_no_print(frames: Sequence[FrameResult], where: str) -> str | None:
+    """One warning for the whole run (``where``: the config file, and the LiDAR of a rig) when boards
+    were found without a print the LiDAR shows (their in-plane pose from the board's outline), saying
+    why; returns it (None when every board shows it)."""
+    boards = [f.board for f in frames if f.board is not None]
+    plain = [b for b in boards if b.diagnostics.get("no_contrast")]
+    if not plain:
+        return None
+    codes = sorted({b.diagnostics.get("intensity_unusable", 0.0) for b in plain} - {0.0})
+    why = "; ".join(INTENSITY_UNUSABLE.get(c, "") for c in codes) or "no black/white contrast on the board"
+    if codes:
+        why += "; for CSV scans check lidar.intensity_column"
+    msg = (
+        f"{where}: {len(plain)} of {len(boards)} boards show no print in the LiDAR intensity "
+        f"({why}); their position in their plane comes from the board's outline (its size and margin as "
+        "configured)"
+    )
+    log.warning("%s", msg)
+    return msg
+
+
+def warn_margin(
+    frames: Sequence[FrameResult], board: Board, where: str, file: str = "config.yaml"
+) -> str | None:
+    """One warning for the whole run (``where``: the config file, and the LiDAR of a rig) when the
+    boards whose print the LiDAR shows contradict the configured ``board``'s margin (``lidar.margin``:
+    measured from their outlines), with the measured one to set in ``file``; returns it (None when they
+    agree or cannot tell)."""
+    summary = margin_summary([f.board.diagnostics for f in frames if f.board is not None], board)
+    if not summary:
+        return None
+    msg = f"{where}: {margin_words(summary, file)}"
+    log.warning("%s", msg)
+    return msg
