@@ -25,12 +25,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
 from ilcc_graph.types import BoardReturns
 
-__all__ = ["LidarErrorOptions", "LidarLayout", "layout_for", "merge_layouts"]
+__all__ = ["LidarErrorOptions", "LidarLayout", "errors_entry", "layout_for", "merge_layouts"]
 
 
 @dataclass(frozen=True)
@@ -273,3 +274,34 @@ def merge_layouts(layouts: Sequence[LidarLayout]) -> LidarLayout:
         priors=tuple(p / k for p in first.priors),  # type: ignore[arg-type]
         excluded=tuple(out.items()),
     )
+
+
+def errors_entry(
+    estimate: tuple[Sequence[str], np.ndarray, np.ndarray] | None,
+    layout: LidarLayout | None,
+    covariance: np.ndarray | None = None,
+    board_plane: dict[str, Any] | None = None,
+    elevations_deg: Sequence[float] | np.ndarray | None = None,
+) -> dict[str, Any]:
+    """A LiDAR's own errors as ``Calibration.sensors['lidar_errors']`` and a rig's calibration.yaml
+    hold them: ``names``, ``values``, ``sigmas`` (``estimate``; metres or none, as ``units`` from the
+    layout say), the terms the layout left out (``left_out``: [term, reason]), the (n, n)
+    ``covariance`` when given, each beam term's nominal elevation in deg (``elevation_deg``; beam
+    index 0 = lowest) from ``elevations_deg``; {} when there is neither an estimate nor a term left
+    out."""
+    if estimate is None and (layout is None or not layout.excluded):
+        return {}
+    names, values, sigmas = estimate if estimate is not None else ([], np.zeros(0), np.zeros(0))
+    left = [] if layout is None else [list(x) for x in layout.excluded]
+    out: dict[str, Any] = {"names": list(names), "values": values, "sigmas": sigmas, "left_out": left}
+    if layout is not None and estimate is not None:
+        out["units"] = layout.units
+    if covariance is not None:
+        out["covariance"] = covariance
+    if board_plane is not None:
+        out["board_plane"] = board_plane
+    if elevations_deg is not None:
+        beams = {n: int(n[n.index("[") + 1 : -1]) for n in names if "[" in n}
+        el = elevations_deg
+        out["elevation_deg"] = {n: round(float(el[b]), 3) for n, b in beams.items() if b < len(el)}
+    return out

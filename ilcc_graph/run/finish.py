@@ -31,6 +31,7 @@ from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.effects import SQUARE_SIZE_KEY
 from ilcc_graph.estimation.gate import far_above
 from ilcc_graph.estimation.geometry import MIN_DISTINCT_POSES
+from ilcc_graph.estimation.lidar_errors import errors_entry
 from ilcc_graph.lidar.margin import margin_summary
 from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
 from ilcc_graph.run.diagnose import dropped_frame_cause, fit_image_alone, moved_boards, residual_causes
@@ -296,23 +297,12 @@ def _sensors(sol: BatchSolution, config: Config) -> dict:
     out: dict = {}
     if sol.selection is not None:
         out["model"] = sol.selection.to_dict()
-    lay = sol.lidar_layout
-    if sol.lidar is not None or (lay is not None and lay.excluded):
-        names, values, sigmas = sol.lidar if sol.lidar is not None else ([], np.zeros(0), np.zeros(0))
-        left = [] if lay is None else [list(x) for x in lay.excluded]
-        out["lidar_errors"] = {"names": list(names), "values": values, "sigmas": sigmas, "left_out": left}
-        if lay is not None and sol.lidar is not None:
-            out["lidar_errors"]["units"] = lay.units
-        if sol.lidar_covariance is not None:
-            out["lidar_errors"]["covariance"] = sol.lidar_covariance
-        if (plane := getattr(sol, "board_plane", None)) is not None:
-            out["lidar_errors"]["board_plane"] = dataclasses.asdict(plane)
-        if config.lidar is not None:  # each beam's nominal elevation (beam index 0 = lowest)
-            el = config.lidar.vertical_angles_deg
-            beams = {n: int(n[n.index("[") + 1 : -1]) for n in names if "[" in n}
-            out["lidar_errors"]["elevation_deg"] = {
-                n: round(float(el[b]), 3) for n, b in beams.items() if b < len(el)
-            }
+    plane = getattr(sol, "board_plane", None)
+    planes = None if plane is None else dataclasses.asdict(plane)
+    el = None if config.lidar is None else config.lidar.vertical_angles_deg
+    errors = errors_entry(sol.lidar, sol.lidar_layout, sol.lidar_covariance, planes, el)
+    if errors:
+        out["lidar_errors"] = errors
     if sol.effects:
         out["effects"] = {k: dataclasses.asdict(v) for k, v in sol.effects.items()}
     if sol.intrinsics is not None:

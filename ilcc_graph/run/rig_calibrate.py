@@ -26,6 +26,7 @@ import numpy as np
 from ilcc_graph.config import RigConfig, rig_config_to_dict
 from ilcc_graph.datasets import open_source
 from ilcc_graph.datasets.rig_source import RigSource
+from ilcc_graph.estimation.lidar_errors import errors_entry
 from ilcc_graph.estimation.rig_solve import RigOptions, RigSolution, solve_rig
 from ilcc_graph.init.rig_start import RigStart, StartOptions, rig_start
 from ilcc_graph.io.rig_results import RigCalibration
@@ -190,19 +191,21 @@ def calibrate_rig(
 
 def lidar_errors(result: RigResult) -> dict[str, Any]:
     """The base LiDAR's own errors the chosen model estimated, as a pair's ``Calibration.sensors``
-    has them (``lidar``: its name; ``names``, ``units``, ``values``, ``sigmas``: metres or none),
-    or {} when the model has none."""
+    has them (``estimation.lidar_errors.errors_entry``, with ``lidar``: its name), or {} when the
+    model has none."""
     sol = result.solution.solution
-    got = None if sol is None else sol.lidar(0)
+    got = None if sol is None else sol.lidar_estimate(0)
     if sol is None or got is None:
         return {}
-    names, values, sigmas = got
+    values, C = got
     layout = sol.assembly.layouts.get(0)
-    return {
-        "lidar": result.solution.base, "names": list(names),
-        "units": list(layout.units) if layout is not None else ["m"] * len(names),
-        "values": [float(v) for v in values], "sigmas": [float(v) for v in sigmas],
-    }  # fmt: skip
+    names = layout.names if layout is not None else [f"term{i}" for i in range(len(values))]
+    lidar = result.rig.sensor(result.solution.base).lidar
+    entry = errors_entry(
+        (names, values, np.sqrt(np.diag(C))), layout, C, None,
+        None if lidar is None else lidar.vertical_angles_deg,
+    )  # fmt: skip
+    return {"lidar": result.solution.base, **entry}
 
 
 def _lidar_margins(result: RigResult) -> dict[str, dict[str, float]]:
