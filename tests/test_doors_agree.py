@@ -144,3 +144,43 @@ def test_a_rig_refits_its_boards_and_verify_corrects_a_capture_alike(tmp_path: P
     (tmp_path / "broken.yaml").write_text(yaml.safe_dump(broken))
     done = _cli("verify", str(tmp_path / "broken.yaml"), str(tmp_path / "cap"), "--out", str(tmp_path / "v2"))
     assert done.returncode == 2 and "broken.yaml" in done.stderr and "lidar_errors" in done.stderr
+
+
+def test_verify_nets_the_lidars_terms_out_for_a_pair_and_its_rig_of_two_alike(tmp_path: Path) -> None:
+    """``verify`` of a rig of two's calibration against a capture tests the mount net of the base
+    LiDAR's range terms as ``verify`` of the pair's calibration does (the rig's calibration.yaml keeps
+    its first camera's pose with those terms: ``extrinsic_with_lidar_terms``); the two verdicts, notes
+    and sigmas agree; a broken joint covariance there is exit 2 naming the file and the key."""
+    from ilcc_graph.cameras.pinhole import Pinhole
+    from ilcc_graph.simulate import SceneOptions, SimulationSpec, simulate_dataset
+    from ilcc_graph.simulate.spec import Systematics
+
+    K = np.array([[480.0, 0.0, 319.5], [0.0, 480.0, 239.5], [0.0, 0.0, 1.0]])
+    for name, seed, n in (("cal", 4, 7), ("cap", 11, 5)):
+        spec = SimulationSpec(
+            lidar="vlp16", camera=Pinhole(640, 480, K, np.zeros(4)), n_frames=n, seed=seed,
+            scene=SceneOptions(board_distance_m=(2.0, 3.5)), systematics=Systematics(range_offset_m=0.03),
+        )  # fmt: skip
+        simulate_dataset(tmp_path / name, spec)
+    rig = _rig_of_two(tmp_path / "cal", tmp_path / "rig_of_two")
+    said = {}
+    for door, data in (("pair", tmp_path / "cal"), ("rig", rig)):
+        done = _cli("calibrate", str(data), "--out", str(tmp_path / door), "--no-report", "--jobs", "2")
+        assert done.returncode == 0, done.stderr[-2000:]
+        v, cal = tmp_path / f"v_{door}", tmp_path / door / "calibration.yaml"
+        done = _cli("verify", str(cal), str(tmp_path / "cap"), "--out", str(v))
+        said[door] = yaml.safe_load((v / "verify.yaml").read_text())
+        assert done.returncode == said[door]["exit_status"], done.stdout
+    pair, rig_doc = said["pair"], said["rig"]
+    assert any("net of the LiDAR's own range terms" in n for n in pair["notes"]), pair["notes"]
+    assert any("net of the LiDAR's own range terms" in n for n in rig_doc["notes"]), rig_doc["notes"]
+    assert rig_doc["verdict"] == pair["verdict"]
+    a, b = pair["sensors"]["camera"]["axes"], rig_doc["sensors"]["camera"]["axes"]
+    for axis in a:
+        assert b[axis]["sigma"] == pytest.approx(a[axis]["sigma"], rel=0.05), (axis, a[axis], b[axis])
+    broken = yaml.safe_load((tmp_path / "rig" / "calibration.yaml").read_text())
+    k = len(broken["extrinsic_with_lidar_terms"]["terms"])
+    broken["extrinsic_with_lidar_terms"]["covariance"] = (-np.eye(6 + k)).tolist()
+    (tmp_path / "broken.yaml").write_text(yaml.safe_dump(broken))
+    done = _cli("verify", str(tmp_path / "broken.yaml"), str(tmp_path / "cap"), "--out", str(tmp_path / "vb"))
+    assert done.returncode == 2 and "broken.yaml" in done.stderr and "extrinsic_with_lidar_terms" in done.stderr

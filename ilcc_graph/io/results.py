@@ -41,6 +41,8 @@ __all__ = [
     "calibration_from_doc",
     "calibration_to_dict",
     "refined_corners",
+    "pose_terms_doc",
+    "pose_terms_from_doc",
     "GroundTruth",
     "write_ground_truth",
     "read_ground_truth",
@@ -149,22 +151,30 @@ def _sensors_dict(sensors: dict[str, Any], with_terms: PoseTerms | None = None) 
         out["effect_on_extrinsic"] = {
             k: {n: float(x) for n, x in v.items()} for k, v in sensors["effects"].items()
         }
-    if with_terms is not None:  # SI units as the solve has them; the covariance's rows: rx .. tz, terms
-        out["extrinsic_with_lidar_terms"] = {
-            "terms": list(with_terms.terms),
-            "units": list(with_terms.units),
-            "values": [float(x) for x in with_terms.values],
-            "covariance": np.asarray(with_terms.covariance, dtype=np.float64),
-        }
+    if with_terms is not None:
+        out["extrinsic_with_lidar_terms"] = pose_terms_doc(with_terms)
     return out
 
 
-def _with_terms_from_dict(src: str, T: np.ndarray, d: Any) -> PoseTerms | None:
-    """``Calibration.with_terms`` from ``sensor_errors.extrinsic_with_lidar_terms`` (None when absent);
-    InputError naming the file when it is malformed (``io.stored`` checks its covariance)."""
+def pose_terms_doc(t: PoseTerms) -> dict[str, Any]:
+    """A pose with the LiDAR's range terms as a file holds it (the pose itself stored beside it): SI
+    units as the solve has them; the covariance's rows rx .. tz, then the terms."""
+    return {
+        "terms": list(t.terms),
+        "units": list(t.units),
+        "values": [float(x) for x in t.values],
+        "covariance": np.asarray(t.covariance, dtype=np.float64),
+    }
+
+
+def pose_terms_from_doc(
+    src: str, T: np.ndarray, d: Any, where: str = "sensor_errors.extrinsic_with_lidar_terms"
+) -> PoseTerms | None:
+    """The ``PoseTerms`` of pose ``T`` from what ``pose_terms_doc`` wrote at key ``where`` (None when
+    absent); InputError naming the file and the key when it is malformed (``io.stored`` checks its
+    covariance)."""
     if d is None:
         return None
-    where = "sensor_errors.extrinsic_with_lidar_terms"
     if not isinstance(d, dict) or not {"terms", "units", "values", "covariance"} <= set(d):
         raise InputError(f"{src}: {where} must be a mapping with terms, units, values and covariance")
     terms, units = tuple(str(t) for t in d["terms"]), tuple(str(u) for u in d["units"])
@@ -353,7 +363,7 @@ def calibration_from_doc(d: Any, src: str = "calibration.yaml") -> Calibration:
         diagnostics=dict(diag),
         camera=camera,
         sensors=_sensors_from_dict(src, d.get("sensor_errors")),
-        with_terms=_with_terms_from_dict(src, T, terms),
+        with_terms=pose_terms_from_doc(src, T, terms),
     )
 
 

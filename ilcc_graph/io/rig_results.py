@@ -17,7 +17,8 @@ import numpy as np
 
 from ilcc_graph.errors import InputError, quote
 from ilcc_graph.io.files import read_yaml, write_yaml
-from ilcc_graph.types import sigma_dict
+from ilcc_graph.io.results import pose_terms_doc, pose_terms_from_doc
+from ilcc_graph.types import PoseTerms, sigma_dict
 
 __all__ = [
     "KIND",
@@ -31,6 +32,8 @@ __all__ = [
 
 #: the ``kind`` key of a rig's calibration.yaml (a single pair's has none)
 KIND = "rig-calibration"
+#: the key of the first camera's pose with the base LiDAR's range terms (``RigCalibration.with_terms``)
+WITH_TERMS = "extrinsic_with_lidar_terms"
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,8 @@ class RigCalibration:
     {sensor: (4, 4)}; covariance: (6N, 6N) joint (the reference's block zero). pairs: {(a, b): (T_a_b
     (4, 4), covariance (6, 6))}. rig: the rig's config as rig.yaml's mapping (cameras' intrinsics,
     board), or None. extra: what was used and other numbers (``moments``, ``unsolved``, ...).
+    with_terms: (camera, LiDAR, ``T_camera_lidar`` with the LiDAR's range terms): the first camera
+    and the base LiDAR as a pair's ``Calibration.with_terms`` (verify nets the terms out), or None.
     """
 
     sensors: tuple[str, ...]
@@ -50,6 +55,7 @@ class RigCalibration:
     pairs: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     rig: dict[str, Any] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    with_terms: tuple[str, str, PoseTerms] | None = None
 
     def block(self, sensor: str) -> np.ndarray:
         """(6, 6) the covariance of ``sensor``'s pose."""
@@ -72,7 +78,26 @@ def rig_calibration_doc(cal: RigCalibration) -> dict[str, Any]:
         },
         **({"rig": cal.rig} if cal.rig is not None else {}),
         **cal.extra,
+        **({WITH_TERMS: _with_terms_doc(cal.with_terms)} if cal.with_terms is not None else {}),
     }
+
+
+def _with_terms_doc(w: tuple[str, str, PoseTerms]) -> dict[str, Any]:
+    camera, lidar, terms = w
+    return {"camera": camera, "lidar": lidar, **pose_terms_doc(terms)}
+
+
+def _with_terms(src: str, d: Any, T_ref_sensor: dict[str, np.ndarray]) -> tuple[str, str, PoseTerms] | None:
+    """``RigCalibration.with_terms`` from the file's ``extrinsic_with_lidar_terms`` (its pose from the
+    two sensors' poses), None when absent; InputError naming the file and the key otherwise."""
+    if d is None:
+        return None
+    if not isinstance(d, dict) or d.get("camera") not in T_ref_sensor or d.get("lidar") not in T_ref_sensor:
+        raise InputError(f"{src}: {WITH_TERMS} must name a camera and a LiDAR of the rig's sensors")
+    camera, lidar = str(d["camera"]), str(d["lidar"])
+    T = np.linalg.solve(T_ref_sensor[camera], T_ref_sensor[lidar])  # T_camera_lidar
+    terms = pose_terms_from_doc(src, T, d, WITH_TERMS)
+    return None if terms is None else (camera, lidar, terms)
 
 
 def write_rig_calibration(path: str | Path, cal: RigCalibration) -> Path:
@@ -136,5 +161,7 @@ def rig_calibration_from_doc(d: Any, src: str = "calibration.yaml") -> RigCalibr
             _matrix(src, p.get("covariance"), f"pairs.{key}.covariance", (6, 6)),
         )
     known = {"kind", "reference", "sensors", "T_ref_sensor", "sigmas", "covariance", "pairs", "rig"}
+    known.add(WITH_TERMS)
     extra = {k: v for k, v in d.items() if k not in known}
-    return RigCalibration(tuple(sensors), d["reference"], T, C, pairs, d.get("rig"), extra)
+    with_terms = _with_terms(src, d.get(WITH_TERMS), T)
+    return RigCalibration(tuple(sensors), d["reference"], T, C, pairs, d.get("rig"), extra, with_terms)

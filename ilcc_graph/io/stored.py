@@ -23,7 +23,7 @@ from ..errors import InputError
 from ..types import Calibration
 from .files import read_yaml
 from .results import calibration_from_doc
-from .rig_results import KIND, RigCalibration, rig_calibration_from_doc
+from .rig_results import KIND, WITH_TERMS, RigCalibration, rig_calibration_from_doc
 
 __all__ = ["StoredSetup", "covariance_problem", "pose_problem", "read_stored", "stored_setup"]
 
@@ -100,6 +100,10 @@ def _check_rig(src: str, cal: RigCalibration) -> None:
         problem = pose_problem(T) or covariance_problem(P)
         if problem is not None:
             raise InputError(f"{src}: pairs.{a}/{b} {problem}")
+    if cal.with_terms is not None and (problem := covariance_problem(cal.with_terms[2].covariance)):
+        raise InputError(
+            f"{src}: {WITH_TERMS}.covariance {problem}; not a covariance this tool writes: calibrate again"
+        )
 
 
 def read_stored(path: str | Path) -> Calibration | RigCalibration:

@@ -27,13 +27,14 @@ from ilcc_graph.config import RigConfig, rig_config_to_dict
 from ilcc_graph.datasets import open_source
 from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.estimation.lidar_errors import errors_entry
+from ilcc_graph.estimation.next_board import solved_globals
 from ilcc_graph.estimation.rig_solve import RigOptions, RigSolution, solve_rig
 from ilcc_graph.init.rig_start import RigStart, StartOptions, rig_start
 from ilcc_graph.io.rig_results import RigCalibration
 from ilcc_graph.lidar.margin import margin_summary
 from ilcc_graph.run.rig_observe import RigObservation, observe_rig
 from ilcc_graph.run.stages import StageOptions
-from ilcc_graph.types import Estimate
+from ilcc_graph.types import Estimate, PoseTerms
 
 __all__ = [
     "USED",
@@ -249,12 +250,21 @@ def to_calibration(result: RigResult) -> RigCalibration:
         extra["lidar_errors"] = errors
     if margins := _lidar_margins(result):
         extra["lidar_margin"] = margins
-    return RigCalibration(
-        names,
-        result.reference,
-        dict(result.T_ref_sensor),
-        result.covariance,
-        pairs,
-        rig,
-        extra,
-    )
+    T, C = dict(result.T_ref_sensor), result.covariance
+    return RigCalibration(names, result.reference, T, C, pairs, rig, extra, _with_terms(result))
+
+
+def _with_terms(result: RigResult) -> tuple[str, str, PoseTerms] | None:
+    """The first camera's pose ``T_camera_lidar`` in the base LiDAR's frame with that LiDAR's range terms
+    (``next_board.solved_globals`` on the graph: the camera is extrinsic ``X(0)``, the LiDAR's terms
+    ``L(0)``), the covariance times the chosen model's held-out factor as a pair's
+    ``Calibration.with_terms``; None without terms or without the camera in the graph."""
+    sol, cams = result.solution.solution, [c for c in result.rig.cameras if c in result.sensors]
+    if sol is None or not cams or cams[0] != result.rig.cameras[0]:
+        return None
+    g = solved_globals(sol)
+    if not g.terms:
+        return None
+    factor = 1.0 if result.solution.selection is None else result.solution.selection.factor
+    C = factor * np.asarray(g.covariance, dtype=np.float64)
+    return cams[0], result.solution.base, PoseTerms(g.T_cam_lidar, g.terms, g.units, np.asarray(g.theta), C)

@@ -57,11 +57,13 @@ class VerifyRun:
 class StoredCalibration(StoredRig):
     """A stored calibration as ``verify`` reads it: the poses and covariance (``StoredRig``), what it
     was made with (``io.stored.StoredSetup``: board, sensor kinds), for ``check_comparable``, and a
-    pair's camera pose in the LiDAR's frame with the LiDAR's range terms (``Calibration.with_terms``
-    inverted), when the calibration has them."""
+    camera's pose in the LiDAR's frame with the LiDAR's range terms (``Calibration.with_terms``
+    inverted; a rig's: ``RigCalibration.with_terms``, its first camera and base LiDAR: ``terms_of``),
+    when the calibration has them."""
 
     setup: StoredSetup = field(default_factory=StoredSetup)
     terms: PoseTerms | None = None
+    terms_of: tuple[str, str] = PAIR_NAMES[::-1]  # (camera, LiDAR) whose pose ``terms`` holds
 
 
 def load_stored(path: str | Path) -> StoredCalibration:
@@ -69,8 +71,12 @@ def load_stored(path: str | Path) -> StoredCalibration:
     (``io.stored.read_stored``); InputError naming the file otherwise or when it has no covariance."""
     cal = read_stored(path)
     setup = stored_setup(path, cal, PAIR_NAMES)
-    if isinstance(cal, RigCalibration):
-        return StoredCalibration(cal.sensors, cal.reference, cal.T_ref_sensor, cal.covariance, setup)
+    if isinstance(cal, RigCalibration):  # the first camera's pose with the base LiDAR's terms, in its frame
+        w = cal.with_terms
+        if w is None or w[1] != cal.reference:
+            return StoredCalibration(cal.sensors, cal.reference, cal.T_ref_sensor, cal.covariance, setup)
+        T, C = cal.T_ref_sensor, cal.covariance
+        return StoredCalibration(cal.sensors, cal.reference, T, C, setup, w[2].inverse(), (w[0], w[1]))
     if not np.all(np.isfinite(cal.covariance)):
         raise InputError(f"{path}: the calibration has no covariance (method {cal.method}); verify needs one")
     lidar, camera = PAIR_NAMES
@@ -225,7 +231,8 @@ def verify_pair_capture(
     if stored.reference != lidar:  # the camera is the reference: the LiDAR's pose is T_cam_lidar
         checked, new, new_terms = lidar, Estimate(cal.T_cam_lidar, cal.covariance), None
     used = sum(1 for f in cal.frames if f.used)
-    stored_terms = stored.terms if isinstance(stored, StoredCalibration) else None
+    ours = isinstance(stored, StoredCalibration) and stored.terms_of == (camera, lidar)
+    stored_terms = stored.terms if isinstance(stored, StoredCalibration) and ours else None
     res = verify_pair(stored, checked, new, used, options, notes, (stored_terms, new_terms))
     return VerifyRun(res, len(source.moments()))
 
