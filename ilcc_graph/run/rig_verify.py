@@ -231,8 +231,9 @@ def verify_pair_capture(
     if stored.reference != lidar:  # the camera is the reference: the LiDAR's pose is T_cam_lidar
         checked, new, new_terms = lidar, Estimate(cal.T_cam_lidar, cal.covariance), None
     used = sum(1 for f in cal.frames if f.used)
-    ours = isinstance(stored, StoredCalibration) and stored.terms_of == (camera, lidar)
-    stored_terms = stored.terms if isinstance(stored, StoredCalibration) and ours else None
+    stored_terms = None
+    if isinstance(stored, StoredCalibration) and stored.terms_of == (camera, lidar):
+        stored_terms = stored.terms  # kept for this camera and LiDAR
     res = verify_pair(stored, checked, new, used, options, notes, (stored_terms, new_terms))
     return VerifyRun(res, len(source.moments()))
 
