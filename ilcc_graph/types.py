@@ -316,7 +316,7 @@ class Calibration:
         ``values``, ``sigmas`` in metres / rad / -, ``left_out``: [term, reason]) and
         ``camera_intrinsics`` (``names``, ``stated``, ``values``, ``sigmas``), each when present.
     causes: when the residuals are far above the detectors' stated noise, what likely explains them
-        (``run.diagnose.residual_causes``), one sentence each; the verdict names them.
+        (``evaluation.causes.residual_causes``), one sentence each; the verdict names them.
     with_terms: ``T_cam_lidar`` with the LiDAR's range terms and their joint covariance, when the
         chosen sensor model has such terms (``verify`` compares the mount net of them).
     """

@@ -1,4 +1,4 @@
-"""The likely cause of a dropped frame (ilcc_graph.run.diagnose), on boards made to fail one way each."""
+"""The likely cause of a dropped frame (ilcc_graph.evaluation.causes), on boards made to fail one way each."""
 
 from __future__ import annotations
 
@@ -9,7 +9,12 @@ import numpy as np
 
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import Pinhole
-from ilcc_graph.run.diagnose import dropped_frame_cause, fit_image_alone, residual_causes, stated_noise_mrad
+from ilcc_graph.evaluation.causes import (
+    dropped_frame_cause,
+    fit_image_alone,
+    residual_causes,
+    stated_noise_mrad,
+)
 from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
 
 BOARD = Board(6, 8, 0.095, 0.045, 0.02, "white")

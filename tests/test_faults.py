@@ -370,7 +370,7 @@ def _pose(rng: np.random.Generator) -> np.ndarray:
 def test_board_scale_is_the_square_size_ratio_without_an_extrinsic(configured):
     """Images of a 0.075 m print, read with another square size, against the scans' board poses."""
     from ilcc_graph.board import Board
-    from ilcc_graph.run.setup_mistakes import board_scale
+    from ilcc_graph.evaluation.causes import board_scale
     from ilcc_graph.types import ImageCorners
 
     rng = np.random.default_rng(0)

@@ -66,7 +66,7 @@ ARROWS: dict[str, set[str]] = {
     "simulate": {"board", "cameras", "lidars", "io", "config"},
     "estimation": {"board", "cameras", "init"},
     "next_pose": {"estimation", "lidar", "lidars", "cameras", "board", "config"},
-    "evaluation": {"board", "cameras", "image"},
+    "evaluation": {"board", "cameras", "image", "init"},  # causes.py: a board alone from its image (UPnP)
     "report": {"lidar", "image", "estimation", "evaluation", "board", "cameras", "config", "io"},
 }
 

@@ -3,7 +3,7 @@
 ``Answer`` is what every strategy gives per source, as plain data (``from_batch`` makes it from
 the estimation core's ``BatchSolution``; the paper's refinement gives no covariance: None).
 ``finish``: every frame in input order with its fate (used, or why not, with the likely cause of a
-dropped frame, ``diagnose``), the refined board poses, the sensors' own errors. calibration.yaml
+dropped frame, ``evaluation.causes``), the refined board poses, the sensors' own errors. calibration.yaml
 writes a covariance the method does not give as NaN (interface.md).
 
 No answer the data do not support: when the frames that agree within their noise are fewer than
@@ -11,7 +11,7 @@ No answer the data do not support: when the frames that agree within their noise
 others disagree beyond it, nothing tells which group is right, and a covariance from two poses
 cannot reveal a placement's error: ``finish`` raises ``CalibrationImpossible`` (exit 3) naming the
 frames that agree, those that disagree with each one's likely cause, and the likely cause over
-all frames (``diagnose.residual_causes``). When the residuals are far above the detectors' stated
+all frames (``evaluation.causes.residual_causes``). When the residuals are far above the detectors' stated
 noise (``gate.FAR_ABOVE``) the calibration carries those causes (``Calibration.causes``).
 """
 
@@ -32,9 +32,9 @@ from ilcc_graph.estimation.effects import SQUARE_SIZE_KEY
 from ilcc_graph.estimation.gate import far_above
 from ilcc_graph.estimation.geometry import MIN_DISTINCT_POSES
 from ilcc_graph.estimation.lidar_errors import errors_entry
+from ilcc_graph.evaluation.causes import dropped_frame_cause, fit_image_alone, moved_boards, residual_causes
 from ilcc_graph.lidar.margin import margin_summary
 from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
-from ilcc_graph.run.diagnose import dropped_frame_cause, fit_image_alone, moved_boards, residual_causes
 from ilcc_graph.run.prepare import Prepared, drop, frame_issues
 from ilcc_graph.types import Calibration, FrameResult, GraphFrame, PoseTerms, rotation_angle_deg
 
@@ -186,7 +186,7 @@ def _refuse(
 ) -> NoReturn:
     """Raise the exit 3 of frames that do not agree: ``issues`` (frame, stage, reason) with every other
     frame's own issue (``frame_issues``), in the frames' order, and the likely cause over all frames
-    (``diagnose.residual_causes``) as the advice, else ``_CHECK``."""
+    (``evaluation.causes.residual_causes``) as the advice, else ``_CHECK``."""
     named = {n for n, _, _ in issues}
     issues = issues + [i for i in frame_issues(frames) if i[0] not in named]
     order = {f.name: i for i, f in enumerate(frames)}
@@ -253,7 +253,7 @@ def require_within_noise(
 ) -> None:
     """Raise ``CalibrationImpossible`` when the residuals are far above the detectors' stated noise
     (``far``: the variance components, ``gate.far_above``) and used frames' images put their board
-    far from where the scans saw it (``diagnose.moved_boards``): the noise estimated from the frames
+    far from where the scans saw it (``evaluation.causes.moved_boards``): the noise estimated from the frames
     then hides those frames from the gate, so the covariance would not cover them."""
     moved = {n: (g, s) for n, g, s in moved_boards(list(frames), config.board, config.camera, T_cam_lidar)}
     used = [f for f in frames if f.used and f.name in moved]
@@ -278,7 +278,7 @@ def require_within_noise(
 def _dropped_causes(
     results: dict[str, FrameResult], dropped: Sequence[str], config: Config, T_cam_lidar: np.ndarray
 ) -> dict[str, str]:
-    """Per dropped frame the likely cause (``diagnose``), judged against the used frames' images."""
+    """Per dropped frame the likely cause (``evaluation.causes``), judged against the used frames' images."""
     used = [r.corners for n, r in results.items() if r.used and n not in dropped and r.corners is not None]
     if len(used) < 3:  # too few to tell the typical image fit: every frame's with corners judges it
         used = [r.corners for n, r in results.items() if r.corners is not None and (r.used or n in dropped)]

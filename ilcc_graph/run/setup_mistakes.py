@@ -31,11 +31,11 @@ from ilcc_graph.board import Board
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameSource
 from ilcc_graph.errors import FrameError, InputError
-from ilcc_graph.init import upnp
+from ilcc_graph.evaluation.causes import SCALE_TOL, board_scale
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.pattern_check import extra_squares, pattern_continues
 from ilcc_graph.run.stages import StageOptions, attempt, observe_image, observe_lidar
-from ilcc_graph.types import Calibration, ImageCorners
+from ilcc_graph.types import Calibration
 
 log = logging.getLogger(__name__)
 
@@ -44,48 +44,6 @@ __all__ = ["board_scale", "diagnose_failure", "diagnose_result", "pattern_contin
 #: square-size factors tried when the configured board is found in no scan
 SCALES = (0.8, 0.85, 0.9, 0.95, 1.05, 1.1, 1.15, 1.2, 1.25)
 LOOK = 3  # frames looked at per check (each check runs a stage per frame)
-SCALE_TOL = 0.03  # board_scale within this of 1 is normal (the recorded sets: 1.003, 1.006)
-
-
-def _centre_image(corners: ImageCorners, board: Board) -> np.ndarray | None:
-    """(3,) the pattern's centre in the camera frame from the image corners and the board (UPnP)."""
-    b = corners.bearings / np.linalg.norm(corners.bearings, axis=1, keepdims=True)
-    ok = np.all(np.isfinite(b), axis=1)
-    if ok.sum() < 6:
-        return None
-    T = upnp(board.corners_board()[ok], b[ok], prefer_front=True)[0].T_cam_points
-    return T[:3, :3] @ board.pattern_centre + T[:3, 3]
-
-
-def board_scale(
-    pairs: Sequence[tuple[ImageCorners, np.ndarray]], board: Board, min_apart_m: float = 0.3
-) -> tuple[float, float, int] | None:
-    """How much bigger the images say the board's moves are than the scans: (median k, spread, pairs).
-
-    pairs: per frame the image corners and the LiDAR's (4, 4) ``T_lidar_board``. For two frames the
-    distance between the pattern's centres is the same in either sensor's frame (no extrinsic
-    needed); from the image it scales with the configured square size, from the scans it does not.
-    So k = s_configured / s_print (1 when the square size is right; the recorded sets give 1.003 and
-    1.006, a simulated square 6 % too small 0.940). Pairs closer than ``min_apart_m`` are left out.
-    spread: the median absolute deviation of the pairs' ratios. None with fewer than two frames.
-    """
-    cam, lid = [], []
-    for corners, T in pairs:
-        c = _centre_image(corners, board)
-        if c is not None:
-            cam.append(c)
-            lid.append(T[:3, :3] @ board.pattern_centre + T[:3, 3])
-    C, P = np.asarray(cam).reshape(-1, 3), np.asarray(lid).reshape(-1, 3)
-    parts = []
-    for i in range(len(C) - 1):  # every pair once: frame i with the later ones, a row at a time
-        d_cam, d_lid = np.linalg.norm(C[i] - C[i + 1 :], axis=1), np.linalg.norm(P[i] - P[i + 1 :], axis=1)
-        ok = (d_cam >= min_apart_m) & (d_lid > 0)
-        parts.append(d_cam[ok] / d_lid[ok])
-    ratios = np.concatenate(parts) if parts else np.zeros(0)
-    if not len(ratios):
-        return None
-    k = float(np.median(ratios))
-    return k, float(np.median(np.abs(ratios - k))), len(ratios)
 
 
 def _square_size_line(board: Board, k: float, evidence: str) -> str:

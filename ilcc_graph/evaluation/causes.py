@@ -19,6 +19,7 @@ scan and the photo (synchronisation).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,11 +29,12 @@ from scipy.spatial.transform import Rotation
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import CameraModel
 from ilcc_graph.init.upnp import upnp
-from ilcc_graph.run.setup_mistakes import SCALE_TOL, board_scale
 from ilcc_graph.types import FrameResult, ImageCorners
 
 __all__ = [
+    "SCALE_TOL",
     "ImageAlone",
+    "board_scale",
     "dropped_frame_cause",
     "fit_image_alone",
     "moved_boards",
@@ -59,6 +61,8 @@ RANGE_SHARE = 0.75
 RANGE_MIN_MM = 10.0
 #: the board's size is named only from this many pairs of frames (a moved board spoils its pairs)
 SCALE_PAIRS = 6
+#: ``board_scale`` within this of 1 is normal (the recorded sets: 1.003, 1.006)
+SCALE_TOL = 0.03
 
 
 @dataclass(frozen=True)
@@ -277,3 +281,44 @@ def residual_causes(
             "photo (sensors not synchronised), or the LiDAR's fit is off there"
         )
     return causes
+
+
+def _centre_image(corners: ImageCorners, board: Board) -> np.ndarray | None:
+    """(3,) the pattern's centre in the camera frame from the image corners and the board (UPnP)."""
+    b = corners.bearings / np.linalg.norm(corners.bearings, axis=1, keepdims=True)
+    ok = np.all(np.isfinite(b), axis=1)
+    if ok.sum() < 6:
+        return None
+    T = upnp(board.corners_board()[ok], b[ok], prefer_front=True)[0].T_cam_points
+    return T[:3, :3] @ board.pattern_centre + T[:3, 3]
+
+
+def board_scale(
+    pairs: Sequence[tuple[ImageCorners, np.ndarray]], board: Board, min_apart_m: float = 0.3
+) -> tuple[float, float, int] | None:
+    """How much bigger the images say the board's moves are than the scans: (median k, spread, pairs).
+
+    pairs: per frame the image corners and the LiDAR's (4, 4) ``T_lidar_board``. For two frames the
+    distance between the pattern's centres is the same in either sensor's frame (no extrinsic
+    needed); from the image it scales with the configured square size, from the scans it does not.
+    So k = s_configured / s_print (1 when the square size is right; the recorded sets give 1.003 and
+    1.006, a simulated square 6 % too small 0.940). Pairs closer than ``min_apart_m`` are left out.
+    spread: the median absolute deviation of the pairs' ratios. None with fewer than two frames.
+    """
+    cam, lid = [], []
+    for corners, T in pairs:
+        c = _centre_image(corners, board)
+        if c is not None:
+            cam.append(c)
+            lid.append(T[:3, :3] @ board.pattern_centre + T[:3, 3])
+    C, P = np.asarray(cam).reshape(-1, 3), np.asarray(lid).reshape(-1, 3)
+    parts = []
+    for i in range(len(C) - 1):  # every pair once: frame i with the later ones, a row at a time
+        d_cam, d_lid = np.linalg.norm(C[i] - C[i + 1 :], axis=1), np.linalg.norm(P[i] - P[i + 1 :], axis=1)
+        ok = (d_cam >= min_apart_m) & (d_lid > 0)
+        parts.append(d_cam[ok] / d_lid[ok])
+    ratios = np.concatenate(parts) if parts else np.zeros(0)
+    if not len(ratios):
+        return None
+    k = float(np.median(ratios))
+    return k, float(np.median(np.abs(ratios - k))), len(ratios)
