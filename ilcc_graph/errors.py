@@ -14,6 +14,8 @@ ORDER_INCONSISTENT = "corner order inconsistent"
 ORDER_AMBIGUOUS = "corner order ambiguous"
 GATE_DROPPED = "chi-square gate"
 DISAGREEING = (ORDER_INCONSISTENT, ORDER_AMBIGUOUS, GATE_DROPPED)
+#: how the reason of a frame a run left unread begins (the incremental mode once at its target)
+NOT_READ = "not read"
 #: how the reason of an image of one grey level begins (the image stage; the failure's advice)
 BLANK_IMAGE = "the image is blank"
 

@@ -24,6 +24,7 @@ import gtsam
 import numpy as np
 
 from ..cameras import CameraModel, make_camera
+from ..errors import NOT_READ
 from ..estimation.gate import far_above
 from ..types import Calibration
 from .sensors import sensors_text, square_size_text
@@ -75,10 +76,11 @@ def verdict(
     disagree = [f for f in seen if not f.used]
     n, k, d = len(cal.frames), len(used), len(disagree)
     rot, mm = _worst(cal.covariance)
-    missing = n - k - d
+    unread = sum(1 for f in cal.frames if not f.used and (f.reason or "").startswith(NOT_READ))
+    missing = n - k - d - unread
     why = [f"{d} dropped by the test"] * bool(d) + [f"{missing} without the board in both sensors"] * bool(
         missing
-    )
+    ) + [f"{unread} not read"] * bool(unread)
     agree = f"{k} of {n} frames agree with the result within their noise" + (
         f" ({', '.join(why)})" if why else ""
     )

@@ -21,13 +21,11 @@ from typing import TYPE_CHECKING, cast
 from ilcc_graph import signals
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameSource, RigSource
-from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
+from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
+from ilcc_graph.run.after import after
 from ilcc_graph.run.observe import FrameStream, Observation, observe
-from ilcc_graph.run.range_refit import refit_pass
 from ilcc_graph.run.result import Result, RunOptions
-from ilcc_graph.run.rig_views import look_rig, refit_rig
-from ilcc_graph.run.second_look import second_pass
 from ilcc_graph.run.setup_mistakes import diagnose_failure, diagnose_result
 from ilcc_graph.run.strategies import Reporter, Strategy, choose, strategy
 from ilcc_graph.types import Calibration, FrameResult
@@ -71,10 +69,10 @@ def run(
         opts = dataclasses.replace(options, mode=chosen.mode)
         streamed = chosen.solve([obs], opts, report)
         # the frames it read, as calibrate solves them once it has an answer (the batch strategy)
-        after = _after(strategy("graph"), opts, streamed, [s.observation for s in streamed.sessions])
-        if after is streamed or chosen.restate is None:
+        again = after(strategy("graph"), opts, streamed, [s.observation for s in streamed.sessions])
+        if again is streamed or chosen.restate is None:
             return streamed
-        return chosen.restate(streamed, after, report)
+        return chosen.restate(streamed, again, report)
     observations = []
     for name, src in zip(names, sources, strict=True):
         cb = None if progress is None else (lambda i, n, name=name: progress(name, i, n))
@@ -117,52 +115,7 @@ def solve_observations(
     options = _without_print(observations, dataclasses.replace(options, mode=chosen.mode), chosen)
     log.debug("estimating the extrinsic (%s) from %d source(s)", chosen.mode, len(observations))
     result = chosen.solve(observations, options, None)
-    return _after(chosen, options, result, observations)
-
-
-def _after(
-    chosen: Strategy, options: RunOptions, result: Result, observations: Sequence[Observation]
-) -> Result:
-    """``result`` (the strategy ``chosen``'s on ``observations``) after the steps a run takes once it
-    has an answer: the boards on corrected ranges, the second look, each solved again by ``chosen``
-    when it changed a board; ``result`` itself when none did."""
-    if not chosen.second_pass:
-        return result
-    corrected = False  # the boards on corrected ranges: the second look searches on them too
-    stages = options.stages
-    if options.range_refit:
-        refit = [
-            refit_pass(s.observation, s.alone, stages) if result.rig is None
-            else refit_rig(s.observation, result.rig.T_ref_sensor, s.alone.sensors, stages)
-            for s in result.sessions
-        ]  # fmt: skip
-        what = "fitted on corrected ranges"
-        result, observations, corrected = _solve_again(chosen, options, result, observations, refit, what)
-    if not options.second_pass:
-        return result
-    again = [
-        second_pass(s.observation, s.alone, stages, refit=corrected) if result.rig is None
-        else look_rig(s.observation, result.rig, s.alone.sensors, stages, refit=corrected)
-        for s in result.sessions
-    ]  # fmt: skip
-    return _solve_again(chosen, options, result, observations, again, "found by the second look")[0]
-
-
-def _solve_again(
-    chosen: Strategy, options: RunOptions, result: Result, observations: Sequence[Observation],
-    changed: Sequence[Observation | None], what: str,
-) -> tuple[Result, list[Observation], bool]:  # fmt: skip
-    """(the result, the observations, True) with the ``changed`` ones (None: unchanged) solved again;
-    ``result``, the observations as they were and False when none changed or the solve of the changed
-    ones fails (said)."""
-    if all(a is None for a in changed):
-        return result, list(observations), False
-    again = [o if a is None else a for o, a in zip(observations, changed, strict=True)]
-    try:
-        return chosen.solve(again, options, None), again, True
-    except (CalibrationImpossible, IndeterminateSystem) as err:
-        log.warning("the boards %s do not calibrate (%s): the answer without them stands", what, err)
-        return result, list(observations), False
+    return after(chosen, options, result, observations)
 
 
 def _without_print(observations: Sequence[Observation], options: RunOptions, chosen: Strategy) -> RunOptions:
