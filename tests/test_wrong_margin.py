@@ -131,3 +131,22 @@ def test_check_and_a_rig_of_two_report_the_measured_margin_as_calibrate_does(
     margins = yaml.safe_load((out / "calibration.yaml").read_text(encoding="utf-8"))["lidar_margin"]["lidar"]
     for axis in ("long", "short"):
         assert abs(margins[f"lidar_margin_{axis}_mm"] - 1e3 * REAL.margin_long) < TOL_MM, margins
+
+
+def test_the_margin_warning_in_an_80_column_terminal(wide, tmp_path: Path) -> None:  # noqa: ANN001
+    """In a real terminal (tmux, 80 columns) the run's warnings wrap as the rest of its output does:
+    no line wider than the window (a log line was one line of 350 characters, broken mid-word)."""
+    import shlex
+    import shutil
+    import sys
+
+    from test_summary import _tmux
+
+    if shutil.which("tmux") is None:
+        pytest.skip("tmux is not installed (apt-get install tmux): the terminal is not checked")
+    data, _ = wide
+    argv = [sys.executable, "-m", "ilcc_graph.app", "calibrate", str(data), "--out", "out", "--no-report"]
+    lines = _tmux(tmp_path, " ".join(shlex.quote(a) for a in argv))
+    assert all(len(line) <= 80 for line in lines), max(lines, key=len)
+    text = " ".join(" ".join(lines).split())
+    assert "WARNING: " in text and "the board's white margin the LiDAR measured is 17" in text, text[:2000]

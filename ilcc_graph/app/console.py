@@ -155,13 +155,26 @@ class SaidOnce(logging.Filter):
         return True
 
 
+class Wrapped(logging.Formatter):
+    """``LEVEL: message`` wrapped to ``WIDTH`` columns (the lines after the first indented), as the
+    rest of a command's output is: for a terminal, where a long warning would break mid-word."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        text = super().format(record)
+        return "\n".join(textwrap.fill(line, WIDTH, subsequent_indent="  ") for line in text.splitlines())
+
+
 def setup_logging(verbose: bool) -> None:
     """INFO on stderr; DEBUG for our own loggers with ``verbose`` (not every library's). The estimation
     core's INFO notes only with ``verbose`` (a filter on the handlers: the loggers' levels stay theirs);
     each line once per command on the handler made here (``SaidOnce``, anew for each command; a
-    handler of the caller's, pytest's say, is left to say every line)."""
+    handler of the caller's, pytest's say, is left to say every line); its lines wrapped to ``WIDTH``
+    columns when stderr is a terminal (``Wrapped``; a file or a pipe gets each message on one line)."""
     ours = not logging.getLogger().handlers
     logging.basicConfig(level=logging.INFO, format="%(levelname)s: %(message)s")
+    if ours and sys.stderr.isatty():
+        for handler in logging.getLogger().handlers:
+            handler.setFormatter(Wrapped("%(levelname)s: %(message)s"))
     logging.getLogger("ilcc_graph").setLevel(logging.DEBUG if verbose else logging.INFO)
     for handler in logging.getLogger().handlers:
         said = [f for f in handler.filters if isinstance(f, SaidOnce)]
