@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.run.observe import Observation
@@ -17,7 +18,9 @@ from ilcc_graph.run.range_refit import refit_pass
 from ilcc_graph.run.result import Result, RunOptions
 from ilcc_graph.run.rig_views import look_rig, refit_rig
 from ilcc_graph.run.second_look import second_pass
-from ilcc_graph.run.strategies import Strategy
+
+if TYPE_CHECKING:  # the strategies take these steps themselves (the incremental one): no import cycle
+    from ilcc_graph.run.strategies import Strategy
 
 log = logging.getLogger(__name__)
 
