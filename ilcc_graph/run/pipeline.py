@@ -118,16 +118,18 @@ def solve_observations(
     return after(chosen, options, result, observations)
 
 
-def _without_print(observations: Sequence[Observation], options: RunOptions, chosen: Strategy) -> RunOptions:
+def _without_print(
+    observations: Sequence[Observation], options: RunOptions, chosen: Strategy, say: bool = True
+) -> RunOptions:
     """The options with the LiDAR's errors estimated when most boards were placed by their outline
-    (``RunOptions.lidar_errors_without_print``), said once; as given otherwise."""
+    (``RunOptions.lidar_errors_without_print``), said once (with ``say``); as given otherwise."""
     if options.lidar_errors is not None or not options.lidar_errors_without_print or not chosen.sensor_errors:
         return options
     boards = [f.board for o in observations for f in o.frames if f.used and f.board is not None]
     plain = sum(1 for b in boards if b.diagnostics.get("no_contrast"))
     if not boards or 2 * plain <= len(boards):
         return options
-    log.warning(
+    (log.warning if say else log.debug)(
         "%d of %d boards were placed by their outline: the LiDAR's own errors (each beam's range offset) "
         "are estimated, as with --lidar-errors, since the boards' planes then carry the translation",
         plain, len(boards),
@@ -139,9 +141,12 @@ def solve_observed(
     observed: Sequence[FrameResult], config: Config, options: RunOptions = RunOptions()
 ) -> Calibration:
     """The calibration of one source's observed frames by the strategy of ``options.mode`` (no
-    second look): the report's studies and the benchmarks refit subsets with it."""
+    second look), with ``calibrate``'s noise policy for them (the LiDAR's errors estimated when most
+    boards were placed by their outline, not said again): the report's studies and the benchmarks
+    refit subsets with it."""
     obs = Observation(None, config, list(observed), "frames")
-    return strategy(options.mode).solve([obs], options, None).calibration
+    chosen = strategy(options.mode)
+    return chosen.solve([obs], _without_print([obs], options, chosen, say=False), None).calibration
 
 
 def calibrate(data: str, options: RunOptions = RunOptions()) -> tuple[gtsam.Pose3, np.ndarray]:
