@@ -1,18 +1,22 @@
-"""The steps a run takes once it has an answer (issue 34: one solve session for every door): the
-boards fitted again on the ranges the LiDAR's estimated errors correct (``range_refit``; a rig's
-base LiDAR through ``rig_views``), the second look for the boards the LiDAR stage missed where the
-answer puts them (``second_look``), each solved again by the same strategy when it changed a board.
+"""The noise policy a run takes for its observations (``without_print``: the LiDAR's errors estimated
+when most boards show no print) and the steps it takes once it has an answer (issue 34: one solve
+session for every door): the boards fitted again on the ranges the LiDAR's estimated errors correct
+(``range_refit``; a rig's base LiDAR through ``rig_views``), the second look for the boards the
+LiDAR stage missed where the answer puts them (``second_look``), each solved again by the same
+strategy when it changed a board.
 ``pipeline`` takes them after every strategy's answer; the incremental strategy takes them on the
 frames read so far before it stops at its target, so it stops only where ``calibrate``'s answer does.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
+from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.range_refit import refit_pass
 from ilcc_graph.run.result import Result, RunOptions
@@ -24,7 +28,7 @@ if TYPE_CHECKING:  # the strategies take these steps themselves (the incremental
 
 log = logging.getLogger(__name__)
 
-__all__ = ["after", "solve_again"]
+__all__ = ["after", "solve_again", "without_print"]
 
 
 def after(
@@ -70,3 +74,22 @@ def solve_again(
     except (CalibrationImpossible, IndeterminateSystem) as err:
         log.warning("the boards %s do not calibrate (%s): the answer without them stands", what, err)
         return result, list(observations), False
+
+
+def without_print(
+    observations: Sequence[Observation], options: RunOptions, chosen: Strategy, say: bool = True
+) -> RunOptions:
+    """The options with the LiDAR's errors estimated when most boards were placed by their outline
+    (``RunOptions.lidar_errors_without_print``), said once (with ``say``); as given otherwise."""
+    if options.lidar_errors is not None or not options.lidar_errors_without_print or not chosen.sensor_errors:
+        return options
+    boards = [f.board for o in observations for f in o.frames if f.used and f.board is not None]
+    plain = sum(1 for b in boards if b.diagnostics.get("no_contrast"))
+    if not boards or 2 * plain <= len(boards):
+        return options
+    (log.warning if say else log.debug)(
+        "%d of %d boards were placed by their outline: the LiDAR's own errors (each beam's range offset) "
+        "are estimated, as with --lidar-errors, since the boards' planes then carry the translation",
+        plain, len(boards),
+    )  # fmt: skip
+    return dataclasses.replace(options, lidar_errors=LidarErrorOptions())

@@ -22,12 +22,11 @@ from ilcc_graph import signals
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameSource, RigSource
 from ilcc_graph.errors import CalibrationImpossible
-from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
-from ilcc_graph.run.after import after
+from ilcc_graph.run.after import after, without_print
 from ilcc_graph.run.observe import FrameStream, Observation, observe
 from ilcc_graph.run.result import Result, RunOptions
 from ilcc_graph.run.setup_mistakes import diagnose_failure, diagnose_result
-from ilcc_graph.run.strategies import Reporter, Strategy, choose, strategy
+from ilcc_graph.run.strategies import Reporter, choose, strategy
 from ilcc_graph.types import Calibration, FrameResult
 
 if TYPE_CHECKING:
@@ -68,8 +67,12 @@ def run(
         obs = Observation(first, stream.config, [], names[0], stream)
         opts = dataclasses.replace(options, mode=chosen.mode)
         streamed = chosen.solve([obs], opts, report)
-        # the frames it read, as calibrate solves them once it has an answer (the batch strategy)
-        again = after(strategy("graph"), opts, streamed, [s.observation for s in streamed.sessions])
+        # the frames it read, as calibrate solves them once it has an answer (the batch strategy; first
+        # under calibrate's noise policy when that differs from the stream's)
+        seen, graph = [s.observation for s in streamed.sessions], strategy("graph")
+        batch = without_print(seen, opts, graph)
+        answer = streamed if batch is opts else graph.solve(seen, batch, None)
+        again = after(graph, batch, answer, seen)
         if again is streamed or chosen.restate is None:
             return streamed
         return chosen.restate(streamed, again, report)
@@ -112,29 +115,10 @@ def solve_observations(
     chosen = choose(options, len(observations))
     if chosen.streams:
         raise ValueError(f"{chosen.mode} mode observes frame by frame: use run()")
-    options = _without_print(observations, dataclasses.replace(options, mode=chosen.mode), chosen)
+    options = without_print(observations, dataclasses.replace(options, mode=chosen.mode), chosen)
     log.debug("estimating the extrinsic (%s) from %d source(s)", chosen.mode, len(observations))
     result = chosen.solve(observations, options, None)
     return after(chosen, options, result, observations)
-
-
-def _without_print(
-    observations: Sequence[Observation], options: RunOptions, chosen: Strategy, say: bool = True
-) -> RunOptions:
-    """The options with the LiDAR's errors estimated when most boards were placed by their outline
-    (``RunOptions.lidar_errors_without_print``), said once (with ``say``); as given otherwise."""
-    if options.lidar_errors is not None or not options.lidar_errors_without_print or not chosen.sensor_errors:
-        return options
-    boards = [f.board for o in observations for f in o.frames if f.used and f.board is not None]
-    plain = sum(1 for b in boards if b.diagnostics.get("no_contrast"))
-    if not boards or 2 * plain <= len(boards):
-        return options
-    (log.warning if say else log.debug)(
-        "%d of %d boards were placed by their outline: the LiDAR's own errors (each beam's range offset) "
-        "are estimated, as with --lidar-errors, since the boards' planes then carry the translation",
-        plain, len(boards),
-    )  # fmt: skip
-    return dataclasses.replace(options, lidar_errors=LidarErrorOptions())
 
 
 def solve_observed(
@@ -146,7 +130,7 @@ def solve_observed(
     refit subsets with it."""
     obs = Observation(None, config, list(observed), "frames")
     chosen = strategy(options.mode)
-    return chosen.solve([obs], _without_print([obs], options, chosen, say=False), None).calibration
+    return chosen.solve([obs], without_print([obs], options, chosen, say=False), None).calibration
 
 
 def calibrate(data: str, options: RunOptions = RunOptions()) -> tuple[gtsam.Pose3, np.ndarray]:

@@ -22,7 +22,7 @@ import numpy as np
 
 from ilcc_graph.errors import NOT_READ, CalibrationError
 from ilcc_graph.estimation.incremental import FrameUpdate, IncrementalCalibrator
-from ilcc_graph.run.after import after
+from ilcc_graph.run.after import after, without_print
 from ilcc_graph.run.finish import finish, from_batch
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.prepare import Prepared, permute_corners, prepare
@@ -101,8 +101,8 @@ def _as_calibrate(
     the same frames says 0.071 deg / 2.8 mm, so the stream stops only where this answer reaches the
     target."""
     graph = strategy("graph")
-    opts = dataclasses.replace(options, mode="graph")
     seen = dataclasses.replace(obs, frames=list(observed), stream=None)
+    opts = without_print([seen], dataclasses.replace(options, mode="graph"), graph, say=False)
     try:
         cal = after(graph, opts, graph.solve([seen], opts, None), [seen]).calibration
     except CalibrationError:
