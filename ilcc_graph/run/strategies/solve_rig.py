@@ -12,11 +12,13 @@ LiDAR reads like a single pair's run.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from ilcc_graph.datasets.rig_source import RigSource
+from ilcc_graph.estimation.rig_solve import RigOptions
 from ilcc_graph.run import rig_calibrate
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
@@ -26,7 +28,9 @@ from ilcc_graph.run.stages import StageOptions
 from ilcc_graph.run.strategies import Reporter, Strategy, one, register
 from ilcc_graph.types import Calibration, FrameResult
 
-__all__ = ["headline", "observe", "solve"]
+__all__ = ["headline", "observe", "rig_options", "solve"]
+
+log = logging.getLogger(__name__)
 
 
 def observe(
@@ -73,13 +77,30 @@ def headline(res: RigResult) -> Calibration:
     )  # fmt: skip
 
 
+def rig_options(seen: RigObservation, options: RunOptions) -> RigRunOptions:
+    """The rig's solve under ``calibrate``'s noise policy for a pair (``run.after.without_print``):
+    when most of the base LiDAR's boards show no print (placed by their outline), its own errors are
+    estimated (the per-beam model, not chosen among models), said once."""
+    base = seen.rig.lidars[0]
+    boards = [m.boards[base] for m in seen.moments if base in m.boards]
+    plain = sum(1 for b in boards if b.diagnostics.get("no_contrast"))
+    if not options.lidar_errors_without_print or not boards or 2 * plain <= len(boards):
+        return RigRunOptions(stages=options.stages)
+    log.warning(
+        "%d of %d boards of %s were placed by their outline: its own errors (each beam's range offset) "
+        "are estimated, as a pair's run does, since the boards' planes then carry the translation",
+        plain, len(boards), base,
+    )  # fmt: skip
+    return RigRunOptions(stages=options.stages, solve=RigOptions(models=("beams",)))
+
+
 def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
     """The rig's joint answer from its observation (``observe``). Raises CalibrationImpossible,
     IndeterminateSystem."""
     obs = one(observations, "rig")
     if not isinstance(obs.data, RigObservation):
         raise ValueError("rig mode: the observation holds no rig (observe it with this strategy's observe)")
-    res = solve_observed(obs.data, RigRunOptions(stages=options.stages))
+    res = solve_observed(obs.data, rig_options(obs.data, options))
     cal = headline(res)
     poses = {s: res.pose(s) for s in res.sensors}
     session = SessionResult(obs.name, obs, cal)
