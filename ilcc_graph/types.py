@@ -32,6 +32,25 @@ def sigmas_deg_mm(cov: np.ndarray) -> np.ndarray:
     return np.concatenate([np.degrees(s[:3]), 1e3 * s[3:]])
 
 
+def worst_sigmas(cov: np.ndarray) -> tuple[float, float]:
+    """The largest 1-sigma in any direction of a (6, 6) Pose3-tangent covariance: rotation (deg),
+    translation (mm) (the square roots of each block's largest eigenvalue); NaN without one."""
+    c = np.asarray(cov, dtype=np.float64)
+    if c.shape != (6, 6) or not np.all(np.isfinite(c)):
+        return math.nan, math.nan
+    rot = math.degrees(math.sqrt(max(np.linalg.eigvalsh(c[:3, :3])[-1], 0.0)))
+    return rot, 1e3 * math.sqrt(max(np.linalg.eigvalsh(c[3:, 3:])[-1], 0.0))
+
+
+def reaches(cov: np.ndarray, target: tuple[float, float] | None) -> bool:
+    """Whether a (6, 6) covariance's 1-sigma is within ``target`` (deg, mm) in every direction, as
+    the verdict judges it (``worst_sigmas``); False without a target or a covariance."""
+    if target is None:
+        return False
+    rot, mm = worst_sigmas(cov)
+    return bool(rot <= target[0] and mm <= target[1])
+
+
 def sigma_dict(cov: np.ndarray) -> dict[str, float]:
     """``{rx_deg, ry_deg, rz_deg, tx_mm, ty_mm, tz_mm}`` of a (6, 6) Pose3-tangent covariance."""
     return {k: float(v) for k, v in zip(SIGMA_NAMES, sigmas_deg_mm(cov), strict=True)}

@@ -122,7 +122,7 @@ def test_a_verdict_with_long_notes_fits_80_columns() -> None:
     seen = Verdict(
         "frame_000012345", None, None, repeat_of="frame_000000001", note="gate: " + " ".join(["far"] * 40)
     )
-    seen = dataclasses.replace(seen, n_frames=5, sigmas=100 * sig, latency=12.5)
+    seen = dataclasses.replace(seen, n_frames=5, sigmas=100 * sig, worst=(3.0, 300.0), latency=12.5)
     lines = format_verdict(seen, (0.0001, 0.001)).splitlines()
     assert lines[0] == seen.name and lines[1].split()[:3] == ["ok", "ok", "repeat"]
     assert lines[1].split()[-3:] == ["x3e+04", "x3e+05", "12.50s"]  # the ratios in 13 columns

@@ -48,7 +48,7 @@ from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.noise import NoiseOptions
 from ilcc_graph.estimation.solver import gaussian
 from ilcc_graph.init import resolve_half_turns
-from ilcc_graph.types import FrameResult, GraphFrame
+from ilcc_graph.types import FrameResult, GraphFrame, reaches
 
 log = logging.getLogger(__name__)
 
@@ -376,7 +376,7 @@ class IncrementalCalibrator:
         sig = np.sqrt(np.diag(sol.covariance))
         n, dt = len(sol.per_frame), time.perf_counter() - t0
         return FrameUpdate(
-            sol.T_cam_lidar, sig, self._reached(sig), sol.covariance, name, True, None, n, dt, sol,
+            sol.T_cam_lidar, sig, self._reached(sol.covariance), sol.covariance, name, True, None, n, dt, sol,
             sol.variance_factor,
         )
 
@@ -385,11 +385,9 @@ class IncrementalCalibrator:
         cov = np.asarray(self._isam.marginalCovariance(X(0)), dtype=np.float64)
         return 0.5 * (cov + cov.T)
 
-    def _reached(self, sig: np.ndarray) -> bool:
-        if self.target_sigma is None:
-            return False
-        rot_deg, trans_mm = self.target_sigma
-        return bool(np.degrees(sig[:3]).max() <= rot_deg and 1e3 * sig[3:].max() <= trans_mm)
+    def _reached(self, cov: np.ndarray) -> bool:
+        """The target reached in every direction, as the verdict judges it (``types.reaches``)."""
+        return reaches(cov, self.target_sigma)
 
     def _update(self, name: str, t0: float, accepted: bool, reason: str | None) -> FrameUpdate:
         if self._T is None:
@@ -402,7 +400,7 @@ class IncrementalCalibrator:
         cov = self._cov = self._scale * self._cov_stated
         sig = np.sqrt(np.diag(cov))
         T, n, dt = np.asarray(self._T.matrix()), len(self._frames), time.perf_counter() - t0
-        return FrameUpdate(T, sig, self._reached(sig), cov, name, accepted, reason, n, dt, None, self._scale)
+        return FrameUpdate(T, sig, self._reached(cov), cov, name, accepted, reason, n, dt, None, self._scale)
 
 
 def calibrate_incrementally(

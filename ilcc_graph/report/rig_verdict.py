@@ -20,7 +20,8 @@ from dataclasses import dataclass
 
 from ..errors import DISAGREEING
 from ..io.rig_results import RigCalibration
-from .summary import MIN_FRAMES, NEED_DEG_MM, WIDTH, _worst
+from ..types import worst_sigmas
+from .summary import MIN_FRAMES, NEED_DEG_MM, WIDTH
 
 __all__ = [
     "DISAGREE",
@@ -88,7 +89,7 @@ def _standing(cal: RigCalibration, s: str, need: tuple[float, float]) -> SensorS
     if why is not None or s not in cal.sensors:
         text = f"no pose ({why or 'not solved'})"
         return SensorStanding(s, "POOR", k, d, math.nan, math.nan, (text,), ("pose",))
-    rot, mm = _worst(cal.block(s))
+    rot, mm = worst_sigmas(cal.block(s))
     problems, helps = [], set()
     if k < MIN_FRAMES:
         problems.append(f"only {k} moment{'s' * (k != 1)} used ({MIN_FRAMES} or more advised)")

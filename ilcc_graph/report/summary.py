@@ -26,7 +26,7 @@ import numpy as np
 from ..cameras import CameraModel, make_camera
 from ..errors import NOT_READ
 from ..estimation.gate import far_above
-from ..types import Calibration
+from ..types import Calibration, worst_sigmas
 from .sensors import sensors_text, square_size_text
 from .text import format_joint, lidar_view_lines, short_reason
 
@@ -42,15 +42,6 @@ NEED_DEG_MM = (0.1, 5.0)
 MIN_FRAMES = 4
 #: elevation (deg) beyond which azimuth and roll of the viewing direction are not given
 STEEP_DEG = 80.0
-
-
-def _worst(cov: np.ndarray) -> tuple[float, float]:
-    """Largest 1-sigma in any direction: rotation (deg), translation (mm); NaN without a covariance."""
-    c = np.asarray(cov, dtype=np.float64)
-    if c.shape != (6, 6) or not np.all(np.isfinite(c)):
-        return math.nan, math.nan
-    rot = math.degrees(math.sqrt(max(np.linalg.eigvalsh(c[:3, :3])[-1], 0.0)))
-    return rot, 1e3 * math.sqrt(max(np.linalg.eigvalsh(c[3:, 3:])[-1], 0.0))
 
 
 def verdict(
@@ -75,7 +66,7 @@ def verdict(
     seen = [f for f in cal.frames if f.board is not None and f.corners is not None]
     disagree = [f for f in seen if not f.used]
     n, k, d = len(cal.frames), len(used), len(disagree)
-    rot, mm = _worst(cal.covariance)
+    rot, mm = worst_sigmas(cal.covariance)
     unread = sum(1 for f in cal.frames if not f.used and (f.reason or "").startswith(NOT_READ))
     missing = n - k - d - unread
     why = [f"{d} dropped by the test"] * bool(d) + [f"{missing} without the board in both sensors"] * bool(

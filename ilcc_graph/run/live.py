@@ -42,7 +42,7 @@ from ilcc_graph.run.prepare import graph_frame
 from ilcc_graph.run.result import SENSOR_MODELS, Result, RunOptions
 from ilcc_graph.run.source import open_run
 from ilcc_graph.run.stages import StageOptions, frame_result, observe_image, observe_lidar
-from ilcc_graph.types import Calibration, FrameResult, GraphFrame, sigmas_deg_mm
+from ilcc_graph.types import Calibration, FrameResult, GraphFrame, reaches, sigmas_deg_mm, worst_sigmas
 
 log = logging.getLogger(__name__)
 
@@ -60,8 +60,9 @@ class Verdict:
     frame whose board pose this one repeats (then it is not offered to the solve). accepted: the
     solve of the frames so far keeps it. note: why not (its gate), what it waits for, or that the
     noise rests on few boards. n_frames: frames the solve uses; n_distinct: distinct board poses so
-    far. sigmas: (6,) deg, deg, deg, mm, mm, mm after this frame (None before the first estimate).
-    model: the sensor model the solve chose. reached: every sigma within the target.
+    far. sigmas: (6,) deg, deg, deg, mm, mm, mm after this frame (None before the first estimate);
+    worst: the largest 1-sigma in any direction, (deg, mm) (``types.worst_sigmas``, as the verdict
+    judges it). model: the sensor model the solve chose. reached: ``worst`` within the target.
     seconds: time spent on the frame; latency: from its arrival (its files complete) to the verdict.
     """
 
@@ -74,6 +75,7 @@ class Verdict:
     n_frames: int = 0
     n_distinct: int = 0
     sigmas: np.ndarray | None = None
+    worst: tuple[float, float] | None = None
     model: str | None = None
     reached: bool = False
     seconds: float = 0.0
@@ -222,6 +224,7 @@ class LiveCheck:
             n_frames=0 if last is None else last.n_frames,
             n_distinct=len(self._distinct),
             sigmas=self._sigmas(last),
+            worst=self._worst(last),
             model=None if last is None or last.solution is None else _model(last.solution),
         )
         if v.found:
@@ -234,6 +237,9 @@ class LiveCheck:
 
     def _sigmas(self, u: FrameUpdate | None) -> np.ndarray | None:
         return None if u is None or u.T_cam_lidar is None else sigmas_deg_mm(u.covariance)
+
+    def _worst(self, u: FrameUpdate | None) -> tuple[float, float] | None:
+        return None if u is None or u.T_cam_lidar is None else worst_sigmas(u.covariance)
 
     def _offer(self, v: Verdict, fr: FrameResult) -> Verdict:
         gf = graph_frame(fr, self.config)
@@ -265,6 +271,7 @@ class LiveCheck:
             n_frames=update.n_frames,
             n_distinct=n,
             sigmas=self._sigmas(update),
+            worst=self._worst(update),
             model=model,
             reached=update.reached_target,
         )
@@ -284,10 +291,7 @@ class LiveCheck:
             return str(err)
         cal, sol = result.calibration, result.batch
         assert sol is not None  # the batch strategy gives its solution
-        reached = False
-        if self.target_sigma is not None:
-            s = sigmas_deg_mm(cal.covariance)
-            reached = bool(s[:3].max() <= self.target_sigma[0] and s[3:].max() <= self.target_sigma[1])
+        reached = reaches(cal.covariance, self.target_sigma)  # as the verdict judges it
         sig = np.sqrt(np.diag(cal.covariance))
         update = FrameUpdate(cal.T_cam_lidar, sig, reached, cal.covariance, "", True, None,
                              len(sol.per_frame), time.perf_counter() - t0, sol)  # fmt: skip

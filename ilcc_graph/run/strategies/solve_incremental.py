@@ -28,9 +28,14 @@ from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.prepare import Prepared, permute_corners, prepare
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
 from ilcc_graph.run.strategies import Reporter, Strategy, one, register, strategy
-from ilcc_graph.types import Calibration, FrameResult, sigma_dict, sigmas_deg_mm
+from ilcc_graph.types import Calibration, FrameResult, reaches, sigma_dict, sigmas_deg_mm
 
 log = logging.getLogger(__name__)
+
+#: once calibrate's answer on the frames read has not reached the target, it is asked again after
+#: one more frame and a further 1 / CONFIRM_EVERY of the frames read (a long stream whose LiDAR
+#: errors keep its sigmas above the target solves about CONFIRM_EVERY * ln(n) times, not n times)
+CONFIRM_EVERY = 10
 
 __all__ = ["format_update", "restate", "solve"]
 
@@ -54,6 +59,7 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
         if report is not None:
             report(format_update(u, options.target_sigma))
 
+    confirm_at = 0  # frames read before calibrate's answer is asked again (it grows with the frames)
     for fr in stream:
         observed.append(fr)
         if fr.damaged:
@@ -62,10 +68,13 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
             continue
         u = cal.add_frame(fr)
         tell(u)
-        if options.stop_at_target and u.reached_target and (batch := _as_calibrate(obs, observed, options)):
+        if not (options.stop_at_target and u.reached_target and len(observed) >= confirm_at):
+            continue
+        if (batch := _as_calibrate(obs, observed, options)) is not None:
             tell(batch)
             if batch.reached_target:
                 break
+        confirm_at = len(observed) + 1 + len(observed) // CONFIRM_EVERY
     observed += stream.unread(observed, f"{NOT_READ}: the target sigma was reached")
     if not updates:
         prepare(observed, config)  # no frame reached the calibrator: raises with every frame's reason
@@ -112,8 +121,7 @@ def _as_calibrate(
 
 def _update(cal: Calibration, target: tuple[float, float] | None, name: str) -> FrameUpdate:
     """A calibration's answer as an update named ``name``, with whether it reaches ``target``."""
-    s = sigmas_deg_mm(cal.covariance)
-    reached = target is not None and bool(s[:3].max() <= target[0] and s[3:].max() <= target[1])
+    reached = reaches(cal.covariance, target)
     used = sum(1 for f in cal.frames if f.used)
     return FrameUpdate(cal.T_cam_lidar, np.sqrt(np.diag(cal.covariance)), reached, cal.covariance, name,
                        n_frames=used)  # fmt: skip
