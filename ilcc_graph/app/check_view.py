@@ -91,9 +91,9 @@ def format_verdict(v: Verdict, target: tuple[float, float] | None = None) -> str
     pose = "-" if not v.found else (f"= {v.repeat_of}" if v.repeat_of else "new")
     pose = pose if len(pose) <= 10 else "repeat"  # the note names the frame
     rot = trans = gap = ""
-    if v.worst is not None:
-        rot, trans = f"{v.worst[0]:.4f}", f"{v.worst[1]:.3f}"
-        gap = _gap(v.worst, target)
+    if v.sigmas is not None:  # the largest per axis (the advice's figures); the gap in any direction
+        rot, trans = f"{np.max(v.sigmas[:3]):.4f}", f"{np.max(v.sigmas[3:]):.3f}"
+        gap = _gap(v.worst, target) if v.worst is not None else ""
     elif v.found:
         gap = _more(v.n_distinct)
     notes = [f"scan: {v.lidar}" if v.lidar else "", f"image: {v.image}" if v.image else "", v.note or ""]
@@ -117,11 +117,11 @@ def format_progress(
     both = sum(v.found for v in verdicts)
     last = verdicts[-1] if verdicts else None
     head = f"{n} frame(s): {both} with the board in both, {last.n_distinct if last else 0} distinct poses"
-    if last is not None and last.worst is not None:
-        s = last.worst
-        head += f"; sigma {s[0]:.4f} deg, {s[1]:.3f} mm"
+    if last is not None and last.sigmas is not None and last.worst is not None:
+        s = last.sigmas
+        head += f"; sigma {np.max(s[:3]):.4f} deg, {np.max(s[3:]):.3f} mm"
         if target is not None:
-            g = _gap(s, target)
+            g = _gap(last.worst, target)
             head += (
                 "; target reached" if g == "reached" else f"; target {target[0]:g} deg, {target[1]:g} mm: {g}"
             )
