@@ -56,6 +56,7 @@ ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "bench_real_outline.md"
 INPLANE = [2, 3, 4]  # rz, tx, ty of a board's Pose3 tangent (its own frame)
 EDGE_M = 0.008  # returns this near a square's edge keep their range (their colour is not sure)
+READING = "\n## Reading"  # the doc's hand-written part, after the tables
 
 
 def invisible_copy(data: Path, where: Path, dark_m: float = 0.0) -> Path:
@@ -230,8 +231,9 @@ def main() -> None:
     lines.append(f"Time: {time.perf_counter() - t0:.0f} s.")
     text = "\n".join(lines) + "\n"
     print(text)
-    if args.write:
-        atomic_write(DOC, text)
+    if args.write:  # the hand-written reading below the tables is kept
+        kept = DOC.read_text().split(READING, 1) if DOC.is_file() else []
+        atomic_write(DOC, text + (READING + kept[1] if len(kept) == 2 else ""))
 
 
 if __name__ == "__main__":
