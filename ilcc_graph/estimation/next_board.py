@@ -29,6 +29,7 @@ from ilcc_graph.cameras import CameraModel
 from ilcc_graph.estimation.graphs import frame_bearing_factor, samples_from_corners
 from ilcc_graph.estimation.keys import POSE3_DOF, L, O, X
 from ilcc_graph.estimation.noise import Solution
+from ilcc_graph.types import PoseTerms
 
 __all__ = ["SolvedGlobals", "board_information", "extrinsic_gain", "solved_globals"]
 
@@ -52,6 +53,15 @@ class SolvedGlobals:
     @property
     def dim(self) -> int:
         return len(self.covariance)
+
+    def pose_terms(self, factor: float = 1.0) -> PoseTerms | None:
+        """The extrinsic with its range terms as calibration.yaml keeps them (``types.PoseTerms``),
+        the joint covariance times ``factor`` (the chosen model's held-out factor, as the reported
+        covariance is); None without terms."""
+        if not self.terms:
+            return None
+        C = factor * np.asarray(self.covariance, dtype=np.float64)
+        return PoseTerms(self.T_cam_lidar, tuple(self.terms), tuple(self.units), np.asarray(self.theta), C)
 
     def coefficients(self, dark_share: float, beams: Sequence[int], range_m: float) -> np.ndarray:
         """(k,) ``a``: a board's mean coefficient of each range term, for its returns' ``dark_share``,

@@ -22,13 +22,14 @@ from ilcc_graph.run.range_refit import refit_pass
 from ilcc_graph.run.result import Result, RunOptions
 from ilcc_graph.run.rig_views import look_rig, refit_rig
 from ilcc_graph.run.second_look import second_pass
+from ilcc_graph.types import BoardFit
 
 if TYPE_CHECKING:  # the strategies take these steps themselves (the incremental one): no import cycle
     from ilcc_graph.run.strategies import Strategy
 
 log = logging.getLogger(__name__)
 
-__all__ = ["after", "solve_again", "without_print"]
+__all__ = ["after", "mostly_outline", "solve_again", "without_print"]
 
 
 def after(
@@ -84,8 +85,7 @@ def without_print(
     if options.lidar_errors is not None or not options.lidar_errors_without_print or not chosen.sensor_errors:
         return options
     boards = [f.board for o in observations for f in o.frames if f.used and f.board is not None]
-    plain = sum(1 for b in boards if b.diagnostics.get("no_contrast"))
-    if not boards or 2 * plain <= len(boards):
+    if (plain := mostly_outline(boards)) is None:
         return options
     (log.warning if say else log.debug)(
         "%d of %d boards were placed by their outline: the LiDAR's own errors (each beam's range offset) "
@@ -93,3 +93,11 @@ def without_print(
         plain, len(boards),
     )  # fmt: skip
     return dataclasses.replace(options, lidar_errors=LidarErrorOptions())
+
+
+def mostly_outline(boards: Sequence[BoardFit]) -> int | None:
+    """How many of ``boards`` were placed by their outline (no print in the LiDAR's intensity) when
+    they are most of them, else None: the rule by which a pair's run and a rig's estimate the LiDAR's
+    own errors (``without_print``, ``strategies.solve_rig.rig_options``)."""
+    plain = sum(1 for b in boards if b.diagnostics.get("no_contrast"))
+    return plain if boards and 2 * plain > len(boards) else None

@@ -90,12 +90,8 @@ def _with_terms(sol: BatchSolution) -> PoseTerms | None:
     """The chosen model's extrinsic with its range terms (``next_board.SolvedGlobals``), or None; the
     joint covariance times the model's held-out factor (``Selection.factor``; 1 for a forced model),
     as the reported covariance is (``batch.solve``)."""
-    g = sol.solved
-    if g is None or not g.terms:
-        return None
     factor = 1.0 if sol.selection is None else sol.selection.factor
-    C = factor * np.asarray(g.covariance, dtype=np.float64)
-    return PoseTerms(g.T_cam_lidar, tuple(g.terms), tuple(g.units), np.asarray(g.theta), C)
+    return None if sol.solved is None else sol.solved.pose_terms(factor)
 
 
 def finish(

@@ -262,9 +262,6 @@ def _with_terms(result: RigResult) -> tuple[str, str, PoseTerms] | None:
     sol, cams = result.solution.solution, [c for c in result.rig.cameras if c in result.sensors]
     if sol is None or not cams or cams[0] != result.rig.cameras[0]:
         return None
-    g = solved_globals(sol)
-    if not g.terms:
-        return None
     factor = 1.0 if result.solution.selection is None else result.solution.selection.factor
-    C = factor * np.asarray(g.covariance, dtype=np.float64)
-    return cams[0], result.solution.base, PoseTerms(g.T_cam_lidar, g.terms, g.units, np.asarray(g.theta), C)
+    terms = solved_globals(sol).pose_terms(factor)
+    return None if terms is None else (cams[0], result.solution.base, terms)

@@ -20,6 +20,7 @@ import numpy as np
 from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.estimation.rig_solve import RigOptions
 from ilcc_graph.run import rig_calibrate
+from ilcc_graph.run.after import mostly_outline
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
 from ilcc_graph.run.rig_calibrate import RigResult, RigRunOptions, solve_observed, to_calibration
@@ -83,8 +84,8 @@ def rig_options(seen: RigObservation, options: RunOptions) -> RigRunOptions:
     estimated (the per-beam model, not chosen among models), said once."""
     base = seen.rig.lidars[0]
     boards = [m.boards[base] for m in seen.moments if base in m.boards]
-    plain = sum(1 for b in boards if b.diagnostics.get("no_contrast"))
-    if not options.lidar_errors_without_print or not boards or 2 * plain <= len(boards):
+    plain = mostly_outline(boards) if options.lidar_errors_without_print else None
+    if plain is None:
         return RigRunOptions(stages=options.stages)
     log.warning(
         "%d of %d boards of %s were placed by their outline: its own errors (each beam's range offset) "
