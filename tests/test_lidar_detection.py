@@ -8,10 +8,11 @@ import pytest
 from ilcc_graph.board import Board
 from ilcc_graph.config import Roi
 from ilcc_graph.errors import BoardNotFound, InputError
-from ilcc_graph.lidar import estimate_board
+from ilcc_graph.lidar import LidarOptions, estimate_board
 from ilcc_graph.lidar._synthetic import SynthScene, synth_scan
 from ilcc_graph.lidar.detection import find_candidates, intensity_contrast, roi_mask
 from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
+from ilcc_graph.lidar.segmentation import segment_scan
 from ilcc_graph.lidars import lidar_model
 from ilcc_graph.types import Scan
 
@@ -63,6 +64,30 @@ def test_board_found_despite_person_stand_and_close_wall(scene: SynthScene) -> N
         np.sqrt(((fit.corners_lidar[BOARD.half_turn_permutation()] - truth) ** 2).sum(axis=1).mean()),
     )
     assert err < 0.005
+
+
+@pytest.mark.parametrize("lidar", ["vlp16", "hdl32"])
+@pytest.mark.parametrize("stand", [False, True])
+def test_board_standing_on_the_floor_around_the_sensor_is_split_off(lidar: str, stand: bool) -> None:
+    """A board whose lower edge touches the floor merges with it into one object around the sensor,
+    whose mean point lies near the origin: the board's count at that range (0.5 m, not 3 m) once
+    barred the object from being tested and split ("size: 3.86 x 3.86 m at 0.55 m")."""
+    model = lidar_model(lidar)
+    sc = SynthScene(distance=3.0, azimuth_window_deg=None, stand=stand, ground_z=-0.55, elevation_deg=-5)
+    scan, T = synth_scan(BOARD, model, sc, np.random.default_rng(1))
+    on = _board_mask(scan, T, BOARD)
+    seg = segment_scan(scan.points, scan.ring, model, LidarOptions(), valid=np.ones(len(scan), bool))
+    merged = seg.labels == np.bincount(seg.labels[on]).argmax()
+    assert merged.sum() > 5 * on.sum()  # the board is one object with the floor
+    assert np.linalg.norm(scan.points[merged].mean(axis=0)) < 1.0  # whose mean is near the sensor
+    fit = estimate_board(scan, BOARD, model)
+    centre = BOARD.corners_board().mean(axis=0)
+    found = fit.T_lidar_board[:3, :3] @ centre + fit.T_lidar_board[:3, 3]
+    assert np.linalg.norm(found - (T[:3, :3] @ centre + T[:3, 3])) < 0.03  # the board (1-2 cm: few beams)
+    b = (fit.points_lidar - T[:3, 3]) @ T[:3, :3]  # no floor returns among the board's
+    x0, x1, y0, y1 = BOARD.extent()
+    assert np.all((b[:, 0] > x0 - 0.02) & (b[:, 0] < x1 + 0.02))
+    assert np.all((b[:, 1] > y0 - 0.02) & (b[:, 1] < y1 + 0.02))
 
 
 def test_margin_counts_in_the_physical_size() -> None:

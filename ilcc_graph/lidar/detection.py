@@ -35,6 +35,7 @@ from .search import (
     SearchInput,
     inlier_threshold,
     inside_mask,
+    piece_range,
     ransac_plane,
     roi_mask,
     search_board,
@@ -115,7 +116,7 @@ def find_candidates(
     def n_theory(idx: np.ndarray) -> float:
         """Returns of a frontal board at the piece's range: area / (d^2 azimuth step x ring spacing)."""
         q = p[idx]
-        d = float(np.linalg.norm(q.mean(axis=0)))
+        d = piece_range(q)
         step_el = float(np.mean(local_elevation_step(model, np.arctan2(q[:, 2], np.hypot(q[:, 0], q[:, 1])))))
         return (x1 - x0) * short_side / (d**2 * step_az * step_el)
 

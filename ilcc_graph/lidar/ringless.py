@@ -50,7 +50,16 @@ from ..types import BoardFit
 from .board_tests import board_tests
 from .options import LidarOptions
 from .pattern import area_weights, density_map, estimate_noise, link_components, pseudo_rings, trim_in_plane
-from .search import Candidate, PlaneFn, SearchInput, inlier_threshold, inside_mask, ransac_plane, search_board
+from .search import (
+    Candidate,
+    PlaneFn,
+    SearchInput,
+    inlier_threshold,
+    inside_mask,
+    piece_range,
+    ransac_plane,
+    search_board,
+)
 
 __all__ = ["find_ringless_candidates", "one_pseudo_beam", "pseudo_rings", "SEARCH_POINTS"]
 
@@ -183,7 +192,7 @@ class _Pieces:
 
     def n_theory(self, idx: np.ndarray) -> float:
         """Returns of a frontal board at the piece's range: ``area / (d * spacing)^2``."""
-        d = float(np.linalg.norm(self.p[idx].mean(axis=0)))
+        d = piece_range(self.p[idx])
         return self.area / (d * self.spacing(idx)) ** 2
 
     def tests(self, idx: np.ndarray) -> tuple[bool, float, str, str]:

@@ -22,8 +22,8 @@ from ..errors import BoardNotFound
 from .board_tests import intensity_contrast
 from .options import LidarOptions, breach
 
-__all__ = ["Candidate", "SearchInput", "inside_mask", "inlier_threshold", "ransac_plane", "roi_mask",
-           "search_board"]  # fmt: skip
+__all__ = ["Candidate", "SearchInput", "inside_mask", "inlier_threshold", "piece_range", "ransac_plane",
+           "roi_mask", "search_board"]  # fmt: skip
 
 PlaneFn = Callable[[np.ndarray, float, np.random.Generator], tuple[np.ndarray, float, np.ndarray]]
 #: failed tests after which a piece of a split object is trimmed and tested again
@@ -76,6 +76,13 @@ def roi_mask(points: np.ndarray, roi: Any | None) -> np.ndarray:
         r = np.linalg.norm(p, axis=1)
         keep &= (r >= lo) & (r <= hi)
     return keep
+
+
+def piece_range(points: np.ndarray) -> float:
+    """The range (m) at which a board among ``points`` (N, 3, LiDAR frame) would stand: the median
+    return's. Not the mean point's: an object around the sensor (a room the board merged with) has
+    its mean near the origin, and a board's count at that range would bar it from being split."""
+    return float(np.median(np.linalg.norm(points, axis=1)))
 
 
 def inside_mask(
