@@ -14,7 +14,7 @@ from ilcc_graph.cameras import Equirectangular
 from ilcc_graph.estimation import NoiseOptions, solve
 from ilcc_graph.estimation.incremental import IncrementalCalibrator
 from ilcc_graph.run.strategies.solve_incremental import format_update
-from ilcc_graph.types import BoardFit, FrameResult, ImageCorners
+from ilcc_graph.types import BoardFit, FrameResult, ImageCorners, worst_sigmas
 
 CAMERA = Equirectangular(8000, 4000)
 BOARD = Board(6, 8, 0.075)  # half-turn symmetric
@@ -72,13 +72,21 @@ def test_target_sigma_and_reporting() -> None:
     rng = np.random.default_rng(2)
     frames, _ = session_frames(rng, 12, CAMERA, T_TRUE, BOARD_ODD)
     cal = IncrementalCalibrator(CAMERA, BOARD_ODD, target_sigma=(0.02, 1.0))
-    lines = [format_update(cal.add_frame(f), (0.02, 1.0)) for f in frames]
+    updates = [cal.add_frame(f) for f in frames]
+    lines = [format_update(u, (0.02, 1.0)) for u in updates]
     lines.append(format_update(cal.finish(), (0.02, 1.0)))
     assert len(lines) == 13 and "(final)" in lines[-1]
     assert "target reached" in lines[-1]
     reached = [("target reached" in line) for line in lines[2:-1]]
     first = reached.index(True)
     assert not any(reached[:first]) and all(reached[first:])
+    # before it, each line says by how much the largest 1-sigma in any direction misses the target,
+    # the figure that decides (not the per-axis sigmas the line also shows)
+    for u, line in zip(updates[2 : 2 + first], lines[2 : 2 + first], strict=True):
+        rot, mm = worst_sigmas(u.covariance)
+        gap = f"target x{rot / 0.02:.1f} x{mm / 1.0:.1f}"
+        assert any(gap in row for row in line.splitlines()), line  # on one row when wrapped
+        assert max(rot / 0.02, mm / 1.0) > 1.0 and max(len(x) for x in line.splitlines()) <= 80
     with pytest.raises(ValueError, match="target_sigma"):
         IncrementalCalibrator(CAMERA, BOARD, target_sigma=(0.1, -1.0))
 

@@ -22,7 +22,7 @@ from ilcc_graph.errors import InputError
 from ilcc_graph.estimation.incremental import FrameUpdate
 from ilcc_graph.report.text import lidar_view_lines
 from ilcc_graph.run.live import CheckOptions, LiveCheck, Verdict, run_check
-from ilcc_graph.types import GraphFrame, sigmas_deg_mm
+from ilcc_graph.types import GraphFrame, sigmas_deg_mm, target_gap
 
 if TYPE_CHECKING:  # next_pose is imported when advice is asked for
     from ilcc_graph.next_pose import Advisor, Proposal
@@ -46,19 +46,6 @@ VERDICT_HEADER = (
 )
 _NOTE_INDENT = " " * 11  # under the scan column
 _NOTE_LINES = 3  # a longer note ends with " [...]"; check.yaml has it whole
-
-
-def _gap(worst: tuple[float, float], target: tuple[float, float] | None) -> str:
-    """The largest 1-sigma in any direction (deg, mm) over the target, or ``reached``."""
-    if target is None:
-        return ""
-    r, t = worst[0] / target[0], worst[1] / target[1]
-    return "reached" if max(r, t) <= 1.0 else f"{_times(r)} {_times(t)}"
-
-
-def _times(x: float) -> str:
-    """A ratio in at most 6 characters ("x12.3", "x4567", "x3e+04"): the target column holds two."""
-    return f"x{x:.1f}" if x < 100 else f"x{x:.0f}" if x < 9999.5 else f"x{x:.0e}"
 
 
 def _more(n_distinct: int) -> str:
@@ -93,7 +80,7 @@ def format_verdict(v: Verdict, target: tuple[float, float] | None = None) -> str
     rot = trans = gap = ""
     if v.sigmas is not None:  # the largest per axis (the advice's figures); the gap in any direction
         rot, trans = f"{np.max(v.sigmas[:3]):.4f}", f"{np.max(v.sigmas[3:]):.3f}"
-        gap = _gap(v.worst, target) if v.worst is not None else ""
+        gap = target_gap(v.worst, target) if v.worst is not None else ""
     elif v.found:
         gap = _more(v.n_distinct)
     notes = [f"scan: {v.lidar}" if v.lidar else "", f"image: {v.image}" if v.image else "", v.note or ""]
@@ -121,7 +108,7 @@ def format_progress(
         s = last.sigmas
         head += f"; sigma {np.max(s[:3]):.4f} deg, {np.max(s[3:]):.3f} mm"
         if target is not None:
-            g = _gap(last.worst, target)
+            g = target_gap(last.worst, target)
             head += (
                 "; target reached" if g == "reached" else f"; target {target[0]:g} deg, {target[1]:g} mm: {g}"
             )

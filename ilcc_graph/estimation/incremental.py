@@ -61,7 +61,7 @@ class FrameUpdate:
 
     T_cam_lidar: (4, 4) current estimate, None while waiting for the first ``init_frames`` frames.
     sigmas: (6,) per-axis sigmas (rad, rad, rad, m, m, m); inf before the first estimate.
-    reached_target: every rotation sigma <= target deg and every translation sigma <= target mm.
+    reached_target: the largest 1-sigma in any direction within the target (``types.reaches``).
     covariance: (6, 6) interface.md convention (NaN before the first estimate).
     name: the frame's name. accepted: False when the frame was rejected (``reason`` says why).
     n_frames: frames in the graph. seconds: wall time of this update (iSAM2 + marginal).

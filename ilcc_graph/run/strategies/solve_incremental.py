@@ -28,7 +28,15 @@ from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.prepare import Prepared, permute_corners, prepare
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
 from ilcc_graph.run.strategies import Reporter, Strategy, one, register, strategy
-from ilcc_graph.types import Calibration, FrameResult, reaches, sigma_dict, sigmas_deg_mm
+from ilcc_graph.types import (
+    Calibration,
+    FrameResult,
+    reaches,
+    sigma_dict,
+    sigmas_deg_mm,
+    target_gap,
+    worst_sigmas,
+)
 
 log = logging.getLogger(__name__)
 
@@ -146,8 +154,9 @@ def restate(streamed: Result, again: Result, report: Reporter | None = None) -> 
 
 
 def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = None) -> str:
-    """One line per incremental update (80 columns): frame, boards in the graph, 1-sigma in deg
-    (rx ry rz) and mm (tx ty tz), the update's time, whether the target is reached."""
+    """One line per incremental update (80 columns, wrapped): frame, boards in the graph, 1-sigma in
+    deg (rx ry rz) and mm (tx ty tz), the update's time, and with a target the largest 1-sigma in any
+    direction over it (``types.target_gap``: what decides whether the target is reached)."""
     head = f"{u.name or '(final)':>8s} n={u.n_frames:<3d}"
     if not u.accepted:
         return "\n".join(textwrap.wrap(f"{head} rejected: {u.reason}", 80, subsequent_indent=" " * 15))
@@ -159,8 +168,9 @@ def format_update(u: FrameUpdate, target_sigma: tuple[float, float] | None = Non
     if u.seconds:  # the time of an update the calibrator made (none: the run's solve again)
         body += f"  {1e3 * u.seconds:.0f} ms" if u.seconds < 10 else f"  {u.seconds:.1f} s"
     if target_sigma is not None:
-        body += "  target reached" if u.reached_target else "  target not yet"
-    return f"{head} {body}"
+        gap = target_gap(worst_sigmas(u.covariance), target_sigma)  # as reached_target judges it
+        body += "  " + f"target {gap}".replace(" ", "\xa0")  # wrapped as one word
+    return "\n".join(textwrap.wrap(f"{head} {body}", 80, subsequent_indent=" " * 15)).replace("\xa0", " ")
 
 
 def _update_dict(u: FrameUpdate) -> dict[str, Any]:
