@@ -30,6 +30,8 @@ PlaneFn = Callable[[np.ndarray, float, np.random.Generator], tuple[np.ndarray, f
 TRIMMABLE = ("size", "uniformity", "count", "plane", "contrast")
 #: fewest returns of a piece worth a look
 MIN_PIECE = 12
+#: the share of a plane's inliers its largest connected piece holds when the plane is one surface
+ONE_SURFACE = 0.8
 
 
 @dataclass(frozen=True)
@@ -281,7 +283,10 @@ class _Search:
             _, _, inl = scan.plane_fn(p[cur], scan.threshold, self.rng)
             if inl.sum() < MIN_PIECE:
                 continue
-            for piece, _ in scan.pieces(cur[inl], links):
+            pieces = scan.pieces(cur[inl], links)
+            if (again := self._one_surface(cur, inl, pieces)) is not None:
+                inl, pieces = again, scan.pieces(cur[again], links)
+            for piece, _ in pieces:
                 self.test(piece, 1)
             rest = cur[~inl]
             if rest.size < MIN_PIECE:
@@ -296,6 +301,24 @@ class _Search:
                     self.min_count(piece), options.min_points
                 ):
                     queue.append((piece, piece_links))  # big enough, with returns enough, for a board
+
+    def _one_surface(
+        self, cur: np.ndarray, inl: np.ndarray, pieces: list[tuple[np.ndarray, Any]]
+    ) -> np.ndarray | None:
+        """The inliers of ``cur`` (indices) to the plane of the largest piece of a plane's inliers
+        ``inl`` (mask) when those fell apart (the largest less than ``ONE_SURFACE`` of them): a plane
+        that cuts through two nearby surfaces (a board and the body of the person holding it, a few
+        cm before it) can hold more returns than either; None when the plane was one surface."""
+        if not pieces:
+            return None
+        big = max(pieces, key=lambda t: t[0].size)[0]
+        if big.size >= ONE_SURFACE * inl.sum() or big.size < MIN_PIECE:
+            return None
+        p = self.scan.points
+        mu = p[big].mean(axis=0)
+        n = np.linalg.svd(p[big] - mu, full_matrices=False)[2][2]  # least squares: the piece is in-plane
+        again = np.abs((p[cur] - mu) @ n) < self.scan.threshold
+        return again if again.sum() >= MIN_PIECE else None
 
     def offer(self) -> bool:
         """Turn the new passes into Candidates; True when the caller accepts them (stop searching)."""
