@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import numpy as np
 import pytest
@@ -116,6 +117,25 @@ def test_board_held_by_a_person_in_a_room_is_split_off(lidar: str, scene: SynthS
         for c in (fit.corners_lidar, fit.corners_lidar[board.half_turn_permutation()])
     )
     assert err < 0.01
+
+
+@pytest.mark.parametrize(("lidar", "elevation", "rule"), [("hdl64", 2.7, "count"), ("vlp16", 12.0, "size")])
+def test_board_cut_by_the_field_of_view_is_refused_saying_so(lidar: str, elevation: float, rule: str) -> None:
+    """A board whose upper part lies above the LiDAR's top beam (an HDL-64's +2 deg, a VLP-16's
+    +15 deg) is not used; the refusal says that a board-sized object at the field's edge is short of
+    a whole board's returns, besides the rule that refused it (HDL-64: it was never tested, and the
+    message named only the room's objects)."""
+    board = Board(7, 9, 0.08, margin_long=0.05, margin_short=0.05)
+    model = lidar_model(lidar)
+    d = 3.6 if lidar == "hdl64" else 2.0
+    sc = SynthScene(distance=d, elevation_deg=elevation)
+    scan, _ = synth_scan(board, model, sc, np.random.default_rng(0))
+    with pytest.raises(BoardNotFound) as err:
+        estimate_board(scan, board, model)
+    msg = str(err.value)
+    assert "1 board-sized object at the top or lowest beam of the LiDAR's field has too few returns" in msg
+    if rule == "size":
+        assert re.search(r"size_ratio, short side: 0\.\d+ < 0\.46 m", msg), msg
 
 
 def test_margin_counts_in_the_physical_size() -> None:

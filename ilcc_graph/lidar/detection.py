@@ -107,6 +107,7 @@ def find_candidates(
     p = np.asarray(points, dtype=np.float64)
     inten = np.asarray(intensity, dtype=np.float64)
     ring_a = np.asarray(ring)
+    top_beam = len(model.vertical_angles_rad) - 1
     inside = inside_mask(p, roi, mask)
     seg: Segmentation = segment_scan(p, ring, model, options, valid=inside)
     x0, x1, y0, y1 = board.extent()
@@ -164,5 +165,6 @@ def find_candidates(
         pieces=pieces,
         links=lambda idx: e_all[e_obj == seg.labels[idx[0]]],
         admit=lambda idx: np.unique(ring_a[idx]).size >= options.min_rings,
+        at_edge=lambda idx: bool(ring_a[idx].min() <= 0 or ring_a[idx].max() >= top_beam),
     )
     return search_board(scan, board, options, rng, accept, in_roi=roi is not None)

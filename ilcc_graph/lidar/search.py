@@ -149,6 +149,8 @@ class SearchInput:
     objects: the segments as found (ascending index arrays).
     n_theory(idx): returns a frontal board would give at the piece's range.
     admit(idx): any further condition for testing a piece (the scanline search: enough rings).
+    at_edge(idx): whether the piece reaches the top or the lowest beam of the LiDAR's field (a board
+        there may be cut by it; default never).
     tests(idx): ``board_tests`` on the piece: (passed, uniformity, failed test, detail).
     trims(idx, depth): trimmed pieces of a piece that failed, lazily (depth 1: a piece of a split
         object, 2: a trimmed piece; only those of depth-1 pieces are tested).
@@ -170,6 +172,7 @@ class SearchInput:
     links: Callable[[np.ndarray], Any] = lambda idx: None
     plane_fn: PlaneFn = ransac_plane
     admit: Callable[[np.ndarray], bool] = lambda idx: True
+    at_edge: Callable[[np.ndarray], bool] = lambda idx: False
     to_scan: np.ndarray | None = None
     note: str = ""
     hint: str = ""
@@ -226,6 +229,7 @@ class _Search:
         self.misses: list[tuple[int, str, str]] = []  # (size, test, detail)
         self.to_split: list[np.ndarray] = []
         self.tested = 0
+        self.cut = 0  # board-sized objects at the field's top or lowest beam with too few returns
         self.budget = options.max_planes * 6  # plane fits for the whole scan
         self.out: list[Candidate] = []
 
@@ -240,9 +244,12 @@ class _Search:
         if span < options.size_ratio[0] * self.short_side or idx.size < max(MIN_PIECE, options.min_points):
             return
         if idx.size < self.min_count(idx) or not scan.admit(idx):
+            self._cut_by_field(idx, depth, span, scan.admit(idx))
             return
         self.tested += 1
         ok, uni, name, detail = scan.tests(idx)
+        if not ok and name in ("count", "size"):
+            self._cut_by_field(idx, depth, span, idx.size < self.scan.n_theory(idx))
         if ok:
             _, _, inl = scan.plane_fn(p[idx], scan.threshold, self.rng)
             if inl.mean() >= 0.9:
@@ -262,6 +269,12 @@ class _Search:
         self.misses.append((idx.size, name, detail))
         if depth == 0 and span >= options.size_ratio[0] * self.diag:
             self.to_split.append(idx)
+
+    def _cut_by_field(self, idx: np.ndarray, depth: int, span: float, short: bool) -> None:
+        """Count an object as found (depth 0) that reaches the top or lowest beam of the field, no
+        larger than the board and ``short`` of a whole board's returns: the field may cut it."""
+        if depth == 0 and short and span <= self.diag and self.scan.at_edge(idx):
+            self.cut += 1
 
     def split(self, idx: np.ndarray) -> None:
         """Peel planes off an over-merged object: each plane's inliers are cut into connected pieces
@@ -338,16 +351,25 @@ class _Search:
         return True if self.accept is None else bool(self.accept(new))
 
     def not_found(self, in_roi: bool) -> BoardNotFound:
-        """Why no candidate was found: no object of board size, or the largest that failed and why."""
+        """Why no candidate was found: no object of board size, or the largest that failed and why;
+        and how many board-sized objects at the field's top or lowest beam had too few returns."""
+        n = self.cut
+        cut = (
+            f" {n} board-sized object{'s' if n > 1 else ''} at the top or lowest beam of the LiDAR's field "
+            f"{'have' if n > 1 else 'has'} too few returns for a whole board: if the board is one, the field "
+            "cuts it (a cut board is not used); hold it whole within the beams (farther away, or nearer "
+            "the LiDAR's height)."
+            if n else ""
+        )  # fmt: skip
         if not self.misses:
             return BoardNotFound(
                 f"no object of board size ({self.long_side:.2f} x {self.short_side:.2f} m) in the scan"
-                + (" inside the region of interest" if in_roi else "")
+                + (" inside the region of interest" if in_roi else "") + ("." + cut if cut else "")
             )
         misses = sorted(self.misses, key=lambda t: -t[0])
         near = "; ".join(f"{name}: {detail}" for _, name, detail in misses[:3])
         return BoardNotFound(
             f"no segment passed the chessboard tests ({self.tested} board-sized candidates{self.scan.note}); "
-            f"largest: {near}. If the board is in view, narrow the search with board.roi "
+            f"largest: {near}.{cut} If the board is in view, narrow the search with board.roi "
             f"(azimuth_deg, elevation_deg, range_m){self.scan.hint}."
         )
