@@ -119,6 +119,28 @@ def test_board_held_by_a_person_in_a_room_is_split_off(lidar: str, scene: SynthS
     assert err < 0.01
 
 
+@pytest.mark.parametrize("lidar", ["vlp16", "os1-64"])
+def test_board_turned_a_little_off_the_body_holding_it_is_split_off(lidar: str) -> None:
+    """The board turned 6 deg off the plane of the person holding it: the body's plane, refitted on
+    the body, still passes within the inlier distance through a band of the board, and peeling it cut
+    the board into pieces too small for it (every one of 45 such scenes failed). What is left beside
+    the body alone is tested too."""
+    board = Board(7, 9, 0.08, margin_long=0.05, margin_short=0.05)
+    model = lidar_model(lidar)
+    sc = SynthScene(
+        distance=1.86, azimuth_deg=10.0, elevation_deg=-2.9, tilt_deg=(5.6, 6.2), wall_gap=0.67,
+        ground_z=-0.82, person=True, range_sigma=0.0056,
+    )  # fmt: skip
+    scan, T = synth_scan(board, model, sc, np.random.default_rng(0))
+    fit = estimate_board(scan, board, model)
+    truth = board.corners_board() @ T[:3, :3].T + T[:3, 3]
+    err = min(
+        np.sqrt(((c - truth) ** 2).sum(axis=1).mean())
+        for c in (fit.corners_lidar, fit.corners_lidar[board.half_turn_permutation()])
+    )
+    assert err < 0.005
+
+
 @pytest.mark.parametrize(("lidar", "elevation", "rule"), [("hdl64", 2.7, "count"), ("vlp16", 12.0, "size")])
 def test_board_cut_by_the_field_of_view_is_refused_saying_so(lidar: str, elevation: float, rule: str) -> None:
     """A board whose upper part lies above the LiDAR's top beam (an HDL-64's +2 deg, a VLP-16's

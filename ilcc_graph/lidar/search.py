@@ -299,6 +299,13 @@ class _Search:
             pieces = scan.pieces(cur[inl], links)
             if (again := self._one_surface(cur, inl, pieces)) is not None:
                 inl, pieces = again, scan.pieces(cur[again], links)
+                # the plane's other pieces may be bands of a surface near the largest (a board a few
+                # degrees off the plane of the body before it): what is left with them is tested too
+                big = max(pieces, key=lambda t: t[0].size)[0]
+                for piece, _ in scan.pieces(cur[~np.isin(cur, big, assume_unique=True)], links):
+                    span = float(np.linalg.norm(np.ptp(p[piece], axis=0)))
+                    if piece.size >= MIN_PIECE and span < 2.0 * self.diag:
+                        self.test(piece, 1)
             for piece, _ in pieces:
                 self.test(piece, 1)
             rest = cur[~inl]
