@@ -17,7 +17,7 @@ from ilcc_graph.lidar.detection import find_candidates, intensity_contrast, roi_
 from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
 from ilcc_graph.lidar.segmentation import segment_scan
 from ilcc_graph.lidars import lidar_model
-from ilcc_graph.types import Scan
+from ilcc_graph.types import BoardFit, Scan
 
 
 def find_board(points, ring, intensity, board, model):  # noqa: ANN001, ANN201
@@ -27,6 +27,13 @@ def find_board(points, ring, intensity, board, model):  # noqa: ANN001, ANN201
 
 BOARD = Board(6, 8, 0.075)
 HDL32 = lidar_model("hdl32")
+
+
+def _corner_rms(fit: BoardFit, T: np.ndarray, board: Board) -> float:
+    """RMS (m) of the fit's corners against the truth at ``T``, up to the board's half turn."""
+    truth = board.corners_board() @ T[:3, :3].T + T[:3, 3]
+    both = (fit.corners_lidar, fit.corners_lidar[board.half_turn_permutation()])
+    return float(min(np.sqrt(((c - truth) ** 2).sum(axis=1).mean()) for c in both))
 
 
 def _board_mask(scan: Scan, T: np.ndarray, board: Board) -> np.ndarray:
@@ -111,11 +118,7 @@ def test_board_held_by_a_person_in_a_room_is_split_off(lidar: str, scene: SynthS
     sc = dataclasses.replace(scene, azimuth_window_deg=None, person=True)
     scan, T = synth_scan(board, model, sc, np.random.default_rng(1))
     fit = estimate_board(scan, board, model)
-    truth = board.corners_board() @ T[:3, :3].T + T[:3, 3]
-    err = min(
-        np.sqrt(((c - truth) ** 2).sum(axis=1).mean())
-        for c in (fit.corners_lidar, fit.corners_lidar[board.half_turn_permutation()])
-    )
+    err = _corner_rms(fit, T, board)
     assert err < 0.01
 
 
@@ -133,11 +136,7 @@ def test_board_turned_a_little_off_the_body_holding_it_is_split_off(lidar: str) 
     )  # fmt: skip
     scan, T = synth_scan(board, model, sc, np.random.default_rng(0))
     fit = estimate_board(scan, board, model)
-    truth = board.corners_board() @ T[:3, :3].T + T[:3, 3]
-    err = min(
-        np.sqrt(((c - truth) ** 2).sum(axis=1).mean())
-        for c in (fit.corners_lidar, fit.corners_lidar[board.half_turn_permutation()])
-    )
+    err = _corner_rms(fit, T, board)
     assert err < 0.005
 
 
