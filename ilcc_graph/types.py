@@ -54,10 +54,13 @@ def reaches(cov: np.ndarray, target: tuple[float, float] | None) -> bool:
 def target_gap(worst: tuple[float, float], target: tuple[float, float] | None) -> str:
     """The largest 1-sigma in any direction (deg, mm; ``worst_sigmas``) over ``target``: ``reached``
     (as ``reaches`` judges it) or each ratio in at most 6 characters (``x1.4 x2.0``); "" without a
-    target. check's target column and the incremental mode's updates show it."""
+    target; ``not yet`` without a finite covariance. check's target column and the incremental
+    mode's updates show it."""
     if target is None:
         return ""
     r, t = worst[0] / target[0], worst[1] / target[1]
+    if not (math.isfinite(r) and math.isfinite(t)):
+        return "not yet"  # no covariance yet
     if max(r, t) <= 1.0:
         return "reached"
     return " ".join(f"x{x:.1f}" if x < 100 else f"x{x:.0f}" if x < 9999.5 else f"x{x:.0e}" for x in (r, t))

@@ -226,7 +226,7 @@ class _Search:
         self.long_side, self.short_side = x1 - x0, y1 - y0
         self.diag = float(np.hypot(x1 - x0, y1 - y0))
         self.passed: list[tuple[float, np.ndarray, float]] = []
-        self.misses: list[tuple[int, str, str]] = []  # (size, test, detail)
+        self.misses: list[tuple[int, str, str, bool]] = []  # (size, test, detail, larger than a board)
         self.to_split: list[np.ndarray] = []
         self.tested = 0
         self.cut = 0  # board-sized objects at the field's top or lowest beam with too few returns
@@ -244,7 +244,7 @@ class _Search:
         if span < options.size_ratio[0] * self.short_side or idx.size < max(MIN_PIECE, options.min_points):
             return
         if idx.size < self.min_count(idx) or not scan.admit(idx):
-            self._cut_by_field(idx, depth, span, scan.admit(idx))
+            self._cut_by_field(idx, depth, span, scan.admit(idx) and idx.size < self.min_count(idx))
             return
         self.tested += 1
         ok, uni, name, detail = scan.tests(idx)
@@ -266,7 +266,7 @@ class _Search:
                     self.test(kept, 2)
                     if len(self.passed) > n_pass:
                         return
-        self.misses.append((idx.size, name, detail))
+        self.misses.append((idx.size, name, detail, span > options.size_ratio[1] * self.diag))
         if depth == 0 and span >= options.size_ratio[0] * self.diag:
             self.to_split.append(idx)
 
@@ -358,8 +358,9 @@ class _Search:
         return True if self.accept is None else bool(self.accept(new))
 
     def not_found(self, in_roi: bool) -> BoardNotFound:
-        """Why no candidate was found: no object of board size, or the largest that failed and why;
-        and how many board-sized objects at the field's top or lowest beam had too few returns."""
+        """Why no candidate was found: no object of board size, or the largest board-sized ones that
+        failed (then larger ones) and why; and how many board-sized objects at the field's top or
+        lowest beam had too few returns."""
         n = self.cut
         cut = (
             f" {n} board-sized object{'s' if n > 1 else ''} at the top or lowest beam of the LiDAR's field "
@@ -373,8 +374,9 @@ class _Search:
                 f"no object of board size ({self.long_side:.2f} x {self.short_side:.2f} m) in the scan"
                 + (" inside the region of interest" if in_roi else "") + ("." + cut if cut else "")
             )
-        misses = sorted(self.misses, key=lambda t: -t[0])
-        near = "; ".join(f"{name}: {detail}" for _, name, detail in misses[:3])
+        # the board-sized first (a room the board merged with is tested too, and says little), largest first
+        misses = sorted(self.misses, key=lambda t: (t[3], -t[0]))
+        near = "; ".join(f"{name}: {detail}" for _, name, detail, _ in misses[:3])
         return BoardNotFound(
             f"no segment passed the chessboard tests ({self.tested} board-sized candidates{self.scan.note}); "
             f"largest: {near}.{cut} If the board is in view, narrow the search with board.roi "
