@@ -125,8 +125,9 @@ def observe(
         items = [(source, r, config, options) for r in refs]
         frames = workers.map_processes(observe_frame, items, options.jobs, progress)
     warn_damaged(frames)
-    warn_no_print(frames, config.source)
-    warn_margin(frames, config.board, config.source)
+    boards = [f.board for f in frames if f.board is not None]
+    warn_no_print(boards, config.source)
+    warn_margin(boards, config.board, config.source)
     frames += [FrameResult(name=n, used=False, reason=why) for n, why in source.skipped()]
     return Observation(source, config, frames)
 

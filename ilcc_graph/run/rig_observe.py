@@ -28,7 +28,7 @@ from ilcc_graph.lidar import estimate_board
 from ilcc_graph.run.colour import colour_votes, colour_warning
 from ilcc_graph.run.source import resolve_beams
 from ilcc_graph.run.stages import StageOptions, read_frame_file, warn_margin, warn_no_print
-from ilcc_graph.types import BoardFit, FrameResult, ImageCorners, MomentResult, Scan
+from ilcc_graph.types import BoardFit, ImageCorners, MomentResult, Scan
 
 __all__ = ["RigObservation", "observe_moment", "observe_rig", "observe_source_moment", "open_rig"]
 
@@ -153,7 +153,7 @@ def observe_rig(
         rig = colour_warning(rig, "images checked")
         done = _observe_moments(source, moments, rig, options, progress)
     for lidar in rig.lidars:  # what each LiDAR's boards showed, said as a pair's pass says it
-        boards = [FrameResult(m.name, True, board=m.boards[lidar]) for m in done if lidar in m.boards]
+        boards = [m.boards[lidar] for m in done if lidar in m.boards]
         where = f"{rig.source} ({lidar})"
         warn_no_print(boards, where)
         warn_margin(boards, rig.board, where, Path(rig.source).name)

@@ -184,11 +184,10 @@ def frame_result(name: str, board: object, corners: object) -> FrameResult:
     )
 
 
-def warn_no_print(frames: Sequence[FrameResult], where: str) -> str | None:
-    """One warning for the whole run (``where``: the config file, and the LiDAR of a rig) when boards
-    were found without a print the LiDAR shows (their in-plane pose from the board's outline), saying
-    why; returns it (None when every board shows it)."""
-    boards = [f.board for f in frames if f.board is not None]
+def warn_no_print(boards: Sequence[BoardFit], where: str) -> str | None:
+    """One warning for the whole run (``where``: the config file, and the LiDAR of a rig) when of the
+    ``boards`` found some show no print in the LiDAR's intensity (their in-plane pose from the board's
+    outline), saying why; returns it (None when every board shows it)."""
     plain = [b for b in boards if b.diagnostics.get("no_contrast")]
     if not plain:
         return None
@@ -206,13 +205,13 @@ def warn_no_print(frames: Sequence[FrameResult], where: str) -> str | None:
 
 
 def warn_margin(
-    frames: Sequence[FrameResult], board: Board, where: str, file: str = "config.yaml"
+    boards: Sequence[BoardFit], board: Board, where: str, file: str = "config.yaml"
 ) -> str | None:
     """One warning for the whole run (``where``: the config file, and the LiDAR of a rig) when the
-    boards whose print the LiDAR shows contradict the configured ``board``'s margin (``lidar.margin``:
-    measured from their outlines), with the measured one to set in ``file``; returns it (None when they
-    agree or cannot tell)."""
-    summary = margin_summary([f.board.diagnostics for f in frames if f.board is not None], board)
+    ``boards`` found whose print the LiDAR shows contradict the configured ``board``'s margin
+    (``lidar.margin``: measured from their outlines), with the measured one to set in ``file``;
+    returns it (None when they agree or cannot tell)."""
+    summary = margin_summary([b.diagnostics for b in boards], board)
     if not summary:
         return None
     msg = f"{where}: {margin_words(summary, file)}"
