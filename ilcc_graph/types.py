@@ -45,15 +45,12 @@ def worst_sigmas(cov: np.ndarray) -> tuple[float, float]:
 def reaches(cov: np.ndarray, target: tuple[float, float] | None) -> bool:
     """Whether a (6, 6) covariance's 1-sigma is within ``target`` (deg, mm) in every direction, as
     the verdict judges it (``worst_sigmas``); False without a target or a covariance."""
-    if target is None:
-        return False
-    rot, mm = worst_sigmas(cov)
-    return bool(rot <= target[0] and mm <= target[1])
+    return target_gap(worst_sigmas(cov), target) == "reached"
 
 
 def target_gap(worst: tuple[float, float], target: tuple[float, float] | None) -> str:
     """The largest 1-sigma in any direction (deg, mm; ``worst_sigmas``) over ``target``: ``reached``
-    (as ``reaches`` judges it) or each ratio in at most 6 characters (``x1.4 x2.0``); "" without a
+    (the one rule: ``reaches`` asks this) or each ratio in at most 6 characters (``x1.4 x2.0``); "" without a
     target; ``not yet`` without a finite covariance. check's target column and the incremental
     mode's updates show it."""
     if target is None:
@@ -61,7 +58,7 @@ def target_gap(worst: tuple[float, float], target: tuple[float, float] | None) -
     r, t = worst[0] / target[0], worst[1] / target[1]
     if not (math.isfinite(r) and math.isfinite(t)):
         return "not yet"  # no covariance yet
-    if max(r, t) <= 1.0:
+    if worst[0] <= target[0] and worst[1] <= target[1]:
         return "reached"
     return " ".join(f"x{x:.1f}" if x < 100 else f"x{x:.0f}" if x < 9999.5 else f"x{x:.0e}" for x in (r, t))
 
