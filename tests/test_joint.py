@@ -223,7 +223,7 @@ def test_repeatability_widens_the_tests() -> None:
         solve_sessions(sessions, JointOptions(repeatability_mm=-1.0))
 
 
-@pytest.mark.parametrize("seed, beam_sd, averaged", [(4, 0.001, True), (0, 0.004, False)])
+@pytest.mark.parametrize("seed, beam_sd, averaged", [(7, 0.001, True), (0, 0.004, False)])
 def test_one_capture_twice_is_that_capture_under_the_model_it_chooses(
     seed: int, beam_sd: float, averaged: bool
 ) -> None:
@@ -234,8 +234,8 @@ def test_one_capture_twice_is_that_capture_under_the_model_it_chooses(
     frames, _ = lidar_frames(rng, 10, offsets)
     T0 = T_TRUE.compose(gtsam.Pose3.Expmap(rng.normal(0, 0.01, 6))).matrix()
     ref = solve(frames, LIDAR_CAMERA, T0, models=AUTO)
-    # 1 mm: range and beams both weigh, the covariance carries both; seed 0 at 4 mm: range alone, its
-    # covariance times its held-out factor (1.34)
+    # seed 7 at 1 mm: range chosen (w 0.82) and beams weighs, the covariance carries both; seed 0 at
+    # 4 mm: range alone, its covariance times its held-out factor (1.34)
     assert ref.selection.averaged == averaged
     twice = [Session(n, frames, LIDAR_CAMERA, T0) for n in "AB"]
     sol = solve_sessions(twice, JointOptions(models=AUTO))

@@ -76,7 +76,8 @@ def test_a_range_offset_is_chosen_and_no_error_keeps_none() -> None:
 
 def test_the_covariance_carries_the_models_the_boards_cannot_tell_apart() -> None:
     """Two models at equal weight: the covariance about the chosen one holds both covariances and
-    their estimates' difference; a decisive choice: the chosen model's, times its held-out factor."""
+    their estimates' difference, unless the chosen model contains the other; a decisive choice: the
+    chosen model's, times its held-out factor."""
     T0 = np.eye(4)
     T1 = gtsam.Pose3(gtsam.Rot3(), np.array([0.003, 0.0, 0.0])).matrix()
     C0, C1 = np.diag([1e-6] * 3 + [1e-6] * 3), np.diag([4e-6] * 3 + [4e-6] * 3)
@@ -89,6 +90,11 @@ def test_the_covariance_carries_the_models_the_boards_cannot_tell_apart() -> Non
     assert C[3, 3] > 0.5 * (C0[3, 3] + C1[3, 3]) + 4e-6  # the difference shows where the models differ
     sure = Selection("range", (Candidate("none", weight=0.0), Candidate("range", weight=1.0, factor=1.5)))
     np.testing.assert_allclose(mixture(est, sure), 1.5 * C1, atol=1e-15)
+    # a model the chosen one contains is not carried: range is none with a range offset, so about
+    # range (even weights) the covariance is range's own, times its held-out factor
+    inner = Selection("range", (Candidate("none", weight=0.5), Candidate("range", weight=0.5, factor=1.2)))
+    assert inner.carried() == ("range",) and even.carried() == ("none", "range")
+    np.testing.assert_allclose(mixture(est, inner), 1.2 * C1, atol=1e-15)
     # the selection survives calibration.yaml's plain data
     back = Selection.from_dict(even.to_dict())
     assert back.chosen == "none" and [c.weight for c in back.candidates] == [0.5, 0.5]

@@ -13,13 +13,19 @@ well it predicts each board's image from the other boards and the board's own Li
 (``held_out``: leave-one-board-out cross-validation, summed over the boards every candidate kept;
 a rig's: each camera's view of each board held out in turn, summed over the cameras).
 The weights ``exp(score)`` normalised (pseudo Bayesian model averaging with cross-validated
-densities) choose the model with the largest, and its covariance carries the others: about the
-chosen estimate, ``sum_m w_m (C_m + d_m d_m^T)`` with ``d_m`` the other model's estimate's offset
-(``averaged_covariance``). A decisive score leaves the chosen model's own covariance; two models
-that the boards cannot tell apart widen it by their difference. Why a held-out score and not an
-information criterion on the chi-square: the candidates read different data (poses against
-returns), and a model's own chi-square trusts its own noise model, which is what a term the boards
-barely determine gets wrong (docs/estimation.md, docs/bench_sensor_model.md).
+densities) choose the model with the largest, and its covariance carries the others it does not
+contain: about the chosen estimate, ``sum_m w_m (C_m + d_m d_m^T)`` with ``d_m`` the other model's
+estimate's offset (``averaged_covariance``). A decisive score leaves the chosen model's own
+covariance; two models that the boards cannot tell apart widen it by their difference. A model the
+chosen one contains (``SensorModel.contains``: its terms held at zero) is not carried: where it is
+right, the chosen model's estimate is unbiased and its covariance already holds the spread between
+the two (``C_chosen - C_m`` in expectation), so carrying it would count that spread twice; where it
+is wrong, its offset is the bias the chosen model removes (docs/bench_joint_lidar.md).
+
+Why a held-out score and not an information criterion on the chi-square: the candidates read
+different data (poses against returns), and a model's own chi-square trusts its own noise model,
+which is what a term the boards barely determine gets wrong (docs/estimation.md,
+docs/bench_sensor_model.md).
 """
 
 from __future__ import annotations
@@ -71,12 +77,14 @@ MIN_WEIGHT = 1e-4
 @dataclass(frozen=True)
 class SensorModel:
     """One way of reading the sensors' own errors: the LiDAR's error terms (None: none), a range
-    offset's prior sigma (None: no offset), a description."""
+    offset's prior sigma (None: no offset), a description, and the models it contains (``contains``:
+    the names of the models that are this one with some of its terms held at zero)."""
 
     name: str
     lidar_errors: LidarErrorOptions | None = None
     range_offset_m: float | None = None
     description: str = ""
+    contains: frozenset[str] = frozenset()
 
     def problem(self, base: Problem) -> Problem:
         """``base`` (a problem without sensor terms) with this model's."""
@@ -86,13 +94,17 @@ class SensorModel:
 MODELS: dict[str, SensorModel] = {
     "none": SensorModel("none", description="each board the LiDAR stage's 6-dof pose"),
     "offset": SensorModel(
-        "offset", range_offset_m=OFFSET_PRIOR_M, description="the LiDAR stage's poses and one range offset"
+        "offset",
+        range_offset_m=OFFSET_PRIOR_M,
+        description="the LiDAR stage's poses and one range offset",
+        contains=frozenset({"none"}),
     ),
     "beams": SensorModel(
         "beams",
         LidarErrorOptions(),
         description="the returns with per-beam and dark-print range offsets, the boards' planes as random "
         "effects",
+        contains=frozenset({"none", "offset", "range"}),
     ),
 }
 MODELS["range"] = SensorModel(
@@ -100,6 +112,7 @@ MODELS["range"] = SensorModel(
     LidarErrorOptions(beam_offsets=False, global_offset=True),
     description="the returns with one range offset and the dark-print offset, the boards' planes as random "
     "effects",
+    contains=frozenset({"none", "offset"}),
 )
 #: the candidates of the default (``--sensor-model auto``)
 AUTO = ("none", "range", "beams")
@@ -134,6 +147,11 @@ class Selection:
     forced: bool = False
     averaged: bool = False
     camera: CameraChoice | None = None
+
+    def carried(self) -> tuple[str, ...]:
+        """The candidates the covariance carries: the chosen one and each other with weight that the
+        chosen model does not contain (module docstring)."""
+        return carried(self.chosen, {c.name: c.weight for c in self.candidates})
 
     @property
     def factor(self) -> float:
@@ -219,6 +237,14 @@ CV_FACTOR = True
 BOOTSTRAP = 1000
 
 
+def carried(chosen: str, weights: Mapping[str, float]) -> tuple[str, ...]:
+    """Of the candidates' ``weights`` (by name), the ones a covariance about ``chosen`` carries: the
+    chosen one and each other with weight at least ``MIN_WEIGHT`` that the chosen model does not
+    contain (a name not in ``MODELS`` contains none)."""
+    inner = MODELS[chosen].contains if chosen in MODELS else frozenset()
+    return tuple(n for n, w in weights.items() if n == chosen or (w >= MIN_WEIGHT and n not in inner))
+
+
 #: a board's key in the held-out scores (its index in the problem)
 _Board = TypeVar("_Board", bound=Hashable)
 
@@ -248,14 +274,16 @@ def _weights(per_board: Mapping[str, np.ndarray]) -> dict[str, float]:
 def mixture(estimates: Mapping[str, tuple[np.ndarray, np.ndarray]], selection: Selection) -> np.ndarray:
     """(6n, 6n) the mixture's covariance about the chosen model's poses: ``sum_m w_m (f_m C_m +
     d_m d_m^T)`` over the candidates' ``estimates`` (by name: T (4, 4), or (n, 4, 4) for n poses
-    such as a rig's, and their (6n, 6n) joint C), ``d_m`` the poses' ``Logmap(T_chosen^-1 T_m)``
-    stacked, ``C_m`` carried into the chosen's tangents and scaled by its held-out factor ``f_m``."""
+    such as a rig's, and their (6n, 6n) joint C) that the selection carries (``Selection.carried``),
+    ``d_m`` the poses' ``Logmap(T_chosen^-1 T_m)`` stacked, ``C_m`` carried into the chosen's
+    tangents and scaled by its held-out factor ``f_m``."""
     T0 = [gtsam.Pose3(T) for T in np.reshape(estimates[selection.chosen][0], (-1, 4, 4))]
     n = POSE3_DOF * len(T0)
     out = np.zeros((n, n))
     total = 0.0
+    keep = selection.carried()
     for c in selection.candidates:
-        if c.weight < MIN_WEIGHT or c.name not in estimates:
+        if c.name not in keep or c.name not in estimates:
             continue
         T, C = estimates[c.name]
         D = [t0.between(gtsam.Pose3(t)) for t0, t in zip(T0, np.reshape(T, (-1, 4, 4)), strict=True)]
@@ -308,7 +336,7 @@ def choose(
             Candidate(name, float(per_board[name].sum()), sum(s[k].chi2 for k in common), len(common),
                       used[name], weights[name], factors[name], left_out=left_out.get(name))
         )  # fmt: skip
-    averaged = sum(w >= MIN_WEIGHT for w in weights.values()) > 1
+    averaged = len(carried(chosen, weights)) > 1
     return Selection(chosen, tuple(cands), forced=False, averaged=averaged)
 
 

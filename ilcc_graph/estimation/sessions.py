@@ -41,7 +41,7 @@ from ilcc_graph.estimation.keys import POSE3_DOF
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions, LidarLayout, merge_layouts
 from ilcc_graph.estimation.noise import NoiseOptions, Solution, replace_scales, solve_problem
 from ilcc_graph.estimation.problem import Problem, Tie, frames_problem, merge_problems
-from ilcc_graph.estimation.selection import MIN_WEIGHT, Selection, SensorModel, mixture
+from ilcc_graph.estimation.selection import Selection, SensorModel, mixture
 from ilcc_graph.estimation.solver import check_pose
 from ilcc_graph.estimation.sources import Chosen, solve_sources
 from ilcc_graph.types import Estimate, GraphFrame
@@ -351,10 +351,10 @@ def _joint_covariance(got: Chosen, names: list[str], est: Estimate, noise: Noise
     if sel.forced:
         return est
     models = {sel.chosen: (est.T, est.covariance)}
-    for c in sel.candidates:
-        if c.name != sel.chosen and c.weight >= MIN_WEIGHT and all(c.name in s for s in got.sols):
-            other = _Sub.of([s[c.name] for s in got.sols], names, noise).rigid(est).extrinsic(0)
-            models[c.name] = (other.T, other.covariance)
+    for name in sel.carried():
+        if name != sel.chosen and all(name in s for s in got.sols):
+            other = _Sub.of([s[name] for s in got.sols], names, noise).rigid(est).extrinsic(0)
+            models[name] = (other.T, other.covariance)
     return Estimate(est.T, mixture(models, sel))
 
 
