@@ -42,7 +42,8 @@ from ilcc_graph.run.prepare import graph_frame
 from ilcc_graph.run.result import SENSOR_MODELS, Result, RunOptions
 from ilcc_graph.run.source import open_run
 from ilcc_graph.run.stages import StageOptions, frame_result, observe_image, observe_lidar
-from ilcc_graph.types import Calibration, FrameResult, GraphFrame, reaches, sigmas_deg_mm, worst_sigmas
+from ilcc_graph.run.strategies.solve_incremental import update_of
+from ilcc_graph.types import Calibration, FrameResult, GraphFrame, sigmas_deg_mm, worst_sigmas
 
 log = logging.getLogger(__name__)
 
@@ -291,10 +292,7 @@ class LiveCheck:
             return str(err)
         cal, sol = result.calibration, result.batch
         assert sol is not None  # the batch strategy gives its solution
-        reached = reaches(cal.covariance, self.target_sigma)  # as the verdict judges it
-        sig = np.sqrt(np.diag(cal.covariance))
-        update = FrameUpdate(cal.T_cam_lidar, sig, reached, cal.covariance, "", True, None,
-                             len(sol.per_frame), time.perf_counter() - t0, sol)  # fmt: skip
+        update = update_of(cal, self.target_sigma, seconds=time.perf_counter() - t0, solution=sol)
         self._last, self._result = update, result
         return update, {f.name: f.reason or "" for f in cal.frames if not f.used}
 

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from ilcc_graph.errors import NOT_READ, CalibrationError
+from ilcc_graph.estimation.batch import BatchSolution
 from ilcc_graph.estimation.incremental import FrameUpdate, IncrementalCalibrator
 from ilcc_graph.run.after import after, without_print
 from ilcc_graph.run.finish import finish, from_batch
@@ -124,15 +125,20 @@ def _as_calibrate(
         cal = after(graph, opts, graph.solve([seen], opts, None), [seen]).calibration
     except CalibrationError:
         return None
-    return _update(cal, options.target_sigma, "(batch)")
+    return update_of(cal, options.target_sigma, "(batch)")
 
 
-def _update(cal: Calibration, target: tuple[float, float] | None, name: str) -> FrameUpdate:
-    """A calibration's answer as an update named ``name``, with whether it reaches ``target``."""
+def update_of(
+    cal: Calibration, target: tuple[float, float] | None, name: str = "", seconds: float = 0.0,
+    solution: BatchSolution | None = None,
+) -> FrameUpdate:  # fmt: skip
+    """A calibration's answer as an update named ``name`` (the frames it used, whether it reaches
+    ``target`` as the verdict judges it, the solve's wall time in s and its batch ``solution``): the
+    one conversion the incremental mode and ``check`` make."""
     reached = reaches(cal.covariance, target)
     used = sum(1 for f in cal.frames if f.used)
     return FrameUpdate(cal.T_cam_lidar, np.sqrt(np.diag(cal.covariance)), reached, cal.covariance, name,
-                       n_frames=used)  # fmt: skip
+                       n_frames=used, seconds=seconds, solution=solution)  # fmt: skip
 
 
 def restate(streamed: Result, again: Result, report: Reporter | None = None) -> Result:
@@ -141,7 +147,7 @@ def restate(streamed: Result, again: Result, report: Reporter | None = None) -> 
     ``incremental``; the change reported and kept as the update ``(again)``."""
     cal = dataclasses.replace(again.calibration, method="incremental")
     target = streamed.options.target_sigma
-    u = _update(cal, target, "(again)")
+    u = update_of(cal, target, "(again)")
     if report is not None:
         report(format_update(u, target))
     doc = streamed.documents.get("incremental.yaml", {})
