@@ -39,6 +39,7 @@ from ilcc_graph.errors import CalibrationImpossible, FrameError, IndeterminateSy
 from ilcc_graph.estimation.batch import solve as solve_batch
 from ilcc_graph.estimation.held_out import HeldOut, held_out
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
+from ilcc_graph.estimation.model_solves import decide
 from ilcc_graph.estimation.noise import solve_problem
 from ilcc_graph.estimation.problem import frames_problem
 from ilcc_graph.estimation.selection import (
@@ -46,7 +47,6 @@ from ilcc_graph.estimation.selection import (
     MODELS,
     Selection,
     candidates,
-    decide,
     mixture,
     range_terms,
 )
@@ -246,7 +246,7 @@ def _solve_all(frames: list[FrameResult], config: Config) -> dict[str, ModelSolv
 
 
 def _choose(ok: dict[str, ModelSolve], names: tuple[str, ...]) -> Selection:
-    """The choice ``select_model`` makes (``selection.decide``), from the cached solves ``ok``."""
+    """The choice ``select_model`` makes (``model_solves.decide``), from the cached solves ``ok``."""
     held = {n: s.held_out for n, s in ok.items()}
     used = {n: len(s.boards) for n, s in ok.items()}
     return decide(held, used, names, None, {n: s.terms for n, s in ok.items()}, [MODELS[n] for n in ok])

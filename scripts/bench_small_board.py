@@ -44,7 +44,6 @@ from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 
-import gtsam
 import numpy as np
 from _shared import append_sink, load_sink
 from bench_shape import board_nees, pose_error  # (scripts/ is the running script's folder)
@@ -57,7 +56,13 @@ from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.report.summary import verdict
 from ilcc_graph.run.pipeline import run
 from ilcc_graph.run.result import RunOptions
-from ilcc_graph.simulate import SceneOptions, SimulationSpec, board_placements, simulate_dataset
+from ilcc_graph.simulate import (
+    SceneOptions,
+    SimulationSpec,
+    board_placements,
+    moved_placements,
+    simulate_dataset,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "bench_small_board.md"
@@ -113,32 +118,13 @@ def run_one(data: Path, spec: SimulationSpec) -> dict:
     return out
 
 
-def moved_poses(spec: SimulationSpec, k: int) -> dict[int, np.ndarray]:
-    """``k`` frames of ``spec`` (drawn from its seed) with their board moved 20-60 mm and 1-3 deg
-    (random directions, about the board's centre): frame index -> the moved ``T_lidar_board``."""
-    rng = np.random.default_rng([spec.seed, 38])
-    poses = board_placements(spec)
-    centre = np.append(spec.board.pattern_centre, 1.0)
-    out = {}
-    for i in sorted(rng.choice(len(poses), size=min(k, len(poses)), replace=False)):
-        axis, way = rng.normal(size=3), rng.normal(size=3)
-        turn = gtsam.Rot3.Expmap(np.radians(rng.uniform(1.0, 3.0)) * axis / np.linalg.norm(axis)).matrix()
-        T = np.array(poses[i], dtype=np.float64)
-        c = (T @ centre)[:3]
-        moved = np.eye(4)
-        moved[:3, :3] = turn @ T[:3, :3]
-        moved[:3, 3] = turn @ (T[:3, 3] - c) + c + rng.uniform(0.02, 0.06) * way / np.linalg.norm(way)
-        out[int(i)] = moved
-    return out
-
-
 def run_set(seed: int, cache: Path, moved: int = 0) -> dict:
     """Set ``seed`` written (``moved`` frames' images from the board moved), calibrated, the cache removed."""
     tmp = Path(tempfile.mkdtemp(prefix=f"bench_small_board_{seed}_", dir=cache))
     try:
         spec = spec_for(seed)
         data = simulate_dataset(tmp / "set", spec)
-        frames = moved_poses(spec, moved) if moved else {}
+        frames = moved_placements(spec, moved) if moved else {}
         if frames:  # the images of the moved boards, from a second simulation of just those poses
             other = simulate_dataset(tmp / "moved", replace(spec, placements=list(frames.values())))
             for j, i in enumerate(frames):

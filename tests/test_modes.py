@@ -47,7 +47,10 @@ def test_batch_sessions_range_offset_at_zero_and_incremental_agree(pinhole_set, 
     auto = solve_observations([observed]).calibration
     one = solve_observations([observed], RunOptions(mode="sessions"))
     assert one.calibration.sensors["model"]["chosen"] == auto.sensors["model"]["chosen"]
-    _same(auto, one.calibration)
+    # two solves of one graph, each stopped by the solver's tolerance: 7e-10 m apart, 1.0002e-6 of
+    # the batch's sigma since a chosen model no longer carries the models it contains (0.9973e-6
+    # before, the same 7e-10 m): the bound is the solver's stopping precision, with a factor 2 of room
+    _same(auto, one.calibration, rel=2e-6)
     # the range offset forced and held at zero: the batch with no sensor terms
     batch = solve_observations([observed], RunOptions(sensor_model="none")).calibration
     assert sum(f.used for f in batch.frames) >= 5

@@ -16,6 +16,7 @@ from ilcc_graph.errors import IndeterminateSystem
 from ilcc_graph.estimation import NoiseOptions, solve, solve_problem
 from ilcc_graph.estimation.held_out import held_out
 from ilcc_graph.estimation.keys import X
+from ilcc_graph.estimation.model_solves import select_model
 from ilcc_graph.estimation.problem import frames_problem
 from ilcc_graph.estimation.selection import (
     MODELS,
@@ -24,7 +25,6 @@ from ilcc_graph.estimation.selection import (
     contradicted,
     mixture,
     range_terms,
-    select_model,
 )
 
 AUTO = ("none", "range", "beams")

@@ -283,8 +283,9 @@ def solve_problem(
     asm = Assembly(problem, robust, layouts, per_view=options.view_components)
     wanted = range(len(problem.boards)) if boards is None else [problem.index(n) for n in boards]
     names = [b.name for b in problem.boards]
-    dropped = [(names[i], asm.unusable[i]) for i in wanted if i in asm.unusable]
-    candidates = [i for i in wanted if i not in asm.unusable]
+    out = {i: asm.unusable.get(i) or problem.excluded.get(names[i]) for i in wanted}
+    dropped = [(names[i], why) for i, why in out.items() if why]
+    candidates = [i for i, why in out.items() if not why]
     if not candidates:
         detail = "; ".join(f"{n}: {r}" for n, r in dropped)
         raise CalibrationImpossible(

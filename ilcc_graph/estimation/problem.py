@@ -90,6 +90,7 @@ class Problem:
     intrinsics: whether the cameras' intrinsics are refined, or their stated sigmas propagated.
     evidence: the data of factor kinds that bring their own (``kinds/``), by kind name (e.g. a rig's
     other LiDARs, ``kinds.lidar_boards``).
+    excluded: boards left out of every solve, by name, with the reason (``held_out.held_out_gate``).
     """
 
     boards: tuple[BoardPrior, ...]
@@ -101,6 +102,7 @@ class Problem:
     lidar_errors: LidarErrorOptions | None = None
     intrinsics: IntrinsicsOptions | None = None
     evidence: Mapping[str, Any] = field(default_factory=dict)
+    excluded: Mapping[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         names = [b.name for b in self.boards]

@@ -9,7 +9,7 @@ boards, each other LiDAR's boards and each camera's views have their own (with
 ``NoiseOptions.view_components`` every view its own bearing component); solved by the core's noise
 policy (``noise.solve_problem``: gate, variance components, final factor).
 
-The base LiDAR's sensor model is chosen as the single pair's (``selection.select_model`` over
+The base LiDAR's sensor model is chosen as the single pair's (``model_solves.select_model`` over
 ``RigOptions.models``, the pair's candidates ``batch.sensor_models``): each candidate reads the base
 LiDAR's boards its way (``none``: their 6-dof poses; ``range`` and ``beams``: their returns with the
 LiDAR's own range errors; ``offset``: one range offset), is solved under the noise policy and scored
@@ -41,9 +41,10 @@ from ilcc_graph.estimation.gate import BoardStats
 from ilcc_graph.estimation.geometry import same_pose
 from ilcc_graph.estimation.keys import POSE3_DOF, X
 from ilcc_graph.estimation.kinds.lidar_boards import LidarBoard, LidarBoards
+from ilcc_graph.estimation.model_solves import select_model
 from ilcc_graph.estimation.noise import NoiseOptions, Solution
 from ilcc_graph.estimation.problem import BoardPrior, Problem, View
-from ilcc_graph.estimation.selection import AUTO, MODELS, Selection, SensorModel, mixture, select_model
+from ilcc_graph.estimation.selection import AUTO, MODELS, Selection, SensorModel, mixture
 from ilcc_graph.init.rig_start import RigStart, adjoint, orient_moment
 from ilcc_graph.types import Estimate, MomentResult
 

@@ -32,20 +32,20 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Hashable, Mapping, Sequence
+from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import TypeVar
 
 import gtsam
 import numpy as np
 
-from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
+from ilcc_graph.errors import IndeterminateSystem
 from ilcc_graph.estimation.camera_choice import CameraChoice
 from ilcc_graph.estimation.chi2 import sf as chi2_sf
-from ilcc_graph.estimation.held_out import HeldOut, held_out
+from ilcc_graph.estimation.held_out import HeldOut
 from ilcc_graph.estimation.keys import POSE3_DOF
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
-from ilcc_graph.estimation.noise import NoiseOptions, Solution, solve_problem
+from ilcc_graph.estimation.noise import Solution
 from ilcc_graph.estimation.problem import Problem
 
 log = logging.getLogger(__name__)
@@ -56,16 +56,12 @@ __all__ = [
     "Candidate",
     "Selection",
     "SensorModel",
-    "Solved",
     "averaged_covariance",
     "candidates",
     "choose",
     "contradicted",
-    "decide",
     "mixture",
     "range_terms",
-    "select_model",
-    "solve_models",
 ]
 
 #: the prior sigma of the ``offset`` model's range offset (m): weak, the boards determine it
@@ -386,93 +382,3 @@ def candidates(models: Sequence[SensorModel], corrected: bool) -> list[SensorMod
         return list(models)
     log.info("sensor model: the boards were fitted on corrected ranges; only the models with range terms")
     return with_terms
-
-
-@dataclass
-class Solved:
-    """Each candidate model solved on one problem: the candidates (``candidates``' rule applied), the
-    solutions by name (failed ones left out), why the others failed and the first error, with
-    several candidates each one's held-out ``scores`` (per (extrinsic, board)) and ``range_terms``."""
-
-    models: list[SensorModel]
-    sols: dict[str, Solution]
-    failures: dict[str, str]
-    first: Exception | None
-    scores: dict[str, dict[tuple[int, int], HeldOut]]
-    terms: dict[str, tuple[float, int]]
-
-    @property
-    def names(self) -> list[str]:
-        return [m.name for m in self.models]
-
-
-def solve_models(
-    base: Problem,
-    models: Sequence[SensorModel] = AUTO_MODELS,
-    options: NoiseOptions = NoiseOptions(),
-    solve: Callable[..., Solution] = solve_problem,
-) -> Solved:
-    """``base`` (a problem without sensor terms) solved under each of ``models``, scored when there
-    are several (``select_model`` chooses from it; the sessions choose from every session's)."""
-    models = candidates(models, any(b.returns is not None and b.returns.corrected for b in base.boards))
-    out = Solved(list(models), {}, {}, None, {}, {})
-    for model in models:
-        try:
-            out.sols[model.name] = solve(model.problem(base), options)
-        except (CalibrationImpossible, IndeterminateSystem, np.linalg.LinAlgError) as err:
-            out.failures[model.name] = str(err)
-            out.first = out.first or err
-            log.info("sensor model %s: cannot solve: %s", model.name, err)
-    if len(models) == 1:
-        return out
-    for name, sol in out.sols.items():
-        try:  # every camera's views (a rig's): (extrinsic, board)
-            out.scores[name] = {
-                (e, k): h for e in sol.problem.extrinsics for k, h in held_out(sol, e).items()
-            }
-        except np.linalg.LinAlgError as err:  # a singular held-out system: no score, no weight
-            out.failures[name] = f"held-out score: {err}"
-    out.terms = {n: range_terms(sol) for n, sol in out.sols.items()}  # (0, 0): no range terms
-    return out
-
-
-def select_model(
-    base: Problem,
-    models: Sequence[SensorModel] = AUTO_MODELS,
-    options: NoiseOptions = NoiseOptions(),
-    solve: Callable[..., Solution] = solve_problem,
-) -> tuple[dict[str, Solution], Selection]:
-    """Solve ``base`` (a problem without sensor terms) under each of ``models`` and choose (module
-    docstring). Returns the solutions by model name (failed candidates left out) and the selection.
-    With one model the choice is forced. Raises the first candidate's error when every one fails.
-    Boards fitted on corrected ranges (``BoardReturns.corrected``) rest on the LiDAR's estimated
-    errors: only the models with range terms are candidates then."""
-    got = solve_models(base, models, options, solve)
-    sols, names = got.sols, got.names
-    if not sols:
-        assert got.first is not None
-        raise got.first
-    if len(names) == 1:
-        return sols, Selection(
-            names[0], (Candidate(names[0], used=len(sols[names[0]].boards), weight=1.0),), True
-        )
-    used = {n: len(sol.boards) for n, sol in sols.items()}
-    solved = [m for m in got.models if m.name in sols]
-    return sols, decide(got.scores, used, names, got.failures, got.terms, solved)
-
-
-def decide(
-    scores: Mapping[str, Mapping[_Board, HeldOut]],
-    used: Mapping[str, int],
-    names: Sequence[str],
-    failures: Mapping[str, str] | None,
-    terms: Mapping[str, tuple[float, int]],
-    solved: Sequence[SensorModel],
-) -> Selection:
-    """``choose`` with the models the ``terms`` (each solved model's ``range_terms``) contradict left
-    out (``contradicted``, said at INFO): the choice ``select_model`` makes, also from cached solves
-    (scripts/bench_sensor_model.py)."""
-    left_out = contradicted(terms, solved)
-    for name, why in left_out.items():
-        log.info("sensor model %s left out: %s", name, why)
-    return choose(scores, used, names, failures, left_out)

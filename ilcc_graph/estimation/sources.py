@@ -1,9 +1,9 @@
 """The one solve of one source or of several sessions: the sensor model chosen, each source solved.
 
 Every source (a data set's problem without sensor terms) is solved under each candidate model by the
-one noise policy (``selection.solve_models``: gate, variance components, held-out scores); the model
-is chosen once for all of them (``selection.decide`` on the boards of every source; one source: exactly
-``selection.select_model``'s choice); with that model the camera's intrinsics are refined when asked,
+one noise policy (``model_solves.solve_models``: gate, variance components, held-out scores); the model
+is chosen once for all of them (``model_solves.decide`` on the boards of every source; one source: exactly
+``model_solves.select_model``'s choice); with that model the camera's intrinsics are refined when asked,
 or when the boards support it (``camera_choice``; several sources: when every source's do). The batch
 strategy (``batch.solve``) is the one-source case; the sessions (``sessions.solve_sessions``) join the
 sources' answers under the noise each found.
@@ -16,17 +16,10 @@ from dataclasses import dataclass, field, replace
 
 from ilcc_graph.estimation.camera_choice import CameraChoice, choose_intrinsics
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
+from ilcc_graph.estimation.model_solves import Solved, decide, select_model, solve_models
 from ilcc_graph.estimation.noise import NoiseOptions, Solution, solve_problem
 from ilcc_graph.estimation.problem import Problem
-from ilcc_graph.estimation.selection import (
-    Candidate,
-    Selection,
-    SensorModel,
-    Solved,
-    decide,
-    select_model,
-    solve_models,
-)
+from ilcc_graph.estimation.selection import Candidate, Selection, SensorModel
 
 __all__ = ["Chosen", "solve_sources"]
 

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 from .frames import SimFrame, frame_name, ground_truth, simulate_frame, simulate_frames
 from .intrinsics_error import IntrinsicsError, stated_camera
 from .lidar import beam_biases, beam_gains, simulate_scan
-from .placements import board_placements, frame_scene
+from .placements import board_placements, frame_scene, moved_placements
 from .render import ImageRenderer
 from .scene import Box, Scene, cast_rays
 from .spec import (
@@ -50,7 +50,8 @@ __all__ = [
     "SENSOR_FORMATS",
     "Box", "RenderOptions", "ImageRenderer", "Scene", "SceneOptions", "SimFrame", "SimulationSpec",
     "Systematics", "beam_biases", "beam_gains", "board_placements", "cast_rays", "default_T_cam_lidar",
-    "default_camera", "frame_name", "frame_scene", "ground_truth", "paper_board", "simulate_dataset",
+    "default_camera", "frame_name", "frame_scene", "ground_truth", "moved_placements", "paper_board",
+    "simulate_dataset",
     "simulate_frame", "simulate_frames", "simulate_scan", "standard_spec", "write_bag",
     "IntrinsicsError", "stated_camera",
 ]  # fmt: skip

@@ -29,6 +29,7 @@ from .spec import SimulationSpec
 
 __all__ = [
     "board_placements",
+    "moved_placements",
     "frame_scene",
     "static_scene",
     "frame_rng",
@@ -206,6 +207,37 @@ def board_placements(spec: SimulationSpec) -> list[np.ndarray]:
                 f"frame {i + 1}: no board placement fits the LiDAR's and camera's fields of view"
             )
         out.append(T)
+    return out
+
+
+def _rotation(rotvec: np.ndarray) -> np.ndarray:
+    """(3, 3) the rotation of ``rotvec`` (axis times angle, rad; Rodrigues' formula)."""
+    angle = float(np.linalg.norm(rotvec))
+    if angle == 0.0:
+        return np.eye(3)
+    k = rotvec / angle
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+
+
+def moved_placements(spec: SimulationSpec, k: int) -> dict[int, np.ndarray]:
+    """``k`` frames of ``spec`` (drawn from its seed) with their board moved 20-60 mm and 1-3 deg
+    (random directions, about the pattern's centre), as a hand-held board moves between the scan
+    and the photo: frame index -> the moved ``T_lidar_board`` (4, 4), metres. Simulate the photos
+    with ``replace(spec, placements=...)`` and put them in place of those frames' images."""
+    rng = np.random.default_rng([spec.seed, 38])
+    poses = board_placements(spec)
+    centre = np.append(spec.board.pattern_centre, 1.0)
+    out = {}
+    for i in sorted(rng.choice(len(poses), size=min(k, len(poses)), replace=False)):
+        axis, way = rng.normal(size=3), rng.normal(size=3)
+        turn = _rotation(np.radians(rng.uniform(1.0, 3.0)) * axis / np.linalg.norm(axis))
+        T = np.array(poses[i], dtype=np.float64)
+        c = (T @ centre)[:3]
+        moved = np.eye(4)
+        moved[:3, :3] = turn @ T[:3, :3]
+        moved[:3, 3] = turn @ (T[:3, 3] - c) + c + rng.uniform(0.02, 0.06) * way / np.linalg.norm(way)
+        out[int(i)] = moved
     return out
 
 
