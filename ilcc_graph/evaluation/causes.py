@@ -186,6 +186,54 @@ def moved_boards(
     return _moved(seen, board, T_cam_lidar, _image_fits(seen, board, camera))
 
 
+def consensus_moved(
+    frames: list[FrameResult], board: Board, camera: CameraModel, T_cam_lidar: np.ndarray
+) -> list[tuple[str, float, float]]:
+    """``moved_boards`` through the extrinsic most of the frames agree on (``_consensus``, from
+    ``T_cam_lidar``) rather than ``T_cam_lidar`` itself: boards that moved before the photo pull the
+    solve's extrinsic towards them until no one of them lies far from its scan under it."""
+    seen = [f for f in frames if f.board is not None and f.corners is not None]
+    fits = _image_fits(seen, board, camera)
+    return _moved(seen, board, _consensus(seen, fits, T_cam_lidar), fits)
+
+
+def _consensus(seen: list[FrameResult], fits: dict, T0: np.ndarray, rounds: int = 30) -> np.ndarray:
+    """(4, 4) the rigid map of the boards' LiDAR corners onto their images' corners (each image fitted
+    alone; a corner paired with the nearest) that most frames agree on: each frame weighted by a
+    Cauchy weight of its RMS gap (scale: the frames' median gap), iterated from ``T0``."""
+    pairs = [
+        (f.board.corners_lidar, fits[f.name][0].corners_cam)  # type: ignore[union-attr]
+        for f in seen
+        if fits[f.name][1] <= LENS_RATIO
+    ]
+    if len(pairs) < 3:
+        return T0
+    T = np.array(T0, dtype=np.float64)
+    for _ in range(rounds):
+        src, dst, gaps = [], [], []
+        for lidar, cam in pairs:
+            p = lidar @ T[:3, :3].T + T[:3, 3]
+            j = np.argmin(np.linalg.norm(p[:, None, :] - cam[None, :, :], axis=2), axis=1)
+            gaps.append(float(np.sqrt(np.mean(np.sum((p - cam[j]) ** 2, axis=1)))))
+            src.append(lidar)
+            dst.append(cam[j])
+        scale = max(float(np.median(gaps)), 1e-3)
+        weights = [np.full(len(x), 1.0 / (1.0 + (g / scale) ** 2)) for x, g in zip(src, gaps, strict=True)]
+        w = np.concatenate(weights)
+        a, b = np.concatenate(src), np.concatenate(dst)
+        ca, cb = w @ a / w.sum(), w @ b / w.sum()
+        U, _, Vt = np.linalg.svd(((a - ca) * w[:, None]).T @ (b - cb))
+        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+        R = Vt.T @ D @ U.T
+        new = np.eye(4)
+        new[:3, :3], new[:3, 3] = R, cb - R @ ca
+        done = np.abs(new - T).max() < 1e-9
+        T = new
+        if done:
+            break
+    return T
+
+
 def _moved(
     seen: list[FrameResult], board: Board, T_cam_lidar: np.ndarray, fits: dict
 ) -> list[tuple[str, float, float]]:
