@@ -339,8 +339,9 @@ NEES 6.49 against 6.50; the moved sets 9.09 against 8.96, the same two outside).
   20, 138 in seed 11) widens every held-out test. The run's refusal for residuals far above the
   stated noise (`finish.require_within_noise`) named no frame, because under the solve's extrinsic
   no image lies 5 x its LiDAR fit's sigma from its scan. It now also looks under the extrinsic
-  most frames agree on (`causes.consensus_moved`: the boards' LiDAR corners mapped onto their
-  images' corners, each frame Cauchy-weighted by its gap, iterated from the solve's extrinsic):
+  most frames agree on (`causes.moved_boards` with `consensus`: the boards' LiDAR corners mapped
+  onto their images' corners, each frame Cauchy-weighted by its gap, iterated from the solve's
+  extrinsic):
   seed 20, written before at 25 mm and 0.39 deg from the truth (FAIR), now exits 3 naming 0002
   (the good boards fall to 2-5 mm from their scans, the moved ones stay at 20-30 mm). The check is
   reached only when a component is far above (board 16, bearing 4; the honest sets' largest 2.3

@@ -94,7 +94,8 @@ def test_boards_that_pulled_the_extrinsic_to_them_are_named_and_no_answer_writte
     """Seed 20 (8 frames, 4 moved): the corner-order check leaves two moved boards in; they pull the
     extrinsic (25 mm off) and the LiDAR boards' component to 68, so that under the solve's extrinsic
     no frame lies far from its scan. Under the extrinsic most frames agree on
-    (``causes.consensus_moved``) frame 0002 does: exit 3, naming it (before: FAIR, written at 25 mm)."""
+    (``causes.moved_boards`` with ``consensus``) frame 0002 does: exit 3, naming it (before: FAIR,
+    written at 25 mm)."""
     data, _, moved = _moved_set(tmp_path / "data", 20)
     out = tmp_path / "out"
     assert main(["calibrate", str(data), "--out", str(out), "--no-report"]) == 3

@@ -177,24 +177,25 @@ def _image_fits(
 
 
 def moved_boards(
-    frames: list[FrameResult], board: Board, camera: CameraModel, T_cam_lidar: np.ndarray
-) -> list[tuple[str, float, float]]:
+    frames: list[FrameResult], board: Board, camera: CameraModel, T_cam_lidar: np.ndarray,
+    consensus: bool = False,
+) -> list[tuple[str, float, float]]:  # fmt: skip
     """(frame, gap mm, gap in the LiDAR pose's stated sigmas) of the frames whose image fits a flat
     board alone as its stated noise says but puts it ``MOVED_SIGMAS`` x the LiDAR fit's stated sigma
-    (and ``MOVED_MIN_MM``) or more from where the scan saw it, through ``T_cam_lidar``."""
-    seen = [f for f in frames if f.board is not None and f.corners is not None]
-    return _moved(seen, board, T_cam_lidar, _image_fits(seen, board, camera))
-
-
-def consensus_moved(
-    frames: list[FrameResult], board: Board, camera: CameraModel, T_cam_lidar: np.ndarray
-) -> list[tuple[str, float, float]]:
-    """``moved_boards`` through the extrinsic most of the frames agree on (``_consensus``, from
-    ``T_cam_lidar``) rather than ``T_cam_lidar`` itself: boards that moved before the photo pull the
-    solve's extrinsic towards them until no one of them lies far from its scan under it."""
+    (and ``MOVED_MIN_MM``) or more from where the scan saw it, through ``T_cam_lidar``; with
+    ``consensus`` also through the extrinsic most of the frames agree on (``_consensus``, from
+    ``T_cam_lidar``: boards that moved before the photo pull the solve's extrinsic towards them until
+    no one of them lies far from its scan under it), each frame once with its larger gap."""
     seen = [f for f in frames if f.board is not None and f.corners is not None]
     fits = _image_fits(seen, board, camera)
-    return _moved(seen, board, _consensus(seen, fits, T_cam_lidar), fits)
+    found = _moved(seen, board, T_cam_lidar, fits)
+    if consensus:
+        found += _moved(seen, board, _consensus(seen, fits, T_cam_lidar), fits)
+    larger: dict[str, tuple[str, float, float]] = {}
+    for m in found:
+        if m[0] not in larger or m[2] > larger[m[0]][2]:
+            larger[m[0]] = m
+    return list(larger.values())
 
 
 def _consensus(seen: list[FrameResult], fits: dict, T0: np.ndarray, rounds: int = 30) -> np.ndarray:

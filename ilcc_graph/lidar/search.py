@@ -243,8 +243,9 @@ class _Search:
         span = float(np.linalg.norm(np.ptp(p[idx], axis=0)))
         if span < options.size_ratio[0] * self.short_side or idx.size < max(MIN_PIECE, options.min_points):
             return
-        if idx.size < self.min_count(idx) or not scan.admit(idx):
-            self._cut_by_field(idx, depth, span, scan.admit(idx) and idx.size < self.min_count(idx))
+        short = idx.size < self.min_count(idx)
+        if short or not scan.admit(idx):
+            self._cut_by_field(idx, depth, span, short and scan.admit(idx))
             return
         self.tested += 1
         ok, uni, name, detail = scan.tests(idx)

@@ -32,13 +32,7 @@ from ilcc_graph.estimation.effects import SQUARE_SIZE_KEY
 from ilcc_graph.estimation.gate import far_above
 from ilcc_graph.estimation.geometry import MIN_DISTINCT_POSES
 from ilcc_graph.estimation.lidar_errors import errors_entry
-from ilcc_graph.evaluation.causes import (
-    consensus_moved,
-    dropped_frame_cause,
-    fit_image_alone,
-    moved_boards,
-    residual_causes,
-)
+from ilcc_graph.evaluation.causes import dropped_frame_cause, fit_image_alone, moved_boards, residual_causes
 from ilcc_graph.lidar.margin import margin_summary
 from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
 from ilcc_graph.run.prepare import Prepared, drop, frame_issues
@@ -255,13 +249,12 @@ def require_within_noise(
 ) -> None:
     """Raise ``CalibrationImpossible`` when the residuals are far above the detectors' stated noise
     (``far``: the variance components, ``gate.far_above``) and used frames' images put their board
-    far from where the scans saw it, through ``T_cam_lidar`` (``evaluation.causes.moved_boards``) or
-    through the extrinsic most frames agree on (``causes.consensus_moved``: boards that moved
-    together pull the solve's): the noise estimated from the frames then hides those frames from
+    far from where the scans saw it, through ``T_cam_lidar`` or through the extrinsic most frames
+    agree on (``evaluation.causes.moved_boards`` with ``consensus``: boards that moved together
+    pull the solve's): the noise estimated from the frames then hides those frames from
     the gate, so the covariance would not cover them."""
-    found = moved_boards(list(frames), config.board, config.camera, T_cam_lidar)
-    found += consensus_moved(list(frames), config.board, config.camera, T_cam_lidar)
-    moved = {n: (g, s) for n, g, s in sorted(found, key=lambda x: x[2])}  # the larger gap kept
+    found = moved_boards(list(frames), config.board, config.camera, T_cam_lidar, consensus=True)
+    moved = {n: (g, s) for n, g, s in found}
     used = [f for f in frames if f.used and f.name in moved]
     if not used:
         return
