@@ -157,7 +157,7 @@ def test_lidar_footprint_blends_at_colour_edges():
     assert np.mean((clear_i > 25) & (clear_i < 60)) < 0.01
 
 
-def test_noise_free_board_points_lie_on_the_board_and_noise_has_the_paper_sigmas():
+def test_noise_free_board_points_lie_on_the_board_and_noise_has_its_sigmas():
     base = standard_spec(width=400, frames=20, seed=2, noise_scale=0.0, systematics=Systematics.off())
     exact, T = _scan(base, 4)
     noisy, _ = _scan(base.with_(noise_scale=1.0), 4)
@@ -173,6 +173,16 @@ def test_noise_free_board_points_lie_on_the_board_and_noise_has_the_paper_sigmas
     off = ~on
     dr = np.linalg.norm(noisy.points[off], axis=1) - np.linalg.norm(exact.points[off], axis=1)
     assert abs(dr.std() - base.lidar_model.range_sigma_m) < 0.1 * base.lidar_model.range_sigma_m
+
+    # range noise (``range_noise_m``): every return moved along its own beam by that sigma, the board's too
+    ranged, _ = _scan(base.with_(range_noise_m=0.03), 4)
+    dr = np.linalg.norm(ranged.points, axis=1) - np.linalg.norm(exact.points, axis=1)
+    assert abs(dr[on].std() - 0.03) < 0.003 and abs(dr[off].std() - 0.03) < 0.003
+    u0 = exact.points / np.linalg.norm(exact.points, axis=1)[:, None]
+    u1 = ranged.points / np.linalg.norm(ranged.points, axis=1)[:, None]
+    assert np.abs(u1 - u0).max() < 1e-9  # the beams' directions exact
+    with pytest.raises(ValueError, match="range_noise_m"):
+        base.with_(range_noise_m=-0.01)
 
 
 def test_rings_and_scan_order():

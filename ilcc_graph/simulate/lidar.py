@@ -12,6 +12,7 @@ Measurement model (all geometric sigmas times ``spec.noise_scale``):
 - on the board's printed face: the paper's baseline, Gaussian offsets with sigmas
   ``board_noise_sigma_m`` (1.6, 1.6, 10 mm) along the board's x, y and normal;
 - elsewhere: range noise along the beam with the model's ``range_sigma_m``;
+- or, with ``spec.range_noise_m``, range noise of that sigma along the beam on every surface;
 - intensity: the printed colour averaged over the beam's footprint (7 samples over a disc of
   diameter ``beam_aperture_m + beam_divergence_rad * range`` projected onto the board, so returns
   straddling a colour edge blend), mapped linearly between ``intensity_black`` and
@@ -187,11 +188,14 @@ def simulate_scan(
     # geometry: true point plus noise
     p = d * np.where(np.isfinite(t), t, 0.0)[:, None]
     s = spec.noise_scale
-    if board.any():
-        R = scene.placed_board()[1][:3, :3]
-        p[board] += (z_geo[board] * (s * np.asarray(spec.board_noise_sigma_m))) @ R.T
-    other = ~board
-    p[other] += d[other] * (s * model.range_sigma_m * z_geo[other, 2])[:, None]
+    if spec.range_noise_m is not None:  # every return along its beam, as a real LiDAR's
+        p += d * (spec.range_noise_m * z_geo[:, 2])[:, None]
+    else:
+        if board.any():
+            R = scene.placed_board()[1][:3, :3]
+            p[board] += (z_geo[board] * (s * np.asarray(spec.board_noise_sigma_m))) @ R.T
+        other = ~board
+        p[other] += d[other] * (s * model.range_sigma_m * z_geo[other, 2])[:, None]
     # systematics along the beam
     b = beam_biases(spec) if biases is None else biases
     extra = b[ring] + sy.range_offset_m + np.where(board, sy.dark_range_offset_m * (1.0 - colour), 0.0)

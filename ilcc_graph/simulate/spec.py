@@ -175,6 +175,10 @@ class SimulationSpec:
     noise_scale: multiplies every geometric LiDAR noise sigma (board and range noise).
     T_cam_lidar: (4, 4) true extrinsic; None -> :func:`default_T_cam_lidar` of the camera.
     board_noise_sigma_m: (3,) sigma along the board's x, y and normal, before ``noise_scale``.
+    range_noise_m: None, or the range noise (one sigma, m) of every return along its beam, the board's
+        too, in place of ``board_noise_sigma_m`` and the model's ``range_sigma_m`` (a real LiDAR's
+        noise: its ranges are noisy, its beams' directions are not; ``noise_scale`` then leaves the
+        geometry alone).
     systematics: switchable systematic errors.
     placements: explicit ``T_lidar_board`` (4, 4) per frame (overrides ``n_frames``) or None.
     scene, image: option groups.
@@ -211,6 +215,7 @@ class SimulationSpec:
     noise_scale: float = 1.0
     T_cam_lidar: np.ndarray | None = None
     board_noise_sigma_m: tuple[float, float, float] = (0.0016, 0.0016, 0.010)
+    range_noise_m: float | None = None
     systematics: Systematics = field(default_factory=Systematics)
     placements: tuple[np.ndarray, ...] | None = None
     scene: SceneOptions = field(default_factory=SceneOptions)
@@ -269,6 +274,9 @@ class SimulationSpec:
             object.__setattr__(self, "n_frames", len(ps))
         if int(self.n_frames) < 1:
             raise ValueError(f"SimulationSpec: n_frames must be >= 1, got {self.n_frames!r}")
+        rn = self.range_noise_m
+        if rn is not None and not (np.isfinite(rn) and rn >= 0):
+            raise ValueError(f"SimulationSpec: range_noise_m must be finite and >= 0, got {rn!r}")
         if not (np.isfinite(self.noise_scale) and self.noise_scale >= 0):
             raise ValueError(f"SimulationSpec: noise_scale must be finite and >= 0, got {self.noise_scale!r}")
         if int(self.seed) < 0:
@@ -322,6 +330,7 @@ class SimulationSpec:
             "noise_scale": float(self.noise_scale),
             "board_noise_sigma_m": [float(v * self.noise_scale) for v in self.board_noise_sigma_m],
             "range_sigma_m": float(self.lidar_model.range_sigma_m * self.noise_scale),
+            **({"range_noise_m": float(self.range_noise_m)} if self.range_noise_m is not None else {}),
             "systematics": {
                 "beam_bias_sigma_m": s.beam_bias_sigma_m,
                 "dark_range_offset_m": s.dark_range_offset_m,
