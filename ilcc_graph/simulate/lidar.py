@@ -12,7 +12,8 @@ Measurement model (all geometric sigmas times ``spec.noise_scale``):
 - on the board's printed face: the paper's baseline, Gaussian offsets with sigmas
   ``board_noise_sigma_m`` (1.6, 1.6, 10 mm) along the board's x, y and normal;
 - elsewhere: range noise along the beam with the model's ``range_sigma_m``;
-- or, with ``spec.range_noise_m``, range noise of that sigma along the beam on every surface;
+- or, with ``spec.range_noise_m``, range noise of that sigma along the beam on every surface (the
+  board too; not scaled by ``noise_scale``);
 - intensity: the printed colour averaged over the beam's footprint (7 samples over a disc of
   diameter ``beam_aperture_m + beam_divergence_rad * range`` projected onto the board, so returns
   straddling a colour edge blend), mapped linearly between ``intensity_black`` and
