@@ -82,12 +82,12 @@ def test_the_gate_drops_only_a_board_every_model_contradicts() -> None:
     """Board 7 beyond chi2(6) 99.9 % (22.46) under both models: dropped; beyond under one model
     only: kept; a model whose boards are all wide (median scale) judges each against that scale."""
     clean = [4.0, 5.0, 6.0, 3.0, 7.0, 5.5, 4.5]
-    got = held_out_gate(_scores({"range": [*clean, 35.6], "beams": [*clean, 33.9]}), ["range", "beams"])
+    got = held_out_gate(_scores({"range": [*clean, 35.6], "beams": [*clean, 33.9]}))
     assert got is not None and got[0] == 7 and "chi2 33.9 > 22.5" in got[1]
     one = _scores({"range": [*clean, 35.6], "beams": [*clean, 12.0]})
-    assert held_out_gate(one, ["range", "beams"]) is None
+    assert held_out_gate(one) is None
     wide = [3 * c for c in clean]  # median chi2 16.5: every board 3x wider than stated
-    assert held_out_gate(_scores({"beams": [*wide, 35.6]}), ["beams"]) is None
+    assert held_out_gate(_scores({"beams": [*wide, 35.6]})) is None
 
 
 def test_boards_that_pulled_the_extrinsic_to_them_are_named_and_no_answer_written(tmp_path) -> None:

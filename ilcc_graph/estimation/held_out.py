@@ -21,7 +21,7 @@ variance components it is judged under.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import gtsam
@@ -123,15 +123,13 @@ def held_out(sol: Solution, e: int = 0) -> dict[int, HeldOut]:
 HELD_OUT_GATE = 0.999
 
 
-def held_out_gate(
-    scores: Mapping[str, Mapping[tuple[int, int], HeldOut]], names: Sequence[str]
-) -> tuple[int, str] | None:
-    """The board (index) whose held-out image fails ``HELD_OUT_GATE`` under every scored model by the
-    widest margin, and the reason; None when none does. What it catches: a board moved between the
-    scan and the photo pulls the extrinsic and inflates the boards' variance components until the
-    chi-square gate, judging it under that noise, passes it; predicted from the other boards, it
-    stands out (a simulated hand-held board moved 27 mm: held-out chi2 34-40 against 13 at most for
-    the other boards; the recorded sets' largest 16-17)."""
+def held_out_gate(scores: Mapping[str, Mapping[tuple[int, int], HeldOut]]) -> tuple[int, str] | None:
+    """The board (index) whose held-out image fails ``HELD_OUT_GATE`` under every scored model (the
+    keys of ``scores``) by the widest margin, and the reason; None when none does. What it catches:
+    a board moved between the scan and the photo pulls the extrinsic and inflates the boards'
+    variance components until the chi-square gate, judging it under that noise, passes it;
+    predicted from the other boards, it stands out (a simulated hand-held board moved 27 mm:
+    held-out chi2 34-40 against 13 at most for the other boards; the recorded sets' largest 16-17)."""
     if not scores:
         return None
     bound, median = float(chi2_ppf(HELD_OUT_GATE, POSE3_DOF)), float(chi2_ppf(0.5, POSE3_DOF))
@@ -151,6 +149,6 @@ def held_out_gate(
     return k, (
         f"{GATE_DROPPED}: held out, predicted from the other boards and its own LiDAR data, its image "
         f"lies at chi2 {z:.1f} > {bound:.1f} (6 dof, p={1 - HELD_OUT_GATE:g}) under every sensor model "
-        f"({', '.join(names)}): the board moved between the scan and the photo, or the two are not of "
+        f"({', '.join(scores)}): the board moved between the scan and the photo, or the two are not of "
         "one moment"
     )

@@ -72,7 +72,7 @@ def solve_models(
         got = _solve_models(base, models, options, solve)
         if not options.chi2_gate_prob or not got.scores:
             return got
-        worst = held_out_gate(got.scores, [n for n in got.names if n in got.scores])
+        worst = held_out_gate(got.scores)
         sol = next(iter(got.sols.values()))
         usable = len(sol.boards) + len(sol.dropped)
         if worst is None or len(sol.dropped) + 1 > math.floor(options.max_dropped_fraction * usable):

@@ -22,6 +22,7 @@ beside the board that occludes it from neither sensor.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ..board import Board
 from .scene import SURF_PERSON, SURF_POLE, Box, Scene, cast_rays
@@ -210,16 +211,6 @@ def board_placements(spec: SimulationSpec) -> list[np.ndarray]:
     return out
 
 
-def _rotation(rotvec: np.ndarray) -> np.ndarray:
-    """(3, 3) the rotation of ``rotvec`` (axis times angle, rad; Rodrigues' formula)."""
-    angle = float(np.linalg.norm(rotvec))
-    if angle == 0.0:
-        return np.eye(3)
-    k = rotvec / angle
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
-
-
 def moved_placements(spec: SimulationSpec, k: int) -> dict[int, np.ndarray]:
     """``k`` frames of ``spec`` (drawn from its seed) with their board moved 20-60 mm and 1-3 deg
     (random directions, about the pattern's centre), as a hand-held board moves between the scan
@@ -231,7 +222,8 @@ def moved_placements(spec: SimulationSpec, k: int) -> dict[int, np.ndarray]:
     out = {}
     for i in sorted(rng.choice(len(poses), size=min(k, len(poses)), replace=False)):
         axis, way = rng.normal(size=3), rng.normal(size=3)
-        turn = _rotation(np.radians(rng.uniform(1.0, 3.0)) * axis / np.linalg.norm(axis))
+        angle = np.radians(rng.uniform(1.0, 3.0))
+        turn = Rotation.from_rotvec(angle * axis / np.linalg.norm(axis)).as_matrix()
         T = np.array(poses[i], dtype=np.float64)
         c = (T @ centre)[:3]
         moved = np.eye(4)
