@@ -25,6 +25,9 @@ and 1-3 deg from where the scan saw it (a hand-held board that moved between the
 photo; the images of a second simulation with those poses): the gate should drop them, and whatever
 is written must still lie within its bound.
 
+``--range-noise-mm MM``: every return moved along its own beam by MM (one sigma) instead of the
+simulator's default noise (which moves the board's returns off their beams; docs/bench_noise.md).
+
 Each finished set is appended to the sink at once (a JSON line), so a run can be stopped and resumed.
 ``--write`` writes docs/bench_small_board.md (a section per ``--section LABEL=SINK``) and
 docs/bench_small_board.png (a row of panels per section).
@@ -37,6 +40,7 @@ import logging
 import shutil
 import sys
 import tempfile
+import textwrap
 import time
 from collections import Counter
 from collections.abc import Sequence
@@ -70,11 +74,13 @@ FIGURE = ROOT / "docs" / "bench_small_board.png"
 BOUND_999 = float(chi2.ppf(0.999, 6))
 
 
-def spec_for(seed: int) -> SimulationSpec:
-    """Set ``seed`` (module docstring)."""
+def spec_for(seed: int, range_noise_m: float | None = None) -> SimulationSpec:
+    """Set ``seed`` (module docstring); ``range_noise_m``: range noise along each beam instead of the
+    simulator's default noise (``SimulationSpec.range_noise_m``)."""
     return SimulationSpec(
         lidar="vlp16", camera=Fisheye.default(1920), board=Board(7, 8, 0.05), n_frames=8 + seed % 5,
         seed=seed, scene=SceneOptions(board_distance_m=(2.0, 4.0), stand=False), intensity_field="print",
+        range_noise_m=range_noise_m,
     )  # fmt: skip
 
 
@@ -118,11 +124,11 @@ def run_one(data: Path, spec: SimulationSpec) -> dict:
     return out
 
 
-def run_set(seed: int, cache: Path, moved: int = 0) -> dict:
+def run_set(seed: int, cache: Path, moved: int = 0, range_noise_m: float | None = None) -> dict:
     """Set ``seed`` written (``moved`` frames' images from the board moved), calibrated, the cache removed."""
     tmp = Path(tempfile.mkdtemp(prefix=f"bench_small_board_{seed}_", dir=cache))
     try:
-        spec = spec_for(seed)
+        spec = spec_for(seed, range_noise_m)
         data = simulate_dataset(tmp / "set", spec)
         frames = moved_placements(spec, moved) if moved else {}
         if frames:  # the images of the moved boards, from a second simulation of just those poses
@@ -131,7 +137,7 @@ def run_set(seed: int, cache: Path, moved: int = 0) -> dict:
                 (image,) = sorted((other / "img").glob(f"{j + 1:04d}.*"))
                 shutil.copy(image, data / "img" / f"{i + 1:04d}{image.suffix}")
         names = [f"{i + 1:04d}" for i in frames]
-        return {"seed": seed, "moved": names, **run_one(data, spec)}
+        return {"seed": seed, "moved": names, "range_noise_m": range_noise_m, **run_one(data, spec)}
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
@@ -216,7 +222,7 @@ def figure(sections: dict[str, list[dict]]) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(len(sections), 2, figsize=(10, 3.4 * len(sections)), squeeze=False)
+    fig, axes = plt.subplots(len(sections), 2, figsize=(10, 3.8 * len(sections)), squeeze=False)
     for (label, sets), (a, b) in zip(sections.items(), axes, strict=True):
         _panels(sets, a, b, label)
     fig.tight_layout()
@@ -234,11 +240,11 @@ def _panels(sets: Sequence[dict], a, b, label: str) -> None:  # noqa: ANN001 - m
     a.axhline(BOUND_999, color="C3", lw=1, label="99.9 % bound (22.46)")
     a.axhline(6.0, color="0.5", lw=1, ls="--", label="honest mean (6)")
     a.set(xlabel="seed", ylabel="NEES (6 dof)")
-    a.set_title(f"{label}\nNEES of the results written", fontsize=9)
+    a.set_title(f"{textwrap.fill(label, 60)}\nNEES of the results written", fontsize=8)
     a.legend(fontsize=8)
     b.axhline(0.8, color="0.5", lw=1, ls="--")
     b.set(xlabel="seed", ylabel="share of frames used", ylim=(0, 1.05))
-    b.set_title(f"{label}\nframes used (hatched: exit 3)", fontsize=9)
+    b.set_title(f"{textwrap.fill(label, 60)}\nframes used (hatched: exit 3)", fontsize=8)
     if seeds:
         a.set_xlim(min(seeds) - 1, max(seeds) + 1)
 
@@ -249,6 +255,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--sets", type=int, default=20)
     ap.add_argument("--moved", type=int, default=0, help="frames per set whose board moved before the photo")
     ap.add_argument("--seed0", type=int, default=0)
+    ap.add_argument(
+        "--range-noise-mm",
+        type=float,
+        default=None,
+        help="range noise along each beam (mm) instead of the simulator's default noise",
+    )
     ap.add_argument("--sink", default=str(Path(tempfile.gettempdir()) / "bench_small_board.jsonl"))
     ap.add_argument("--cache", default=tempfile.gettempdir())
     ap.add_argument("--from-sink", action="store_true", help="only summarise the sink")
@@ -262,7 +274,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for seed in range(args.seed0, args.seed0 + args.sets):
             if seed in done:
                 continue
-            res = run_set(seed, Path(args.cache), args.moved)
+            rn = None if args.range_noise_mm is None else 1e-3 * args.range_noise_mm
+            res = run_set(seed, Path(args.cache), args.moved, rn)
             append_sink(sink, res)
             brief = res.get("failure") or (
                 f"{res['used']}/{res['n_frames']} {res['verdict']} {res['rot_deg']:.3f} deg "
@@ -303,25 +316,51 @@ DOC_TAIL = """
 
 ## Reading
 
-The sections marked 5452562 ran the held-out gate; "this commit" adds the consensus check; those
-marked 9c80ee7 ran the tree just before the gate (this session's LiDAR stage, the carried rule of
-the sensor model), all on the same seeds. The earlier sections (ab3efc9 against db61abc: the
-far-above and synchronisation exits) are in git history; on 9c80ee7 they read the same (50 sets:
-NEES 6.49 against 6.50; the moved sets 9.09 against 8.96, the same two outside).
+The first section is 100 sets of the tree at 7926d1e: seeds 0..49 are the sets of the held-out gate's
+run (5452562; nothing that reaches these sets changed since: seed 0 gives the same NEES, 23.8), seeds
+50..99 were run on 7926d1e (session 47). The second is seeds 50..99 with range noise along each beam
+(``--range-noise-mm 10``, `SimulationSpec.range_noise_m`) instead of the simulator's default noise.
+The sections marked 5452562 ran the held-out gate; 24a0702 adds the consensus check; those marked
+9c80ee7 ran the tree just before the gate, all on the same seeds.
 
-- **As simulated** the simulator's small board is found and placed in almost every frame (494 of 500
-  frames used; the 6 not used are scans where the LiDAR stage found no board), and the covariance
-  is honest on average (mean NEES 6.49 over 50 sets), so the first branch of the target holds, but
-  one set in 50 (seed 0, NEES 23.8, every frame used, verdict GOOD) lies just outside its 99.9 %
-  bound: 2 % of sets against the target's 1 %, **not met** by one set. An honest covariance puts
-  0.1 % of sets there, so 1 in 50 has a 5 % chance; the LiDAR stage's boards are somewhat
-  over-confident at 2-6 beams (mean 6-dof NEES 7.80 against 6; in-plane 3.27 against 3, with a
-  heavy tail: 2.6 % of boards beyond chi2(3)'s 99 % point, 0.6 % beyond its 99.9 %). Seed 0's error
-  is common to its boards (held out one by one, every board predicts at chi2 2-11 for 6 dof, so no
-  board-level test can see it; its eight boards against the truth 2.5-22.0, mean 10.2, while the
-  graph's board component stays 1.02). That is the LiDAR stage's covariance (issue 38's first
-  item), not changed here. The held-out gate drops no board in these 50 sets: every set's frames
-  used, NEES and exit are the same as before it.
+- **As simulated, 100 sets: over-confident, target not met.** The small board is found and placed
+  in almost every frame (988 of 1000 used), but the mean NEES is 7.64 (median 6.76) and 3 of 100
+  written results lie beyond their 99.9 % bound (seeds 0, 69 and 71, NEES 23.8, 24.4, 24.4, each
+  GOOD with every frame used). The first 50 seeds alone read 6.49 with one set outside, which an
+  earlier reading took for honest on average; seeds 50..99 read 8.8 with two. The LiDAR stage's
+  boards are over-confident at 2-6 beams (mean 6-dof NEES 7.92 against 6, in-plane 3.37 against 3).
+  Measured in session 47, and not changed:
+  - **Not the sensor model.** Seeds 0, 69, 71, 80 and 88 forced to each model: NEES 19-26 under
+    `none`, `range` and `beams` alike (`none` 30-42 in two of them).
+  - **Partly the image.** The detected corners lie 0.04-0.08 px RMS from the true projections, the
+    residuals at 0.77 of the stated noise (chi2/dof), but each board's corners share an offset of
+    0.005-0.035 px, random per board, that the per-corner noise model cannot hold and the residuals
+    cannot show (the board's pose absorbs it): a board's pose from its image alone, under the stated
+    noise, has mean NEES 7.74 (median 4.68; 22 sets, seeds 50..71, about 220 boards). With a common
+    shift of 0.01 px per board added to its corners' covariance (an experiment, a rank-2 term in
+    each view's whitening) the camera side reads 5.36, but seed 69's extrinsic only 24.4 -> 24.0
+    (0.02 px: 22.8).
+  - **And the LiDAR side.** In seeds 69, 0 and 71 the mean over a set's boards of the LiDAR fit's
+    centre error (in the camera frame, the fit mapped by the true extrinsic) lies 2.0-2.2 stated
+    sigmas of that mean from the truth along the depth (+1.1, -1.0, +1.3 mm) and 1.0-2.2 across
+    (chi2 of the mean 9.6, 7.7, 5.3 for 3 dof); the camera side's mean reads chi2 3.5, 0.2 and 14.8.
+    The extrinsic's error is both sides' errors common to a set's boards, together.
+  - **Partly the LiDAR's systematics.** The stage alone (30 sets, 250 boards; mean 6-dof NEES 8.05):
+    its errors per axis are within their sigmas (z^2 0.66-1.02) but not along its covariance's
+    tightest directions (z^2 2.22 along the tightest out-of-plane one, the plane's offset); the
+    boards' normal offset is common to a set's boards (the per-set mean of z, times sqrt(n), has
+    variance 1.83 against 1 for independent boards): the per-beam biases (3 mm) and the dark print's
+    4 mm, shared by every frame of a set. Without those systematics the stage reads 6.67 (out of
+    plane 2.49, in-plane 3.04), but the calibrations of seeds 50..70 still read 8.42 (none outside).
+  - **Partly the simulator's default noise.** With 10 mm of range noise along each beam instead
+    (the second section) seeds 50..99 read 7.51 (median 6.11), one set outside (seed 55, NEES 34.7:
+    two of its seven boards 19.6 and 37.4 against the truth, in-plane 10.0 and 15.7).
+  - **Not the components' floor.** Components estimated below 1 (floor 0.01 instead of 1, seeds
+    50..66): 9.42 against 8.59 on the same seeds; the boards' component rises to 0.5-2.3 but the
+    bearings' falls to 0.5-1.0, and the extrinsic is no more honest. The like change (floor 0.05)
+    takes the joint sessions' Monte Carlo from 4.41 to 4.98 (docs/bench_joint_lidar.md): the noise
+    policy's conservatism there partly hides the small board's over-confidence here, so it is left
+    as it is until the errors common to a set's boards are modelled on both sides.
 - **With 4 boards of 8-12 moved 20-60 mm and 1-3 deg before the photo** (a hand-held board, sensors
   not synchronised: a third to a half of the frames wrong by construction, so the 80 % branch cannot
   hold) the corner-order check and the gates drop most moved frames. Before the held-out gate, seeds
