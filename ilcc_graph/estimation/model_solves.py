@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable, Hashable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import TypeVar
 
 import numpy as np
 
@@ -23,6 +22,7 @@ from ilcc_graph.estimation.noise import NoiseOptions, Solution, solve_problem
 from ilcc_graph.estimation.problem import Problem
 from ilcc_graph.estimation.selection import (
     AUTO_MODELS,
+    BoardKey,
     Candidate,
     Selection,
     SensorModel,
@@ -33,9 +33,6 @@ from ilcc_graph.estimation.selection import (
 )
 
 log = logging.getLogger(__name__)
-
-#: a board's key in the held-out scores (its index in the problem, with its source's)
-_Board = TypeVar("_Board", bound=Hashable)
 
 __all__ = ["Solved", "decide", "select_model", "solve_models"]
 
@@ -138,7 +135,7 @@ def select_model(
 
 
 def decide(
-    scores: Mapping[str, Mapping[_Board, HeldOut]],
+    scores: Mapping[str, Mapping[BoardKey, HeldOut]],
     used: Mapping[str, int],
     names: Sequence[str],
     failures: Mapping[str, str] | None,

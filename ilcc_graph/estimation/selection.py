@@ -53,6 +53,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "AUTO",
     "MODELS",
+    "BoardKey",
     "Candidate",
     "Selection",
     "SensorModel",
@@ -241,8 +242,9 @@ def carried(chosen: str, weights: Mapping[str, float]) -> tuple[str, ...]:
     return tuple(n for n, w in weights.items() if n == chosen or (w >= MIN_WEIGHT and n not in inner))
 
 
-#: a board's key in the held-out scores (its index in the problem)
-_Board = TypeVar("_Board", bound=Hashable)
+#: a board's key in the held-out scores (its index in the problem; with several sources, with its
+#: source's)
+BoardKey = TypeVar("BoardKey", bound=Hashable)
 
 
 def _calibrated(h: HeldOut, f: float) -> float:
@@ -300,7 +302,7 @@ def averaged_covariance(sols: Mapping[str, Solution], selection: Selection, e: i
 
 
 def choose(
-    scores: Mapping[str, Mapping[_Board, HeldOut]],
+    scores: Mapping[str, Mapping[BoardKey, HeldOut]],
     used: Mapping[str, int],
     names: Sequence[str],
     failures: Mapping[str, str] | None = None,

@@ -223,9 +223,7 @@ def _consensus(seen: list[FrameResult], fits: dict, T0: np.ndarray, rounds: int 
         w = np.concatenate(weights)
         a, b = np.concatenate(src), np.concatenate(dst)
         ca, cb = w @ a / w.sum(), w @ b / w.sum()
-        U, _, Vt = np.linalg.svd(((a - ca) * w[:, None]).T @ (b - cb))
-        D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-        R = Vt.T @ D @ U.T
+        R = Rotation.align_vectors(b - cb, a - ca, weights=w)[0].as_matrix()  # weighted Kabsch
         new = np.eye(4)
         new[:3, :3], new[:3, 3] = R, cb - R @ ca
         done = np.abs(new - T).max() < 1e-9
