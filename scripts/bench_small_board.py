@@ -330,10 +330,11 @@ The sections marked 5452562 ran the held-out gate; 24a0702 adds the consensus ch
   earlier reading took for honest on average; seeds 50..99 read 8.8 with two. The LiDAR stage's
   boards are over-confident at 2-6 beams (mean 6-dof NEES 7.92 against 6, in-plane 3.37 against 3).
   Measured in session 47, and not changed:
-  - **It shrinks with the frames.** Mean NEES by frames per set (20 sets each): 8 frames 8.95, 9
-    8.14, 10 6.22, 11 7.84, 12 7.06; with range noise (10 sets each) 9.36, 7.66, 7.02, 7.05, 6.44.
-    What the covariance leaves out weighs most with the fewest boards: an error common to a set's
-    boards, or an estimated quantity whose own uncertainty the covariance does not carry.
+  - **It does not go away with more frames.** Mean NEES by frames per set (20 sets each): 8 frames
+    8.95, 9 8.14, 10 6.22, 11 7.84, 12 7.06 (range noise, 10 sets each: 9.36, 7.66, 7.02, 7.05,
+    6.44); but seeds 50..79 simulated with 16 and with 24 frames read 6.73 and 7.45 (30 sets each,
+    se 0.73; none outside): no trend beyond the noise. What the covariance leaves out is per board
+    (or per set and not averaged away by more boards), not a small-sample effect.
   - **Not the sensor model.** Seeds 0, 69, 71, 80 and 88 forced to each model: NEES 19-26 under
     `none`, `range` and `beams` alike (`none` 30-42 in two of them).
   - **Partly the image.** The detected corners lie 0.04-0.08 px RMS from the true projections, the
