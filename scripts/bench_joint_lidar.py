@@ -10,7 +10,7 @@ against the truth and the 95 % coverage (NEES under the chi-square 95 % quantile
 Targets (issue 34): mean NEES 4.5-7.5, coverage 90-98 %.
 
 Run: ``nice python3 scripts/bench_joint_lidar.py [--runs 50] [--seed 0] [--write]`` (``--write``: the
-table into docs/bench_joint_lidar.md; the doc's hand-written reading, from its line "Reading", is kept).
+table into docs/bench_joint_lidar.md between its markers; the doc's hand-written text is kept).
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
+from _shared import write_between
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
@@ -154,18 +155,8 @@ def main() -> int:
         )
     text = summary(runs, args)
     print(text)
-    if args.write:  # the hand-written reading (from its first line "Reading") is kept
-        old = DOC.read_text(encoding="utf-8") if DOC.exists() else ""
-        kept = old[old.index("\nReading") :] if "\nReading" in old else ""
-        DOC.write_text(
-            "# Joint sessions with the LiDAR's own errors (`scripts/bench_joint_lidar.py`)\n\n"
-            + (__doc__ or "").split("\n\n")[1]
-            + "\n\n"
-            + text
-            + "\n"
-            + kept,
-            encoding="utf-8",
-        )
+    if args.write:  # between the doc's markers: its hand-written text around them is kept
+        write_between(DOC, "<!-- bench_joint_lidar:begin -->", "<!-- bench_joint_lidar:end -->", text)
         print(f"wrote {DOC}")
     return 0
 

@@ -240,11 +240,12 @@ def _panels(sets: Sequence[dict], a, b, label: str) -> None:  # noqa: ANN001 - m
     a.axhline(BOUND_999, color="C3", lw=1, label="99.9 % bound (22.46)")
     a.axhline(6.0, color="0.5", lw=1, ls="--", label="honest mean (6)")
     a.set(xlabel="seed", ylabel="NEES (6 dof)")
-    a.set_title(f"{textwrap.fill(label, 60)}\nNEES of the results written", fontsize=8)
+    title = textwrap.fill(label, 60)
+    a.set_title(f"{title}\nNEES of the results written", fontsize=8)
     a.legend(fontsize=8)
     b.axhline(0.8, color="0.5", lw=1, ls="--")
     b.set(xlabel="seed", ylabel="share of frames used", ylim=(0, 1.05))
-    b.set_title(f"{textwrap.fill(label, 60)}\nframes used (hatched: exit 3)", fontsize=8)
+    b.set_title(f"{title}\nframes used (hatched: exit 3)", fontsize=8)
     if seeds:
         a.set_xlim(min(seeds) - 1, max(seeds) + 1)
 
