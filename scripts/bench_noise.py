@@ -42,7 +42,6 @@ DOC = ROOT / "docs" / "bench_noise.md"
 LEVELS = {"15 mm": 0.015, "30 mm": 0.030}  # range noise along the beam, or along the board's normal
 FIELDS = ("invisible", "print")
 NOISES = ("range", "board")
-BOARD_NORMAL_M = 0.010  # the board noise along its normal at noise_scale 1 (SimulationSpec)
 
 
 def noisy_spec(seed: int, field: str, level_m: float, scene: str, noise: str = "range") -> SimulationSpec:
@@ -52,7 +51,7 @@ def noisy_spec(seed: int, field: str, level_m: float, scene: str, noise: str = "
     if noise == "range":
         spec = replace(base, range_noise_m=level_m)
     else:
-        spec = replace(base, noise_scale=level_m / BOARD_NORMAL_M)
+        spec = replace(base, noise_scale=level_m / base.board_noise_sigma_m[2])  # its sigma along the normal
     return replace(spec, scene=replace(spec.scene, room=None)) if scene == "open" else spec
 
 
