@@ -14,11 +14,12 @@ Measurement model (all geometric sigmas times ``spec.noise_scale``):
 - elsewhere: range noise along the beam with the model's ``range_sigma_m``;
 - or, with ``spec.range_noise_m``, range noise of that sigma along the beam on every surface (the
   board too; not scaled by ``noise_scale``);
-- intensity: the printed colour averaged over the beam's footprint (7 samples over a disc of
-  diameter ``beam_aperture_m + beam_divergence_rad * range`` projected onto the board, so returns
-  straddling a colour edge blend), mapped linearly between ``intensity_black`` and
-  ``intensity_white``, times ``0.85 + 0.15 cos(incidence)``, plus Gaussian noise whose sigma goes
-  from ``intensity_sigma_black`` to ``intensity_sigma_white``; rounded to integers in [0, 255].
+- intensity: the printed colour averaged over the beam's footprint (``edges.FOOTPRINT``, an even
+  cover of a disc of diameter ``beam_aperture_m + beam_divergence_rad * range``) projected onto the
+  board, so returns straddling a colour edge blend smoothly, mapped linearly between
+  ``intensity_black`` and ``intensity_white``, times ``0.85 + 0.15 cos(incidence)``, plus Gaussian
+  noise whose sigma goes from ``intensity_sigma_black`` to ``intensity_sigma_white``; rounded to
+  integers in [0, 255].
   Other surfaces have fixed reflectivities (wall 40, floor 20, ceiling 45, person 25, pole 8,
   board back 15) with the same incidence factor and the white-level noise;
 - systematics (:class:`~ilcc_graph.simulate.spec.Systematics`), each along the beam: a constant
@@ -61,7 +62,7 @@ import numpy as np
 
 from ..lidars import LASER_ID_ELEVATIONS_DEG, LidarModel
 from ..types import Scan
-from .edges import SURF_EDGE, edge_returns
+from .edges import SURF_EDGE, edge_returns, footprint_points
 from .placements import PURPOSE_FRAME, PURPOSE_UNIT, frame_rng
 from .rosette import rosette_directions, rosette_for
 from .scene import (
@@ -89,9 +90,6 @@ _REFLECTIVITY = {
     SURF_BOARD_BACK: 15.0,
     SURF_EDGE: 30.0,
 }
-# footprint samples: centre + 6 on a ring at 0.7 of the radius (an even cover of the disc)
-_FOOT_ANGLES = np.deg2rad(np.arange(6) * 60.0)
-_FOOT = np.vstack([[0.0, 0.0], 0.7 * np.column_stack([np.cos(_FOOT_ANGLES), np.sin(_FOOT_ANGLES)])])
 
 
 def beam_biases(spec: SimulationSpec) -> np.ndarray:
@@ -120,28 +118,14 @@ def _beam_directions(model: LidarModel, phase: float) -> tuple[np.ndarray, np.nd
     return d.reshape(-1, 3), ring
 
 
-def _footprint_colour(
-    scene: Scene, d: np.ndarray, t: np.ndarray, xy: np.ndarray, radius: np.ndarray
-) -> np.ndarray:
-    """Mean printed colour over each beam's footprint on the board (NaN-free where ``xy`` is on it)."""
+def _footprint_colour(scene: Scene, d: np.ndarray, xy: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    """Mean printed colour over each beam's footprint (radius (N,), m) on the board (NaN-free where
+    ``xy`` is on it)."""
     board, T = scene.placed_board()
-    R = T[:3, :3]
-    db = d @ R  # beam direction in the board frame
-    # two unit vectors perpendicular to the beam, in the board frame
-    ref = np.where(np.abs(db[:, 2:3]) < 0.9, np.array([0.0, 0.0, 1.0]), np.array([1.0, 0.0, 0.0]))
-    e1 = np.cross(db, ref)
-    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
-    e2 = np.cross(db, e1)
-    total = np.zeros(len(t))
-    count = np.zeros(len(t))
-    p = np.column_stack([xy, np.zeros(len(t))])
-    for a, b in _FOOT:
-        off = radius[:, None] * (a * e1 + b * e2)
-        q = p + off - (off[:, 2] / db[:, 2])[:, None] * db  # slide along the beam onto z = 0
-        c = board.colour_at(q[:, :2])
-        ok = np.isfinite(c)
-        total[ok] += c[ok]
-        count[ok] += 1
+    q = footprint_points(d @ T[:3, :3], xy, radius)
+    c = board.colour_at(q.reshape(-1, 2)).reshape(q.shape[:2])
+    ok = np.isfinite(c)
+    total, count = np.where(ok, c, 0.0).sum(axis=0), ok.sum(axis=0)
     return total / np.maximum(count, 1)
 
 
@@ -183,7 +167,7 @@ def simulate_scan(
     colour = np.ones(n)
     if board.any() and spec.intensity_field != "invisible":  # an invisible print reads as white
         radius = 0.5 * (spec.beam_aperture_m + model.beam_divergence_rad * t[board])
-        colour[board] = _footprint_colour(scene, d[board], t[board], hits.board_xy[board], radius)
+        colour[board] = _footprint_colour(scene, d[board], hits.board_xy[board], radius)
     cos_inc = np.abs(np.einsum("ij,ij->i", d, hits.normal))
 
     # geometry: true point plus noise
