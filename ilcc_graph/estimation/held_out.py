@@ -123,32 +123,41 @@ def held_out(sol: Solution, e: int = 0) -> dict[int, HeldOut]:
 HELD_OUT_GATE = 0.999
 
 
-def held_out_gate(scores: Mapping[str, Mapping[tuple[int, int], HeldOut]]) -> tuple[int, str] | None:
+def held_out_gate(
+    scores: Mapping[str, Mapping[tuple[int, int], HeldOut]], gated: Mapping[str, set[int]] | None = None
+) -> tuple[int, str] | None:
     """The board (index) whose held-out image fails ``HELD_OUT_GATE`` under every scored model (the
-    keys of ``scores``) by the widest margin, and the reason; None when none does. What it catches:
-    a board moved between the scan and the photo pulls the extrinsic and inflates the boards'
-    variance components until the chi-square gate, judging it under that noise, passes it;
-    predicted from the other boards, it stands out (a simulated hand-held board moved 27 mm:
-    held-out chi2 34-40 against 13 at most for the other boards; the recorded sets' largest 16-17)."""
+    keys of ``scores``) by the widest margin, and the reason; None when none does. ``gated``: per
+    model, the boards its own chi-square gate dropped (unscored there): each counts as failing under
+    that model. What it catches: a board moved between the scan and the photo pulls the extrinsic and
+    inflates the boards' variance components until the chi-square gate, judging it under that noise,
+    passes it; predicted from the other boards, it stands out (a simulated hand-held board moved 27 mm:
+    held-out chi2 34-40 against 13 at most for the other boards; the recorded sets' largest 16-17). A
+    model under which a second moved board stays in may pass the first; the models that dropped the
+    second do not vouch for it."""
     if not scores:
         return None
+    gated = gated or {}
     bound, median = float(chi2_ppf(HELD_OUT_GATE, POSE3_DOF)), float(chi2_ppf(0.5, POSE3_DOF))
     scaled: dict[str, dict[int, float]] = {}
     for name, s in scores.items():
         scale = max(1.0, float(np.median([h.chi2 for h in s.values()])) / median)
-        per: dict[int, float] = {}
+        per: dict[int, float] = {k: np.inf for k in gated.get(name, ())}
         for (_, k), h in s.items():
             per[k] = max(per.get(k, 0.0), h.chi2 / scale)
         scaled[name] = per
     common = set.intersection(*(set(p) for p in scaled.values()))
     failing = [(min(p[k] for p in scaled.values()), k) for k in common]
-    failing = [(z, k) for z, k in failing if z > bound]
+    failing = [(z, k) for z, k in failing if z > bound and np.isfinite(z)]
     if not failing:
         return None
     z, k = max(failing)
+    by_gate = [n for n in scores if np.isinf(scaled[n][k])]
+    scored = [n for n in scores if n not in by_gate]
+    also = f"; {', '.join(by_gate)} dropped it at the chi-square gate" if by_gate else ""
     return k, (
         f"{GATE_DROPPED}: held out, predicted from the other boards and its own LiDAR data, its image "
         f"lies at chi2 {z:.1f} > {bound:.1f} (6 dof, p={1 - HELD_OUT_GATE:g}) under every sensor model "
-        f"({', '.join(scores)}): the board moved between the scan and the photo, or the two are not of "
-        "one moment"
+        f"({', '.join(scored)}{also}): the board moved between the scan and the photo, or the two are not "
+        "of one moment"
     )

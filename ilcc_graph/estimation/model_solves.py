@@ -69,7 +69,10 @@ def solve_models(
         got = _solve_models(base, models, options, solve)
         if not options.chi2_gate_prob or not got.scores:
             return got
-        worst = held_out_gate(got.scores)
+        index = {b.name: k for k, b in enumerate(base.boards)}
+        gated = {n: {index[d] for d, _ in sol.dropped if d in index and d not in base.excluded}
+                 for n, sol in got.sols.items()}  # fmt: skip
+        worst = held_out_gate(got.scores, gated)
         sol = next(iter(got.sols.values()))
         usable = len(sol.boards) + len(sol.dropped)
         if worst is None or len(sol.dropped) + 1 > math.floor(options.max_dropped_fraction * usable):
