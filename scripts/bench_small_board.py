@@ -148,9 +148,19 @@ def _reason_kind(s: dict) -> str:
     return msg.split(" (")[0].split(";")[0][:110]
 
 
-def _mean(sets: Sequence[dict], key: str) -> float:
-    values = [x for s in sets for x in s.get(key, [])]
-    return float(np.mean(values)) if values else float("nan")
+#: a LiDAR board this far from the truth (6-dof NEES) is another object taken for the board, which
+#: the calibration refuses (its image is elsewhere); the stage's means leave it out and count it
+WRONG_OBJECT_NEES = 1e3
+
+
+def _stage(sets: Sequence[dict]) -> str:
+    """The LiDAR stage's boards against the truth: mean 6-dof and in-plane NEES, wrong objects apart."""
+    pairs = [(a, b) for s in sets for a, b in zip(s.get("board_nees", []), s.get("board_nees_inplane", []))]
+    kept = np.array([(a, b) for a, b in pairs if a < WRONG_OBJECT_NEES]).reshape(-1, 2)
+    full, inplane = kept.mean(axis=0) if len(kept) else (float("nan"), float("nan"))
+    wrong = len(pairs) - len(kept)
+    apart = f"; {wrong} board(s) another object (NEES > {WRONG_OBJECT_NEES:g}) left out" if wrong else ""
+    return f"mean NEES {full:.2f} (6 dof, honest 6), in-plane {inplane:.2f} (3 dof, honest 3){apart}"
 
 
 def report(sets: Sequence[dict], label: str) -> str:
@@ -190,9 +200,7 @@ def report(sets: Sequence[dict], label: str) -> str:
         f"- written results outside their 99.9 % bound (NEES > {BOUND_999:.2f}): {len(outside)} of "
         f"{len(sets)} sets ({len(outside) / max(len(sets), 1):.0%}; target <= 1 %)"
         + (f": seeds {', '.join(str(s['seed']) for s in outside)}" if outside else ""),
-        f"- the LiDAR stage's boards against the truth (sets written): mean NEES "
-        f"{_mean(sets, 'board_nees'):.2f} (6 dof, honest 6), in-plane "
-        f"{_mean(sets, 'board_nees_inplane'):.2f} (3 dof, honest 3)",
+        f"- the LiDAR stage's boards against the truth (sets written): {_stage(sets)}",
         f"- the issue's target (>= 80 % of frames used with mean NEES 4.5-7.5, or exit 3 with the reason; "
         f"a written result outside its 99.9 % bound in at most 1 % of sets): {'met' if met else 'NOT met'}",
         "",
@@ -317,12 +325,62 @@ DOC_TAIL = """
 
 ## Reading
 
-The first section is 100 sets of the tree at 7926d1e: seeds 0..49 are the sets of the held-out gate's
-run (5452562; nothing that reaches these sets changed since: seed 0 gives the same NEES, 23.8), seeds
-50..99 were run on 7926d1e (session 47). The second is seeds 50..99 with range noise along each beam
-(``--range-noise-mm 10``, `SimulationSpec.range_noise_m`) instead of the simulator's default noise.
-The sections marked 5452562 ran the held-out gate; 24a0702 adds the consensus check; those marked
-9c80ee7 ran the tree just before the gate, all on the same seeds.
+The first two sections are this tree (session 48): 100 sets as simulated and 100 sets with range
+noise along each beam (``--range-noise-mm 10``, `SimulationSpec.range_noise_m`) instead of the
+simulator's default noise. The next two are the same seeds on the tree before it (811567b), whose
+simulator gave each LiDAR footprint 7 points. The sections marked 5452562 ran the held-out gate;
+24a0702 adds the consensus check; those marked 9c80ee7 ran the tree just before the gate, all on the
+same seeds and the 7-point footprint.
+
+- **Session 48: the over-confidence was mostly the simulator's footprint; the target is met on 100
+  sets of each noise model, at its limit.**
+  - **What it was.** The simulator averaged the print's colour over 7 points of each beam's
+    footprint (its centre and 6 round it). Across an edge that blend is a staircase of a few steps
+    (the share of the footprint on one side is off the disc's by up to 0.21), and the soft-edge fit
+    placed the print's edges by the steps. With a LiDAR without noise or systematics the small
+    board's 988 LiDAR fits read in-plane NEES 4.38 (3 when honest), 2.9 % beyond chi2(3)'s 99.9 %
+    point; and 6.46 (4.5 %) without intensity noise, where nothing else hides the steps. A footprint
+    of 177 points on a grid read 2.92 (0.3 %), 65 on a hexagonal grid 2.87 (0.2 %; 3.15 and 0.5 %
+    without intensity noise: its rows still step). The footprint is now 128 points on Vogel's
+    spiral and its reflection (`simulate.edges.FOOTPRINT`, used for the intensity and for the mixed
+    returns at the board's outline): within 0.03 of the disc's share for an edge at any angle. The
+    same boards read 2.81 (0.7 % beyond the 99 % point, 0.1 % beyond 99.9 %), and 0.98 without
+    intensity noise (the sampling term's floor then dominates: conservative). A real spot's light is
+    spread, not in 7 lumps: the estimator is unchanged, the simulator was wrong.
+  - **The calibrations, 100 sets each, seeds 0..99.** As simulated: mean NEES 6.73 (was 7.64), 1 of
+    100 outside its 99.9 % bound (seed 61, 26.5; was 3: seeds 0, 69, 71). Range noise of 10 mm:
+    5.19 (was 7.12), 1 of 100 outside (seed 49, 22.9 against the bound 22.46; was seed 55 at 34.7).
+    1 % is the target's limit ("never ... in more than 1 % of sets"), not comfortably inside it: an
+    honest covariance puts 0.1 % there.
+  - **What remains, measured.** Seed 61 (as simulated) reads 26.5 with its LiDAR boards at 6-dof
+    NEES 3.6-23.6 against the truth (mean 11), but its components at 1.06 and 1.0: its boards err
+    together in a way the residuals do not show. It is the simulator's default noise: with a LiDAR
+    without noise or systematics seed 61 reads 7.8 (boards 0.5-7.6), without the systematics but
+    with the default noise 34.7 (an earlier, 177-point run). That noise moves each return off its
+    beam (1.6, 1.6 and 10 mm along the board's x, y and normal, the paper's baseline); a LiDAR's
+    returns stay on their beams, and the stage puts them on the plane along their rays, which turns
+    the 10 mm along the normal into in-plane shifts of 10 mm x tan(incidence). The stage's boards
+    read 3.04 in-plane and 7.57 over 6 dof as simulated (0.8 % and 2.4 % beyond the 99.9 % points),
+    3.20 and 6.60 with range noise (0.8 % and 1.4 %; one board of seed 33 left out of these: at
+    3.8 m and 10 mm of noise the small board failed the board tests and the stage took a
+    board-sized patch of no contrast 1.8 m away by its outline, NEES in the millions, which the
+    calibration's corner-order check refuses).
+  - **The held-out gate** (`held_out.held_out_gate`) now counts a board that a model's own
+    chi-square gate dropped as failing under that model. Seed 3 with four boards moved (the test
+    of tests/test_moved_board.py then): under `none` the moved frame 0003 stayed in (held-out chi2
+    35.5) and let the moved frame 0011 pass (13.5), while `range` and `beams` had dropped 0003 and
+    put 0011 at 37.7 and 36.2; the gate asked for a failure under every model, so neither went, and
+    the run exited 3 ("the result uses frames whose image puts the board far from where the scan
+    saw it (0011)"). With the new rule 0003 is dropped first, then 0011, and the result is written
+    at NEES 3.5 (these on the 65-point hexagonal footprint). On the final footprint seed 3 exits 3
+    earlier (the corner order: two extrinsics fit 8 frames
+    each), and the test uses seed 21, where the rule drops the moved 0005 (before, the run wrote
+    from 7 frames with two moved ones in). With four boards moved (the fifth section, 30 sets): 22
+    written, none outside its bound, mean NEES 5.01, 140 of 226 frames used (62 %: the moved ones
+    are a third to a half); before, 21 written, one outside (seed 11, now 4.7), mean 6.61.
+
+The bullets below are the earlier readings, on the 7-point footprint; their figures are those of
+the sections marked 811567b and before.
 
 - **As simulated, 100 sets: over-confident, target not met.** The small board is found and placed
   in almost every frame (988 of 1000 used), but the mean NEES is 7.64 (median 6.76) and 3 of 100
