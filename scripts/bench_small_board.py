@@ -340,13 +340,14 @@ same seeds and the 7-point footprint.
     placed the print's edges by the steps. With a LiDAR without noise or systematics the small
     board's 988 LiDAR fits read in-plane NEES 4.38 (3 when honest), 2.9 % beyond chi2(3)'s 99.9 %
     point; and 6.46 (4.5 %) without intensity noise, where nothing else hides the steps. A footprint
-    of 177 points on a grid read 2.92 (0.3 %), 65 on a hexagonal grid 2.87 (0.2 %; 3.15 and 0.5 %
-    without intensity noise: its rows still step). The footprint is now 128 points on Vogel's
-    spiral and its reflection (`simulate.edges.FOOTPRINT`, used for the intensity and for the mixed
-    returns at the board's outline): within 0.03 of the disc's share for an edge at any angle. The
-    same boards read 2.81 (0.7 % beyond the 99 % point, 0.1 % beyond 99.9 %), and 0.98 without
-    intensity noise (the sampling term's floor then dominates: conservative). A real spot's light is
-    spread, not in 7 lumps: the estimator is unchanged, the simulator was wrong.
+    of 177 points on a grid read 2.92 (0.3 %) and 65 on a hexagonal grid 2.87 (0.2 %), both on seeds
+    0..59; the hexagonal one 3.15 (0.5 %) without intensity noise on seeds 0..99: its rows still
+    step. The footprint is now 128 points on Vogel's spiral and its reflection
+    (`simulate.edges.FOOTPRINT`, used for the intensity and for the mixed returns at the board's
+    outline): within 0.03 of the disc's share for an edge at any angle. The 988 boards read 2.81
+    (0.7 % beyond the 99 % point, 0.1 % beyond 99.9 %), and 0.98 without intensity noise (the
+    sampling term's floor then dominates: conservative). A real spot's light is spread, not in 7
+    lumps: the estimator is unchanged, the simulator was wrong.
   - **The calibrations, 100 sets each, seeds 0..99.** As simulated: mean NEES 6.73 (was 7.64), 1 of
     100 outside its 99.9 % bound (seed 61, 26.5; was 3: seeds 0, 69, 71). Range noise of 10 mm:
     5.19 (was 7.12), 1 of 100 outside (seed 49, 22.9 against the bound 22.46; was seed 55 at 34.7).
@@ -373,9 +374,9 @@ same seeds and the 7-point footprint.
     the run exited 3 ("the result uses frames whose image puts the board far from where the scan
     saw it (0011)"). With the new rule 0003 is dropped first, then 0011, and the result is written
     at NEES 3.5 (these on the 65-point hexagonal footprint). On the final footprint seed 3 exits 3
-    earlier (the corner order: two extrinsics fit 8 frames
-    each), and the test uses seed 21, where the rule drops the moved 0005 (before, the run wrote
-    from 7 frames with two moved ones in). With four boards moved (the fifth section, 30 sets): 22
+    earlier (the corner order: two extrinsics fit 8 frames each), and the test uses seed 21, where
+    the rule drops the moved 0005 (before, the run wrote from 7 frames with two moved ones in). With
+    four boards moved (the fifth section, 30 sets): 22
     written, none outside its bound, mean NEES 5.01, 140 of 226 frames used (62 %: the moved ones
     are a third to a half); before, 21 written, one outside (seed 11, now 4.7), mean 6.61.
 
