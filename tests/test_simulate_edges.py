@@ -11,7 +11,7 @@ import numpy as np
 
 from ilcc_graph.board import Board
 from ilcc_graph.simulate import SceneOptions, SimulationSpec, board_placements, frame_scene
-from ilcc_graph.simulate.edges import SURF_EDGE, edge_returns
+from ilcc_graph.simulate.edges import FOOTPRINT, SURF_EDGE, edge_returns, footprint_points
 from ilcc_graph.simulate.lidar import simulate_scan
 from ilcc_graph.simulate.scene import SURF_BOARD, SURF_WALL, Scene, cast_rays
 
@@ -84,8 +84,6 @@ def test_the_footprint_blends_an_edge_smoothly() -> None:
     blends an edge in a few large steps, which placed the print's edges by the steps: the small
     board's LiDAR fits, without noise, read in-plane NEES 4.4 with 2.9 % beyond chi2(3)'s 99.9 %
     point; 2.8 and 0.1 % with this cover (docs/bench_small_board.md)."""
-    from ilcc_graph.simulate.edges import FOOTPRINT, footprint_points
-
     assert np.allclose(FOOTPRINT.mean(axis=0), 0.0) and np.all(np.hypot(*FOOTPRINT.T) <= 1.0)
     e = np.linspace(-1.0, 1.0, 2001)
     disc = (np.arccos(-e) + e * np.sqrt(1.0 - e * e)) / np.pi  # area of {u < e} over the disc's
