@@ -38,3 +38,23 @@ def test_a_value_outside_a_registry_is_refused_naming_the_registry(tmp_path) -> 
     )  # fmt: skip
     assert run.returncode == 2, run.stderr
     assert "invalid choice: 'isam'" in run.stderr and "'graph', 'paper'" in run.stderr, run.stderr
+
+
+def test_building_the_parser_reads_no_registry_until_asked() -> None:
+    """The registries import the solvers and the simulator (seconds): building the parser, which every
+    command does before its first worker can start, imports none of them; the help lists them."""
+    code = (
+        "import sys\n"
+        "from ilcc_graph.app.parser import build_parser\n"
+        "p = build_parser()\n"
+        "heavy = [m for m in ('ilcc_graph.run.strategies', 'ilcc_graph.estimation',\n"
+        "                     'ilcc_graph.simulate.rig_spec', 'ilcc_graph.simulate.frames',\n"
+        "                     'ilcc_graph.exports', 'gtsam', 'scipy.spatial') if m in sys.modules]\n"
+        "print(heavy)\n"
+        "p.parse_args(['simulate-rig', '--help'])\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    first, help_text = run.stdout.split("\n", 1)
+    assert first == "[]", first
+    assert "ring-fisheye" in help_text and "backpack" in help_text, help_text

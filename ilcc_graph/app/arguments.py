@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from ilcc_graph.app.console import COUNT, NON_NEGATIVE, POSITIVE, Choices
+from ilcc_graph.app.console import COUNT, NON_NEGATIVE, POSITIVE, lazy_choices
 
 __all__ = [
     "BAG_OPTIONS",
@@ -78,7 +78,7 @@ def _refinements() -> tuple[str, ...]:
 
 def add_sensor_model_argument(sp: argparse.ArgumentParser) -> None:
     """--sensor-model (``estimation.selection``)."""
-    sp.add_argument("--sensor-model", choices=Choices(_sensor_models), default="auto", help=SENSOR_MODEL_HELP)
+    lazy_choices(sp.add_argument("--sensor-model", default="auto", help=SENSOR_MODEL_HELP), _sensor_models)
 
 
 def add_solve_arguments(sp: argparse.ArgumentParser, studies: bool = False) -> None:
@@ -86,7 +86,7 @@ def add_solve_arguments(sp: argparse.ArgumentParser, studies: bool = False) -> N
     offset), the per-frame stages and the report; ``studies``: the report's studies by default."""
     sp.add_argument("--out", help="output folder (default: out/<timestamp>, linked as out/latest)")
     help = "graph: our factor graph with covariance (default); paper: the paper's refinement"
-    sp.add_argument("--refine", choices=Choices(_refinements), default="graph", help=help)
+    lazy_choices(sp.add_argument("--refine", default="graph", help=help), _refinements)
     help = "robust kernel on the bearing factors (default: none, least squares with the chi-square gate)"
     sp.add_argument("--robust", choices=("huber", "cauchy"), help=help)
     add_sensor_model_argument(sp)

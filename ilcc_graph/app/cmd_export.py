@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ilcc_graph.app.console import Choices
+from ilcc_graph.app.console import lazy_choices
 from ilcc_graph.errors import InputError
 
 if TYPE_CHECKING:
@@ -30,7 +30,7 @@ def _formats() -> tuple[str, ...]:
 def add_arguments(sp: argparse.ArgumentParser) -> None:
     sp.add_argument("calibration", metavar="CALIBRATION", help="a calibration.yaml (of a pair or a rig)")
     help = "a rig's calibration: ros-tf (a launch file), urdf, kalibr or json (docs/rig.md)"
-    sp.add_argument("--format", required=True, choices=Choices(_formats), help=help)
+    lazy_choices(sp.add_argument("--format", required=True, help=help), _formats)
     sp.add_argument("--out", help="file to write (default: standard output)")
     sp.add_argument("--parent", choices=("lidar", "camera"), help="ros-tf: the parent frame (default lidar)")
     sp.add_argument("--lidar-frame", help="ros-tf: the LiDAR's frame id (default lidar)")

@@ -7,18 +7,23 @@ from __future__ import annotations
 
 import argparse
 
-from ilcc_graph.app.console import COUNT, NON_NEGATIVE, PIXELS, SEED, Progress
+from ilcc_graph.app.console import COUNT, NON_NEGATIVE, PIXELS, SEED, Progress, lazy_choices
 
 __all__ = ["HELP", "add_arguments", "run"]
 
 HELP = "write a simulated data set with ground truth"
 
 
+def _intensity_fields() -> tuple[str, ...]:
+    from ilcc_graph.simulate.spec import INTENSITY_FIELDS
+
+    return tuple(INTENSITY_FIELDS)
+
+
 def add_arguments(sp: argparse.ArgumentParser) -> None:
     from ilcc_graph.cameras import camera_kinds
     from ilcc_graph.io.pcd import PCD_STYLES
     from ilcc_graph.lidars.tables import MODEL_NAMES as LIDAR_NAMES
-    from ilcc_graph.simulate.spec import INTENSITY_FIELDS
 
     sp.add_argument("out", metavar="OUT")
     lidars = [m for m in LIDAR_NAMES if m != "generic"]
@@ -58,7 +63,7 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
         "what the scans' intensity holds: print (default), invisible (a print the LiDAR cannot see), "
         "zero, none (no intensity field: x y z only), ring (the ring number)"
     )
-    sp.add_argument("--intensity-field", default="print", choices=INTENSITY_FIELDS, help=help)
+    lazy_choices(sp.add_argument("--intensity-field", default="print", help=help), _intensity_fields)
     sp.add_argument(
         "--no-ring-field", dest="ring_field", action="store_false", help="scans without a ring field"
     )

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from ilcc_graph.app.console import COUNT, PIXELS, SEED, Progress
+from ilcc_graph.app.console import COUNT, PIXELS, SEED, Progress, lazy_choices
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -27,13 +27,16 @@ def _triple(text: str) -> tuple[float, float, float]:
     return x[0], x[1], x[2]
 
 
-def add_arguments(sp: argparse.ArgumentParser) -> None:
+def _presets() -> tuple[str, ...]:
     from ilcc_graph.simulate.rig_spec import RIG_PRESETS
 
+    return tuple(RIG_PRESETS)
+
+
+def add_arguments(sp: argparse.ArgumentParser) -> None:
     sp.add_argument("out", metavar="OUT")
-    presets = list(RIG_PRESETS)
-    help = f"{', '.join(presets)} (default ring-fisheye; docs/rig.md)"
-    sp.add_argument("--rig", default="ring-fisheye", choices=presets, metavar="PRESET", help=help)
+    help = "%(choices)s (default ring-fisheye; docs/rig.md)"
+    lazy_choices(sp.add_argument("--rig", default="ring-fisheye", metavar="PRESET", help=help), _presets)
     sp.add_argument("--moments", type=COUNT, default=12, help="board placements (default 12)")
     sp.add_argument("--seed", type=SEED, default=0, help="the simulation's seed (default 0)")
     sp.add_argument("--width", type=PIXELS, default=None, help="image width (default: the preset's)")

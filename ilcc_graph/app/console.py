@@ -49,6 +49,7 @@ __all__ = [
     "POSITIVE",
     "RATE",
     "SEED",
+    "lazy_choices",
     "Progress",
     "report_bug",
     "run_command",
@@ -101,7 +102,8 @@ RATE = _number(float, 1e-12, "a number between 0 and 1", 1 - 1e-12)
 
 class Choices(Sequence[str]):
     """An argparse ``choices`` read from its registry when first needed (a value checked, the help
-    shown), so that building the parser imports no registry: ``Choices(lambda: FORMATS)``."""
+    shown), so that building the parser imports no registry: ``lazy_choices(sp.add_argument(...),
+    lambda: FORMATS)``."""
 
     def __init__(self, table: Callable[[], Sequence[str]]) -> None:
         self._table = table
@@ -120,6 +122,14 @@ class Choices(Sequence[str]):
 
     def __contains__(self, value: object) -> bool:
         return value in self._names()
+
+
+def lazy_choices(action: argparse.Action, table: Callable[[], Sequence[str]]) -> argparse.Action:
+    """``action`` with its choices read from ``table`` when first needed (``Choices``); set after
+    ``add_argument``, whose own check of the help's format would read them at once (the registries
+    import the solvers: 1.5 s before the first worker could start)."""
+    action.choices = Choices(table)
+    return action
 
 
 def DEG_MM(text: str) -> tuple[float, float]:  # noqa: N802 - an argparse type, named like the others
