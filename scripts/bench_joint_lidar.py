@@ -7,10 +7,14 @@ poses each (graph-level frames with their returns, tests/test_lidar_errors.py's 
 (``estimation.sessions.solve_sessions``, rigid, the sensor model chosen among none / range / beams as
 ``calibrate`` chooses it, the LiDAR's terms shared) and each alone; the NEES of T_cam_lidar (6 dof)
 against the truth and the 95 % coverage (NEES under the chi-square 95 % quantile, 12.59) are counted.
-Targets (issue 34): mean NEES 4.5-7.5, coverage 90-98 %.
+Targets (issue 34): mean NEES 4.5-7.5, coverage 90-98 %. The boards are ideal unless
+``--board-beam-mm`` (each beam's own offset on each board, as the recorded rigs show), ``--plane-mm``
+or ``--tilt-deg`` (each board's face off its frame's plane) give them their own effects. Each run also
+reports the chosen model's own covariance scaled by its boards' jackknife spread (a diagnostic).
 
-Run: ``nice python3 scripts/bench_joint_lidar.py [--runs 50] [--seed 0] [--write]`` (``--write``: the
-table into docs/bench_joint_lidar.md between its markers; the doc's hand-written text is kept).
+Run: ``nice python3 scripts/bench_joint_lidar.py [--runs 50] [--seed 0] [--board-beam-mm 2.5] [--write]``
+(``--write``: the table into docs/bench_joint_lidar.md between its markers, those of the boards with
+their own effects when given; the doc's hand-written text is kept).
 """
 
 from __future__ import annotations
@@ -31,6 +35,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 from test_lidar_errors import CAMERA, T_TRUE, lidar_frames  # noqa: E402
 
 from ilcc_graph.estimation.chi2 import ppf as chi2_ppf  # noqa: E402
+from ilcc_graph.estimation.held_out import held_out  # noqa: E402
+from ilcc_graph.estimation.noise import Solution  # noqa: E402
 from ilcc_graph.estimation.selection import AUTO  # noqa: E402
 from ilcc_graph.estimation.sessions import JointOptions, Session, solve_sessions  # noqa: E402
 from ilcc_graph.types import Estimate  # noqa: E402
@@ -45,13 +51,16 @@ def nees(e: Estimate) -> float:
     return float(xi @ np.linalg.solve(e.covariance, xi))
 
 
-def sessions(rng: np.random.Generator, offsets: np.ndarray, frames: int) -> list[Session]:
-    """Three sessions of one rig and one LiDAR, each its own board poses."""
+def sessions(rng: np.random.Generator, offsets: np.ndarray, args: argparse.Namespace) -> list[Session]:
+    """Three sessions of one rig and one LiDAR, each its own board poses (``args``: frames and the
+    boards' own effects)."""
     out = []
+    plane = np.array([1e-3 * args.plane_mm, np.radians(args.tilt_deg)])
     for name in "ABC":
         while True:  # a board between two beams' cones gives no returns: draw again
             try:
-                fr = lidar_frames(rng, frames, offsets)[0]
+                fr = lidar_frames(rng, args.frames, offsets, board_beam_m=1e-3 * args.board_beam_mm,
+                                  plane_sd=plane)[0]  # fmt: skip
                 break
             except ValueError:
                 continue
@@ -60,18 +69,32 @@ def sessions(rng: np.random.Generator, offsets: np.ndarray, frames: int) -> list
     return out
 
 
+def jackknife_ratio(sol: Solution, C: np.ndarray) -> float:
+    """``trace(C^-1 V) / 6``: the extrinsic's leave-one-board-out (jackknife) covariance ``V``, from
+    what taking each board's image out moves it (``held_out``'s shifts), against its covariance ``C``
+    (1 when ``C`` is the spread the boards give; a diagnostic, not a step of the solve)."""
+    S = np.array([h.shift for h in held_out(sol, 0).values()])
+    n = len(S)
+    V = (n - 1) / n * (S - S.mean(axis=0)).T @ (S - S.mean(axis=0))
+    return float(np.trace(np.linalg.solve(C, V)) / 6)
+
+
 def one_run(seed: int, args: argparse.Namespace) -> dict:
     """One Monte Carlo run: the joint's and each session's NEES, the model chosen, the global test."""
     rng = np.random.default_rng(seed)
     offsets = 1e-3 * (args.offset_mm + rng.normal(0, args.beam_mm, 16))
     t0 = time.perf_counter()
-    sol = solve_sessions(sessions(rng, offsets, args.frames), JointOptions(models=AUTO))
+    sol = solve_sessions(sessions(rng, offsets, args), JointOptions(models=AUTO))
     assert sol.selection is not None
     g = sol.global_test
     assert sol.solution is not None
+    own = sol.solution.extrinsic(0)
+    r = jackknife_ratio(sol.solution, own.covariance)
     return {
         "joint": nees(sol.joint),
-        "joint_own": nees(sol.solution.extrinsic(0)),
+        "joint_own": nees(own),
+        "jackknife_ratio": r,
+        "joint_jackknife": nees(Estimate(own.T, max(1.0, r) * own.covariance)),
         "averaged": bool(sol.selection.averaged),
         "alone": [nees(e) for e in sol.alone.values()],
         "model": sol.selection.chosen,
@@ -90,16 +113,33 @@ def interval(x: np.ndarray) -> str:
     return f"{m:.2f} ({m - 1.96 * s:.2f} .. {m + 1.96 * s:.2f})"
 
 
+def board_effects(args: argparse.Namespace) -> str:
+    """The boards' own effects the runs simulate, as a clause of the summary."""
+    parts = [
+        f"each board's face off its plane (sd {args.plane_mm:g} mm)" if args.plane_mm else "",
+        f"each board's face tilted (sd {args.tilt_deg:g} deg)" if args.tilt_deg else "",
+        f"each beam its own offset on each board (sd {args.board_beam_mm:g} mm)"
+        if args.board_beam_mm
+        else "",
+    ]
+    said = [p for p in parts if p]
+    ideal = "; ideal boards (flat, no beam's offset changing from board to board)"
+    return "; " + ", ".join(said) if said else ideal
+
+
 def summary(runs: list[dict], args: argparse.Namespace) -> str:
     """The figures as a markdown section."""
     joint = np.array([r["joint"] for r in runs])
     alone = np.array([a for r in runs for a in r["alone"]])
     own = np.array([r["joint_own"] for r in runs])
+    jack = np.array([r["joint_jackknife"] for r in runs])
     models = Counter(r["model"] for r in runs)
     lines = [
         f"{len(runs)} runs (seeds {args.seed}..{args.seed + len(runs) - 1}), 3 sessions of {args.frames} "
         f"boards each; the LiDAR reads {args.offset_mm:g} mm long, per-beam sd {args.beam_mm:g} mm, "
-        "4 mm on black print; sensor model chosen among none / range / beams.",
+        "4 mm on black print"
+        + board_effects(args)
+        + "; sensor model chosen among none / range / beams.",
         "",
         "| estimate | count | mean NEES (95 % interval of the mean) | 95 % coverage | mean sigma tz (mm) |",
         "|---|---|---|---|---|",
@@ -108,6 +148,10 @@ def summary(runs: list[dict], args: argparse.Namespace) -> str:
         "| joint, the chosen model's own covariance (not averaged, without its held-out factor) | "
         f"{len(own)} | "
         f"{interval(own)} | {100 * np.mean(own < Q95):.1f} % | |",
+        "| joint, the chosen model's own covariance times max(1, r), r its boards' jackknife spread "
+        f"against it (mean r {np.mean([r['jackknife_ratio'] for r in runs]):.2f}; a diagnostic) "
+        f"| {len(jack)} | "
+        f"{interval(jack)} | {100 * np.mean(jack < Q95):.1f} % | |",
         f"| each session alone | {len(alone)} | {interval(alone)} | {100 * np.mean(alone < Q95):.1f} % | "
         f"{np.mean([r['alone_sigma_tz_mm'] for r in runs]):.2f} |",
         "",
@@ -141,6 +185,10 @@ def main() -> int:
     p.add_argument("--frames", type=int, default=10)
     p.add_argument("--offset-mm", type=float, default=20.0)
     p.add_argument("--beam-mm", type=float, default=4.0)
+    help = "sd of each beam's extra range offset on each board (mm; the recorded rigs': 2.4-3.0)"
+    p.add_argument("--board-beam-mm", type=float, default=0.0, help=help)
+    p.add_argument("--plane-mm", type=float, default=0.0, help="sd of each board's face off its plane (mm)")
+    p.add_argument("--tilt-deg", type=float, default=0.0, help="sd of each board's face's tilts (deg)")
     p.add_argument("--write", action="store_true")
     args = p.parse_args()
     runs = []
@@ -156,7 +204,9 @@ def main() -> int:
     text = summary(runs, args)
     print(text)
     if args.write:  # between the doc's markers: its hand-written text around them is kept
-        write_between(DOC, "<!-- bench_joint_lidar:begin -->", "<!-- bench_joint_lidar:end -->", text)
+        boards = args.plane_mm or args.tilt_deg or args.board_beam_mm
+        tag = "bench_joint_lidar_boards" if boards else "bench_joint_lidar"
+        write_between(DOC, f"<!-- {tag}:begin -->", f"<!-- {tag}:end -->", text)
         print(f"wrote {DOC}")
     return 0
 

@@ -104,15 +104,20 @@ def test_board_plane_whitening_is_the_dense_covariance() -> None:
     assert r_plane @ r_plane < r_plain @ r_plain
 
 
-def lidar_frames(rng, n_frames, beam_offsets, dark_offset=0.004, sigma_m=0.01, distance=(1.5, 3.5)):
-    """Frames whose boards carry returns with per-beam range offsets (VLP-16 beams), seen by CAMERA."""
+def lidar_frames(rng, n_frames, beam_offsets, dark_offset=0.004, sigma_m=0.01, distance=(1.5, 3.5),
+                 board_beam_m=0.0, plane_sd=(0.0, 0.0)):  # fmt: skip
+    """Frames whose boards carry returns with per-beam range offsets (VLP-16 beams), seen by CAMERA;
+    ``board_beam_m``: sd of each beam's extra offset on each board; ``plane_sd``: (m, rad) sd of each
+    board's face off its frame's plane (offset, each tilt). Nothing more is drawn when they are 0."""
     frames, truth = [], {}
     while len(frames) < n_frames:
         T_lb = random_board_pose(rng, BOARD, distance=distance)
         obs = observe(rng, CAMERA, T_TRUE, T_lb, BOARD.corners_board(), 0.5)
         if obs is None:
             continue
-        returns, T_meas, cov = board_returns(rng, T_lb, BOARD, VLP16, beam_offsets, dark_offset, sigma_m)
+        bend = tuple(rng.normal(0, np.asarray(plane_sd)[[0, 1, 1]])) if np.any(plane_sd) else (0.0, 0.0, 0.0)
+        returns, T_meas, cov = board_returns(rng, T_lb, BOARD, VLP16, beam_offsets, dark_offset, sigma_m,
+                                             bend=bend, beam_jitter_m=board_beam_m)  # fmt: skip
         if len(np.unique(returns.ring)) < 4:
             continue
         name = f"{len(frames):04d}"
