@@ -76,5 +76,10 @@ def test_verify_does_not_fail_an_unchanged_ring_on_one_board_per_camera(ring, tm
     assert code != 5, {s: c["reason"] for s, c in doc["sensors"].items()}
     # the capture's LiDAR errors are modelled as the stored calibration chose (its model re-chosen on four
     # boards, one per camera, was the range model, whose offset moved every camera ~155 mm: exit 5)
-    stored_model = yaml.safe_load(stored.read_text())["sensor_model"]["chosen"]
+    stored_doc = yaml.safe_load(stored.read_text())
+    stored_model = stored_doc["sensor_model"]["chosen"]
     assert any(stored_model in n for n in doc["notes"]), doc["notes"]
+    # the first camera's change is tested net of the LiDAR's range terms both solves estimated, as a
+    # pair's is (the calibration keeps that camera's pose with the terms)
+    assert stored_doc["extrinsic_with_lidar_terms"]["camera"] == "front"
+    assert any("LiDAR's own range terms" in n for n in doc["notes"]), doc["notes"]

@@ -51,6 +51,7 @@ from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import ORDER_INCONSISTENT, CalibrationImpossible
 from ilcc_graph.estimation import chi2
 from ilcc_graph.estimation.keys import POSE3_DOF
+from ilcc_graph.estimation.next_board import solved_globals
 from ilcc_graph.estimation.rig_solve import RigOptions, RigSolution, solve_rig, to_reference
 from ilcc_graph.estimation.sessions import compare_estimates
 from ilcc_graph.init.rig_start import RigStart, StartOptions, adjoint, place_boards
@@ -263,10 +264,14 @@ def verify_rig(
     lidars: Sequence[str],
     cameras: Mapping[str, CameraModel],
     options: VerifyOptions = VerifyOptions(),
+    terms: tuple[str, PoseTerms] | None = None,
 ) -> VerifyResult:
     """Check every sensor of a stored calibration against a new capture's stages' answers
     (``moments``), module docstring. ``lidars`` (the first is the graph's base) and ``cameras`` are
-    the rig's; sensors missing from ``stored`` are a ValueError."""
+    the rig's; sensors missing from ``stored`` are a ValueError. ``terms``: (camera, its stored pose
+    in the base LiDAR's frame with that LiDAR's range terms), the stored calibration's first camera:
+    when the capture's solve has the terms too, that camera's change is tested net of them
+    (``net_of_terms``, as ``verify_pair`` does; the global test stays on the poses alone)."""
     missing = [s for s in (*lidars, *cameras) if s not in stored.sensors]
     if missing:
         raise ValueError(
@@ -301,13 +306,40 @@ def verify_rig(
             why = "not seen by the capture" if not seen else (sol.unsolved.get(s) if sol else notes[0])
             checks[s] = _unchecked(s, "warn", f"unchecked: {why}", len(kept))
         else:
-            d, C = compare_estimates(stored.pose(s), sol.pose(s))  # type: ignore[union-attr]
+            assert sol is not None
+            d, C = compare_estimates(stored.pose(s), sol.pose(s))
+            if terms is not None and s == terms[0]:
+                d, C = _net(d, C, terms[1], _new_terms(sol, s, list(cameras), stored.reference), alpha, notes)
             checks[s] = _check(s, d, C, alpha, options, len(kept))
     glob = None
     if sol is not None and solved:
         glob = _global_test(stored, sol, solved)
     worst = max((VERDICTS.index(c.verdict) for c in checks.values()), default=1)
     return VerifyResult(VERDICTS[worst], stored.reference, checks, alpha, glob, sol, RULE, notes)
+
+
+def _new_terms(sol: RigSolution, camera: str, cameras: Sequence[str], reference: str) -> PoseTerms | None:
+    """The capture's pose of ``camera`` in the base LiDAR's frame with that LiDAR's range terms, when
+    its solve has them, the camera is the graph's first extrinsic (``X(0)``: the first of the rig's
+    ``cameras`` it solved) and the base LiDAR is the ``reference``; else None."""
+    solved = [c for c in cameras if c in sol.sensors]
+    if sol.solution is None or not solved or solved[0] != camera or sol.base != reference:
+        return None
+    factor = 1.0 if sol.selection is None else sol.selection.factor
+    got = solved_globals(sol.solution).pose_terms(factor)
+    return None if got is None else got.inverse()
+
+
+def _net(
+    d: np.ndarray, C: np.ndarray, stored: PoseTerms, new: PoseTerms | None, alpha: float, notes: list[str]
+) -> tuple[np.ndarray, np.ndarray]:
+    """A change ``(d, C)`` net of the LiDAR's range terms both solves have (``net_of_terms``, its
+    note added to ``notes``); as given when they share none or the terms changed."""
+    net = None if new is None else net_of_terms(stored, new, alpha)
+    if net is None:
+        return d, C
+    notes.append(net[2])
+    return (d, C) if net[0] is None or net[1] is None else (net[0], net[1])
 
 
 def verify_pair(
@@ -335,12 +367,8 @@ def verify_pair(
         )
     d, C = compare_estimates(stored.pose(sensor), new)
     notes = list(notes)
-    if terms[0] is not None and terms[1] is not None:
-        net = net_of_terms(terms[0], terms[1], options.alpha)
-        if net is not None:
-            notes.append(net[2])
-            if net[0] is not None and net[1] is not None:
-                d, C = net[0], net[1]
+    if terms[0] is not None:
+        d, C = _net(d, C, terms[0], terms[1], options.alpha, notes)
     check = _check(sensor, d, C, options.alpha, options, boards)
     glob = (check.chi2, POSE3_DOF, check.p_value)
     sensors = {sensor: check}

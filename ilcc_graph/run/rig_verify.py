@@ -162,7 +162,10 @@ def verify_capture(
     cams = {c: cam for c in rig.cameras if (cam := rig.sensor(c).camera) is not None}
     solve_with = _stored_model(stored, options)
     moments, corrected = _on_corrected_ranges(stored, src, obs, stages)
-    res = verify_rig(stored, moments, rig.board, list(rig.lidars), cams, solve_with)
+    terms = None  # the stored first camera's pose with the base LiDAR's terms: its check net of them
+    if isinstance(stored, StoredCalibration) and stored.terms is not None:
+        terms = (stored.terms_of[0], stored.terms) if stored.terms_of[1] == rig.lidars[0] else None
+    res = verify_rig(stored, moments, rig.board, list(rig.lidars), cams, solve_with, terms)
     if solve_with is not options:
         model = solve_with.rig.models[0]
         res.notes.append(f"the capture's LiDAR errors modelled as the calibration chose: {model}")
