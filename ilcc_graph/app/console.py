@@ -127,7 +127,7 @@ class Choices(Sequence[str]):
 def lazy_choices(action: argparse.Action, table: Callable[[], Sequence[str]]) -> argparse.Action:
     """``action`` with its choices read from ``table`` when first needed (``Choices``); set after
     ``add_argument``, whose own check of the help's format would read them at once (the registries
-    import the solvers: 1.5 s before the first worker could start)."""
+    import the solvers: about 1.3 s before the first worker could start)."""
     action.choices = Choices(table)
     return action
 
