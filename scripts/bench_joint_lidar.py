@@ -35,8 +35,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from test_lidar_errors import CAMERA, T_TRUE, lidar_frames  # noqa: E402
 
 from ilcc_graph.estimation.chi2 import ppf as chi2_ppf  # noqa: E402
-from ilcc_graph.estimation.held_out import held_out  # noqa: E402
-from ilcc_graph.estimation.noise import Solution  # noqa: E402
+from ilcc_graph.estimation.held_out import board_spread, held_out  # noqa: E402
 from ilcc_graph.estimation.selection import AUTO  # noqa: E402
 from ilcc_graph.estimation.sessions import JointOptions, Session, solve_sessions  # noqa: E402
 from ilcc_graph.types import Estimate  # noqa: E402
@@ -69,16 +68,6 @@ def sessions(rng: np.random.Generator, offsets: np.ndarray, args: argparse.Names
     return out
 
 
-def jackknife_ratio(sol: Solution, C: np.ndarray) -> float:
-    """``trace(C^-1 V) / 6``: the extrinsic's leave-one-board-out (jackknife) covariance ``V``, from
-    what taking each board's image out moves it (``held_out``'s shifts), against its covariance ``C``
-    (1 when ``C`` is the spread the boards give; a diagnostic, not a step of the solve)."""
-    S = np.array([h.shift for h in held_out(sol, 0).values()])
-    n = len(S)
-    V = (n - 1) / n * (S - S.mean(axis=0)).T @ (S - S.mean(axis=0))
-    return float(np.trace(np.linalg.solve(C, V)) / 6)
-
-
 def one_run(seed: int, args: argparse.Namespace) -> dict:
     """One Monte Carlo run: the joint's and each session's NEES, the model chosen, the global test."""
     rng = np.random.default_rng(seed)
@@ -89,7 +78,7 @@ def one_run(seed: int, args: argparse.Namespace) -> dict:
     g = sol.global_test
     assert sol.solution is not None
     own = sol.solution.extrinsic(0)
-    r = jackknife_ratio(sol.solution, own.covariance)
+    r = board_spread(held_out(sol.solution, 0), own.covariance)["jackknife"]
     return {
         "joint": nees(sol.joint),
         "joint_own": nees(own),

@@ -14,7 +14,7 @@ from test_lidar_errors import CAMERA, T_TRUE, lidar_frames, nees
 from ilcc_graph.app import main
 from ilcc_graph.errors import IndeterminateSystem
 from ilcc_graph.estimation import NoiseOptions, solve, solve_problem
-from ilcc_graph.estimation.held_out import held_out
+from ilcc_graph.estimation.held_out import board_spread, held_out
 from ilcc_graph.estimation.keys import X
 from ilcc_graph.estimation.model_solves import select_model
 from ilcc_graph.estimation.problem import frames_problem
@@ -56,6 +56,15 @@ def test_held_out_board_is_the_re_solve_without_its_view() -> None:
         )
         moved = np.asarray(sol.values.atPose3(X(0)).localCoordinates(re.values.atPose3(X(0))))
         assert np.all(np.abs(moved - ho[k].shift) < 0.05 * sigma), (moved, ho[k].shift, sigma)
+        # its leverage: the share of the extrinsic's information the view takes with it
+        C_all = sol.extrinsic().covariance / sol.variance_factor
+        lev = 1.0 - np.trace(np.linalg.solve(re.extrinsic().covariance, C_all)) / 6
+        assert 0.0 < ho[k].leverage < 1.0 and ho[k].leverage == pytest.approx(lev, abs=0.005), (ho[k], lev)
+    # the boards spread the extrinsic as its covariance says (a fixed seed; 1 when honest)
+    spread = board_spread(ho, sol.extrinsic().covariance)
+    assert 0.4 < spread["hc2"] < 2.5 and 0.4 < spread["jackknife"] < 2.5, spread
+    # only the views inform the extrinsic here: their shares sum to all of its information
+    assert sum(h.leverage for h in ho.values()) == pytest.approx(1.0, abs=1e-6)
 
 
 def test_a_range_offset_is_chosen_and_no_error_keeps_none() -> None:

@@ -34,18 +34,20 @@ from ilcc_graph.estimation.keys import POSE3_DOF, B, X
 from ilcc_graph.estimation.linear import reduce
 from ilcc_graph.estimation.noise import Solution
 
-__all__ = ["HELD_OUT_GATE", "HeldOut", "held_out", "held_out_gate", "image_alone"]
+__all__ = ["HELD_OUT_GATE", "HeldOut", "board_spread", "held_out", "held_out_gate", "image_alone"]
 
 
 @dataclass(frozen=True)
 class HeldOut:
     """Board k's image held out: chi2 ``d^T S^-1 d`` (6 dof when the model is right), ``log det S``
     and the log density ``-1/2 (chi2 + log det S)`` (up to a constant common to every model);
-    shift: (6,) what taking the view out moves the extrinsic (Pose3 tangent)."""
+    shift: (6,) what taking the view out moves the extrinsic (Pose3 tangent); leverage: the view's
+    share of the extrinsic's information, ``1 - trace(C_without^-1 C) / 6`` (0 .. 1)."""
 
     chi2: float
     logdet: float
     shift: np.ndarray
+    leverage: float = float("nan")
 
     @property
     def log_density(self) -> float:
@@ -113,8 +115,33 @@ def held_out(sol: Solution, e: int = 0) -> dict[int, HeldOut]:
         T_img, C_img = image_alone(views[k], pred)
         d = np.asarray(pred.localCoordinates(T_img), dtype=np.float64)
         S = C_img + C_pred
-        out[k] = HeldOut(float(d @ np.linalg.solve(S, d)), float(np.linalg.slogdet(S)[1]), delta[POSE3_DOF:])
+        C_x = sol.variance_factor * S_inv[np.ix_(c, c)]  # the extrinsic's, with the view
+        lev = 1.0 - float(np.trace(np.linalg.solve(C[POSE3_DOF:, POSE3_DOF:], C_x))) / POSE3_DOF
+        chi2 = float(d @ np.linalg.solve(S, d))
+        out[k] = HeldOut(chi2, float(np.linalg.slogdet(S)[1]), delta[POSE3_DOF:], lev)
     return out
+
+
+def board_spread(scores: Mapping[int, HeldOut], covariance: np.ndarray) -> dict[str, float]:
+    """How far the boards move the extrinsic against its ``covariance`` (6, 6), from each board's
+    held-out ``scores`` (``held_out``): ``trace(C^-1 V) / 6`` for V the leave-one-board-out (jackknife)
+    covariance and for its leverage-corrected form (HC2, ``sum (1 - h_k) s_k s_k^T``); about 1 when
+    the covariance is the spread the boards give. A diagnostic (scripts/bench_joint_lidar.py,
+    scripts/board_spread.py), not a step of any solve. Also the largest leverage and shift (m)."""
+    S = np.array([h.shift for h in scores.values()])
+    lev = np.array([h.leverage for h in scores.values()])
+    n = len(S)
+    if n < 2:
+        return dict.fromkeys(("jackknife", "hc2", "leverage_max", "shift_max_m"), float("nan"))
+    Sc = S - S.mean(axis=0)
+    C = np.asarray(covariance, dtype=np.float64)
+    V_jack, V_hc2 = (n - 1) / n * Sc.T @ Sc, (S * (1.0 - lev)[:, None]).T @ S
+    return {
+        "jackknife": float(np.trace(np.linalg.solve(C, V_jack)) / POSE3_DOF),
+        "hc2": float(np.trace(np.linalg.solve(C, V_hc2)) / POSE3_DOF),
+        "leverage_max": float(lev.max()),
+        "shift_max_m": float(np.linalg.norm(S[:, 3:], axis=1).max()),
+    }
 
 
 #: a board is dropped when its image, predicted from the other boards and its own LiDAR data, lies
