@@ -7,7 +7,8 @@ against that model's own covariance, and the chosen model's against the reported
 1 when the covariance is the spread the boards give. The held-out factor (``selection``) is shown
 beside them. A diagnostic: docs/bench_joint_lidar.md reads it.
 
-Run: ``python scripts/board_spread.py ../shared/data/acfr-vlp16-fisheye ../shared/data/acfr-os1-fisheye``.
+Run: ``OPENBLAS_NUM_THREADS=1 python scripts/board_spread.py ../shared/data/acfr-vlp16-fisheye
+../shared/data/acfr-os1-fisheye`` (one BLAS thread, as the command line runs).
 """
 
 from __future__ import annotations
