@@ -42,11 +42,12 @@ from ilcc_graph.estimation.geometry import same_pose
 from ilcc_graph.estimation.keys import POSE3_DOF, X
 from ilcc_graph.estimation.kinds.lidar_boards import LidarBoard, LidarBoards
 from ilcc_graph.estimation.model_solves import select_model
+from ilcc_graph.estimation.next_board import solved_globals
 from ilcc_graph.estimation.noise import NoiseOptions, Solution
 from ilcc_graph.estimation.problem import BoardPrior, Problem, View
 from ilcc_graph.estimation.selection import AUTO, MODELS, Selection, SensorModel, mixture
 from ilcc_graph.init.rig_start import RigStart, adjoint, orient_moment
-from ilcc_graph.types import Estimate, MomentResult
+from ilcc_graph.types import Estimate, MomentResult, PoseTerms
 
 __all__ = ["RigOptions", "RigSolution", "between", "rig_problem", "solve_rig", "to_reference"]
 
@@ -151,6 +152,19 @@ class RigSolution:
         """``T_a_b`` (``p_a = T_a_b p_b``) with its covariance (e.g. ``relative(cam, lidar)`` is the
         pair's ``T_cam_lidar``)."""
         return between(self.T_ref_sensor[a], self.T_ref_sensor[b], self.joint([a, b]))
+
+    def first_camera_terms(self, cameras: Sequence[str]) -> tuple[str, PoseTerms] | None:
+        """(the first of the rig's ``cameras``, its ``T_camera_lidar`` in the base LiDAR's frame with
+        that LiDAR's range terms), the covariance times the chosen model's held-out factor as a pair's
+        ``Calibration.with_terms`` (``next_board.solved_globals``: the graph's extrinsic ``X(0)`` is
+        the first camera solved, the terms ``L(0)``); None without terms or when that camera is not
+        solved."""
+        solved = [c for c in cameras if c in self.sensors]
+        if self.solution is None or not solved or solved[0] != cameras[0]:
+            return None
+        factor = 1.0 if self.selection is None else self.selection.factor
+        terms = solved_globals(self.solution).pose_terms(factor)
+        return None if terms is None else (solved[0], terms)
 
     def in_frame(self, reference: str) -> RigSolution:
         """The same answer with every pose in sensor ``reference``'s frame."""

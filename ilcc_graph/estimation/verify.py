@@ -51,7 +51,6 @@ from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import ORDER_INCONSISTENT, CalibrationImpossible
 from ilcc_graph.estimation import chi2
 from ilcc_graph.estimation.keys import POSE3_DOF
-from ilcc_graph.estimation.next_board import solved_globals
 from ilcc_graph.estimation.rig_solve import RigOptions, RigSolution, solve_rig, to_reference
 from ilcc_graph.estimation.sessions import compare_estimates
 from ilcc_graph.init.rig_start import RigStart, StartOptions, adjoint, place_boards
@@ -309,25 +308,15 @@ def verify_rig(
             assert sol is not None
             d, C = compare_estimates(stored.pose(s), sol.pose(s))
             if terms is not None and s == terms[0]:
-                d, C = _net(d, C, terms[1], _new_terms(sol, s, list(cameras), stored.reference), alpha, notes)
+                got = sol.first_camera_terms(list(cameras)) if sol.base == stored.reference else None
+                new = got[1].inverse() if got is not None and got[0] == s else None
+                d, C = _net(d, C, terms[1], new, alpha, notes)
             checks[s] = _check(s, d, C, alpha, options, len(kept))
     glob = None
     if sol is not None and solved:
         glob = _global_test(stored, sol, solved)
     worst = max((VERDICTS.index(c.verdict) for c in checks.values()), default=1)
     return VerifyResult(VERDICTS[worst], stored.reference, checks, alpha, glob, sol, RULE, notes)
-
-
-def _new_terms(sol: RigSolution, camera: str, cameras: Sequence[str], reference: str) -> PoseTerms | None:
-    """The capture's pose of ``camera`` in the base LiDAR's frame with that LiDAR's range terms, when
-    its solve has them, the camera is the graph's first extrinsic (``X(0)``: the first of the rig's
-    ``cameras`` it solved) and the base LiDAR is the ``reference``; else None."""
-    solved = [c for c in cameras if c in sol.sensors]
-    if sol.solution is None or not solved or solved[0] != camera or sol.base != reference:
-        return None
-    factor = 1.0 if sol.selection is None else sol.selection.factor
-    got = solved_globals(sol.solution).pose_terms(factor)
-    return None if got is None else got.inverse()
 
 
 def _net(

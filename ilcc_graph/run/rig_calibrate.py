@@ -27,7 +27,6 @@ from ilcc_graph.config import RigConfig, rig_config_to_dict
 from ilcc_graph.datasets import open_source
 from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.estimation.lidar_errors import errors_entry
-from ilcc_graph.estimation.next_board import solved_globals
 from ilcc_graph.estimation.rig_solve import RigOptions, RigSolution, solve_rig
 from ilcc_graph.init.rig_start import RigStart, StartOptions, rig_start
 from ilcc_graph.io.rig_results import RigCalibration
@@ -256,12 +255,7 @@ def to_calibration(result: RigResult) -> RigCalibration:
 
 def _with_terms(result: RigResult) -> tuple[str, str, PoseTerms] | None:
     """The first camera's pose ``T_camera_lidar`` in the base LiDAR's frame with that LiDAR's range terms
-    (``next_board.solved_globals`` on the graph: the camera is extrinsic ``X(0)``, the LiDAR's terms
-    ``L(0)``), the covariance times the chosen model's held-out factor as a pair's
-    ``Calibration.with_terms``; None without terms or without the camera in the graph."""
-    sol, cams = result.solution.solution, [c for c in result.rig.cameras if c in result.sensors]
-    if sol is None or not cams or cams[0] != result.rig.cameras[0]:
-        return None
-    factor = 1.0 if result.solution.selection is None else result.solution.selection.factor
-    terms = solved_globals(sol).pose_terms(factor)
-    return None if terms is None else (cams[0], result.solution.base, terms)
+    (``RigSolution.first_camera_terms``), as a pair's ``Calibration.with_terms``; None without terms
+    or without the camera in the graph."""
+    got = result.solution.first_camera_terms(result.rig.cameras)
+    return None if got is None else (got[0], result.solution.base, got[1])
