@@ -407,3 +407,29 @@ def test_board_plane_systematic_puts_each_frames_returns_on_a_plane_off_the_prin
     fits = np.array(fits)
     assert np.all(np.abs(fits[:, 0]) < 0.03) and np.ptp(fits[:, 0]) > 1e-3  # offsets differ by frame
     assert np.all(np.abs(fits[:, 1:]) < 0.05) and np.ptp(fits[:, 1]) > 1e-3
+
+
+def test_unit_seed_keeps_the_sensors_own_errors_across_captures():
+    """``unit_seed`` draws the sensors' own errors (beam biases and gains, the stated intrinsics), so
+    two captures of one rig share them and differ in everything else; unset, it is ``seed``."""
+    from ilcc_graph.simulate import IntrinsicsError, beam_gains, stated_camera
+    from ilcc_graph.simulate.rig_spec import ring_rig
+
+    err = IntrinsicsError.typical()
+    a = standard_spec(camera="fisheye", width=400, frames=2, seed=3, intrinsics_error=err)
+    b = a.with_(seed=4, unit_seed=3)
+    assert a.units_seed == 3 and "unit_seed" not in ground_truth(a)["simulation"]
+    assert ground_truth(b)["simulation"]["unit_seed"] == 3
+    np.testing.assert_array_equal(beam_biases(a), beam_biases(b))
+    np.testing.assert_array_equal(beam_gains(a), beam_gains(b))
+    assert stated_camera(a.camera, err, a.units_seed) == stated_camera(b.camera, err, b.units_seed)
+    assert not np.array_equal(beam_biases(a), beam_biases(a.with_(seed=4)))
+    assert not np.array_equal(board_placements(a)[0], board_placements(b)[0])
+    with pytest.raises(ValueError, match="seeds"):
+        a.with_(unit_seed=-1)
+    rig = ring_rig("pinhole", 320, n_moments=2, seed=5)
+    again = rig.with_(seed=6, unit_seed=5)
+    for name in ("front", "lidar"):
+        assert rig.sensor_spec(name).unit_seed is None  # as before unit_seed existed
+        assert again.sensor_spec(name).units_seed == rig.sensor_spec(name).units_seed
+        assert again.sensor_spec(name).seed != rig.sensor_spec(name).seed

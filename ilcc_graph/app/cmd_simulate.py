@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 
-from ilcc_graph.app.console import COUNT, NON_NEGATIVE, PIXELS, SEED, Progress, lazy_choices
+from ilcc_graph.app.console import COUNT, NON_NEGATIVE, PIXELS, RIG_SEED_HELP, SEED, Progress, lazy_choices
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -43,6 +43,7 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
     )
     sp.add_argument("--frames", type=COUNT, default=20, help="board poses (default 20)")
     sp.add_argument("--seed", type=SEED, default=0, help="the simulation's seed (default 0)")
+    sp.add_argument("--rig-seed", type=SEED, default=None, metavar="SEED", help=RIG_SEED_HELP)
     sp.add_argument(
         "--noise-scale",
         type=NON_NEGATIVE,
@@ -100,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
         Progress("simulate"),
         sensor_format=args.format,
         command=args.command_line,
+        unit_seed=args.rig_seed,
         **{k: getattr(args, k) for k in names},
     )
     print(f"wrote {spec.n_frames} frames to {args.out}")
@@ -128,7 +130,7 @@ def _bag(args: argparse.Namespace) -> int:
         "intensity_field",
         "ring_field",
     )
-    spec = standard_set_spec(**{k: getattr(args, k) for k in names})
+    spec = standard_set_spec(unit_seed=args.rig_seed, **{k: getattr(args, k) for k in names})
     kw = {"storage": args.storage, "image_format": args.bag_images, "flag": "simulate"}
     out = write_bag(args.out, spec, progress=Progress("simulate"), **kw)
     print(f"wrote {spec.n_frames} frames to the bag {out} (config and ground truth beside it)")

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-from ilcc_graph.app.console import COUNT, PIXELS, SEED, Progress, lazy_choices
+from ilcc_graph.app.console import COUNT, PIXELS, RIG_SEED_HELP, SEED, Progress, lazy_choices
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -39,6 +39,7 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
     lazy_choices(sp.add_argument("--rig", default="ring-fisheye", metavar="PRESET", help=help), _presets)
     sp.add_argument("--moments", type=COUNT, default=12, help="board placements (default 12)")
     sp.add_argument("--seed", type=SEED, default=0, help="the simulation's seed (default 0)")
+    sp.add_argument("--rig-seed", type=SEED, default=None, metavar="SEED", help=RIG_SEED_HELP)
     sp.add_argument("--width", type=PIXELS, default=None, help="image width (default: the preset's)")
     help = "folders: a folder per sensor (default); bag: one ROS bag with a topic per sensor"
     sp.add_argument("--as", dest="layout", choices=("folders", "bag"), default="folders", help=help)
@@ -60,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     kw = {"n_moments": args.moments, "seed": args.seed}
     if args.width is not None:
         kw["width"] = args.width
-    spec = RIG_PRESETS[args.rig](**kw)
+    spec = RIG_PRESETS[args.rig](**kw).with_(unit_seed=args.rig_seed)
     if args.moved is not None:
         if args.moved not in spec.names:
             raise InputError(f"--moved {args.moved}: not a sensor of {args.rig} ({', '.join(spec.names)})")

@@ -95,6 +95,12 @@ def _number(kind: type, lo: float, what: str, hi: float = math.inf) -> Callable[
 COUNT = _number(int, 1, "a whole number >= 1")
 PIXELS = _number(int, 64, "a whole number of pixels >= 64")
 SEED = _number(int, 0, "a whole number >= 0")
+#: ``simulate --rig-seed`` and ``simulate-rig --rig-seed``
+RIG_SEED_HELP = (
+    "the seed of the sensors' own errors (each LiDAR beam's range bias and gain, the stated "
+    "intrinsics' error; default: --seed); a calibration set's seed here and another --seed give a "
+    "new capture of the same rig (for verify)"
+)
 NON_NEGATIVE = _number(float, 0.0, "a number >= 0")
 POSITIVE = _number(float, 1e-12, "a number > 0")
 RATE = _number(float, 1e-12, "a number between 0 and 1", 1 - 1e-12)

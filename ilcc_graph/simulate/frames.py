@@ -107,6 +107,6 @@ def ground_truth(spec: SimulationSpec, frames: Iterable[NamedPose] | None = None
 
 def _intrinsics_error(spec: SimulationSpec) -> dict[str, float]:
     """{name: stated minus true} of the camera's intrinsics (all 0 when the error is off)."""
-    stated = stated_camera(spec.camera, spec.intrinsics_error, spec.seed).intrinsics()
+    stated = stated_camera(spec.camera, spec.intrinsics_error, spec.units_seed).intrinsics()
     d = stated - spec.camera.intrinsics()
     return {n: float(v) for n, v in zip(spec.camera.intrinsic_names, d, strict=True)}

@@ -94,13 +94,13 @@ _REFLECTIVITY = {
 
 def beam_biases(spec: SimulationSpec) -> np.ndarray:
     """(n_beams,) constant range bias of each beam, metres (one draw per data set)."""
-    z = frame_rng(spec.seed, PURPOSE_UNIT, 0).standard_normal(spec.lidar_model.n_beams)
+    z = frame_rng(spec.units_seed, PURPOSE_UNIT, 0).standard_normal(spec.lidar_model.n_beams)
     return spec.systematics.beam_bias_sigma_m * z
 
 
 def beam_gains(spec: SimulationSpec) -> np.ndarray:
     """(n_beams,) relative intensity gain of each beam, around 1 (one draw per data set)."""
-    z = frame_rng(spec.seed, PURPOSE_UNIT, 2).standard_normal(spec.lidar_model.n_beams)
+    z = frame_rng(spec.units_seed, PURPOSE_UNIT, 2).standard_normal(spec.lidar_model.n_beams)
     return np.maximum(1.0 + spec.systematics.beam_intensity_gain_sigma * z, 0.1)
 
 

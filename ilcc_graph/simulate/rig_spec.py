@@ -106,6 +106,8 @@ class RigSpec:
     sensors: the sensors, in order; reference: the name whose frame the truth is given in.
     views: per moment (cycled), the sensors that must see the whole board; a camera not listed
         must not see all of it (a LiDAR not listed may). n_moments, seed: as the single-pair spec's.
+    unit_seed: the seed of the sensors' own draws (a LiDAR's beam biases and gains); None: ``seed``.
+        Sets with one ``unit_seed`` and different seeds are captures of one rig.
     placements: explicit ``T_body_board`` (4, 4) per moment (overrides views and n_moments) or None.
     moved: one sensor's mount moved (a ``verify`` capture) or None.
     only_seen: a camera writes an image only at the moments it sees the whole board (so moments
@@ -118,6 +120,7 @@ class RigSpec:
     views: tuple[tuple[str, ...], ...]
     n_moments: int = 12
     seed: int = 0
+    unit_seed: int | None = None
     placements: tuple[np.ndarray, ...] | None = None
     moved: Mount | None = None
     only_seen: bool = False
@@ -147,8 +150,10 @@ class RigSpec:
                 self, "placements", tuple(np.array(T, dtype=np.float64) for T in self.placements)
             )
             object.__setattr__(self, "n_moments", len(self.placements))
-        if int(self.n_moments) < 1 or int(self.seed) < 0:
-            raise ValueError(f"RigSpec: n_moments >= 1 and seed >= 0, got {self.n_moments}, {self.seed}")
+        if int(self.n_moments) < 1 or min(int(self.seed), int(self.unit_seed or 0)) < 0:
+            raise ValueError(
+                f"RigSpec: n_moments >= 1 and seeds >= 0, got {self.n_moments}, {self.seed}, {self.unit_seed}"
+            )
 
     def with_(self, **changes: Any) -> RigSpec:
         """A copy with some fields changed (``dataclasses.replace``)."""
@@ -173,11 +178,12 @@ class RigSpec:
         poses = self.poses()
         return {n: np.linalg.solve(poses[self.reference], T) for n, T in poses.items()}
 
-    def sensor_seed(self, name: str) -> int:
+    def sensor_seed(self, name: str, unit: bool = False) -> int:
+        """The seed of sensor ``name``'s simulation, drawn from ``seed`` (``unit``: of its own draws,
+        from ``unit_seed`` when set)."""
+        seed = self.unit_seed if unit and self.unit_seed is not None else self.seed
         k = self.names.index(name)
-        return int(
-            np.random.SeedSequence(int(self.seed), spawn_key=(PURPOSE_RIG_SENSOR, k)).generate_state(1)[0]
-        )
+        return int(np.random.SeedSequence(int(seed), spawn_key=(PURPOSE_RIG_SENSOR, k)).generate_state(1)[0])
 
     def sensor_spec(self, name: str) -> SimulationSpec:
         """The single-pair spec that simulates sensor ``name`` in the body frame (its own seed): a camera
@@ -188,6 +194,7 @@ class RigSpec:
         T_cam_body = np.linalg.inv(poses[name]) if s.camera is not None else np.eye(4)
         return SimulationSpec(
             lidar=lidar, camera=camera, board=self.board, n_frames=1, seed=self.sensor_seed(name),
+            unit_seed=None if self.unit_seed is None else self.sensor_seed(name, unit=True),
             noise_scale=self.noise_scale, T_cam_lidar=T_cam_body, systematics=self.systematics,
             scene=self.scene, image=self.image, sensor_format=s.sensor_format,
         )  # fmt: skip
@@ -362,7 +369,8 @@ def rig_ground_truth(
                                 "beam_bias_m": beam_biases(spec.sensor_spec(s.name)).tolist()}
                        for s in spec.sensors if s.lidar is not None}  # fmt: skip
     extra["simulation"] = {
-        "seed": int(spec.seed), "n_moments": int(spec.n_moments), "noise_scale": float(spec.noise_scale),
+        "seed": int(spec.seed), **({"unit_seed": int(spec.unit_seed)} if spec.unit_seed is not None else {}),
+        "n_moments": int(spec.n_moments), "noise_scale": float(spec.noise_scale),
         "views": [list(v) for v in spec.views], "only_seen": bool(spec.only_seen),
         "board": spec.board.to_dict(),
         "systematics": spec.sensor_spec(spec.reference).summary()["systematics"],

@@ -172,6 +172,9 @@ class SimulationSpec:
     board: the chessboard.
     n_frames: number of frames (board placements).
     seed: master seed; every random stream is derived from it with ``np.random.SeedSequence``.
+    unit_seed: the seed of the sensors' own draws (each beam's range bias and intensity gain, the
+        error of config.yaml's intrinsics); None: ``seed``. Sets with one ``unit_seed`` and different
+        seeds are captures of one rig (the calibration's set and a ``verify`` capture).
     noise_scale: multiplies every geometric LiDAR noise sigma (board and range noise).
     T_cam_lidar: (4, 4) true extrinsic; None -> :func:`default_T_cam_lidar` of the camera.
     board_noise_sigma_m: (3,) sigma along the board's x, y and normal, before ``noise_scale``.
@@ -212,6 +215,7 @@ class SimulationSpec:
     board: Board = field(default_factory=paper_board)
     n_frames: int = 20
     seed: int = 0
+    unit_seed: int | None = None
     noise_scale: float = 1.0
     T_cam_lidar: np.ndarray | None = None
     board_noise_sigma_m: tuple[float, float, float] = (0.0016, 0.0016, 0.010)
@@ -279,8 +283,8 @@ class SimulationSpec:
             raise ValueError(f"SimulationSpec: range_noise_m must be finite and >= 0, got {rn!r}")
         if not (np.isfinite(self.noise_scale) and self.noise_scale >= 0):
             raise ValueError(f"SimulationSpec: noise_scale must be finite and >= 0, got {self.noise_scale!r}")
-        if int(self.seed) < 0:
-            raise ValueError(f"SimulationSpec: seed must be >= 0, got {self.seed!r}")
+        if int(self.seed) < 0 or int(self.units_seed) < 0:
+            raise ValueError(f"SimulationSpec: seeds must be >= 0, got {self.seed!r}, {self.unit_seed!r}")
         sig = tuple(float(s) for s in self.board_noise_sigma_m)
         if len(sig) != 3 or min(sig) < 0:
             raise ValueError(f"SimulationSpec: board_noise_sigma_m must be 3 numbers >= 0, got {sig!r}")
@@ -293,6 +297,11 @@ class SimulationSpec:
         if T is None:
             raise AssertionError("SimulationSpec.__post_init__ sets T_cam_lidar")
         return T
+
+    @property
+    def units_seed(self) -> int:
+        """The seed of the sensors' own draws: ``unit_seed``, or ``seed`` when None."""
+        return int(self.seed if self.unit_seed is None else self.unit_seed)
 
     @property
     def lidar_model(self) -> LidarModel:
@@ -327,6 +336,7 @@ class SimulationSpec:
             "intrinsics_error": self.intrinsics_error.summary(),
             "n_frames": int(self.n_frames),
             "seed": int(self.seed),
+            **({"unit_seed": int(self.unit_seed)} if self.unit_seed is not None else {}),
             "noise_scale": float(self.noise_scale),
             "board_noise_sigma_m": [float(v * self.noise_scale) for v in self.board_noise_sigma_m],
             "range_sigma_m": float(self.lidar_model.range_sigma_m * self.noise_scale),

@@ -47,7 +47,7 @@ def config_dict(spec: SimulationSpec) -> dict:
     return {
         "board": spec.board.to_dict(),
         "lidar": spec.lidar_model.to_dict(),
-        "camera": stated_camera(spec.camera, spec.intrinsics_error, spec.seed).to_dict(),
+        "camera": stated_camera(spec.camera, spec.intrinsics_error, spec.units_seed).to_dict(),
     }
 
 
