@@ -46,11 +46,16 @@ def spec(seed: int, field: str, edges: bool) -> SimulationSpec:
     return replace(s, systematics=replace(s.systematics, edge_returns=edges))
 
 
-def run_set(seed: int, cache: Path, fields: Sequence[str] = ("invisible", "print")) -> dict:
-    """Set ``seed``: each of its data sets (the ``fields``, sharp and realistic edges) written,
-    calibrated and removed."""
+def run_set(
+    seed: int,
+    cache: Path,
+    fields: Sequence[str] = ("invisible", "print"),
+    edges_of: Sequence[bool] = (False, True),
+) -> dict:
+    """Set ``seed``: each of its data sets (the ``fields``, with sharp edges and realistic ones or
+    those of ``edges_of``) written, calibrated and removed."""
     out: dict = {"seed": seed, "runs": {}}
-    for field, edges in (r for r in RUNS if r[0] in fields):
+    for field, edges in (r for r in RUNS if r[0] in fields and r[1] in edges_of):
         tmp = Path(tempfile.mkdtemp(prefix=f"bench_edges_{seed}_", dir=cache))
         try:
             sp = spec(seed, field, edges)
@@ -114,6 +119,7 @@ def main(argv: Sequence[str]) -> int:
     ap.add_argument("--sets", type=int, default=20)
     ap.add_argument("--first", type=int, default=0)
     ap.add_argument("--fields", default="invisible,print", help="which prints to simulate (comma-separated)")
+    ap.add_argument("--edges", choices=("both", "sharp", "realistic"), default="both", help="which edges")
     ap.add_argument("--sink", type=Path, default=Path(tempfile.gettempdir()) / "bench_edges.jsonl")
     ap.add_argument("--from-sink", type=Path, default=None)
     ap.add_argument("--write", action="store_true")
@@ -124,7 +130,8 @@ def main(argv: Sequence[str]) -> int:
         for seed in range(args.first, args.first + args.sets):
             if seed in done:
                 continue
-            got = run_set(seed, cache, args.fields.split(","))
+            edges_of = {"both": (False, True), "sharp": (False,), "realistic": (True,)}[args.edges]
+            got = run_set(seed, cache, args.fields.split(","), edges_of)
             append_sink(args.sink, got)
             print(json.dumps({k: {kk: v.get(kk) for kk in ("used", "nees", "failure")}
                               for k, v in got["runs"].items()}), flush=True)  # fmt: skip

@@ -81,8 +81,10 @@ def test_verify_does_not_fail_an_unchanged_ring_on_one_board_per_camera(ring, tm
     stored_doc = yaml.safe_load(stored.read_text())
     stored_model = stored_doc["sensor_model"]["chosen"]
     assert any(stored_model in n for n in doc["notes"]), doc["notes"]
-    # the first camera's change is tested net of the LiDAR's range terms both solves estimated, as a
-    # pair's is (the calibration keeps that camera's pose with the terms); the LiDAR is the same, so
-    # its terms are taken as shared
-    assert stored_doc["extrinsic_with_lidar_terms"]["camera"] == "front"
-    assert any("tested net of the LiDAR's own range terms" in n for n in doc["notes"]), doc["notes"]
+    # every camera's change is tested net of the LiDAR's range terms both solves estimated, as a pair's
+    # is (the calibration keeps each camera's pose with the terms); the LiDAR is the same, so its terms
+    # are taken as shared
+    assert [w["camera"] for w in stored_doc["extrinsic_with_lidar_terms"]] == list(CAMERAS)
+    for cam in CAMERAS:
+        said = [n for n in doc["notes"] if n.startswith(f"{cam}: ")]
+        assert len(said) == 1 and "tested net of the LiDAR's own range terms" in said[0], doc["notes"]

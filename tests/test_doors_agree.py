@@ -149,8 +149,9 @@ def test_a_rig_refits_its_boards_and_verify_corrects_a_capture_alike(tmp_path: P
 def test_verify_nets_the_lidars_terms_out_for_a_pair_and_its_rig_of_two_alike(tmp_path: Path) -> None:
     """``verify`` of a rig of two's calibration against a capture tests the mount net of the base
     LiDAR's range terms as ``verify`` of the pair's calibration does (the rig's calibration.yaml keeps
-    its first camera's pose with those terms: ``extrinsic_with_lidar_terms``); the two verdicts, notes
-    and sigmas agree; a broken joint covariance there is exit 2 naming the file and the key."""
+    each camera's pose with those terms: ``extrinsic_with_lidar_terms``, a list; an earlier version's
+    one mapping is read alike); the two verdicts, notes and sigmas agree; a broken joint covariance
+    there is exit 2 naming the file and the key."""
     from ilcc_graph.cameras.pinhole import Pinhole
     from ilcc_graph.simulate import SceneOptions, SimulationSpec, simulate_dataset
     from ilcc_graph.simulate.spec import Systematics
@@ -178,9 +179,16 @@ def test_verify_nets_the_lidars_terms_out_for_a_pair_and_its_rig_of_two_alike(tm
     a, b = pair["sensors"]["camera"]["axes"], rig_doc["sensors"]["camera"]["axes"]
     for axis in a:
         assert b[axis]["sigma"] == pytest.approx(a[axis]["sigma"], rel=0.05), (axis, a[axis], b[axis])
+    # a calibration.yaml of an earlier version kept the one camera's as a mapping, not a list: read alike
+    old = yaml.safe_load((tmp_path / "rig" / "calibration.yaml").read_text())
+    (entry,) = old["extrinsic_with_lidar_terms"]
+    old["extrinsic_with_lidar_terms"] = entry
+    (tmp_path / "old.yaml").write_text(yaml.safe_dump(old))
+    done = _cli("verify", str(tmp_path / "old.yaml"), str(tmp_path / "cap"), "--out", str(tmp_path / "vo"))
+    assert yaml.safe_load((tmp_path / "vo" / "verify.yaml").read_text())["notes"] == rig_doc["notes"]
     broken = yaml.safe_load((tmp_path / "rig" / "calibration.yaml").read_text())
-    k = len(broken["extrinsic_with_lidar_terms"]["terms"])
-    broken["extrinsic_with_lidar_terms"]["covariance"] = (-np.eye(6 + k)).tolist()
+    k = len(broken["extrinsic_with_lidar_terms"][0]["terms"])
+    broken["extrinsic_with_lidar_terms"][0]["covariance"] = (-np.eye(6 + k)).tolist()
     (tmp_path / "broken.yaml").write_text(yaml.safe_dump(broken))
     done = _cli("verify", str(tmp_path / "broken.yaml"), str(tmp_path / "cap"), "--out", str(tmp_path / "vb"))
     assert done.returncode == 2 and "broken.yaml" in done.stderr, done.stderr

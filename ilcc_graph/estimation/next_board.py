@@ -38,8 +38,8 @@ __all__ = ["SolvedGlobals", "board_information", "extrinsic_gain", "solved_globa
 class SolvedGlobals:
     """The solved problem's globals a new board touches.
 
-    T_cam_lidar: (4, 4) the extrinsic ``X(0)``. covariance: (6 + k, 6 + k) the joint marginal
-    covariance in the solved graph of ``X(0)`` (rotation first) and the k range terms (metres; the
+    T_cam_lidar: (4, 4) the extrinsic ``X(e)``. covariance: (6 + k, 6 + k) the joint marginal
+    covariance in the solved graph of ``X(e)`` (rotation first) and the k range terms (metres; the
     scale unitless). terms: the k terms' names (``LidarLayout.names``, or ``offset`` for ``O(0)``).
     theta: (k,) their estimates. units: (k,) each term's unit (``LidarLayout.units``).
     """
@@ -79,21 +79,21 @@ class SolvedGlobals:
         return a
 
 
-def solved_globals(sol: Solution) -> SolvedGlobals:
-    """The globals of a solved single-extrinsic problem (``noise.solve_problem``): ``X(0)`` and the
-    LiDAR's range terms of its sensor model (``O(0)``, or the range terms of ``L(0)``), their joint
-    marginal covariance (the variance factor included)."""
-    T = np.asarray(sol.values.atPose3(X(0)).matrix(), dtype=np.float64)
+def solved_globals(sol: Solution, e: int = 0) -> SolvedGlobals:
+    """The globals of a solved problem (``noise.solve_problem``): extrinsic ``X(e)`` (a rig's camera
+    e) and the base LiDAR's range terms of its sensor model (``O(0)``, or the range terms of
+    ``L(0)``), their joint marginal covariance (the variance factor included)."""
+    T = np.asarray(sol.values.atPose3(X(e)).matrix(), dtype=np.float64)
     if sol.problem.range_offset_sigma_m is not None and sol.values.exists(O(0)):
-        C = sol.marginals.joint([X(0), O(0)], [POSE3_DOF, 1])
+        C = sol.marginals.joint([X(e), O(0)], [POSE3_DOF, 1])
         theta0 = np.asarray(sol.values.atVector(O(0)), dtype=np.float64)
         return SolvedGlobals(T, C, ("offset",), theta0, ("m",))
     layout = sol.assembly.layouts.get(0)
     if layout is None or not sol.values.exists(L(0)):
-        return SolvedGlobals(T, sol.marginals.joint([X(0)], [POSE3_DOF]))
+        return SolvedGlobals(T, sol.marginals.joint([X(e)], [POSE3_DOF]))
     names = layout.names
     keep = [i for i, n in enumerate(names) if not n.startswith("elevation")]
-    C = sol.marginals.joint([X(0), L(0)], [POSE3_DOF, layout.dim])
+    C = sol.marginals.joint([X(e), L(0)], [POSE3_DOF, layout.dim])
     idx = np.r_[np.arange(POSE3_DOF), POSE3_DOF + np.asarray(keep, dtype=np.int64)]
     theta = np.asarray(sol.values.atVector(L(0)), dtype=np.float64)[keep]
     units = tuple(layout.units[i] for i in keep)

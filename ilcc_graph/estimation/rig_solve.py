@@ -153,18 +153,20 @@ class RigSolution:
         pair's ``T_cam_lidar``)."""
         return between(self.T_ref_sensor[a], self.T_ref_sensor[b], self.joint([a, b]))
 
-    def first_camera_terms(self, cameras: Sequence[str]) -> tuple[str, PoseTerms] | None:
-        """(the first of the rig's ``cameras``, its ``T_camera_lidar`` in the base LiDAR's frame with
-        that LiDAR's range terms), the covariance times the chosen model's held-out factor as a pair's
-        ``Calibration.with_terms`` (``next_board.solved_globals``: the graph's extrinsic ``X(0)`` is
-        the first camera solved, the terms ``L(0)``); None without terms or when that camera is not
-        solved."""
-        solved = [c for c in cameras if c in self.sensors]
-        if self.solution is None or not solved or solved[0] != cameras[0]:
-            return None
+    def camera_terms(self, cameras: Sequence[str]) -> dict[str, PoseTerms]:
+        """{camera: its ``T_camera_lidar`` in the base LiDAR's frame with that LiDAR's range terms}
+        for every solved camera of the rig's ``cameras`` (graph extrinsic ``X(c)``, c its place
+        there), each covariance times the chosen model's held-out factor as a pair's
+        ``Calibration.with_terms`` (``next_board.solved_globals``); empty without terms."""
+        if self.solution is None:
+            return {}
         factor = 1.0 if self.selection is None else self.selection.factor
-        terms = solved_globals(self.solution).pose_terms(factor)
-        return None if terms is None else (solved[0], terms)
+        out = {}
+        for c, name in enumerate(cameras):
+            t = solved_globals(self.solution, c).pose_terms(factor) if name in self.sensors else None
+            if t is not None:
+                out[name] = t
+        return out
 
     def in_frame(self, reference: str) -> RigSolution:
         """The same answer with every pose in sensor ``reference``'s frame."""

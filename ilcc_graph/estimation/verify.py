@@ -263,14 +263,14 @@ def verify_rig(
     lidars: Sequence[str],
     cameras: Mapping[str, CameraModel],
     options: VerifyOptions = VerifyOptions(),
-    terms: tuple[str, PoseTerms] | None = None,
+    terms: Mapping[str, PoseTerms] | None = None,
 ) -> VerifyResult:
     """Check every sensor of a stored calibration against a new capture's stages' answers
     (``moments``), module docstring. ``lidars`` (the first is the graph's base) and ``cameras`` are
-    the rig's; sensors missing from ``stored`` are a ValueError. ``terms``: (camera, its stored pose
-    in the base LiDAR's frame with that LiDAR's range terms), the stored calibration's first camera:
-    when the capture's solve has the terms too, that camera's change is tested net of them
-    (``net_of_terms``, as ``verify_pair`` does; the global test stays on the poses alone)."""
+    the rig's; sensors missing from ``stored`` are a ValueError. ``terms``: {camera: its stored pose
+    in the base LiDAR's frame with that LiDAR's range terms}: where the capture's solve has the terms
+    too, that camera's change is tested net of them (``net_of_terms``, as ``verify_pair`` does; the
+    global test stays on the poses alone)."""
     missing = [s for s in (*lidars, *cameras) if s not in stored.sensors]
     if missing:
         raise ValueError(
@@ -288,6 +288,9 @@ def verify_rig(
         sol = None
         notes.append(f"the capture could not be solved: {err}")
     solved = [s for s in others if sol is not None and s in sol.sensors]
+    new_terms = {}  # the capture's cameras with the LiDAR's terms, where the stored ones have them
+    if terms and sol is not None and sol.base == stored.reference:
+        new_terms = sol.camera_terms(list(cameras))
     n = max(1, len(solved))
     alpha = options.alpha / n
     checks: dict[str, SensorCheck] = {}
@@ -307,10 +310,9 @@ def verify_rig(
         else:
             assert sol is not None
             d, C = compare_estimates(stored.pose(s), sol.pose(s))
-            if terms is not None and s == terms[0]:
-                got = sol.first_camera_terms(list(cameras)) if sol.base == stored.reference else None
-                new = got[1].inverse() if got is not None and got[0] == s else None
-                d, C = _net(d, C, terms[1], new, alpha, notes)
+            if terms and s in terms:
+                new = new_terms[s].inverse() if s in new_terms else None
+                d, C = _net(d, C, terms[s], new, alpha, notes, s)
             checks[s] = _check(s, d, C, alpha, options, len(kept))
     glob = None
     if sol is not None and solved:
@@ -320,14 +322,16 @@ def verify_rig(
 
 
 def _net(
-    d: np.ndarray, C: np.ndarray, stored: PoseTerms, new: PoseTerms | None, alpha: float, notes: list[str]
-) -> tuple[np.ndarray, np.ndarray]:
+    d: np.ndarray, C: np.ndarray, stored: PoseTerms, new: PoseTerms | None, alpha: float, notes: list[str],
+    sensor: str = "",
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """A change ``(d, C)`` net of the LiDAR's range terms both solves have (``net_of_terms``, its
-    note added to ``notes``); as given when they share none or the terms changed."""
+    note added to ``notes``, after ``sensor``'s name when given); as given when they share none or
+    the terms changed."""
     net = None if new is None else net_of_terms(stored, new, alpha)
     if net is None:
         return d, C
-    notes.append(net[2])
+    notes.append(f"{sensor}: {net[2]}" if sensor else net[2])
     return (d, C) if net[0] is None or net[1] is None else (net[0], net[1])
 
 

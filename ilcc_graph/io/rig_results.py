@@ -32,7 +32,8 @@ __all__ = [
 
 #: the ``kind`` key of a rig's calibration.yaml (a single pair's has none)
 KIND = "rig-calibration"
-#: the key of the first camera's pose with the base LiDAR's range terms (``RigCalibration.with_terms``)
+#: the key of the cameras' poses with the base LiDAR's range terms (``RigCalibration.with_terms``): a
+#: list of mappings, one per camera (a file of an earlier version: one mapping, the first camera's)
 WITH_TERMS = "extrinsic_with_lidar_terms"
 
 
@@ -44,8 +45,8 @@ class RigCalibration:
     {sensor: (4, 4)}; covariance: (6N, 6N) joint (the reference's block zero). pairs: {(a, b): (T_a_b
     (4, 4), covariance (6, 6))}. rig: the rig's config as rig.yaml's mapping (cameras' intrinsics,
     board), or None. extra: what was used and other numbers (``moments``, ``unsolved``, ...).
-    with_terms: (camera, LiDAR, ``T_camera_lidar`` with the LiDAR's range terms): the first camera
-    and the base LiDAR as a pair's ``Calibration.with_terms`` (verify nets the terms out), or None.
+    with_terms: per camera (camera, LiDAR, ``T_camera_lidar`` with the LiDAR's range terms): each
+    camera and the base LiDAR as a pair's ``Calibration.with_terms`` (verify nets the terms out).
     """
 
     sensors: tuple[str, ...]
@@ -55,7 +56,7 @@ class RigCalibration:
     pairs: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     rig: dict[str, Any] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
-    with_terms: tuple[str, str, PoseTerms] | None = None
+    with_terms: tuple[tuple[str, str, PoseTerms], ...] = ()
 
     def block(self, sensor: str) -> np.ndarray:
         """(6, 6) the covariance of ``sensor``'s pose."""
@@ -78,7 +79,7 @@ def rig_calibration_doc(cal: RigCalibration) -> dict[str, Any]:
         },
         **({"rig": cal.rig} if cal.rig is not None else {}),
         **cal.extra,
-        **({WITH_TERMS: _with_terms_doc(cal.with_terms)} if cal.with_terms is not None else {}),
+        **({WITH_TERMS: [_with_terms_doc(w) for w in cal.with_terms]} if cal.with_terms else {}),
     }
 
 
@@ -87,17 +88,26 @@ def _with_terms_doc(w: tuple[str, str, PoseTerms]) -> dict[str, Any]:
     return {"camera": camera, "lidar": lidar, **pose_terms_doc(terms)}
 
 
-def _with_terms(src: str, d: Any, T_ref_sensor: dict[str, np.ndarray]) -> tuple[str, str, PoseTerms] | None:
-    """``RigCalibration.with_terms`` from the file's ``extrinsic_with_lidar_terms`` (its pose from the
-    two sensors' poses), None when absent; InputError naming the file and the key otherwise."""
+def _with_terms(
+    src: str, d: Any, T_ref_sensor: dict[str, np.ndarray]
+) -> tuple[tuple[str, str, PoseTerms], ...]:
+    """``RigCalibration.with_terms`` from the file's ``extrinsic_with_lidar_terms`` (a list, or an
+    earlier version's one mapping; each pose from the two sensors' poses), empty when absent;
+    InputError naming the file and the key otherwise."""
     if d is None:
-        return None
-    if not isinstance(d, dict) or d.get("camera") not in T_ref_sensor or d.get("lidar") not in T_ref_sensor:
-        raise InputError(f"{src}: {WITH_TERMS} must name a camera and a LiDAR of the rig's sensors")
-    camera, lidar = str(d["camera"]), str(d["lidar"])
-    T = np.linalg.solve(T_ref_sensor[camera], T_ref_sensor[lidar])  # T_camera_lidar
-    terms = pose_terms_from_doc(src, T, d, WITH_TERMS)
-    return None if terms is None else (camera, lidar, terms)
+        return ()
+    out, keys = [], ("camera", "lidar")
+    for k, e in enumerate(d if isinstance(d, list) else [d]):
+        where = WITH_TERMS if isinstance(d, dict) else f"{WITH_TERMS}[{k}]"
+        named = isinstance(e, dict) and all(isinstance(e.get(x), str) and e[x] in T_ref_sensor for x in keys)
+        if not named:
+            raise InputError(f"{src}: {where} must name a camera and a LiDAR of the rig's sensors")
+        camera, lidar = str(e["camera"]), str(e["lidar"])
+        T = np.linalg.solve(T_ref_sensor[camera], T_ref_sensor[lidar])  # T_camera_lidar
+        terms = pose_terms_from_doc(src, T, e, where)
+        if terms is not None:
+            out.append((camera, lidar, terms))
+    return tuple(out)
 
 
 def write_rig_calibration(path: str | Path, cal: RigCalibration) -> Path:

@@ -100,10 +100,12 @@ def _check_rig(src: str, cal: RigCalibration) -> None:
         problem = pose_problem(T) or covariance_problem(P)
         if problem is not None:
             raise InputError(f"{src}: pairs.{a}/{b} {problem}")
-    if cal.with_terms is not None and (problem := covariance_problem(cal.with_terms[2].covariance)):
-        raise InputError(
-            f"{src}: {WITH_TERMS}.covariance {problem}; not a covariance this tool writes: calibrate again"
-        )
+    for camera, _, terms in cal.with_terms:
+        if problem := covariance_problem(terms.covariance):
+            raise InputError(
+                f"{src}: {WITH_TERMS} ({camera}): covariance {problem}; not a covariance this tool writes: "
+                "calibrate again"
+            )
 
 
 def read_stored(path: str | Path) -> Calibration | RigCalibration:

@@ -253,9 +253,9 @@ def to_calibration(result: RigResult) -> RigCalibration:
     return RigCalibration(names, result.reference, T, C, pairs, rig, extra, _with_terms(result))
 
 
-def _with_terms(result: RigResult) -> tuple[str, str, PoseTerms] | None:
-    """The first camera's pose ``T_camera_lidar`` in the base LiDAR's frame with that LiDAR's range terms
-    (``RigSolution.first_camera_terms``), as a pair's ``Calibration.with_terms``; None without terms
-    or without the camera in the graph."""
-    got = result.solution.first_camera_terms(result.rig.cameras)
-    return None if got is None else (got[0], result.solution.base, got[1])
+def _with_terms(result: RigResult) -> tuple[tuple[str, str, PoseTerms], ...]:
+    """Each solved camera's pose ``T_camera_lidar`` in the base LiDAR's frame with that LiDAR's range
+    terms (``RigSolution.camera_terms``), as a pair's ``Calibration.with_terms``; empty without
+    terms."""
+    got = result.solution.camera_terms(result.rig.cameras)
+    return tuple((camera, result.solution.base, t) for camera, t in got.items())

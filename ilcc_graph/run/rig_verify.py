@@ -13,7 +13,7 @@ larger rig: ``rig_observe`` and ``estimation.verify.verify_rig``); ``verify_to_d
 from __future__ import annotations
 
 import textwrap
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -57,13 +57,13 @@ class VerifyRun:
 class StoredCalibration(StoredRig):
     """A stored calibration as ``verify`` reads it: the poses and covariance (``StoredRig``), what it
     was made with (``io.stored.StoredSetup``: board, sensor kinds), for ``check_comparable``, and a
-    camera's pose in the LiDAR's frame with the LiDAR's range terms (``Calibration.with_terms``
-    inverted; a rig's: ``RigCalibration.with_terms``, its first camera and base LiDAR: ``terms_of``),
-    when the calibration has them."""
+    camera's pose in the LiDAR's frame with the LiDAR's range terms, per camera (``terms``: a pair's
+    ``Calibration.with_terms`` inverted; a rig's ``RigCalibration.with_terms``, its cameras' with
+    the base LiDAR's), when the calibration has them; ``terms_lidar``: that LiDAR."""
 
     setup: StoredSetup = field(default_factory=StoredSetup)
-    terms: PoseTerms | None = None
-    terms_of: tuple[str, str] = PAIR_NAMES[::-1]  # (camera, LiDAR) whose pose ``terms`` holds
+    terms: Mapping[str, PoseTerms] = field(default_factory=dict)
+    terms_lidar: str = PAIR_NAMES[0]
 
 
 def load_stored(path: str | Path) -> StoredCalibration:
@@ -71,18 +71,16 @@ def load_stored(path: str | Path) -> StoredCalibration:
     (``io.stored.read_stored``); InputError naming the file otherwise or when it has no covariance."""
     cal = read_stored(path)
     setup = stored_setup(path, cal, PAIR_NAMES)
-    if isinstance(cal, RigCalibration):  # the first camera's pose with the base LiDAR's terms, in its frame
-        w = cal.with_terms
-        if w is None or w[1] != cal.reference:
-            return StoredCalibration(cal.sensors, cal.reference, cal.T_ref_sensor, cal.covariance, setup)
+    if isinstance(cal, RigCalibration):  # the cameras' poses with the base LiDAR's terms, in its frame
+        terms = {camera: t.inverse() for camera, lidar, t in cal.with_terms if lidar == cal.reference}
         T, C = cal.T_ref_sensor, cal.covariance
-        return StoredCalibration(cal.sensors, cal.reference, T, C, setup, w[2].inverse(), (w[0], w[1]))
+        return StoredCalibration(cal.sensors, cal.reference, T, C, setup, terms, cal.reference)
     if not np.all(np.isfinite(cal.covariance)):
         raise InputError(f"{path}: the calibration has no covariance (method {cal.method}); verify needs one")
     lidar, camera = PAIR_NAMES
     p = StoredRig.pair(cal.T_cam_lidar, cal.covariance, camera, lidar)
-    terms = None if cal.with_terms is None else cal.with_terms.inverse()
-    return StoredCalibration(p.sensors, p.reference, p.T_ref_sensor, p.covariance, setup, terms)
+    terms = {} if cal.with_terms is None else {camera: cal.with_terms.inverse()}
+    return StoredCalibration(p.sensors, p.reference, p.T_ref_sensor, p.covariance, setup, terms, lidar)
 
 
 def check_comparable(stored: StoredRig, rig: RigConfig, where: str) -> None:
@@ -162,9 +160,9 @@ def verify_capture(
     cams = {c: cam for c in rig.cameras if (cam := rig.sensor(c).camera) is not None}
     solve_with = _stored_model(stored, options)
     moments, corrected = _on_corrected_ranges(stored, src, obs, stages)
-    terms = None  # the stored first camera's pose with the base LiDAR's terms: its check net of them
-    if isinstance(stored, StoredCalibration) and stored.terms is not None:
-        terms = (stored.terms_of[0], stored.terms) if stored.terms_of[1] == rig.lidars[0] else None
+    terms = {}  # the stored cameras' poses with the base LiDAR's terms: their checks net of them
+    if isinstance(stored, StoredCalibration) and stored.terms_lidar == rig.lidars[0]:
+        terms = dict(stored.terms)
     res = verify_rig(stored, moments, rig.board, list(rig.lidars), cams, solve_with, terms)
     if solve_with is not options:
         model = solve_with.rig.models[0]
@@ -235,8 +233,8 @@ def verify_pair_capture(
         checked, new, new_terms = lidar, Estimate(cal.T_cam_lidar, cal.covariance), None
     used = sum(1 for f in cal.frames if f.used)
     stored_terms = None
-    if isinstance(stored, StoredCalibration) and stored.terms_of == (camera, lidar):
-        stored_terms = stored.terms  # kept for this camera and LiDAR
+    if isinstance(stored, StoredCalibration) and stored.terms_lidar == lidar:
+        stored_terms = stored.terms.get(camera)  # kept for this camera and LiDAR
     res = verify_pair(stored, checked, new, used, options, notes, (stored_terms, new_terms))
     return VerifyRun(res, len(source.moments()))
 
