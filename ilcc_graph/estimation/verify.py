@@ -294,6 +294,7 @@ def verify_rig(
     n = max(1, len(solved))
     alpha = options.alpha / n
     checks: dict[str, SensorCheck] = {}
+    netted: dict[str, list[str]] = {}  # each note of the terms (one test of one LiDAR's) and its cameras
     for s in others:
         seen = [m.name for m in moments if s in m.sensors]
         kept = (
@@ -312,8 +313,12 @@ def verify_rig(
             d, C = compare_estimates(stored.pose(s), sol.pose(s))
             if terms and s in terms:
                 new = new_terms[s].inverse() if s in new_terms else None
-                d, C = _net(d, C, terms[s], new, alpha, notes, s)
+                said: list[str] = []
+                d, C = _net(d, C, terms[s], new, alpha, said)
+                for note in said:
+                    netted.setdefault(note, []).append(s)
             checks[s] = _check(s, d, C, alpha, options, len(kept))
+    notes += [f"{', '.join(cams)}: {note}" for note, cams in netted.items()]
     glob = None
     if sol is not None and solved:
         glob = _global_test(stored, sol, solved)
@@ -322,16 +327,14 @@ def verify_rig(
 
 
 def _net(
-    d: np.ndarray, C: np.ndarray, stored: PoseTerms, new: PoseTerms | None, alpha: float, notes: list[str],
-    sensor: str = "",
-) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    d: np.ndarray, C: np.ndarray, stored: PoseTerms, new: PoseTerms | None, alpha: float, notes: list[str]
+) -> tuple[np.ndarray, np.ndarray]:
     """A change ``(d, C)`` net of the LiDAR's range terms both solves have (``net_of_terms``, its
-    note added to ``notes``, after ``sensor``'s name when given); as given when they share none or
-    the terms changed."""
+    note added to ``notes``); as given when they share none or the terms changed."""
     net = None if new is None else net_of_terms(stored, new, alpha)
     if net is None:
         return d, C
-    notes.append(f"{sensor}: {net[2]}" if sensor else net[2])
+    notes.append(net[2])
     return (d, C) if net[0] is None or net[1] is None else (net[0], net[1])
 
 
