@@ -313,9 +313,8 @@ def verify_rig(
             d, C = compare_estimates(stored.pose(s), sol.pose(s))
             if terms and s in terms:
                 new = new_terms[s].inverse() if s in new_terms else None
-                said: list[str] = []
-                d, C = _net(d, C, terms[s], new, alpha, said)
-                for note in said:
+                d, C, note = _net(d, C, terms[s], new, alpha)
+                if note:
                     netted.setdefault(note, []).append(s)
             checks[s] = _check(s, d, C, alpha, options, len(kept))
     notes += [f"{', '.join(cams)}: {note}" for note, cams in netted.items()]
@@ -327,15 +326,16 @@ def verify_rig(
 
 
 def _net(
-    d: np.ndarray, C: np.ndarray, stored: PoseTerms, new: PoseTerms | None, alpha: float, notes: list[str]
-) -> tuple[np.ndarray, np.ndarray]:
-    """A change ``(d, C)`` net of the LiDAR's range terms both solves have (``net_of_terms``, its
-    note added to ``notes``); as given when they share none or the terms changed."""
+    d: np.ndarray, C: np.ndarray, stored: PoseTerms, new: PoseTerms | None, alpha: float
+) -> tuple[np.ndarray, np.ndarray, str | None]:
+    """A change ``(d, C)`` net of the LiDAR's range terms both solves have, with ``net_of_terms``'s
+    note; as given (the note saying why, or None when they share none) when the terms changed."""
     net = None if new is None else net_of_terms(stored, new, alpha)
     if net is None:
-        return d, C
-    notes.append(net[2])
-    return (d, C) if net[0] is None or net[1] is None else (net[0], net[1])
+        return d, C, None
+    if net[0] is None or net[1] is None:
+        return d, C, net[2]
+    return net[0], net[1], net[2]
 
 
 def verify_pair(
@@ -364,7 +364,9 @@ def verify_pair(
     d, C = compare_estimates(stored.pose(sensor), new)
     notes = list(notes)
     if terms[0] is not None:
-        d, C = _net(d, C, terms[0], terms[1], options.alpha, notes)
+        d, C, note = _net(d, C, terms[0], terms[1], options.alpha)
+        if note:
+            notes.append(note)
     check = _check(sensor, d, C, options.alpha, options, boards)
     glob = (check.chi2, POSE3_DOF, check.p_value)
     sensors = {sensor: check}
