@@ -14,7 +14,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from ..board import Board
 from ..errors import BoardNotFound
@@ -37,6 +36,7 @@ from .outline import (
     refuse_outline,
     shape_check,
     shape_diagnostics,
+    shape_gate,
     slid_message,
 )
 from .shape import outline_posterior, outline_samples
@@ -259,7 +259,7 @@ def _moved_to_outline(
     the move in squares; BoardNotFound when none does. boards: the configured one (the pattern's)
     and the one whose outline checks it (``margin.outline_board``)."""
     board, ob = boards
-    gate = float(chi2_dist.ppf(options.shape_gate_p, 3))
+    gate = shape_gate(options)
     keep = ("powell_evals", "time_powell_s", "intensity_low", "intensity_high")
     for xi in lattice_moves(ob, chk, res.cov, gate)[:4]:
         try:

@@ -79,16 +79,22 @@ def silent_rays(
     dist = float(np.linalg.norm(centre))
     az_c = float(np.arctan2(centre[1], centre[0]))
     az = (np.arctan2(D[:, 1], D[:, 0]) - az_c + np.pi) % (2 * np.pi) - np.pi  # about the board's azimuth
-    el = np.arctan2(D[:, 2], np.hypot(D[:, 0], D[:, 1]))
-    ring = np.clip(np.searchsorted(el_tab, el), 1, el_tab.size - 1)
-    ring -= (el - el_tab[ring - 1]) < (el_tab[ring] - el)
-    tol = max(0.5 * step, 3.0 * azimuth_noise(az[on], ring[on], step))
+
+    def beams(sel: np.ndarray) -> np.ndarray:
+        """The beam (nearest elevation of the table) of each return ``sel`` picks."""
+        el = np.arctan2(D[sel, 2], np.hypot(D[sel, 0], D[sel, 1]))
+        ring = np.clip(np.searchsorted(el_tab, el), 1, el_tab.size - 1)
+        return ring - ((el - el_tab[ring - 1]) < (el_tab[ring] - el))
+
+    tol = max(0.5 * step, 3.0 * azimuth_noise(az[on], beams(on), step))
     half = float(np.abs(az[on]).max()) + grow / dist + 2 * tol  # the azimuths about the board
     lo, hi = scan_window(az, tol)
-    rays, lost, runs = [], 0, 0
+    near = np.abs(az) < half + 3 * step  # the returns about the board, those on its plane among them
+    az_n, ring_n, on_n = az[near], beams(near), on[near]
+    rays_a, rays_e, lost, runs = [], [], 0, 0
     for k in range(el_tab.size):
-        mine = ring == k
-        a_k = np.sort(az[mine & (np.abs(az) < half + 3 * step)])
+        mine = ring_n == k
+        a_k = np.sort(az_n[mine])
         if a_k.size == 0:  # a beam without any return near the board: not known to fire there
             continue
         w = 2 * np.pi * a_k / step
@@ -98,16 +104,17 @@ def silent_rays(
         if g.size == 0:
             continue
         j = np.clip(np.searchsorted(a_k, g), 1, a_k.size - 1)
-        near = np.minimum(np.abs(g - a_k[j - 1]), np.abs(g - a_k[np.minimum(j, a_k.size - 1)]))
-        quiet = np.where(a_k.size > 1, near, np.abs(g - a_k[0])) > tol
-        a_on = az[mine & on]
+        near_k = np.minimum(np.abs(g - a_k[j - 1]), np.abs(g - a_k[np.minimum(j, a_k.size - 1)]))
+        quiet = np.where(a_k.size > 1, near_k, np.abs(g - a_k[0])) > tol
+        a_on = az_n[mine & on_n]
         if a_on.size:
             span = (g >= a_on.min()) & (g <= a_on.max())
             runs, lost = runs + int(span.sum()), lost + int((quiet & span).sum())
-        rays += [(a, el_tab[k]) for a in g[quiet]]
-    if not rays:
+        rays_a.append(g[quiet])
+        rays_e.append(np.full(int(quiet.sum()), el_tab[k]))
+    if sum(r.size for r in rays_a) == 0:
         return empty, lost / max(runs, 1)
-    a, e = np.asarray(rays).T
+    a, e = np.concatenate(rays_a), np.concatenate(rays_e)
     a = a + az_c
     d = np.column_stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)]) @ R  # board frame
     ob = (o - t) @ R
