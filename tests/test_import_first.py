@@ -34,3 +34,24 @@ def test_each_module_imports_first() -> None:
     with ThreadPoolExecutor(max_workers=4) as pool:
         failed = [(m, err) for m, rc, err in pool.map(_first, _modules()) if rc != 0]
     assert not failed, failed
+
+
+def test_no_module_of_the_package_imports_scipy_stats() -> None:
+    """``scipy.stats`` takes most of a second to import, paid by every process of a run (the command,
+    each worker): no module of the package imports it (chi-square figures come from
+    ``scipy.special``: ``estimation.chi2``, ``lidar.outline.shape_gate``). Names the first module
+    that does."""
+    code = (
+        "import importlib, pkgutil, sys\n"
+        "import factors, ilcc_graph\n"
+        "names = [i.name for p in (ilcc_graph, factors)\n"
+        "         for i in pkgutil.walk_packages(p.__path__, p.__name__ + '.')\n"
+        "         if not i.name.endswith('__main__')]\n"
+        "first = next((m for m in names\n"
+        "              if importlib.import_module(m) and 'scipy.stats' in sys.modules), '')\n"
+        "print(len(names), first)\n"
+    )
+    run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    count, first = (run.stdout.split() + [""])[:2]
+    assert int(count) > 200 and first == "", f"{first} imports scipy.stats"
