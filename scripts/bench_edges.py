@@ -127,11 +127,12 @@ def main(argv: Sequence[str]) -> int:
     if args.from_sink is None:
         done = {s["seed"] for s in load_sink(args.sink)}
         cache = Path(tempfile.mkdtemp(prefix="bench_edges_"))
+        fields = args.fields.split(",")
+        edges_of = {"both": (False, True), "sharp": (False,), "realistic": (True,)}[args.edges]
         for seed in range(args.first, args.first + args.sets):
             if seed in done:
                 continue
-            edges_of = {"both": (False, True), "sharp": (False,), "realistic": (True,)}[args.edges]
-            got = run_set(seed, cache, args.fields.split(","), edges_of)
+            got = run_set(seed, cache, fields, edges_of)
             append_sink(args.sink, got)
             print(json.dumps({k: {kk: v.get(kk) for kk in ("used", "nees", "failure")}
                               for k, v in got["runs"].items()}), flush=True)  # fmt: skip
