@@ -75,5 +75,5 @@ fi
 # PYTHONDONTWRITEBYTECODE is set every process would compile the package's sources again on import
 # (0.3 s a process: the command, each worker, each of the tests' subprocesses). Files already
 # compiled are skipped; a source edited later is compiled again on import as usual.
-.venv/bin/python -m compileall -q ilcc_graph factors >/dev/null
+.venv/bin/python -m compileall -q ilcc_graph factors >/dev/null || say "could not write the bytecode ahead (imports compile it instead)"
 say "ready: .venv/bin/ilcc-graph --help"
