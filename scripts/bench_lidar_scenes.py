@@ -188,7 +188,8 @@ def main() -> None:
         "|---|---|---|---|---|---|",
     ]
     for name, rows in results.items():
-        lines += summary(name, rows)
+        if rows:  # a family asked for with 0 scenes has no row
+            lines += summary(name, rows)
     text = "\n".join(lines) + "\n"
     print(text)
     if args.write:
