@@ -25,12 +25,15 @@ def _modules() -> list[str]:
     return out
 
 
-#: Imports every module given (argv[1], JSON), then prints, as JSON, the modules that are not the
-#: package's, in the order they were imported.
+#: Imports every module given (argv[1], JSON; one that fails is left to the forked children to name),
+#: then prints, as JSON, the modules that are not the package's, in the order they were imported.
 _OTHERS = r"""
 import importlib, json, sys
 for name in json.loads(sys.argv[1]):
-    importlib.import_module(name)
+    try:
+        importlib.import_module(name)
+    except Exception:
+        pass
 print(json.dumps([m for m in sys.modules if m.split(".")[0] not in ("ilcc_graph", "factors", "__main__")]))
 """
 
