@@ -73,7 +73,8 @@ def test_each_module_imports_first() -> None:
     """Each module is the first of the package imported into an interpreter: a child forked from one
     that has loaded only the other libraries the package uses (numpy, gtsam, OpenCV, ...), so no
     module of the package is loaded before it and the libraries load once, not once per module."""
-    modules = json.dumps(_modules())
+    names = _modules()
+    modules = json.dumps(names)
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     others = subprocess.run([sys.executable, "-c", _OTHERS, modules], cwd=ROOT, capture_output=True,
                             text=True, env=env, timeout=300)  # fmt: skip
@@ -82,7 +83,7 @@ def test_each_module_imports_first() -> None:
                           capture_output=True, text=True, env=env, timeout=600)  # fmt: skip
     assert done.returncode == 0, done.stderr[-2000:]
     failed = json.loads(done.stdout)
-    assert len(_modules()) > 40 and not failed, failed
+    assert len(names) > 40 and not failed, failed
 
 
 def test_no_module_of_the_package_imports_scipy_stats() -> None:
