@@ -15,6 +15,7 @@ intensity fit sees: that coupling is propagated (:func:`ray_coupling`, :func:`as
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,28 +41,13 @@ def sampling_covariance(
     ring: (N,) beam index, blur: footprint sigma (m). Returns (3, 3), or an all-inf matrix when no
     edge is crossed at all.
     """
-    from scipy.spatial import cKDTree
-
     n = b.shape[0]
     if n < 3:
         return np.full((3, 3), np.inf)
     s = board.square_size
-    # neighbours along each ring and in the next ring up (rings are far apart compared with the
-    # spacing along them, so plain nearest neighbours would never pair returns across rings)
-    pi, pj = [], []
-    by_ring = {int(g): np.flatnonzero(ring == g) for g in np.unique(ring)}
-    trees = {g: cKDTree(b[ix]) for g, ix in by_ring.items()}
-    for g, ix in by_ring.items():
-        for h, kk in ((g, 3), (g + 1, 2)):
-            if h not in trees or by_ring[h].size < 2:
-                continue
-            kk = min(kk, by_ring[h].size)
-            _, nb = trees[h].query(b[ix], k=kk)
-            pi.append(np.repeat(ix, kk))
-            pj.append(by_ring[h][nb.reshape(-1)])
-    if not pi:
+    i, j = _beam_neighbours(b, ring)
+    if i.size == 0:
         return np.full((3, 3), np.inf)
-    i, j = np.concatenate(pi), np.concatenate(pj)
     keep = (i != j) & (cls[i] >= 0) & (cls[j] >= 0) & (cls[i] != cls[j])
     i, j = i[keep], j[keep]
     rows = []
@@ -99,6 +85,54 @@ def sampling_covariance(
         return np.linalg.inv(info + 1e-12 * np.eye(3))
     except np.linalg.LinAlgError:
         return np.full((3, 3), np.inf)
+
+
+def _beam_neighbours(b: np.ndarray, ring: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i, j) of returns ``b`` (N, 2) on beams ``ring`` (N,): each return with its
+    nearest returns on its own beam (up to three, itself among them) and its two nearest on the
+    next beam up (index + 1), by distance in the board's plane; a beam of fewer than two returns
+    gives and takes no pairs. Beam by beam in increasing order (own beam, then the next), each
+    return's neighbours nearest first.
+
+    Rings are far apart compared with the spacing along them, so plain nearest neighbours would
+    never pair returns across rings: one k-d tree over (x, y, beam * gap), ``gap`` a power of two
+    larger than four times the returns' extent, so every other beam lies farther than any return
+    of the queried one while a distance within a beam is the plane's own (the beam term is exactly 0).
+    """
+    from scipy.spatial import cKDTree
+
+    n = b.shape[0]
+    empty = np.zeros(0, dtype=np.int64)
+    if n == 0:
+        return empty, empty
+    beams, of, count = np.unique(ring, return_inverse=True, return_counts=True)
+    of = of.reshape(-1)
+    extent = float(np.max(np.ptp(b, axis=0)))
+    gap = 2.0 ** math.ceil(math.log2(4.0 * extent + 1.0))
+    xyz = np.column_stack([b, beams.astype(np.float64)[of] * gap])
+    tree = cKDTree(xyz)
+    own = tree.query(xyz, k=min(3, n))[1].reshape(n, -1)
+    up_at = np.minimum(np.searchsorted(beams, beams + 1), beams.size - 1)
+    has_up = (beams[up_at] == beams + 1) & (count[up_at] >= 2) & (count >= 1)
+    asks = has_up[of]
+    up_row = np.cumsum(asks) - 1
+    up = tree.query(xyz[asks] + np.array([0.0, 0.0, gap]), k=2)[1].reshape(-1, 2) if np.any(asks) else None
+    members = np.argsort(of, kind="stable")
+    starts = np.cumsum(count) - count
+    pi, pj = [], []
+    for g in range(beams.size):
+        ix = members[starts[g] : starts[g] + count[g]]
+        if count[g] >= 2:
+            kk = min(3, int(count[g]))
+            pi.append(np.repeat(ix, kk))
+            pj.append(own[ix, :kk].reshape(-1))
+        if has_up[g]:
+            assert up is not None
+            pi.append(np.repeat(ix, 2))
+            pj.append(up[up_row[ix]].reshape(-1))
+    if not pi:
+        return empty, empty
+    return np.concatenate(pi), np.concatenate(pj)
 
 
 @dataclass(frozen=True)
