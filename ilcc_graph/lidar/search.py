@@ -19,7 +19,7 @@ import numpy as np
 
 from ..board import Board
 from ..errors import BoardNotFound
-from .board_tests import intensity_contrast
+from .board_tests import intensity_contrast, print_visible
 from .options import LidarOptions, breach
 
 __all__ = ["Candidate", "SearchInput", "inside_mask", "inlier_threshold", "piece_range", "ransac_plane",
@@ -310,11 +310,8 @@ class _Search:
             for piece, _ in pieces:
                 self.test(piece, 1)
             rest = cur[~inl]
-            if rest.size < MIN_PIECE:
-                continue
-            for piece, piece_links in scan.pieces(rest, links):
-                if piece.size < MIN_PIECE:
-                    continue
+            rest_pieces = [t for t in scan.pieces(rest, links) if t[0].size >= MIN_PIECE] if rest.size else []
+            for piece, piece_links in rest_pieces:
                 size = float(np.linalg.norm(np.ptp(p[piece], axis=0)))
                 if size < 2.0 * self.diag:
                     self.test(piece, 1)  # small enough to be judged (and trimmed) directly
@@ -322,6 +319,40 @@ class _Search:
                     self.min_count(piece), options.min_points
                 ):
                     queue.append((piece, piece_links))  # big enough, with returns enough, for a board
+            if len(self.passed) == n_before:
+                self._regrow(cur, links, [t[0] for t in pieces + rest_pieces])
+
+    def _regrow(self, cur: np.ndarray, links: Any, pieces: list[np.ndarray]) -> None:
+        """Test the whole surface of each piece too short for a board (indices into the scan's points,
+        of the object ``cur``): another surface's plane (the body of the person holding the board,
+        at a few degrees to it) takes a band across the board, leaving pieces either side that are
+        short of a board's returns. Only a piece that shows a print (``print_visible`` at
+        ``print_contrast_min``) is grown: its own plane (least squares) gathers the returns of ``cur``
+        on it, and their connected piece holding most of the seed is tested, once per surface. (Grown
+        from any piece, the faces of a person's body or a box pass the tests of a board whose print
+        the LiDAR does not show.)"""
+        p, options = self.scan.points, self.options
+        seen: set[tuple[int, int]] = set()
+        for seed in pieces:
+            span = float(np.linalg.norm(np.ptp(p[seed], axis=0)))
+            if seed.size >= self.min_count(seed) or span < options.size_ratio[0] * self.short_side:
+                continue
+            if not print_visible(self.scan.intensity[seed], p[seed], options.print_contrast_min)[0]:
+                continue
+            mu = p[seed].mean(axis=0)
+            n = np.linalg.svd(p[seed] - mu, full_matrices=False)[2][2]
+            on = cur[np.abs((p[cur] - mu) @ n) < self.scan.threshold]
+            if on.size <= seed.size:
+                continue
+            grown = max(self.scan.pieces(on, links), key=lambda t: np.isin(t[0], seed).sum())[0]
+            key = (int(grown[0]), int(grown.size))
+            if grown.size <= seed.size or key in seen:
+                continue
+            seen.add(key)
+            n_pass = len(self.passed)
+            self.test(grown, 1)
+            if len(self.passed) > n_pass:
+                return
 
     def _one_surface(
         self, cur: np.ndarray, inl: np.ndarray, pieces: list[tuple[np.ndarray, Any]]
