@@ -90,8 +90,8 @@ def sampling_covariance(
 def _beam_neighbours(b: np.ndarray, ring: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Index pairs (i, j) of returns ``b`` (N, 2) on beams ``ring`` (N,): each return with its
     nearest returns on its own beam (up to three, itself among them) and its two nearest on the
-    next beam up (index + 1), by distance in the board's plane; a beam of fewer than two returns
-    gives and takes no pairs. Beam by beam in increasing order (own beam, then the next), each
+    next beam up (index + 1), by distance in the board's plane; a beam of one return has no pairs
+    along it and is no beam's next. Beam by beam in increasing order (own beam, then the next), each
     return's neighbours nearest first.
 
     Rings are far apart compared with the spacing along them, so plain nearest neighbours would
@@ -113,7 +113,7 @@ def _beam_neighbours(b: np.ndarray, ring: np.ndarray) -> tuple[np.ndarray, np.nd
     tree = cKDTree(xyz)
     own = tree.query(xyz, k=min(3, n))[1].reshape(n, -1)
     up_at = np.minimum(np.searchsorted(beams, beams + 1), beams.size - 1)
-    has_up = (beams[up_at] == beams + 1) & (count[up_at] >= 2) & (count >= 1)
+    has_up = (beams[up_at] == beams + 1) & (count[up_at] >= 2)
     asks = has_up[of]
     up_row = np.cumsum(asks) - 1
     up = tree.query(xyz[asks] + np.array([0.0, 0.0, gap]), k=2)[1].reshape(-1, 2) if np.any(asks) else None

@@ -344,7 +344,10 @@ class _Search:
             on = cur[np.abs((p[cur] - mu) @ n) < self.scan.threshold]
             if on.size <= seed.size:
                 continue
-            grown = max(self.scan.pieces(on, links), key=lambda t: np.isin(t[0], seed).sum())[0]
+            on_pieces = self.scan.pieces(on, links)
+            if not on_pieces:
+                continue
+            grown = max(on_pieces, key=lambda t: np.isin(t[0], seed).sum())[0]
             key = (int(grown[0]), int(grown.size))
             if grown.size <= seed.size or key in seen:
                 continue
