@@ -140,8 +140,9 @@ def run_scene(job: tuple[str, int, SynthScene, int]) -> dict:
 
 
 def rule_of(reason: str) -> str:
-    """The refusing rule named in a reason ("(count_ratio, ...", "(min_fit_score: ..."), else its head."""
-    m = re.search(r"\(([a-z_]+)[,:]", reason)
+    """The refusing rule named in a reason ("(count_ratio, ...", "(min_fit_score: ...", "(returns clear
+    of the edges: ..."), else its head."""
+    m = re.search(r"\(([a-z_][a-z0-9_ ]*)(?:, [^():]*)?: -?\d", reason)
     return m.group(1) if m else reason.split(":")[1].strip()[:40] if ":" in reason else reason[:40]
 
 

@@ -207,3 +207,24 @@ def test_a_poor_pattern_fit_names_min_fit_score() -> None:
         estimate_board(scan, board, VLP16, options=LidarOptions(min_fit_score=1.5))
     r = str(err.value)
     assert "min_fit_score" in r and _check_figures(r) >= 1, r
+
+
+def test_scanlines_along_the_squares_edges_are_refused_for_what_they_are() -> None:
+    """An OS1-32 at 3.9 m: its rings (1.4 deg apart, 95 mm there) fall within a footprint of the
+    rows' edges of a board of 100 mm squares, so no return lies clear of an edge and the fitted
+    pattern cannot be checked against the intensities. The refusal used to say the fit "explains
+    only 0% of its black/white returns" (a share of nothing); it now says how many returns lie clear
+    of the edges, and that figure makes it a refusal."""
+    board = Board(6, 8, 0.1)
+    model = lidar_model("os1-32-gen2")
+    sc = SynthScene(
+        distance=3.9037, azimuth_deg=86.91, elevation_deg=-3.4201, tilt_deg=(-5.8112, -1.8731),
+        wall_gap=None, ground_z=-1.09, person=True, stand=True, range_sigma=0.01265, azimuth_window_deg=None,
+    )  # fmt: skip
+    scan, _ = synth_scan(board, model, sc, np.random.default_rng(5013))
+    with pytest.raises(BoardNotFound) as err:
+        estimate_board(scan, board, model)
+    why = str(err.value).split(";")[0]
+    assert "explains only 0%" not in why and "clear of the edges" in why, why
+    (name, value, op, limit), *_ = FIGURE.findall(why)
+    assert name == "returns clear of the edges" and op == "<" and float(value) < float(limit), why

@@ -147,6 +147,13 @@ def _plane_passes(P: np.ndarray, ring: np.ndarray, T: np.ndarray, board: Board, 
     return T, s_z
 
 
+def _clear_of_lines(b: np.ndarray, board: Board, clear: float) -> np.ndarray:
+    """(N,) bool: board-frame points ``b`` (N, 2, m) more than ``clear`` squares from every grid line
+    of the pattern (a footprint there does not straddle two squares)."""
+    u = b / board.square_size
+    return (np.abs(u - np.round(u)) > clear).all(axis=1)
+
+
 def _refine(
     P: np.ndarray, inten: np.ndarray, ring: np.ndarray, T0: np.ndarray, s_z: float, board: Board,
     model: LidarModel, fit: InPlaneFit, options: LidarOptions,
@@ -174,9 +181,19 @@ def _refine(
     # the fitted pattern must explain the intensities: black returns on black squares, white on white
     # (away from the edges, where footprints straddle both)
     colour = board.colour_at(b_fin[:, :2])
-    u = b_fin[:, :2] / board.square_size
-    inner = (np.abs(u - np.round(u)) > 0.15).all(axis=1) & (cls >= 0) & np.isfinite(colour)
-    agree = float(np.mean(cls[inner] == colour[inner])) if inner.sum() >= 20 else 0.0
+    usable = (cls >= 0) & np.isfinite(colour)
+    inner = _clear_of_lines(b_fin[:, :2], board, 0.15) & usable
+    if inner.sum() < 20:  # scanlines along the squares' edges (a ring spacing of about one square)
+        clear = max(2.0 * soft.blur, 0.05 * board.square_size)  # (m) beyond the footprint's straddle
+        inner = _clear_of_lines(b_fin[:, :2], board, clear / board.square_size) & usable
+        if inner.sum() < 20:
+            raise BoardNotFound(
+                f"a board-shaped object at {dist:.2f} m, but only {int(inner.sum())} of its returns lie "
+                f"{1e3 * clear:.0f} mm or more from the squares' edges: too few to tell whether the fitted "
+                "chessboard explains its black/white returns (scanlines along the edges?) "
+                + breach("returns clear of the edges", float(inner.sum()), "<", 20.0)
+            )
+    agree = float(np.mean(cls[inner] == colour[inner]))
     if agree < options.min_agreement:
         raise BoardNotFound(
             f"a board-shaped object at {dist:.2f} m, but the fitted chessboard explains only {agree:.0%} of "
