@@ -189,7 +189,7 @@ def _refine(
         if inner.sum() < 20:
             raise BoardNotFound(
                 f"a board-shaped object at {dist:.2f} m, but only {int(inner.sum())} of its returns lie "
-                f"{1e3 * clear:.0f} mm or more from the squares' edges: too few to tell whether the fitted "
+                f"more than {1e3 * clear:.0f} mm from the squares' edges: too few to tell whether the fitted "
                 "chessboard explains its black/white returns (scanlines along the edges?) "
                 + breach("returns clear of the edges", float(inner.sum()), "<", 20.0)
             )
