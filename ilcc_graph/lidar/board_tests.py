@@ -10,10 +10,11 @@ from typing import overload
 import numpy as np
 
 from ..board import Board
+from ..errors import BoardNotFound
 from ..lidars import LidarModel
 from .options import LidarOptions, breach
 
-__all__ = ["board_tests", "intensity_contrast", "local_elevation_step", "print_visible"]
+__all__ = ["board_tests", "colour_agreement", "intensity_contrast", "local_elevation_step", "print_visible"]
 
 
 @overload
@@ -56,6 +57,44 @@ def intensity_contrast(intensity: np.ndarray) -> tuple[float, float]:
     pooled = np.sqrt((lo.var() * lo.size + hi.var() * hi.size) / m)
     spread = r[-1] - r[0]
     return float((hi.mean() - lo.mean()) / max(pooled, 1e-9 * spread)), float(min(lo.size, hi.size) / m)
+
+
+def _clear_of_lines(b: np.ndarray, board: Board, clear: float) -> np.ndarray:
+    """(N,) bool: board-frame points ``b`` (N, 2, m) more than ``clear`` squares from every grid line
+    of the pattern (a footprint there does not straddle two squares)."""
+    u = b / board.square_size
+    return np.asarray((np.abs(u - np.round(u)) > clear).all(axis=1), dtype=bool)
+
+
+def colour_agreement(
+    b: np.ndarray, cls: np.ndarray, board: Board, blur: float, dist: float, min_agreement: float
+) -> float:
+    """The share of black/white returns whose colour the fitted pattern has under them: returns ``b``
+    (N, 2, board frame, m) of intensity class ``cls`` (N,: 0 black, 1 white, -1 gray), counted away
+    from the edges, where footprints straddle both (0.15 squares; when fewer than 20 returns lie
+    there, scanlines along the rows' edges, twice the footprint ``blur`` (m), at least 0.05 squares).
+    BoardNotFound when fewer than 20 are clear of the edges even so, or the share is below
+    ``min_agreement``; ``dist``: the object's range (m), for the message."""
+    colour = board.colour_at(b)
+    usable = (cls >= 0) & np.isfinite(colour)
+    inner = _clear_of_lines(b, board, 0.15) & usable
+    if inner.sum() < 20:
+        clear = max(2.0 * blur, 0.05 * board.square_size)  # (m) beyond the footprint's straddle
+        inner = _clear_of_lines(b, board, clear / board.square_size) & usable
+        if inner.sum() < 20:
+            raise BoardNotFound(
+                f"a board-shaped object at {dist:.2f} m, but only {int(inner.sum())} of its returns lie "
+                f"more than {1e3 * clear:.0f} mm from the squares' edges: too few to tell whether the fitted "
+                "chessboard explains its black/white returns (scanlines along the edges?) "
+                + breach("returns clear of the edges", float(inner.sum()), "<", 20.0)
+            )
+    agree = float(np.mean(cls[inner] == colour[inner]))
+    if agree < min_agreement:
+        raise BoardNotFound(
+            f"a board-shaped object at {dist:.2f} m, but the fitted chessboard explains only {agree:.0%} of "
+            "its black/white returns " + breach("min_agreement", agree, "<", min_agreement)
+        )
+    return agree
 
 
 def print_visible(

@@ -19,7 +19,7 @@ from ..board import Board
 from ..errors import BoardNotFound
 from ..lidars import LidarModel
 from ..types import BoardFit, BoardReturns
-from .board_tests import print_visible
+from .board_tests import colour_agreement, print_visible
 from .cost import intensity_classes
 from .covariance import PlaneFit, assemble_covariance, plane_fit, ray_coupling, sampling_covariance
 from .fit import InPlaneFit, align_to_plane, fit_in_plane, plane_frame, pose_from_in_plane, project_on_plane
@@ -147,13 +147,6 @@ def _plane_passes(P: np.ndarray, ring: np.ndarray, T: np.ndarray, board: Board, 
     return T, s_z
 
 
-def _clear_of_lines(b: np.ndarray, board: Board, clear: float) -> np.ndarray:
-    """(N,) bool: board-frame points ``b`` (N, 2, m) more than ``clear`` squares from every grid line
-    of the pattern (a footprint there does not straddle two squares)."""
-    u = b / board.square_size
-    return (np.abs(u - np.round(u)) > clear).all(axis=1)
-
-
 def _refine(
     P: np.ndarray, inten: np.ndarray, ring: np.ndarray, T0: np.ndarray, s_z: float, board: Board,
     model: LidarModel, fit: InPlaneFit, options: LidarOptions,
@@ -178,27 +171,7 @@ def _refine(
         T = T0 @ E
     b_fin = _to_board(P[on], T, options.projection)
     cls = intensity_classes(inten[on], *fit.tau)
-    # the fitted pattern must explain the intensities: black returns on black squares, white on white
-    # (away from the edges, where footprints straddle both)
-    colour = board.colour_at(b_fin[:, :2])
-    usable = (cls >= 0) & np.isfinite(colour)
-    inner = _clear_of_lines(b_fin[:, :2], board, 0.15) & usable
-    if inner.sum() < 20:  # scanlines along the squares' edges (a ring spacing of about one square)
-        clear = max(2.0 * soft.blur, 0.05 * board.square_size)  # (m) beyond the footprint's straddle
-        inner = _clear_of_lines(b_fin[:, :2], board, clear / board.square_size) & usable
-        if inner.sum() < 20:
-            raise BoardNotFound(
-                f"a board-shaped object at {dist:.2f} m, but only {int(inner.sum())} of its returns lie "
-                f"more than {1e3 * clear:.0f} mm from the squares' edges: too few to tell whether the fitted "
-                "chessboard explains its black/white returns (scanlines along the edges?) "
-                + breach("returns clear of the edges", float(inner.sum()), "<", 20.0)
-            )
-    agree = float(np.mean(cls[inner] == colour[inner]))
-    if agree < options.min_agreement:
-        raise BoardNotFound(
-            f"a board-shaped object at {dist:.2f} m, but the fitted chessboard explains only {agree:.0%} of "
-            "its black/white returns " + breach("min_agreement", agree, "<", options.min_agreement)
-        )
+    agree = colour_agreement(b_fin[:, :2], cls, board, soft.blur, dist, options.min_agreement)
     cov_q = sampling_covariance(b_fin[:, :2], cls, ring[on], board, soft.blur)
     K = np.zeros((3, 3))
     if options.projection == "ray":
