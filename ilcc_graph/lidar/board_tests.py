@@ -1,4 +1,4 @@
-"""The paper's board tests on one candidate (Wang et al. 2017, Section 4.1) and the contrast test.
+"""The paper's board tests on a candidate (Wang et al. 2017, 4.1), the contrast test, the fit's colour check.
 
 See detection.py for the list; every intensity rule here is scale-free (measured on the candidate).
 """
