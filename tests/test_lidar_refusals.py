@@ -210,7 +210,7 @@ def test_a_poor_pattern_fit_names_min_fit_score() -> None:
 
 
 def test_scanlines_along_the_squares_edges_are_refused_for_what_they_are() -> None:
-    """An OS1-32 at 3.9 m: its rings (1.4 deg apart, 95 mm there) fall within a footprint of the
+    """An OS1-32 at 3.9 m: its rings (1.45 deg apart, 99 mm there) fall within a footprint of the
     rows' edges of a board of 100 mm squares, so no return lies clear of an edge and the fitted
     pattern cannot be checked against the intensities. The refusal used to say the fit "explains
     only 0% of its black/white returns" (a share of nothing); it now says how many returns lie clear
