@@ -339,9 +339,7 @@ class _Search:
                 continue
             if not print_visible(self.scan.intensity[seed], p[seed], options.print_contrast_min)[0]:
                 continue
-            mu = p[seed].mean(axis=0)
-            n = np.linalg.svd(p[seed] - mu, full_matrices=False)[2][2]
-            on = cur[np.abs((p[cur] - mu) @ n) < self.scan.threshold]
+            on = cur[self._on_plane_of(seed, cur)]
             if on.size <= seed.size:
                 continue
             on_pieces = self.scan.pieces(on, links)
@@ -369,11 +367,16 @@ class _Search:
         big = max(pieces, key=lambda t: t[0].size)[0]
         if big.size >= ONE_SURFACE * inl.sum() or big.size < MIN_PIECE:
             return None
-        p = self.scan.points
-        mu = p[big].mean(axis=0)
-        n = np.linalg.svd(p[big] - mu, full_matrices=False)[2][2]  # least squares: the piece is in-plane
-        again = np.abs((p[cur] - mu) @ n) < self.scan.threshold
+        again = self._on_plane_of(big, cur)
         return again if again.sum() >= MIN_PIECE else None
+
+    def _on_plane_of(self, piece: np.ndarray, cur: np.ndarray) -> np.ndarray:
+        """(len(cur),) bool: the returns ``cur`` (indices) within the inlier distance of the
+        least-squares plane of ``piece`` (indices; a piece of one surface, so no RANSAC)."""
+        p = self.scan.points
+        mu = p[piece].mean(axis=0)
+        n = np.linalg.svd(p[piece] - mu, full_matrices=False)[2][2]
+        return np.abs((p[cur] - mu) @ n) < self.scan.threshold
 
     def offer(self) -> bool:
         """Turn the new passes into Candidates; True when the caller accepts them (stop searching)."""
