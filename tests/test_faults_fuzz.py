@@ -9,7 +9,6 @@ or anything else a user would meet as a traceback.
 
 from __future__ import annotations
 
-import tempfile
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -27,7 +26,13 @@ from ilcc_graph.io.scans import write_csv
 from ilcc_graph.types import Scan
 
 FUZZ = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-_DIR = Path(tempfile.mkdtemp(prefix="ilcc-fuzz-"))  # hypothesis and function-scoped tmp_path do not mix
+_FILES = ("binary.pcd", "ascii.pcd", "compressed.pcd", "cloud.ply", "cloud.csv", "cloud.bin", "ascii.ply")
+
+
+@pytest.fixture(scope="module")
+def fuzz_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One folder for the module's files (hypothesis and function-scoped ``tmp_path`` do not mix)."""
+    return tmp_path_factory.mktemp("fuzz")
 
 
 def _scan(n: int = 40, ring: bool = True) -> Scan:
@@ -39,8 +44,9 @@ def _scan(n: int = 40, ring: bool = True) -> Scan:
     )
 
 
-def _valid_files() -> dict[str, bytes]:
-    """One small valid file per format and layout (the seeds of the mutations)."""
+@pytest.fixture(scope="module")
+def seeds(fuzz_dir: Path) -> dict[str, bytes]:
+    """One small valid file per format and layout (the seeds of the mutations), by name."""
     out = {}
     for name, write in (
         ("binary.pcd", lambda p: write_pcd(p, _scan(), data="binary")),
@@ -53,21 +59,19 @@ def _valid_files() -> dict[str, bytes]:
             lambda p: p.write_bytes(np.c_[_scan().points, _scan().intensity].astype("<f4").tobytes()),
         ),
     ):
-        path = _DIR / f"seed-{name}"
+        path = fuzz_dir / f"seed-{name}"
         write(path)
         out[name] = path.read_bytes()
     out["ascii.ply"] = (
         b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
         b"property float intensity\nend_header\n1 2 3 4\n2 3 4 5\n3 4 5 6\n"
     )
+    assert sorted(out) == sorted(_FILES)
     return out
 
 
-SEEDS = _valid_files()
-
-
-def _read(name: str, data: bytes) -> None:
-    path = _DIR / name
+def _read(folder: Path, name: str, data: bytes) -> None:
+    path = folder / name
     path.write_bytes(data)
     try:
         scan = read_scan(path)
@@ -81,21 +85,23 @@ def _read(name: str, data: bytes) -> None:
 @pytest.mark.parametrize("suffix", [".pcd", ".ply", ".csv", ".bin"])
 @FUZZ
 @given(data=st.binary(max_size=600))
-def test_random_bytes_into_every_scan_reader(suffix: str, data: bytes) -> None:
-    _read(f"random{suffix}", data)
+def test_random_bytes_into_every_scan_reader(fuzz_dir: Path, suffix: str, data: bytes) -> None:
+    _read(fuzz_dir, f"random{suffix}", data)
 
 
-@pytest.mark.parametrize("seed", sorted(SEEDS))
+@pytest.mark.parametrize("seed", sorted(_FILES))
 @FUZZ
 @given(
     cut=st.integers(0, 10**6),
     flips=st.lists(st.tuples(st.integers(0, 10**6), st.integers(1, 255)), max_size=6),
 )
-def test_truncated_and_bit_flipped_files(seed: str, cut: int, flips: list[tuple[int, int]]) -> None:
-    data = bytearray(SEEDS[seed])
+def test_truncated_and_bit_flipped_files(
+    fuzz_dir: Path, seeds: dict[str, bytes], seed: str, cut: int, flips: list[tuple[int, int]]
+) -> None:
+    data = bytearray(seeds[seed])
     for pos, mask in flips:
         data[pos % len(data)] ^= mask
-    _read(seed, bytes(data[: cut % (len(data) + 1)]))
+    _read(fuzz_dir, seed, bytes(data[: cut % (len(data) + 1)]))
 
 
 _TOKENS = [b"x", b"y", b"z", b"intensity", b"ring", b"F", b"U", b"I", b"4", b"8", b"0", b"-1", b"1e9",
@@ -106,14 +112,16 @@ _TOKENS = [b"x", b"y", b"z", b"intensity", b"ring", b"F", b"U", b"I", b"4", b"8"
 @pytest.mark.parametrize("seed", ["binary.pcd", "ascii.pcd", "compressed.pcd", "cloud.ply", "ascii.ply"])
 @FUZZ
 @given(edits=st.lists(st.tuples(st.integers(0, 200), st.sampled_from(_TOKENS)), min_size=1, max_size=4))
-def test_mutated_headers(seed: str, edits: list[tuple[int, bytes]]) -> None:
-    raw = SEEDS[seed]
+def test_mutated_headers(
+    fuzz_dir: Path, seeds: dict[str, bytes], seed: str, edits: list[tuple[int, bytes]]
+) -> None:
+    raw = seeds[seed]
     end = raw.find(b"DATA") if seed.endswith(".pcd") else raw.find(b"end_header")
     head_end = raw.find(b"\n", end) + 1
     tokens = raw[:head_end].split(b" ")
     for pos, tok in edits:
         tokens[pos % len(tokens)] = tok
-    _read(seed, b" ".join(tokens) + raw[head_end:])
+    _read(fuzz_dir, seed, b" ".join(tokens) + raw[head_end:])
 
 
 _PF = {"x": 7, "y": 7, "z": 7, "intensity": 7, "ring": 4}
@@ -154,8 +162,8 @@ def test_random_pointcloud2_messages(names, types, offsets, step, width, height,
 
 @FUZZ
 @given(data=st.binary(max_size=400))
-def test_random_bytes_into_the_image_reader(data: bytes) -> None:
-    path = _DIR / "random.png"
+def test_random_bytes_into_the_image_reader(fuzz_dir: Path, data: bytes) -> None:
+    path = fuzz_dir / "random.png"
     path.write_bytes(data)
     try:
         img = read_image(path)
@@ -187,11 +195,11 @@ _VALUES = st.recursive(
     ["squares", "square_size", "margin", "lower_left", "model", "width", "height", "K", "dist", "roi",
      "vertical_angles_deg", "calibration_file", "intensity_column", "xi", "alpha", "intrinsics_sigma"]),
     value=_VALUES)  # fmt: skip
-def test_config_with_one_random_value(section: str, key: str, value: object) -> None:
+def test_config_with_one_random_value(fuzz_dir: Path, section: str, key: str, value: object) -> None:
     d = yaml.safe_load(yaml.safe_dump(_VALID))
     d[section][key] = value
     try:
-        cfg = parse_config(d, source="config.yaml", base_dir=_DIR)
+        cfg = parse_config(d, source="config.yaml", base_dir=fuzz_dir)
     except InputError as err:
         assert "config.yaml" in str(err)
         return
@@ -200,8 +208,8 @@ def test_config_with_one_random_value(section: str, key: str, value: object) -> 
 
 @FUZZ
 @given(data=st.binary(max_size=300) | st.text(max_size=300).map(str.encode))
-def test_random_bytes_into_the_config_loader(data: bytes) -> None:
-    path = _DIR / "config.yaml"
+def test_random_bytes_into_the_config_loader(fuzz_dir: Path, data: bytes) -> None:
+    path = fuzz_dir / "config.yaml"
     path.write_bytes(data)
     try:
         load_config(path)
