@@ -1,7 +1,8 @@
 """The per-frame stages' worker processes: started safely, stopped with the run.
 
 ``map_processes(fn, items, jobs, progress)`` computes ``fn(*item)`` for every item, in order, on
-``jobs`` processes (in this process when ``jobs <= 1``).
+``jobs`` processes (in this process when ``jobs <= 1``); ``imap_processes`` gives them one at a time
+as the caller asks, the workers a few items ahead.
 
 - Workers come from a ``forkserver``: a clean process that imports the stages once and forks each
   worker from itself, never from the main process. The main process has threads by then (OpenBLAS's,
@@ -22,7 +23,9 @@
 
 from __future__ import annotations
 
+import collections
 import contextlib
+import itertools
 import logging
 import multiprocessing
 import os
@@ -31,15 +34,15 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Callable, Generator, Iterator, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor
 from typing import Any
 
 from ilcc_graph import signals
 
 log = logging.getLogger(__name__)
 
-__all__ = ["START_METHOD", "map_processes", "pool", "prestart", "processes_where"]
+__all__ = ["START_METHOD", "imap_processes", "map_processes", "pool", "prestart", "processes_where"]
 
 #: how worker processes are started (see the module docstring)
 START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
@@ -231,3 +234,29 @@ def map_processes(
                 progress(i + 1, len(items))
     log.debug("%d items on %d %s workers (pid %d)", len(items), jobs, START_METHOD, os.getpid())
     return out
+
+
+def imap_processes(
+    fn: Callable[..., Any], items: Sequence[tuple], jobs: int, ahead: int | None = None
+) -> Generator[Any, None, None]:
+    """``fn(*item)`` for each item, in order, one at a time as the caller asks: on ``jobs`` processes
+    working at most ``ahead`` items (default ``jobs``) beyond the last one taken, so that every worker
+    is busy while the caller works on a result (in this process when ``jobs <= 1``). Closing the
+    iterator before its end (a caller that has what it needs) ends the workers at once: the items
+    ahead are dropped. ``fn`` and the items must be picklable, as for ``map_processes``."""
+    if jobs <= 1 or len(items) <= 1:
+        for it in items:
+            signals.check()
+            yield fn(*it)
+        return
+    todo = iter(items)
+    with pool(min(jobs, len(items))) as executor:
+        running: collections.deque[Future] = collections.deque(
+            executor.submit(fn, *it) for it in itertools.islice(todo, max(1, ahead or jobs))
+        )
+        while running:
+            out = running.popleft().result()
+            signals.check()
+            if (following := next(todo, None)) is not None:
+                running.append(executor.submit(fn, *following))
+            yield out

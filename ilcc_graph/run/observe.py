@@ -5,11 +5,13 @@ frame file that cannot be read is a ``DamagedFile``, which skips the frame too u
 ``StageOptions.strict``; other ``InputError`` propagate) on ``StageOptions.jobs`` processes
 (``workers.py``) and decides the print's colour from the first frames' image results as they come,
 so that no frame waits for it. ``FrameStream`` gives the frames one at a time for a strategy that
-reads them as it solves (incremental). ``stage_alone``: one stage over every frame.
+reads them as it solves (incremental), on the same processes a few frames ahead. ``stage_alone``:
+one stage over every frame.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -145,10 +147,12 @@ class FrameStream:
         return self.opened.config
 
     def __iter__(self) -> Iterator[FrameResult]:
+        """The frames in order; with ``StageOptions.jobs`` > 1 observed on that many processes a few
+        frames ahead of the reader (what is ahead when the reader stops is dropped, not read)."""
         o = self.opened
-        for ref in o.refs:
-            signals.check()
-            yield observe_frame(o.source, ref, o.config, self.options, o.seen.get(ref.name))
+        items = [(o.source, ref, o.config, self.options, o.seen.get(ref.name)) for ref in o.refs]
+        with contextlib.closing(workers.imap_processes(observe_frame, items, self.options.jobs)) as frames:
+            yield from frames
 
     def unread(self, read: Sequence[FrameResult], why: str) -> list[FrameResult]:
         """The frames not read (with ``why``) and what could not become a frame, after ``read``."""

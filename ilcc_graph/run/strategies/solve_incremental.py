@@ -1,7 +1,8 @@
 """Incremental (``incremental``): frames observed one at a time and fed to iSAM2 until a target.
 
-The frames come from ``Observation.stream`` (``observe.FrameStream``) as the strategy reads them, so
-that with ``RunOptions.stop_at_target`` no frame is read after the target is reached (when iSAM2's
+The frames come from ``Observation.stream`` (``observe.FrameStream``: with ``--jobs N``, observed
+on N processes up to N frames ahead) as the strategy reads them, so that with
+``RunOptions.stop_at_target`` no frame is used after the target is reached (when iSAM2's
 sigmas reach it, confirmed by ``calibrate``'s answer on the frames read: the update ``(batch)``); the last
 update is the batch answer on every frame offered (``IncrementalCalibrator.finish``). Each update is
 reported as one line (``format_update``) and kept in ``incremental.yaml``. The run then takes the
