@@ -90,7 +90,7 @@ def _reasons() -> list[tuple[str, str, set[str]]]:
                 where = f"{path.name}:{getattr(node, 'lineno', 0)}"
                 if (
                     isinstance(node, ast.Call)
-                    and getattr(node.func, "id", "") == "BoardNotFound"
+                    and getattr(node.func, "id", "") in ("BoardNotFound", "PrintUnreadable")
                     and node.args
                 ):
                     out.append((where, _text(node.args[0]), _stated(node.args[0], named)))
@@ -209,22 +209,51 @@ def test_a_poor_pattern_fit_names_min_fit_score() -> None:
     assert "min_fit_score" in r and _check_figures(r) >= 1, r
 
 
-def test_scanlines_along_the_squares_edges_are_refused_for_what_they_are() -> None:
-    """An OS1-32 at 3.9 m: its rings (1.45 deg apart, 99 mm there) fall within a footprint of the
-    rows' edges of a board of 100 mm squares, so no return lies clear of an edge and the fitted
-    pattern cannot be checked against the intensities. The refusal used to say the fit "explains
-    only 0% of its black/white returns" (a share of nothing); it now says how many returns lie clear
-    of the edges, and that figure makes it a refusal."""
-    board = Board(6, 8, 0.1)
-    model = lidar_model("os1-32-gen2")
+def _aliased_scene() -> tuple[Scan, np.ndarray]:
+    """An OS1-32 at 3.9 m from a board of 100 mm squares: its rings (1.45 deg apart, 99 mm there)
+    fall within a footprint of the rows' edges (the held-board scene of bench_lidar_scenes, seed 5013)."""
     sc = SynthScene(
         distance=3.9037, azimuth_deg=86.91, elevation_deg=-3.4201, tilt_deg=(-5.8112, -1.8731),
         wall_gap=None, ground_z=-1.09, person=True, stand=True, range_sigma=0.01265, azimuth_window_deg=None,
     )  # fmt: skip
-    scan, _ = synth_scan(board, model, sc, np.random.default_rng(5013))
-    with pytest.raises(BoardNotFound) as err:
-        estimate_board(scan, board, model)
-    why = str(err.value).split(";")[0]
-    assert "explains only 0%" not in why and "clear of the edges" in why, why
+    return synth_scan(Board(6, 8, 0.1), lidar_model("os1-32-gen2"), sc, np.random.default_rng(5013))
+
+
+def test_scanlines_along_the_squares_edges_place_the_board_by_its_outline() -> None:
+    """No return of the aliased scene lies clear of the squares' edges, so the fitted pattern cannot
+    be checked against the intensities. That used to refuse the board ("explains only 0% of its
+    black/white returns", a share of nothing; then "returns clear of the edges: 2 < 20"): its print
+    shows, but cannot be read, so its outline places it, as a board whose print the LiDAR does not
+    show (half-turn open, the outline's covariance), and where that covariance says."""
+    import gtsam
+
+    board, model = Board(6, 8, 0.1), lidar_model("os1-32-gen2")
+    scan, T = _aliased_scene()
+    fit = estimate_board(scan, board, model)
+    d = fit.diagnostics
+    assert d["print_unreadable"] == 1.0 and d["no_contrast"] == 1.0 and fit.half_turn_ambiguous
+    truth = board.corners_board() @ T[:3, :3].T + T[:3, 3]
+    perm = board.half_turn_permutation()
+    turned = np.sqrt(((fit.corners_lidar[perm] - truth) ** 2).sum(axis=1).mean())
+    H = np.eye(4)
+    if turned < np.sqrt(((fit.corners_lidar - truth) ** 2).sum(axis=1).mean()):
+        H[:2, :2], H[:2, 3] = -np.eye(2), 2.0 * board.corners_board().mean(axis=0)[:2]
+    xi = gtsam.Pose3(fit.T_lidar_board).localCoordinates(gtsam.Pose3(T @ H))
+    assert float(xi @ np.linalg.solve(fit.covariance, xi)) < 22.46  # 6 dof, 99.9 %
+
+
+def test_a_print_too_few_returns_clear_of_its_edges_can_read_is_said_so() -> None:
+    """``colour_agreement``'s refusal when no return lies clear of the squares' edges: it says how
+    many do, the figure makes it a refusal, and it is the kind the outline may stand in for."""
+    from ilcc_graph.lidar.board_tests import PrintUnreadable, colour_agreement
+
+    board = Board(6, 8, 0.1)
+    rows = np.arange(1, 8) * 0.1 + np.random.default_rng(0).normal(0, 0.002, (40, 7))  # on the rows' edges
+    b = np.column_stack([np.linspace(0.02, 0.58, rows.size), rows.reshape(-1)])
+    cls = (np.arange(len(b)) % 2).astype(int)
+    with pytest.raises(PrintUnreadable) as err:
+        colour_agreement(b, cls, board, blur=0.01, dist=3.9, min_agreement=0.8)
+    why = str(err.value)
+    assert "explains only" not in why and "clear of the edges" in why, why
     (name, value, op, limit), *_ = FIGURE.findall(why)
     assert name == "returns clear of the edges" and op == "<" and float(value) < float(limit), why

@@ -153,3 +153,22 @@ def test_simulate_writes_scans_without_intensity_or_ring(tmp_path: Path) -> None
     assert main(["simulate", str(tmp_path / "ring"), *common, "--intensity-field", "ring"]) == 0
     scan = read_scan(sorted((tmp_path / "ring" / "pcd").iterdir())[0])
     assert scan.has_intensity and np.array_equal(scan.intensity, scan.ring)
+
+
+def test_the_warning_says_which_boards_show_a_print_that_cannot_be_read() -> None:
+    """A board placed by its outline because its print could not be read (``print_unreadable``) is
+    not said to show "no black/white contrast" in the run's one warning about such boards."""
+    from ilcc_graph.run.stages import warn_no_print
+    from ilcc_graph.types import BoardFit
+
+    def fit(**diag: float) -> BoardFit:
+        return BoardFit(np.eye(4), np.eye(6), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), True,
+                        diagnostics=dict(diag))  # fmt: skip
+
+    printed, plain, unread = fit(), fit(no_contrast=1.0), fit(no_contrast=1.0, print_unreadable=1.0)
+    one = warn_no_print([printed, unread], "config.yaml")
+    assert one is not None and "1 of 2 boards" in one and "no black/white contrast" not in one
+    assert "too few returns lie clear of its squares' edges to read" in one, one
+    both = warn_no_print([plain, unread], "config.yaml")
+    assert both is not None and "no black/white contrast on the board; in 1 a print shows, but" in both, both
+    assert warn_no_print([printed], "config.yaml") is None

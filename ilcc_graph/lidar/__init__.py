@@ -22,7 +22,7 @@ from ..board import Board
 from ..errors import BoardNotFound, InputError
 from ..lidars import LidarModel, beam_index, choose_model, cropped_table, measure_beams, with_intensity_ring
 from ..types import BoardFit, ExpectedBoard, RangeCorrection, Scan
-from .board_tests import intensity_contrast, print_visible
+from .board_tests import PrintUnreadable, intensity_contrast, print_visible
 from .choice import beyond_expected, candidate_order, expected_mask, fit_score
 from .detection import Candidate, find_candidates
 from .options import LidarOptions, breach
@@ -212,11 +212,14 @@ def _search(
     fit is refused by the outline's own rules only (``outline.refuse_outline``, the in-plane uncertainty
     in ``pose``), its score ranks it and ends the search at ``good_fit_score``.
     skip_printed: candidates whose intensities show a print (``board_tests.print_visible`` with these
-    options' ``print_contrast_min``) are not fitted."""
+    options' ``print_contrast_min``) are not fitted. When no candidate fits, those whose print shows but
+    cannot be read (``board_tests.PrintUnreadable``: scanlines along the squares' edges) are fitted by
+    their outline (``print_unreadable`` in the fit's diagnostics)."""
     rng = np.random.default_rng(0)
     mask = None if expected is None else expected_mask(pts, board, expected)
     fits: list[tuple[float, Candidate, BoardFit]] = []
     refused: list[str] = []
+    unreadable: list[tuple[int, Candidate]] = []  # (its reason in refused, candidate): PrintUnreadable
     budget = [3 * max(1, options.max_fits)]  # fits over all batches of candidates
 
     def accept(cands: list[Candidate]) -> bool:
@@ -244,6 +247,8 @@ def _search(
                 fit = _fit_candidate(cand, pts, inten, ring, board, model, options, rng, contrast)
             except BoardNotFound as e:
                 refused.append(str(e))
+                if isinstance(e, PrintUnreadable):
+                    unreadable.append((len(refused) - 1, cand))
                 continue
             score = fit_score(fit, board, expected)
             # an outline fit was judged by the outline's own rules (refuse_outline, the in-plane
@@ -258,6 +263,17 @@ def _search(
 
     find = find_ringless_candidates if model.ringless else find_candidates
     cands = find(pts, ring, inten, board, model, roi, options, rng, mask, accept)
+    for k, cand in unreadable if not fits else []:  # a print that shows but cannot be read: the outline
+        try:
+            fit = _fit_candidate(cand, pts, inten, ring, board, model, options, rng, False)
+        except BoardNotFound as e:
+            refused[k] += f"; by its outline alone: {e}"
+            continue
+        fit.diagnostics["print_unreadable"] = 1.0
+        if np.isfinite(score := fit_score(fit, board, expected)):
+            fits.append((score, cand, fit))
+        else:
+            refused[k] += f"; by its outline alone: {beyond_expected(fit, board, expected)}"
     if not fits:
         raise BoardNotFound(
             refused[0]

@@ -14,7 +14,14 @@ from ..errors import BoardNotFound
 from ..lidars import LidarModel
 from .options import LidarOptions, breach
 
-__all__ = ["board_tests", "colour_agreement", "intensity_contrast", "local_elevation_step", "print_visible"]
+__all__ = [
+    "PrintUnreadable",
+    "board_tests",
+    "colour_agreement",
+    "intensity_contrast",
+    "local_elevation_step",
+    "print_visible",
+]
 
 
 @overload
@@ -59,6 +66,11 @@ def intensity_contrast(intensity: np.ndarray) -> tuple[float, float]:
     return float((hi.mean() - lo.mean()) / max(pooled, 1e-9 * spread)), float(min(lo.size, hi.size) / m)
 
 
+class PrintUnreadable(BoardNotFound):
+    """A board whose returns show a print, but too few of them lie clear of the squares' edges to
+    tell whether a fitted pattern is right (scanlines along the rows' edges): its outline may place it."""
+
+
 def _clear_of_lines(b: np.ndarray, board: Board, clear: float) -> np.ndarray:
     """(N,) bool: board-frame points ``b`` (N, 2, m) more than ``clear`` squares from every grid line
     of the pattern (a footprint there does not straddle two squares)."""
@@ -73,8 +85,8 @@ def colour_agreement(
     (N, 2, board frame, m) of intensity class ``cls`` (N,: 0 black, 1 white, -1 gray), counted away
     from the edges, where footprints straddle both (0.15 squares; when fewer than 20 returns lie
     there, scanlines along the rows' edges, twice the footprint ``blur`` (m), at least 0.05 squares).
-    BoardNotFound when fewer than 20 are clear of the edges even so, or the share is below
-    ``min_agreement``; ``dist``: the object's range (m), for the message."""
+    PrintUnreadable when fewer than 20 are clear of the edges even so, BoardNotFound when the share is
+    below ``min_agreement``; ``dist``: the object's range (m), for the message."""
     colour = board.colour_at(b)
     usable = (cls >= 0) & np.isfinite(colour)
     inner = _clear_of_lines(b, board, 0.15) & usable
@@ -82,7 +94,7 @@ def colour_agreement(
         clear = max(2.0 * blur, 0.05 * board.square_size)  # (m) beyond the footprint's straddle
         inner = _clear_of_lines(b, board, clear / board.square_size) & usable
         if inner.sum() < 20:
-            raise BoardNotFound(
+            raise PrintUnreadable(
                 f"a board-shaped object at {dist:.2f} m, but only {int(inner.sum())} of its returns lie "
                 f"more than {1e3 * clear:.0f} mm from the squares' edges: too few to tell whether the fitted "
                 "chessboard explains its black/white returns (scanlines along the edges?) "

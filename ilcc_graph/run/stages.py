@@ -193,6 +193,9 @@ def warn_no_print(boards: Sequence[BoardFit], where: str) -> str | None:
         return None
     codes = sorted({b.diagnostics.get("intensity_unusable", 0.0) for b in plain} - {0.0})
     why = "; ".join(INTENSITY_UNUSABLE.get(c, "") for c in codes) or "no black/white contrast on the board"
+    if unreadable := sum(1 for b in plain if b.diagnostics.get("print_unreadable")):
+        unread = f"in {unreadable} a print shows, but too few returns lie clear of its squares' edges to read"
+        why = unread if unreadable == len(plain) else f"{why}; {unread}"
     if codes:
         why += "; for CSV scans check lidar.intensity_column"
     msg = (
