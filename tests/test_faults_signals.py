@@ -37,14 +37,21 @@ def _group(pgid: int) -> list[int]:
 
 
 class Run:
-    """``ilcc-graph -v calibrate DATA --out OUT --jobs 2`` in its own process group, stderr collected."""
+    """``ilcc-graph -v calibrate DATA --out OUT --jobs 2 *extra`` in its own process group, stderr collected."""
 
-    def __init__(self, data: Path, out: Path, ignore_sigint: bool = False, report: bool = False) -> None:
+    def __init__(
+        self,
+        data: Path,
+        out: Path,
+        ignore_sigint: bool = False,
+        report: bool = False,
+        extra: tuple[str, ...] = (),
+    ) -> None:
         self.out = out
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
         cmd = [sys.executable, "-m", "ilcc_graph.app", "-v", "calibrate", str(data), "--out", str(out)]
         pre = (lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if ignore_sigint else None
-        cmd += ["--jobs", "2", *([] if report else ["--no-report"])]
+        cmd += ["--jobs", "2", *([] if report else ["--no-report"]), *extra]
         self.p = subprocess.Popen(
             cmd,
             stdout=subprocess.DEVNULL,
@@ -111,6 +118,14 @@ def test_ctrl_c_in_the_worker_pool_also_when_the_parent_ignores_sigint(data, tmp
     """Ctrl-C reaches the whole group (workers, fork server: no tracebacks); the run was started as a
     script's background job is, with SIGINT ignored (such a SIGINT used to be swallowed: exit 0)."""
     run = Run(data, tmp_path / "run", ignore_sigint=True)
+    run.wait_for("worker processes", run.workers_up)
+    run.check_stopped(*run.stop(signal.SIGINT, group=True), 130)
+
+
+def test_ctrl_c_in_the_incremental_modes_stream(data, tmp_path):
+    """The incremental mode observes its frames on the workers a few ahead (``workers.imap_processes``):
+    Ctrl-C there ends the run and every process as in the batch pass."""
+    run = Run(data, tmp_path / "run", extra=("--target-sigma", "0.001,0.01"))
     run.wait_for("worker processes", run.workers_up)
     run.check_stopped(*run.stop(signal.SIGINT, group=True), 130)
 
