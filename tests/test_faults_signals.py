@@ -37,7 +37,8 @@ def _group(pgid: int) -> list[int]:
 
 
 class Run:
-    """``ilcc-graph -v calibrate DATA --out OUT --jobs 2 *extra`` in its own process group, stderr collected."""
+    """``ilcc-graph -v calibrate DATA --out OUT --jobs 2 *extra`` in its own process group, stderr
+    collected."""
 
     def __init__(
         self,
