@@ -242,7 +242,7 @@ def test_scanlines_along_the_squares_edges_place_the_board_by_its_outline() -> N
     assert float(xi @ np.linalg.solve(fit.covariance, xi)) < 22.46  # 6 dof, 99.9 %
 
 
-def test_a_print_too_few_returns_clear_of_its_edges_can_read_is_said_so() -> None:
+def test_a_print_with_too_few_returns_clear_of_its_edges_to_read_is_said_so() -> None:
     """``colour_agreement``'s refusal when no return lies clear of the squares' edges: it says how
     many do, the figure makes it a refusal, and it is the kind the outline may stand in for."""
     from ilcc_graph.lidar.board_tests import PrintUnreadable, colour_agreement

@@ -272,8 +272,10 @@ def _search(
         fit.diagnostics["print_unreadable"] = 1.0
         if np.isfinite(score := fit_score(fit, board, expected)):
             fits.append((score, cand, fit))
+            refused[k] = ""  # fitted after all (counted once)
         else:
             refused[k] += f"; by its outline alone: {beyond_expected(fit, board, expected)}"
+    refused = [r for r in refused if r]
     if not fits:
         raise BoardNotFound(
             refused[0]

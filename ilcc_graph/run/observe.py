@@ -148,7 +148,8 @@ class FrameStream:
 
     def __iter__(self) -> Iterator[FrameResult]:
         """The frames in order; with ``StageOptions.jobs`` > 1 observed on that many processes a few
-        frames ahead of the reader (what is ahead when the reader stops is dropped, not read)."""
+        frames ahead of the reader (what is ahead when the reader stops is dropped: not read, as
+        ``unread`` says)."""
         o = self.opened
         items = [(o.source, ref, o.config, self.options, o.seen.get(ref.name)) for ref in o.refs]
         with contextlib.closing(workers.imap_processes(observe_frame, items, self.options.jobs)) as frames:
