@@ -90,7 +90,7 @@ def _reasons() -> list[tuple[str, str, set[str]]]:
                 where = f"{path.name}:{getattr(node, 'lineno', 0)}"
                 if (
                     isinstance(node, ast.Call)
-                    and getattr(node.func, "id", "") in ("BoardNotFound", "PrintUnreadable")
+                    and getattr(node.func, "id", "") in ("BoardNotFound", "PrintUnreadable", "_NoFit")
                     and node.args
                 ):
                     out.append((where, _text(node.args[0]), _stated(node.args[0], named)))

@@ -13,6 +13,7 @@ See docs/lidar_stage.md.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -156,16 +157,17 @@ def estimate_board(
     if correction is not None:
         pts = correction.corrected(pts, np.zeros(len(pts), np.int64) if lidar_model.ringless else ring)
     inputs = (pts, np.nan_to_num(inten), ring, board, lidar_model, roi, expected)
-    found, why = None, ""
+    found, why, unreadable = None, "", []
     if not unusable:  # the print first: the paper's search with the contrast test
         try:
             found = _search(*inputs, options, True)
         except BoardNotFound as e:
-            why = str(e)
+            why, unreadable = str(e), e.unreadable if isinstance(e, _NoFit) else []
     if found is None:  # the board by its shape and size, fitted by its outline
-        try:  # (a candidate with a print was fitted by it above, or refused: its pattern is not a chessboard)
+        try:  # (a candidate with a print was fitted by it above, or refused: its pattern is not a chessboard,
+            # or it cannot be read: fitted by its outline here, with the others)
             found = _search(
-                *inputs, replace(options, contrast_min=None), False, None if unusable else options
+                *inputs, replace(options, contrast_min=None), False, None if unusable else options, unreadable
             )
         except BoardNotFound as e:
             raise BoardNotFound(
@@ -204,7 +206,7 @@ def _measured(fit: BoardFit, correction: RangeCorrection, model: LidarModel) -> 
 def _search(
     pts: np.ndarray, inten: np.ndarray, ring: np.ndarray, board: Board, model: LidarModel, roi: Any | None,
     expected: ExpectedBoard | None, options: LidarOptions, contrast: bool | None,
-    skip_printed: LidarOptions | None = None,
+    skip_printed: LidarOptions | None = None, unreadable: Sequence[Candidate] = (),
 ) -> tuple[float, Candidate, BoardFit, int, int]:  # fmt: skip
     """The candidates that pass the board tests, the chessboard fitted to the best few, the best fit:
     (score, candidate, fit, candidates passed, candidates fitted); BoardNotFound with the reasons.
@@ -212,14 +214,15 @@ def _search(
     fit is refused by the outline's own rules only (``outline.refuse_outline``, the in-plane uncertainty
     in ``pose``), its score ranks it and ends the search at ``good_fit_score``.
     skip_printed: candidates whose intensities show a print (``board_tests.print_visible`` with these
-    options' ``print_contrast_min``) are not fitted. When no candidate fits, those whose print shows but
-    cannot be read (``board_tests.PrintUnreadable``: scanlines along the squares' edges) are fitted by
-    their outline (``print_unreadable`` in the fit's diagnostics)."""
+    options' ``print_contrast_min``) are not fitted. unreadable: candidates whose print shows but could
+    not be read (a search with the print refused them with ``board_tests.PrintUnreadable``: scanlines
+    along the squares' edges), fitted by their outline beside the others (``print_unreadable`` in the
+    fit's diagnostics). When no candidate fits: ``_NoFit``, with the candidates refused so."""
     rng = np.random.default_rng(0)
     mask = None if expected is None else expected_mask(pts, board, expected)
     fits: list[tuple[float, Candidate, BoardFit]] = []
     refused: list[str] = []
-    unreadable: list[tuple[int, Candidate]] = []  # (its reason in refused, candidate): PrintUnreadable
+    unread: list[Candidate] = []  # refused with PrintUnreadable
     budget = [3 * max(1, options.max_fits)]  # fits over all batches of candidates
 
     def accept(cands: list[Candidate]) -> bool:
@@ -248,7 +251,7 @@ def _search(
             except BoardNotFound as e:
                 refused.append(str(e))
                 if isinstance(e, PrintUnreadable):
-                    unreadable.append((len(refused) - 1, cand))
+                    unread.append(cand)
                 continue
             score = fit_score(fit, board, expected)
             # an outline fit was judged by the outline's own rules (refuse_outline, the in-plane
@@ -263,27 +266,35 @@ def _search(
 
     find = find_ringless_candidates if model.ringless else find_candidates
     cands = find(pts, ring, inten, board, model, roi, options, rng, mask, accept)
-    for k, cand in unreadable if not fits else []:  # a print that shows but cannot be read: the outline
+    for cand in unreadable:  # a print that shows but cannot be read: its outline, as without a print
         try:
             fit = _fit_candidate(cand, pts, inten, ring, board, model, options, rng, False)
         except BoardNotFound as e:
-            refused[k] += f"; by its outline alone: {e}"
+            refused.append(f"a print that cannot be read, by its outline: {e}")
             continue
         fit.diagnostics["print_unreadable"] = 1.0
         if np.isfinite(score := fit_score(fit, board, expected)):
             fits.append((score, cand, fit))
-            refused[k] = ""  # fitted after all (counted once)
         else:
-            refused[k] += f"; by its outline alone: {beyond_expected(fit, board, expected)}"
-    refused = [r for r in refused if r]
+            refused.append(beyond_expected(fit, board, expected))
     if not fits:
-        raise BoardNotFound(
+        raise _NoFit(
             refused[0]
             if len(refused) == 1
-            else f"{len(refused)} board-shaped candidates, none fits: " + "; ".join(refused[:3])
+            else f"{len(refused)} board-shaped candidates, none fits: " + "; ".join(refused[:3]),
+            unread,
         )
     score, cand, fit = max(fits, key=lambda t: t[0])
-    return score, cand, fit, len(cands), len(fits) + len(refused)
+    return score, cand, fit, len(cands) + len(unreadable), len(fits) + len(refused)
+
+
+class _NoFit(BoardNotFound):
+    """No candidate of a search fits (the reasons); ``unreadable``: those refused because their print
+    shows but cannot be read (``board_tests.PrintUnreadable``), for a search by the outline."""
+
+    def __init__(self, reason: str, unreadable: list[Candidate]) -> None:
+        super().__init__(reason)
+        self.unreadable = unreadable
 
 
 def _poor_fit(fit: BoardFit, board: Board, score: float, limit: float) -> str:
