@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import fcntl
+import hashlib
 import os
+import shutil
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -84,6 +88,28 @@ def readonly_dir(tmp_path) -> Path:
     subprocess.run(["umount", str(d)], check=False)
 
 
+def _made_once(tmp_path_factory: pytest.TempPathFactory, key: tuple, name: str,
+               make: Callable[[Path], int]) -> Path:  # fmt: skip
+    """``<folder>/name`` made by ``make(<folder>/name)`` (an exit code, 0 for success) once per test
+    run and ``key``, whichever process asks first: under pytest-xdist the workers share the run's
+    temporary root, and a worker that asks while another makes it waits on a lock and reuses it
+    (a small simulated set and its calibration were made by both workers before)."""
+    base = tmp_path_factory.getbasetemp()
+    root = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "made-once"
+    root.mkdir(exist_ok=True)
+    tag = hashlib.sha1(repr(key).encode()).hexdigest()[:16]
+    folder = root / tag
+    with open(root / f"{tag}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        if not (folder / ".made").is_file():
+            if folder.exists():
+                shutil.rmtree(folder)  # ours: a making that failed part-way in another test
+            folder.mkdir()
+            assert make(folder / name) == 0, f"{key} was not made"
+            (folder / ".made").touch()
+    return folder / name
+
+
 #: image width of the small simulated sets per camera kind (a panorama needs more pixels per board)
 SMALL_WIDTH = {"equirectangular": 1200}
 
@@ -102,11 +128,12 @@ def simulated(tmp_path_factory):  # noqa: ANN201 - a factory
         width = width or SMALL_WIDTH.get(camera, 640)
         key = (camera, flags, frames, seed, width)
         if key not in made:
-            out = tmp_path_factory.mktemp("simulated") / f"{camera}-{seed}"
-            argv = ["simulate", str(out), "--camera", camera, "--frames", str(frames), "--seed", str(seed),
+            argv = ["simulate", "--camera", camera, "--frames", str(frames), "--seed", str(seed),
                     "--width", str(width), *flags]  # fmt: skip
-            assert main(argv) == 0
-            made[key] = out
+            made[key] = _made_once(
+                tmp_path_factory, ("simulated", key), f"{camera}-{seed}",
+                lambda out: main([argv[0], str(out), *argv[1:]]),
+            )  # fmt: skip
         return made[key]
 
     return make
@@ -125,10 +152,11 @@ def calibrated(tmp_path_factory):  # noqa: ANN201 - a factory
         datas = [str(d) for d in (data if isinstance(data, list) else [data])]
         key = (tuple(datas), flags, report)
         if key not in made:
-            out = tmp_path_factory.mktemp("calibrated") / "out"
-            argv = ["calibrate", *datas, "--out", str(out), "--jobs", "1", *flags]
-            assert main(argv if report else [*argv, "--no-report"]) == 0
-            made[key] = out
+            tail = ["--jobs", "1", *flags] + ([] if report else ["--no-report"])
+            made[key] = _made_once(
+                tmp_path_factory, ("calibrated", key), "out",
+                lambda out: main(["calibrate", *datas, "--out", str(out), *tail]),
+            )  # fmt: skip
         return made[key]
 
     return run

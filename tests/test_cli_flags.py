@@ -39,8 +39,8 @@ def pano(simulated) -> Path:
     return simulated("equirectangular")
 
 
-def test_refine_paper(pano, calibrated, capsys):
-    out = pano.parent / "paper"
+def test_refine_paper(pano, calibrated, capsys, tmp_path):
+    out = tmp_path / "paper"
     assert (
         main(["calibrate", str(pano), "--out", str(out), "--jobs", "1", "--no-report", "--refine", "paper"])
         == 0
