@@ -118,7 +118,8 @@ SMALL_WIDTH = {"equirectangular": 1200}
 def simulated(tmp_path_factory):  # noqa: ANN201 - a factory
     """``simulated(camera="equirectangular", *flags, frames=5, seed=1, width=None)``: a small data set
     written by ``ilcc-graph simulate`` (HDL-32E unless ``--lidar`` is among the flags; 640 px wide,
-    1200 for a panorama), made once per session and arguments."""
+    1200 for a panorama), made once per test run and arguments (``_made_once``: one
+    worker makes it, the other reuses it)."""
     from ilcc_graph.app import main
 
     made: dict[tuple, Path] = {}
@@ -143,7 +144,7 @@ def simulated(tmp_path_factory):  # noqa: ANN201 - a factory
 def calibrated(tmp_path_factory):  # noqa: ANN201 - a factory
     """``calibrated(data, *flags, report=False)``: the output folder of ``ilcc-graph calibrate DATA
     --jobs 1 *flags`` (``--no-report`` unless ``report``; ``data`` a folder or a list of them), run
-    once per session and arguments."""
+    once per test run and arguments (``_made_once``)."""
     from ilcc_graph.app import main
 
     made: dict[tuple, Path] = {}
