@@ -68,9 +68,10 @@ def plot_next_pose(
             ax.plot(xs, ys, color=colour, lw=lw)
             cx, cy = (centre[0], centre[1]) if ax is top else (np.hypot(centre[0], centre[1]), centre[2])
             ax.plot([cx, tip[0]], [cy, tip[1]], color=colour, lw=1.0)
-            at = {"xytext": (3, 3), "textcoords": "offset points"}
             # out of the layout: it need not measure each label (the same picture, faster)
-            ax.annotate(label, (cx, cy), fontsize=8, color=colour, **at).set_in_layout(False)
+            ax.annotate(
+                label, (cx, cy), fontsize=8, color=colour, xytext=(3, 3), textcoords="offset points"
+            ).set_in_layout(False)
     reach += 0.5
     rays = _fov_rays(camera, T_cam_lidar)
     if rays is not None:
