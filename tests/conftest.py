@@ -129,11 +129,11 @@ def simulated(tmp_path_factory):  # noqa: ANN201 - a factory
         width = width or SMALL_WIDTH.get(camera, 640)
         key = (camera, flags, frames, seed, width)
         if key not in made:
-            argv = ["simulate", "--camera", camera, "--frames", str(frames), "--seed", str(seed),
-                    "--width", str(width), *flags]  # fmt: skip
+            args = ["--camera", camera, "--frames", str(frames), "--seed", str(seed), "--width", str(width),
+                    *flags]  # fmt: skip
             made[key] = _made_once(
                 tmp_path_factory, ("simulated", key), f"{camera}-{seed}",
-                lambda out: main([argv[0], str(out), *argv[1:]]),
+                lambda out: main(["simulate", str(out), *args]),
             )  # fmt: skip
         return made[key]
 
