@@ -15,6 +15,7 @@ import numpy as np
 
 from ..board import Board
 from ..lidars import LidarModel
+from ..lidars.footprint import FOOTPRINT
 from ..types import Scan
 
 
@@ -138,19 +139,17 @@ def _board_returns(
     u: np.ndarray, T: np.ndarray, board: Board, model: LidarModel, sc: SynthScene
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per ray ``u`` (N, 3) its range to the board (inf: a miss) and the intensity there: the colour
-    averaged over the beam's footprint (centre + 6 on a ring), in the board plane."""
+    averaged over the beam's footprint (``lidars.footprint.FOOTPRINT``'s even cover of its disc), in
+    the board plane."""
     t_board, local = _hit_rect(u, T, board.extent())
-    xy = np.where(np.isfinite(t_board)[:, None], local[:, :2], 0.0)
-    rad = 0.5 * (sc.footprint + model.beam_divergence_rad * np.where(np.isfinite(t_board), t_board, 0.0))
-    acc, cnt = np.zeros(len(xy)), np.zeros(len(xy))
-    for ang in [None, *np.deg2rad(np.arange(6) * 60.0)]:
-        off = np.zeros_like(xy) if ang is None else 0.7 * rad[:, None] * np.array([np.cos(ang), np.sin(ang)])
-        c = board.colour_at(xy + off)
-        ok = np.isfinite(c)
-        acc[ok] += c[ok]
-        cnt[ok] += 1
-    colour = np.where(cnt > 0, acc / np.maximum(cnt, 1), np.nan)
-    return t_board, sc.black + np.nan_to_num(colour) * (sc.white - sc.black)
+    hit = np.flatnonzero(np.isfinite(t_board))
+    rad = 0.5 * (sc.footprint + model.beam_divergence_rad * t_board[hit])
+    pts = local[hit, None, :2] + rad[:, None, None] * FOOTPRINT[None, :, :]
+    c = board.colour_at(pts.reshape(-1, 2)).reshape(len(hit), -1)
+    ok = np.isfinite(c)
+    colour = np.zeros(len(t_board))
+    colour[hit] = np.where(ok, c, 0.0).sum(axis=1) / np.maximum(ok.sum(axis=1), 1)
+    return t_board, sc.black + colour * (sc.white - sc.black)
 
 
 def _clutter(

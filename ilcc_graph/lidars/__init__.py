@@ -8,6 +8,7 @@ tables measured from a scan.
   with a named table; a cropped scan's own table.
 - scan_rings.py: elevations from the sharpest beam origin, a cropped scan's azimuth window, an
   intensity that is the ring number.
+- footprint.py: a beam's footprint as points evenly covering the unit disc (for ray casters).
 """
 
 from .calibration_files import CalibrationTable, read_calibration_file, read_calibration_table

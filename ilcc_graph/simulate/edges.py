@@ -21,30 +21,13 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..lidars.footprint import FOOTPRINT
 from .scene import SURF_BOARD, SURF_BOARD_BACK, Hits, Scene, cast_rays
 
 __all__ = ["FOOTPRINT", "SURF_EDGE", "edge_returns", "footprint_points"]
 
 #: surface id of a mixed return (between the board's edge and what lies behind)
 SURF_EDGE = 8
-
-
-def _sunflower(half: int) -> np.ndarray:
-    """(2 half, 2) points evenly covering the unit disc: Vogel's spiral (point k at radius
-    ``sqrt((k + 1/2) / half)``, turned by the golden angle each step) and its point reflection, so
-    the cover's centre is the disc's and no two points line up in rows along any direction."""
-    k = np.arange(half)
-    r, t = np.sqrt((k + 0.5) / half), k * np.pi * (3.0 - np.sqrt(5.0))
-    p = np.column_stack([r * np.cos(t), r * np.sin(t)])
-    return np.vstack([p, -p])
-
-
-#: a beam's footprint, unit disc (128 points): a real spot's light is spread evenly, so the share of
-#: it on one side of a straight edge follows the disc's segment area (within 0.03 here, in steps of
-#: 1/128, for an edge at any angle) as the edge crosses it. A cover of few points (the 7 used before)
-#: or of rows (a grid) blends an edge in a few large steps that no sensor shows, and a fit then
-#: places the print's edges by the steps
-FOOTPRINT = _sunflower(64)
 BOARD_SHARE, BEHIND_SHARE = 0.85, 0.15
 
 

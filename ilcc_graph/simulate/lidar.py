@@ -14,8 +14,8 @@ Measurement model (all geometric sigmas times ``spec.noise_scale``):
 - elsewhere: range noise along the beam with the model's ``range_sigma_m``;
 - or, with ``spec.range_noise_m``, range noise of that sigma along the beam on every surface (the
   board too; not scaled by ``noise_scale``);
-- intensity: the printed colour averaged over the beam's footprint (``edges.FOOTPRINT``, an even
-  cover of a disc of diameter ``beam_aperture_m + beam_divergence_rad * range``) projected onto the
+- intensity: the printed colour averaged over the beam's footprint (``lidars.footprint.FOOTPRINT``,
+  an even cover of a disc of diameter ``beam_aperture_m + beam_divergence_rad * range``) projected onto the
   board, so returns straddling a colour edge blend smoothly, mapped linearly between
   ``intensity_black`` and ``intensity_white``, times ``0.85 + 0.15 cos(incidence)``, plus Gaussian
   noise whose sigma goes from ``intensity_sigma_black`` to ``intensity_sigma_white``; rounded to
