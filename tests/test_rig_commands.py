@@ -29,6 +29,9 @@ def calibrated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     d = tmp_path_factory.mktemp("rig")
     assert main(["simulate-rig", str(d / "folders"), *RIG, "--moments", "6", "--seed", "1"]) == 0
     assert main(["simulate-rig", str(d / "bag"), *RIG, "--moments", "6", "--seed", "1", "--as", "bag"]) == 0
+    for layout in ("folders", "bag"):  # the folder's marker records the command that wrote it
+        marker = yaml.safe_load((d / layout / ".ilcc-graph-run").read_text(encoding="utf-8"))
+        assert marker["command"].startswith(f"ilcc-graph simulate-rig {d / layout}"), marker
     a, b = calibrate_rig(d / "folders"), calibrate_rig(d / "bag")
     assert a.sensors == b.sensors == ("vlp16", "os1", "pano") and not a.unsolved
     # the same graph: each LiDAR's beam table is measured from its scans as a pair's run measures it,

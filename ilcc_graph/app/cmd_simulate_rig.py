@@ -68,8 +68,8 @@ def run(args: argparse.Namespace) -> int:
         spec = spec.with_(moved=Mount(args.moved, args.rotation_deg, args.translation_mm))
     progress = Progress("simulate")
     if args.layout == "bag":
-        out = write_rig_bag(args.out, spec, progress, storage=args.storage)
+        out = write_rig_bag(args.out, spec, progress, storage=args.storage, command=args.command_line)
     else:
-        out = write_rig_set(args.out, spec, progress)
+        out = write_rig_set(args.out, spec, progress, command=args.command_line)
     print(f"wrote a {args.rig} rig ({', '.join(spec.names)}), {spec.n_moments} moments, to {out}")
     return 0

@@ -34,13 +34,15 @@ CLOUD_T, IMAGE_T, COMPRESSED_T = (f"sensor_msgs/msg/{t}" for t in ("PointCloud2"
 
 
 def write_rig_set(
-    out: Path | str, spec: RigSpec, progress: Progress = None, moments: Sequence[RigMoment] | None = None
+    out: Path | str, spec: RigSpec, progress: Progress = None, moments: Sequence[RigMoment] | None = None,
+    command: str = "",
 ) -> Path:
     """Simulate ``spec`` and write it as a folder per sensor to ``out`` (new, empty or an earlier
     simulated set).
 
     progress: called as ``progress(done, total)`` after each moment. moments: ``simulate_moments(spec)``
-    when already simulated. Returns ``out``; OutputError naming it when it holds anything else."""
+    when already simulated. command: the command line that asked (recorded in the folder's marker).
+    Returns ``out``; OutputError naming it when it holds anything else."""
 
     def fill(tmp: Path) -> None:
         write_yaml(tmp / "rig.yaml", rig_config_to_dict(spec.rig_config()))
@@ -57,7 +59,7 @@ def write_rig_set(
                 progress(k + 1, int(spec.n_moments))
         write_rig_ground_truth(tmp, rig_ground_truth(spec, done))
 
-    return assemble(Path(out), fill)
+    return assemble(Path(out), fill, command)
 
 
 def rig_walk(
@@ -83,13 +85,14 @@ def write_rig_bag(
     rate_hz: float = 10.0,
     timeline: WalkAndPause | None = None,
     moments: Sequence[RigMoment] | None = None,
+    command: str = "",
 ) -> Path:
     """Simulate ``spec`` and write it as one bag with a topic per sensor, in the folder ``out`` (created;
     must be empty or absent) beside ``rig.yaml`` and ``rig_ground_truth.yaml``. storage: ``ros1``,
     ``sqlite3`` or ``mcap``; image_format: ``bgr8``, ``png`` or ``jpeg``. timeline: a walk-and-pause
     recording (:func:`rig_walk`; the truth's ``pauses`` lists each pause's first and last moment).
     moments: ``simulate_moments`` of the spec (of ``rig_walk``'s with a timeline) when already
-    simulated. Returns ``out``."""
+    simulated. command: as ``write_rig_set`` takes it. Returns ``out``."""
     from rosbags.rosbag1 import Writer as Writer1
     from rosbags.rosbag2 import StoragePlugin
     from rosbags.rosbag2 import Writer as Writer2
@@ -147,4 +150,4 @@ def write_rig_bag(
             ]
         write_rig_ground_truth(tmp, truth)
 
-    return assemble(Path(out), fill)
+    return assemble(Path(out), fill, command)
