@@ -163,12 +163,14 @@ def _refine(
     dist = float(np.linalg.norm(P[on].mean(axis=0)))
     blur0 = 0.5 * dist * max(model.beam_divergence_rad, np.deg2rad(model.horizontal_resolution_deg))
     soft = soft_edge_refine(b[on, :2], inten[on], board, fit.levels, blur0)
-    T = T0
+    T, cov_soft = T0, soft.cov
     if options.refine and soft.converged:
         H = se2_exp(soft.xi)  # the in-plane correction, Pose3.Expmap((0, 0, rz, tx, ty, 0))
         E = np.eye(4)
         E[:2, :2], E[:2, 3] = H[:2, :2], H[:2, 2]
         T = T0 @ E
+    else:  # the start pose kept: its error covers where the soft model would have put it
+        cov_soft = soft.cov + np.outer(soft.xi, soft.xi)
     b_fin = _to_board(P[on], T, options.projection)
     cls = intensity_classes(inten[on], *fit.tau)
     agree = colour_agreement(b_fin[:, :2], cls, board, soft.blur, dist, options.min_agreement)
@@ -186,7 +188,7 @@ def _refine(
         "sigma_soft_txy_mm": 1e3 * float(np.sqrt(max(np.trace(soft.cov[1:, 1:]), 0.0))),
         "sigma_sampling_txy_mm": 1e3 * float(np.sqrt(max(np.trace(cov_q[1:, 1:]), 0.0))),
     }  # fmt: skip
-    return _InPlane(T, P, inten, ring, s_z, soft.cov + cov_q, K, fit.tau, levels, diag)
+    return _InPlane(T, P, inten, ring, s_z, cov_soft + cov_q, K, fit.tau, levels, diag)
 
 
 def _pattern(

@@ -180,13 +180,14 @@ def soft_edge_refine(
     board: Board,
     levels: tuple[float, float],
     blur0: float,
-    max_iter: int = 40,
+    max_iter: int = 200,
 ) -> SoftFit:
     """Levenberg-Marquardt (Huber loss) fit of the soft-edged model to intensities at b0 (N, 2).
 
     b0: points in the start pose's board frame (on the board). levels: (R_L, R_H) start values.
     Parameters: in-plane pose correction (rz, tx, ty) in the Pose3 tangent, black level a,
-    contrast c, log of the footprint sigma.
+    contrast c, log of the footprint sigma. A board whose beams run along its rows, a few beams on
+    it, leaves a flat valley (its position across them) that takes some 40-70 steps to settle.
     """
     r = np.asarray(intensity, dtype=np.float64)
     b0h = np.column_stack([b0, np.ones(len(b0))])
