@@ -108,3 +108,23 @@ def test_a_used_frame_hidden_by_residuals_far_above_the_noise_gives_no_result():
     (row,) = err.frames
     assert row[0] == "m0" and row[2].startswith("used, but its image puts the board"), row
     assert err.advice.startswith("likely: synchronisation: the images of m0"), err.advice
+
+
+def test_a_camera_whose_focal_length_is_not_the_lenss_exits_3_naming_it(simulated, tmp_path, capsys):
+    """config.yaml states twice the lens's focal length (a slip of units or of another camera's K):
+    the images alone fit a flat board at some 25 x their stated corner noise. The solve's noise grows
+    to cover the frames, but not an extrinsic through the wrong camera (it was written 1.5 m from the
+    truth, exit 0, POOR): exit 3 naming the camera, no calibration.yaml."""
+    data = tmp_path / "data"
+    shutil.copytree(simulated("pinhole", "--lidar", "vlp16", frames=6, seed=3, width=800), data)
+    cfg = yaml.safe_load((data / "config.yaml").read_text())
+    K = np.array(cfg["camera"]["K"], dtype=float)
+    K[0, 0], K[1, 1] = 2 * K[0, 0], 2 * K[1, 1]
+    cfg["camera"]["K"] = K.tolist()
+    (data / "config.yaml").write_text(yaml.safe_dump(cfg))
+    out = tmp_path / "out"
+    assert main(["calibrate", str(data), "--out", str(out), "--jobs", "1", "--no-report"]) == 3
+    assert not (out / "calibration.yaml").exists()
+    failure = yaml.safe_load((out / "failure.yaml").read_text())
+    assert "the images do not fit the camera as stated" in failure["error"], failure["error"]
+    assert "camera.K" in failure["error"] and "the images do not fit" in capsys.readouterr().err

@@ -37,6 +37,7 @@ __all__ = [
     "board_scale",
     "dropped_frame_cause",
     "fit_image_alone",
+    "image_fit_ratios",
     "moved_boards",
     "residual_causes",
     "stated_noise_mrad",
@@ -174,6 +175,13 @@ def _image_fits(
         alone = fit_image_alone(f.corners.bearings, corners)  # type: ignore[union-attr]
         fits[f.name] = (alone, alone.rms_mrad / max(stated_noise_mrad(f.corners, camera), 1e-9))  # type: ignore[arg-type]
     return fits
+
+
+def image_fit_ratios(frames: Sequence[FrameResult], board: Board, camera: CameraModel) -> dict[str, float]:
+    """Per frame with image corners the RMS of its image fitted alone (a flat board, the camera as
+    stated) over its stated corner noise."""
+    seen = [f for f in frames if f.corners is not None]
+    return {n: ratio for n, (_, ratio) in _image_fits(seen, board, camera).items()}
 
 
 def moved_boards(

@@ -12,7 +12,9 @@ others disagree beyond it, nothing tells which group is right, and a covariance 
 cannot reveal a placement's error: ``finish`` raises ``CalibrationImpossible`` (exit 3) naming the
 frames that agree, those that disagree with each one's likely cause, and the likely cause over
 all frames (``evaluation.causes.residual_causes``). When the residuals are far above the detectors' stated
-noise (``gate.FAR_ABOVE``) the calibration carries those causes (``Calibration.causes``).
+noise (``gate.FAR_ABOVE``) the calibration carries those causes (``Calibration.causes``), unless a
+used frame's board sits far from its scan (``require_within_noise``) or most images do not fit the
+camera as stated (``require_images_fit``): then exit 3 too.
 """
 
 from __future__ import annotations
@@ -32,7 +34,13 @@ from ilcc_graph.estimation.effects import SQUARE_SIZE_KEY
 from ilcc_graph.estimation.gate import far_above
 from ilcc_graph.estimation.geometry import MIN_DISTINCT_POSES
 from ilcc_graph.estimation.lidar_errors import errors_entry
-from ilcc_graph.evaluation.causes import dropped_frame_cause, fit_image_alone, moved_boards, residual_causes
+from ilcc_graph.evaluation.causes import (
+    dropped_frame_cause,
+    fit_image_alone,
+    image_fit_ratios,
+    moved_boards,
+    residual_causes,
+)
 from ilcc_graph.lidar.margin import margin_summary
 from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
 from ilcc_graph.run.prepare import Prepared, drop, frame_issues
@@ -142,6 +150,8 @@ def finish(
     if answer.covariance is not None and (far := far_above(answer.variance_components)):
         if agree:
             require_within_noise(frames, far, config, answer.T_cam_lidar)
+            if "bearing" in far and "camera_intrinsics" not in answer.sensors:
+                require_images_fit(frames, config, answer.T_cam_lidar)
         residual = tuple(residual_causes(frames, config.board, config.camera, answer.T_cam_lidar))
     sensors = answer.sensors
     return Calibration(
@@ -271,6 +281,37 @@ def require_within_noise(
          "LiDAR fit's stated sigma) from where the scan saw it: the board moved between the scan and the "
          "photo, or the LiDAR's fit is off there") for n in names
     ]  # fmt: skip
+    _refuse(message, issues, frames, config, T_cam_lidar)
+
+
+#: the images used fit a flat board alone at this many times their stated corner noise (the median of
+#: the majority that do): the camera as stated does not describe them (a focal length twice the
+#: lens's gave 24 x); the recorded sets' images fit at 1.2-1.3 x (their variance components)
+IMAGES_UNFIT_RATIO = 10.0
+
+
+def require_images_fit(frames: Sequence[FrameResult], config: Config, T_cam_lidar: np.ndarray) -> None:
+    """Raise ``CalibrationImpossible`` when most used frames' images alone (a flat board through the
+    camera as stated, ``evaluation.causes.image_fit_ratios``) fit at more than ``IMAGES_UNFIT_RATIO``
+    times their stated corner noise: the camera's intrinsics or model are not the images' (or their
+    corner noise is stated far too small), and an extrinsic through that camera is off by more than the
+    noise the solve estimated can cover; variance components absorb a noise stated wrongly, not a
+    camera model that is wrong."""
+    used = [f for f in frames if f.used and f.corners is not None]
+    ratios = image_fit_ratios(used, config.board, config.camera)
+    bad = {n: r for n, r in ratios.items() if r > IMAGES_UNFIT_RATIO}
+    if not used or 2 * len(bad) <= len(used):
+        return
+    message = (
+        f"the images do not fit the camera as stated: {len(bad)} of the {len(used)} images used fit a flat "
+        f"board alone at {np.median(list(bad.values())):.0f} x their stated corner noise (median): the "
+        "camera's intrinsics or model are not the images' (check camera.K in pixels of this image size, "
+        "camera.dist and camera.model; or --refine-intrinsics), so no covariance would cover an extrinsic "
+        "through it"
+    )
+    issues = [
+        (n, "image", f"fits a flat board alone at {r:.0f} x its stated corner noise") for n, r in bad.items()
+    ]
     _refuse(message, issues, frames, config, T_cam_lidar)
 
 
