@@ -128,3 +128,19 @@ def test_a_camera_whose_focal_length_is_not_the_lenss_exits_3_naming_it(simulate
     failure = yaml.safe_load((out / "failure.yaml").read_text())
     assert "the images do not fit the camera as stated" in failure["error"], failure["error"]
     assert "camera.K" in failure["error"] and "the images do not fit" in capsys.readouterr().err
+
+
+def test_a_square_size_not_the_prints_is_named_when_no_corner_order_fits(simulated, tmp_path):
+    """board.square_size 7 % larger than the print's (a square measured, not the whole pattern): no
+    extrinsic fits more than two frames in any corner order, and the exit 3 named only the order,
+    advising more poses. The frames' moves say the board's size is wrong: the advice says so."""
+    data = tmp_path / "data"
+    shutil.copytree(simulated("pinhole", "--lidar", "vlp16", frames=6, seed=3, width=800), data)
+    cfg = yaml.safe_load((data / "config.yaml").read_text())
+    cfg["board"]["square_size"] = round(cfg["board"]["square_size"] * 16 / 15, 6)
+    (data / "config.yaml").write_text(yaml.safe_dump(cfg))
+    out = tmp_path / "out"
+    assert main(["calibrate", str(data), "--out", str(out), "--jobs", "1", "--no-report"]) == 3
+    failure = yaml.safe_load((out / "failure.yaml").read_text())
+    assert failure["advice"].startswith("likely: the board's size"), failure
+    assert "1.067 x" in failure["advice"] and "board.square_size" in failure["advice"], failure["advice"]

@@ -35,6 +35,7 @@ __all__ = [
     "SCALE_TOL",
     "ImageAlone",
     "board_scale",
+    "causes_without_extrinsic",
     "dropped_frame_cause",
     "fit_image_alone",
     "image_fit_ratios",
@@ -297,6 +298,36 @@ def residual_causes(
     seen = [f for f in frames if f.board is not None and f.corners is not None]
     if not seen:
         return []
+    causes, fits = _causes_without_extrinsic(seen, board, camera)
+    if along := _range_offset(seen, T_cam_lidar, fits):
+        causes.append(along)
+    if moved := _moved(seen, board, T_cam_lidar, fits):
+        names = [n for n, _, _ in moved]
+        gaps = [g for _, g, _ in moved]
+        causes.append(
+            f"synchronisation: the images of {_names(names)} fit a flat board as their stated noise says, "
+            f"but it sits {min(gaps):.0f}-{max(gaps):.0f} mm from where the scans saw it (more than "
+            f"{MOVED_SIGMAS:g} x the LiDAR fit's stated sigma): the board moved between the scan and the "
+            "photo (sensors not synchronised), or the LiDAR's fit is off there"
+        )
+    return causes
+
+
+def causes_without_extrinsic(
+    frames: list[FrameResult], board: Board, camera: CameraModel, margin: bool = True
+) -> list[str]:
+    """``residual_causes``' causes that need no extrinsic (boards cut off by the image's border, the
+    board's size, the intrinsics or lens model, and with ``margin`` the margin of boards placed by
+    their outline), from the frames both sensors saw: what to name when the frames do not even give
+    one."""
+    seen = [f for f in frames if f.board is not None and f.corners is not None]
+    return _causes_without_extrinsic(seen, board, camera, margin)[0] if seen else []
+
+
+def _causes_without_extrinsic(
+    seen: list[FrameResult], board: Board, camera: CameraModel, margin: bool = True
+) -> tuple[list[str], dict[str, tuple[ImageAlone, float]]]:
+    """(``causes_without_extrinsic``, the images' fits alone) of frames both sensors saw."""
     causes = [c for c in (_partial(seen, camera),) if c]
     scale = board_scale([(f.corners, f.board.T_lidar_board) for f in seen], board)  # type: ignore[misc, union-attr]
     if (
@@ -318,24 +349,13 @@ def residual_causes(
             "model, or --refine-intrinsics; blur or a curled print do this too)"
         )
     outline = len([f for f in seen if f.board is not None and f.board.diagnostics.get("no_contrast")])
-    if 2 * outline > len(seen):
+    if margin and 2 * outline > len(seen):
         causes.append(
             f"the board's margin: {outline} of {len(seen)} boards were placed by their outline, which "
             "board.margin_long and board.margin_short define with the squares: a margin other than the "
             "board's moves every one"
         )
-    if along := _range_offset(seen, T_cam_lidar, fits):
-        causes.append(along)
-    if moved := _moved(seen, board, T_cam_lidar, fits):
-        names = [n for n, _, _ in moved]
-        gaps = [g for _, g, _ in moved]
-        causes.append(
-            f"synchronisation: the images of {_names(names)} fit a flat board as their stated noise says, "
-            f"but it sits {min(gaps):.0f}-{max(gaps):.0f} mm from where the scans saw it (more than "
-            f"{MOVED_SIGMAS:g} x the LiDAR fit's stated sigma): the board moved between the scan and the "
-            "photo (sensors not synchronised), or the LiDAR's fit is off there"
-        )
-    return causes
+    return causes, fits
 
 
 def _centre_image(corners: ImageCorners, board: Board) -> np.ndarray | None:

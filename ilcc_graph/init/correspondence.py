@@ -335,8 +335,7 @@ def _rival(
             both = ", ".join(names[a] for a in np.flatnonzero(best.inliers | rival.inliers))
             ambiguous = (
                 f"two extrinsics fit {best.score[0]} frames each, with different corner orders or frames "
-                f"(frames {both}); "
-                "the one with the smaller bearing errors is used"
+                f"(frames {both}): the data do not tell which is right"
             )
             log.warning(ambiguous)
             return ambiguous

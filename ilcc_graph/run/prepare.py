@@ -17,6 +17,7 @@ import numpy as np
 from ilcc_graph.config import Config
 from ilcc_graph.errors import BLANK_IMAGE, CalibrationImpossible
 from ilcc_graph.estimation.geometry import board_geometry
+from ilcc_graph.evaluation.causes import causes_without_extrinsic
 from ilcc_graph.init import resolve_half_turns, upnp
 from ilcc_graph.types import FrameResult, GraphFrame, ImageCorners
 
@@ -106,10 +107,15 @@ def prepare(observed: Sequence[FrameResult], config: Config) -> Prepared:
         flippable=flippable,
     )
     if order.ambiguous:
+        # a board size or a camera the frames contradict makes no order fit: name it before more poses
+        # (not the outline's margin: boards placed by their outline alone leave the order open anyway)
+        found = causes_without_extrinsic(usable, config.board, config.camera, margin=False)
         raise CalibrationImpossible(
             "the corner order between image and scan cannot be decided",
             tuple((r.name, "order", order.ambiguous) for r in usable[:1]),
-            "add frames with the board turned differently in its plane (not only half turns apart)",
+            f"likely: {found[0]}"
+            if found
+            else "add frames with the board turned differently in its plane (not only half turns apart)",
         )
     for name, reason in order.dropped:
         drop(results, name, reason)
