@@ -197,6 +197,12 @@ def test_pcd_any_field_order_types_and_padding(tmp_path: Path) -> None:
     pa = tmp_path / "odd_ascii.pcd"
     pa.write_bytes(hdr_a + ("\n".join(rows) + "\n").encode())
     _assert_same(read_scan(pa), s)
+    # cut in the middle of a row: said in our words (not numpy's advice to its caller)
+    cut = tmp_path / "cut_ascii.pcd"
+    cut.write_bytes(hdr_a + ("\n".join(rows[:-1]) + "\n" + rows[-1][:5]).encode())
+    with pytest.raises(InputError, match=r"cut_ascii\.pcd: bad ascii PCD data \(.*a truncated") as e:
+        read_scan(cut)
+    assert "usecols" not in str(e.value)
 
 
 def test_open3d_interoperates_with_binary_compressed(tmp_path: Path) -> None:
@@ -439,6 +445,13 @@ def test_yaml_round_trip_and_layout(tmp_path: Path) -> None:
     (tmp_path / "bad.yaml").write_text("a: [1, 2\n")
     with pytest.raises(InputError, match=r"bad\.yaml: not valid YAML"):
         read_yaml(tmp_path / "bad.yaml")
+    # the two slips of an editor that a parser's words do not name: a tab, a file not in UTF-8
+    (tmp_path / "tab.yaml").write_text("board:\n\tsquares: [6, 8]\n")
+    with pytest.raises(InputError, match=r"tab\.yaml: not valid YAML .*line 2 holds a tab"):
+        read_yaml(tmp_path / "tab.yaml")
+    (tmp_path / "latin1.yaml").write_bytes("# board\n# caf\u00e9\na: 1\n".encode("latin-1"))
+    with pytest.raises(InputError, match=r"latin1\.yaml: cannot read file: line 2 is not UTF-8 .*as UTF-8"):
+        read_yaml(tmp_path / "latin1.yaml")
 
 
 def test_yaml_write_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

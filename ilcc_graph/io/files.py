@@ -254,7 +254,11 @@ def load_yaml_text(text: str, src: str) -> Any:
         _check_nodes(node, src)
         return loader.construct_document(node)
     except yaml.YAMLError as e:
-        raise InputError(f"{src}: not valid YAML ({' '.join(str(e).split())})") from None
+        mark = getattr(e, "problem_mark", None)
+        lines = text.splitlines()
+        at = lines[mark.line] if mark is not None and 0 <= mark.line < len(lines) else ""
+        hint = f"; line {mark.line + 1} holds a tab: YAML indents with spaces only" if "\t" in at else ""
+        raise InputError(f"{src}: not valid YAML ({' '.join(str(e).split())}){hint}") from None
     finally:
         if loader is not None:
             loader.dispose()
@@ -286,5 +290,8 @@ def read_yaml(path: str | Path, what: str = "file", max_bytes: int = YAML_MAX_BY
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:
-        raise InputError(f"{p}: cannot read {what} ({e})") from None
+        line = raw[: e.start].count(b"\n") + 1
+        raise InputError(
+            f"{p}: cannot read {what}: line {line} is not UTF-8 ({e}); save it as UTF-8"
+        ) from None
     return load_yaml_text(text, str(p))

@@ -13,6 +13,7 @@ can mimic the headers and layouts of PCL, Open3D and MATLAB (``PCD_STYLES``).
 from __future__ import annotations
 
 import io
+import re
 import struct
 import warnings
 from pathlib import Path
@@ -219,7 +220,8 @@ def _read_ascii(path: Path, body: bytes, names: list[str], dtype: np.dtype, n: i
             warnings.simplefilter("ignore")  # "input contained no data" -> handled below
             table = np.loadtxt(io.StringIO(text), dtype=np.float64, ndmin=2)
     except ValueError as e:
-        raise InputError(f"{path}: bad ascii PCD data ({' '.join(str(e).split())})") from None
+        why = re.sub(r"; use `usecols`.*", "", " ".join(str(e).split()))  # numpy's advice to its caller
+        raise InputError(f"{path}: bad ascii PCD data ({why}; a truncated or edited file?)") from None
     if table.shape[0] != n:
         raise InputError(
             f"{path}: ascii PCD header says POINTS {n} but the file has {table.shape[0]} data rows"
