@@ -254,10 +254,10 @@ def load_yaml_text(text: str, src: str) -> Any:
         _check_nodes(node, src)
         return loader.construct_document(node)
     except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
+        line = getattr(getattr(e, "problem_mark", None), "line", None)
         lines = text.splitlines()
-        at = lines[mark.line] if mark is not None and 0 <= mark.line < len(lines) else ""
-        hint = f"; line {mark.line + 1} holds a tab: YAML indents with spaces only" if "\t" in at else ""
+        at = lines[line] if isinstance(line, int) and 0 <= line < len(lines) else ""
+        hint = f"; line {line + 1} holds a tab: YAML indents with spaces only" if "\t" in at else ""
         raise InputError(f"{src}: not valid YAML ({' '.join(str(e).split())}){hint}") from None
     finally:
         if loader is not None:
