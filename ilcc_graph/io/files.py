@@ -256,8 +256,9 @@ def load_yaml_text(text: str, src: str) -> Any:
     except yaml.YAMLError as e:
         line = getattr(getattr(e, "problem_mark", None), "line", None)
         lines = text.splitlines()
-        at = lines[line] if isinstance(line, int) and 0 <= line < len(lines) else ""
-        hint = f"; line {line + 1} holds a tab: YAML indents with spaces only" if "\t" in at else ""
+        hint = ""
+        if isinstance(line, int) and 0 <= line < len(lines) and "\t" in lines[line]:
+            hint = f"; line {line + 1} holds a tab: YAML indents with spaces only"
         raise InputError(f"{src}: not valid YAML ({' '.join(str(e).split())}){hint}") from None
     finally:
         if loader is not None:
