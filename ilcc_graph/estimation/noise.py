@@ -342,8 +342,8 @@ def solve_problem(
 def _log_noise(sol: Solution, fixed: bool, estimated_factor: bool) -> None:
     """What a solve found that the user should hear of: too few boards, the variance components
     (when estimated), the boards' plane sigmas, a final factor above 1 (when estimated)."""
-    if len(sol.boards) < MIN_BOARDS_ADVISED:  # the held-out solves hold fewer; the verdict says it
-        log.info(
+    if len(sol.boards) < MIN_BOARDS_ADVISED:
+        log.warning(
             "only %d usable frame(s) in the graph; %d or more advised",
             len(sol.boards), MIN_BOARDS_ADVISED,
         )  # fmt: skip

@@ -38,7 +38,7 @@ WIDTH = 80
 #: colouring a point cloud or fusing detections needs (0.1 deg is 2 px of a 1920-px, 90-degree
 #: camera; 5 mm seen from 2 m is 0.14 deg)
 NEED_DEG_MM = (0.1, 5.0)
-#: fewer frames used than this: the result rests on too little to be called good
+#: fewer frames used than this: the result rests on too little to be called good (the graph warns too)
 MIN_FRAMES = 4
 #: elevation (deg) beyond which azimuth and roll of the viewing direction are not given
 STEEP_DEG = 80.0
