@@ -286,7 +286,8 @@ def require_within_noise(
 
 #: the images used fit a flat board alone at this many times their stated corner noise (the median of
 #: the majority that do): the camera as stated does not describe them (a focal length twice the
-#: lens's gave 24 x); the recorded sets' images fit at 1.2-1.3 x (their variance components)
+#: lens's gave 24-26 x); the recorded sets' image corners sit at 1.2-1.3 x their stated noise over all
+#: frames (the square root of their variance components)
 IMAGES_UNFIT_RATIO = 10.0
 
 
