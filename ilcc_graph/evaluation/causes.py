@@ -342,7 +342,7 @@ def _causes_without_extrinsic(
         )
     fits = _image_fits(seen, board, camera)
     bad = sorted(r for _, r in fits.values() if r > LENS_RATIO)
-    if 2 * len(bad) > len(seen):
+    if 2 * len(bad) >= len(seen):
         causes.append(
             f"the camera's intrinsics or lens model: {len(bad)} of {len(seen)} images alone fit a flat board "
             f"at {np.median(bad):.1f} x their stated corner noise (median; check camera.K, dist and the "
