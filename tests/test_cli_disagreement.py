@@ -110,20 +110,28 @@ def test_a_used_frame_hidden_by_residuals_far_above_the_noise_gives_no_result():
     assert err.advice.startswith("likely: synchronisation: the images of m0"), err.advice
 
 
+def _misconfigured(simulated, tmp_path: Path, focal: float = 1.0, square: float = 1.0) -> tuple[int, Path]:
+    """A small VLP-16 + 800-px pinhole set whose config.yaml states ``focal`` x the lens's focal
+    length and ``square`` x the print's square size, calibrated: (exit code, output folder)."""
+    data = tmp_path / "data"
+    shutil.copytree(simulated("pinhole", "--lidar", "vlp16", frames=6, seed=3, width=800), data)
+    cfg = yaml.safe_load((data / "config.yaml").read_text())
+    K = np.array(cfg["camera"]["K"], dtype=float)
+    K[0, 0], K[1, 1] = focal * K[0, 0], focal * K[1, 1]
+    cfg["camera"]["K"] = K.tolist()
+    cfg["board"]["square_size"] = round(cfg["board"]["square_size"] * square, 6)
+    (data / "config.yaml").write_text(yaml.safe_dump(cfg))
+    out = tmp_path / "out"
+    return main(["calibrate", str(data), "--out", str(out), "--jobs", "1", "--no-report"]), out
+
+
 def test_a_camera_whose_focal_length_is_not_the_lenss_exits_3_naming_it(simulated, tmp_path, capsys):
     """config.yaml states twice the lens's focal length (a slip of units or of another camera's K):
     the images alone fit a flat board at some 25 x their stated corner noise. The solve's noise grows
     to cover the frames, but not an extrinsic through the wrong camera (it was written 1.5 m from the
     truth, exit 0, POOR): exit 3 naming the camera, no calibration.yaml."""
-    data = tmp_path / "data"
-    shutil.copytree(simulated("pinhole", "--lidar", "vlp16", frames=6, seed=3, width=800), data)
-    cfg = yaml.safe_load((data / "config.yaml").read_text())
-    K = np.array(cfg["camera"]["K"], dtype=float)
-    K[0, 0], K[1, 1] = 2 * K[0, 0], 2 * K[1, 1]
-    cfg["camera"]["K"] = K.tolist()
-    (data / "config.yaml").write_text(yaml.safe_dump(cfg))
-    out = tmp_path / "out"
-    assert main(["calibrate", str(data), "--out", str(out), "--jobs", "1", "--no-report"]) == 3
+    code, out = _misconfigured(simulated, tmp_path, focal=2.0)
+    assert code == 3
     assert not (out / "calibration.yaml").exists()
     failure = yaml.safe_load((out / "failure.yaml").read_text())
     assert "the images do not fit the camera as stated" in failure["error"], failure["error"]
@@ -134,13 +142,8 @@ def test_a_square_size_not_the_prints_is_named_when_no_corner_order_fits(simulat
     """board.square_size 7 % larger than the print's (a square measured, not the whole pattern): no
     extrinsic fits more than two frames in any corner order, and the exit 3 named only the order,
     advising more poses. The frames' moves say the board's size is wrong: the advice says so."""
-    data = tmp_path / "data"
-    shutil.copytree(simulated("pinhole", "--lidar", "vlp16", frames=6, seed=3, width=800), data)
-    cfg = yaml.safe_load((data / "config.yaml").read_text())
-    cfg["board"]["square_size"] = round(cfg["board"]["square_size"] * 16 / 15, 6)
-    (data / "config.yaml").write_text(yaml.safe_dump(cfg))
-    out = tmp_path / "out"
-    assert main(["calibrate", str(data), "--out", str(out), "--jobs", "1", "--no-report"]) == 3
+    code, out = _misconfigured(simulated, tmp_path, square=16 / 15)
+    assert code == 3
     failure = yaml.safe_load((out / "failure.yaml").read_text())
     assert failure["advice"].startswith("likely: the board's size"), failure
     assert "1.067 x" in failure["advice"] and "board.square_size" in failure["advice"], failure["advice"]
@@ -150,14 +153,7 @@ def test_a_focal_length_15_percent_long_is_named_as_the_likely_cause(simulated, 
     """A focal length 15 % long: the boards land 0.4-0.5 m from their scans (exit 3), and 3 of the 6
     images alone fit a flat board at 7-15 x their stated noise. The likely cause named was
     synchronisation (the intrinsics needed more than half the images); it is the camera's now."""
-    data = tmp_path / "data"
-    shutil.copytree(simulated("pinhole", "--lidar", "vlp16", frames=6, seed=3, width=800), data)
-    cfg = yaml.safe_load((data / "config.yaml").read_text())
-    K = np.array(cfg["camera"]["K"], dtype=float)
-    K[0, 0], K[1, 1] = 1.15 * K[0, 0], 1.15 * K[1, 1]
-    cfg["camera"]["K"] = K.tolist()
-    (data / "config.yaml").write_text(yaml.safe_dump(cfg))
-    out = tmp_path / "out"
-    assert main(["calibrate", str(data), "--out", str(out), "--jobs", "1", "--no-report"]) == 3
+    code, out = _misconfigured(simulated, tmp_path, focal=1.15)
+    assert code == 3
     failure = yaml.safe_load((out / "failure.yaml").read_text())
     assert failure["advice"].startswith("likely: the camera's intrinsics or lens model"), failure["advice"]
