@@ -138,6 +138,29 @@ def test_a_camera_whose_focal_length_is_not_the_lenss_exits_3_naming_it(simulate
     assert "camera.K" in failure["error"] and "the images do not fit" in capsys.readouterr().err
 
 
+def test_a_rig_whose_camera_is_not_the_lenss_exits_3_naming_that_camera(simulated, tmp_path, capsys):
+    """The same misconfigured pair as a rig of two (rig.yaml: the LiDAR ``lidar``, the camera
+    ``front`` with twice the lens's focal length): the rig's door refuses as the pair's does (it wrote
+    a POOR answer with the LiDAR's range offset at +1.4 m), naming the camera's section of rig.yaml;
+    no calibration.yaml."""
+    code, _ = _misconfigured(simulated, tmp_path, focal=2.0)
+    data, rig = tmp_path / "data", tmp_path / "rig"
+    cfg = yaml.safe_load((data / "config.yaml").read_text())
+    rig.mkdir()
+    (rig / "lidar").symlink_to((data / "pcd").resolve())
+    (rig / "front").symlink_to((data / "img").resolve())
+    spec = {"reference": "lidar", "board": cfg["board"],
+            "sensors": {"lidar": {"lidar": cfg["lidar"]}, "front": {"camera": cfg["camera"]}}}  # fmt: skip
+    (rig / "rig.yaml").write_text(yaml.safe_dump(spec))
+    out = tmp_path / "rig_out"
+    capsys.readouterr()
+    assert code == main(["calibrate", str(rig), "--out", str(out), "--jobs", "1", "--no-report"]) == 3
+    assert not (out / "calibration.yaml").exists()
+    error = yaml.safe_load((out / "failure.yaml").read_text())["error"]
+    assert "the images do not fit camera 'front' as stated" in error, error
+    assert "sensors.front.camera.K" in error and "camera 'front'" in capsys.readouterr().err
+
+
 def test_a_square_size_not_the_prints_is_named_when_no_corner_order_fits(simulated, tmp_path):
     """board.square_size 7 % larger than the print's (a square measured, not the whole pattern): no
     extrinsic fits more than two frames in any corner order, and the exit 3 named only the order,

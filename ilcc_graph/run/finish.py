@@ -291,24 +291,29 @@ def require_within_noise(
 IMAGES_UNFIT_RATIO = 10.0
 
 
-def require_images_fit(frames: Sequence[FrameResult], config: Config, T_cam_lidar: np.ndarray) -> None:
+def require_images_fit(
+    frames: Sequence[FrameResult], config: Config, T_cam_lidar: np.ndarray, camera: str | None = None
+) -> None:
     """Raise ``CalibrationImpossible`` when most used frames' images alone (a flat board through the
     camera as stated, ``evaluation.causes.image_fit_ratios``) fit at more than ``IMAGES_UNFIT_RATIO``
     times their stated corner noise: the camera's intrinsics or model are not the images' (or their
     corner noise is stated far too small), and an extrinsic through that camera is off by more than the
     noise the solve estimated can cover; variance components absorb a noise stated wrongly, not a
-    camera model that is wrong."""
+    camera model that is wrong. ``camera``: a rig's camera, named in the message (its section in
+    rig.yaml); None: the pair's."""
     used = [f for f in frames if f.used and f.corners is not None]
     ratios = image_fit_ratios(used, config.board, config.camera)
     bad = {n: r for n, r in ratios.items() if r > IMAGES_UNFIT_RATIO}
     if not used or 2 * len(bad) <= len(used):
         return
+    whose, key, refine = ("the camera", "camera", "; or --refine-intrinsics")
+    if camera is not None:  # a rig's: its section of rig.yaml (a rig's cameras are not refined)
+        whose, key, refine = f"camera '{camera}'", f"sensors.{camera}.camera", ""
     message = (
-        f"the images do not fit the camera as stated: {len(bad)} of the {len(used)} images used fit a flat "
+        f"the images do not fit {whose} as stated: {len(bad)} of the {len(used)} images used fit a flat "
         f"board alone at {np.median(list(bad.values())):.0f} x their stated corner noise (median): the "
-        "camera's intrinsics or model are not the images' (check camera.K in pixels of this image size, "
-        "camera.dist and camera.model; or --refine-intrinsics), so no covariance would cover an extrinsic "
-        "through it"
+        f"camera's intrinsics or model are not the images' (check {key}.K in pixels of this image size, "
+        f"{key}.dist and {key}.model{refine}), so no covariance would cover an extrinsic through it"
     )
     issues = [
         (n, "image", f"fits a flat board alone at {r:.0f} x its stated corner noise") for n, r in bad.items()

@@ -21,6 +21,7 @@ from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.estimation.rig_solve import RigOptions
 from ilcc_graph.run import rig_calibrate
 from ilcc_graph.run.after import mostly_outline
+from ilcc_graph.run.finish import require_images_fit
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
 from ilcc_graph.run.rig_calibrate import RigResult, RigRunOptions, solve_observed, to_calibration
@@ -29,7 +30,7 @@ from ilcc_graph.run.stages import StageOptions
 from ilcc_graph.run.strategies import Reporter, Strategy, one, register
 from ilcc_graph.types import Calibration, FrameResult
 
-__all__ = ["headline", "observe", "rig_options", "solve"]
+__all__ = ["headline", "observe", "pair_frames", "require_cameras_fit", "rig_options", "solve"]
 
 log = logging.getLogger(__name__)
 
@@ -59,16 +60,7 @@ def headline(res: RigResult) -> Calibration:
     else:
         a, b = res.reference, next(s for s in res.sensors if s != res.reference)
     e = res.relative(a, b)
-    used = {(f.moment, f.sensor): f for f in res.fates}
-    observed = {m.name: m for m in res.observation.moments} if res.observation is not None else {}
-    frames = []
-    for moment in dict.fromkeys(f.moment for f in res.fates):
-        fa, fb = used[(moment, a)], used[(moment, b)]
-        why = "; ".join(f"{f.sensor}: {f.reason}" for f in (fa, fb) if not f.used) or None
-        m = observed.get(moment)
-        board = m.boards.get(b) if m is not None else None
-        corners = m.corners.get(a) if m is not None else None
-        frames.append(FrameResult(moment, why is None, why, board, corners))
+    frames = pair_frames(res, a, b)
     cam = rig.sensor(a).camera
     diagnostics = {"variance_factor": float(res.variance_factor)}
     errors = rig_calibrate.lidar_errors(res)  # the base LiDAR's: the boards on corrected ranges read them
@@ -76,6 +68,23 @@ def headline(res: RigResult) -> Calibration:
         np.asarray(e.T), np.asarray(e.covariance), tuple(frames), f"rig {a}/{b}", diagnostics,
         None if cam is None else cam.to_dict(), {"lidar_errors": errors} if errors else {},
     )  # fmt: skip
+
+
+def pair_frames(res: RigResult, a: str, b: str, camera_only: bool = False) -> list[FrameResult]:
+    """One ``FrameResult`` per moment of sensors ``a`` (a camera: its corners) and ``b`` (a LiDAR: its
+    board), used when both observations entered the graph (``camera_only``: when ``a``'s did), the
+    reason of each that did not otherwise."""
+    fates = {(f.moment, f.sensor): f for f in res.fates}
+    observed = {m.name: m for m in res.observation.moments} if res.observation is not None else {}
+    frames = []
+    for moment in dict.fromkeys(f.moment for f in res.fates):
+        judged = (fates[(moment, a)],) if camera_only else (fates[(moment, a)], fates[(moment, b)])
+        why = "; ".join(f"{f.sensor}: {f.reason}" for f in judged if not f.used) or None
+        m = observed.get(moment)
+        board = m.boards.get(b) if m is not None else None
+        corners = m.corners.get(a) if m is not None else None
+        frames.append(FrameResult(moment, why is None, why, board, corners))
+    return frames
 
 
 def rig_options(seen: RigObservation, options: RunOptions) -> RigRunOptions:
@@ -95,6 +104,21 @@ def rig_options(seen: RigObservation, options: RunOptions) -> RigRunOptions:
     return RigRunOptions(stages=options.stages, solve=RigOptions(models=("beams",)))
 
 
+def require_cameras_fit(res: RigResult) -> None:
+    """Raise ``CalibrationImpossible`` when most images a solved camera used do not fit it as stated
+    (``run.finish.require_images_fit``, a pair's rule, named by the camera): its intrinsics or model
+    are not the images', and its pose (and the boards it pulls) would be off by more than any
+    covariance covers. Each camera with the base LiDAR (the advice's residuals); a rig without a
+    LiDAR is not judged so."""
+    lidars = [s for s in res.rig.lidars if s in res.sensors]
+    if not lidars:
+        return
+    for camera in (s for s in res.rig.cameras if s in res.sensors):
+        frames = pair_frames(res, camera, lidars[0], camera_only=True)
+        config = res.rig.pair_config(camera, lidars[0])
+        require_images_fit(frames, config, np.asarray(res.relative(camera, lidars[0]).T), camera)
+
+
 def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
     """The rig's joint answer from its observation (``observe``). Raises CalibrationImpossible,
     IndeterminateSystem."""
@@ -102,6 +126,7 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     if not isinstance(obs.data, RigObservation):
         raise ValueError("rig mode: the observation holds no rig (observe it with this strategy's observe)")
     res = solve_observed(obs.data, rig_options(obs.data, options))
+    require_cameras_fit(res)
     cal = headline(res)
     poses = {s: res.pose(s) for s in res.sensors}
     session = SessionResult(obs.name, obs, cal)
