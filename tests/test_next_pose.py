@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import gtsam
 import numpy as np
 import pytest
@@ -113,8 +115,9 @@ def test_the_proposal_is_in_view_new_and_shrinks_the_worst_sigma(kind: str) -> N
     scale = np.array([0.01] * 3 + [0.2] * 3)
     assert np.max(p.sigmas_after / scale) < np.max(p.sigmas_now / scale)
     np.testing.assert_allclose(p.azimuth_deg, np.degrees(np.arctan2(c[1], c[0])))
-    # no other valid candidate of the coarse grid does better
-    for centre, yaw, pitch in adv._coarse:
+    # no valid candidate of the whole coarse grid does better (every centre, every turn: the search
+    # turns only the centres whose facing board is among the best or no candidate)
+    for centre, (yaw, pitch) in itertools.product(adv._grid, [(0.0, 0.0), *nxp.TURNS]):
         got = adv.candidate(centre, yaw, pitch)
         if got is not None:
             after = np.sqrt(np.diag(np.linalg.inv(np.linalg.inv(cov) + got[1])))

@@ -24,7 +24,10 @@ lies in the image (3 % border) and in front of the camera, the whole board insid
 vertical field, at least 4 beams cross it, and it is not where a board was already (its centre
 15 cm and its face 10 deg from every earlier one's). The score is the largest sigma after the frame,
 each divided by the target (``target_sigma``; default 0.1 deg / 1 mm for the scale only): the
-proposal is the candidate with the smallest, then refined around it.
+proposal is the candidate with the smallest, then refined around it. The coarse grid is searched in
+two steps: every centre facing the rig, then the turns and tilts at the ``TURNED_CENTRES`` best of
+those and at every centre where facing gives no candidate (on 11 simulated and recorded runs the
+same proposal as the whole grid, in 1.3-2.6x less time).
 
 The new frame's noise is the one the run found (``from_calibration``, and ``check``'s running solve):
 the boards' and corners' covariances times the variance components of the sensor model it chose,
@@ -34,6 +37,8 @@ error terms (``beams``, ``range``) are not part of the prediction: a new board i
 """
 
 from ilcc_graph.next_pose.advisor import (
+    TURNED_CENTRES,
+    TURNS,
     Advisor,
     Proposal,
     candidate_azimuths,
@@ -52,6 +57,8 @@ __all__ = [
     "Advisor",
     "BoardNoiseModel",
     "Proposal",
+    "TURNED_CENTRES",
+    "TURNS",
     "Rig",
     "beam_hits",
     "board_outline",

@@ -23,6 +23,8 @@ __all__ = [
     "Advisor",
     "for_run",
     "Proposal",
+    "TURNED_CENTRES",
+    "TURNS",
     "candidate_azimuths",
     "frame_information",
     "from_calibration",
@@ -35,6 +37,8 @@ __all__ = [
 DEFAULT_SCALE = (0.1, 1.0)  # deg, mm: the normalisation of the score when no target is given
 #: a proposal is a new pose: its centre this far from every board so far, or its face turned this much
 NEW_POSE_M, NEW_POSE_COS = 0.15, math.cos(math.radians(10.0))
+#: the coarse search: every centre facing the rig, then these turns (yaw, pitch; deg) at the best few
+TURNS, TURNED_CENTRES = ((30.0, 0.0), (-30.0, 0.0), (0.0, 25.0), (0.0, -25.0)), 8
 
 
 def median_pixel_cov(frames: Sequence[GraphFrame]) -> np.ndarray:
@@ -200,11 +204,7 @@ class Advisor:
         self.distances = tuple(distances)
         self._towards = 0.5 * rig.camera_centre
         self._cache: dict[tuple, tuple[np.ndarray, np.ndarray] | None] = {}
-        self._coarse = [
-            (c, yaw, pitch)
-            for c in _centres(rig, candidate_azimuths(rig, 30.0), self.distances, levels=2)
-            for yaw, pitch in ((0.0, 0.0), (30.0, 0.0), (-30.0, 0.0), (0.0, 25.0), (0.0, -25.0))
-        ]
+        self._grid = _centres(rig, candidate_azimuths(rig, 30.0), self.distances, levels=2)
 
     def candidate(self, centre: np.ndarray, yaw: float, pitch: float) -> tuple[np.ndarray, np.ndarray] | None:
         """(T_lidar_board, information it adds) of a board centred at ``centre`` (LiDAR frame), turned
@@ -256,7 +256,9 @@ class Advisor:
         frames: Sequence[GraphFrame] | None = None,
     ) -> Proposal | None:  # fmt: skip
         """The candidate whose frame leaves the smallest largest sigma (each over the target), from
-        the extrinsic's ``covariance`` (6, 6) now; a coarse grid, then around its best. ``frames``:
+        the extrinsic's ``covariance`` (6, 6) now; a coarse grid (every centre facing the rig, then
+        turned and tilted where that is among the best or gives no candidate), then around its
+        best. ``frames``:
         the boards so far when there are more than the advisor was made with (no repeat of one is
         proposed). None when no candidate is valid or the covariance is not finite."""
         if frames is not None:
@@ -277,14 +279,28 @@ class Advisor:
                 np.linalg.norm(c - c0) < NEW_POSE_M and T[:3, 2] @ n0 > NEW_POSE_COS for c0, n0 in seen
             )
 
-        def try_(centre: np.ndarray, yaw: float, pitch: float) -> None:
+        def try_(centre: np.ndarray, yaw: float, pitch: float) -> float | None:
             got = self.candidate(centre, yaw, pitch)
-            if got is not None and not repeats(got[0]):
-                after = np.linalg.inv(info + self.gain(got[1]))
-                scored.append((_score(after, scale), (yaw, pitch), got[0], after))
+            if got is None or repeats(got[0]):
+                return None
+            after = np.linalg.inv(info + self.gain(got[1]))
+            scored.append((_score(after, scale), (yaw, pitch), got[0], after))
+            return scored[-1][0]
 
-        for c, yaw, pitch in self._coarse:
-            try_(c, yaw, pitch)
+        # every centre facing the rig; turned and tilted where facing is the best few, or no
+        # candidate (out of view or a repeat: turned, a board may be neither)
+        facing: list[tuple[float, np.ndarray]] = []
+        turn: list[np.ndarray] = []
+        for c in self._grid:
+            got = try_(c, 0.0, 0.0)
+            if got is None:
+                turn.append(c)
+            else:
+                facing.append((got, c))
+        turn += [c for _, c in sorted(facing, key=lambda v: v[0])[:TURNED_CENTRES]]
+        for c in turn:
+            for yaw, pitch in TURNS:
+                try_(c, yaw, pitch)
         if not scored:
             return None
         _, (yaw0, pitch0), T0, _ = min(scored, key=lambda v: v[0])
