@@ -38,6 +38,19 @@ def _with_moved_boards(good: Path, other: Path, out: Path) -> Path:
     return out
 
 
+def _as_rig(data: Path, where: Path) -> Path:
+    """``data``'s pair as a rig of two: rig.yaml with its board, ``lidar`` (the reference) and the
+    camera ``front``, each sensor's folder a link to the data's."""
+    cfg = yaml.safe_load((data / "config.yaml").read_text())
+    where.mkdir()
+    (where / "lidar").symlink_to((data / "pcd").resolve())
+    (where / "front").symlink_to((data / "img").resolve())
+    spec = {"reference": "lidar", "board": cfg["board"],
+            "sensors": {"lidar": {"lidar": cfg["lidar"]}, "front": {"camera": cfg["camera"]}}}  # fmt: skip
+    (where / "rig.yaml").write_text(yaml.safe_dump(spec))
+    return where
+
+
 def test_the_set_as_simulated_calibrates_with_every_frame(simulated, calibrated):
     out = calibrated(simulated("pinhole", frames=FRAMES, seed=1))
     doc = yaml.safe_load((out / "calibration.yaml").read_text())
@@ -66,6 +79,24 @@ def test_two_agreeing_frames_and_two_disagreeing_exit_3_naming_them(simulated, t
     for name in ("0001", "0002"):
         assert rows[name]["reason"].startswith("agrees with"), rows[name]
     # the likely cause over all frames: the images fit flat boards, the scans put them elsewhere
+    assert "synchronisation" in (failure.get("advice") or "") and "0003, 0004" in failure["advice"], failure
+
+
+def test_a_rig_of_two_with_two_agreeing_moments_and_two_disagreeing_exits_3_alike(simulated, tmp_path):
+    """The same data as a rig of two: its start drops the two moved moments for the camera as the
+    pair's corner order does, and the rig refuses as the pair does (it wrote a POOR answer from the
+    two moments left), naming the camera, the moments and the same likely cause."""
+    good = simulated("pinhole", frames=FRAMES, seed=1)
+    data = _with_moved_boards(good, simulated("pinhole", frames=FRAMES, seed=2), tmp_path / "data")
+    out = tmp_path / "out"
+    assert main(["calibrate", str(_as_rig(data, tmp_path / "rig")), "--out", str(out), "--jobs", "1",
+                 "--no-report"]) == 3  # fmt: skip
+    assert not (out / "calibration.yaml").exists()
+    failure = yaml.safe_load((out / "failure.yaml").read_text())
+    assert failure["error"].startswith("camera 'front': only 2 distinct board poses agree (0001, 0002)")
+    assert "2 disagree with them beyond their noise (0003, 0004)" in failure["error"], failure["error"]
+    rows = {f["frame"]: f["reason"] for f in failure["frames"]}
+    assert rows["0001"] == "agrees with 0002" and rows["0002"] == "agrees with 0001", rows
     assert "synchronisation" in (failure.get("advice") or "") and "0003, 0004" in failure["advice"], failure
 
 
@@ -144,15 +175,7 @@ def test_a_rig_whose_camera_is_not_the_lenss_exits_3_naming_that_camera(simulate
     a POOR answer with the LiDAR's range offset at +1.4 m), naming the camera's section of rig.yaml;
     no calibration.yaml."""
     code, _ = _misconfigured(simulated, tmp_path, focal=2.0)
-    data, rig = tmp_path / "data", tmp_path / "rig"
-    cfg = yaml.safe_load((data / "config.yaml").read_text())
-    rig.mkdir()
-    (rig / "lidar").symlink_to((data / "pcd").resolve())
-    (rig / "front").symlink_to((data / "img").resolve())
-    spec = {"reference": "lidar", "board": cfg["board"],
-            "sensors": {"lidar": {"lidar": cfg["lidar"]}, "front": {"camera": cfg["camera"]}}}  # fmt: skip
-    (rig / "rig.yaml").write_text(yaml.safe_dump(spec))
-    out = tmp_path / "rig_out"
+    rig, out = _as_rig(tmp_path / "data", tmp_path / "rig"), tmp_path / "rig_out"
     capsys.readouterr()
     assert code == main(["calibrate", str(rig), "--out", str(out), "--jobs", "1", "--no-report"]) == 3
     assert not (out / "calibration.yaml").exists()

@@ -159,18 +159,22 @@ def finish(
     )
 
 
-def require_agreement(frames: Sequence[FrameResult], config: Config, T_cam_lidar: np.ndarray) -> None:
+def require_agreement(
+    frames: Sequence[FrameResult], config: Config, T_cam_lidar: np.ndarray, camera: str | None = None
+) -> None:
     """Raise ``CalibrationImpossible`` when the frames used (one per distinct board pose) are fewer
     than ``MIN_DISTINCT_POSES`` and frames seen by both sensors were dropped for disagreeing with
-    them (``errors.DISAGREEING``): which frames agree, which disagree and why, the likely cause."""
+    them (``errors.DISAGREEING``): which frames agree, which disagree and why, the likely cause.
+    ``camera``: a rig's camera (its moments), named in the message."""
     used = [f for f in frames if f.used]
     disagree = [f for f in frames if not f.used and (f.reason or "").startswith(DISAGREEING)]
     if len(used) >= MIN_DISTINCT_POSES or not disagree:
         return
     agree_names, other_names = [f.name for f in used], [f.name for f in disagree]
     k = len(used)
+    whose = "" if camera is None else f"camera '{camera}': "
     message = (
-        f"only {k} distinct board pose{'s' * (k != 1)} agree ({', '.join(agree_names)}) and "
+        f"{whose}only {k} distinct board pose{'s' * (k != 1)} agree ({', '.join(agree_names)}) and "
         f"{len(disagree)} disagree with {'them' if k != 1 else 'it'} beyond their noise "
         f"({', '.join(other_names)}): with fewer than {MIN_DISTINCT_POSES} poses that agree nothing tells "
         "which frames are right, and their covariance could not reveal a placement's error"

@@ -21,7 +21,7 @@ from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.estimation.rig_solve import RigOptions
 from ilcc_graph.run import rig_calibrate
 from ilcc_graph.run.after import mostly_outline
-from ilcc_graph.run.finish import require_images_fit
+from ilcc_graph.run.finish import require_agreement, require_images_fit
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
 from ilcc_graph.run.rig_calibrate import RigResult, RigRunOptions, solve_observed, to_calibration
@@ -30,7 +30,7 @@ from ilcc_graph.run.stages import StageOptions
 from ilcc_graph.run.strategies import Reporter, Strategy, one, register
 from ilcc_graph.types import Calibration, FrameResult
 
-__all__ = ["headline", "observe", "pair_frames", "require_cameras_fit", "rig_options", "solve"]
+__all__ = ["headline", "observe", "pair_frames", "require_cameras", "rig_options", "solve"]
 
 log = logging.getLogger(__name__)
 
@@ -72,14 +72,17 @@ def headline(res: RigResult) -> Calibration:
 
 def pair_frames(res: RigResult, a: str, b: str, camera_only: bool = False) -> list[FrameResult]:
     """One ``FrameResult`` per moment of sensors ``a`` (a camera: its corners) and ``b`` (a LiDAR: its
-    board), used when both observations entered the graph (``camera_only``: when ``a``'s did), the
-    reason of each that did not otherwise."""
+    board), used when both observations entered the graph, the reason of each that did not
+    otherwise (``camera_only``: used when ``a``'s did, its reason as it is)."""
     fates = {(f.moment, f.sensor): f for f in res.fates}
     observed = {m.name: m for m in res.observation.moments} if res.observation is not None else {}
     frames = []
     for moment in dict.fromkeys(f.moment for f in res.fates):
-        judged = (fates[(moment, a)],) if camera_only else (fates[(moment, a)], fates[(moment, b)])
-        why = "; ".join(f"{f.sensor}: {f.reason}" for f in judged if not f.used) or None
+        fa, fb = fates[(moment, a)], fates[(moment, b)]
+        if camera_only:
+            why = None if fa.used else fa.reason
+        else:
+            why = "; ".join(f"{f.sensor}: {f.reason}" for f in (fa, fb) if not f.used) or None
         m = observed.get(moment)
         board = m.boards.get(b) if m is not None else None
         corners = m.corners.get(a) if m is not None else None
@@ -104,19 +107,22 @@ def rig_options(seen: RigObservation, options: RunOptions) -> RigRunOptions:
     return RigRunOptions(stages=options.stages, solve=RigOptions(models=("beams",)))
 
 
-def require_cameras_fit(res: RigResult) -> None:
-    """Raise ``CalibrationImpossible`` when most images a solved camera used do not fit it as stated
-    (``run.finish.require_images_fit``, a pair's rule, named by the camera): its intrinsics or model
-    are not the images', and its pose (and the boards it pulls) would be off by more than any
-    covariance covers. Each camera with the base LiDAR (the advice's residuals); a rig without a
-    LiDAR is not judged so."""
+def require_cameras(res: RigResult) -> None:
+    """Raise ``CalibrationImpossible`` where a pair's run would for a solved camera (each with the base
+    LiDAR, whose boards and the camera's pose give the advice's residuals; a rig without a LiDAR is
+    not judged so): fewer than ``MIN_DISTINCT_POSES`` of its moments agree while others were dropped
+    for disagreeing (``run.finish.require_agreement``), or most images it used do not fit it as stated
+    (``run.finish.require_images_fit``, named by the camera): its pose would rest on what nothing
+    checks, or be off by more than any covariance covers."""
     lidars = [s for s in res.rig.lidars if s in res.sensors]
     if not lidars:
         return
     for camera in (s for s in res.rig.cameras if s in res.sensors):
         frames = pair_frames(res, camera, lidars[0], camera_only=True)
         config = res.rig.pair_config(camera, lidars[0])
-        require_images_fit(frames, config, np.asarray(res.relative(camera, lidars[0]).T), camera)
+        T = np.asarray(res.relative(camera, lidars[0]).T)
+        require_agreement(frames, config, T, camera)
+        require_images_fit(frames, config, T, camera)
 
 
 def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
@@ -126,7 +132,7 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     if not isinstance(obs.data, RigObservation):
         raise ValueError("rig mode: the observation holds no rig (observe it with this strategy's observe)")
     res = solve_observed(obs.data, rig_options(obs.data, options))
-    require_cameras_fit(res)
+    require_cameras(res)
     cal = headline(res)
     poses = {s: res.pose(s) for s in res.sensors}
     session = SessionResult(obs.name, obs, cal)
