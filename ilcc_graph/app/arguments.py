@@ -100,7 +100,10 @@ def add_solve_arguments(sp: argparse.ArgumentParser, studies: bool = False) -> N
     )
     sp.add_argument("--board-plane", choices=("estimated", "fixed"), help=help)
     add_frames_arguments(sp)
-    sp.add_argument("--no-report", dest="report", action="store_false", help="skip the report")
+    sp.add_argument(
+        "--no-report", dest="report", action="store_false",
+        help="skip the report and its pictures (next_pose.png too: the summary still says the next pose)",
+    )  # fmt: skip
     sp.add_argument("--clouds", action="store_true", help="with the report: coloured clouds (coloured/)")
     sp.add_argument("--full-views", action="store_true", help="with the report: whole pictures at full size")
     help = (

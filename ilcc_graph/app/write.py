@@ -16,7 +16,8 @@ everything is written (so ``out`` is either the complete result or untouched):
   there are several), its pictures drawn on the views the image stage kept (no picture is read
   again), on ``jobs`` processes; on request (``clouds``) the coloured clouds ``coloured/<frame>.ply``
   and (``full_views``) the whole pictures at full resolution;
-- with a proposal: ``next_pose.png``; ``check``: ``check.yaml``; a failed run: ``failure.yaml``.
+- with a proposal and the report: ``next_pose.png``; ``check``: ``check.yaml`` (and ``next_pose.png``
+  with a proposal); a failed run: ``failure.yaml``.
 
 It reads only ``run.result.Result`` (no strategy's own types). The folder mechanics (staging, the
 locked commit) are ``io.output_folders``; the report's pictures ``app.report_writer``; the studies
@@ -100,8 +101,9 @@ def write_run(
     progress: Callable[[str], Callable[[int, int], None]] | None = None,
 ) -> Path:
     """Write every output of ``result`` to ``out`` (module docstring); returns ``out``. With a
-    ``next_pose`` proposal also ``next_pose.png`` (the rig, the boards, the proposal; a callable is
-    called while the report's pictures are drawn on other processes), shown in the report too;
+    ``next_pose`` proposal and the report also ``next_pose.png`` (the rig, the boards, the proposal;
+    a callable is called while the report's pictures are drawn on other processes, and without the
+    report still called: the summary says the proposal), shown in the report too;
     ``clouds``: the coloured clouds; ``full_views``: the report's whole pictures at full resolution too;
     ``progress(name)``: a ``(done, total)`` callback for each session's report (``console.Progress``)."""
     later = next_pose if callable(next_pose) else None
@@ -142,7 +144,7 @@ def write_run(
                 later = None
         if later is not None:
             proposal = later()
-        if proposal is not None:
+        if proposal is not None and report:  # --no-report: the advice in words only (the summary's)
             atomic_write(d / "next_pose.png", png if png is not None else next_pose_png(proposal))
     return out
 
