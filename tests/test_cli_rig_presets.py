@@ -87,3 +87,30 @@ def test_verify_does_not_fail_an_unchanged_ring_on_one_board_per_camera(ring, tm
     assert [w["camera"] for w in stored_doc["extrinsic_with_lidar_terms"]] == list(CAMERAS)
     said = [n for n in doc["notes"] if "tested net of the LiDAR's own range terms" in n]
     assert len(said) == 1 and said[0].startswith(f"{', '.join(CAMERAS)}: the mount's change"), doc["notes"]
+
+
+def test_a_ring_whose_one_camera_is_stated_wrong_says_why_it_has_no_pose(ring, tmp_path, capsys):
+    """The ring with the left camera's focal length stated twice the lens's in rig.yaml: the start
+    drops every moment of that camera (its corner order fits none), so the others are calibrated and
+    the left camera has no pose; its reason names the likely cause (an internal error before: the
+    held-out scores asked for the missing camera's pose)."""
+    data, stored = ring
+    copy = tmp_path / "rig"
+    copy.mkdir()
+    for entry in data.iterdir():
+        if entry.name != "rig.yaml":
+            (copy / entry.name).symlink_to(entry.resolve())
+    spec = yaml.safe_load((data / "rig.yaml").read_text())
+    K = np.array(spec["sensors"]["left"]["camera"]["K"], dtype=float)
+    K[0, 0], K[1, 1] = 2.0 * K[0, 0], 2.0 * K[1, 1]
+    spec["sensors"]["left"]["camera"]["K"] = K.tolist()
+    (copy / "rig.yaml").write_text(yaml.safe_dump(spec))
+    out = tmp_path / "out"
+    capsys.readouterr()
+    assert main(["calibrate", str(copy), "--out", str(out), "--jobs", "1", "--no-report"]) == 0
+    said = capsys.readouterr().out
+    got = read_rig_calibration(out / "calibration.yaml")
+    assert "left" not in got.sensors and set(got.sensors) == {"lidar", "front", "back", "right"}
+    reason = got.extra["unsolved"]["left"]
+    assert "likely: the camera's intrinsics or lens model: 3 of 3 images" in reason, reason
+    assert "no pose for left" in said and "intrinsics" in said, said

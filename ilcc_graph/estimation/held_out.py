@@ -79,7 +79,10 @@ def held_out(sol: Solution, e: int = 0) -> dict[int, HeldOut]:
 
     The covariances are those the solution reports (its components' posterior means, its final
     factor, the components' spread on the extrinsic). Boards whose views are pixel factors (refined
-    intrinsics) are left out: their image's pose depends on the intrinsics being estimated."""
+    intrinsics) are left out: their image's pose depends on the intrinsics being estimated. Empty
+    when extrinsic ``e`` is not in the solution (a rig's camera whose every view was dropped)."""
+    if not sol.values.exists(X(e)):
+        return {}
     asm = sol.assembly
     scales = sol.covariance_scales or sol.scales
     graph, terms = asm.graph(sol.boards, scales)

@@ -12,13 +12,16 @@ LiDAR reads like a single pair's run.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from ilcc_graph.datasets.rig_source import RigSource
+from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.rig_solve import RigOptions
+from ilcc_graph.evaluation.causes import causes_without_extrinsic
 from ilcc_graph.run import rig_calibrate
 from ilcc_graph.run.after import mostly_outline
 from ilcc_graph.run.finish import require_agreement, require_images_fit
@@ -30,7 +33,9 @@ from ilcc_graph.run.stages import StageOptions
 from ilcc_graph.run.strategies import Reporter, Strategy, one, register
 from ilcc_graph.types import Calibration, FrameResult
 
-__all__ = ["headline", "observe", "pair_frames", "require_cameras", "rig_options", "solve"]
+__all__ = [
+    "headline", "observe", "pair_frames", "require_cameras", "rig_options", "solve", "with_unsolved_causes",
+]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -113,7 +118,8 @@ def require_cameras(res: RigResult) -> None:
     not judged so): fewer than ``MIN_DISTINCT_POSES`` of its moments agree while others were dropped
     for disagreeing (``run.finish.require_agreement``), or most images it used do not fit it as stated
     (``run.finish.require_images_fit``, named by the camera): its pose would rest on what nothing
-    checks, or be off by more than any covariance covers."""
+    checks, or be off by more than any covariance covers. In a rig of more than two sensors the
+    message also says that leaving the camera out calibrates the others."""
     lidars = [s for s in res.rig.lidars if s in res.sensors]
     if not lidars:
         return
@@ -121,8 +127,31 @@ def require_cameras(res: RigResult) -> None:
         frames = pair_frames(res, camera, lidars[0], camera_only=True)
         config = res.rig.pair_config(camera, lidars[0])
         T = np.asarray(res.relative(camera, lidars[0]).T)
-        require_agreement(frames, config, T, camera)
-        require_images_fit(frames, config, T, camera)
+        try:
+            require_agreement(frames, config, T, camera)
+            require_images_fit(frames, config, T, camera)
+        except CalibrationImpossible as err:
+            if len(res.rig.sensors) <= 2:
+                raise
+            others = f"leave camera '{camera}' out of rig.yaml to calibrate the other sensors"
+            raise CalibrationImpossible(f"{err}; or {others}", err.frames, err.advice) from None
+
+
+def with_unsolved_causes(res: RigResult) -> RigResult:
+    """``res`` with the reason of each camera left without a pose extended by the likely cause its
+    moments seen with the base LiDAR show without an extrinsic (``evaluation.causes
+    .causes_without_extrinsic``: the intrinsics or lens model, the board's size, boards cut off),
+    as a pair's exit 3 names it when its corner order fits no frame."""
+    lidars = [s for s in res.rig.lidars if s in res.sensors]
+    unsolved = dict(res.unsolved)
+    for camera in (s for s in res.rig.cameras if s in unsolved and lidars):
+        config = res.rig.pair_config(camera, lidars[0])
+        frames = pair_frames(res, camera, lidars[0], camera_only=True)
+        if causes := causes_without_extrinsic(frames, config.board, config.camera, margin=False):
+            unsolved[camera] = f"{unsolved[camera]}; likely: {causes[0]}"
+    if unsolved == res.unsolved:
+        return res
+    return dataclasses.replace(res, solution=dataclasses.replace(res.solution, unsolved=unsolved))
 
 
 def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
@@ -131,7 +160,7 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     obs = one(observations, "rig")
     if not isinstance(obs.data, RigObservation):
         raise ValueError("rig mode: the observation holds no rig (observe it with this strategy's observe)")
-    res = solve_observed(obs.data, rig_options(obs.data, options))
+    res = with_unsolved_causes(solve_observed(obs.data, rig_options(obs.data, options)))
     require_cameras(res)
     cal = headline(res)
     poses = {s: res.pose(s) for s in res.sensors}
