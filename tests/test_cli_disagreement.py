@@ -184,6 +184,25 @@ def test_a_rig_whose_camera_is_not_the_lenss_exits_3_naming_that_camera(simulate
     assert "sensors.front.camera.K" in error and "camera 'front'" in capsys.readouterr().err
 
 
+def test_a_rig_of_three_names_the_camera_to_leave_out(simulated, tmp_path):
+    """A rig of three: the LiDAR, the camera ``front`` stated with twice the lens's focal length and
+    ``twin`` (the same images, the lens as it is): the run exits 3 naming ``front`` and saying that
+    leaving it out of rig.yaml calibrates the other sensors."""
+    _misconfigured(simulated, tmp_path, focal=2.0)
+    data, rig = tmp_path / "data", _as_rig(tmp_path / "data", tmp_path / "rig")
+    spec = yaml.safe_load((rig / "rig.yaml").read_text())
+    twin = dict(spec["sensors"]["front"]["camera"])
+    twin["K"] = (np.array(twin["K"]) * [[0.5], [0.5], [1.0]]).tolist()
+    spec["sensors"]["twin"] = {"camera": twin}
+    (rig / "twin").symlink_to((data / "img").resolve())
+    (rig / "rig.yaml").write_text(yaml.safe_dump(spec))
+    out = tmp_path / "rig_out"
+    assert main(["calibrate", str(rig), "--out", str(out), "--jobs", "1", "--no-report"]) == 3
+    error = yaml.safe_load((out / "failure.yaml").read_text())["error"]
+    assert "camera 'front'" in error.split(":")[0] and "twin" not in error, error  # its images or moments
+    assert error.endswith("or leave camera 'front' out of rig.yaml to calibrate the other sensors"), error
+
+
 def test_a_square_size_not_the_prints_is_named_when_no_corner_order_fits(simulated, tmp_path):
     """board.square_size 7 % larger than the print's (a square measured, not the whole pattern): no
     extrinsic fits more than two frames in any corner order, and the exit 3 named only the order,
