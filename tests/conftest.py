@@ -22,17 +22,18 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "acfr-vlp16-fisheye"
 
 
-#: the heaviest test files first (their seconds in a run of 2026-12-07: 218 .. 30): pytest-xdist's
-#: ``--dist loadfile`` hands the files out in collection order, so a heavy file collected last would
-#: run alone at the end while the other worker idles. Only the order changes; a file not named keeps
-#: its place after these.
+#: the heaviest test files first (their seconds in a run of 2026-12-07, session 57: 220 .. 32):
+#: pytest-xdist's ``--dist loadfile`` hands the files out in collection order, so a heavy file
+#: collected last would run alone at the end while the other worker idles. Only the order changes; a
+#: file not named keeps its place after these.
 HEAVY_FIRST = (
-    "test_doors_agree.py", "test_cli_honesty.py", "test_verify_capture.py", "test_live.py",
-    "test_cli_flags.py", "test_modes.py", "test_cli_rig_presets.py", "test_rig_strategy.py",
-    "test_rig_commands.py", "test_cli.py", "test_selection.py", "test_cli_honesty_lidars.py",
-    "test_doors_outline.py", "test_cli_export.py", "test_output_folders.py", "test_incremental_stop.py",
-    "test_datasets_bags.py", "test_time_names.py", "test_wrong_margin.py", "test_moved_board.py",
-    "test_demo.py", "test_rig_solve.py", "test_intrinsics_core.py", "test_lidar_cropped.py",
+    "test_doors_agree.py", "test_verify_capture.py", "test_cli_flags.py", "test_cli_honesty.py",
+    "test_rig_strategy.py", "test_live.py", "test_selection.py", "test_cli_export.py",
+    "test_doors_outline.py", "test_output_folders.py", "test_rig_commands.py", "test_cli_effects.py",
+    "test_datasets_bags.py", "test_cli_rig_presets.py", "test_cli_honesty_lidars.py", "test_modes.py",
+    "test_lidar_real_sensors.py", "test_moved_board.py", "test_closed_stdout.py", "test_image_whole.py",
+    "test_no_print.py", "test_rig_solve.py", "test_lidars.py", "test_wrong_margin.py", "test_cli.py",
+    "test_incremental_stop.py", "test_faults.py", "test_image.py", "test_time_names.py", "test_demo.py",
 )  # fmt: skip
 
 
