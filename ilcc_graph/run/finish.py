@@ -306,38 +306,23 @@ def require_images_fit(
     camera model that is wrong. ``camera``: a rig's camera, named in the message (its section in
     rig.yaml); None: the pair's."""
     used = [f for f in frames if f.used and f.corners is not None]
-    bad = images_unfit(used, config)
-    if not bad:
+    ratios = image_fit_ratios(used, config.board, config.camera)
+    bad = {n: r for n, r in ratios.items() if r > IMAGES_UNFIT_RATIO}
+    if not used or 2 * len(bad) <= len(used):
         return
-    message = unfit_reason(bad, len(used), camera) + ", so no covariance would cover an extrinsic through it"
+    whose, key, refine = ("the camera", "camera", "; or --refine-intrinsics")
+    if camera is not None:  # a rig's: its section of rig.yaml (a rig's cameras are not refined)
+        whose, key, refine = f"camera '{camera}'", f"sensors.{camera}.camera", ""
+    message = (
+        f"the images do not fit {whose} as stated: {len(bad)} of the {len(used)} images used fit a flat "
+        f"board alone at {np.median(list(bad.values())):.0f} x their stated corner noise (median): the "
+        f"camera's intrinsics or model are not the images' (check {key}.K in pixels of this image size, "
+        f"{key}.dist and {key}.model{refine}), so no covariance would cover an extrinsic through it"
+    )
     issues = [
         (n, "image", f"fits a flat board alone at {r:.0f} x its stated corner noise") for n, r in bad.items()
     ]
     _refuse(message, issues, frames, config, T_cam_lidar)
-
-
-def images_unfit(frames: Sequence[FrameResult], config: Config) -> dict[str, float]:
-    """{frame: ratio} of the ``frames`` with corners whose image alone fits a flat board through the
-    camera as stated at more than ``IMAGES_UNFIT_RATIO`` times its stated corner noise, when they
-    are most of those frames; else empty."""
-    seen = [f for f in frames if f.corners is not None]
-    ratios = image_fit_ratios(seen, config.board, config.camera)
-    bad = {n: r for n, r in ratios.items() if r > IMAGES_UNFIT_RATIO}
-    return bad if seen and 2 * len(bad) > len(seen) else {}
-
-
-def unfit_reason(bad: dict[str, float], n: int, camera: str | None = None, which: str = "used") -> str:
-    """What ``images_unfit``'s ``bad`` of ``n`` images say: the camera as stated is not the images';
-    ``camera``: a rig's (its section of rig.yaml), None: the pair's."""
-    whose, key, refine = ("the camera", "camera", "; or --refine-intrinsics")
-    if camera is not None:  # a rig's: its section of rig.yaml (a rig's cameras are not refined)
-        whose, key, refine = f"camera '{camera}'", f"sensors.{camera}.camera", ""
-    return (
-        f"the images do not fit {whose} as stated: {len(bad)} of the {n} images {which} fit a flat "
-        f"board alone at {np.median(list(bad.values())):.0f} x their stated corner noise (median): the "
-        f"camera's intrinsics or model are not the images' (check {key}.K in pixels of this image size, "
-        f"{key}.dist and {key}.model{refine})"
-    )
 
 
 def _dropped_causes(
