@@ -94,7 +94,7 @@ def test_a_ring_whose_one_camera_is_stated_wrong_says_why_it_has_no_pose(ring, t
     drops every moment of that camera (its corner order fits none), so the others are calibrated and
     the left camera has no pose; its reason names the likely cause (an internal error before: the
     held-out scores asked for the missing camera's pose)."""
-    data, stored = ring
+    data, _ = ring
     copy = tmp_path / "rig"
     copy.mkdir()
     for entry in data.iterdir():

@@ -208,6 +208,7 @@ def test_calibrate_prints_and_writes_the_model_chosen(offset_set, tmp_path, caps
     assert {c["name"] for c in model["candidates"]} == set(AUTO) - {"none"}
     assert abs(sum(c["weight"] for c in model["candidates"]) - 1.0) < 1e-9
     assert f"sensor model: {model['chosen']} (held-out images of" in text
+    assert "next board pose:" in text and not (out / "next_pose.png").exists()  # --no-report: in words only
     # forced to none, the 20 mm the boards sit beyond their images is left in the residuals, far above
     # the stated noise: no answer is written (exit 3) and the cause is named (issue 38)
     out = tmp_path / "none"
