@@ -179,9 +179,12 @@ def test_a_rig_whose_camera_is_not_the_lenss_exits_3_naming_that_camera(simulate
     capsys.readouterr()
     assert code == main(["calibrate", str(rig), "--out", str(out), "--jobs", "1", "--no-report"]) == 3
     assert not (out / "calibration.yaml").exists()
-    error = yaml.safe_load((out / "failure.yaml").read_text())["error"]
+    failure = yaml.safe_load((out / "failure.yaml").read_text())
+    error, advice = failure["error"], failure["advice"]
     assert "the images do not fit camera 'front' as stated" in error, error
     assert "sensors.front.camera.K" in error and "camera 'front'" in capsys.readouterr().err
+    # the likely cause names the rig's section too, and no pair's flag (a rig's cameras are not refined)
+    assert "check sensors.front.camera.K" in advice and "--refine-intrinsics" not in error + advice, failure
 
 
 def test_a_rig_of_three_names_the_camera_to_leave_out(simulated, tmp_path):

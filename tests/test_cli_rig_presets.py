@@ -113,4 +113,5 @@ def test_a_ring_whose_one_camera_is_stated_wrong_says_why_it_has_no_pose(ring, t
     assert "left" not in got.sensors and set(got.sensors) == {"lidar", "front", "back", "right"}
     reason = got.extra["unsolved"]["left"]
     assert "likely: the camera's intrinsics or lens model: 3 of 3 images" in reason, reason
+    assert "check sensors.left.camera.K" in reason and "--refine-intrinsics" not in reason, reason
     assert "no pose for left" in said and "intrinsics" in said, said

@@ -291,14 +291,16 @@ def _range_offset(seen: list[FrameResult], T_cam_lidar: np.ndarray, fits: dict) 
 
 
 def residual_causes(
-    frames: list[FrameResult], board: Board, camera: CameraModel, T_cam_lidar: np.ndarray
-) -> list[str]:
+    frames: list[FrameResult], board: Board, camera: CameraModel, T_cam_lidar: np.ndarray,
+    name: str | None = None,
+) -> list[str]:  # fmt: skip
     """The likely causes of residuals far above the detectors' stated noise (module docstring), one
-    sentence each, from the frames both sensors saw; [] when none shows."""
+    sentence each, from the frames both sensors saw; [] when none shows. ``name``: a rig's camera
+    (its section of rig.yaml is named; None: the pair's config.yaml)."""
     seen = [f for f in frames if f.board is not None and f.corners is not None]
     if not seen:
         return []
-    causes, fits = _causes_without_extrinsic(seen, board, camera)
+    causes, fits = _causes_without_extrinsic(seen, board, camera, name=name)
     if along := _range_offset(seen, T_cam_lidar, fits):
         causes.append(along)
     if moved := _moved(seen, board, T_cam_lidar, fits):
@@ -314,19 +316,21 @@ def residual_causes(
 
 
 def causes_without_extrinsic(
-    frames: list[FrameResult], board: Board, camera: CameraModel, margin: bool = True
-) -> list[str]:
+    frames: list[FrameResult], board: Board, camera: CameraModel, margin: bool = True,
+    name: str | None = None,
+) -> list[str]:  # fmt: skip
     """``residual_causes``' causes that need no extrinsic (boards cut off by the image's border, the
     board's size, the intrinsics or lens model, and with ``margin`` the margin of boards placed by
     their outline), from the frames both sensors saw: what to name when the frames do not even give
-    one."""
+    one. ``name``: a rig's camera, as in ``residual_causes``."""
     seen = [f for f in frames if f.board is not None and f.corners is not None]
-    return _causes_without_extrinsic(seen, board, camera, margin)[0] if seen else []
+    return _causes_without_extrinsic(seen, board, camera, margin, name)[0] if seen else []
 
 
 def _causes_without_extrinsic(
-    seen: list[FrameResult], board: Board, camera: CameraModel, margin: bool = True
-) -> tuple[list[str], dict[str, tuple[ImageAlone, float]]]:
+    seen: list[FrameResult], board: Board, camera: CameraModel, margin: bool = True,
+    name: str | None = None,
+) -> tuple[list[str], dict[str, tuple[ImageAlone, float]]]:  # fmt: skip
     """(``causes_without_extrinsic``, the images' fits alone) of frames both sensors saw."""
     causes = [c for c in (_partial(seen, camera),) if c]
     scale = board_scale([(f.corners, f.board.T_lidar_board) for f in seen], board)  # type: ignore[misc, union-attr]
@@ -343,10 +347,14 @@ def _causes_without_extrinsic(
     fits = _image_fits(seen, board, camera)
     bad = sorted(r for _, r in fits.values() if r > LENS_RATIO)
     if 2 * len(bad) >= len(seen):
+        # a rig's camera: its section of rig.yaml, and no --refine-intrinsics (a rig's are not refined)
+        key, refine = ("camera", ", or --refine-intrinsics")
+        if name is not None:
+            key, refine = f"sensors.{name}.camera", ""
         causes.append(
             f"the camera's intrinsics or lens model: {len(bad)} of {len(seen)} images alone fit a flat board "
-            f"at {np.median(bad):.1f} x their stated corner noise (median; check camera.K, dist and the "
-            "model, or --refine-intrinsics; blur or a curled print do this too)"
+            f"at {np.median(bad):.1f} x their stated corner noise (median; check {key}.K, dist and the "
+            f"model{refine}; blur or a curled print do this too)"
         )
     outline = len([f for f in seen if f.board is not None and f.board.diagnostics.get("no_contrast")])
     if margin and 2 * outline > len(seen):

@@ -184,7 +184,7 @@ def require_agreement(
         for f in used
     ]
     issues += [(f.name, "agreement", f.reason or "disagrees") for f in disagree]
-    _refuse(message, issues, frames, config, T_cam_lidar)
+    _refuse(message, issues, frames, config, T_cam_lidar, camera)
 
 
 def _refuse(
@@ -193,15 +193,16 @@ def _refuse(
     frames: Sequence[FrameResult],
     config: Config,
     T_cam_lidar: np.ndarray,
+    camera: str | None = None,
 ) -> NoReturn:
     """Raise the exit 3 of frames that do not agree: ``issues`` (frame, stage, reason) with every other
     frame's own issue (``frame_issues``), in the frames' order, and the likely cause over all frames
-    (``evaluation.causes.residual_causes``) as the advice, else ``_CHECK``."""
+    (``evaluation.causes.residual_causes``; ``camera``: a rig's) as the advice, else ``_CHECK``."""
     named = {n for n, _, _ in issues}
     issues = issues + [i for i in frame_issues(frames) if i[0] not in named]
     order = {f.name: i for i, f in enumerate(frames)}
     issues.sort(key=lambda i: order.get(i[0], len(order)))
-    found = residual_causes(list(frames), config.board, config.camera, T_cam_lidar)
+    found = residual_causes(list(frames), config.board, config.camera, T_cam_lidar, camera)
     advice = f"likely: {found[0]}" if found else _CHECK
     raise CalibrationImpossible(message, tuple(issues), advice)
 
@@ -322,7 +323,7 @@ def require_images_fit(
     issues = [
         (n, "image", f"fits a flat board alone at {r:.0f} x its stated corner noise") for n, r in bad.items()
     ]
-    _refuse(message, issues, frames, config, T_cam_lidar)
+    _refuse(message, issues, frames, config, T_cam_lidar, camera)
 
 
 def _dropped_causes(

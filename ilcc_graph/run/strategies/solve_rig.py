@@ -147,7 +147,7 @@ def with_unsolved_causes(res: RigResult) -> RigResult:
     for camera in (s for s in res.rig.cameras if s in unsolved and lidars):
         config = res.rig.pair_config(camera, lidars[0])
         frames = pair_frames(res, camera, lidars[0], camera_only=True)
-        if causes := causes_without_extrinsic(frames, config.board, config.camera, margin=False):
+        if causes := causes_without_extrinsic(frames, config.board, config.camera, False, camera):
             unsolved[camera] = f"{unsolved[camera]}; likely: {causes[0]}"
     if unsolved == res.unsolved:
         return res
