@@ -35,6 +35,7 @@ __all__ = [
     "SCALE_TOL",
     "ImageAlone",
     "board_scale",
+    "camera_section",
     "causes_without_extrinsic",
     "dropped_frame_cause",
     "fit_image_alone",
@@ -290,6 +291,13 @@ def _range_offset(seen: list[FrameResult], T_cam_lidar: np.ndarray, fits: dict) 
     return None
 
 
+def camera_section(name: str | None = None) -> tuple[str, str]:
+    """(where a camera's config lives, the flag that refines its intrinsics or ""): the pair's
+    ``camera`` of config.yaml and ``--refine-intrinsics``; a rig's camera ``name``: its
+    ``sensors.<name>.camera`` of rig.yaml and none (a rig's cameras are not refined)."""
+    return ("camera", "--refine-intrinsics") if name is None else (f"sensors.{name}.camera", "")
+
+
 def residual_causes(
     frames: list[FrameResult], board: Board, camera: CameraModel, T_cam_lidar: np.ndarray,
     name: str | None = None,
@@ -347,10 +355,8 @@ def _causes_without_extrinsic(
     fits = _image_fits(seen, board, camera)
     bad = sorted(r for _, r in fits.values() if r > LENS_RATIO)
     if 2 * len(bad) >= len(seen):
-        # a rig's camera: its section of rig.yaml, and no --refine-intrinsics (a rig's are not refined)
-        key, refine = ("camera", ", or --refine-intrinsics")
-        if name is not None:
-            key, refine = f"sensors.{name}.camera", ""
+        key, flag = camera_section(name)
+        refine = f", or {flag}" if flag else ""
         causes.append(
             f"the camera's intrinsics or lens model: {len(bad)} of {len(seen)} images alone fit a flat board "
             f"at {np.median(bad):.1f} x their stated corner noise (median; check {key}.K, dist and the "

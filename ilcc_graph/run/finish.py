@@ -35,6 +35,7 @@ from ilcc_graph.estimation.gate import far_above
 from ilcc_graph.estimation.geometry import MIN_DISTINCT_POSES
 from ilcc_graph.estimation.lidar_errors import errors_entry
 from ilcc_graph.evaluation.causes import (
+    camera_section,
     dropped_frame_cause,
     fit_image_alone,
     image_fit_ratios,
@@ -311,9 +312,9 @@ def require_images_fit(
     bad = {n: r for n, r in ratios.items() if r > IMAGES_UNFIT_RATIO}
     if not used or 2 * len(bad) <= len(used):
         return
-    whose, key, refine = ("the camera", "camera", "; or --refine-intrinsics")
-    if camera is not None:  # a rig's: its section of rig.yaml (a rig's cameras are not refined)
-        whose, key, refine = f"camera '{camera}'", f"sensors.{camera}.camera", ""
+    whose = "the camera" if camera is None else f"camera '{camera}'"
+    key, flag = camera_section(camera)
+    refine = f"; or {flag}" if flag else ""
     message = (
         f"the images do not fit {whose} as stated: {len(bad)} of the {len(used)} images used fit a flat "
         f"board alone at {np.median(list(bad.values())):.0f} x their stated corner noise (median): the "
