@@ -18,6 +18,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import yaml
+from pair_as_rig import rig_of_two
 from test_diagnose import BOARD, CAMERA, T_CL, frame
 
 from ilcc_graph.app import main
@@ -39,16 +40,9 @@ def _with_moved_boards(good: Path, other: Path, out: Path) -> Path:
 
 
 def _as_rig(data: Path, where: Path) -> Path:
-    """``data``'s pair as a rig of two: rig.yaml with its board, ``lidar`` (the reference) and the
-    camera ``front``, each sensor's folder a link to the data's."""
+    """``data``'s pair as a rig of two whose camera is ``front``."""
     cfg = yaml.safe_load((data / "config.yaml").read_text())
-    where.mkdir()
-    (where / "lidar").symlink_to((data / "pcd").resolve())
-    (where / "front").symlink_to((data / "img").resolve())
-    spec = {"reference": "lidar", "board": cfg["board"],
-            "sensors": {"lidar": {"lidar": cfg["lidar"]}, "front": {"camera": cfg["camera"]}}}  # fmt: skip
-    (where / "rig.yaml").write_text(yaml.safe_dump(spec))
-    return where
+    return rig_of_two(where, cfg, data / "pcd", data / "img", camera="front")
 
 
 def test_the_set_as_simulated_calibrates_with_every_frame(simulated, calibrated):

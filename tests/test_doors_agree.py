@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from pair_as_rig import rig_of_two
 
 pytestmark = pytest.mark.slow
 
@@ -33,16 +34,9 @@ def _cli(*args: str) -> subprocess.CompletedProcess:
 
 
 def _rig_of_two(data: Path, where: Path) -> Path:
-    """``data``'s pair as a rig folder: rig.yaml with its board, ``lidar`` (the reference) and
-    ``camera``, each sensor's folder a link to the recording's."""
+    """``data``'s pair as a rig folder: ``lidar`` (the reference) and ``camera``."""
     cfg = yaml.safe_load((data / "config.yaml").read_text())
-    where.mkdir()
-    (where / "lidar").symlink_to((data / "pcd").resolve())
-    (where / "camera").symlink_to((data / "img").resolve())
-    rig = {"reference": "lidar", "board": cfg["board"],
-           "sensors": {"lidar": {"lidar": cfg["lidar"]}, "camera": {"camera": cfg["camera"]}}}  # fmt: skip
-    (where / "rig.yaml").write_text(yaml.safe_dump(rig))
-    return where
+    return rig_of_two(where, cfg, data / "pcd", data / "img")
 
 
 def _ad(T: np.ndarray) -> np.ndarray:

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from pair_as_rig import rig_of_two
 
 pytestmark = pytest.mark.slow
 
@@ -36,14 +37,7 @@ def test_outline_only_boards_give_one_answer_through_three_doors(acfr_data: Path
     for p in sorted((acfr_data / "pcd").iterdir()):
         s = read_scan(p)
         write_pcd(data / "pcd" / p.name, dataclasses.replace(s, intensity=np.full(len(s.points), 10.0)))
-    rig = tmp_path / "rig_of_two"
-    rig.mkdir()
-    (rig / "lidar").symlink_to(data / "pcd")
-    (rig / "camera").symlink_to((acfr_data / "img").resolve())
-    (rig / "rig.yaml").write_text(yaml.safe_dump({
-        "reference": "lidar", "board": cfg["board"],
-        "sensors": {"lidar": {"lidar": cfg["lidar"]}, "camera": {"camera": cfg["camera"]}},
-    }))  # fmt: skip
+    rig = rig_of_two(tmp_path / "rig_of_two", cfg, data / "pcd", acfr_data / "img")
     common = ["--no-report", "--jobs", "2"]
     _cli("calibrate", str(data), "--out", str(tmp_path / "pair"), *common)
     _cli("calibrate", str(data), "--out", str(tmp_path / "inc"), *common, "--target-sigma", "0.0001,0.001")
