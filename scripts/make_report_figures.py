@@ -50,7 +50,7 @@ def observe(data: Path, config, corners: str, jobs: int, seed: int) -> list[Fram
     gt = read_ground_truth(data)
     rng = np.random.default_rng(seed)
     out = [FrameResult(name=s, used=False, reason=why) for s, why in source.skipped()]
-    lidar = [attempt(observe_lidar, source, r, config, options.lidar) for r in frames]
+    lidar = [attempt(observe_lidar, source, r, config, options) for r in frames]
     for paths, res in zip(frames, lidar):
         if isinstance(res, Exception):
             out.append(FrameResult(paths.name, False, f"LiDAR: {res}"))

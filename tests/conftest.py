@@ -44,6 +44,23 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 
 
+@pytest.fixture(scope="session", autouse=True)
+def stage_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One folder of stage results for the whole test run (``--stage-cache`` through
+    ``$ILCC_GRAPH_STAGE_CACHE``, which the command line and the processes it starts read), shared by
+    the pytest-xdist workers: a scan or image that several tests observe with the same settings is
+    observed once (about a fifth of the suite's CPU time, 2026-12-07). Fresh for every test run, so
+    every result in it was computed by the code under test. Tests of the stages themselves (a signal
+    while the workers run) take it out of their environment."""
+    from ilcc_graph.app.arguments import CACHE_VARIABLE
+
+    base = tmp_path_factory.getbasetemp()
+    folder = (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "stage-cache"
+    folder.mkdir(exist_ok=True)
+    os.environ[CACHE_VARIABLE] = str(folder)
+    return folder
+
+
 @pytest.fixture(scope="session")
 def acfr_data() -> Path:
     """The recorded VLP-16 + fisheye set that ships in ../shared; skip where it is absent."""

@@ -27,7 +27,6 @@ from ilcc_graph.app import main
 from ilcc_graph.app.write import write_run
 from ilcc_graph.datasets import FolderSource, open_source
 from ilcc_graph.errors import InputError, OutputError
-from ilcc_graph.image import ImageOptions
 from ilcc_graph.io import list_frames, read_scan, write_calibration, write_pcd, write_ply
 from ilcc_graph.io.output_folders import MARKER, staged
 from ilcc_graph.io.scans import write_csv
@@ -420,7 +419,7 @@ def test_a_part_of_a_bigger_print_is_seen(sim):
     column) the checker pattern goes on by a row and a column."""
     from ilcc_graph.errors import PartialPattern
     from ilcc_graph.run.setup_mistakes import pattern_continues
-    from ilcc_graph.run.stages import observe_image
+    from ilcc_graph.run.stages import StageOptions, observe_image
     from ilcc_graph.types import ImageCorners
 
     source = open_source(sim)
@@ -429,9 +428,9 @@ def test_a_part_of_a_bigger_print_is_seen(sim):
     wrong = dataclasses.replace(right, board=dataclasses.replace(right.board, rows=5, cols=7))
     image = source.read_image(ref)
     with pytest.raises(PartialPattern, match="the pattern continues beyond its .* board.squares \\[5, 7\\]"):
-        observe_image(source, ref, wrong, ImageOptions())
-    whole = observe_image(source, ref, right, ImageOptions())
+        observe_image(source, ref, wrong, StageOptions())
+    whole = observe_image(source, ref, right, StageOptions())
     keep = (np.arange(5 * 7).reshape(5, 7)[:4, :6]).ravel()
     part = ImageCorners(whole.uv[keep], whole.bearings[keep], whole.cov_px[keep], False)
-    assert pattern_continues(image, wrong, part) == (1, 1)
-    assert pattern_continues(image, right, whole) == (0, 0)
+    assert pattern_continues(image, wrong.board, wrong.camera, part) == (1, 1)
+    assert pattern_continues(image, right.board, right.camera, whole) == (0, 0)

@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 
 from ilcc_graph.app import main
+from ilcc_graph.app.arguments import CACHE_VARIABLE
 from ilcc_graph.workers import processes_where
 
 pytestmark = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
@@ -50,6 +51,7 @@ class Run:
     ) -> None:
         self.out = out
         env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+        env.pop(CACHE_VARIABLE, None)  # the stages really run while the signal comes
         cmd = [sys.executable, "-m", "ilcc_graph.app", "-v", "calibrate", str(data), "--out", str(out)]
         pre = (lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if ignore_sigint else None
         cmd += ["--jobs", "2", *([] if report else ["--no-report"]), *extra]

@@ -1,7 +1,7 @@
 """Argument groups that several commands share; each command picks the ones it takes.
 
 - ``add_bag_arguments``: the ROS bag options (``BAG_OPTIONS``, handed to ``datasets.open_source``);
-- ``add_frames_arguments``: ``--jobs`` and ``--strict`` (how the per-frame stages run);
+- ``add_frames_arguments``: ``--jobs``, ``--strict`` and ``--stage-cache`` (how the per-frame stages run);
 - ``add_sensor_model_argument``: ``--sensor-model`` (``estimation.selection``);
 
 The choices of ``--sensor-model`` and ``--refine`` are their registries' (``run.result.SENSOR_MODELS``,
@@ -20,8 +20,10 @@ from ilcc_graph.app.console import COUNT, NON_NEGATIVE, POSITIVE, lazy_choices
 
 __all__ = [
     "BAG_OPTIONS",
+    "CACHE_VARIABLE",
     "SENSOR_MODEL_HELP",
     "add_bag_arguments",
+    "add_cache_argument",
     "add_frames_arguments",
     "add_sensor_model_argument",
     "add_solve_arguments",
@@ -57,11 +59,30 @@ def add_bag_arguments(sp: argparse.ArgumentParser) -> None:
 
 
 def add_frames_arguments(sp: argparse.ArgumentParser) -> None:
-    """--jobs and --strict: how the per-frame stages run."""
+    """--jobs, --strict and --stage-cache: how the per-frame stages run."""
     jobs = default_jobs()
     sp.add_argument("--jobs", type=COUNT, default=jobs, help=f"processes for the per-frame stages ({jobs})")
     help = "stop at the first frame file that cannot be read (default: skip that frame, say why)"
     sp.add_argument("--strict", action="store_true", help=help)
+    add_cache_argument(sp)
+
+
+#: the environment variable naming the stage results' folder when ``--stage-cache`` is not given
+CACHE_VARIABLE = "ILCC_GRAPH_STAGE_CACHE"
+
+
+def add_cache_argument(sp: argparse.ArgumentParser) -> None:
+    """--stage-cache DIR / --no-stage-cache: where the per-frame stages keep their results
+    (``io.result_store``)."""
+    g = sp.add_mutually_exclusive_group()
+    help = (
+        "keep each scan's and image's stage results in DIR and reuse them when the same data is observed "
+        f"with the same settings by the same program (default: ${CACHE_VARIABLE} when set, else none)"
+    )
+    default = os.environ.get(CACHE_VARIABLE) or None
+    g.add_argument("--stage-cache", metavar="DIR", default=default, help=help)
+    help = f"keep no stage results (ignore ${CACHE_VARIABLE})"
+    g.add_argument("--no-stage-cache", dest="stage_cache", action="store_const", const=None, help=help)
 
 
 def _sensor_models() -> tuple[str, ...]:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import argparse
 
-from ilcc_graph.app.arguments import add_sensor_model_argument
+from ilcc_graph.app.arguments import add_cache_argument, add_sensor_model_argument
 from ilcc_graph.app.console import COUNT, DEG_MM
 from ilcc_graph.app.flags import check_options
 from ilcc_graph.app.folders import output_folder, written
@@ -25,6 +25,7 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
     sp.add_argument("--target-sigma", type=DEG_MM, metavar="DEG,MM", help=help)
     sp.add_argument("--advise", action="store_true", help="with --watch: the next board pose while waiting")
     add_sensor_model_argument(sp)
+    add_cache_argument(sp)
     sp.add_argument("--out", help="folder for check.yaml and next_pose.png (default: out/<timestamp>)")
 
 

@@ -9,6 +9,7 @@ run.stages.StageOptions``, ``bag_options(args)`` (keywords of ``datasets.open_so
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ilcc_graph.app.arguments import BAG_OPTIONS
@@ -75,10 +76,19 @@ def _lidar_errors(args: argparse.Namespace) -> LidarErrorOptions | None:
 
 
 def stage_options(args: argparse.Namespace) -> StageOptions:
-    """``--jobs`` and ``--strict`` as the per-frame stages' options."""
+    """``--jobs``, ``--strict`` and ``--stage-cache`` as the per-frame stages' options."""
     from ilcc_graph.run.stages import StageOptions
 
-    return StageOptions(jobs=args.jobs, strict=bool(getattr(args, "strict", False)))
+    strict = bool(getattr(args, "strict", False))
+    return StageOptions(jobs=getattr(args, "jobs", 1), strict=strict, cache=_cache(args))
+
+
+def _cache(args: argparse.Namespace) -> Path | None:
+    """The stage results' folder of ``--stage-cache`` (made when missing), or None."""
+    from ilcc_graph.io.result_store import open_store
+
+    folder = getattr(args, "stage_cache", None)
+    return None if not folder else open_store(folder, "--stage-cache")
 
 
 def bag_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -98,6 +108,6 @@ def check_options(args: argparse.Namespace) -> CheckOptions:
         until=args.until,
         watch=args.watch,
         stop_at_target=target is not None,
-        stages=StageOptions(jobs=1),
+        stages=StageOptions(jobs=1, cache=_cache(args)),
         sensor_model=args.sensor_model,
     )

@@ -18,8 +18,7 @@ from typing import TypeVar
 from ilcc_graph.config import Config, RigConfig
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import BoardColourMismatch, FrameError
-from ilcc_graph.image import ImageOptions
-from ilcc_graph.run.stages import attempt, observe_image
+from ilcc_graph.run.stages import StageOptions, attempt, observe_image
 
 log = logging.getLogger(__name__)
 
@@ -41,10 +40,9 @@ def check_board_colour(
     source: FrameSource,
     refs: Sequence[FrameRef],
     config: Config,
-    options: ImageOptions = ImageOptions(),
+    options: StageOptions = StageOptions(),
     needed: int = 2,
     look: int = 6,
-    strict: bool = False,
 ) -> tuple[Config, dict[str, object]]:
     """The config with ``board.lower_left`` as the images show it, and the image results computed.
 
@@ -62,7 +60,7 @@ def check_board_colour(
     def results() -> Iterator[object]:
         for ref in refs[:look]:
             if ref.image is not None:
-                seen[ref.name] = attempt(observe_image, source, ref, config, options, strict)
+                seen[ref.name] = attempt(observe_image, source, ref, config, options)
                 yield seen[ref.name]
 
     agree, disagree = colour_votes(results(), needed)

@@ -179,12 +179,12 @@ class LiveCheck:
 
     def _image(self, source: FrameSource, ref: FrameRef) -> object:
         try:
-            return observe_image(source, ref, self.config, self.stages.image, views=False)
+            return observe_image(source, ref, self.config, self.stages, views=False)
         except BoardColourMismatch as err:
             if self._colour_checked:
                 return err
             try:
-                res = observe_image(source, ref, other_colour(self.config), self.stages.image, views=False)
+                res = observe_image(source, ref, other_colour(self.config), self.stages, views=False)
             except FrameError:
                 return err
             self.config = colour_warning(self.config, f"image of frame {ref.name}")
@@ -195,7 +195,7 @@ class LiveCheck:
 
     def _lidar(self, source: FrameSource, ref: FrameRef) -> object:
         try:
-            return observe_lidar(source, ref, self.config, self.stages.lidar)
+            return observe_lidar(source, ref, self.config, self.stages)
         except FrameError as err:
             return err
 

@@ -98,7 +98,7 @@ def _observe_frame_errors(source: FrameSource, ref: FrameRef, config: Config, op
     """``observe_frame`` and the image stage's error (or None), for the colour verdict."""
     res = image
     if res is None:
-        res = attempt(observe_image, source, ref, config, options.image, options.strict)
+        res = attempt(observe_image, source, ref, config, options)
     fr = observe_frame(source, ref, config, options, res)
     return fr, res if isinstance(res, FrameError) else None
 
@@ -174,11 +174,8 @@ def warn_damaged(frames: Sequence[FrameResult]) -> None:
         )
 
 
-def _stage(fn: Callable, source: FrameSource, ref: FrameRef, config: Config, opts: object,
-           strict: bool = False) -> object:  # fmt: skip
-    if fn is observe_lidar:
-        return attempt(fn, source, ref, config, opts, None, strict)
-    return attempt(fn, source, ref, config, opts, strict)
+def _stage(fn: Callable, source: FrameSource, ref: FrameRef, config: Config, options: StageOptions) -> object:
+    return attempt(fn, source, ref, config, options)
 
 
 def stage_alone(
@@ -192,6 +189,6 @@ def stage_alone(
     opened = open_run(source, options, colour="now", sizes=image, require_image=image, require_scan=not image)
     config, refs = opened.config, opened.refs
     signals.check()
-    fn, opts = (observe_image, options.image) if image else (observe_lidar, options.lidar)
-    items = [(fn, source, r, config, opts, options.strict) for r in refs]
+    fn = observe_image if image else observe_lidar
+    items = [(fn, source, r, config, options) for r in refs]
     return config, refs, workers.map_processes(_stage, items, options.jobs, progress)

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ilcc_graph.config import Config
+from ilcc_graph.board import Board
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.init import upnp
 from ilcc_graph.types import ImageCorners
 
@@ -19,7 +20,9 @@ __all__ = ["KEYS", "extra_squares", "pattern_continues"]
 KEYS = ("pattern_extra_rows", "pattern_extra_cols")
 
 
-def pattern_continues(image: np.ndarray, config: Config, corners: ImageCorners) -> tuple[int, int]:
+def pattern_continues(
+    image: np.ndarray, board: Board, camera: CameraModel, corners: ImageCorners
+) -> tuple[int, int]:
     """(extra rows, extra cols) of squares the image shows beyond the board's pattern (0, 0 when none).
 
     The pattern's pose comes from the image corners (UPnP); the grey level at the centre of each
@@ -27,7 +30,6 @@ def pattern_continues(image: np.ndarray, config: Config, corners: ImageCorners) 
     squares. A side whose ring continues the checker colours (>= 85 % of its squares; a margin,
     the board's edge or the background match about half) counts as one more row or column.
     """
-    board, camera = config.board, config.camera
     b = corners.bearings / np.linalg.norm(corners.bearings, axis=1, keepdims=True)
     if not np.all(np.isfinite(b)):
         return 0, 0

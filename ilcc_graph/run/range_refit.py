@@ -23,7 +23,6 @@ from ilcc_graph import workers
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import FrameError
-from ilcc_graph.lidar import LidarOptions
 from ilcc_graph.lidar.stretch import REFIT_RATIO, correction_of, largest_stretch
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.stages import StageOptions, attempt, observe_lidar
@@ -34,9 +33,9 @@ log = logging.getLogger(__name__)
 __all__ = ["refit_frames", "refit_pass"]
 
 
-def _refit_one(source: FrameSource, ref: FrameRef, config: Config, options: LidarOptions,
+def _refit_one(source: FrameSource, ref: FrameRef, config: Config, options: StageOptions,
                expected: ExpectedBoard, correction: RangeCorrection) -> object:  # fmt: skip
-    return attempt(observe_lidar, source, ref, config, options, expected, False, correction)
+    return attempt(observe_lidar, source, ref, config, options, expected, correction)
 
 
 def refit_frames(frames: Sequence[FrameResult], fits: Mapping[str, object]) -> list[FrameResult]:
@@ -67,7 +66,7 @@ def refit_pass(obs: Observation, cal: Calibration, stages: StageOptions) -> Obse
         if f.board is not None and f.name in refs:
             names.append(f.name)
             expected = ExpectedBoard(f.board.T_lidar_board)
-            items.append((source, refs[f.name], obs.config, stages.lidar, expected, correction))
+            items.append((source, refs[f.name], obs.config, stages, expected, correction))
     fits = dict(zip(names, workers.map_processes(_refit_one, items, stages.jobs, None), strict=True))
     lost = [n for n, r in fits.items() if isinstance(r, FrameError)]
     moved = [r.diagnostics.get("range_correction_mm", 0.0) for r in fits.values() if isinstance(r, BoardFit)]

@@ -27,7 +27,7 @@ from ilcc_graph.image import detect_corners
 from ilcc_graph.lidar import estimate_board
 from ilcc_graph.run.colour import colour_votes, colour_warning
 from ilcc_graph.run.source import resolve_beams
-from ilcc_graph.run.stages import StageOptions, read_frame_file, warn_margin, warn_no_print
+from ilcc_graph.run.stages import StageOptions, kept, read_frame_file, warn_margin, warn_no_print
 from ilcc_graph.types import BoardFit, ImageCorners, MomentResult, Scan
 
 __all__ = ["RigObservation", "observe_moment", "observe_rig", "observe_source_moment", "open_rig"]
@@ -49,7 +49,7 @@ class RigObservation:
 
 def _lidar(scan: Scan, rig: RigConfig, name: str, options: StageOptions) -> BoardFit:
     s = rig.sensor(name)
-    return estimate_board(scan, rig.board, s.lidar, s.roi, options.lidar)
+    return kept(options, "lidar", estimate_board, scan, rig.board, s.lidar, s.roi, options.lidar, None, None)
 
 
 def _camera(image: np.ndarray, rig: RigConfig, name: str, options: StageOptions, where: str) -> ImageCorners:
@@ -62,7 +62,7 @@ def _camera(image: np.ndarray, rig: RigConfig, name: str, options: StageOptions,
             f"{where}: image is {w}x{h} px, but camera {name!r} in {rig.source or 'the rig'} is "
             f"{cam.width}x{cam.height}"
         )
-    return detect_corners(image, cam, rig.board, options.image)
+    return kept(options, "corners", detect_corners, image, cam, rig.board, options.image)
 
 
 def observe_moment(

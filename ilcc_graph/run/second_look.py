@@ -18,7 +18,6 @@ from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import FrameError
 from ilcc_graph.init import upnp
-from ilcc_graph.lidar import LidarOptions
 from ilcc_graph.lidar.stretch import correction_of, significant
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.stages import StageOptions, attempt, observe_lidar
@@ -29,9 +28,9 @@ log = logging.getLogger(__name__)
 __all__ = ["look_again", "second_pass"]
 
 
-def _expected_lidar(source: FrameSource, ref: FrameRef, config: Config, options: LidarOptions,
+def _expected_lidar(source: FrameSource, ref: FrameRef, config: Config, options: StageOptions,
                     expected: ExpectedBoard, correction: RangeCorrection | None) -> object:  # fmt: skip
-    return attempt(observe_lidar, source, ref, config, options, expected, False, correction)
+    return attempt(observe_lidar, source, ref, config, options, expected, correction)
 
 
 def look_again(
@@ -46,7 +45,7 @@ def look_again(
     """
     refs = {r.name: r for r in source.frames()}
     names = [n for n in expected if n in refs]
-    items = [(source, refs[n], config, options.lidar, expected[n], correction) for n in names]
+    items = [(source, refs[n], config, options, expected[n], correction) for n in names]
     found = dict(zip(names, workers.map_processes(_expected_lidar, items, options.jobs, None), strict=True))
     out = []
     for f in frames:

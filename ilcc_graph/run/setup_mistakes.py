@@ -98,7 +98,7 @@ def diagnose_result(obs: Observation, cal: Calibration, images: int = 2) -> list
             image = source.read_image(refs[f.name])
         except InputError:
             continue
-        extra.append(pattern_continues(image, obs.pair_config, f.corners))
+        extra.append(pattern_continues(image, obs.pair_config.board, obs.pair_config.camera, f.corners))
     if len(extra) >= 2:
         e_rows, e_cols = (int(np.median([e[i] for e in extra])) for i in range(2))
         if e_rows or e_cols:
@@ -148,7 +148,7 @@ def _square_size_search(
         return None
 
     def lidar(k: float) -> list:
-        return [attempt(observe_lidar, source, refs[f.name], _scaled(cfg, k), stages.lidar) for f in frames]
+        return [attempt(observe_lidar, source, refs[f.name], _scaled(cfg, k), stages) for f in frames]
 
     found = next(
         ((k, fits) for k in sorted(SCALES, key=lambda x: abs(x - 1)) if _found(fits := lidar(k)) >= need),
@@ -197,12 +197,12 @@ def _board_dims_search(obs: Observation, source: FrameSource, stages: StageOptio
             image = source.read_image(refs[f.name])
         except InputError:
             continue
-        continues.append(pattern_continues(image, cfg, f.corners) != (0, 0))  # type: ignore[arg-type]
+        continues.append(pattern_continues(image, cfg.board, cfg.camera, f.corners) != (0, 0))  # type: ignore[arg-type]
     for rows, cols in ((board.rows + 1, board.cols + 1), (board.rows - 1, board.cols - 1)):
         if rows < 3:
             continue
         alt = _with_board(cfg, dataclasses.replace(board, rows=rows, cols=cols))
-        img = _found([attempt(observe_image, source, refs[f.name], alt, stages.image) for f in without])
+        img = _found([attempt(observe_image, source, refs[f.name], alt, stages) for f in without])
         tried = len(without)
         if rows > board.rows:
             img, tried = img + sum(continues), tried + len(continues)
@@ -210,7 +210,7 @@ def _board_dims_search(obs: Observation, source: FrameSource, stages: StageOptio
             continue
         frames = (without + with_corners)[:LOOK]
         given = sum(f.board is not None for f in frames)
-        lid = _found([attempt(observe_lidar, source, refs[f.name], alt, stages.lidar) for f in frames])
+        lid = _found([attempt(observe_lidar, source, refs[f.name], alt, stages) for f in frames])
         if lid <= given:
             continue
         ev = (

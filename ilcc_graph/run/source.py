@@ -69,7 +69,7 @@ def open_run(
         check_image_size(source, refs, config)
     seen: dict[str, object] = {}
     if colour == "now":
-        config, seen = check_board_colour(source, refs, config, stages.image, strict=stages.strict)
+        config, seen = check_board_colour(source, refs, config, stages)
     return Opened(source, config, refs, seen)
 
 

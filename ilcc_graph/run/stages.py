@@ -14,16 +14,19 @@ import dataclasses
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import Any, TypeVar
 
 import numpy as np
 
 from ilcc_graph.board import Board
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import DamagedFile, FrameError, InputError
 from ilcc_graph.image import ImageOptions, detect_corners
 from ilcc_graph.image.previews import make_views
+from ilcc_graph.io.result_store import MISSING, load_result, result_key, store_result
 from ilcc_graph.lidar import INTENSITY_UNUSABLE, LidarOptions, estimate_board
 from ilcc_graph.lidar.margin import margin_summary, margin_words
 from ilcc_graph.run.pattern_check import KEYS as PATTERN_KEYS
@@ -35,6 +38,7 @@ __all__ = [
     "attempt",
     "check_image",
     "frame_result",
+    "kept",
     "observe_frame",
     "observe_image",
     "observe_lidar",
@@ -46,19 +50,45 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
+T = TypeVar("T")
+
 
 @dataclass(frozen=True)
 class StageOptions:
     """The per-frame stages' options and the number of processes they run on.
 
     strict: a frame file that cannot be read stops the run (``InputError``) instead of costing
-    that frame (``DamagedFile``).
+    that frame (``DamagedFile``). cache: a folder (``io.result_store.open_store``) where each stage's
+    result on a scan or image is kept and found again when the same data is observed with the same
+    settings by the same program (``kept``), or None.
     """
 
     lidar: LidarOptions = LidarOptions()
     image: ImageOptions = ImageOptions()
     jobs: int = 1
     strict: bool = False
+    cache: Path | None = None
+
+
+def kept(options: StageOptions, stage: str, fn: Callable[..., T], *args: object) -> T:
+    """``fn(*args)``, a stage's computation on data in memory; with ``options.cache`` its result (or
+    the ``FrameError`` it raised, raised again) as kept there by an earlier call on equal arguments,
+    else computed and kept (``io.result_store``)."""
+    if options.cache is None:
+        return fn(*args)
+    key = result_key(stage, args)
+    hit = load_result(options.cache, key)
+    if isinstance(hit, FrameError):
+        raise hit
+    if hit is not MISSING:
+        return hit  # type: ignore[return-value]
+    try:
+        value = fn(*args)
+    except FrameError as err:
+        store_result(options.cache, key, err)
+        raise
+    store_result(options.cache, key, value)
+    return value
 
 
 def read_frame_file(fn: Callable[..., Any], *args: object, strict: bool = False) -> Any:
@@ -116,39 +146,42 @@ def observe_lidar(
     source: FrameSource,
     ref: FrameRef,
     config: Config,
-    options: LidarOptions,
+    options: StageOptions,
     expected: ExpectedBoard | None = None,
-    strict: bool = False,
     correction: RangeCorrection | None = None,
 ) -> BoardFit:
     """The LiDAR stage on one frame's scan (near ``expected`` when given, on the ranges corrected by
     ``correction`` when given); FrameError says why not."""
-    scan = read_frame_file(source.read_scan, ref, config, strict=strict)
-    return estimate_board(scan, config.board, config.lidar, config.roi, options, expected, correction)
+    scan = read_frame_file(source.read_scan, ref, config, strict=options.strict)
+    args = (scan, config.board, config.lidar, config.roi, options.lidar, expected, correction)
+    return kept(options, "lidar", estimate_board, *args)
 
 
 def observe_image(
-    source: FrameSource,
-    ref: FrameRef,
-    config: Config,
-    options: ImageOptions,
-    strict: bool = False,
-    views: bool = True,
+    source: FrameSource, ref: FrameRef, config: Config, options: StageOptions, views: bool = True
 ) -> ImageCorners:
     """The image stage on one frame's image, with (``views``) the report's views of it
     (``image.previews``); raises FrameError with the reason (DamagedFile when the image cannot be
     read or has not the camera's size: judged from the file's header before decoding where the
     source can, so a forged size costs nothing)."""
-    where = source.image_location(ref)
+    where, strict = source.image_location(ref), options.strict
     size = read_frame_file(source.header_size, ref, strict=strict)
     if size is not None:
         check_image(size, config, where, strict)
     image = read_frame_file(source.read_image, ref, strict=strict)
     check_image(image, config, where, strict)
-    corners = detect_corners(image, config.camera, config.board, options)
-    extra = dict(zip(PATTERN_KEYS, pattern_continues(image, config, corners)))  # for setup_mistakes
-    kept = make_views(image, corners.uv, config.camera) if views else corners.views
-    return dataclasses.replace(corners, diagnostics={**corners.diagnostics, **extra}, views=kept)
+    return kept(options, "image", _image_stage, image, config.camera, config.board, options.image, views)
+
+
+def _image_stage(
+    image: np.ndarray, camera: CameraModel, board: Board, options: ImageOptions, views: bool
+) -> ImageCorners:
+    """The corners, whether the pattern goes on beyond them (for ``setup_mistakes``) and, with
+    ``views``, the report's views of the image."""
+    corners = detect_corners(image, camera, board, options)
+    extra = dict(zip(PATTERN_KEYS, pattern_continues(image, board, camera, corners)))
+    shown = make_views(image, corners.uv, camera) if views else corners.views
+    return dataclasses.replace(corners, diagnostics={**corners.diagnostics, **extra}, views=shown)
 
 
 def observe_frame(
@@ -159,12 +192,8 @@ def observe_frame(
     image: object = None,
 ) -> FrameResult:
     """Both stages on one frame (``image``: the image stage's result when already known)."""
-    board = attempt(observe_lidar, source, ref, config, options.lidar, None, options.strict)
-    corners = (
-        image
-        if image is not None
-        else attempt(observe_image, source, ref, config, options.image, options.strict)
-    )
+    board = attempt(observe_lidar, source, ref, config, options)
+    corners = image if image is not None else attempt(observe_image, source, ref, config, options)
     return frame_result(ref.name, board, corners)
 
 
