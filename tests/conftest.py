@@ -22,18 +22,23 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "acfr-vlp16-fisheye"
 
 
-#: the heaviest test files first (their seconds in a run of 2026-12-07, session 57: 220 .. 32):
+#: the heaviest test files first (their seconds in a run of 2026-12-07, session 58, with the stage
+#: cache: 157 .. 17; test_types.py's mypy takes about 50 s without its cache, as on a fresh checkout):
 #: pytest-xdist's ``--dist loadfile`` hands the files out in collection order, so a heavy file
 #: collected last would run alone at the end while the other worker idles. Only the order changes; a
 #: file not named keeps its place after these.
 HEAVY_FIRST = (
-    "test_doors_agree.py", "test_verify_capture.py", "test_cli_flags.py", "test_cli_honesty.py",
-    "test_rig_strategy.py", "test_live.py", "test_selection.py", "test_cli_export.py",
-    "test_doors_outline.py", "test_output_folders.py", "test_rig_commands.py", "test_cli_effects.py",
-    "test_datasets_bags.py", "test_cli_rig_presets.py", "test_cli_honesty_lidars.py", "test_modes.py",
-    "test_lidar_real_sensors.py", "test_moved_board.py", "test_closed_stdout.py", "test_image_whole.py",
-    "test_no_print.py", "test_rig_solve.py", "test_lidars.py", "test_wrong_margin.py", "test_cli.py",
-    "test_incremental_stop.py", "test_faults.py", "test_image.py", "test_time_names.py", "test_demo.py",
+    "test_doors_agree.py", "test_verify_capture.py", "test_live.py", "test_cli_rig_presets.py",
+    "test_rig_strategy.py", "test_types.py", "test_cli_honesty.py", "test_cli_export.py",
+    "test_selection.py", "test_doors_outline.py", "test_datasets_bags.py", "test_modes.py",
+    "test_rig_commands.py", "test_cli_flags.py", "test_stage_cache.py", "test_image.py",
+    "test_lidar_real_sensors.py", "test_cli_honesty_lidars.py", "test_cli_effects.py",
+    "test_cli_disagreement.py", "test_moved_board.py", "test_rig_solve.py", "test_faults.py",
+    "test_no_print.py", "test_image_whole.py", "test_lidars.py", "test_faults_signals.py",
+    "test_incremental_stop.py", "test_wrong_margin.py", "test_demo.py", "test_cli_watch.py",
+    "test_import_first.py", "test_output_folders.py", "test_cli.py", "test_observe_colour.py",
+    "test_closed_stdout.py", "test_intrinsics_core.py", "test_lidar_detection.py", "test_summary.py",
+    "test_lidar_ringless.py",
 )  # fmt: skip
 
 
