@@ -116,6 +116,28 @@ def test_frames_the_gate_could_not_drop_give_no_result():
     assert err.advice.startswith("likely: synchronisation: the images of m0, m1, g0"), err.advice
 
 
+def test_a_rigs_moments_the_gate_could_not_drop_give_no_result(simulated, tmp_path):
+    """A rig's joint solve whose gate leaves used moments failing (``Solution.failing``, put into the
+    real solve of a rig of two here: no simulated capture makes the gate run out of drops) is refused
+    for the camera that used them, as the pair's ``finish`` refuses its frames."""
+    from ilcc_graph.run.rig_calibrate import calibrate_rig
+    from ilcc_graph.run.stages import StageOptions
+    from ilcc_graph.run.strategies.solve_rig import RigRunOptions, require_cameras
+
+    rig = _as_rig(simulated("pinhole", frames=FRAMES, seed=1), tmp_path / "rig")
+    res = calibrate_rig(rig, RigRunOptions(stages=StageOptions(jobs=1)))
+    require_cameras(res)  # as solved: every moment within its noise
+    joint = res.solution.solution
+    failing = [(n, "chi-square gate: residual 90 > 24") for n in MOVED]
+    broken = dataclasses.replace(joint, failing=failing)
+    res = dataclasses.replace(res, solution=dataclasses.replace(res.solution, solution=broken))
+    with pytest.raises(CalibrationImpossible) as got:
+        require_cameras(res)
+    message = f"camera 'front': 2 of the {FRAMES} frames left (0003, 0004) still disagree beyond their noise"
+    assert str(got.value).startswith(message), got.value
+    assert {f for f, _, why in got.value.frames if "chi-square gate" in why} == set(MOVED), got.value.frames
+
+
 def test_a_used_frame_hidden_by_residuals_far_above_the_noise_gives_no_result():
     """Residuals far above the stated noise (LiDAR board poses' component 32, 5.7 x their sigma, as a
     simulated set of 8 frames with 4 boards moved before the photo gave) and a used frame whose image

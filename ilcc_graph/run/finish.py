@@ -238,26 +238,32 @@ def lidar_view_counts(frames: Sequence[FrameResult], board: Board | None = None)
 
 
 def require_covered(
-    frames: Sequence[FrameResult], failing: Sequence[tuple[str, str]], config: Config, T_cam_lidar: np.ndarray
+    frames: Sequence[FrameResult],
+    failing: Sequence[tuple[str, str]],
+    config: Config,
+    T_cam_lidar: np.ndarray,
+    camera: str | None = None,
 ) -> None:
     """Raise ``CalibrationImpossible`` when used frames fail the chi-square gate though it may drop no
     more (``Answer.failing``): no majority of the frames agrees within the noise the solve found, so
-    the covariance would not cover the frames the result uses."""
+    the covariance would not cover the frames the result uses. ``camera``: a rig's camera (its
+    moments), named in the message."""
     if not failing:
         return
     used = [f for f in frames if f.used]
     gone = [f for f in frames if not f.used and (f.reason or "").startswith(DISAGREEING)]
     names = [n for n, _ in failing]
+    whose = "" if camera is None else f"camera '{camera}': "
     message = (
-        f"{len(failing)} of the {len(used)} frames left ({', '.join(names)}) still disagree beyond their "
-        f"noise after {len(gone)} were dropped for disagreeing, the most the test may drop: no majority of "
-        "the frames agrees, so no covariance would cover the frames a result uses"
+        f"{whose}{len(failing)} of the {len(used)} frames left ({', '.join(names)}) still disagree beyond "
+        f"their noise after {len(gone)} were dropped for disagreeing, the most the test may drop: no "
+        "majority of the frames agrees, so no covariance would cover the frames a result uses"
     )
     results = {f.name: f for f in frames}
     causes = _dropped_causes(results, names, config, T_cam_lidar)
     issues = [(n, "agreement", f"{why}; {causes[n]}" if causes.get(n) else why) for n, why in failing]
     issues += [(f.name, "agreement", f.reason or "disagrees") for f in gone]
-    _refuse(message, issues, frames, config, T_cam_lidar)
+    _refuse(message, issues, frames, config, T_cam_lidar, camera)
 
 
 def require_within_noise(

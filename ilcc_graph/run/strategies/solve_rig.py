@@ -24,7 +24,7 @@ from ilcc_graph.estimation.rig_solve import RigOptions
 from ilcc_graph.evaluation.causes import causes_without_extrinsic
 from ilcc_graph.run import rig_calibrate
 from ilcc_graph.run.after import mostly_outline
-from ilcc_graph.run.finish import require_agreement, require_images_fit
+from ilcc_graph.run.finish import require_agreement, require_covered, require_images_fit
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
 from ilcc_graph.run.rig_calibrate import RigResult, RigRunOptions, solve_observed, to_calibration
@@ -116,19 +116,26 @@ def require_cameras(res: RigResult) -> None:
     """Raise ``CalibrationImpossible`` where a pair's run would for a solved camera (each with the base
     LiDAR, whose boards and the camera's pose give the advice's residuals; a rig without a LiDAR is
     not judged so): fewer than ``MIN_DISTINCT_POSES`` of its moments agree while others were dropped
-    for disagreeing (``run.finish.require_agreement``), or most images it used do not fit it as stated
-    (``run.finish.require_images_fit``, named by the camera): its pose would rest on what nothing
-    checks, or be off by more than any covariance covers. In a rig of more than two sensors the
-    message also says that leaving the camera out calibrates the others."""
+    for disagreeing (``run.finish.require_agreement``), moments it used still fail the gate though
+    the gate may drop no more (``run.finish.require_covered``: the joint solve's ``failing``), or
+    most images it used do not fit it as stated (``run.finish.require_images_fit``, named by the
+    camera): its pose would rest on what nothing checks, or be off by more than any covariance
+    covers. In a rig of more than two sensors the message also says that leaving the camera out
+    calibrates the others. (A moment failing the gate that no camera used, one LiDAR's with
+    another's, is not judged here.)"""
     lidars = [s for s in res.rig.lidars if s in res.sensors]
     if not lidars:
         return
+    joint = res.solution.solution
+    failing = [] if joint is None else joint.failing
     for camera in (s for s in res.rig.cameras if s in res.sensors):
         frames = pair_frames(res, camera, lidars[0], camera_only=True)
         config = res.rig.pair_config(camera, lidars[0])
         T = np.asarray(res.relative(camera, lidars[0]).T)
+        used = {f.name for f in frames if f.used}
         try:
             require_agreement(frames, config, T, camera)
+            require_covered(frames, [(n, why) for n, why in failing if n in used], config, T, camera)
             require_images_fit(frames, config, T, camera)
         except CalibrationImpossible as err:
             if len(res.rig.sensors) <= 2:
