@@ -138,6 +138,27 @@ def test_a_rigs_moments_the_gate_could_not_drop_give_no_result(simulated, tmp_pa
     assert {f for f, _, why in got.value.frames if "chi-square gate" in why} == set(MOVED), got.value.frames
 
 
+def test_a_rig_whose_boards_sit_far_above_their_noise_gives_no_result(simulated, tmp_path):
+    """A LiDAR reading 20 mm long, its rig of two solved without range terms (``RigOptions.models``:
+    the pair's ``--sensor-model none``): the boards' residuals are far above their stated noise and
+    used moments put the board far from where the scan saw it, so the camera is refused as the pair's
+    run refuses (tests/test_selection.py), its name in the message."""
+    from ilcc_graph.estimation.rig_solve import RigOptions
+    from ilcc_graph.run.rig_calibrate import calibrate_rig
+    from ilcc_graph.run.stages import StageOptions
+    from ilcc_graph.run.strategies.solve_rig import RigRunOptions, require_cameras
+
+    data = simulated("pinhole", "--lidar", "hdl32", "--range-offset-mm", "20", frames=7, seed=5, width=800)
+    rig = _as_rig(data, tmp_path / "rig")
+    options = RigRunOptions(stages=StageOptions(jobs=1), solve=RigOptions(models=("none",)))
+    with pytest.raises(CalibrationImpossible) as got:
+        require_cameras(calibrate_rig(rig, options))
+    message = "camera 'front': the residuals are far above the detectors' stated noise (LiDAR board poses"
+    assert str(got.value).startswith(message), got.value
+    assert any("from where the scan saw it" in why for _, _, why in got.value.frames), got.value.frames
+    assert got.value.advice.startswith("likely: the LiDAR's ranges"), got.value.advice
+
+
 def test_a_used_frame_hidden_by_residuals_far_above_the_noise_gives_no_result():
     """Residuals far above the stated noise (LiDAR board poses' component 32, 5.7 x their sigma, as a
     simulated set of 8 frames with 4 boards moved before the photo gave) and a used frame whose image

@@ -267,14 +267,19 @@ def require_covered(
 
 
 def require_within_noise(
-    frames: Sequence[FrameResult], far: dict[str, float], config: Config, T_cam_lidar: np.ndarray
+    frames: Sequence[FrameResult],
+    far: dict[str, float],
+    config: Config,
+    T_cam_lidar: np.ndarray,
+    camera: str | None = None,
 ) -> None:
     """Raise ``CalibrationImpossible`` when the residuals are far above the detectors' stated noise
     (``far``: the variance components, ``gate.far_above``) and used frames' images put their board
     far from where the scans saw it, through ``T_cam_lidar`` or through the extrinsic most frames
     agree on (``evaluation.causes.moved_boards`` with ``consensus``: boards that moved together
     pull the solve's): the noise estimated from the frames then hides those frames from
-    the gate, so the covariance would not cover them."""
+    the gate, so the covariance would not cover them. ``camera``: a rig's camera (its moments), named
+    in the message."""
     found = moved_boards(list(frames), config.board, config.camera, T_cam_lidar, consensus=True)
     moved = {n: (g, s) for n, g, s in found}
     used = [f for f in frames if f.used and f.name in moved]
@@ -283,17 +288,18 @@ def require_within_noise(
     what = {"bearing": "image corners", "board": "LiDAR board poses"}
     sizes = ", ".join(f"{what[k]} {np.sqrt(v):.1f} x their stated sigma" for k, v in far.items())
     names = [f.name for f in used]
+    whose = "" if camera is None else f"camera '{camera}': "
     message = (
-        f"the residuals are far above the detectors' stated noise ({sizes}) and the result uses frames whose "
-        f"image puts the board far from where the scan saw it ({', '.join(names)}): the noise estimated "
-        "from the frames hides them from the test, so no covariance would cover the frames used"
+        f"{whose}the residuals are far above the detectors' stated noise ({sizes}) and the result uses "
+        f"frames whose image puts the board far from where the scan saw it ({', '.join(names)}): the noise "
+        "estimated from the frames hides them from the test, so no covariance would cover the frames used"
     )
     issues = [
         (n, "agreement", f"used, but its image puts the board {moved[n][0]:.0f} mm ({moved[n][1]:.0f} x the "
          "LiDAR fit's stated sigma) from where the scan saw it: the board moved between the scan and the "
          "photo, or the LiDAR's fit is off there") for n in names
     ]  # fmt: skip
-    _refuse(message, issues, frames, config, T_cam_lidar)
+    _refuse(message, issues, frames, config, T_cam_lidar, camera)
 
 
 #: the images used fit a flat board alone at this many times their stated corner noise (the median of

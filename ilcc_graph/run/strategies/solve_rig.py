@@ -20,11 +20,12 @@ import numpy as np
 
 from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.estimation.gate import far_above
 from ilcc_graph.estimation.rig_solve import RigOptions
 from ilcc_graph.evaluation.causes import causes_without_extrinsic
 from ilcc_graph.run import rig_calibrate
 from ilcc_graph.run.after import mostly_outline
-from ilcc_graph.run.finish import require_agreement, require_covered, require_images_fit
+from ilcc_graph.run.finish import require_agreement, require_covered, require_images_fit, require_within_noise
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
 from ilcc_graph.run.rig_calibrate import RigResult, RigRunOptions, solve_observed, to_calibration
@@ -115,33 +116,42 @@ def rig_options(seen: RigObservation, options: RunOptions) -> RigRunOptions:
 def require_cameras(res: RigResult) -> None:
     """Raise ``CalibrationImpossible`` where a pair's run would for a solved camera (each with the base
     LiDAR, whose boards and the camera's pose give the advice's residuals; a rig without a LiDAR is
-    not judged so): fewer than ``MIN_DISTINCT_POSES`` of its moments agree while others were dropped
-    for disagreeing (``run.finish.require_agreement``), moments it used still fail the gate though
-    the gate may drop no more (``run.finish.require_covered``: the joint solve's ``failing``), or
-    most images it used do not fit it as stated (``run.finish.require_images_fit``, named by the
-    camera): its pose would rest on what nothing checks, or be off by more than any covariance
-    covers. In a rig of more than two sensors the message also says that leaving the camera out
-    calibrates the others. (A moment failing the gate that no camera used, one LiDAR's with
-    another's, is not judged here.)"""
+    not judged so; ``_camera_rules``). In a rig of more than two sensors the message also says that
+    leaving the camera out calibrates the others."""
     lidars = [s for s in res.rig.lidars if s in res.sensors]
     if not lidars:
         return
-    joint = res.solution.solution
-    failing = [] if joint is None else joint.failing
     for camera in (s for s in res.rig.cameras if s in res.sensors):
-        frames = pair_frames(res, camera, lidars[0], camera_only=True)
-        config = res.rig.pair_config(camera, lidars[0])
-        T = np.asarray(res.relative(camera, lidars[0]).T)
-        used = {f.name for f in frames if f.used}
         try:
-            require_agreement(frames, config, T, camera)
-            require_covered(frames, [(n, why) for n, why in failing if n in used], config, T, camera)
-            require_images_fit(frames, config, T, camera)
+            _camera_rules(res, camera, lidars[0])
         except CalibrationImpossible as err:
             if len(res.rig.sensors) <= 2:
                 raise
             others = f"leave camera '{camera}' out of rig.yaml to calibrate the other sensors"
             raise CalibrationImpossible(f"{err}; or {others}", err.frames, err.advice) from None
+
+
+def _camera_rules(res: RigResult, camera: str, lidar: str) -> None:
+    """The pair's refusals for ``camera`` with ``lidar`` (its moments as frames, named by the camera):
+    fewer than ``MIN_DISTINCT_POSES`` of its moments agree while others were dropped for disagreeing
+    (``run.finish.require_agreement``); moments it used still fail the gate though the gate may drop
+    no more (``require_covered``: the joint solve's ``failing``; a moment only LiDARs saw is not
+    judged here); the LiDAR's boards or the camera's views are far above their stated noise
+    (``Solution.components`` of their groups, ``gate.far_above``) while moments it used put the board
+    far from where the scan saw it (``require_within_noise``); or most images it used do not fit it
+    as stated (``require_images_fit``). Its pose would rest on what nothing checks, or be off by more
+    than any covariance covers."""
+    frames = pair_frames(res, camera, lidar, camera_only=True)
+    config = res.rig.pair_config(camera, lidar)
+    T = np.asarray(res.relative(camera, lidar).T)
+    joint = res.solution.solution
+    used = {f.name for f in frames if f.used}
+    require_agreement(frames, config, T, camera)
+    if joint is not None:
+        require_covered(frames, [(n, why) for n, why in joint.failing if n in used], config, T, camera)
+        if far := far_above((joint.components(lidar)[0], joint.components(camera)[1])):
+            require_within_noise(frames, far, config, T, camera)
+    require_images_fit(frames, config, T, camera)
 
 
 def with_unsolved_causes(res: RigResult) -> RigResult:
