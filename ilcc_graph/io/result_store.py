@@ -28,7 +28,7 @@ import numpy as np
 
 from ilcc_graph.errors import InputError
 
-__all__ = ["MISSING", "code_tag", "open_store", "result_key", "load_result", "store_result"]
+__all__ = ["MISSING", "code_tag", "load_result", "open_store", "result_key", "store_result"]
 
 #: what ``load_result`` returns for a key that has no readable result
 MISSING = object()
