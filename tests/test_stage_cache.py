@@ -1,6 +1,7 @@
 """``--stage-cache DIR``: each scan's and image's stage results kept and found again
-(``io.result_store``, ``run.stages.kept``), through the command line as a user runs it. A scan's key
-holds its file's name (the LiDAR stage's messages name it), an image's only its pixels."""
+(``io.result_store``, ``run.stages.kept``), through the command line as a user runs it. Beside the
+settings, a scan's key holds its file's name (the LiDAR stage's messages name it), an image's only
+its pixels."""
 
 from __future__ import annotations
 
