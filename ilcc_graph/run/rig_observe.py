@@ -24,10 +24,9 @@ from ilcc_graph.config import RigConfig
 from ilcc_graph.datasets.rig_source import Moment, RigSource
 from ilcc_graph.errors import BoardColourMismatch, DamagedFile, FrameError, InputError
 from ilcc_graph.image import detect_corners
-from ilcc_graph.lidar import estimate_board
 from ilcc_graph.run.colour import colour_votes, colour_warning
 from ilcc_graph.run.source import resolve_beams
-from ilcc_graph.run.stages import StageOptions, kept, read_frame_file, warn_margin, warn_no_print
+from ilcc_graph.run.stages import StageOptions, kept, lidar_stage, read_frame_file, warn_margin, warn_no_print
 from ilcc_graph.types import BoardFit, ImageCorners, MomentResult, Scan
 
 __all__ = ["RigObservation", "observe_moment", "observe_rig", "observe_source_moment", "open_rig"]
@@ -49,7 +48,7 @@ class RigObservation:
 
 def _lidar(scan: Scan, rig: RigConfig, name: str, options: StageOptions) -> BoardFit:
     s = rig.sensor(name)
-    return kept(options, "lidar", estimate_board, scan, rig.board, s.lidar, s.roi, options.lidar, None, None)
+    return lidar_stage(options, scan, rig.board, s.lidar, s.roi)
 
 
 def _camera(image: np.ndarray, rig: RigConfig, name: str, options: StageOptions, where: str) -> ImageCorners:

@@ -21,7 +21,7 @@ import numpy as np
 
 from ilcc_graph.board import Board
 from ilcc_graph.cameras import CameraModel
-from ilcc_graph.config import Config
+from ilcc_graph.config import Config, Roi
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import DamagedFile, FrameError, InputError
 from ilcc_graph.image import ImageOptions, detect_corners
@@ -29,9 +29,10 @@ from ilcc_graph.image.previews import make_views
 from ilcc_graph.io.result_store import MISSING, load_result, result_key, store_result
 from ilcc_graph.lidar import INTENSITY_UNUSABLE, LidarOptions, estimate_board
 from ilcc_graph.lidar.margin import margin_summary, margin_words
+from ilcc_graph.lidars import LidarModel
 from ilcc_graph.run.pattern_check import KEYS as PATTERN_KEYS
 from ilcc_graph.run.pattern_check import pattern_continues
-from ilcc_graph.types import BoardFit, ExpectedBoard, FrameResult, ImageCorners, RangeCorrection
+from ilcc_graph.types import BoardFit, ExpectedBoard, FrameResult, ImageCorners, RangeCorrection, Scan
 
 __all__ = [
     "StageOptions",
@@ -39,6 +40,7 @@ __all__ = [
     "check_image",
     "frame_result",
     "kept",
+    "lidar_stage",
     "observe_frame",
     "observe_image",
     "observe_lidar",
@@ -153,7 +155,21 @@ def observe_lidar(
     """The LiDAR stage on one frame's scan (near ``expected`` when given, on the ranges corrected by
     ``correction`` when given); FrameError says why not."""
     scan = read_frame_file(source.read_scan, ref, config, strict=options.strict)
-    args = (scan, config.board, config.lidar, config.roi, options.lidar, expected, correction)
+    return lidar_stage(options, scan, config.board, config.lidar, config.roi, expected, correction)
+
+
+def lidar_stage(
+    options: StageOptions,
+    scan: Scan,
+    board: Board,
+    lidar: LidarModel | None,
+    roi: Roi | None,
+    expected: ExpectedBoard | None = None,
+    correction: RangeCorrection | None = None,
+) -> BoardFit:
+    """The LiDAR stage on a scan in memory (``lidar.estimate_board`` with ``options.lidar``), its result
+    kept in ``options.cache`` (``kept``): one key for a pair's frame and a rig's LiDAR alike."""
+    args = (scan, board, lidar, roi, options.lidar, expected, correction)
     return kept(options, "lidar", estimate_board, *args)
 
 
