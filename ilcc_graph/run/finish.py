@@ -173,9 +173,8 @@ def require_agreement(
         return
     agree_names, other_names = [f.name for f in used], [f.name for f in disagree]
     k = len(used)
-    whose = "" if camera is None else f"camera '{camera}': "
     message = (
-        f"{whose}only {k} distinct board pose{'s' * (k != 1)} agree ({', '.join(agree_names)}) and "
+        f"{_whose(camera)}only {k} distinct board pose{'s' * (k != 1)} agree ({', '.join(agree_names)}) and "
         f"{len(disagree)} disagree with {'them' if k != 1 else 'it'} beyond their noise "
         f"({', '.join(other_names)}): with fewer than {MIN_DISTINCT_POSES} poses that agree nothing tells "
         "which frames are right, and their covariance could not reveal a placement's error"
@@ -186,6 +185,11 @@ def require_agreement(
     ]
     issues += [(f.name, "agreement", f.reason or "disagrees") for f in disagree]
     _refuse(message, issues, frames, config, T_cam_lidar, camera)
+
+
+def _whose(camera: str | None) -> str:
+    """The start of a refusal's message: "" for the pair, ``camera 'X': `` for a rig's camera X."""
+    return "" if camera is None else f"camera '{camera}': "
 
 
 def _refuse(
@@ -253,11 +257,10 @@ def require_covered(
     used = [f for f in frames if f.used]
     gone = [f for f in frames if not f.used and (f.reason or "").startswith(DISAGREEING)]
     names = [n for n, _ in failing]
-    whose = "" if camera is None else f"camera '{camera}': "
     message = (
-        f"{whose}{len(failing)} of the {len(used)} frames left ({', '.join(names)}) still disagree beyond "
-        f"their noise after {len(gone)} were dropped for disagreeing, the most the test may drop: no "
-        "majority of the frames agrees, so no covariance would cover the frames a result uses"
+        f"{_whose(camera)}{len(failing)} of the {len(used)} frames left ({', '.join(names)}) still "
+        f"disagree beyond their noise after {len(gone)} were dropped for disagreeing, the most the test "
+        "may drop: no majority of the frames agrees, so no covariance would cover the frames a result uses"
     )
     results = {f.name: f for f in frames}
     causes = _dropped_causes(results, names, config, T_cam_lidar)
@@ -288,11 +291,11 @@ def require_within_noise(
     what = {"bearing": "image corners", "board": "LiDAR board poses"}
     sizes = ", ".join(f"{what[k]} {np.sqrt(v):.1f} x their stated sigma" for k, v in far.items())
     names = [f.name for f in used]
-    whose = "" if camera is None else f"camera '{camera}': "
     message = (
-        f"{whose}the residuals are far above the detectors' stated noise ({sizes}) and the result uses "
-        f"frames whose image puts the board far from where the scan saw it ({', '.join(names)}): the noise "
-        "estimated from the frames hides them from the test, so no covariance would cover the frames used"
+        f"{_whose(camera)}the residuals are far above the detectors' stated noise ({sizes}) and the "
+        f"result uses frames whose image puts the board far from where the scan saw it ({', '.join(names)}): "
+        "the noise estimated from the frames hides them from the test, so no covariance would cover the "
+        "frames used"
     )
     issues = [
         (n, "agreement", f"used, but its image puts the board {moved[n][0]:.0f} mm ({moved[n][1]:.0f} x the "

@@ -118,17 +118,22 @@ def require_cameras(res: RigResult) -> None:
     LiDAR, whose boards and the camera's pose give the advice's residuals; a rig without a LiDAR is
     not judged so; ``_camera_rules``). In a rig of more than two sensors the message also says that
     leaving the camera out calibrates the others."""
-    lidars = [s for s in res.rig.lidars if s in res.sensors]
-    if not lidars:
+    lidar = _base_lidar(res)
+    if lidar is None:
         return
     for camera in (s for s in res.rig.cameras if s in res.sensors):
         try:
-            _camera_rules(res, camera, lidars[0])
+            _camera_rules(res, camera, lidar)
         except CalibrationImpossible as err:
             if len(res.rig.sensors) <= 2:
                 raise
             others = f"leave camera '{camera}' out of rig.yaml to calibrate the other sensors"
             raise CalibrationImpossible(f"{err}; or {others}", err.frames, err.advice) from None
+
+
+def _base_lidar(res: RigResult) -> str | None:
+    """The rig's first LiDAR with a pose (a camera's rules and causes are judged with it), or None."""
+    return next((s for s in res.rig.lidars if s in res.sensors), None)
 
 
 def _camera_rules(res: RigResult, camera: str, lidar: str) -> None:
@@ -159,11 +164,13 @@ def with_unsolved_causes(res: RigResult) -> RigResult:
     moments seen with the base LiDAR show without an extrinsic (``evaluation.causes
     .causes_without_extrinsic``: the intrinsics or lens model, the board's size, boards cut off),
     as a pair's exit 3 names it when its corner order fits no frame."""
-    lidars = [s for s in res.rig.lidars if s in res.sensors]
+    lidar = _base_lidar(res)
+    if lidar is None:
+        return res
     unsolved = dict(res.unsolved)
-    for camera in (s for s in res.rig.cameras if s in unsolved and lidars):
-        config = res.rig.pair_config(camera, lidars[0])
-        frames = pair_frames(res, camera, lidars[0], camera_only=True)
+    for camera in (s for s in res.rig.cameras if s in unsolved):
+        config = res.rig.pair_config(camera, lidar)
+        frames = pair_frames(res, camera, lidar, camera_only=True)
         if causes := causes_without_extrinsic(frames, config.board, config.camera, False, camera):
             unsolved[camera] = f"{unsolved[camera]}; likely: {causes[0]}"
     if unsolved == res.unsolved:
