@@ -6,6 +6,7 @@ not write)."""
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from ilcc_graph.app.console import COUNT, NON_NEGATIVE, PIXELS, RIG_SEED_HELP, SEED, Progress, lazy_choices
 
@@ -77,32 +78,30 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
     g.add_argument("--bag-images", choices=("bgr8", "png", "jpeg"), default="bgr8", help=help)
 
 
+#: the flags that are the standard set's spec, by their names there
+SPEC_OPTIONS = (
+    "lidar", "camera", "width", "frames", "seed", "noise_scale", "intrinsics_error", "pcd_style",
+    "range_offset_mm", "intensity_field", "ring_field",
+)  # fmt: skip
+
+
+def _spec_options(args: argparse.Namespace) -> dict[str, Any]:
+    return {k: getattr(args, k) for k in SPEC_OPTIONS}
+
+
 def run(args: argparse.Namespace) -> int:
     from ilcc_graph.simulate.write_set import write_standard_set
 
     if args.bag:
         return _bag(args)
 
-    names = (
-        "lidar",
-        "camera",
-        "width",
-        "frames",
-        "seed",
-        "noise_scale",
-        "intrinsics_error",
-        "pcd_style",
-        "range_offset_mm",
-        "intensity_field",
-        "ring_field",
-    )
     spec = write_standard_set(
         args.out,
         Progress("simulate"),
         sensor_format=args.format,
         command=args.command_line,
         unit_seed=args.rig_seed,
-        **{k: getattr(args, k) for k in names},
+        **_spec_options(args),
     )
     print(f"wrote {spec.n_frames} frames to {args.out}")
     return 0
@@ -118,19 +117,7 @@ def _bag(args: argparse.Namespace) -> int:
         raise InputError(
             "simulate --bag: --format and --pcd-style are for PCD files; a bag holds PointCloud2"
         )
-    names = (
-        "lidar",
-        "camera",
-        "width",
-        "frames",
-        "seed",
-        "noise_scale",
-        "intrinsics_error",
-        "range_offset_mm",
-        "intensity_field",
-        "ring_field",
-    )
-    spec = standard_set_spec(unit_seed=args.rig_seed, **{k: getattr(args, k) for k in names})
+    spec = standard_set_spec(unit_seed=args.rig_seed, **_spec_options(args))
     kw = {"storage": args.storage, "image_format": args.bag_images, "flag": "simulate"}
     out = write_bag(args.out, spec, progress=Progress("simulate"), **kw)
     print(f"wrote {spec.n_frames} frames to the bag {out} (config and ground truth beside it)")

@@ -177,10 +177,15 @@ def write_report(
         )
     if progress is not None:
         progress(len(items) + 1, len(items) + 1)
-    for rel, blob in files.items():  # inside the staging folder: written plainly (no fsync each)
-        (out / rel).parent.mkdir(parents=True, exist_ok=True)
-        (out / rel).write_bytes(blob)
+    _write_files(out, files)
     return got, png
+
+
+def _write_files(folder: Path, files: dict[str, bytes]) -> None:
+    """``files`` (path in ``folder``: bytes) into a staging folder: written plainly (no fsync each)."""
+    for rel, blob in files.items():
+        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+        (folder / rel).write_bytes(blob)
 
 
 def write_rig_report(
@@ -194,8 +199,5 @@ def write_rig_report(
 ) -> Path:
     """Write ``folder/index.html`` and its pictures ``folder/figures/*.webp`` (``rig_report_files``);
     returns the page's path. ``folder`` is made when missing (a staging folder: written plainly)."""
-    folder = Path(folder)
-    for rel, blob in rig_report_files(cal, observation, source, info, need=need).items():
-        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
-        (folder / rel).write_bytes(blob)
-    return folder / "index.html"
+    _write_files(Path(folder), rig_report_files(cal, observation, source, info, need=need))
+    return Path(folder) / "index.html"

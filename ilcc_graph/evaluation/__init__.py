@@ -5,6 +5,8 @@ of frames: computations on typed results, no drawing and no files (``report`` dr
 - :mod:`.metric`: the paper's intensity-based re-projection error (Eq. 14) per point and frame;
 - :mod:`.frame_errors`: ``evaluate(frames, camera, board, T_cam_lidar) -> Evaluation`` (per frame and
   overall, with corner errors in px and mrad), from the run's results or a calibration file's scans;
+- :mod:`.pattern_check`: does the checker pattern go on beyond the corners found (a set-up mistake's
+  evidence, run by the image stage's worker);
 - :mod:`.studies`: ``cross_validate``, ``frames_vs_accuracy`` (a solver callable
   ``solve(frames) -> (T, cov)`` handed in) and the ``valley`` study (no solve).
 """

@@ -30,18 +30,18 @@ from .plots import (
     plot_valley,
 )
 from .sections import (
-    CSS,
     GALLERY_NOTE,
     TABLE_NOTE,
     esc,
     figure,
     frame_rows,
     num,
+    page,
     standing_out,
     summary_verdict,
     table,
     transform_section,
-)
+)  # fmt: skip
 from .sensors import sensors_html, square_size_text
 
 __all__ = ["FIGURES_DIR", "FigureOptions", "FrameFigures", "build_report", "frame_figures"]
@@ -128,11 +128,7 @@ def build_report(
     body += _valley_html(study, add) + _next_pose_html(next_pose, add)
     body += _stability_html(curve, cross_validation, add)
     body += _gallery_html(got, results, odd, used_names)
-    page = (
-        '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
-        f"<title>{esc(title)}</title><style>{CSS}</style></head><body>" + "\n".join(body) + "</body></html>"
-    )
-    files["index.html"] = page.encode("utf-8")
+    files["index.html"] = page(title, body)
     return files
 
 

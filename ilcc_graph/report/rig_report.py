@@ -24,7 +24,7 @@ from ..io.rig_results import RigCalibration
 from .figures import FIGURES_DIR, encode_image
 from .rig_pictures import BoardPicture, board_picture
 from .rig_verdict import fate_kind, rig_sensors, rig_verdict, sensor_standings
-from .sections import CSS, esc, figure, table
+from .sections import CSS, esc, figure, page, pm, table
 from .summary import _propagate, lidar_in_camera
 from .text import short_reason
 
@@ -79,18 +79,14 @@ def _rpy(T: np.ndarray, C: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rpy, _propagate(turned, R @ C @ R.T, 3)
 
 
-def _pm(v: float, s: float, dec: int) -> str:
-    return f"{v:+.{dec}f}" + ("" if not math.isfinite(s) else f" ± {s:.{dec}f}")
-
-
 def pose_cells(T: np.ndarray, C: np.ndarray) -> list[str]:
     """Table cells of a child's pose in its parent's frame (``T`` (4, 4), ``C`` (6, 6) right-tangent):
     x, y, z in mm and roll, pitch, yaw in deg (about the parent's x, y, z), each ± its 1-sigma in the
     parent's axes (``summary.lidar_in_camera`` for the position)."""
     p, ps, _, _, _ = lidar_in_camera(T, C)
     rpy, rs = _rpy(T, np.asarray(C, dtype=np.float64)[:3, :3])
-    return [_pm(v, s, 1) for v, s in zip(p, ps, strict=True)] + [
-        _pm(v, s, 3) for v, s in zip(rpy, rs, strict=True)
+    return [pm(v, s, "+.1f") for v, s in zip(p, ps, strict=True)] + [
+        pm(v, s, "+.3f") for v, s in zip(rpy, rs, strict=True)
     ]
 
 
@@ -342,9 +338,5 @@ def rig_report_files(
     body += _verdict_html(cal, need) + _poses_html(cal)
     pictures, files, pictured = _pictures_html(cal, observation, source)
     body += _moments_html(cal, pictured) + pictures
-    page = (
-        '<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
-        f"<title>{esc(title)}</title><style>{_CSS}</style></head><body>" + "\n".join(body) + "</body></html>"
-    )
-    files["index.html"] = page.encode("utf-8")
+    files["index.html"] = page(title, body, _CSS)
     return files

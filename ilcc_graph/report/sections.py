@@ -8,15 +8,14 @@ import math
 
 import numpy as np
 
-from ..cameras import make_camera
 from ..evaluation.metric import Evaluation, FrameEvaluation
 from ..evaluation.studies import pose_difference
 from ..types import Calibration
-from .summary import camera_in_lidar, lidar_in_camera
+from .summary import camera_in_lidar, lidar_in_camera, stated_camera
 from .text import lidar_frame_note
 
 __all__ = ["CHI2_6DOF_3SIGMA", "CSS", "GALLERY_NOTE", "TABLE_NOTE", "esc", "figure", "frame_rows", "num",
-           "standing_out", "summary_verdict", "table", "transform_section"]  # fmt: skip
+           "page", "pm", "standing_out", "summary_verdict", "table", "transform_section"]  # fmt: skip
 
 #: chi-square quantile of 6 degrees of freedom at 99.73 % (the 3-sigma probability).
 CHI2_6DOF_3SIGMA = 20.06
@@ -60,6 +59,12 @@ GALLERY_NOTE = " ".join(
         "image's edges are and the corners' cyan crosses sit on their circles.</p>",
     ]
 )
+
+
+def page(title: str, body: list[str], css: str = CSS) -> bytes:
+    """A whole HTML page (UTF-8) of ``body``'s parts, one a line, under ``title``."""
+    head = f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8"><title>{esc(title)}</title>'
+    return (head + f"<style>{css}</style></head><body>" + "\n".join(body) + "</body></html>").encode("utf-8")
 
 
 def esc(s: object) -> str:
@@ -115,7 +120,8 @@ def _sigmas(cov: np.ndarray) -> np.ndarray:
     return np.sqrt(np.clip(np.diag(cov), 0.0, None))
 
 
-def _pm(v: float, s: float, fmt: str) -> str:
+def pm(v: float, s: float, fmt: str) -> str:
+    """``v ± s`` (``s`` in ``fmt`` without its sign; no ± when ``s`` is not finite)."""
     return format(v, fmt) + ("" if not math.isfinite(s) else f" ± {format(s, fmt.lstrip('+'))}")
 
 
@@ -124,10 +130,7 @@ def transform_section(cal: Calibration, T_gt: np.ndarray | None) -> tuple[str, s
     frame, 1-sigma beside each value, as ``summary`` prints them) and, with a ground truth, its verdict."""
     T = np.asarray(cal.T_cam_lidar, dtype=np.float64)
     s = _sigmas(cal.covariance)
-    try:
-        camera = make_camera(cal.camera) if cal.camera is not None else None
-    except ValueError:
-        camera = None
+    camera = stated_camera(cal)
     R_flu_cam = np.eye(3) if camera is None else camera.R_flu_cam
     axes = "its own axes" if camera is None else camera.axes
     p, ps, ang, angs = camera_in_lidar(T, cal.covariance, R_flu_cam)
@@ -144,8 +147,8 @@ def transform_section(cal: Calibration, T_gt: np.ndarray | None) -> tuple[str, s
             ["position (mm), ± 1 sigma", "x", "y", "z"],
             [
                 ["the camera in the LiDAR frame (x forward, y left, z up)"]
-                + [_pm(v, e, "+.2f") for v, e in zip(p, ps)],
-                [f"the LiDAR in the camera frame ({esc(axes)})"] + [_pm(v, e, "+.2f") for v, e in zip(q, qs)],
+                + [pm(v, e, "+.2f") for v, e in zip(p, ps)],
+                [f"the LiDAR in the camera frame ({esc(axes)})"] + [pm(v, e, "+.2f") for v, e in zip(q, qs)],
             ],
         ),
         table(
@@ -157,7 +160,7 @@ def transform_section(cal: Calibration, T_gt: np.ndarray | None) -> tuple[str, s
             ],
             [
                 ["viewing direction (optical axis; a panorama's centre column)"]
-                + [_pm(v, e, "+.4f") for v, e in zip(ang, angs)]
+                + [pm(v, e, "+.4f") for v, e in zip(ang, angs)]
             ],
         ),  # fmt: skip
         f"<p>The rotation of <code>T_cam_lidar</code>: {rot}.</p>",

@@ -30,7 +30,8 @@ from ..types import Calibration, worst_sigmas
 from .sensors import sensors_text, square_size_text
 from .text import format_joint, lidar_view_lines, short_reason
 
-__all__ = ["NEED_DEG_MM", "WIDTH", "camera_in_lidar", "lidar_in_camera", "run_summary", "verdict"]
+__all__ = ["NEED_DEG_MM", "WIDTH", "camera_in_lidar", "lidar_in_camera", "run_summary", "stated_camera",
+           "verdict"]  # fmt: skip
 
 #: the terminal width the summary keeps to
 WIDTH = 80
@@ -216,6 +217,14 @@ def _decimals(sigmas: np.ndarray, lo: int, hi: int) -> int:
     return lo if not s.size else int(np.clip(1 - math.floor(math.log10(s.min())), lo, hi))
 
 
+def stated_camera(cal: Calibration) -> CameraModel | None:
+    """The camera ``cal`` names, or None when it names none or one that cannot be built."""
+    try:
+        return make_camera(cal.camera) if cal.camera is not None else None
+    except ValueError:
+        return None
+
+
 def _pm(value: float, sigma: float, fmt: str, sfmt: str) -> str:
     return f"{value:{fmt}}" + ("" if not math.isfinite(sigma) else f" +- {sigma:{sfmt}}")
 
@@ -318,10 +327,7 @@ def run_summary(
     """What ``calibrate`` prints (module docstring). joint: the sessions' ``joint.yaml`` document
     (``run.result.Result.documents``) or None; seconds: (calibrating, writing the outputs);
     reports: the report pages written; notes: further lines (the next board pose, ...)."""
-    try:
-        camera = make_camera(cal.camera) if cal.camera is not None else None
-    except ValueError:
-        camera = None
+    camera = stated_camera(cal)
     parts = [verdict(cal, joint, need, gate_prob)[1]]
     parts += _dropped_lines(cal)
     if joint is not None:

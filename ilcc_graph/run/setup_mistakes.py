@@ -22,8 +22,9 @@ measured beam table contradicts ``lidar.model``); the image size in ``run.source
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -33,9 +34,9 @@ from ilcc_graph.datasets import FrameSource
 from ilcc_graph.errors import FrameError, InputError
 from ilcc_graph.evaluation.causes import SCALE_TOL, board_scale
 from ilcc_graph.run.observe import Observation
-from ilcc_graph.run.pattern_check import extra_squares, pattern_continues
+from ilcc_graph.evaluation.pattern_check import extra_squares, pattern_continues
 from ilcc_graph.run.stages import StageOptions, attempt, observe_image, observe_lidar
-from ilcc_graph.types import Calibration
+from ilcc_graph.types import Calibration, FrameResult
 
 log = logging.getLogger(__name__)
 
@@ -80,25 +81,10 @@ def diagnose_result(obs: Observation, cal: Calibration, images: int = 2) -> list
         k, _, n = scale
         ev = f"the images make the board's moves between frames {k:.3f} x what the scans give ({n} pairs)"
         lines.append(_square_size_line(board, 1 / k, ev))
-    extra = []
-    refs: dict | None = None
     source = obs.pair_source  # a rig's, or frames without their source: no image to read again
-    for f in frames[:images]:
-        if f.corners is None:
-            continue
-        if (kept := extra_squares(f.corners)) is not None:  # the image stage looked already
-            extra.append(kept)
-            continue
-        if source is None:
-            continue
-        refs = {r.name: r for r in source.frames()} if refs is None else refs
-        if f.name not in refs:
-            continue
-        try:
-            image = source.read_image(refs[f.name])
-        except InputError:
-            continue
-        extra.append(pattern_continues(image, obs.pair_config.board, obs.pair_config.camera, f.corners))
+    refs = functools.cache(lambda: {} if source is None else {r.name: r for r in source.frames()})
+    found = (_squares_beyond(f, obs, source, refs) for f in frames[:images] if f.corners is not None)
+    extra = [e for e in found if e is not None]
     if len(extra) >= 2:
         e_rows, e_cols = (int(np.median([e[i] for e in extra])) for i in range(2))
         if e_rows or e_cols:
@@ -106,6 +92,23 @@ def diagnose_result(obs: Observation, cal: Calibration, images: int = 2) -> list
             ev = f"beyond the detected corners the checker pattern continues ({n} of {len(extra)} images)"
             lines.append(_dims_line(board, (board.rows + e_rows, board.cols + e_cols), ev, at_least=True))
     return lines
+
+
+def _squares_beyond(
+    f: FrameResult, obs: Observation, source: FrameSource | None, refs: Callable[[], dict]
+) -> tuple[int, int] | None:
+    """The (rows, cols) of squares the checker pattern continues beyond frame ``f``'s corners: as the
+    image stage found it, else from its image read again (``pattern_continues``; ``refs()``: the
+    source's {name: FrameRef}, listed only then); None without one."""
+    if (kept := extra_squares(f.corners)) is not None:  # type: ignore[arg-type]
+        return kept
+    if source is None or f.name not in refs():
+        return None
+    try:
+        image = source.read_image(refs()[f.name])
+    except InputError:
+        return None
+    return pattern_continues(image, obs.pair_config.board, obs.pair_config.camera, f.corners)  # type: ignore[arg-type]
 
 
 def _found(results: Sequence[object]) -> int:
@@ -188,16 +191,8 @@ def _board_dims_search(obs: Observation, source: FrameSource, stages: StageOptio
     usable = [f for f in obs.frames if not f.damaged and f.name in refs]
     with_corners = [f for f in usable if f.corners is not None][:LOOK]
     without = [f for f in usable if f.corners is None][:LOOK]
-    continues = []
-    for f in with_corners:
-        if (kept := extra_squares(f.corners)) is not None:  # type: ignore[arg-type]
-            continues.append(kept != (0, 0))
-            continue
-        try:
-            image = source.read_image(refs[f.name])
-        except InputError:
-            continue
-        continues.append(pattern_continues(image, cfg.board, cfg.camera, f.corners) != (0, 0))  # type: ignore[arg-type]
+    beyond = (_squares_beyond(f, obs, source, lambda: refs) for f in with_corners)
+    continues = [e != (0, 0) for e in beyond if e is not None]
     for rows, cols in ((board.rows + 1, board.cols + 1), (board.rows - 1, board.cols - 1)):
         if rows < 3:
             continue

@@ -30,8 +30,8 @@ from ilcc_graph.io.result_store import MISSING, load_result, result_key, store_r
 from ilcc_graph.lidar import INTENSITY_UNUSABLE, LidarOptions, estimate_board
 from ilcc_graph.lidar.margin import margin_summary, margin_words
 from ilcc_graph.lidars import LidarModel
-from ilcc_graph.run.pattern_check import KEYS as PATTERN_KEYS
-from ilcc_graph.run.pattern_check import pattern_continues
+from ilcc_graph.evaluation.pattern_check import KEYS as PATTERN_KEYS
+from ilcc_graph.evaluation.pattern_check import pattern_continues
 from ilcc_graph.types import BoardFit, ExpectedBoard, FrameResult, ImageCorners, RangeCorrection, Scan
 
 __all__ = [

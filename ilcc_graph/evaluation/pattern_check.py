@@ -1,8 +1,8 @@
 """Does the checker pattern go on beyond the corners found? (a part of a bigger print was detected)
 
 Run by the image stage's worker on the image it has in memory (``run.stages.observe_image`` keeps the
-answer in ``ImageCorners.diagnostics``), read by ``setup_mistakes`` for the ``board.squares``
-diagnosis.
+answer in ``ImageCorners.diagnostics``), read by ``run.setup_mistakes`` for the ``board.squares``
+diagnosis. Computation only: an image, the board and the camera in, a count of squares out.
 """
 
 from __future__ import annotations
