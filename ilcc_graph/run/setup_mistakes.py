@@ -33,8 +33,8 @@ from ilcc_graph.config import Config
 from ilcc_graph.datasets import FrameSource
 from ilcc_graph.errors import FrameError, InputError
 from ilcc_graph.evaluation.causes import SCALE_TOL, board_scale
-from ilcc_graph.run.observe import Observation
 from ilcc_graph.evaluation.pattern_check import extra_squares, pattern_continues
+from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.stages import StageOptions, attempt, observe_image, observe_lidar
 from ilcc_graph.types import Calibration, FrameResult
 

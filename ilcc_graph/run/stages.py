@@ -24,14 +24,14 @@ from ilcc_graph.cameras import CameraModel
 from ilcc_graph.config import Config, Roi
 from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import DamagedFile, FrameError, InputError
+from ilcc_graph.evaluation.pattern_check import KEYS as PATTERN_KEYS
+from ilcc_graph.evaluation.pattern_check import pattern_continues
 from ilcc_graph.image import ImageOptions, detect_corners
 from ilcc_graph.image.previews import make_views
 from ilcc_graph.io.result_store import MISSING, load_result, result_key, store_result
 from ilcc_graph.lidar import INTENSITY_UNUSABLE, LidarOptions, estimate_board
 from ilcc_graph.lidar.margin import margin_summary, margin_words
 from ilcc_graph.lidars import LidarModel
-from ilcc_graph.evaluation.pattern_check import KEYS as PATTERN_KEYS
-from ilcc_graph.evaluation.pattern_check import pattern_continues
 from ilcc_graph.types import BoardFit, ExpectedBoard, FrameResult, ImageCorners, RangeCorrection, Scan
 
 __all__ = [
