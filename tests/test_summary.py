@@ -149,14 +149,14 @@ def _tmux(cwd: Path, command: str, timeout: float = 300.0) -> list[str]:
 
 @pytest.fixture(scope="module")
 def run(simulated, tmp_path_factory) -> tuple[Path, list[str] | None]:
-    """``ilcc-graph calibrate data --out out --studies`` on a small pinhole set whose frame 0003 has a
-    blank image, in tmux at 80 columns: (the folder holding ``out``, the lines shown; None without tmux,
-    then run without a terminal)."""
+    """``ilcc-graph calibrate data --out out --jobs 2 --studies`` on a small pinhole set whose frame 0003
+    has a blank image, in tmux at 80 columns: (the folder holding ``out``, the lines shown; None without
+    tmux, then run without a terminal). The studies' solves run on the two processes."""
     cwd = tmp_path_factory.mktemp("terminal")
     shutil.copytree(simulated("pinhole", frames=6), cwd / "data")
     blank = np.full_like(cv2.imread(str(cwd / "data/img/0003.png")), 128)
     cv2.imwrite(str(cwd / "data/img/0003.png"), blank)
-    argv = ["calibrate", "data", "--out", "out", "--jobs", "1", "--studies"]
+    argv = ["calibrate", "data", "--out", "out", "--jobs", "2", "--studies"]
     if shutil.which("tmux") is None:
         subprocess.run(
             [sys.executable, "-m", "ilcc_graph.app", *argv], cwd=cwd, check=True, capture_output=True
@@ -188,6 +188,22 @@ def test_the_summary_in_an_80_column_terminal(run):
     T = np.array(yaml.safe_load((cwd / "out/calibration.yaml").read_text())["T_cam_lidar"])
     x = float(next(line for line in lines if line.startswith("  position mm")).split()[3])
     assert x == pytest.approx(1e3 * (-T[:3, :3].T @ T[:3, 3])[0], abs=0.06)
+
+
+def test_the_studies_on_two_processes_draw_what_one_process_draws(run):
+    """The report's studies (frames against accuracy, cross-validation), solved on two processes in
+    the terminal's run, are the same to the byte as when solved one after another in one process."""
+    cwd, _ = run
+    one = cwd / "out-one-process"
+    argv = ["calibrate", "data", "--out", one.name, "--jobs", "1", "--studies"]
+    subprocess.run([sys.executable, "-m", "ilcc_graph.app", *argv], cwd=cwd, check=True, capture_output=True)
+    studies = ("frames_vs_error.png", "frames_vs_parameters.png", "cross_validation.png")
+    for name in studies:
+        two = (cwd / "out/report/figures" / name).read_bytes()
+        assert two == (one / "report/figures" / name).read_bytes(), name
+    page = (cwd / "out/report/index.html").read_text()
+    same = page.replace("--out out --jobs 2", f"--out {one.name} --jobs 1")
+    assert same == (one / "report/index.html").read_text()
 
 
 CHROMIUM = next((c for c in ("chromium", "chromium-browser", "google-chrome") if shutil.which(c)), None)

@@ -26,7 +26,10 @@ from .frame_errors import eval_frame, evaluate, evaluate_many
 from .metric import EvalFrame, Evaluation, FrameEvaluation
 
 __all__ = [
+    "Refused",
     "Solver",
+    "study_subsets",
+    "try_solve",
     "pose_difference",
     "Fold",
     "CrossValidation",
@@ -50,6 +53,17 @@ def pose_difference(T_ref: np.ndarray, T: np.ndarray) -> np.ndarray:
     return np.concatenate([rot, R_ref.T @ (T[:3, 3] - T_ref[:3, 3])])
 
 
+def study_subsets(observed: Sequence[FrameResult], folds: int = 5) -> list[list[FrameResult]]:
+    """Every subset ``frames_vs_accuracy`` (input order) and ``cross_validate`` (``folds``) ask their
+    solver for, in that order, so that a caller can solve them all at once (on several processes)."""
+    frames = usable_frames(observed)
+    k = max(2, min(int(folds), len(frames)))
+    growing = [frames[:n] for n in range(1, len(frames) + 1)]
+    if len(frames) < 2:  # cross_validate refuses before it solves
+        return growing
+    return growing + [[r for i, r in enumerate(frames) if i % k != f] for f in range(k)]
+
+
 def usable_frames(observed: Sequence[FrameResult]) -> list[FrameResult]:
     """Frames that have both a board fit and image corners (whatever their ``used`` flag says).
 
@@ -59,10 +73,15 @@ def usable_frames(observed: Sequence[FrameResult]) -> list[FrameResult]:
     return [r for r in observed if r.board is not None and r.corners is not None]
 
 
-def _try_solve(solve: Solver, frames: Sequence[FrameResult]) -> tuple[np.ndarray, np.ndarray] | str:
+class Refused(Exception):
+    """A subset the solver refused, solved before (on another process): its reason is the message."""
+
+
+def try_solve(solve: Solver, frames: Sequence[FrameResult]) -> tuple[np.ndarray, np.ndarray] | str:
+    """``solve(frames)`` as (T (4, 4), covariance (6, 6)), or the reason it failed (the study's record)."""
     try:
         T, cov = solve(frames)
-    except (CalibrationImpossible, IndeterminateSystem) as err:  # the solver refused: its message says why
+    except (CalibrationImpossible, IndeterminateSystem, Refused) as err:  # the solver refused: it says why
         return str(err)
     except Exception as err:  # noqa: BLE001 - any other failure is a result of the study too, named
         return f"{type(err).__name__}: {err}"
@@ -138,7 +157,7 @@ def cross_validate(
         raise ValueError(f"cross_validate: need at least 2 frames with board and corners, got {n}")
     k = max(2, min(int(folds), n))
     if T_all is None:
-        res = _try_solve(solve, frames)
+        res = try_solve(solve, frames)
         if isinstance(res, str):
             raise ValueError(f"cross_validate: the all-frames fit failed: {res}")
         T_all = res[0]
@@ -150,7 +169,7 @@ def cross_validate(
         test = [r for i, r in enumerate(frames) if i % k == f]
         train = [r for i, r in enumerate(frames) if i % k != f]
         names_tr, names_te = tuple(r.name for r in train), tuple(r.name for r in test)
-        res = _try_solve(solve, train)
+        res = try_solve(solve, train)
         if isinstance(res, str):
             out.append(Fold(names_tr, names_te, None, None, None, None, res))
             for r in test:
@@ -221,7 +240,7 @@ def frames_vs_accuracy(
     results: list[tuple[int, np.ndarray, np.ndarray]] = []
     failures: list[tuple[int, str]] = []
     for n in range(1, N + 1):
-        res = _try_solve(solve, frames[:n])
+        res = try_solve(solve, frames[:n])
         if isinstance(res, str):
             failures.append((n, res))
         else:
