@@ -41,7 +41,7 @@ from .sections import (
     summary_verdict,
     table,
     transform_section,
-)  # fmt: skip
+)
 from .sensors import sensors_html, square_size_text
 
 __all__ = ["FIGURES_DIR", "FigureOptions", "FrameFigures", "build_report", "frame_figures"]
