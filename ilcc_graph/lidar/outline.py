@@ -127,10 +127,20 @@ def fov_share(
     return float(out.mean())
 
 
+def nearest_edge(b: np.ndarray, board: Board) -> np.ndarray:
+    """(N,) the edge of ``Board.extent`` (0: x0, 1: x1, 2: y0, 3: y1) nearest each in-plane point b (N, 2)."""
+    x0, x1, y0, y1 = board.extent()
+    return np.argmin(np.abs(np.c_[b[:, 0] - x0, b[:, 0] - x1, b[:, 1] - y0, b[:, 1] - y1]), axis=1)
+
+
 def _posterior_at(points: np.ndarray, T: np.ndarray, board: Board, model: LidarModel, s_z: float,
-                  options: LidarOptions, rng: np.random.Generator,
-                  xi0: np.ndarray | None = None) -> tuple[OutlineSamples, ShapeFit]:  # fmt: skip
+                  options: LidarOptions, rng: np.random.Generator, xi0: np.ndarray | None = None,
+                  without_edge: int | None = None) -> tuple[OutlineSamples, ShapeFit]:  # fmt: skip
+    """The outline's samples about ``T`` and their posterior; ``without_edge``: less the samples
+    nearest that edge (``nearest_edge``)."""
     s = outline_samples(points, T, board, model, s_z, options.outline_blur)
+    if without_edge is not None:
+        s = s.subset(nearest_edge(s.b, board) != without_edge)
     return s, outline_posterior(s, board, rng, xi0)
 
 
@@ -195,18 +205,19 @@ class ShapeCheck:
 
 def shape_check(
     points: np.ndarray, T: np.ndarray, cov_int: np.ndarray, board: Board, model: LidarModel, s_z: float,
-    options: LidarOptions, rng: np.random.Generator,
+    options: LidarOptions, rng: np.random.Generator, without_edge: int | None = None,
 ) -> ShapeCheck:  # fmt: skip
     """The outline's posterior about the intensity fit's pose ``T`` (covariance ``cov_int`` of its
     in-plane correction) and their chi-square. When the outline does not fit about ``T`` (the
     pattern slid), the outline is fitted afresh (``outline_start``) and taken in the half turn
-    nearest ``T``."""
-    s, fit = _posterior_at(points, T, board, model, s_z, options, rng)
+    nearest ``T``. without_edge: the outline without the samples nearest that edge (0-3, the order of
+    ``Board.extent``; an edge that something beside the board, a hand or a stand, draws out)."""
+    s, fit = _posterior_at(points, T, board, model, s_z, options, rng, without_edge=without_edge)
     if fit.agreement < options.min_shape_agreement:
         s0 = outline_samples(points, T, board, model, s_z, options.outline_blur, grow=_wide(board))
         if s0.inside.sum() >= 10:
             xi = _nearest_turn(outline_start(s0, board, rng)[0][0], board)
-            s1, fit1 = _posterior_at(points, T, board, model, s_z, options, rng, xi)
+            s1, fit1 = _posterior_at(points, T, board, model, s_z, options, rng, xi, without_edge)
             if fit1.agreement > fit.agreement:
                 s, fit = s1, fit1
     S = fit.cov + cov_int

@@ -9,6 +9,7 @@ the pose is ``T_lidar_board`` with the covariance in its Pose3 tangent.
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -248,25 +249,58 @@ def _moved_to_outline(
 ) -> tuple[_InPlane, ShapeCheck, float]:  # fmt: skip
     """A slid pattern fit moved by the whole squares (up to two along each side) and/or the half turn
     the outline allows, refined again there: the first that agrees with the outline, its check and
-    the move in squares; BoardNotFound when none does. boards: the configured one (the pattern's)
-    and the one whose outline checks it (``margin.outline_board``)."""
+    the move in squares; BoardNotFound when none does. When no move agrees with the whole outline,
+    the same with the outline less one edge's samples (``EDGE_LEFT_OUT_REACH``): a hand or a stand
+    beside an edge draws the outline out by centimetres, more than its covariance says, and the
+    pattern, which does not slide by less than a square, is checked by the other three edges. boards:
+    the configured one (the pattern's) and the one whose outline checks it (``margin.outline_board``)."""
     board, ob = boards
     gate = shape_gate(options)
     keep = ("powell_evals", "time_powell_s", "intensity_low", "intensity_high")
-    for xi in lattice_moves(ob, chk, res.cov, gate)[:4]:
-        try:
-            alt = _refine(
-                res.P, res.inten, res.ring, apply_xi(res.T, xi), res.s_z, board, model, fit, options
-            )
-        except BoardNotFound:
-            continue
-        alt_chk = shape_check(scan_pts, alt.T, alt.cov, ob, model, res.s_z, options, rng)
-        if not alt_chk.slid:
-            # (the paper's cost was Powell's, at the slid pose: not carried over)
-            alt.diag.update({k: res.diag[k] for k in keep})
-            shift = se2_exp(xi)[:2, 2] - _centre_shift(xi, board)
-            return alt, alt_chk, float(np.linalg.norm(shift)) / board.square_size
+    edge_rng = copy.deepcopy(rng)  # the edges' checks leave the stage's draws as they were
+    precise = _reach(res.cov, ob) <= EDGE_LEFT_OUT_REACH * ob.square_size  # the pattern cannot half-slide
+    for edge in (None, 0, 1, 2, 3) if precise else (None,):
+        check = chk
+        if edge is not None:
+            check = shape_check(scan_pts, res.T, res.cov, ob, model, res.s_z, options, edge_rng, edge)
+            if _reach(check.fit.cov, ob) > EDGE_LEFT_OUT_REACH * ob.square_size:
+                continue  # without that edge the outline cannot tell a square's slide
+            if not check.slid:
+                res.diag["outline_edge_left_out"] = float(edge)
+                return res, check, 0.0
+        for xi in lattice_moves(ob, check, res.cov, gate)[:4]:
+            try:
+                alt = _refine(
+                    res.P, res.inten, res.ring, apply_xi(res.T, xi), res.s_z, board, model, fit, options
+                )
+            except BoardNotFound:
+                continue
+            r = rng if edge is None else edge_rng
+            same = edge if edge is None or abs(xi[0]) < 0.5 * np.pi else edge ^ 1  # a half turn: x0 is x1
+            alt_chk = shape_check(scan_pts, alt.T, alt.cov, ob, model, res.s_z, options, r, same)
+            if not alt_chk.slid:
+                # (the paper's cost was Powell's, at the slid pose: not carried over)
+                alt.diag.update({k: res.diag[k] for k in keep})
+                if same is not None:
+                    alt.diag["outline_edge_left_out"] = float(same)
+                shift = se2_exp(xi)[:2, 2] - _centre_shift(xi, board)
+                return alt, alt_chk, float(np.linalg.norm(shift)) / board.square_size
     raise BoardNotFound(slid_message(chk, board, options))
+
+
+#: the outline less one edge checks a slid pattern only when both fix the board's corners in its plane
+#: to this many squares (2 sigma): a pattern slid by a whole square is then 5 sigma off (a board-sized
+#: two-tone panel, whose pattern fit is known to centimetres or metres, is not checked so)
+EDGE_LEFT_OUT_REACH = 0.4
+
+
+def _reach(cov: np.ndarray, board: Board) -> float:
+    """2 sigma (m) of the board's corners in its plane under an in-plane covariance (3, 3) (rz, tx, ty)."""
+    x0, x1, y0, y1 = board.extent()
+    if not np.all(np.isfinite(cov)):
+        return np.inf
+    sd_t = float(np.sqrt(max(np.linalg.eigvalsh(cov[1:3, 1:3]).max(), 0.0)))
+    return 2.0 * (sd_t + 0.5 * float(np.hypot(x1 - x0, y1 - y0)) * float(np.sqrt(max(cov[0, 0], 0.0))))
 
 
 def _outline(
