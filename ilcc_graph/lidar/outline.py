@@ -42,10 +42,12 @@ from .soft_edge import se2_exp, se2_log
 
 __all__ = [
     "BEYOND_FOV_SHARE",
+    "EDGE_LEFT_OUT_REACH",
     "ShapeCheck",
     "apply_xi",
     "fov_share",
     "fuse",
+    "inplane_reach",
     "lattice_moves",
     "outline_coupling",
     "outline_only",
@@ -228,6 +230,21 @@ def shape_check(
     shift = float(np.linalg.norm(d[1:]) + 0.5 * np.hypot(x1 - x0, y1 - y0) * abs(d[0]))
     slid = c2 > gate and shift > options.slide_squares * board.square_size
     return ShapeCheck(s, fit, c2, bool(c2 <= gate), shift, bool(slid))
+
+
+#: the outline less one edge checks a slid pattern only when both fix the board's corners in its plane
+#: to this many squares (2 sigma): a pattern slid by a whole square is then 5 sigma off (a board-sized
+#: two-tone panel, whose pattern fit is known to centimetres or metres, is not checked so)
+EDGE_LEFT_OUT_REACH = 0.4
+
+
+def inplane_reach(cov: np.ndarray, board: Board) -> float:
+    """2 sigma (m) of the board's corners in its plane under an in-plane covariance (3, 3) (rz, tx, ty)."""
+    if not np.all(np.isfinite(cov)):
+        return np.inf
+    x0, x1, y0, y1 = board.extent()
+    sd_t = float(np.sqrt(max(np.linalg.eigvalsh(cov[1:3, 1:3]).max(), 0.0)))
+    return 2.0 * (sd_t + 0.5 * float(np.hypot(x1 - x0, y1 - y0)) * float(np.sqrt(max(cov[0, 0], 0.0))))
 
 
 def lattice_moves(board: Board, check: ShapeCheck, cov_int: np.ndarray, gate: float) -> list[np.ndarray]:

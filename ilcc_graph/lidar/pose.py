@@ -27,10 +27,12 @@ from .fit import InPlaneFit, align_to_plane, fit_in_plane, plane_frame, pose_fro
 from .margin import outline_board
 from .options import LidarOptions, breach
 from .outline import (
+    EDGE_LEFT_OUT_REACH,
     ShapeCheck,
     apply_xi,
     fov_share,
     fuse,
+    inplane_reach,
     lattice_moves,
     outline_coupling,
     outline_only,
@@ -250,7 +252,7 @@ def _moved_to_outline(
     """A slid pattern fit moved by the whole squares (up to two along each side) and/or the half turn
     the outline allows, refined again there: the first that agrees with the outline, its check and
     the move in squares; BoardNotFound when none does. When no move agrees with the whole outline,
-    the same with the outline less one edge's samples (``EDGE_LEFT_OUT_REACH``): a hand or a stand
+    the same with the outline less one edge's samples (``outline.EDGE_LEFT_OUT_REACH``): a hand or a stand
     beside an edge draws the outline out by centimetres, more than its covariance says, and the
     pattern, which does not slide by less than a square, is checked by the other three edges. boards:
     the configured one (the pattern's) and the one whose outline checks it (``margin.outline_board``)."""
@@ -258,12 +260,12 @@ def _moved_to_outline(
     gate = shape_gate(options)
     keep = ("powell_evals", "time_powell_s", "intensity_low", "intensity_high")
     edge_rng = copy.deepcopy(rng)  # the edges' checks leave the stage's draws as they were
-    precise = _reach(res.cov, ob) <= EDGE_LEFT_OUT_REACH * ob.square_size  # the pattern cannot half-slide
+    precise = inplane_reach(res.cov, ob) <= EDGE_LEFT_OUT_REACH * ob.square_size  # no slide by half a square
     for edge in (None, 0, 1, 2, 3) if precise else (None,):
         check = chk
         if edge is not None:
             check = shape_check(scan_pts, res.T, res.cov, ob, model, res.s_z, options, edge_rng, edge)
-            if _reach(check.fit.cov, ob) > EDGE_LEFT_OUT_REACH * ob.square_size:
+            if inplane_reach(check.fit.cov, ob) > EDGE_LEFT_OUT_REACH * ob.square_size:
                 continue  # without that edge the outline cannot tell a square's slide
             if not check.slid:
                 res.diag["outline_edge_left_out"] = float(edge)
@@ -287,20 +289,6 @@ def _moved_to_outline(
                 return alt, alt_chk, float(np.linalg.norm(shift)) / board.square_size
     raise BoardNotFound(slid_message(chk, board, options))
 
-
-#: the outline less one edge checks a slid pattern only when both fix the board's corners in its plane
-#: to this many squares (2 sigma): a pattern slid by a whole square is then 5 sigma off (a board-sized
-#: two-tone panel, whose pattern fit is known to centimetres or metres, is not checked so)
-EDGE_LEFT_OUT_REACH = 0.4
-
-
-def _reach(cov: np.ndarray, board: Board) -> float:
-    """2 sigma (m) of the board's corners in its plane under an in-plane covariance (3, 3) (rz, tx, ty)."""
-    x0, x1, y0, y1 = board.extent()
-    if not np.all(np.isfinite(cov)):
-        return np.inf
-    sd_t = float(np.sqrt(max(np.linalg.eigvalsh(cov[1:3, 1:3]).max(), 0.0)))
-    return 2.0 * (sd_t + 0.5 * float(np.hypot(x1 - x0, y1 - y0)) * float(np.sqrt(max(cov[0, 0], 0.0))))
 
 
 def _outline(
@@ -327,10 +315,7 @@ def _refuse_untrustworthy(cov: np.ndarray, board: Board, options: LidarOptions) 
     corners are known in its plane only to more than ``max_inplane_2sigma_squares`` squares (2 sigma)."""
     if not np.all(np.isfinite(cov)) or np.linalg.eigvalsh(0.5 * (cov + cov.T)).min() <= 0:
         raise BoardNotFound("the fit's covariance is not finite: the returns do not fix the board's pose")
-    x0, x1, y0, y1 = board.extent()
-    half_diag = 0.5 * float(np.hypot(x1 - x0, y1 - y0))
-    sd_t = float(np.sqrt(np.linalg.eigvalsh(cov[3:5, 3:5]).max()))
-    reach = 2.0 * (sd_t + half_diag * float(np.sqrt(cov[2, 2])))
+    reach = inplane_reach(cov[2:5, 2:5], board)  # (rz, tx, ty) of the Pose3 tangent
     if reach > options.max_inplane_2sigma_squares * board.square_size:
         raise BoardNotFound(
             f"the scan fixes the board's position in its plane only to +-{1e3 * reach:.0f} mm (2 sigma), "
