@@ -252,8 +252,8 @@ def _moved_to_outline(
     """A slid pattern fit moved by the whole squares (up to two along each side) and/or the half turn
     the outline allows, refined again there: the first that agrees with the outline, its check and
     the move in squares; BoardNotFound when none does. When no move agrees with the whole outline,
-    the same with the outline less one edge's samples (``outline.EDGE_LEFT_OUT_REACH``): a hand or a stand
-    beside an edge draws the outline out by centimetres, more than its covariance says, and the
+    the same with the outline less one edge's samples (``outline.EDGE_LEFT_OUT_REACH``): a hand or a
+    stand beside an edge draws the outline out by centimetres, more than its covariance says, and the
     pattern, which does not slide by less than a square, is checked by the other three edges. boards:
     the configured one (the pattern's) and the one whose outline checks it (``margin.outline_board``)."""
     board, ob = boards
@@ -288,7 +288,6 @@ def _moved_to_outline(
                 shift = se2_exp(xi)[:2, 2] - _centre_shift(xi, board)
                 return alt, alt_chk, float(np.linalg.norm(shift)) / board.square_size
     raise BoardNotFound(slid_message(chk, board, options))
-
 
 
 def _outline(
