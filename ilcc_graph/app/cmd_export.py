@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -53,11 +54,7 @@ def run(args: argparse.Namespace) -> int:
     options = {k: getattr(args, k) for k in names if getattr(args, k)}
     if args.format == "lidar-offsets":  # a table: CSV when the output file says so
         options["table"] = "csv" if args.out and Path(args.out).suffix.lower() == ".csv" else "yaml"
-    try:
-        text = export_calibration(cal, args.format, **options)
-    except ValueError as err:
-        raise InputError(f"{args.calibration}: {err}") from None
-    return _emit(args, text)
+    return _emit(args, lambda: export_calibration(cal, args.format, **options))
 
 
 def _rig(args: argparse.Namespace, cal: RigCalibration) -> int:
@@ -68,16 +65,17 @@ def _rig(args: argparse.Namespace, cal: RigCalibration) -> int:
         raise InputError(
             f"{args.calibration}: a rig's calibration exports as {', '.join(RIG_FORMATS)}, not {args.format}"
         )
-    try:
-        text = export_rig(cal, args.format)
-    except ValueError as err:
-        raise InputError(f"{args.calibration}: {err}") from None
-    return _emit(args, text)
+    return _emit(args, lambda: export_rig(cal, args.format))
 
 
-def _emit(args: argparse.Namespace, text: str) -> int:
+def _emit(args: argparse.Namespace, export: Callable[[], str]) -> int:
+    """The text ``export()`` makes to ``--out`` or stdout; its ValueError is the calibration's problem."""
     from ilcc_graph.io.output_folders import write_file
 
+    try:
+        text = export()
+    except ValueError as err:
+        raise InputError(f"{args.calibration}: {err}") from None
     if args.out:
         print(f"wrote {write_file(Path(args.out), text)}")
     else:

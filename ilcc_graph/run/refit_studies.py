@@ -7,10 +7,9 @@ second each on the standard set). The report draws what this returns; it never s
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import logging
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -34,29 +33,23 @@ __all__ = ["refit_studies"]
 FOLDS = 5
 
 
-@contextlib.contextmanager
-def _quiet() -> Iterator[None]:
-    """The package's warnings kept quiet (subsets of few frames warn by design)."""
-    logger = logging.getLogger("ilcc_graph")
-    level = logger.level
-    logger.setLevel(logging.ERROR)
-    try:
-        yield
-    finally:
-        logger.setLevel(level)
-
-
 def _solved(
     subset: Sequence[FrameResult], config: Config, options: RunOptions
 ) -> tuple[np.ndarray, np.ndarray] | str:
-    """One subset solved by the batch strategy: (T_cam_lidar, covariance), or why not (a worker's item)."""
+    """One subset solved by the batch strategy: (T_cam_lidar, covariance), or why not (a worker's
+    item); the package's warnings kept quiet meanwhile (subsets of few frames warn by design)."""
 
     def solve(frames: Sequence[FrameResult]) -> tuple[np.ndarray, np.ndarray]:
         c = solve_observed(frames, config, options)
         return c.T_cam_lidar, c.covariance
 
-    with _quiet():
+    logger = logging.getLogger("ilcc_graph")
+    level = logger.level
+    logger.setLevel(logging.ERROR)
+    try:
         return try_solve(solve, subset)
+    finally:
+        logger.setLevel(level)
 
 
 def refit_studies(
