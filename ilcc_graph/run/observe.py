@@ -174,10 +174,6 @@ def warn_damaged(frames: Sequence[FrameResult]) -> None:
         )
 
 
-def _stage(fn: Callable, source: FrameSource, ref: FrameRef, config: Config, options: StageOptions) -> object:
-    return attempt(fn, source, ref, config, options)
-
-
 def stage_alone(
     source: FrameSource, stage: str, options: StageOptions, progress: Progress | None = None
 ) -> tuple[Config, list[FrameRef], list]:
@@ -191,4 +187,4 @@ def stage_alone(
     signals.check()
     fn = observe_image if image else observe_lidar
     items = [(fn, source, r, config, options) for r in refs]
-    return config, refs, workers.map_processes(_stage, items, options.jobs, progress)
+    return config, refs, workers.map_processes(attempt, items, options.jobs, progress)

@@ -20,22 +20,15 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from ilcc_graph import workers
-from ilcc_graph.config import Config
-from ilcc_graph.datasets import FrameRef, FrameSource
 from ilcc_graph.errors import FrameError
 from ilcc_graph.lidar.stretch import REFIT_RATIO, correction_of, largest_stretch
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.stages import StageOptions, attempt, observe_lidar
-from ilcc_graph.types import BoardFit, Calibration, ExpectedBoard, FrameResult, RangeCorrection
+from ilcc_graph.types import BoardFit, Calibration, ExpectedBoard, FrameResult
 
 log = logging.getLogger(__name__)
 
 __all__ = ["refit_frames", "refit_pass"]
-
-
-def _refit_one(source: FrameSource, ref: FrameRef, config: Config, options: StageOptions,
-               expected: ExpectedBoard, correction: RangeCorrection) -> object:  # fmt: skip
-    return attempt(observe_lidar, source, ref, config, options, expected, correction)
 
 
 def refit_frames(frames: Sequence[FrameResult], fits: Mapping[str, object]) -> list[FrameResult]:
@@ -66,8 +59,8 @@ def refit_pass(obs: Observation, cal: Calibration, stages: StageOptions) -> Obse
         if f.board is not None and f.name in refs:
             names.append(f.name)
             expected = ExpectedBoard(f.board.T_lidar_board)
-            items.append((source, refs[f.name], obs.config, stages, expected, correction))
-    fits = dict(zip(names, workers.map_processes(_refit_one, items, stages.jobs, None), strict=True))
+            items.append((observe_lidar, source, refs[f.name], obs.config, stages, expected, correction))
+    fits = dict(zip(names, workers.map_processes(attempt, items, stages.jobs, None), strict=True))
     lost = [n for n, r in fits.items() if isinstance(r, FrameError)]
     moved = [r.diagnostics.get("range_correction_mm", 0.0) for r in fits.values() if isinstance(r, BoardFit)]
     log.info(

@@ -15,7 +15,7 @@ import numpy as np
 
 from ilcc_graph import workers
 from ilcc_graph.config import Config
-from ilcc_graph.datasets import FrameRef, FrameSource
+from ilcc_graph.datasets import FrameSource
 from ilcc_graph.errors import FrameError
 from ilcc_graph.init import upnp
 from ilcc_graph.lidar.stretch import correction_of, significant
@@ -26,11 +26,6 @@ from ilcc_graph.types import Calibration, ExpectedBoard, FrameResult, ImageCorne
 log = logging.getLogger(__name__)
 
 __all__ = ["look_again", "second_pass"]
-
-
-def _expected_lidar(source: FrameSource, ref: FrameRef, config: Config, options: StageOptions,
-                    expected: ExpectedBoard, correction: RangeCorrection | None) -> object:  # fmt: skip
-    return attempt(observe_lidar, source, ref, config, options, expected, correction)
 
 
 def look_again(
@@ -45,8 +40,8 @@ def look_again(
     """
     refs = {r.name: r for r in source.frames()}
     names = [n for n in expected if n in refs]
-    items = [(source, refs[n], config, options, expected[n], correction) for n in names]
-    found = dict(zip(names, workers.map_processes(_expected_lidar, items, options.jobs, None), strict=True))
+    items = [(observe_lidar, source, refs[n], config, options, expected[n], correction) for n in names]
+    found = dict(zip(names, workers.map_processes(attempt, items, options.jobs, None), strict=True))
     out = []
     for f in frames:
         res = found.get(f.name)
