@@ -57,11 +57,17 @@ def study_subsets(observed: Sequence[FrameResult], folds: int = 5) -> list[list[
     """Every subset ``frames_vs_accuracy`` (input order) and ``cross_validate`` (``folds``) ask their
     solver for, in that order, so that a caller can solve them all at once (on several processes)."""
     frames = usable_frames(observed)
-    k = max(2, min(int(folds), len(frames)))
     growing = [frames[:n] for n in range(1, len(frames) + 1)]
     if len(frames) < 2:  # cross_validate refuses before it solves
         return growing
-    return growing + [[r for i, r in enumerate(frames) if i % k != f] for f in range(k)]
+    return growing + [train for _, train in _folds(frames, folds)]
+
+
+def _folds(frames: Sequence[FrameResult], folds: int) -> list[tuple[list[FrameResult], list[FrameResult]]]:
+    """(test, train) of each fold: frame i in fold i % k, k = ``folds`` capped to 2 .. len(frames)."""
+    k = max(2, min(int(folds), len(frames)))
+    return [([r for i, r in enumerate(frames) if i % k == f], [r for i, r in enumerate(frames) if i % k != f])
+            for f in range(k)]  # fmt: skip
 
 
 def usable_frames(observed: Sequence[FrameResult]) -> list[FrameResult]:
@@ -155,7 +161,6 @@ def cross_validate(
     n = len(frames)
     if n < 2:
         raise ValueError(f"cross_validate: need at least 2 frames with board and corners, got {n}")
-    k = max(2, min(int(folds), n))
     if T_all is None:
         res = try_solve(solve, frames)
         if isinstance(res, str):
@@ -165,9 +170,7 @@ def cross_validate(
     ev_frames = {r.name: eval_frame(r) for r in frames}
     out: list[Fold] = []
     held: dict[str, FrameEvaluation] = {}
-    for f in range(k):
-        test = [r for i, r in enumerate(frames) if i % k == f]
-        train = [r for i, r in enumerate(frames) if i % k != f]
+    for test, train in _folds(frames, folds):
         names_tr, names_te = tuple(r.name for r in train), tuple(r.name for r in test)
         res = try_solve(solve, train)
         if isinstance(res, str):
