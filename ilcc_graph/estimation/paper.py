@@ -94,3 +94,12 @@ def refine_paper(
 
     result = least_squares(fun, np.zeros(6), method="lm", max_nfev=max_nfev)
     return (start * gtsam.Pose3.Expmap(result.x)).matrix()
+
+
+def rms_bearing_mrad(T_cam_lidar: np.ndarray, f: GraphFrame) -> float:
+    """RMS angle (mrad) between measured bearings and the corners predicted through T."""
+    T = T_cam_lidar @ f.T_lidar_board
+    p = f.points_board @ T[:3, :3].T + T[:3, 3]
+    p /= np.linalg.norm(p, axis=1, keepdims=True)
+    ang = np.arctan2(np.linalg.norm(np.cross(p, f.bearings), axis=1), np.sum(p * f.bearings, axis=1))
+    return float(1e3 * np.sqrt(np.mean(ang**2)))

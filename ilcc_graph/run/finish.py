@@ -45,9 +45,9 @@ from ilcc_graph.evaluation.causes import (
 from ilcc_graph.lidar.margin import margin_summary
 from ilcc_graph.lidar.outline import BEYOND_FOV_SHARE
 from ilcc_graph.run.prepare import Prepared, drop, frame_issues
-from ilcc_graph.types import Calibration, FrameResult, GraphFrame, PoseTerms, rotation_angle_deg
+from ilcc_graph.types import Calibration, FrameResult, PoseTerms, rotation_angle_deg
 
-__all__ = ["Answer", "finish", "from_batch", "lidar_view_counts", "rms_bearing_mrad"]
+__all__ = ["Answer", "finish", "from_batch", "lidar_view_counts", "require_supported"]
 
 
 @dataclass(frozen=True)
@@ -133,9 +133,10 @@ def finish(
                 T_lidar_board_refined=answer.T_lidar_board.get(r.name),
             )
         frames.append(r)
+    far = {} if answer.covariance is None else far_above(answer.variance_components)
     if agree:
-        require_agreement(frames, config, answer.T_cam_lidar)
-        require_covered(frames, answer.failing, config, answer.T_cam_lidar)
+        refined = "camera_intrinsics" in answer.sensors
+        require_supported(frames, answer.failing, far, config, answer.T_cam_lidar, refined=refined)
     diagnostics = {
         **lidar_view_counts(frames, config.board),
         "iterations": float(answer.iterations),
@@ -148,11 +149,7 @@ def finish(
     cov = np.full((6, 6), np.nan) if answer.covariance is None else answer.covariance
     cam = config.camera.to_dict()
     residual: tuple[str, ...] = ()
-    if answer.covariance is not None and (far := far_above(answer.variance_components)):
-        if agree:
-            require_within_noise(frames, far, config, answer.T_cam_lidar)
-            if "bearing" in far and "camera_intrinsics" not in answer.sensors:
-                require_images_fit(frames, config, answer.T_cam_lidar)
+    if far:
         residual = tuple(residual_causes(frames, config.board, config.camera, answer.T_cam_lidar))
     sensors = answer.sensors
     return Calibration(
@@ -160,13 +157,35 @@ def finish(
     )
 
 
+def require_supported(
+    frames: Sequence[FrameResult],
+    failing: Sequence[tuple[str, str]],
+    far: dict[str, float],
+    config: Config,
+    T_cam_lidar: np.ndarray,
+    camera: str | None = None,
+    refined: bool = False,
+) -> None:
+    """Every door's refusals of a camera's extrinsic with its LiDAR (the pair's; each of a rig's
+    cameras with its base LiDAR, ``camera`` named): fewer than ``MIN_DISTINCT_POSES`` frames agree
+    (``require_agreement``); used frames fail the gate, which may drop no more (``require_covered``);
+    the residuals far above the stated noise (``far``) and boards far from their scans
+    (``require_within_noise``), or the image corners far above theirs, intrinsics as stated (not
+    ``refined``), and most images not fitting the camera (``require_images_fit``)."""
+    require_agreement(frames, config, T_cam_lidar, camera)
+    require_covered(frames, failing, config, T_cam_lidar, camera)
+    if far:
+        require_within_noise(frames, far, config, T_cam_lidar, camera)
+    if "bearing" in far and not refined:
+        require_images_fit(frames, config, T_cam_lidar, camera)
+
+
 def require_agreement(
     frames: Sequence[FrameResult], config: Config, T_cam_lidar: np.ndarray, camera: str | None = None
 ) -> None:
     """Raise ``CalibrationImpossible`` when the frames used (one per distinct board pose) are fewer
     than ``MIN_DISTINCT_POSES`` and frames seen by both sensors were dropped for disagreeing with
-    them (``errors.DISAGREEING``): which frames agree, which disagree and why, the likely cause.
-    ``camera``: a rig's camera (its moments), named in the message."""
+    them (``errors.DISAGREEING``): which frames agree, which disagree and why, the likely cause."""
     used = [f for f in frames if f.used]
     disagree = [f for f in frames if not f.used and (f.reason or "").startswith(DISAGREEING)]
     if len(used) >= MIN_DISTINCT_POSES or not disagree:
@@ -250,8 +269,7 @@ def require_covered(
 ) -> None:
     """Raise ``CalibrationImpossible`` when used frames fail the chi-square gate though it may drop no
     more (``Answer.failing``): no majority of the frames agrees within the noise the solve found, so
-    the covariance would not cover the frames the result uses. ``camera``: a rig's camera (its
-    moments), named in the message."""
+    the covariance would not cover the frames the result uses."""
     if not failing:
         return
     used = [f for f in frames if f.used]
@@ -281,8 +299,7 @@ def require_within_noise(
     far from where the scans saw it, through ``T_cam_lidar`` or through the extrinsic most frames
     agree on (``evaluation.causes.moved_boards`` with ``consensus``: boards that moved together
     pull the solve's): the noise estimated from the frames then hides those frames from
-    the gate, so the covariance would not cover them. ``camera``: a rig's camera (its moments), named
-    in the message."""
+    the gate, so the covariance would not cover them."""
     found = moved_boards(list(frames), config.board, config.camera, T_cam_lidar, consensus=True)
     moved = {n: (g, s) for n, g, s in found}
     used = [f for f in frames if f.used and f.name in moved]
@@ -320,8 +337,7 @@ def require_images_fit(
     times their stated corner noise: the camera's intrinsics or model are not the images' (or their
     corner noise is stated far too small), and an extrinsic through that camera is off by more than the
     noise the solve estimated can cover; variance components absorb a noise stated wrongly, not a
-    camera model that is wrong. ``camera``: a rig's camera, named in the message (its section in
-    rig.yaml); None: the pair's."""
+    camera model that is wrong."""
     used = [f for f in frames if f.used and f.corners is not None]
     ratios = image_fit_ratios(used, config.board, config.camera)
     bad = {n: r for n, r in ratios.items() if r > IMAGES_UNFIT_RATIO}
@@ -382,12 +398,3 @@ def _sensors(sol: BatchSolution, config: Config) -> dict:
             "sigmas": sigmas,
         }
     return out
-
-
-def rms_bearing_mrad(T_cam_lidar: np.ndarray, f: GraphFrame) -> float:
-    """RMS angle (mrad) between measured bearings and the corners predicted through T."""
-    T = T_cam_lidar @ f.T_lidar_board
-    p = f.points_board @ T[:3, :3].T + T[:3, 3]
-    p /= np.linalg.norm(p, axis=1, keepdims=True)
-    ang = np.arctan2(np.linalg.norm(np.cross(p, f.bearings), axis=1), np.sum(p * f.bearings, axis=1))
-    return float(1e3 * np.sqrt(np.mean(ang**2)))

@@ -5,8 +5,8 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 
-from ilcc_graph.estimation.paper import refine_paper
-from ilcc_graph.run.finish import Answer, finish, rms_bearing_mrad
+from ilcc_graph.estimation.paper import refine_paper, rms_bearing_mrad
+from ilcc_graph.run.finish import Answer, finish
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.prepare import prepare
 from ilcc_graph.run.result import Result, RunOptions, SessionResult

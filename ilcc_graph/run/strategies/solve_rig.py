@@ -25,7 +25,7 @@ from ilcc_graph.estimation.rig_solve import RigOptions
 from ilcc_graph.evaluation.causes import causes_without_extrinsic
 from ilcc_graph.run import rig_calibrate
 from ilcc_graph.run.after import mostly_outline
-from ilcc_graph.run.finish import require_agreement, require_covered, require_images_fit, require_within_noise
+from ilcc_graph.run.finish import require_supported
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
 from ilcc_graph.run.rig_calibrate import RigResult, RigRunOptions, solve_observed, to_calibration
@@ -137,26 +137,16 @@ def _base_lidar(res: RigResult) -> str | None:
 
 
 def _camera_rules(res: RigResult, camera: str, lidar: str) -> None:
-    """The pair's refusals for ``camera`` with ``lidar`` (its moments as frames, named by the camera):
-    fewer than ``MIN_DISTINCT_POSES`` of its moments agree while others were dropped for disagreeing
-    (``run.finish.require_agreement``); moments it used still fail the gate though the gate may drop
-    no more (``require_covered``: the joint solve's ``failing``; a moment only LiDARs saw is not
-    judged here); the LiDAR's boards or the camera's views are far above their stated noise
-    (``Solution.components`` of their groups, ``gate.far_above``) while moments it used put the board
-    far from where the scan saw it (``require_within_noise``); or most images it used do not fit it
-    as stated (``require_images_fit``). Its pose would rest on what nothing checks, or be off by more
-    than any covariance covers."""
+    """The pair's refusals for ``camera`` with ``lidar`` (``run.finish.require_supported``): its
+    moments as frames, the joint solve's ``failing`` among them, the far components of the LiDAR's
+    boards and the camera's views."""
     frames = pair_frames(res, camera, lidar, camera_only=True)
-    config = res.rig.pair_config(camera, lidar)
-    T = np.asarray(res.relative(camera, lidar).T)
     joint = res.solution.solution
     used = {f.name for f in frames if f.used}
-    require_agreement(frames, config, T, camera)
-    if joint is not None:
-        require_covered(frames, [(n, why) for n, why in joint.failing if n in used], config, T, camera)
-        if far := far_above((joint.components(lidar)[0], joint.components(camera)[1])):
-            require_within_noise(frames, far, config, T, camera)
-    require_images_fit(frames, config, T, camera)
+    failing = [] if joint is None else [(n, why) for n, why in joint.failing if n in used]
+    far = {} if joint is None else far_above((joint.components(lidar)[0], joint.components(camera)[1]))
+    T = np.asarray(res.relative(camera, lidar).T)
+    require_supported(frames, failing, far, res.rig.pair_config(camera, lidar), T, camera)
 
 
 def with_unsolved_causes(res: RigResult) -> RigResult:
