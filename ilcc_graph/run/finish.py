@@ -147,14 +147,9 @@ def finish(
         **answer.diagnostics,
     }
     cov = np.full((6, 6), np.nan) if answer.covariance is None else answer.covariance
-    cam = config.camera.to_dict()
-    residual: tuple[str, ...] = ()
-    if far:
-        residual = tuple(residual_causes(frames, config.board, config.camera, answer.T_cam_lidar))
-    sensors = answer.sensors
-    return Calibration(
-        answer.T_cam_lidar, cov, tuple(frames), method, diagnostics, cam, sensors, residual, answer.with_terms
-    )
+    T, cam, sensors = answer.T_cam_lidar, config.camera.to_dict(), answer.sensors
+    residual = tuple(residual_causes(frames, config.board, config.camera, T)) if far else ()
+    return Calibration(T, cov, tuple(frames), method, diagnostics, cam, sensors, residual, answer.with_terms)
 
 
 def require_supported(
