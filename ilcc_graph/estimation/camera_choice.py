@@ -18,12 +18,24 @@ intrinsics stay whatever they say: two solves saved; ``reproducibility`` is then
 boards than twice the intrinsics (each half must hold as many boards
 as there are intrinsics, else two halves agree only because each knows little: the recorded
 fisheye's halves of 10 boards refined from quarters of 5 passed, and the two halves then disagreed
-at chi-square 106), a panorama (nothing to refine) or when a refined solve fails, the stated
-intrinsics stay. On the recorded fisheye sets the halves' refined
-intrinsics differ far beyond their covariances (acfr-vlp16-fisheye: chi-square 91 on 8 dof; one
-board per frame does not separate the focal length from the lens polynomial), so they stay as
-stated there; a stated ``camera.intrinsics_sigma`` then enters the covariance as before
-(``linear.consider_covariance``).
+at chi-square 106), a panorama (nothing to refine) or when a refined solve fails, they are not
+refined all together.
+
+**Subsets** (``SUBSETS``: fx, fy, k1; then k1). When all of them are not refined (too few boards,
+or their halves disagree: one board per frame does not separate the focal length from the whole
+lens polynomial) and the config states no ``intrinsics_sigma``, each subset is judged in turn by the
+same two tests, the others held as stated (``subset_problem``), and the first that passes is
+refined; a smaller one is not tried once a larger one refines the stated values within their sigma.
+The LiDAR's ranges fix each board's distance, which a focal length or first radial term stated a
+little off moves along the camera's rays (docs/bench_intrinsics.md: simulated VLP-16, a typical
+published calibration's error and no sigma stated, 10 boards: translation error 18.6 -> 3.7 mm
+on a fisheye, 8.1 -> 1.4 mm on a pinhole; stated right: nothing refined in 64 sets). The
+principal point is not in a subset: on acfr-vlp16-fisheye fx, fy, cx, cy, k1 passed their halves
+narrowly (13.4 <= 15.1 on 5 dof) and turned the extrinsic by 0.49 deg, chi-square 250 from each
+half's own answer; fx, fy, k1 (halves 2.5 <= 11.3) move it 3.8 mm, within the halves' answers
+(chi-square 3.6 and 8.9). On acfr-os1-fisheye every subset's halves disagree
+and the stated intrinsics stay. A stated ``camera.intrinsics_sigma`` is propagated into the
+covariance as before (``linear.consider_covariance``) and no subset is tried.
 """
 
 from __future__ import annotations
@@ -35,21 +47,27 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.estimation import chi2 as chi2_dist
-from ilcc_graph.estimation.intrinsics import IntrinsicsOptions, refinable
+from ilcc_graph.estimation.intrinsics import IntrinsicsOptions, default_sigmas, refinable
 from ilcc_graph.estimation.keys import I
 from ilcc_graph.estimation.noise import NoiseOptions, Solution, solve_problem
 from ilcc_graph.estimation.problem import Problem
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ALPHA", "MIN_BOARDS", "CameraChoice", "choose_intrinsics"]
+__all__ = ["ALPHA", "MIN_BOARDS", "SUBSETS", "CameraChoice", "choose_intrinsics", "subset_problem"]
 
 #: significance level of both tests
 ALPHA = 0.01
 #: fewer boards than this, or than twice the intrinsics: the halves cannot tell, the stated ones stay
 MIN_BOARDS = 8
+#: the intrinsics tried alone, in turn, when the boards do not determine them all (module docstring)
+SUBSETS: tuple[tuple[str, ...], ...] = (("fx", "fy", "k1"), ("k1",))
+#: the others' prior sigmas then, times their weak defaults: held, and the solve well conditioned (a
+#: sigma of 0, ``intrinsics.EXACT_SIGMA``, left 2 of 6 simulated pinhole sets "indeterminate")
+HELD = 1e-4
 
 
 @dataclass(frozen=True)
@@ -97,49 +115,91 @@ def _refined(
     options: NoiseOptions,
     solve: Callable[..., Solution],
     boards: Sequence[str] | None = None,
+    free: Sequence[int] | None = None,
 ) -> tuple[Solution, np.ndarray, np.ndarray]:
-    """(solution, intrinsics (n,), their covariance) of ``problem`` with camera 0's intrinsics refined."""
+    """(solution, intrinsics, their covariance) of ``problem`` with camera 0's intrinsics refined;
+    ``free``: the indices of those not held as stated (all when None), the only ones returned."""
     sol = solve(problem, options, boards=boards)
     got = sol.intrinsics(0)
     if got is None:
         raise IndeterminateSystem("no view enters with refined intrinsics")
     v = got[1]
     C = sol.marginals.covariance(I(0), "the intrinsics of camera 0") + sol.spread_of([I(0)], [len(v)])
-    return sol, v, C
+    k = np.arange(len(v)) if free is None else np.asarray(free)
+    return sol, v[k], C[np.ix_(k, k)]
+
+
+def subset_problem(problem: Problem, names: Sequence[str]) -> Problem | None:
+    """``problem`` with camera 0's intrinsics ``names`` alone refinable, every other one held as
+    stated (``HELD``), or None when the camera lacks one of them or its config states the
+    intrinsics' sigmas (then those are propagated as stated)."""
+    cam = problem.views[0].camera
+    if not set(names) <= set(cam.intrinsic_names) or cam.intrinsics_sigma is not None:
+        return None
+    free = np.isin(cam.intrinsic_names, list(names))
+    one = replace(cam, intrinsics_sigma=default_sigmas(cam) * np.where(free, 1.0, HELD))
+    return replace(problem, views=tuple(replace(v, camera=one) for v in problem.views))
 
 
 def choose_intrinsics(
     problem: Problem, options: NoiseOptions = NoiseOptions(), solve: Callable[..., Solution] = solve_problem
 ) -> tuple[Solution | None, CameraChoice | None]:
     """Refine camera 0's intrinsics in ``problem`` (its LiDAR model chosen, intrinsics as stated) and
-    judge it (module docstring): (the refined solution when chosen, else None; the choice, or None
-    when the camera has nothing to refine)."""
+    judge it (module docstring): all of them, else each of ``SUBSETS`` in turn (``subset_problem``);
+    (the refined solution when chosen, else None; the choice, or None when the camera has nothing to
+    refine)."""
     cams = {v.camera for v in problem.views}
     if len(cams) != 1:
         return None, None
     cam = next(iter(cams))
     if not refinable(cam):
         return None, None
-    n, need = len(problem.boards), max(MIN_BOARDS, 2 * len(cam.intrinsic_names))
+    opts = replace(problem.intrinsics or IntrinsicsOptions(), refine=True)
+    sol, choice = _judge(replace(problem, intrinsics=opts), cam, None, options, solve)
+    reasons = [f"all {len(cam.intrinsic_names)}: {choice.reason}"]
+    last = choice
+    for names in SUBSETS:
+        if sol is not None or _stated(last) or (part := subset_problem(problem, names)) is None:
+            continue
+        free = [cam.intrinsic_names.index(n) for n in names]
+        sol, last = _judge(replace(part, intrinsics=opts), cam, free, options, solve)
+        reasons.append(f"{', '.join(names)} alone: {last.reason}")
+        choice = last if sol is not None else choice
+    return _said(sol, replace(choice, reason="; ".join(reasons)))
+
+
+def _stated(choice: CameraChoice) -> bool:
+    """The refined intrinsics were the stated ones within their sigma (fewer of them are not tried)."""
+    k = choice.significance_dof
+    return k > 0 and choice.significance <= float(chi2_dist.ppf(1 - ALPHA, k))
+
+
+def _judge(
+    problem: Problem, cam: CameraModel, free: Sequence[int] | None, options: NoiseOptions,
+    solve: Callable[..., Solution],
+) -> tuple[Solution | None, CameraChoice]:  # fmt: skip
+    """The two tests of the intrinsics ``free`` (all when None) refined in ``problem``: (its solution
+    when both pass, else None; the choice)."""
+    n_free = len(cam.intrinsic_names) if free is None else len(free)
+    n, need = len(problem.boards), max(MIN_BOARDS, 2 * n_free)
     if n < need:
         why = f"{n} boards: too few to tell (halves of {need // 2} or more)"
         return None, CameraChoice(False, reason=why)
-    opts = problem.intrinsics or IntrinsicsOptions()
-    ref = replace(problem, intrinsics=replace(opts, refine=True))
     names = [b.name for b in problem.boards]
     failed = (CalibrationImpossible, IndeterminateSystem, np.linalg.LinAlgError)
     try:
-        sol, v, C = _refined(ref, options, solve)
+        sol, v, C = _refined(problem, options, solve, free=free)
     except failed as err:
         return None, CameraChoice(False, reason=f"a refined solve failed ({err})")
-    d = v - cam.intrinsics()
+    stated = cam.intrinsics() if free is None else cam.intrinsics()[list(free)]
+    d = v - stated
     sig, k = float(d @ np.linalg.solve(C, d)), len(d)
     q_sig = float(chi2_dist.ppf(1 - ALPHA, max(k, 1)))
     if sig <= q_sig:  # stated within their sigma: stated, whatever the halves say (they are not solved)
         why = f"the refined ones are the stated ones within their sigma ({sig:.1f} <= {q_sig:.1f}, {k} dof)"
-        return _said(None, CameraChoice(False, sig, k, reason=why))
+        return None, CameraChoice(False, sig, k, reason=why)
     try:
-        (va, Ca), (vb, Cb) = [_refined(ref, options, solve, names[j::2])[1:] for j in (0, 1)]
+        (va, Ca), (vb, Cb) = [_refined(problem, options, solve, names[j::2], free)[1:] for j in (0, 1)]
     except failed as err:
         return None, CameraChoice(False, sig, k, reason=f"a refined solve of half the boards failed ({err})")
     dh = va - vb
@@ -147,12 +207,12 @@ def choose_intrinsics(
     q_rep = float(chi2_dist.ppf(1 - ALPHA, len(dh)))
     if rep <= q_rep:
         why = f"the boards move them ({sig:.1f} > {q_sig:.1f}), two halves agree ({rep:.1f} <= {q_rep:.1f})"
-        return _said(sol, CameraChoice(True, sig, k, rep, len(dh), why))
+        return sol, CameraChoice(True, sig, k, rep, len(dh), why)
     why = (
         f"two halves of the boards refine them differently ({rep:.1f} > {q_rep:.1f}, {len(dh)} dof): the "
         "boards do not determine them"
     )
-    return _said(None, CameraChoice(False, sig, k, rep, len(dh), why))
+    return None, CameraChoice(False, sig, k, rep, len(dh), why)
 
 
 def _said(sol: Solution | None, choice: CameraChoice) -> tuple[Solution | None, CameraChoice]:
