@@ -6,13 +6,9 @@ Each set: a VLP-16 (the simulator's default systematics plus a 20 mm range offse
 once. The config then states the intrinsics right, or off by ``--scale`` x a typical published
 calibration's error (``IntrinsicsError.typical``: 0.5 % on f, 2 px on c, the lens coefficients'
 typical sigmas) without stating any sigma (what a user's config.yaml says). Each is solved on all
-20 boards and on the first 10, three ways, in one run:
-
-- ``auto``: the default (all intrinsics refined when two halves of the boards agree on them, else
-  each of ``camera_choice.SUBSETS`` in turn);
-- ``auto, cx, cy too``: the same with fx, fy, cx, cy, k1 tried first;
-- ``auto, all or none``: the same with no subset (``SUBSETS = ()``: the rule before the subsets);
-- ``stated``: the intrinsics held as stated.
+20 boards and on the first 10, four ways, in one run: the camera's choice (``camera_choice``) with
+``IntrinsicsOptions.subsets`` ``LIDAR_SUBSETS`` (fx, fy, k1; then k1), with fx, fy, cx, cy, k1
+tried first, with none (all intrinsics or none: the default), and the intrinsics held as stated.
 
 NEES of T_cam_lidar (6 dof) against the truth, the 95 % coverage (NEES under 12.59), the
 translation error and what the choice refined are tabled in docs/bench_intrinsics.md.
@@ -63,12 +59,12 @@ from ilcc_graph.types import FrameResult
 DOC = Path(__file__).resolve().parents[1] / "docs" / "bench_intrinsics.md"
 CHI2_6_95 = 12.59
 REFINED = ("all", "fx, fy, cx, cy, k1", "fx, fy, k1", "k1")
-#: the variants solved: the camera's choice with these subsets (None: ``camera_choice.SUBSETS``), or
-#: the intrinsics held as stated
+#: the variants solved: the camera's choice with these subsets (``IntrinsicsOptions.subsets``), or
+#: the intrinsics held as stated (None)
 VARIANTS: dict[str, tuple[tuple[str, ...], ...] | None] = {
-    "auto": None,
-    "auto, cx, cy too": (("fx", "fy", "cx", "cy", "k1"), ("fx", "fy", "k1"), ("k1",)),
-    "auto, all or none": (),
+    "subsets fx, fy, k1; k1": camera_choice.LIDAR_SUBSETS,
+    "subsets with cx, cy first": (("fx", "fy", "cx", "cy", "k1"), *camera_choice.LIDAR_SUBSETS),
+    "all or none (the default)": (),
     "stated": None,
 }
 
@@ -110,21 +106,16 @@ def through(frames: list[FrameResult], camera: CameraModel) -> list[FrameResult]
 
 def solve_one(frames: list[FrameResult], config: Config, variant: str, truth: np.ndarray) -> dict:
     """One solve's figures: NEES, translation error (mm), what the camera's choice refined."""
-    subsets = camera_choice.SUBSETS
-    if (these := VARIANTS[variant]) is not None:
-        camera_choice.SUBSETS = these
+    subsets = VARIANTS[variant]
     t0 = time.perf_counter()
     try:
         prep = prepare(frames, config)
-        how = "stated" if variant == "stated" else "auto"
+        opts, how = IntrinsicsOptions(subsets=subsets or ()), "stated" if subsets is None else "auto"
         sol = solve_batch(
-            prep.frames, config.camera, prep.T_init, models=AUTO, intrinsics=IntrinsicsOptions(),
-            intrinsics_choice=how,
-        )  # fmt: skip
+            prep.frames, config.camera, prep.T_init, models=AUTO, intrinsics=opts, intrinsics_choice=how
+        )
     except (CalibrationImpossible, IndeterminateSystem) as err:
         return {"failure": str(err)}
-    finally:
-        camera_choice.SUBSETS = subsets
     xi = np.asarray(gtsam.Pose3(sol.T_cam_lidar).localCoordinates(gtsam.Pose3(truth)))
     cc = sol.selection.camera if sol.selection is not None else None
     refined = "none"

@@ -21,21 +21,23 @@ fisheye's halves of 10 boards refined from quarters of 5 passed, and the two hal
 at chi-square 106), a panorama (nothing to refine) or when a refined solve fails, they are not
 refined all together.
 
-**Subsets** (``SUBSETS``: fx, fy, k1; then k1). When all of them are not refined (too few boards,
-or their halves disagree: one board per frame does not separate the focal length from the whole
-lens polynomial) and the config states no ``intrinsics_sigma``, each subset is judged in turn by the
-same two tests, the others held as stated (``subset_problem``), and the first that passes is
-refined; a smaller one is not tried once a larger one refines the stated values within their sigma.
-The LiDAR's ranges fix each board's distance, which a focal length or first radial term stated a
-little off moves along the camera's rays (docs/bench_intrinsics.md: simulated VLP-16, a typical
-published calibration's error and no sigma stated, 10 boards: translation error 18.6 -> 3.7 mm
-on a fisheye, 8.1 -> 1.4 mm on a pinhole; stated right: nothing refined in 64 sets). The
-principal point is not in a subset: on acfr-vlp16-fisheye fx, fy, cx, cy, k1 passed their halves
-narrowly (13.4 <= 15.1 on 5 dof) and turned the extrinsic by 0.49 deg, chi-square 250 from each
-half's own answer; fx, fy, k1 (halves 2.5 <= 11.3) move it 3.8 mm, within the halves' answers
-(chi-square 3.6 and 8.9). On acfr-os1-fisheye every subset's halves disagree
-and the stated intrinsics stay. A stated ``camera.intrinsics_sigma`` is propagated into the
-covariance as before (``linear.consider_covariance``) and no subset is tried.
+**Subsets** (``IntrinsicsOptions.subsets``; none by default, ``LIDAR_SUBSETS``: fx, fy, k1, then
+k1). When all of them are not refined (too few boards, or their halves disagree: one board per
+frame does not separate the focal length from the whole lens polynomial) and the config states no
+``intrinsics_sigma``, each subset is judged in turn by the same two tests, the others held as stated
+(``subset_problem``), and the first that passes is refined; a smaller one is not tried once a larger
+one refines the stated values within their sigma. The LiDAR's ranges fix each board's distance,
+which a focal length or first radial term stated a little off moves along the camera's rays
+(docs/bench_intrinsics.md: simulated VLP-16, a typical published calibration's error and no sigma
+stated, 10 boards: translation error 18.6 -> 3.7 mm on a fisheye, 8.1 -> 1.4 mm on a pinhole;
+stated right: nothing refined in 64 sets). The principal point is not in them: on
+acfr-vlp16-fisheye fx, fy, cx, cy, k1 passed their halves narrowly (13.4 <= 15.1 on 5 dof) and
+turned the extrinsic by 0.49 deg, chi-square 250 from each half's own answer; fx, fy, k1 (halves
+2.5 <= 11.3) move it 3.8 mm, within the halves' answers (chi-square 3.6 and 8.9). Not the default
+yet: a rig's door has no camera choice (the pair and its rig of two would then differ by those
+3.8 mm), the subsets' solves made the test suite 35 % slower, and they leave the rotation's
+coverage where it was (docs/bench_intrinsics.md). A stated ``camera.intrinsics_sigma`` is
+propagated into the covariance (``linear.consider_covariance``) and no subset is tried.
 """
 
 from __future__ import annotations
@@ -57,14 +59,14 @@ from ilcc_graph.estimation.problem import Problem
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ALPHA", "MIN_BOARDS", "SUBSETS", "CameraChoice", "choose_intrinsics", "subset_problem"]
+__all__ = ["ALPHA", "LIDAR_SUBSETS", "MIN_BOARDS", "CameraChoice", "choose_intrinsics", "subset_problem"]
 
 #: significance level of both tests
 ALPHA = 0.01
 #: fewer boards than this, or than twice the intrinsics: the halves cannot tell, the stated ones stay
 MIN_BOARDS = 8
-#: the intrinsics tried alone, in turn, when the boards do not determine them all (module docstring)
-SUBSETS: tuple[tuple[str, ...], ...] = (("fx", "fy", "k1"), ("k1",))
+#: subsets of intrinsics that the boards' ranges can tell (module docstring; ``IntrinsicsOptions.subsets``)
+LIDAR_SUBSETS: tuple[tuple[str, ...], ...] = (("fx", "fy", "k1"), ("k1",))
 #: the others' prior sigmas then, times their weak defaults: held, and the solve well conditioned (a
 #: sigma of 0, ``intrinsics.EXACT_SIGMA``, left 2 of 6 simulated pinhole sets "indeterminate")
 HELD = 1e-4
@@ -145,7 +147,7 @@ def choose_intrinsics(
     problem: Problem, options: NoiseOptions = NoiseOptions(), solve: Callable[..., Solution] = solve_problem
 ) -> tuple[Solution | None, CameraChoice | None]:
     """Refine camera 0's intrinsics in ``problem`` (its LiDAR model chosen, intrinsics as stated) and
-    judge it (module docstring): all of them, else each of ``SUBSETS`` in turn (``subset_problem``);
+    judge it (module docstring): all of them, else each of its options' ``subsets`` in turn;
     (the refined solution when chosen, else None; the choice, or None when the camera has nothing to
     refine)."""
     cams = {v.camera for v in problem.views}
@@ -158,14 +160,16 @@ def choose_intrinsics(
     sol, choice = _judge(replace(problem, intrinsics=opts), cam, None, options, solve)
     reasons = [f"all {len(cam.intrinsic_names)}: {choice.reason}"]
     last = choice
-    for names in SUBSETS:
+    for names in opts.subsets:
         if sol is not None or _stated(last) or (part := subset_problem(problem, names)) is None:
             continue
         free = [cam.intrinsic_names.index(n) for n in names]
         sol, last = _judge(replace(part, intrinsics=opts), cam, free, options, solve)
         reasons.append(f"{', '.join(names)} alone: {last.reason}")
         choice = last if sol is not None else choice
-    return _said(sol, replace(choice, reason="; ".join(reasons)))
+    if len(reasons) > 1:  # subsets were tried: each one's reason after all's
+        choice = replace(choice, reason="; ".join(reasons))
+    return _said(sol, choice)
 
 
 def _stated(choice: CameraChoice) -> bool:
