@@ -11,7 +11,7 @@ from pathlib import Path
 
 from ilcc_graph.workers import processes_where
 
-__all__ = ["append_sink", "baseline_tree", "load_sink", "processes_where", "write_between"]
+__all__ = ["append_sink", "baseline_tree", "load_sink", "observe_frame", "processes_where", "write_between"]
 
 
 def load_sink(path: Path) -> list[dict]:
@@ -56,3 +56,26 @@ def baseline_tree(root: Path, baseline: str | None, prefix: str) -> tuple[str, s
     arch = subprocess.run(git + ["archive", rev], capture_output=True, check=True).stdout
     subprocess.run(["tar", "-x", "-C", str(base)], input=arch, check=True)
     return rev, head, work, base
+
+
+def observe_frame(spec, renderer, biases, i: int, T_lidar_board):  # noqa: ANN001, ANN201 - simulate's types
+    """Frame ``i`` of a simulated set (board at ``T_lidar_board``) through the pipeline's per-frame
+    stages: its image's corners and its scan's board fit, a ``FrameError`` of either recorded as the
+    frame's reason (a ``types.FrameResult`` named ``0001`` for i = 0)."""
+    from ilcc_graph.errors import FrameError
+    from ilcc_graph.image import detect_corners
+    from ilcc_graph.lidar import estimate_board
+    from ilcc_graph.simulate import frame_scene, simulate_scan
+    from ilcc_graph.types import FrameResult
+
+    scene = frame_scene(spec, T_lidar_board, i)
+    reasons, fit, corners = [], None, None
+    try:
+        corners = detect_corners(renderer.render(scene, i), spec.camera, spec.board)
+    except FrameError as err:
+        reasons.append(f"image: {err}")
+    try:
+        fit = estimate_board(simulate_scan(spec, scene, i, biases), spec.board, spec.lidar_model)
+    except FrameError as err:
+        reasons.append(f"LiDAR: {err}")
+    return FrameResult(f"{i + 1:04d}", not reasons, "; ".join(reasons) or None, board=fit, corners=corners)

@@ -31,17 +31,15 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
-from _shared import append_sink, load_sink, write_between
+from _shared import append_sink, load_sink, observe_frame, write_between
 
 import ilcc_graph.estimation.camera_choice as camera_choice
 from ilcc_graph.cameras import CameraModel
 from ilcc_graph.config import Config
-from ilcc_graph.errors import CalibrationImpossible, FrameError, IndeterminateSystem
+from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.estimation.batch import solve as solve_batch
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.selection import AUTO
-from ilcc_graph.image import detect_corners
-from ilcc_graph.lidar import estimate_board
 from ilcc_graph.run.prepare import prepare
 from ilcc_graph.simulate import (
     ImageRenderer,
@@ -49,8 +47,6 @@ from ilcc_graph.simulate import (
     Systematics,
     beam_biases,
     board_placements,
-    frame_scene,
-    simulate_scan,
     standard_spec,
 )
 from ilcc_graph.simulate.intrinsics_error import IntrinsicsError, stated_camera
@@ -75,21 +71,7 @@ def observe(camera: str, seed: int) -> tuple[Config, list[FrameResult], np.ndarr
     spec = standard_spec("vlp16", camera, frames=20, seed=seed, scene=scene)
     spec = spec.with_(systematics=Systematics(range_offset_m=0.020))
     renderer, biases = ImageRenderer(spec), beam_biases(spec)
-    frames = []
-    for i, T in enumerate(board_placements(spec)):
-        scene_i = frame_scene(spec, T, i)
-        reasons, corners, fit = [], None, None
-        try:
-            corners = detect_corners(renderer.render(scene_i, i), spec.camera, spec.board)
-        except FrameError as err:
-            reasons.append(f"image: {err}")
-        try:
-            fit = estimate_board(simulate_scan(spec, scene_i, i, biases), spec.board, spec.lidar_model)
-        except FrameError as err:
-            reasons.append(f"LiDAR: {err}")
-        frames.append(
-            FrameResult(f"{i + 1:04d}", not reasons, "; ".join(reasons) or None, board=fit, corners=corners)
-        )
+    frames = [observe_frame(spec, renderer, biases, i, T) for i, T in enumerate(board_placements(spec))]
     config = Config(board=spec.board, lidar=spec.lidar_model, camera=spec.camera, source=f"sim {seed}")
     return config, frames, np.asarray(spec.T_cam_lidar)
 

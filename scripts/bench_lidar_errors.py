@@ -64,13 +64,12 @@ from pathlib import Path
 
 import gtsam
 import numpy as np
+from _shared import observe_frame
 from scipy.stats import chi2
 
 from ilcc_graph.config import Config
-from ilcc_graph.errors import CalibrationImpossible, FrameError, IndeterminateSystem
+from ilcc_graph.errors import CalibrationImpossible, IndeterminateSystem
 from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
-from ilcc_graph.image import detect_corners
-from ilcc_graph.lidar import estimate_board
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.pipeline import solve_observed
 from ilcc_graph.run.result import RunOptions
@@ -79,8 +78,6 @@ from ilcc_graph.simulate import (
     SceneOptions,
     beam_biases,
     board_placements,
-    frame_scene,
-    simulate_scan,
     standard_spec,
 )
 from ilcc_graph.types import Calibration, FrameResult
@@ -190,22 +187,9 @@ def observe_set(rig: str, seed: int, frames: Sequence[int] | None = None, n: int
     config = Config(board=spec.board, lidar=spec.lidar_model, camera=spec.camera, source=f"sim {rig} {seed}")
     observed, truth = [], {}
     for i in range(len(placements)) if frames is None else frames:
-        T = placements[i]
-        name = f"{i + 1:04d}"
-        truth[name] = T
-        scene = frame_scene(spec, T, i)
-        reasons, fit, corners = [], None, None
-        try:
-            corners = detect_corners(renderer.render(scene, i), spec.camera, spec.board)
-        except FrameError as err:
-            reasons.append(f"image: {err}")
-        try:
-            fit = estimate_board(simulate_scan(spec, scene, i, biases), spec.board, spec.lidar_model)
-        except FrameError as err:
-            reasons.append(f"LiDAR: {err}")
-        observed.append(
-            FrameResult(name, not reasons, "; ".join(reasons) or None, board=fit, corners=corners)
-        )
+        frame = observe_frame(spec, renderer, biases, i, placements[i])
+        truth[frame.name] = placements[i]
+        observed.append(frame)
     return Observed(
         rig, seed, config, observed, np.asarray(spec.T_cam_lidar), truth, biases,
         spec.systematics.dark_range_offset_m, time.perf_counter() - t0,
