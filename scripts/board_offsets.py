@@ -1,11 +1,12 @@
 """Where each board's returns sit against the camera's view of that board, across the image.
 
 For each data set: ``calibrate``'s run (configs as shipped, ``run.pipeline.run``); then per used
-frame the board's pose from its image alone (PnP on the image corners' bearings through the stated
-camera, against the LiDAR stage's own corner layout), taken into the LiDAR frame with the result's
-``T_cam_lidar``, and the board's own returns (the LiDAR stage's segment, inside the pattern less
-30 mm) measured against that plane along their rays (median, mm). Each board's offset is set beside
-its angle from the camera's optical axis and its range, with the correlations and a least-squares
+frame the board's pose from its image alone (``evaluation.causes.fit_image_alone`` on the image
+corners' bearings through the stated camera, against the LiDAR stage's own corner layout), taken
+into the LiDAR frame with the result's ``T_cam_lidar``, and the board's own returns (the LiDAR
+stage's segment, inside the pattern less 30 mm) measured against that plane along their rays
+(median, mm). Each board's offset is set beside its angle from the camera's optical axis and its
+range, with the correlations and a least-squares
 fit ``offset = a + b angle^2 + c range``.
 
 A stated lens (focal length, radial polynomial) that is a little off puts each board too near or
@@ -26,12 +27,13 @@ import sys
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 from _shared import write_between
 
 from ilcc_graph.datasets import open_source
 from ilcc_graph.errors import CalibrationImpossible
+from ilcc_graph.evaluation.causes import fit_image_alone
+from ilcc_graph.evaluation.metric import transform_points
 from ilcc_graph.run.pipeline import run
 from ilcc_graph.run.result import RunOptions
 from ilcc_graph.types import FrameResult
@@ -42,40 +44,39 @@ INSET_M = 0.03
 NEAR_M = 0.15
 
 
-def camera_board_pose(f: FrameResult, T_cam_lidar: np.ndarray) -> np.ndarray:
-    """(4, 4) the board's pose in the LiDAR frame from its image alone: PnP on the corners' bearings
-    (the stated camera), the corners laid out as the LiDAR stage's fit lays them in the board frame."""
+def image_board(f: FrameResult, T_cam_lidar: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The board as its image alone places it, in the LiDAR frame: its corners (K, 3), fitted to the
+    stated camera's bearings as ``calibrate``'s causes fit an image alone
+    (``evaluation.causes.fit_image_alone``, laid out as the LiDAR stage's fit lays them in the board
+    frame), and the board's pose (4, 4) that carries that layout onto them."""
     assert f.board is not None and f.corners is not None
-    Tb = f.board.T_lidar_board
-    obj = (np.c_[f.board.corners_lidar, np.ones(len(f.board.corners_lidar))] @ np.linalg.inv(Tb).T)[:, :3]
-    obj[:, 2] = 0.0
-    b = f.corners.bearings
-    ok, r, t = cv2.solvePnP(
-        np.ascontiguousarray(obj), np.ascontiguousarray(b[:, :2] / b[:, 2:3]), np.eye(3), None
-    )
-    if not ok:
-        raise ValueError(f"{f.name}: PnP failed")
+    layout = transform_points(np.linalg.inv(f.board.T_lidar_board), f.board.corners_lidar)
+    layout[:, 2] = 0.0
+    cam = fit_image_alone(f.corners.bearings, layout).corners_cam
+    corners = transform_points(np.linalg.inv(T_cam_lidar), cam)
+    a, b = layout - layout.mean(0), corners - corners.mean(0)  # the rigid motion a -> b (Kabsch)
+    U, _, Vt = np.linalg.svd(b.T @ a)
+    R = U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
     T = np.eye(4)
-    T[:3, :3], T[:3, 3] = cv2.Rodrigues(r)[0], t.ravel()
-    return np.linalg.inv(T_cam_lidar) @ T
+    T[:3, :3], T[:3, 3] = R, corners.mean(0) - R @ layout.mean(0)
+    return corners, T
 
 
 def board_row(f: FrameResult, T_cam_lidar: np.ndarray) -> dict[str, float]:
-    """One used frame: its returns' median offset along their rays from the camera's plane of the
-    board (mm; positive: behind it), the board centre's angle from the optical axis (deg), its range
+    """One used frame: its returns' median offset along their rays from the plane its image gives
+    (mm; positive: behind it), the pattern centre's angle from the optical axis (deg), its range
     (m), and how many returns counted."""
-    assert f.board is not None and f.corners is not None
-    T = camera_board_pose(f, T_cam_lidar)
-    corners = (np.c_[f.board.corners_lidar, np.ones(len(f.board.corners_lidar))] @ np.linalg.inv(T).T)[:, :2]
-    lo, hi = corners.min(0) + INSET_M, corners.max(0) - INSET_M
+    assert f.board is not None
+    corners, T = image_board(f, T_cam_lidar)
+    in_plane = transform_points(np.linalg.inv(T), corners)[:, :2]
+    lo, hi = in_plane.min(0) + INSET_M, in_plane.max(0) - INSET_M
     p = f.board.points_lidar
-    q = (np.c_[p, np.ones(len(p))] @ np.linalg.inv(T).T)[:, :3]
+    q = transform_points(np.linalg.inv(T), p)
     keep = np.all((q[:, :2] > lo) & (q[:, :2] < hi), axis=1) & (np.abs(q[:, 2]) < NEAR_M)
     u = p[keep] / np.linalg.norm(p[keep], axis=1, keepdims=True)
     along = q[keep, 2] / np.abs(u @ T[:3, 2])
-    centre = np.c_[corners.mean(0)[None], 0.0, 1.0] @ T.T  # the pattern's centre, LiDAR frame
-    centre = centre[0, :3]
-    c_cam = T_cam_lidar[:3, :3] @ centre + T_cam_lidar[:3, 3]
+    centre = corners.mean(0)
+    c_cam = transform_points(T_cam_lidar, centre)[0]
     angle = np.degrees(np.arccos(c_cam[2] / np.linalg.norm(c_cam)))
     return {"offset_mm": 1e3 * float(np.median(along)), "angle_deg": float(angle),
             "range_m": float(np.linalg.norm(centre)), "returns": float(keep.sum())}  # fmt: skip
