@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import yaml
 from accuracy import NEES_BOUND, pose_nees
+from pair_as_rig import rig_of_two
 from scipy.stats import chi2
 
 from ilcc_graph.app import main
@@ -64,7 +65,8 @@ def test_robust(pano, calibrated):
 
 def test_refine_intrinsics(simulated, calibrated, tmp_path):
     """Stated intrinsics off by a typical error: refined, they come back to the truth within their
-    sigmas, and the extrinsic stays within its own; Kalibr gets the refined ones."""
+    sigmas, and the extrinsic stays within its own; Kalibr gets the refined ones. The same data as
+    a rig of two give the same answer and intrinsics, and its camchain carries them."""
     data = simulated("pinhole", "--intrinsics-error", "1")
     # the LiDAR read as 6-dof poses. k3 (0 in truth) refines to ~1e-5, moving pixels by ~0.02 px:
     # below cameras.pinhole.KALIBR_PX, so the camchain leaves it out with a comment
@@ -87,6 +89,25 @@ def test_refine_intrinsics(simulated, calibrated, tmp_path):
     cam0 = _yaml(tmp_path / "k")["cam0"]
     assert cam0["intrinsics"] == pytest.approx(
         [got[n]["refined"] for n in ("fx", "fy", "cx", "cy")], rel=1e-15
+    )
+    # the same data as a rig of two, the same flags: the rig's one solve refines them as the pair's
+    rig = rig_of_two(tmp_path / "rig", _yaml(data / "config.yaml"), data / "pcd", data / "img")
+    flags = ["--jobs", "1", "--no-report", "--refine-intrinsics", "--sensor-model", "none"]
+    assert main(["calibrate", str(rig), "--out", str(tmp_path / "r"), *flags]) == 0
+    doc = _yaml(tmp_path / "r" / "calibration.yaml")
+    seen = doc["pairs"]["camera/lidar"]
+    np.testing.assert_allclose(seen["T_a_b"], _yaml(out / "calibration.yaml")["T_cam_lidar"], atol=1e-9)
+    in_rig = doc["camera_intrinsics"]["camera"]
+    assert list(in_rig) == list(got)
+    for name, v in in_rig.items():
+        assert v["stated"] == got[name]["stated"]
+        assert v["refined"] == pytest.approx(got[name]["refined"], rel=1e-9, abs=1e-12)
+        assert v["sigma"] == pytest.approx(got[name]["sigma"], rel=1e-6)
+    # and the rig's Kalibr camchain carries them
+    assert main(["export", str(tmp_path / "r" / "calibration.yaml"), "--format", "kalibr",
+                 "--out", str(tmp_path / "rk")]) == 0  # fmt: skip
+    assert _yaml(tmp_path / "rk")["cam0"]["intrinsics"] == pytest.approx(
+        [in_rig[n]["refined"] for n in ("fx", "fy", "cx", "cy")], rel=1e-15
     )
 
 

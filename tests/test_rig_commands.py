@@ -126,9 +126,16 @@ def test_calibrate_a_rig_through_the_command_line(
     its own covariance of the truth."""
     folders, stored = calibrated
     out = tmp_path / "out"
-    # a pair's solve option is refused for a rig, before anything is written
-    assert main(["calibrate", str(folders), "--out", str(out), "--sensor-model", "beams"]) == 2
-    assert "sensor_model" in capsys.readouterr().err and not out.exists()
+    # an option of a pair's or sessions' run that a rig's graph does not take is refused, before
+    # anything is written; a pair's solve options (here the sensor model) apply to the rig as to a pair
+    assert main(["calibrate", str(folders), "--out", str(out), "--refine", "paper"]) == 2
+    assert "(mode)" in capsys.readouterr().err and not out.exists()
+    forced = tmp_path / "forced"
+    args = ["--out", str(forced), "--no-report", "--jobs", "1", "--sensor-model", "beams"]
+    assert main(["calibrate", str(folders), *args]) == 0
+    model = read_rig_calibration(forced / "calibration.yaml").extra["sensor_model"]
+    assert model["chosen"] == "beams" and model["forced"], model
+    assert "sensor model: beams (as asked)" in capsys.readouterr().out
     assert main(["calibrate", str(folders), "--out", str(out), "--no-report", "--jobs", "1"]) == 0
     printed = capsys.readouterr().out
     assert all(len(line) <= 80 for line in printed.splitlines() if not line.startswith("wrote ")), printed

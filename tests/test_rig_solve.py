@@ -231,6 +231,62 @@ def test_one_camera_and_one_lidar_choose_the_model_as_the_batch() -> None:
         assert nees(two.relative(c, "lidar"), np.linalg.inv(truth2[c])) < 16.8
 
 
+def test_one_camera_and_one_lidar_refine_the_intrinsics_as_the_batch() -> None:
+    """Stated focal lengths 2 % off and 16 boards: the rig's one solve refines the camera's
+    intrinsics as the batch does (``camera_choice``, the pair's ``auto``), to the same answer,
+    intrinsics and covariance; stated as asked, it keeps them."""
+    from test_selection import _pinhole_frames
+
+    frames, stated, T_cl = _pinhole_frames(7, 1.02, n=16)
+    board = Board(6, 8, 0.095)  # _pinhole_frames' board
+    assert np.allclose(board.corners_board(), frames[0].points_board)
+
+    def fit(f: GraphFrame) -> BoardFit:
+        corners = f.points_board @ f.T_lidar_board[:3, :3].T + f.T_lidar_board[:3, 3]
+        return BoardFit(f.T_lidar_board, f.board_cov, corners, *EMPTY, False)
+
+    moments = [
+        MomentResult(f.name, {"lidar": fit(f)}, {"cam0": ImageCorners(f.uv, f.bearings, f.cov_px, False)})
+        for f in frames
+    ]
+    truth = true_poses({"cam0": T_cl}, {"lidar": gtsam.Pose3()})
+    start = RigStart("lidar", truth, *place_boards(moments, truth, board, "lidar"))
+    cams = {"cam0": stated}
+    auto = RigOptions(intrinsics_choice="auto")
+    sol = solve_rig(moments, start, board, ["lidar"], cams, options=auto)
+    ref = solve(frames, stated, T_cl.matrix(), models=AUTO, intrinsics_choice="auto")
+    assert ref.selection.camera is not None and ref.selection.camera.refined, ref.selection.camera
+    assert sol.selection.camera == ref.selection.camera
+    est = sol.relative("cam0", "lidar")
+    assert np.allclose(est.T, ref.T_cam_lidar, atol=1e-9)
+    assert np.allclose(est.covariance, ref.covariance, rtol=1e-6, atol=1e-14)
+    got = sol.intrinsics("cam0")
+    assert got is not None and ref.intrinsics is not None
+    assert np.allclose(got[1], ref.intrinsics[1], rtol=1e-9)
+    assert np.allclose(got[2], ref.intrinsics[2], rtol=1e-6)
+    kept = solve_rig(moments, start, board, ["lidar"], cams)  # RigOptions' default: as stated
+    assert kept.selection.camera is None and kept.intrinsics("cam0") is None
+
+
+def test_cameras_stated_alike_are_two_lenses() -> None:
+    """Two cameras of one rig stated with the same model: refined, each gets its own intrinsics
+    (``View.lens``), not one set shared as sessions of one camera share theirs."""
+    from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
+
+    rng = np.random.default_rng(5)
+    cams, T_cb = ring(2, hfov_deg=120.0)
+    assert cams["cam0"] == cams["cam1"]
+    moments, _ = rig_moments(rng, 24, cams, T_cb, BOARD)
+    refine = RigOptions(models=("none",), intrinsics=IntrinsicsOptions(refine=True))
+    _, sol = solve_all(moments, cams, {"lidar": None}, options=refine)
+    got = [sol.intrinsics(c) for c in cams]
+    assert all(g is not None for g in got)
+    assert sol.solution is not None and len(sol.solution.assembly.cameras) == 2
+    assert not np.allclose(got[0][1], got[1][1])  # type: ignore[index]
+    _, stated = solve_all(moments, cams, {"lidar": None}, options=RigOptions(models=("none",)))
+    assert all(stated.intrinsics(c) is None for c in cams)
+
+
 def test_a_board_only_two_cameras_saw_chains_them() -> None:
     """cam1 never sees a board with the LiDAR: it is placed and solved through cam0's boards."""
     rng = np.random.default_rng(23)

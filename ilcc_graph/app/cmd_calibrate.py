@@ -52,10 +52,15 @@ def run(args: argparse.Namespace) -> int:
     return calibrate(args.data, args)
 
 
+#: the run options a rig's graph takes as a pair's run does (``strategies.solve_rig.rig_options``)
+RIG_TAKES = ("stages", "noise", "lidar_errors", "intrinsics", "sensor_model")
+
+
 def _options(data: Sequence[str], args: argparse.Namespace) -> tuple[RunOptions, bool]:
     """The run's options and whether ``data`` is a rig (one folder with rig.yaml, or a rig file;
-    docs/rig.md): a rig runs the ``rig`` strategy, and a pair's solve options given for one are an
-    InputError naming them (they do not apply to a rig's graph)."""
+    docs/rig.md): a rig runs the ``rig`` strategy with the solve options a pair's run takes
+    (``RIG_TAKES``); the others given for one are an InputError naming them."""
+
     from ilcc_graph.datasets.rig_source import is_rig_source
     from ilcc_graph.run.result import RunOptions
 
@@ -66,20 +71,19 @@ def _options(data: Sequence[str], args: argparse.Namespace) -> tuple[RunOptions,
     if pair_only:
         raise InputError(
             f"{data[0]}: a rig (docs/rig.md); the options given ({', '.join(pair_only)}) apply to one "
-            "camera-LiDAR pair, not to a rig's graph"
+            "camera-LiDAR pair or to sessions, not to a rig's graph"
         )
-    return RunOptions(mode="rig", stages=options.stages), True
+    return RunOptions(mode="rig", **{k: getattr(options, k) for k in RIG_TAKES}), True
 
 
 def _pair_options_given(given: RunOptions) -> list[str]:
-    """The run options set away from their defaults, the stages' (jobs, strict) aside: a pair's
-    solve options, which a rig's graph does not take."""
+    """The run options set away from their defaults but for those a rig takes (``RIG_TAKES``)."""
     import dataclasses
 
     from ilcc_graph.run.result import RunOptions
 
     default = RunOptions()
-    given = dataclasses.replace(given, stages=default.stages)
+    given = dataclasses.replace(given, **{k: getattr(default, k) for k in RIG_TAKES})
     return [f.name for f in dataclasses.fields(given) if getattr(given, f.name) != getattr(default, f.name)]
 
 

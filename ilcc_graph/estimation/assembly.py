@@ -59,10 +59,12 @@ class Assembly:
         self.given_layouts = dict(layouts or {})
         self.cameras: list[CameraModel] = []
         self._camera_of: list[int] = []
+        lenses: list[object] = []  # per camera c, what its views share (``View.lens_key``)
         for v in problem.views:
-            same = [c for c, cam in enumerate(self.cameras) if cam == v.camera]
+            same = [c for c, key in enumerate(lenses) if key == v.lens_key()]
             if not same:
                 self.cameras.append(v.camera)
+                lenses.append(v.lens_key())
             self._camera_of.append(same[0] if same else len(self.cameras) - 1)
         if refine is None:
             refine = problem.intrinsics is not None and problem.intrinsics.refine

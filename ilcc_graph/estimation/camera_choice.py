@@ -150,10 +150,9 @@ def choose_intrinsics(
     judge it (module docstring): all of them, else each of its options' ``subsets`` in turn;
     (the refined solution when chosen, else None; the choice, or None when the camera has nothing to
     refine)."""
-    cams = {v.camera for v in problem.views}
-    if len(cams) != 1:
+    if len({v.lens_key() for v in problem.views}) != 1:  # one camera's lens, else none chosen
         return None, None
-    cam = next(iter(cams))
+    cam = problem.views[0].camera
     if not refinable(cam):
         return None, None
     opts = replace(problem.intrinsics or IntrinsicsOptions(), refine=True)

@@ -58,7 +58,9 @@ class View:
     points_board: (K, 3) the corners seen, board frame. bearings: (K, 3) camera frame.
     cov_px: (K, 2, 2) pixel covariances, px^2. camera: maps them to bearing covariances.
     group: noise group of the bearings (session or camera). uv: (K, 2) the measured pixels (for
-    intrinsics refinement), or None.
+    intrinsics refinement), or None. lens: the physical camera whose intrinsics the view shares (a
+    rig's camera index: cameras stated alike are still two lenses); None: views whose camera models
+    are equal share them (one camera over sessions).
     """
 
     board: int
@@ -69,6 +71,11 @@ class View:
     camera: CameraModel
     group: str = ""
     uv: np.ndarray | None = None
+    lens: int | None = None
+
+    def lens_key(self) -> object:
+        """What identifies the view's intrinsics: its ``lens``, else its camera model."""
+        return self.camera if self.lens is None else ("lens", self.lens)
 
 
 @dataclass(frozen=True)

@@ -9,14 +9,16 @@ boards, each other LiDAR's boards and each camera's views have their own (with
 ``NoiseOptions.view_components`` every view its own bearing component); solved by the core's noise
 policy (``noise.solve_problem``: gate, variance components, final factor).
 
-The base LiDAR's sensor model is chosen as the single pair's (``model_solves.select_model`` over
-``RigOptions.models``, the pair's candidates ``batch.sensor_models``): each candidate reads the base
-LiDAR's boards its way (``none``: their 6-dof poses; ``range`` and ``beams``: their returns with the
-LiDAR's own range errors; ``offset``: one range offset), is solved under the noise policy and scored
-by every camera's views held out in turn; the joint covariance carries the candidates the boards
-cannot tell apart (``selection.mixture`` over the graph's poses). The other LiDARs' boards enter as
-6-dof fits in every candidate. A rig of one camera and one LiDAR is today's single-pair problem and
-gives the batch answer (``batch.solve`` with the same ``models``).
+The base LiDAR's sensor model is chosen, and the camera's intrinsics refined when asked or when the
+boards support it, by the pair's one solve (``sources.solve_sources`` over ``RigOptions.models``, the
+pair's candidates ``batch.sensor_models``; the intrinsics' choice, ``camera_choice``, for a rig of
+one camera): each candidate reads the base LiDAR's boards its way (``none``: their 6-dof poses;
+``range`` and ``beams``: their returns with the LiDAR's own range errors; ``offset``: one range
+offset), is solved under the noise policy and scored by every camera's views held out in turn; the
+joint covariance carries the candidates the boards cannot tell apart (``selection.mixture`` over the
+graph's poses; the refined intrinsics' solve alone, times its held-out factor, as a pair's). The
+other LiDARs' boards enter as 6-dof fits in every candidate. A rig of one camera and one LiDAR is
+today's single-pair problem and gives the batch answer (``batch.solve`` with the same ``models``).
 
 Answer: every sensor's ``T_ref_sensor`` in the frame of a chosen reference sensor (a camera or any
 LiDAR) with their joint covariance, and any pair's ``T_a_b`` with its own. Covariances follow
@@ -39,13 +41,15 @@ from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.batch import sensor_models
 from ilcc_graph.estimation.gate import BoardStats
 from ilcc_graph.estimation.geometry import same_pose
+from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
 from ilcc_graph.estimation.keys import POSE3_DOF, X
 from ilcc_graph.estimation.kinds.lidar_boards import LidarBoard, LidarBoards
-from ilcc_graph.estimation.model_solves import select_model
+from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.next_board import solved_globals
 from ilcc_graph.estimation.noise import NoiseOptions, Solution
 from ilcc_graph.estimation.problem import BoardPrior, Problem, View
 from ilcc_graph.estimation.selection import AUTO, MODELS, Selection, SensorModel, mixture
+from ilcc_graph.estimation.sources import solve_sources
 from ilcc_graph.init.rig_start import RigStart, adjoint, orient_moment
 from ilcc_graph.types import Estimate, MomentResult, PoseTerms
 
@@ -55,22 +59,28 @@ __all__ = ["RigOptions", "RigSolution", "between", "rig_problem", "solve_rig", "
 @dataclass(frozen=True)
 class RigOptions:
     """noise: the noise policy. models: the base LiDAR's sensor models to choose among
-    (``selection.MODELS`` names; one name forces it; default the pair's ``selection.AUTO``).
-    range_offset: force the ``offset`` model, the base LiDAR's range offset with the weak prior
-    ``range_offset_prior_sigma_m`` (``models`` then unused); samples_board: (M, 3) board-face points
-    for it (None: from the corners)."""
+    (``selection.MODELS`` names; one name forces it; default the pair's ``selection.AUTO``);
+    lidar_errors: the ``beams`` model's options. range_offset: force the ``offset`` model, the base
+    LiDAR's range offset with the weak prior ``range_offset_prior_sigma_m`` (``models`` then unused);
+    samples_board: (M, 3) board-face points for it (None: from the corners). intrinsics,
+    intrinsics_choice: the camera's intrinsics as a pair's ``sources.solve_sources`` takes them
+    (refined when asked, or with ``auto`` when the boards support it; a rig of one camera)."""
 
     noise: NoiseOptions = NoiseOptions()
     models: tuple[str, ...] = AUTO
     range_offset: bool = False
     range_offset_prior_sigma_m: float = 0.1
     samples_board: np.ndarray | None = None
+    lidar_errors: LidarErrorOptions | None = None
+    intrinsics: IntrinsicsOptions | None = None
+    intrinsics_choice: str = "stated"
 
     def candidates(self) -> list[SensorModel]:
-        """The sensor models solved (``batch.sensor_models``; ``range_offset``: ``offset`` alone)."""
+        """The sensor models solved (``batch.sensor_models``, the ``beams`` model with
+        ``lidar_errors``; ``range_offset``: ``offset`` alone)."""
         if self.range_offset:
             return [replace(MODELS["offset"], range_offset_m=self.range_offset_prior_sigma_m)]
-        return sensor_models(self.models, None)
+        return sensor_models(self.models, self.lidar_errors)
 
 
 def between(T_ref_a: np.ndarray, T_ref_b: np.ndarray, C: np.ndarray) -> Estimate:
@@ -168,6 +178,15 @@ class RigSolution:
                 out[name] = t
         return out
 
+    def intrinsics(self, camera: str) -> tuple[list[str], np.ndarray, np.ndarray] | None:
+        """(names, values, sigmas) of ``camera``'s refined intrinsics (its views' ``I(c)``), or None
+        when they were taken as stated."""
+        if self.solution is None:
+            return None
+        views = self.solution.problem.views
+        j = next((j for j, v in enumerate(views) if v.group == camera), None)
+        return None if j is None else self.solution.intrinsics(self.solution.assembly.camera_of(j))
+
     def in_frame(self, reference: str) -> RigSolution:
         """The same answer with every pose in sensor ``reference``'s frame."""
         T, C = to_reference(self.T_ref_sensor, self.covariance, reference)
@@ -227,7 +246,8 @@ def rig_problem(
                 lidar_views.append(LidarBoard(i, lidars.index(lid), f.T_lidar_board, f.covariance, lid))
         for cam, c in o.corners.items():
             if cam in cameras:
-                views.append(View(i, cams.index(cam), corners, c.bearings, c.cov_px, cameras[cam], cam, c.uv))
+                k = cams.index(cam)
+                views.append(View(i, k, corners, c.bearings, c.cov_px, cameras[cam], cam, c.uv, lens=k))
     if not boards:
         raise CalibrationImpossible(
             "no moment with the board seen by two sensors of the rig"
@@ -298,8 +318,9 @@ def solve_rig(
     determine a pose), ValueError (malformed input, an unknown model).
     """
     problem, skipped = rig_problem(moments, start, board, lidars, cameras, options)
-    sols, selection = select_model(problem, options.candidates(), options.noise)
-    sol = sols[selection.chosen]
+    got = solve_sources([problem], options.candidates(), options.noise, options.intrinsics,
+                        options.intrinsics_choice)  # fmt: skip
+    sols, selection, sol = got.sols[0], got.selection, got.chosen[0]
     cams = list(cameras)
     found = _found(sol, lidars, cams)
     solved, keys = [lidars[0], *(n for n, _ in found)], [key for _, key in found]
@@ -308,7 +329,10 @@ def solve_rig(
         for n in [*lidars, *cams]
         if n not in solved
     }
-    J = _averaged(sols, selection, found, lidars, cams)
+    if got.refined:  # the intrinsics refined: its covariance, times the model's held-out factor
+        J = selection.factor * _graph_joint(sol, keys)[1]
+    else:
+        J = _averaged(sols, selection, found, lidars, cams)
     # base-frame perturbations d_s of T_base_s: a LiDAR's Y is T_base_lidar (d = eta); a camera's
     # X = T_cam_base, T_base_cam = X^-1 (d = -Ad(X) xi); the base's own pose is fixed (d = 0)
     M = np.zeros((POSE3_DOF * len(solved), POSE3_DOF * len(keys)))

@@ -41,6 +41,8 @@ __all__ = [
     "calibration_from_doc",
     "calibration_to_dict",
     "refined_corners",
+    "intrinsics_doc",
+    "intrinsics_from_doc",
     "pose_terms_doc",
     "pose_terms_from_doc",
     "GroundTruth",
@@ -143,10 +145,7 @@ def _sensors_dict(sensors: dict[str, Any], with_terms: PoseTerms | None = None) 
                 out["lidar"]["board_plane"]["beam_sd_mm"] = 1e3 * float(bp["beam_sd"])
     cam = sensors.get("camera_intrinsics")
     if cam is not None:
-        out["camera_intrinsics"] = {
-            n: {"stated": float(a), "refined": float(v), "sigma": float(s)}
-            for n, a, v, s in zip(cam["names"], cam["stated"], cam["values"], cam["sigmas"], strict=True)
-        }
+        out["camera_intrinsics"] = intrinsics_doc(cam)
     if sensors.get("effects"):
         out["effect_on_extrinsic"] = {
             k: {n: float(x) for n, x in v.items()} for k, v in sensors["effects"].items()
@@ -154,6 +153,27 @@ def _sensors_dict(sensors: dict[str, Any], with_terms: PoseTerms | None = None) 
     if with_terms is not None:
         out["extrinsic_with_lidar_terms"] = pose_terms_doc(with_terms)
     return out
+
+
+def intrinsics_doc(entry: dict[str, Any]) -> dict[str, dict[str, float]]:
+    """A camera's refined intrinsics as a file holds them, ``{name: {stated, refined, sigma}}`` (the
+    config's units: pixels, or none), from ``{names, stated, values, sigmas}``
+    (``Calibration.sensors["camera_intrinsics"]``)."""
+    return {
+        str(n): {"stated": float(a), "refined": float(v), "sigma": float(s)}
+        for n, a, v, s in zip(entry["names"], entry["stated"], entry["values"], entry["sigmas"], strict=True)
+    }
+
+
+def intrinsics_from_doc(doc: dict[str, Any]) -> dict[str, Any]:
+    """``{names, stated, values, sigmas}`` from the file's ``{name: {stated, refined, sigma}}``
+    (``intrinsics_doc``); KeyError, TypeError or ValueError when malformed."""
+    return {
+        "names": [str(n) for n in doc],
+        "stated": np.array([float(t["stated"]) for t in doc.values()]),
+        "values": np.array([float(t["refined"]) for t in doc.values()]),
+        "sigmas": np.array([float(t["sigma"]) for t in doc.values()]),
+    }
 
 
 def pose_terms_doc(t: PoseTerms) -> dict[str, Any]:
@@ -233,12 +253,7 @@ def _sensors_from_dict(src: str, d: Any) -> dict[str, Any]:
                 }
         cam = d.get("camera_intrinsics")
         if cam is not None:
-            out["camera_intrinsics"] = {
-                "names": [str(n) for n in cam],
-                "stated": np.array([float(t["stated"]) for t in cam.values()]),
-                "values": np.array([float(t["refined"]) for t in cam.values()]),
-                "sigmas": np.array([float(t["sigma"]) for t in cam.values()]),
-            }
+            out["camera_intrinsics"] = intrinsics_from_doc(cam)
         if d.get("effect_on_extrinsic"):
             out["effects"] = {
                 str(k): {str(n): float(x) for n, x in v.items()} for k, v in d["effect_on_extrinsic"].items()

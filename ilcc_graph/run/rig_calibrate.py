@@ -29,6 +29,7 @@ from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.estimation.lidar_errors import errors_entry
 from ilcc_graph.estimation.rig_solve import RigOptions, RigSolution, solve_rig
 from ilcc_graph.init.rig_start import RigStart, StartOptions, rig_start
+from ilcc_graph.io.results import intrinsics_doc
 from ilcc_graph.io.rig_results import RigCalibration
 from ilcc_graph.lidar.margin import margin_summary
 from ilcc_graph.run.rig_observe import RigObservation, observe_rig
@@ -208,6 +209,19 @@ def lidar_errors(result: RigResult) -> dict[str, Any]:
     return {"lidar": result.solution.base, **entry}
 
 
+def camera_intrinsics(result: RigResult) -> dict[str, dict[str, Any]]:
+    """{camera: its refined intrinsics as a pair's ``Calibration.sensors["camera_intrinsics"]``
+    (``names``, ``stated``, ``values``, ``sigmas``)} for the cameras whose intrinsics the joint solve
+    refined (none when it took them as stated)."""
+    out = {}
+    for name in result.rig.cameras:
+        cam = result.rig.sensor(name).camera
+        if cam is not None and (got := result.solution.intrinsics(name)) is not None:
+            names, values, sigmas = got
+            out[name] = {"names": names, "stated": cam.intrinsics(), "values": values, "sigmas": sigmas}
+    return out
+
+
 def _lidar_margins(result: RigResult) -> dict[str, dict[str, float]]:
     """Per LiDAR whose boards contradict the configured margin, the margin they measured
     (``lidar.margin.margin_summary``: mm, as a pair's ``lidar_margin_*`` diagnostics)."""
@@ -223,7 +237,8 @@ def _lidar_margins(result: RigResult) -> dict[str, dict[str, float]]:
 def to_calibration(result: RigResult) -> RigCalibration:
     """The rig's ``calibration.yaml`` content (``io.rig_results``): poses, joint covariance, every
     pair's relative pose and covariance, the rig file's mapping (intrinsics), what was used, the
-    base LiDAR's sensor model chosen (``sensor_model``, as the pair's ``selection.Selection``)."""
+    base LiDAR's sensor model chosen (``sensor_model``, as the pair's ``selection.Selection``), the
+    cameras' refined intrinsics (``camera_intrinsics``, each as a pair's file holds them)."""
     names = result.sensors
     pairs = {}
     for i, a in enumerate(names):
@@ -249,6 +264,8 @@ def to_calibration(result: RigResult) -> RigCalibration:
         extra["lidar_errors"] = errors
     if margins := _lidar_margins(result):
         extra["lidar_margin"] = margins
+    if refined := camera_intrinsics(result):  # the exports take these (``exports_rig.rig_cameras``)
+        extra["camera_intrinsics"] = {c: intrinsics_doc(e) for c, e in refined.items()}
     T, C = dict(result.T_ref_sensor), result.covariance
     return RigCalibration(names, result.reference, T, C, pairs, rig, extra, _with_terms(result))
 

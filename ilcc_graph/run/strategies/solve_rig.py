@@ -21,6 +21,7 @@ import numpy as np
 from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.gate import far_above
+from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.rig_solve import RigOptions
 from ilcc_graph.evaluation.causes import causes_without_extrinsic
 from ilcc_graph.run import rig_calibrate
@@ -57,7 +58,8 @@ def headline(res: RigResult) -> Calibration:
     ``Calibration`` (``T_cam_lidar``, its covariance from the joint one; one frame per moment, used
     when both sensors' observations entered the graph). A rig without both kinds: the reference and
     the next solved sensor (``T_cam_lidar`` then holds ``T_ref_sensor``). ``camera``: the camera's
-    config section when the first sensor is a camera."""
+    config section when the first sensor is a camera; ``sensors``: the base LiDAR's errors and the
+    camera's refined intrinsics, when estimated."""
     rig = res.rig
     cams = [s for s in rig.cameras if s in res.sensors]
     lidars = [s for s in rig.lidars if s in res.sensors]
@@ -70,9 +72,12 @@ def headline(res: RigResult) -> Calibration:
     cam = rig.sensor(a).camera
     diagnostics = {"variance_factor": float(res.variance_factor)}
     errors = rig_calibrate.lidar_errors(res)  # the base LiDAR's: the boards on corrected ranges read them
+    sensors = {"lidar_errors": errors} if errors else {}
+    if refined := rig_calibrate.camera_intrinsics(res).get(a):
+        sensors["camera_intrinsics"] = refined
     return Calibration(
         np.asarray(e.T), np.asarray(e.covariance), tuple(frames), f"rig {a}/{b}", diagnostics,
-        None if cam is None else cam.to_dict(), {"lidar_errors": errors} if errors else {},
+        None if cam is None else cam.to_dict(), sensors,
     )  # fmt: skip
 
 
@@ -97,20 +102,25 @@ def pair_frames(res: RigResult, a: str, b: str, camera_only: bool = False) -> li
 
 
 def rig_options(seen: RigObservation, options: RunOptions) -> RigRunOptions:
-    """The rig's solve under ``calibrate``'s noise policy for a pair (``run.after.without_print``):
-    when most of the base LiDAR's boards show no print (placed by their outline), its own errors are
-    estimated (the per-beam model, not chosen among models), said once."""
+    """The rig's solve under ``calibrate``'s options for a pair (the sensor model, the LiDAR's errors,
+    the camera's intrinsics, the noise policy); as a pair's run (``run.after.without_print``), when
+    most of the base LiDAR's boards show no print (placed by their outline), its own errors are
+    estimated, said once."""
     base = seen.rig.lidars[0]
     boards = [m.boards[base] for m in seen.moments if base in m.boards]
-    plain = mostly_outline(boards) if options.lidar_errors_without_print else None
-    if plain is None:
-        return RigRunOptions(stages=options.stages)
-    log.warning(
-        "%d of %d boards of %s were placed by their outline: its own errors (each beam's range offset) "
-        "are estimated, as a pair's run does, since the boards' planes then carry the translation",
-        plain, len(boards), base,
+    estimate = options.lidar_errors is None and options.lidar_errors_without_print
+    if estimate and (plain := mostly_outline(boards)) is not None:
+        log.warning(
+            "%d of %d boards of %s were placed by their outline: its own errors (each beam's range offset) "
+            "are estimated, as a pair's run does, since the boards' planes then carry the translation",
+            plain, len(boards), base,
+        )  # fmt: skip
+        options = dataclasses.replace(options, lidar_errors=LidarErrorOptions())
+    solve = RigOptions(
+        noise=options.noise, models=options.models, lidar_errors=options.lidar_errors,
+        intrinsics=options.intrinsics, intrinsics_choice=options.intrinsics_choice,
     )  # fmt: skip
-    return RigRunOptions(stages=options.stages, solve=RigOptions(models=("beams",)))
+    return RigRunOptions(stages=options.stages, solve=solve)
 
 
 def require_cameras(res: RigResult) -> None:
@@ -146,7 +156,8 @@ def _camera_rules(res: RigResult, camera: str, lidar: str) -> None:
     failing = [] if joint is None else [(n, why) for n, why in joint.failing if n in used]
     far = {} if joint is None else far_above((joint.components(lidar)[0], joint.components(camera)[1]))
     T = np.asarray(res.relative(camera, lidar).T)
-    require_supported(frames, failing, far, res.rig.pair_config(camera, lidar), T, camera)
+    refined = camera in rig_calibrate.camera_intrinsics(res)
+    require_supported(frames, failing, far, res.rig.pair_config(camera, lidar), T, camera, refined)
 
 
 def with_unsolved_causes(res: RigResult) -> RigResult:
