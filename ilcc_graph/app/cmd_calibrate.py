@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     return calibrate(args.data, args)
 
 
-#: the run options a rig's graph takes as a pair's run does (``strategies.solve_rig.rig_options``)
+#: the run options a rig's graph takes as a pair's run does (``strategies.solve_rig.solve``)
 RIG_TAKES = ("stages", "noise", "lidar_errors", "intrinsics", "sensor_model")
 
 
@@ -60,6 +60,7 @@ def _options(data: Sequence[str], args: argparse.Namespace) -> tuple[RunOptions,
     """The run's options and whether ``data`` is a rig (one folder with rig.yaml, or a rig file;
     docs/rig.md): a rig runs the ``rig`` strategy with the solve options a pair's run takes
     (``RIG_TAKES``); the others given for one are an InputError naming them."""
+    import dataclasses
 
     from ilcc_graph.datasets.rig_source import is_rig_source
     from ilcc_graph.run.result import RunOptions
@@ -67,24 +68,14 @@ def _options(data: Sequence[str], args: argparse.Namespace) -> tuple[RunOptions,
     options = run_options(args)
     if not (len(data) == 1 and is_rig_source(Path(data[0]))):
         return options, False
-    pair_only = _pair_options_given(options)
-    if pair_only:
+    plain = RunOptions()  # the options a rig does not take, given away from their defaults
+    given = [k.name for k in dataclasses.fields(plain) if getattr(options, k.name) != getattr(plain, k.name)]
+    if given := [k for k in given if k not in RIG_TAKES]:
         raise InputError(
-            f"{data[0]}: a rig (docs/rig.md); the options given ({', '.join(pair_only)}) apply to one "
+            f"{data[0]}: a rig (docs/rig.md); the options given ({', '.join(given)}) apply to one "
             "camera-LiDAR pair or to sessions, not to a rig's graph"
         )
     return RunOptions(mode="rig", **{k: getattr(options, k) for k in RIG_TAKES}), True
-
-
-def _pair_options_given(given: RunOptions) -> list[str]:
-    """The run options set away from their defaults but for those a rig takes (``RIG_TAKES``)."""
-    import dataclasses
-
-    from ilcc_graph.run.result import RunOptions
-
-    default = RunOptions()
-    given = dataclasses.replace(given, **{k: getattr(default, k) for k in RIG_TAKES})
-    return [f.name for f in dataclasses.fields(given) if getattr(given, f.name) != getattr(default, f.name)]
 
 
 def calibrate(data: Sequence[str], args: argparse.Namespace, truth: np.ndarray | None = None) -> int:

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from gtsam.symbol_shorthand import Y
@@ -178,14 +179,19 @@ class RigSolution:
                 out[name] = t
         return out
 
-    def intrinsics(self, camera: str) -> tuple[list[str], np.ndarray, np.ndarray] | None:
-        """(names, values, sigmas) of ``camera``'s refined intrinsics (its views' ``I(c)``), or None
-        when they were taken as stated."""
-        if self.solution is None:
-            return None
-        views = self.solution.problem.views
+    def intrinsics(self, camera: str) -> dict[str, Any] | None:
+        """``camera``'s refined intrinsics (its views' ``I(c)``) as a pair's
+        ``Calibration.sensors["camera_intrinsics"]``: names, the stated values, the refined ones and
+        their sigmas; None when they were taken as stated."""
+        views = [] if self.solution is None else self.solution.problem.views
         j = next((j for j, v in enumerate(views) if v.group == camera), None)
-        return None if j is None else self.solution.intrinsics(self.solution.assembly.camera_of(j))
+        if self.solution is None or j is None:
+            return None
+        got = self.solution.intrinsics(self.solution.assembly.camera_of(j))
+        if got is None:
+            return None
+        names, values, sigmas = got
+        return {"names": names, "stated": views[j].camera.intrinsics(), "values": values, "sigmas": sigmas}
 
     def in_frame(self, reference: str) -> RigSolution:
         """The same answer with every pose in sensor ``reference``'s frame."""

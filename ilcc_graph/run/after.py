@@ -20,6 +20,7 @@ from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.range_refit import refit_pass
 from ilcc_graph.run.result import Result, RunOptions
+from ilcc_graph.run.rig_observe import RigObservation
 from ilcc_graph.run.rig_views import look_rig, refit_rig
 from ilcc_graph.run.second_look import second_pass
 from ilcc_graph.types import BoardFit
@@ -84,7 +85,7 @@ def without_print(
     (``RunOptions.lidar_errors_without_print``), said once (with ``say``); as given otherwise."""
     if options.lidar_errors is not None or not options.lidar_errors_without_print or not chosen.sensor_errors:
         return options
-    boards = [f.board for o in observations for f in o.frames if f.used and f.board is not None]
+    boards = [b for o in observations for b in _boards(o)]
     if (plain := mostly_outline(boards)) is None:
         return options
     (log.warning if say else log.debug)(
@@ -95,9 +96,17 @@ def without_print(
     return dataclasses.replace(options, lidar_errors=LidarErrorOptions())
 
 
+def _boards(o: Observation) -> list[BoardFit]:
+    """The boards of an observation whose LiDAR errors the graph would estimate: a pair's used frames',
+    a rig's base LiDAR's (``rig_observe.RigObservation``)."""
+    if isinstance(o.data, RigObservation):
+        base = o.data.rig.lidars[0]
+        return [m.boards[base] for m in o.data.moments if base in m.boards]
+    return [f.board for f in o.frames if f.used and f.board is not None]
+
+
 def mostly_outline(boards: Sequence[BoardFit]) -> int | None:
     """How many of ``boards`` were placed by their outline (no print in the LiDAR's intensity) when
-    they are most of them, else None: the rule by which a pair's run and a rig's estimate the LiDAR's
-    own errors (``without_print``, ``strategies.solve_rig.rig_options``)."""
+    they are most of them, else None (``without_print``)."""
     plain = sum(1 for b in boards if b.diagnostics.get("no_contrast"))
     return plain if boards and 2 * plain > len(boards) else None

@@ -209,19 +209,6 @@ def lidar_errors(result: RigResult) -> dict[str, Any]:
     return {"lidar": result.solution.base, **entry}
 
 
-def camera_intrinsics(result: RigResult) -> dict[str, dict[str, Any]]:
-    """{camera: its refined intrinsics as a pair's ``Calibration.sensors["camera_intrinsics"]``
-    (``names``, ``stated``, ``values``, ``sigmas``)} for the cameras whose intrinsics the joint solve
-    refined (none when it took them as stated)."""
-    out = {}
-    for name in result.rig.cameras:
-        cam = result.rig.sensor(name).camera
-        if cam is not None and (got := result.solution.intrinsics(name)) is not None:
-            names, values, sigmas = got
-            out[name] = {"names": names, "stated": cam.intrinsics(), "values": values, "sigmas": sigmas}
-    return out
-
-
 def _lidar_margins(result: RigResult) -> dict[str, dict[str, float]]:
     """Per LiDAR whose boards contradict the configured margin, the margin they measured
     (``lidar.margin.margin_summary``: mm, as a pair's ``lidar_margin_*`` diagnostics)."""
@@ -264,8 +251,9 @@ def to_calibration(result: RigResult) -> RigCalibration:
         extra["lidar_errors"] = errors
     if margins := _lidar_margins(result):
         extra["lidar_margin"] = margins
-    if refined := camera_intrinsics(result):  # the exports take these (``exports_rig.rig_cameras``)
-        extra["camera_intrinsics"] = {c: intrinsics_doc(e) for c, e in refined.items()}
+    refined = {c: intrinsics_doc(x) for c in result.rig.cameras if (x := result.solution.intrinsics(c))}
+    if refined:  # the exports take these (``exports_rig.rig_cameras``)
+        extra["camera_intrinsics"] = refined
     T, C = dict(result.T_ref_sensor), result.covariance
     return RigCalibration(names, result.reference, T, C, pairs, rig, extra, _with_terms(result))
 

@@ -21,11 +21,9 @@ import numpy as np
 from ilcc_graph.datasets.rig_source import RigSource
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.gate import far_above
-from ilcc_graph.estimation.lidar_errors import LidarErrorOptions
 from ilcc_graph.estimation.rig_solve import RigOptions
 from ilcc_graph.evaluation.causes import causes_without_extrinsic
 from ilcc_graph.run import rig_calibrate
-from ilcc_graph.run.after import mostly_outline
 from ilcc_graph.run.finish import require_supported
 from ilcc_graph.run.observe import Observation
 from ilcc_graph.run.result import Result, RunOptions, SessionResult
@@ -36,7 +34,7 @@ from ilcc_graph.run.strategies import Reporter, Strategy, one, register
 from ilcc_graph.types import Calibration, FrameResult
 
 __all__ = [
-    "headline", "observe", "pair_frames", "require_cameras", "rig_options", "solve", "with_unsolved_causes",
+    "headline", "observe", "pair_frames", "require_cameras", "solve", "with_unsolved_causes",
 ]  # fmt: skip
 
 log = logging.getLogger(__name__)
@@ -73,7 +71,7 @@ def headline(res: RigResult) -> Calibration:
     diagnostics = {"variance_factor": float(res.variance_factor)}
     errors = rig_calibrate.lidar_errors(res)  # the base LiDAR's: the boards on corrected ranges read them
     sensors = {"lidar_errors": errors} if errors else {}
-    if refined := rig_calibrate.camera_intrinsics(res).get(a):
+    if refined := res.solution.intrinsics(a):
         sensors["camera_intrinsics"] = refined
     return Calibration(
         np.asarray(e.T), np.asarray(e.covariance), tuple(frames), f"rig {a}/{b}", diagnostics,
@@ -99,28 +97,6 @@ def pair_frames(res: RigResult, a: str, b: str, camera_only: bool = False) -> li
         corners = m.corners.get(a) if m is not None else None
         frames.append(FrameResult(moment, why is None, why, board, corners))
     return frames
-
-
-def rig_options(seen: RigObservation, options: RunOptions) -> RigRunOptions:
-    """The rig's solve under ``calibrate``'s options for a pair (the sensor model, the LiDAR's errors,
-    the camera's intrinsics, the noise policy); as a pair's run (``run.after.without_print``), when
-    most of the base LiDAR's boards show no print (placed by their outline), its own errors are
-    estimated, said once."""
-    base = seen.rig.lidars[0]
-    boards = [m.boards[base] for m in seen.moments if base in m.boards]
-    estimate = options.lidar_errors is None and options.lidar_errors_without_print
-    if estimate and (plain := mostly_outline(boards)) is not None:
-        log.warning(
-            "%d of %d boards of %s were placed by their outline: its own errors (each beam's range offset) "
-            "are estimated, as a pair's run does, since the boards' planes then carry the translation",
-            plain, len(boards), base,
-        )  # fmt: skip
-        options = dataclasses.replace(options, lidar_errors=LidarErrorOptions())
-    solve = RigOptions(
-        noise=options.noise, models=options.models, lidar_errors=options.lidar_errors,
-        intrinsics=options.intrinsics, intrinsics_choice=options.intrinsics_choice,
-    )  # fmt: skip
-    return RigRunOptions(stages=options.stages, solve=solve)
 
 
 def require_cameras(res: RigResult) -> None:
@@ -156,7 +132,7 @@ def _camera_rules(res: RigResult, camera: str, lidar: str) -> None:
     failing = [] if joint is None else [(n, why) for n, why in joint.failing if n in used]
     far = {} if joint is None else far_above((joint.components(lidar)[0], joint.components(camera)[1]))
     T = np.asarray(res.relative(camera, lidar).T)
-    refined = camera in rig_calibrate.camera_intrinsics(res)
+    refined = res.solution.intrinsics(camera) is not None
     require_supported(frames, failing, far, res.rig.pair_config(camera, lidar), T, camera, refined)
 
 
@@ -180,12 +156,16 @@ def with_unsolved_causes(res: RigResult) -> RigResult:
 
 
 def solve(observations: Sequence[Observation], options: RunOptions, report: Reporter | None = None) -> Result:
-    """The rig's joint answer from its observation (``observe``). Raises CalibrationImpossible,
-    IndeterminateSystem."""
+    """The rig's joint answer from its observation (``observe``), solved under a pair's options (the
+    sensor model, the LiDAR's errors, the camera's intrinsics, the noise policy). Raises
+    CalibrationImpossible, IndeterminateSystem."""
     obs = one(observations, "rig")
     if not isinstance(obs.data, RigObservation):
         raise ValueError("rig mode: the observation holds no rig (observe it with this strategy's observe)")
-    res = with_unsolved_causes(solve_observed(obs.data, rig_options(obs.data, options)))
+    o = options
+    how = RigOptions(o.noise, o.models, lidar_errors=o.lidar_errors, intrinsics=o.intrinsics,
+                     intrinsics_choice=o.intrinsics_choice)  # fmt: skip
+    res = with_unsolved_causes(solve_observed(obs.data, RigRunOptions(o.stages, solve=how)))
     require_cameras(res)
     cal = headline(res)
     poses = {s: res.pose(s) for s in res.sensors}
@@ -193,4 +173,4 @@ def solve(observations: Sequence[Observation], options: RunOptions, report: Repo
     return Result("rig", cal, (session,), options, cal.covariance, poses=poses, rig=to_calibration(res))
 
 
-register(Strategy("rig", solve, second_pass=True, sensor_errors=False, observe=observe))
+register(Strategy("rig", solve, second_pass=True, observe=observe))
