@@ -84,6 +84,33 @@ def test_verify_a_calibration_against_its_own_capture(simulated, calibrated, tmp
     assert code in (0, 4) and cam["rotation_deg"] < 1e-9 and cam["translation_mm"] < 1e-6, cam
 
 
+def test_verify_a_calibration_whose_intrinsics_were_refined(simulated, tmp_path: Path) -> None:
+    """A pinhole stated twice a typical calibration's error off, calibrated with
+    ``--refine-intrinsics``: its own capture is observed with the refined intrinsics the calibration
+    stores (the same lens as stated then), so every board is checked and nothing changed (with the
+    stated ones the capture's boards sat 9 of their sigmas from their images and it could not be
+    calibrated: "unchecked", warn); its LiDAR knocked: fail. A capture that states other intrinsics
+    keeps its own, said in a note."""
+    data = simulated("pinhole", "--intrinsics-error", "2", frames=12, seed=3)
+    cal = tmp_path / "cal"
+    args = ["--out", str(cal), "--no-report", "--jobs", "1", "--refine-intrinsics"]
+    assert main(["calibrate", str(data), *args]) == 0
+    refined = yaml.safe_load((cal / "calibration.yaml").read_text())["sensor_errors"]["camera_intrinsics"]
+    assert any(abs(v["refined"] - v["stated"]) > 3 * v["sigma"] for v in refined.values()), refined
+    code, doc = _verify(cal / "calibration.yaml", data, tmp_path / "v")
+    cam = doc["sensors"]["camera"]
+    assert code == 0 and cam["boards"] == 12 and cam["translation_mm"] < 1.0, cam
+    code, doc = _verify(cal / "calibration.yaml", _knocked(data, tmp_path / "knocked"), tmp_path / "vk")
+    cam = doc["sensors"]["camera"]
+    assert code == 5 and cam["boards"] >= 11 and 8 < cam["translation_mm"] < 20, cam
+    other = shutil.copytree(data, tmp_path / "other", symlinks=True)
+    d = yaml.safe_load((other / "config.yaml").read_text())
+    d["camera"]["K"][0][0] += 1.0
+    (other / "config.yaml").write_text(yaml.safe_dump(d))
+    _, doc = _verify(cal / "calibration.yaml", other, tmp_path / "vo")
+    assert any("stated otherwise than calibrated" in n for n in doc["notes"]), doc["notes"]
+
+
 @pytest.mark.slow
 def test_verify_the_recorded_set_split_in_two(acfr_data: Path, tmp_path: Path) -> None:
     """acfr-vlp16-fisheye: 14 frames calibrated, the last 6 verified with the colour named wrongly:

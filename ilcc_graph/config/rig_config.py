@@ -12,7 +12,8 @@ docs/rig.md has the schema and an example.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -133,6 +134,24 @@ class RigConfig:
 
     def bag_path(self) -> Path | None:
         return None if self.data.bag is None else self.base_dir / self.data.bag
+
+    def with_intrinsics(self, refined: Mapping[str, Mapping[str, Any]]) -> tuple[RigConfig, list[str]]:
+        """The rig with each camera's intrinsics those a calibration refined (``refined``: {camera:
+        ``names``, ``stated``, ``values``}) where the rig states the ones that calibration was made
+        with (the same lens as configured then); and a line per camera whose stated ones differ (its
+        own are kept)."""
+        sensors, notes = [], []
+        for s in self.sensors:
+            got, cam = refined.get(s.name), s.camera
+            if cam is not None and got is not None:
+                stated = np.asarray(got["stated"], dtype=np.float64)
+                theta = cam.intrinsics()
+                if tuple(got["names"]) == cam.intrinsic_names and np.allclose(theta, stated, 1e-9, 1e-12):
+                    s = replace(s, camera=cam.with_intrinsics(np.asarray(got["values"], dtype=np.float64)))
+                else:
+                    notes.append(f"{s.name}: its intrinsics stated otherwise than calibrated: its own used")
+            sensors.append(s)
+        return replace(self, sensors=tuple(sensors)), notes
 
     def pair_config(self, camera: str, lidar: str) -> Config:
         """The single-pair :class:`Config` of one camera and one LiDAR of the rig (the stages' input)."""

@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import InputError
 from ..types import Calibration
 from .files import read_yaml
-from .results import calibration_from_doc
+from .results import calibration_from_doc, intrinsics_from_doc
 from .rig_results import KIND, WITH_TERMS, RigCalibration, rig_calibration_from_doc
 
 __all__ = ["StoredSetup", "covariance_problem", "pose_problem", "read_stored", "stored_setup"]
@@ -144,7 +144,8 @@ class StoredSetup:
     kind is not recorded is absent. where, board_where: the files that say them. sensor_model: the
     model of the LiDAR's own errors the calibration chose (``selection.Selection.chosen``), or None.
     lidar_errors: the LiDAR's own errors it estimated (``names``, ``values``; a rig's also
-    ``lidar``, its base LiDAR), or None.
+    ``lidar``, its base LiDAR), or None. intrinsics: {camera: its intrinsics the calibration refined
+    (``names``, ``stated``, ``values``, ``sigmas``: ``results.intrinsics_from_doc``)}.
     """
 
     board: Mapping[str, Any] | None = None
@@ -153,6 +154,7 @@ class StoredSetup:
     board_where: str = ""
     sensor_model: str | None = None
     lidar_errors: Mapping[str, Any] | None = None
+    intrinsics: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
 
 def _board(d: Any) -> dict[str, Any] | None:
@@ -175,7 +177,8 @@ def stored_setup(path: str | Path, cal: Calibration | RigCalibration, names: tup
                 kinds[str(s)] = "lidar"
         model = _chosen(cal.extra.get("sensor_model"))
         errors = _lidar_errors(cal.extra.get("lidar_errors"), p)
-        return StoredSetup(_board(rig.get("board")), kinds, str(p), str(p), model, errors)
+        intrinsics = _intrinsics(cal.extra.get("camera_intrinsics"), p)
+        return StoredSetup(_board(rig.get("board")), kinds, str(p), str(p), model, errors, intrinsics)
     resolved = _resolved(p)
     lidar, camera = names
     kinds = {lidar: "lidar"}
@@ -184,7 +187,23 @@ def stored_setup(path: str | Path, cal: Calibration | RigCalibration, names: tup
     board = _board(resolved.get("board"))
     model = _chosen((cal.sensors or {}).get("model"))
     errors = _lidar_errors((cal.sensors or {}).get("lidar_errors"), p)
-    return StoredSetup(board, kinds, str(p), str(p.parent / RESOLVED), model, errors)
+    refined = (cal.sensors or {}).get("camera_intrinsics")
+    intrinsics = {camera: refined} if refined is not None else {}
+    return StoredSetup(board, kinds, str(p), str(p.parent / RESOLVED), model, errors, intrinsics)
+
+
+def _intrinsics(d: Any, where: Path) -> dict[str, dict[str, Any]]:
+    """A rig's stored ``camera_intrinsics`` ({camera: {name: {stated, refined, sigma}}}) as
+    {camera: ``results.intrinsics_from_doc``}; InputError naming the file when malformed."""
+    if d is None:
+        return {}
+    try:
+        return {str(c): intrinsics_from_doc(e) for c, e in d.items()}
+    except (AttributeError, KeyError, TypeError, ValueError):
+        raise InputError(
+            f"{where}: camera_intrinsics must map each camera to its intrinsics' stated, refined and sigma "
+            f"(found {d!r:.120}): calibrate again"
+        ) from None
 
 
 def _lidar_errors(d: Any, where: Path) -> dict[str, Any] | None:

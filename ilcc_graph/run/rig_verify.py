@@ -153,8 +153,13 @@ def verify_capture(
     src = source if isinstance(source, RigSource) else open_source(source, rig=True)
     rig = src.config()
     check_comparable(stored, rig, str(rig.source or source))
+    setup = stored.setup if isinstance(stored, StoredCalibration) else StoredSetup()
+    rig, lens = rig.with_intrinsics(setup.intrinsics)  # the cameras as calibrated (refined intrinsics)
+    src = RigSource(src.location, rig) if setup.intrinsics else src
     if len(rig.cameras) == 1 and len(rig.lidars) == 1:
-        return verify_pair_capture(stored, src, options, stages, progress)
+        got = verify_pair_capture(stored, src, options, stages, progress)
+        got.result.notes.extend(lens)
+        return got
     obs = observe_rig(src, stages, progress)
     rig = obs.rig  # as the capture shows it: each LiDAR's beam table, the print's colour
     cams = {c: cam for c in rig.cameras if (cam := rig.sensor(c).camera) is not None}
@@ -167,8 +172,7 @@ def verify_capture(
     if solve_with is not options:
         model = solve_with.rig.models[0]
         res.notes.append(f"the capture's LiDAR errors modelled as the calibration chose: {model}")
-    if corrected:
-        res.notes.append(corrected)
+    res.notes.extend([corrected, *lens] if corrected else lens)
     return VerifyRun(res, len(obs.moments))
 
 
