@@ -44,7 +44,8 @@ def run(args: argparse.Namespace) -> int:
             f"{args.calibration}: a rig's calibration; evaluate judges a single pair's (verify checks a rig)"
         )
     source = open_source(args.data, **bag_options(args))
-    ev, skipped = evaluate_on(source, cal.T_cam_lidar, stage_options(args), Progress("frames"))
+    refined = (cal.sensors or {}).get("camera_intrinsics")  # the lens as the calibration refined it
+    ev, skipped = evaluate_on(source, cal.T_cam_lidar, stage_options(args), Progress("frames"), refined)
     print(evaluation_text(evaluation_rows(ev), skipped))
     if args.out:
         print(f"wrote {write_evaluation(Path(args.out), ev, command=args.command_line)}")

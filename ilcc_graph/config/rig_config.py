@@ -27,6 +27,7 @@ from .model import Config, Roi
 
 __all__ = [
     "PAIR_NAMES",
+    "as_calibrated",
     "RigConfig",
     "RigData",
     "RigSensor",
@@ -136,20 +137,15 @@ class RigConfig:
         return None if self.data.bag is None else self.base_dir / self.data.bag
 
     def with_intrinsics(self, refined: Mapping[str, Mapping[str, Any]]) -> tuple[RigConfig, list[str]]:
-        """The rig with each camera's intrinsics those a calibration refined (``refined``: {camera:
-        ``names``, ``stated``, ``values``}) where the rig states the ones that calibration was made
-        with (the same lens as configured then); and a line per camera whose stated ones differ (its
-        own are kept)."""
-        sensors, notes = [], []
+        """The rig with each camera as a calibration refined it (``as_calibrated``; ``refined``:
+        {camera: its refined intrinsics}); and a line per camera that keeps its own."""
+        sensors: list[RigSensor] = []
+        notes: list[str] = []
         for s in self.sensors:
-            got, cam = refined.get(s.name), s.camera
-            if cam is not None and got is not None:
-                stated = np.asarray(got["stated"], dtype=np.float64)
-                theta = cam.intrinsics()
-                if tuple(got["names"]) == cam.intrinsic_names and np.allclose(theta, stated, 1e-9, 1e-12):
-                    s = replace(s, camera=cam.with_intrinsics(np.asarray(got["values"], dtype=np.float64)))
-                else:
-                    notes.append(f"{s.name}: its intrinsics stated otherwise than calibrated: its own used")
+            if s.camera is not None and (got := refined.get(s.name)) is not None:
+                cam, note = as_calibrated(s.camera, got, s.name)
+                s = replace(s, camera=cam)
+                notes += [note] if note else []
             sensors.append(s)
         return replace(self, sensors=tuple(sensors)), notes
 
@@ -159,6 +155,20 @@ class RigConfig:
         if sc.camera is None or sl.kind != "lidar":
             raise ValueError(f"pair_config: {camera!r} must be a camera and {lidar!r} a LiDAR")
         return Config(self.board, sl.lidar, sc.camera, sl.roi, sl.intensity_column, self.source)
+
+
+def as_calibrated(
+    camera: CameraModel, refined: Mapping[str, Any], name: str
+) -> tuple[CameraModel, str | None]:
+    """``camera`` with the intrinsics a calibration refined (``refined``: ``names``, ``stated``,
+    ``values``, as a calibration file's ``camera_intrinsics`` reads back) when it states the ones that
+    calibration was made with (the same lens as configured then); else as it is, with a note on
+    camera ``name``."""
+    stated = np.asarray(refined["stated"], dtype=np.float64)
+    same = tuple(refined["names"]) == camera.intrinsic_names
+    if same and np.allclose(camera.intrinsics(), stated, rtol=1e-9, atol=1e-12):
+        return camera.with_intrinsics(np.asarray(refined["values"], dtype=np.float64)), None
+    return camera, f"{name}: its intrinsics stated otherwise than calibrated: its own used"
 
 
 def rig_from_config(

@@ -246,30 +246,16 @@ def verify_pair_capture(
 def verify_to_dict(run: VerifyRun, options: VerifyOptions) -> dict[str, Any]:
     """verify.yaml's content: the verdict, its exit status, each sensor's check, the rule."""
     r = run.result
-    sensors = {}
-    for s, c in r.sensors.items():
-        sensors[s] = {
-            "verdict": c.verdict,
-            "reason": c.reason,
-            "boards": c.boards,
-            "chi2": c.chi2,
-            "p_value": c.p_value,
-            "rotation_deg": c.rotation_deg,
-            "translation_mm": c.translation_mm,
-            "detectable_deg": c.detectable_deg,
-            "detectable_mm": c.detectable_mm,
-            "axes": {
-                a.name: {
-                    "verdict": a.verdict,
-                    "change": a.change,
-                    "sigma": a.sigma,
-                    "z": a.z,
-                    "p_value": a.p_value,
-                    "detectable": a.detectable,
-                }
-                for a in c.axes
-            },  # fmt: skip
+    keys = ("change", "sigma", "z", "p_value", "detectable")
+    sensors = {
+        s: {
+            "verdict": c.verdict, "reason": c.reason, "boards": c.boards, "chi2": c.chi2,
+            "p_value": c.p_value, "rotation_deg": c.rotation_deg, "translation_mm": c.translation_mm,
+            "detectable_deg": c.detectable_deg, "detectable_mm": c.detectable_mm,
+            "axes": {a.name: {"verdict": a.verdict, **{k: getattr(a, k) for k in keys}} for a in c.axes},
         }
+        for s, c in r.sensors.items()
+    }  # fmt: skip
     glob = (
         None if r.global_test is None else dict(zip(("chi2", "dof", "p_value"), r.global_test, strict=True))
     )
