@@ -26,7 +26,6 @@ from scipy.spatial.transform import Rotation
 
 from ilcc_graph.cameras import CameraModel, make_camera
 from ilcc_graph.exports import CONVENTION, _num, _quat_xyzw, _yaml_row
-from ilcc_graph.io.results import intrinsics_from_doc
 from ilcc_graph.io.rig_results import RigCalibration
 from ilcc_graph.types import sigma_dict
 
@@ -39,15 +38,14 @@ def rig_cameras(cal: RigCalibration) -> dict[str, CameraModel]:
     """{camera: model} from the calibration's rig section (in its sensors' order), with the intrinsics
     the run refined where it did (``camera_intrinsics``). ValueError when those are not the camera's."""
     sensors = (cal.rig or {}).get("sensors", {})
-    refined = cal.extra.get("camera_intrinsics") or {}
+    refined = cal.refined_intrinsics()
     out = {}
     for s in (s for s in cal.sensors if "camera" in sensors.get(s, {})):
         cam = make_camera(sensors[s]["camera"])
         if s in refined:
-            got = intrinsics_from_doc(refined[s])
-            if tuple(got["names"]) != cam.intrinsic_names:
+            if tuple(refined[s]["names"]) != cam.intrinsic_names:
                 raise ValueError(f"camera_intrinsics.{s}: not the intrinsics of its {cam.kind} camera")
-            cam = cam.with_intrinsics(got["values"])
+            cam = cam.with_intrinsics(refined[s]["values"])
         out[s] = cam
     return out
 

@@ -84,17 +84,41 @@ def test_verify_a_calibration_against_its_own_capture(simulated, calibrated, tmp
     assert code in (0, 4) and cam["rotation_deg"] < 1e-9 and cam["translation_mm"] < 1e-6, cam
 
 
-def test_verify_a_calibration_whose_intrinsics_were_refined(simulated, tmp_path: Path) -> None:
+def _frames_column(html: str, header: str) -> list[float]:
+    """The report's Frames table's column ``header``, one float per frame."""
+    from html.parser import HTMLParser
+
+    rows: list[list[str]] = []
+
+    class Cells(HTMLParser):
+        def handle_starttag(self, tag: str, attrs: object) -> None:
+            if tag == "tr":
+                rows.append([])
+            elif tag in ("td", "th") and rows:
+                rows[-1].append("")
+
+        def handle_data(self, data: str) -> None:
+            if rows and rows[-1]:
+                rows[-1][-1] += data
+
+    Cells().feed(html[html.index("<h2>Frames</h2>") :])
+    k = rows[0].index(header)
+    return [float(r[k]) for r in rows[1:] if len(r) == len(rows[0])]
+
+
+def test_a_calibration_whose_intrinsics_were_refined_is_seen_through_them(simulated, tmp_path: Path) -> None:
     """A pinhole stated twice a typical calibration's error off, calibrated with
     ``--refine-intrinsics``: its own capture is observed with the refined intrinsics the calibration
     stores (the same lens as stated then), so every board is checked and nothing changed (with the
     stated ones the capture's boards sat 9 of their sigmas from their images and it could not be
     calibrated: "unchecked", warn); its LiDAR knocked: fail. A capture that states other intrinsics
-    keeps its own, said in a note. ``evaluate`` takes the refined ones too."""
+    keeps its own, said in a note. ``evaluate`` and the report take the refined ones too (with the
+    stated ones the report drew the LiDAR's corners 4.7-5.5 px off the image's)."""
     data = simulated("pinhole", "--intrinsics-error", "2", frames=12, seed=3)
     cal = tmp_path / "cal"
-    args = ["--out", str(cal), "--no-report", "--jobs", "1", "--refine-intrinsics"]
-    assert main(["calibrate", str(data), *args]) == 0
+    assert main(["calibrate", str(data), "--out", str(cal), "--jobs", "1", "--refine-intrinsics"]) == 0
+    drawn = _frames_column((cal / "report" / "index.html").read_text(), "corner RMS (px)")
+    assert len(drawn) == 12 and max(drawn) < 0.3, drawn
     refined = yaml.safe_load((cal / "calibration.yaml").read_text())["sensor_errors"]["camera_intrinsics"]
     assert any(abs(v["refined"] - v["stated"]) > 3 * v["sigma"] for v in refined.values()), refined
     code, doc = _verify(cal / "calibration.yaml", data, tmp_path / "v")

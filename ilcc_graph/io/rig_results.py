@@ -17,7 +17,7 @@ import numpy as np
 
 from ilcc_graph.errors import InputError, quote
 from ilcc_graph.io.files import read_yaml, write_yaml
-from ilcc_graph.io.results import pose_terms_doc, pose_terms_from_doc
+from ilcc_graph.io.results import intrinsics_from_doc, pose_terms_doc, pose_terms_from_doc
 from ilcc_graph.types import PoseTerms, sigma_dict
 
 __all__ = [
@@ -62,6 +62,12 @@ class RigCalibration:
         """(6, 6) the covariance of ``sensor``'s pose."""
         k = self.sensors.index(sensor)
         return self.covariance[6 * k : 6 * k + 6, 6 * k : 6 * k + 6]
+
+    def refined_intrinsics(self) -> dict[str, dict[str, Any]]:
+        """{camera: its intrinsics the run refined (``results.intrinsics_from_doc``: names, stated,
+        values, sigmas)} from ``extra["camera_intrinsics"]``; empty when it refined none."""
+        stored = self.extra.get("camera_intrinsics") or {}
+        return {str(c): intrinsics_from_doc(d) for c, d in stored.items()}
 
 
 def rig_calibration_doc(cal: RigCalibration) -> dict[str, Any]:

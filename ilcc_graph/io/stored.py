@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import InputError
 from ..types import Calibration
 from .files import read_yaml
-from .results import calibration_from_doc, intrinsics_from_doc
+from .results import calibration_from_doc
 from .rig_results import KIND, WITH_TERMS, RigCalibration, rig_calibration_from_doc
 
 __all__ = ["StoredSetup", "covariance_problem", "pose_problem", "read_stored", "stored_setup"]
@@ -139,10 +139,11 @@ def _resolved(path: Path) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class StoredSetup:
-    """What a calibration was made with. board: ``squares`` and ``square_size`` as config.yaml has
-    them, or None (not recorded). sensors: {name: ``"lidar"`` or the camera's model}; a sensor whose
-    kind is not recorded is absent. where, board_where: the files that say them. sensor_model: the
-    model of the LiDAR's own errors the calibration chose (``selection.Selection.chosen``), or None.
+    """What a calibration was made with. board: ``squares`` (sorted; [] unreadable) and
+    ``square_size`` (NaN unreadable), or None (not recorded). sensors: {name: ``"lidar"`` or the
+    camera's model}; a sensor whose kind is not recorded is absent. where, board_where: the files
+    that say them. sensor_model: the model of the LiDAR's own errors the calibration chose
+    (``selection.Selection.chosen``), or None.
     lidar_errors: the LiDAR's own errors it estimated (``names``, ``values``; a rig's also
     ``lidar``, its base LiDAR), or None. intrinsics: {camera: its intrinsics the calibration refined
     (``names``, ``stated``, ``values``, ``sigmas``: ``results.intrinsics_from_doc``)}.
@@ -158,9 +159,19 @@ class StoredSetup:
 
 
 def _board(d: Any) -> dict[str, Any] | None:
+    """``squares`` (sorted ints; [] when unreadable) and ``square_size`` (m; NaN when unreadable) of a
+    stored ``board`` section, or None without one."""
     if not isinstance(d, dict) or "squares" not in d:
         return None
-    return {"squares": d.get("squares"), "square_size": d.get("square_size")}
+    try:
+        squares = sorted(int(x) for x in d["squares"])
+    except (TypeError, ValueError):
+        squares = []
+    try:
+        size = float(d.get("square_size"))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        size = float("nan")
+    return {"squares": squares, "square_size": size}
 
 
 def stored_setup(path: str | Path, cal: Calibration | RigCalibration, names: tuple[str, str]) -> StoredSetup:
@@ -177,7 +188,7 @@ def stored_setup(path: str | Path, cal: Calibration | RigCalibration, names: tup
                 kinds[str(s)] = "lidar"
         model = _chosen(cal.extra.get("sensor_model"))
         errors = _lidar_errors(cal.extra.get("lidar_errors"), p)
-        intrinsics = _intrinsics(cal.extra.get("camera_intrinsics"), p)
+        intrinsics = _intrinsics(cal, p)
         return StoredSetup(_board(rig.get("board")), kinds, str(p), str(p), model, errors, intrinsics)
     resolved = _resolved(p)
     lidar, camera = names
@@ -192,17 +203,15 @@ def stored_setup(path: str | Path, cal: Calibration | RigCalibration, names: tup
     return StoredSetup(board, kinds, str(p), str(p.parent / RESOLVED), model, errors, intrinsics)
 
 
-def _intrinsics(d: Any, where: Path) -> dict[str, dict[str, Any]]:
-    """A rig's stored ``camera_intrinsics`` ({camera: {name: {stated, refined, sigma}}}) as
-    {camera: ``results.intrinsics_from_doc``}; InputError naming the file when malformed."""
-    if d is None:
-        return {}
+def _intrinsics(cal: RigCalibration, where: Path) -> dict[str, dict[str, Any]]:
+    """A rig's refined intrinsics (``RigCalibration.refined_intrinsics``); InputError naming the file
+    when its ``camera_intrinsics`` is malformed."""
     try:
-        return {str(c): intrinsics_from_doc(e) for c, e in d.items()}
+        return cal.refined_intrinsics()
     except (AttributeError, KeyError, TypeError, ValueError):
         raise InputError(
             f"{where}: camera_intrinsics must map each camera to its intrinsics' stated, refined and sigma "
-            f"(found {d!r:.120}): calibrate again"
+            f"(found {cal.extra.get('camera_intrinsics')!r:.120}): calibrate again"
         ) from None
 
 

@@ -229,7 +229,7 @@ def _moment_pictures(
     """(camera, LiDAR, its picture, a note) for every camera with a pose and a file at moment ``m``
     and every LiDAR with a pose whose board was found there (the picture None when the image could
     not be read, with the reason; pairs whose board is neither imaged nor detected are left out)."""
-    rig = observation.rig
+    rig = observation.rig.with_intrinsics(cal.refined_intrinsics())[0]  # the cameras as solved
     out: list[tuple[str, str, BoardPicture | None, str]] = []
     lidars = [lid for lid in m.boards if lid in cal.T_ref_sensor]
     for cam in rig.cameras:

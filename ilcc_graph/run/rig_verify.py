@@ -103,40 +103,19 @@ def check_comparable(stored: StoredRig, rig: RigConfig, where: str) -> None:
                 f"calibration ({setup.where}): not comparable; verify checks the same sensors against "
                 "their calibration (calibrate again after changing a camera or lens)"
             )
-    if setup.board is not None:
-        b = rig.board
-        want = (sorted(_ints(setup.board.get("squares"))), _float(setup.board.get("square_size")))
-        if not _same_board(want, b.rows, b.cols, b.square_size):
-            raise InputError(
-                f"{where}: the capture's board is [{b.rows}, {b.cols}] squares of {b.square_size:g} m, the "
-                f"stored calibration's {list(want[0])} of {want[1]:g} m ({setup.board_where}): not "
-                "comparable; take the capture with the calibration's board"
-            )
+    b, want = rig.board, setup.board  # what the calibration does not record is not compared
+    size = float("nan") if want is None else float(want["square_size"])
+    same_size = not np.isfinite(size) or abs(size - b.square_size) <= 1e-6 * max(size, b.square_size)
+    if want is not None and (want["squares"] not in ([], sorted((b.rows, b.cols))) or not same_size):
+        raise InputError(
+            f"{where}: the capture's board is [{b.rows}, {b.cols}] squares of {b.square_size:g} m, the "
+            f"stored calibration's {want['squares']} of {size:g} m ({setup.board_where}): not "
+            "comparable; take the capture with the calibration's board"
+        )
 
 
 def _kind(k: str) -> str:
     return "LiDAR" if k == "lidar" else f"{k} camera"
-
-
-def _ints(v: Any) -> list[int]:
-    try:
-        return [int(x) for x in v]
-    except (TypeError, ValueError):
-        return []
-
-
-def _float(v: Any) -> float:
-    try:
-        return float(v)
-    except (TypeError, ValueError):
-        return float("nan")
-
-
-def _same_board(want: tuple[list[int], float], rows: int, cols: int, size: float) -> bool:
-    squares, s = want
-    return squares in ([], sorted((rows, cols))) and (
-        not np.isfinite(s) or abs(s - size) <= 1e-6 * max(s, size)
-    )
 
 
 def verify_capture(
