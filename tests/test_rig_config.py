@@ -180,3 +180,23 @@ def test_more_bad_rig_files(tmp_path) -> None:
         load_rig_config(tmp_path / "empty.yaml")
     with pytest.raises(InputError, match=r"nope\.yaml: rig file not found"):
         load_rig_config(tmp_path / "nope.yaml")
+
+
+def test_the_cameras_as_a_calibration_refined_them(tmp_path) -> None:
+    """``RigConfig.with_intrinsics`` (verify's and the report's one rule): a camera stated as when
+    calibrated takes the refined intrinsics; one stated otherwise keeps its own, with a note; the
+    others and the LiDARs are untouched."""
+    rig = load_rig_config(_write(tmp_path, _doc_example()))
+    front, left = rig.sensor("front").camera, rig.sensor("left").camera
+    moved = front.intrinsics() * 1.01
+    refined = {
+        "front": {"names": list(front.intrinsic_names), "stated": front.intrinsics(), "values": moved},
+        "left": {"names": list(left.intrinsic_names), "stated": left.intrinsics() + 1, "values": moved},
+    }
+    got, notes = rig.with_intrinsics(refined)
+    np.testing.assert_array_equal(got.sensor("front").camera.intrinsics(), moved)
+    assert got.sensor("left").camera == left and got.sensor("back").camera == rig.sensor("back").camera
+    assert got.sensor("top") == rig.sensor("top") and got.names == rig.names
+    assert len(notes) == 1 and notes[0].startswith("left: ") and "stated otherwise" in notes[0]
+    same, none = rig.with_intrinsics({})
+    assert all(a is b for a, b in zip(same.sensors, rig.sensors, strict=True)) and none == []
