@@ -288,6 +288,37 @@ def test_cameras_stated_alike_are_two_lenses() -> None:
     assert all(stated.intrinsics(c) is None for c in cams)
 
 
+def test_each_camera_of_a_rig_is_judged_as_a_pair_judges_its_camera() -> None:
+    """Two cameras, one stated with its focal lengths 2 % off, the other right, 20 boards each: with
+    ``auto`` the rig refines the first one's intrinsics only (each camera judged alone, the others as
+    stated, as a pair judges its camera), and both poses are honest; as stated, the first is not."""
+    rng = np.random.default_rng(8)
+    cams, T_cb = ring(2, hfov_deg=120.0)
+    moments, _ = rig_moments(rng, 40, cams, T_cb, BOARD, min_views=1)
+    seen = {c: sum(c in m.corners for m in moments) for c in cams}
+    assert min(seen.values()) >= 18, seen
+    true0 = cams["cam0"]
+    theta = true0.intrinsics()
+    off = true0.with_intrinsics(np.concatenate([theta[:2] * 1.02, theta[2:]]))
+    stated_moments = []  # cam0's bearings as its stated (wrong) intrinsics give them
+    for m in moments:
+        if (c0 := m.corners.get("cam0")) is not None:
+            m = replace(m, corners={**m.corners, "cam0": replace(c0, bearings=off.bearing(c0.uv))})
+        stated_moments.append(m)
+    stated = {"cam0": off, "cam1": cams["cam1"]}
+    truth = true_poses(T_cb, {"lidar": gtsam.Pose3()})
+    start = RigStart("lidar", truth, *place_boards(stated_moments, truth, BOARD, "lidar"))
+    opts = RigOptions(intrinsics_choice="auto")
+    auto = solve_rig(stated_moments, start, BOARD, ["lidar"], stated, options=opts)
+    choice = auto.selection.camera
+    assert choice is not None and choice.refined and "cam0: the boards move them" in choice.reason, choice
+    assert auto.intrinsics("cam0") is not None and auto.intrinsics("cam1") is None
+    for c in cams:
+        assert nees(auto.relative(c, "lidar"), np.linalg.inv(truth[c])) < 16.8, c
+    kept = solve_rig(stated_moments, start, BOARD, ["lidar"], stated)
+    assert nees(kept.relative("cam0", "lidar"), np.linalg.inv(truth["cam0"])) > 16.8
+
+
 def test_a_board_only_two_cameras_saw_chains_them() -> None:
     """cam1 never sees a board with the LiDAR: it is placed and solved through cam0's boards."""
     rng = np.random.default_rng(23)

@@ -67,7 +67,8 @@ class Assembly:
                 lenses.append(v.lens_key())
             self._camera_of.append(same[0] if same else len(self.cameras) - 1)
         if refine is None:
-            refine = problem.intrinsics is not None and problem.intrinsics.refine
+            opts = problem.intrinsics
+            refine = opts is not None and opts.refine and (opts.cameras is None or set(opts.cameras))
         chosen = refine if isinstance(refine, set) else set(range(len(self.cameras))) if refine else set()
         self.refined = {c for c, cam in enumerate(self.cameras) if c in chosen and refinable(cam)}
         self.kinds: list[FactorKind] = []

@@ -21,6 +21,11 @@ fisheye's halves of 10 boards refined from quarters of 5 passed, and the two hal
 at chi-square 106), a panorama (nothing to refine) or when a refined solve fails, they are not
 refined all together.
 
+**Several cameras** (a rig's; cameras stated alike are still two lenses, ``View.lens``): each is
+judged as a pair's camera, all its intrinsics refined and the others' held as stated, on the boards
+it sees (its halves of them; every other board in both); those that pass are refined together.
+Subsets are not tried there.
+
 **Subsets** (``IntrinsicsOptions.subsets``; none by default, ``LIDAR_SUBSETS``: fx, fy, k1, then
 k1). When all of them are not refined (too few boards, or their halves disagree: one board per
 frame does not separate the focal length from the whole lens polynomial) and the config states no
@@ -118,15 +123,16 @@ def _refined(
     solve: Callable[..., Solution],
     boards: Sequence[str] | None = None,
     free: Sequence[int] | None = None,
+    c: int = 0,
 ) -> tuple[Solution, np.ndarray, np.ndarray]:
-    """(solution, intrinsics, their covariance) of ``problem`` with camera 0's intrinsics refined;
+    """(solution, intrinsics, their covariance) of ``problem`` with camera ``c``'s intrinsics refined;
     ``free``: the indices of those not held as stated (all when None), the only ones returned."""
     sol = solve(problem, options, boards=boards)
-    got = sol.intrinsics(0)
+    got = sol.intrinsics(c)
     if got is None:
         raise IndeterminateSystem("no view enters with refined intrinsics")
     v = got[1]
-    C = sol.marginals.covariance(I(0), "the intrinsics of camera 0") + sol.spread_of([I(0)], [len(v)])
+    C = sol.marginals.covariance(I(c), f"the intrinsics of camera {c}") + sol.spread_of([I(c)], [len(v)])
     k = np.arange(len(v)) if free is None else np.asarray(free)
     return sol, v[k], C[np.ix_(k, k)]
 
@@ -146,12 +152,15 @@ def subset_problem(problem: Problem, names: Sequence[str]) -> Problem | None:
 def choose_intrinsics(
     problem: Problem, options: NoiseOptions = NoiseOptions(), solve: Callable[..., Solution] = solve_problem
 ) -> tuple[Solution | None, CameraChoice | None]:
-    """Refine camera 0's intrinsics in ``problem`` (its LiDAR model chosen, intrinsics as stated) and
-    judge it (module docstring): all of them, else each of its options' ``subsets`` in turn;
-    (the refined solution when chosen, else None; the choice, or None when the camera has nothing to
-    refine)."""
-    if len({v.lens_key() for v in problem.views}) != 1:  # one camera's lens, else none chosen
-        return None, None
+    """Refine the cameras' intrinsics in ``problem`` (its LiDAR model chosen, intrinsics as stated) and
+    judge them (module docstring). One camera: all of them, else each of its options' ``subsets`` in
+    turn. Several (a rig's): each camera's all, the others as stated, on the boards it sees; those
+    that pass refined together. (the refined solution when chosen, else None; the choice, or None
+    when no camera has anything to refine)."""
+    lenses = _lenses(problem)
+    if len(lenses) > 1:
+        sol, each = _each_camera(problem, lenses, options, solve)
+        return (sol, each) if each is None else _said(sol, each)
     cam = problem.views[0].camera
     if not refinable(cam):
         return None, None
@@ -171,6 +180,47 @@ def choose_intrinsics(
     return _said(sol, choice)
 
 
+def _lenses(problem: Problem) -> list[tuple[CameraModel, str, list[str]]]:
+    """Per camera of the graph (``View.lens_key``, in the assembly's order): its model, its views'
+    group (a rig's camera name) and the names of the boards it sees."""
+    got: dict[object, tuple[CameraModel, str, list[str]]] = {}
+    for v in problem.views:
+        seen = got.setdefault(v.lens_key(), (v.camera, v.group, []))[2]
+        if (name := problem.boards[v.board].name) not in seen:
+            seen.append(name)
+    return list(got.values())
+
+
+def _each_camera(
+    problem: Problem, lenses: list[tuple[CameraModel, str, list[str]]], options: NoiseOptions,
+    solve: Callable[..., Solution],
+) -> tuple[Solution | None, CameraChoice | None]:  # fmt: skip
+    """Several cameras: each one's intrinsics judged alone (the others as stated), those that pass
+    refined together; the choice says each camera's reason."""
+    opts = replace(problem.intrinsics or IntrinsicsOptions(), refine=True)
+    chosen: dict[int, Solution] = {}
+    reasons = []
+    for c, (cam, name, seen) in enumerate(lenses):
+        if not refinable(cam):
+            continue
+        one = replace(problem, intrinsics=replace(opts, cameras=(c,)))
+        sol, choice = _judge(one, cam, None, options, solve, c, seen)
+        reasons.append(f"{name or f'camera {c}'}: {choice.reason}")
+        if sol is not None:
+            chosen[c] = sol
+    if not reasons:
+        return None, None
+    if len(chosen) > 1:
+        both = replace(problem, intrinsics=replace(opts, cameras=tuple(chosen)))
+        try:
+            chosen = {0: solve(both, options)}
+        except (CalibrationImpossible, IndeterminateSystem, np.linalg.LinAlgError) as err:
+            reasons.append(f"refined together, the solve failed ({err})")
+            chosen = {}
+    sol = next(iter(chosen.values()), None)
+    return sol, CameraChoice(sol is not None, reason="; ".join(reasons))
+
+
 def _stated(choice: CameraChoice) -> bool:
     """The refined intrinsics were the stated ones within their sigma (fewer of them are not tried)."""
     k = choice.significance_dof
@@ -179,19 +229,21 @@ def _stated(choice: CameraChoice) -> bool:
 
 def _judge(
     problem: Problem, cam: CameraModel, free: Sequence[int] | None, options: NoiseOptions,
-    solve: Callable[..., Solution],
+    solve: Callable[..., Solution], c: int = 0, seen: Sequence[str] | None = None,
 ) -> tuple[Solution | None, CameraChoice]:  # fmt: skip
-    """The two tests of the intrinsics ``free`` (all when None) refined in ``problem``: (its solution
-    when both pass, else None; the choice)."""
+    """The two tests of camera ``c``'s intrinsics ``free`` (all when None) refined in ``problem``
+    (halves of the boards it sees, ``seen``, default all; the others in both): (its solution when
+    both pass, else None; the choice)."""
     n_free = len(cam.intrinsic_names) if free is None else len(free)
-    n, need = len(problem.boards), max(MIN_BOARDS, 2 * n_free)
+    names = [b.name for b in problem.boards] if seen is None else list(seen)
+    n, need = len(names), max(MIN_BOARDS, 2 * n_free)
     if n < need:
         why = f"{n} boards: too few to tell (halves of {need // 2} or more)"
         return None, CameraChoice(False, reason=why)
-    names = [b.name for b in problem.boards]
+    others = [b.name for b in problem.boards if b.name not in names]
     failed = (CalibrationImpossible, IndeterminateSystem, np.linalg.LinAlgError)
     try:
-        sol, v, C = _refined(problem, options, solve, free=free)
+        sol, v, C = _refined(problem, options, solve, free=free, c=c)
     except failed as err:
         return None, CameraChoice(False, reason=f"a refined solve failed ({err})")
     stated = cam.intrinsics() if free is None else cam.intrinsics()[list(free)]
@@ -202,7 +254,8 @@ def _judge(
         why = f"the refined ones are the stated ones within their sigma ({sig:.1f} <= {q_sig:.1f}, {k} dof)"
         return None, CameraChoice(False, sig, k, reason=why)
     try:
-        (va, Ca), (vb, Cb) = [_refined(problem, options, solve, names[j::2], free)[1:] for j in (0, 1)]
+        halves = [_refined(problem, options, solve, others + names[j::2], free, c) for j in (0, 1)]
+        (_, va, Ca), (_, vb, Cb) = halves
     except failed as err:
         return None, CameraChoice(False, sig, k, reason=f"a refined solve of half the boards failed ({err})")
     dh = va - vb

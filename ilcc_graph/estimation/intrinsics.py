@@ -28,14 +28,16 @@ EXACT_SIGMA = 1e-9
 
 @dataclass(frozen=True)
 class IntrinsicsOptions:
-    """refine: the cameras' intrinsics become variables (``--refine-intrinsics``); propagate: a
-    stated intrinsics uncertainty enters the extrinsic's covariance when they are not refined;
-    subsets: what the camera's choice tries when the boards do not determine all intrinsics
+    """refine: the cameras' intrinsics become variables (``--refine-intrinsics``); cameras: with
+    ``refine``, which of them (the graph's camera indices, ``Assembly.cameras``; None: all);
+    propagate: a stated intrinsics uncertainty enters the extrinsic's covariance when they are not
+    refined; subsets: what the camera's choice tries when the boards do not determine all intrinsics
     (``camera_choice``: e.g. ``camera_choice.LIDAR_SUBSETS``; none by default)."""
 
     refine: bool = False
     propagate: bool = True
     subsets: tuple[tuple[str, ...], ...] = ()
+    cameras: tuple[int, ...] | None = None
 
 
 def refinable(camera: CameraModel) -> bool:

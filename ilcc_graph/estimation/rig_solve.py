@@ -9,10 +9,10 @@ boards, each other LiDAR's boards and each camera's views have their own (with
 ``NoiseOptions.view_components`` every view its own bearing component); solved by the core's noise
 policy (``noise.solve_problem``: gate, variance components, final factor).
 
-The base LiDAR's sensor model is chosen, and the camera's intrinsics refined when asked or when the
-boards support it, by the pair's one solve (``sources.solve_sources`` over ``RigOptions.models``, the
-pair's candidates ``batch.sensor_models``; the intrinsics' choice, ``camera_choice``, for a rig of
-one camera): each candidate reads the base LiDAR's boards its way (``none``: their 6-dof poses;
+The base LiDAR's sensor model is chosen, and the cameras' intrinsics refined when asked or when the
+boards support them, by the pair's one solve (``sources.solve_sources`` over ``RigOptions.models``,
+the pair's candidates ``batch.sensor_models``; the intrinsics' choice, ``camera_choice``, each
+camera judged as a pair's): each candidate reads the base LiDAR's boards its way (``none``: their 6-dof poses;
 ``range`` and ``beams``: their returns with the LiDAR's own range errors; ``offset``: one range
 offset), is solved under the noise policy and scored by every camera's views held out in turn; the
 joint covariance carries the candidates the boards cannot tell apart (``selection.mixture`` over the
@@ -64,8 +64,8 @@ class RigOptions:
     lidar_errors: the ``beams`` model's options. range_offset: force the ``offset`` model, the base
     LiDAR's range offset with the weak prior ``range_offset_prior_sigma_m`` (``models`` then unused);
     samples_board: (M, 3) board-face points for it (None: from the corners). intrinsics,
-    intrinsics_choice: the camera's intrinsics as a pair's ``sources.solve_sources`` takes them
-    (refined when asked, or with ``auto`` when the boards support it; a rig of one camera)."""
+    intrinsics_choice: the cameras' intrinsics as a pair's ``sources.solve_sources`` takes them
+    (refined when asked, or with ``auto`` each camera's when the boards support it)."""
 
     noise: NoiseOptions = NoiseOptions()
     models: tuple[str, ...] = AUTO
