@@ -200,3 +200,21 @@ def test_the_cameras_as_a_calibration_refined_them(tmp_path) -> None:
     assert len(notes) == 1 and notes[0].startswith("left: ") and "stated otherwise" in notes[0]
     same, none = rig.with_intrinsics({})
     assert all(a is b for a, b in zip(same.sensors, rig.sensors, strict=True)) and none == []
+
+
+def test_refined_intrinsics_are_taken_as_exact(tmp_path) -> None:
+    """A stated ``intrinsics_sigma`` was the stated values' uncertainty: the refined ones replace them
+    with their uncertainty in the calibration's covariance (else a capture verified through them
+    propagated the stated sigma: 17 mm where its boards give 0.8 mm)."""
+    import dataclasses
+
+    from ilcc_graph.config.rig_config import as_calibrated
+    from ilcc_graph.estimation.intrinsics import default_sigmas
+
+    cam = load_rig_config(_write(tmp_path, _doc_example())).sensor("front").camera
+    cam = dataclasses.replace(cam, intrinsics_sigma=default_sigmas(cam))
+    values = cam.intrinsics() * 1.001
+    refined = {"names": cam.intrinsic_names, "stated": cam.intrinsics(), "values": values}
+    got, note = as_calibrated(cam, refined, "front")
+    assert note is None and got.intrinsics_sigma is None
+    np.testing.assert_array_equal(got.intrinsics(), values)

@@ -162,12 +162,14 @@ def as_calibrated(
 ) -> tuple[CameraModel, str | None]:
     """``camera`` with the intrinsics a calibration refined (``refined``: ``names``, ``stated``,
     ``values``, as a calibration file's ``camera_intrinsics`` reads back) when it states the ones that
-    calibration was made with (the same lens as configured then); else as it is, with a note on
-    camera ``name``."""
+    calibration was made with (the same lens as configured then), taken as exact (their uncertainty
+    is in the calibration's covariance; a stated ``intrinsics_sigma`` was the stated values'); else
+    as it is, with a note on camera ``name``."""
     stated = np.asarray(refined["stated"], dtype=np.float64)
     same = tuple(refined["names"]) == camera.intrinsic_names
     if same and np.allclose(camera.intrinsics(), stated, rtol=1e-9, atol=1e-12):
-        return camera.with_intrinsics(np.asarray(refined["values"], dtype=np.float64)), None
+        values = np.asarray(refined["values"], dtype=np.float64)
+        return replace(camera.with_intrinsics(values), intrinsics_sigma=None), None
     return camera, f"{name}: its intrinsics stated otherwise than calibrated: its own used"
 
 
