@@ -135,8 +135,9 @@ def write_report(
     from ilcc_graph.report.next_pose_picture import next_pose_png
 
     obs, cal = session.observation, session.calibration
-    config, source = obs.pair_config, obs.pair_source  # the camera as solved (its refined intrinsics):
-    config = dataclasses.replace(config, camera=calibration_camera(cal) or config.camera)
+    config, source = obs.pair_config, obs.pair_source
+    if "camera_intrinsics" in cal.sensors:  # the camera as solved: its refined intrinsics
+        config = dataclasses.replace(config, camera=calibration_camera(cal) or config.camera)
     curve, cv = studies if studies is not None else (None, None)
     damaged = {f.name for f in cal.frames if f.damaged}  # their files cannot be read
     frames = source.frames() if source is not None else []  # no pair's source: no frame's pictures

@@ -254,7 +254,8 @@ def _judge(
         why = f"the refined ones are the stated ones within their sigma ({sig:.1f} <= {q_sig:.1f}, {k} dof)"
         return None, CameraChoice(False, sig, k, reason=why)
     try:
-        halves = [_refined(problem, options, solve, others + names[j::2], free, c) for j in (0, 1)]
+        half = [sorted(others + names[j::2], key=problem.index) for j in (0, 1)]  # in the problem's order
+        halves = [_refined(problem, options, solve, h, free, c) for h in half]
         (_, va, Ca), (_, vb, Cb) = halves
     except failed as err:
         return None, CameraChoice(False, sig, k, reason=f"a refined solve of half the boards failed ({err})")
