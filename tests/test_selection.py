@@ -15,6 +15,7 @@ from test_lidar_errors import CAMERA, T_TRUE, lidar_frames, nees
 from ilcc_graph.app import main
 from ilcc_graph.errors import IndeterminateSystem
 from ilcc_graph.estimation import NoiseOptions, solve, solve_problem
+from ilcc_graph.estimation import chi2 as chi2_dist
 from ilcc_graph.estimation.camera_choice import LIDAR_SUBSETS, subset_problem
 from ilcc_graph.estimation.held_out import board_spread, held_out
 from ilcc_graph.estimation.intrinsics import IntrinsicsOptions
@@ -330,3 +331,16 @@ def test_intrinsics_with_stated_sigmas_are_not_refined_as_a_subset() -> None:
         frames, with_sigma, T_cl.matrix(), models=AUTO, intrinsics=WITH_SUBSETS, intrinsics_choice="auto"
     )
     assert sol.selection.camera is not None and "alone" not in sol.selection.camera.reason
+
+
+@pytest.mark.slow
+def test_a_recorded_lens_the_boards_call_off_is_said(acfr_data, calibrated) -> None:
+    """acfr-vlp16-fisheye: refined, its stated intrinsics move far beyond their sigma, but two halves of
+    its 19 boards refine them differently; they stay as stated, and the reason says the stated ones
+    look off and how to carry their uncertainty (before: only that the halves disagree)."""
+    out = calibrated(acfr_data)
+    camera = yaml.safe_load((out / "calibration.yaml").read_text())["sensor_errors"]["model"]["camera"]
+    q = float(chi2_dist.ppf(0.99, camera["significance_dof"]))
+    assert not camera["refined"] and camera["significance_chi2"] > 10 * q, camera
+    assert camera["reproducibility_chi2"] > float(chi2_dist.ppf(0.99, camera["reproducibility_dof"]))
+    assert "the stated ones look off" in camera["reason"] and "camera.intrinsics_sigma" in camera["reason"]

@@ -265,9 +265,13 @@ def _judge(
     if rep <= q_rep:
         why = f"the boards move them ({sig:.1f} > {q_sig:.1f}), two halves agree ({rep:.1f} <= {q_rep:.1f})"
         return sol, CameraChoice(True, sig, k, rep, len(dh), why)
+    carried = "their stated sigma carried"
+    if cam.intrinsics_sigma is None:
+        carried = "taken as exact: state camera.intrinsics_sigma (a lens calibration's) to carry their sigma"
     why = (
-        f"two halves of the boards refine them differently ({rep:.1f} > {q_rep:.1f}, {len(dh)} dof): the "
-        "boards do not determine them"
+        f"the boards move them off the stated ones ({sig:.1f} > {q_sig:.1f}, {k} dof), but two halves of the "
+        f"boards refine them differently ({rep:.1f} > {q_rep:.1f}, {len(dh)} dof): the boards do not "
+        f"determine them; the stated ones look off, {carried}"
     )
     return None, CameraChoice(False, sig, k, rep, len(dh), why)
 
