@@ -130,10 +130,12 @@ def look_rig(
     rig = _seen(obs).rig
     out, found = obs, False
     fates = cal.extra.get("moments", {})
+    refined = cal.refined_intrinsics()  # each camera as solved, where the run refined its lens
     for lidar in _solved(cal.T_ref_sensor, rig.lidars):
-        errors = sensors if lidar == rig.lidars[0] else None
+        errors = sensors if lidar == rig.lidars[0] else {}
         for camera in _solved(cal.T_ref_sensor, rig.cameras):
-            view, pair = pair_view(out, cal.T_ref_sensor, camera, lidar, errors, fates)
+            lens = {"camera_intrinsics": refined[camera]} if camera in refined else {}
+            view, pair = pair_view(out, cal.T_ref_sensor, camera, lidar, {**errors, **lens}, fates)
             again = second_pass(view, pair, stages, refit=refit)
             if again is not None:
                 out, found = put_back(out, lidar, view, again), True

@@ -14,7 +14,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from ilcc_graph import workers
+from ilcc_graph.cameras import CameraModel
 from ilcc_graph.config import Config
+from ilcc_graph.config.rig_config import as_calibrated
 from ilcc_graph.datasets import FrameSource
 from ilcc_graph.errors import FrameError
 from ilcc_graph.init import upnp
@@ -55,9 +57,13 @@ def look_again(
     return out
 
 
-def _predicted_board(corners: ImageCorners, config: Config, T_cam_lidar: np.ndarray) -> np.ndarray | None:
-    """(4, 4) ``T_lidar_board`` as the image and the extrinsic put it (UPnP of the corners), or None."""
-    b = corners.bearings / np.linalg.norm(corners.bearings, axis=1, keepdims=True)
+def _predicted_board(
+    corners: ImageCorners, config: Config, T_cam_lidar: np.ndarray, camera: CameraModel | None = None
+) -> np.ndarray | None:
+    """(4, 4) ``T_lidar_board`` as the image and the extrinsic put it (UPnP of the corners; their
+    bearings through ``camera`` when given, the extrinsic's refined one), or None."""
+    b = corners.bearings if camera is None or corners.uv is None else camera.bearing(corners.uv)
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
     ok = np.all(np.isfinite(b), axis=1)
     if ok.sum() < 6:
         return None
@@ -71,21 +77,24 @@ def second_pass(
     """The observation with the boards found near their predicted place, or None when none changed.
 
     Frames with image corners whose LiDAR board is missing, or lies more than ``far_m`` from where
-    the image and ``cal``'s extrinsic put it, are searched again near that place (on the ranges
-    corrected by ``cal``'s estimate of the LiDAR's errors when ``refit`` and those are
-    ``lidar.stretch.significant``). None too without a pair's source to read the scans from
-    (``Observation.pair_source``).
+    the image and ``cal``'s extrinsic put it (its corners through the camera as solved:
+    ``cal.sensors["camera_intrinsics"]`` where the run refined them), are searched again near that
+    place (on the ranges corrected by ``cal``'s estimate of the LiDAR's errors when ``refit`` and
+    those are ``lidar.stretch.significant``). None too without a pair's source to read the scans
+    from (``Observation.pair_source``).
     """
     source = obs.pair_source
     if source is None:
         return None
+    refined = cal.sensors.get("camera_intrinsics")  # the camera as solved, where it refined the lens
+    camera = as_calibrated(obs.pair_config.camera, refined, "camera")[0] if refined else None
     expected: dict[str, ExpectedBoard] = {}
     centre = obs.config.board.corners_board().mean(axis=0)
     unused = {g.name for g in cal.frames if not g.used}
     for f in obs.frames:
         if f.corners is None or f.name not in unused:
             continue
-        pred = _predicted_board(f.corners, obs.pair_config, cal.T_cam_lidar)
+        pred = _predicted_board(f.corners, obs.pair_config, cal.T_cam_lidar, camera)
         if pred is None:
             continue
         if f.board is not None:
