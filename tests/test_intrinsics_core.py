@@ -100,12 +100,12 @@ def test_the_second_look_expects_each_board_through_the_refined_lens(observed) -
     refined, the image's corners go through the refined lens (``second_look.second_pass``), and the
     expected boards sit where the LiDAR saw them to 0.2-2.1 mm; through the stated lens 23-57 mm
     (measured)."""
-    from ilcc_graph.config.rig_config import as_calibrated
+    from ilcc_graph.config.rig_config import solved_camera
     from ilcc_graph.run.second_look import _predicted_board
 
     cal = solve_observations([observed], RunOptions(intrinsics=IntrinsicsOptions(refine=True))).calibration
     config = observed.pair_config
-    camera = as_calibrated(config.camera, cal.sensors["camera_intrinsics"], "camera")[0]
+    camera = solved_camera(config.camera, cal.sensors)
     centre = config.board.corners_board().mean(axis=0)
     off = {"stated": [], "refined": []}
     for f in (f for f in observed.frames if f.board is not None and f.corners is not None):

@@ -14,6 +14,7 @@ from ilcc_graph.cameras import camera_class, camera_kinds
 from ilcc_graph.config import load_config, load_rig_config, parse_rig_config, rig_config_to_dict
 from ilcc_graph.config.rig_config import flu_from_pose, pose_from_flu
 from ilcc_graph.errors import InputError
+from ilcc_graph.types import RefinedIntrinsics
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -189,10 +190,11 @@ def test_the_cameras_as_a_calibration_refined_them(tmp_path) -> None:
     rig = load_rig_config(_write(tmp_path, _doc_example()))
     front, left = rig.sensor("front").camera, rig.sensor("left").camera
     moved = front.intrinsics() * 1.01
-    refined = {
-        "front": {"names": list(front.intrinsic_names), "stated": front.intrinsics(), "values": moved},
-        "left": {"names": list(left.intrinsic_names), "stated": left.intrinsics() + 1, "values": moved},
-    }
+    def lens(cam, stated, values):  # noqa: ANN001, ANN202
+        return RefinedIntrinsics(cam.intrinsic_names, stated, values, np.ones_like(values))
+
+    other = left.intrinsics()  # stated otherwise than when calibrated
+    refined = {"front": lens(front, front.intrinsics(), moved), "left": lens(left, other + 1, other)}
     got, notes = rig.with_intrinsics(refined)
     np.testing.assert_array_equal(got.sensor("front").camera.intrinsics(), moved)
     assert got.sensor("left").camera == left and got.sensor("back").camera == rig.sensor("back").camera
@@ -214,7 +216,7 @@ def test_refined_intrinsics_are_taken_as_exact(tmp_path) -> None:
     cam = load_rig_config(_write(tmp_path, _doc_example())).sensor("front").camera
     cam = dataclasses.replace(cam, intrinsics_sigma=default_sigmas(cam))
     values = cam.intrinsics() * 1.001
-    refined = {"names": cam.intrinsic_names, "stated": cam.intrinsics(), "values": values}
+    refined = RefinedIntrinsics(cam.intrinsic_names, cam.intrinsics(), values, np.ones_like(values))
     got, note = as_calibrated(cam, refined, "front")
     assert note is None and got.intrinsics_sigma is None
     np.testing.assert_array_equal(got.intrinsics(), values)

@@ -262,9 +262,9 @@ def test_one_camera_and_one_lidar_refine_the_intrinsics_as_the_batch() -> None:
     assert np.allclose(est.covariance, ref.covariance, rtol=1e-6, atol=1e-14)
     got = sol.intrinsics("cam0")
     assert got is not None and ref.intrinsics is not None
-    assert got["names"] == ref.intrinsics[0] and np.array_equal(got["stated"], stated.intrinsics())
-    assert np.allclose(got["values"], ref.intrinsics[1], rtol=1e-9)
-    assert np.allclose(got["sigmas"], ref.intrinsics[2], rtol=1e-6)
+    assert list(got.names) == ref.intrinsics[0] and np.array_equal(got.stated, stated.intrinsics())
+    assert np.allclose(got.values, ref.intrinsics[1], rtol=1e-9)
+    assert np.allclose(got.sigmas, ref.intrinsics[2], rtol=1e-6)
     kept = solve_rig(moments, start, board, ["lidar"], cams)  # RigOptions' default: as stated
     assert kept.selection.camera is None and kept.intrinsics("cam0") is None
 
@@ -283,7 +283,7 @@ def test_cameras_stated_alike_are_two_lenses() -> None:
     got = [sol.intrinsics(c) for c in cams]
     assert all(g is not None for g in got)
     assert sol.solution is not None and len(sol.solution.assembly.cameras) == 2
-    assert not np.allclose(got[0]["values"], got[1]["values"])  # type: ignore[index]
+    assert not np.allclose(got[0].values, got[1].values)  # type: ignore[union-attr]
     _, stated = solve_all(moments, cams, {"lidar": None}, options=RigOptions(models=("none",)))
     assert all(stated.intrinsics(c) is None for c in cams)
 

@@ -13,6 +13,7 @@ from ilcc_graph.app.console import Progress
 from ilcc_graph.app.flags import bag_options, stage_options
 from ilcc_graph.app.folders import claim_given
 from ilcc_graph.errors import InputError
+from ilcc_graph.types import RefinedIntrinsics
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -44,7 +45,8 @@ def run(args: argparse.Namespace) -> int:
             f"{args.calibration}: a rig's calibration; evaluate judges a single pair's (verify checks a rig)"
         )
     source = open_source(args.data, **bag_options(args))
-    refined = (cal.sensors or {}).get("camera_intrinsics")  # the lens as the calibration refined it
+    lens = (cal.sensors or {}).get("camera_intrinsics")  # the lens as the calibration refined it
+    refined = None if lens is None else RefinedIntrinsics.from_entry(lens)
     ev, skipped = evaluate_on(source, cal.T_cam_lidar, stage_options(args), Progress("frames"), refined)
     print(evaluation_text(evaluation_rows(ev), skipped))
     if args.out:

@@ -21,7 +21,7 @@ import numpy as np
 
 from ilcc_graph import signals, workers
 from ilcc_graph.config import Config
-from ilcc_graph.exports import calibration_camera
+from ilcc_graph.config.rig_config import solved_camera
 from ilcc_graph.io import write_ply
 from ilcc_graph.io.rig_results import RigCalibration
 from ilcc_graph.report.rig_report import RigImages, RigSeen, rig_report_files
@@ -135,9 +135,8 @@ def write_report(
     from ilcc_graph.report.next_pose_picture import next_pose_png
 
     obs, cal = session.observation, session.calibration
-    config, source = obs.pair_config, obs.pair_source
-    if "camera_intrinsics" in cal.sensors:  # the camera as solved: its refined intrinsics
-        config = dataclasses.replace(config, camera=calibration_camera(cal) or config.camera)
+    config, source = obs.pair_config, obs.pair_source  # the camera as solved (refined intrinsics):
+    config = dataclasses.replace(config, camera=solved_camera(config.camera, cal.sensors))
     curve, cv = studies if studies is not None else (None, None)
     damaged = {f.name for f in cal.frames if f.damaged}  # their files cannot be read
     frames = source.frames() if source is not None else []  # no pair's source: no frame's pictures

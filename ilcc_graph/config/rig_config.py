@@ -23,6 +23,7 @@ from scipy.spatial.transform import Rotation
 from ..board import Board
 from ..cameras import CameraModel
 from ..lidars import LidarModel
+from ..types import RefinedIntrinsics
 from .model import Config, Roi
 
 __all__ = [
@@ -35,6 +36,7 @@ __all__ = [
     "pose_from_flu",
     "rig_config_to_dict",
     "rig_from_config",
+    "solved_camera",
 ]
 
 #: the sensors of a single-pair data set seen as a rig: (LiDAR, camera) names, also their folders
@@ -136,7 +138,7 @@ class RigConfig:
     def bag_path(self) -> Path | None:
         return None if self.data.bag is None else self.base_dir / self.data.bag
 
-    def with_intrinsics(self, refined: Mapping[str, Mapping[str, Any]]) -> tuple[RigConfig, list[str]]:
+    def with_intrinsics(self, refined: Mapping[str, RefinedIntrinsics]) -> tuple[RigConfig, list[str]]:
         """The rig with each camera as a calibration refined it (``as_calibrated``; ``refined``:
         {camera: its refined intrinsics}); and a line per camera that keeps its own."""
         sensors: list[RigSensor] = []
@@ -158,19 +160,23 @@ class RigConfig:
 
 
 def as_calibrated(
-    camera: CameraModel, refined: Mapping[str, Any], name: str
+    camera: CameraModel, refined: RefinedIntrinsics, name: str
 ) -> tuple[CameraModel, str | None]:
-    """``camera`` with the intrinsics a calibration refined (``refined``: ``names``, ``stated``,
-    ``values``, as a calibration file's ``camera_intrinsics`` reads back) when it states the ones that
-    calibration was made with (the same lens as configured then), taken as exact (their uncertainty
-    is in the calibration's covariance; a stated ``intrinsics_sigma`` was the stated values'); else
-    as it is, with a note on camera ``name``."""
-    stated = np.asarray(refined["stated"], dtype=np.float64)
-    same = tuple(refined["names"]) == camera.intrinsic_names
-    if same and np.allclose(camera.intrinsics(), stated, rtol=1e-9, atol=1e-12):
-        values = np.asarray(refined["values"], dtype=np.float64)
-        return replace(camera.with_intrinsics(values), intrinsics_sigma=None), None
+    """``camera`` with the intrinsics a calibration refined when it states the ones that calibration
+    was made with (the same lens as configured then), taken as exact (their uncertainty is in the
+    calibration's covariance; a stated ``intrinsics_sigma`` was the stated values'); else as it is,
+    with a note on camera ``name``."""
+    same = refined.names == camera.intrinsic_names
+    if same and np.allclose(camera.intrinsics(), refined.stated, rtol=1e-9, atol=1e-12):
+        return replace(camera.with_intrinsics(refined.values), intrinsics_sigma=None), None
     return camera, f"{name}: its intrinsics stated otherwise than calibrated: its own used"
+
+
+def solved_camera(camera: CameraModel, sensors: Mapping[str, Any]) -> CameraModel:
+    """``camera`` as a calibration's ``sensors`` (``Calibration.sensors``) refined it
+    (``as_calibrated``), else as it is."""
+    lens = sensors.get("camera_intrinsics")
+    return camera if lens is None else as_calibrated(camera, RefinedIntrinsics.from_entry(lens), "camera")[0]
 
 
 def rig_from_config(

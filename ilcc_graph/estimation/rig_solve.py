@@ -31,7 +31,6 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 from gtsam.symbol_shorthand import Y
@@ -52,7 +51,7 @@ from ilcc_graph.estimation.problem import BoardPrior, Problem, View
 from ilcc_graph.estimation.selection import AUTO, MODELS, Selection, SensorModel, mixture
 from ilcc_graph.estimation.sources import solve_sources
 from ilcc_graph.init.rig_start import RigStart, adjoint, orient_moment
-from ilcc_graph.types import Estimate, MomentResult, PoseTerms
+from ilcc_graph.types import Estimate, MomentResult, PoseTerms, RefinedIntrinsics
 
 __all__ = ["RigOptions", "RigSolution", "between", "rig_problem", "solve_rig", "to_reference"]
 
@@ -179,10 +178,9 @@ class RigSolution:
                 out[name] = t
         return out
 
-    def intrinsics(self, camera: str) -> dict[str, Any] | None:
-        """``camera``'s refined intrinsics (its views' ``I(c)``) as a pair's
-        ``Calibration.sensors["camera_intrinsics"]``: names, the stated values, the refined ones and
-        their sigmas; None when they were taken as stated."""
+    def intrinsics(self, camera: str) -> RefinedIntrinsics | None:
+        """``camera``'s refined intrinsics (its views' ``I(c)``), or None when they were taken as
+        stated."""
         views = [] if self.solution is None else self.solution.problem.views
         j = next((j for j, v in enumerate(views) if v.group == camera), None)
         if self.solution is None or j is None:
@@ -191,7 +189,7 @@ class RigSolution:
         if got is None:
             return None
         names, values, sigmas = got
-        return {"names": names, "stated": views[j].camera.intrinsics(), "values": values, "sigmas": sigmas}
+        return RefinedIntrinsics(tuple(names), views[j].camera.intrinsics(), values, sigmas)
 
     def in_frame(self, reference: str) -> RigSolution:
         """The same answer with every pose in sensor ``reference``'s frame."""

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..types import Calibration
+from ..types import Calibration, RefinedIntrinsics
 from .files import read_yaml
 from .results import calibration_from_doc
 from .rig_results import KIND, WITH_TERMS, RigCalibration, rig_calibration_from_doc
@@ -145,8 +145,8 @@ class StoredSetup:
     that say them. sensor_model: the model of the LiDAR's own errors the calibration chose
     (``selection.Selection.chosen``), or None.
     lidar_errors: the LiDAR's own errors it estimated (``names``, ``values``; a rig's also
-    ``lidar``, its base LiDAR), or None. intrinsics: {camera: its intrinsics the calibration refined
-    (``names``, ``stated``, ``values``, ``sigmas``: ``results.intrinsics_from_doc``)}.
+    ``lidar``, its base LiDAR), or None. intrinsics: {camera: its intrinsics the calibration
+    refined}.
     """
 
     board: Mapping[str, Any] | None = None
@@ -155,7 +155,7 @@ class StoredSetup:
     board_where: str = ""
     sensor_model: str | None = None
     lidar_errors: Mapping[str, Any] | None = None
-    intrinsics: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    intrinsics: Mapping[str, RefinedIntrinsics] = field(default_factory=dict)
 
 
 def _board(d: Any) -> dict[str, Any] | None:
@@ -188,7 +188,7 @@ def stored_setup(path: str | Path, cal: Calibration | RigCalibration, names: tup
                 kinds[str(s)] = "lidar"
         model = _chosen(cal.extra.get("sensor_model"))
         errors = _lidar_errors(cal.extra.get("lidar_errors"), p)
-        intrinsics = _intrinsics(cal, p)
+        intrinsics = _intrinsics(cal, "", p)
         return StoredSetup(_board(rig.get("board")), kinds, str(p), str(p), model, errors, intrinsics)
     resolved = _resolved(p)
     lidar, camera = names
@@ -198,20 +198,22 @@ def stored_setup(path: str | Path, cal: Calibration | RigCalibration, names: tup
     board = _board(resolved.get("board"))
     model = _chosen((cal.sensors or {}).get("model"))
     errors = _lidar_errors((cal.sensors or {}).get("lidar_errors"), p)
-    refined = (cal.sensors or {}).get("camera_intrinsics")
-    intrinsics = {camera: refined} if refined is not None else {}
+    intrinsics = _intrinsics(cal, camera, p)
     return StoredSetup(board, kinds, str(p), str(p.parent / RESOLVED), model, errors, intrinsics)
 
 
-def _intrinsics(cal: RigCalibration, where: Path) -> dict[str, dict[str, Any]]:
-    """A rig's refined intrinsics (``RigCalibration.refined_intrinsics``); InputError naming the file
-    when its ``camera_intrinsics`` is malformed."""
+def _intrinsics(cal: Calibration | RigCalibration, camera: str, where: Path) -> dict[str, RefinedIntrinsics]:
+    """The cameras' intrinsics the calibration refined (a rig's ``RigCalibration.refined_intrinsics``,
+    a pair's ``camera``'s); InputError naming the file when its ``camera_intrinsics`` is malformed."""
     try:
-        return cal.refined_intrinsics()
+        if isinstance(cal, RigCalibration):
+            return cal.refined_intrinsics()
+        refined = (cal.sensors or {}).get("camera_intrinsics")
+        return {} if refined is None else {camera: RefinedIntrinsics.from_entry(refined)}
     except (AttributeError, KeyError, TypeError, ValueError):
         raise InputError(
-            f"{where}: camera_intrinsics must map each camera to its intrinsics' stated, refined and sigma "
-            f"(found {cal.extra.get('camera_intrinsics')!r:.120}): calibrate again"
+            f"{where}: camera_intrinsics must give each camera's intrinsics, stated, refined and sigma: "
+            "calibrate again"
         ) from None
 
 

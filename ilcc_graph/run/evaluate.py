@@ -7,8 +7,6 @@ paper's intensity re-projection error and the corner errors come from ``evaluati
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
-from typing import Any
 
 import numpy as np
 
@@ -17,6 +15,7 @@ from ilcc_graph.datasets import FrameSource
 from ilcc_graph.evaluation import Evaluation, eval_frames, evaluate
 from ilcc_graph.run.observe import Progress, observe
 from ilcc_graph.run.stages import StageOptions
+from ilcc_graph.types import RefinedIntrinsics
 
 __all__ = ["evaluate_on"]
 
@@ -28,7 +27,7 @@ def evaluate_on(
     T_cam_lidar: np.ndarray,
     stages: StageOptions = StageOptions(),
     progress: Progress | None = None,
-    refined: Mapping[str, Any] | None = None,
+    refined: RefinedIntrinsics | None = None,
 ) -> tuple[Evaluation, list[tuple[str, str]]]:
     """(the metric of ``T_cam_lidar`` (4, 4) on the source's frames, [(frame, why not evaluated)]);
     ``refined``: the camera's intrinsics the calibration refined, taken where the source states the

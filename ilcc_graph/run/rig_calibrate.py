@@ -251,7 +251,8 @@ def to_calibration(result: RigResult) -> RigCalibration:
         extra["lidar_errors"] = errors
     if margins := _lidar_margins(result):
         extra["lidar_margin"] = margins
-    refined = {c: intrinsics_doc(x) for c in result.rig.cameras if (x := result.solution.intrinsics(c))}
+    got = {c: x for c in result.rig.cameras if (x := result.solution.intrinsics(c)) is not None}
+    refined = {c: intrinsics_doc(x.entry()) for c, x in got.items()}
     if refined:  # the exports take these (``exports_rig.rig_cameras``)
         extra["camera_intrinsics"] = refined
     T, C = dict(result.T_ref_sensor), result.covariance

@@ -16,7 +16,7 @@ import numpy as np
 from ilcc_graph import workers
 from ilcc_graph.cameras import CameraModel
 from ilcc_graph.config import Config
-from ilcc_graph.config.rig_config import as_calibrated
+from ilcc_graph.config.rig_config import solved_camera
 from ilcc_graph.datasets import FrameSource
 from ilcc_graph.errors import FrameError
 from ilcc_graph.init import upnp
@@ -86,8 +86,8 @@ def second_pass(
     source = obs.pair_source
     if source is None:
         return None
-    refined = cal.sensors.get("camera_intrinsics")  # the camera as solved, where it refined the lens
-    camera = as_calibrated(obs.pair_config.camera, refined, "camera")[0] if refined else None
+    refined = "camera_intrinsics" in cal.sensors  # the camera as solved, where it refined the lens
+    camera = solved_camera(obs.pair_config.camera, cal.sensors) if refined else None
     expected: dict[str, ExpectedBoard] = {}
     centre = obs.config.board.corners_board().mean(axis=0)
     unused = {g.name for g in cal.frames if not g.used}

@@ -72,7 +72,7 @@ def headline(res: RigResult) -> Calibration:
     errors = rig_calibrate.lidar_errors(res)  # the base LiDAR's: the boards on corrected ranges read them
     sensors = {"lidar_errors": errors} if errors else {}
     if refined := res.solution.intrinsics(a):
-        sensors["camera_intrinsics"] = refined
+        sensors["camera_intrinsics"] = refined.entry()
     return Calibration(
         np.asarray(e.T), np.asarray(e.covariance), tuple(frames), f"rig {a}/{b}", diagnostics,
         None if cam is None else cam.to_dict(), sensors,
