@@ -43,9 +43,9 @@ def rig_cameras(cal: RigCalibration) -> dict[str, CameraModel]:
     for s in (s for s in cal.sensors if "camera" in sensors.get(s, {})):
         cam = make_camera(sensors[s]["camera"])
         if s in refined:
-            if refined[s].names != cam.intrinsic_names:
+            if tuple(refined[s]["names"]) != cam.intrinsic_names:
                 raise ValueError(f"camera_intrinsics.{s}: not the intrinsics of its {cam.kind} camera")
-            cam = cam.with_intrinsics(refined[s].values)
+            cam = cam.with_intrinsics(refined[s]["values"])
         out[s] = cam
     return out
 

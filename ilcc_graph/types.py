@@ -123,32 +123,6 @@ class PoseTerms:
         return dataclasses.replace(self, T=np.linalg.inv(self.T), covariance=0.5 * (C + C.T))
 
 
-@dataclass(frozen=True)
-class RefinedIntrinsics:
-    """A camera's intrinsics a calibration refined. names: the model's ``intrinsic_names``; stated:
-    (n,) the config's values; values: (n,) the refined ones; sigmas: (n,) their 1-sigma (each in its
-    own unit: px, or none). ``Calibration.sensors["camera_intrinsics"]`` holds it as ``entry()``."""
-
-    names: tuple[str, ...]
-    stated: np.ndarray
-    values: np.ndarray
-    sigmas: np.ndarray
-
-    @classmethod
-    def from_entry(cls, d: Any) -> RefinedIntrinsics:
-        """From ``{names, stated, values, sigmas}``; KeyError, TypeError or ValueError when malformed."""
-        arrays = [np.asarray(d[k], dtype=np.float64).reshape(-1) for k in ("stated", "values", "sigmas")]
-        names = tuple(str(n) for n in d["names"])
-        if any(len(a) != len(names) for a in arrays):
-            raise ValueError(f"refined intrinsics: {len(names)} names but values of other lengths")
-        return cls(names, *arrays)
-
-    def entry(self) -> dict[str, Any]:
-        """``{names, stated, values, sigmas}``, as ``Calibration.sensors["camera_intrinsics"]``."""
-        return {"names": list(self.names), "stated": self.stated, "values": self.values,
-                "sigmas": self.sigmas}  # fmt: skip
-
-
 def lidar_term_units(lidar_errors: dict[str, Any]) -> list[str]:
     """Each term's unit (``m``, ``rad`` or ``1``) of ``Calibration.sensors['lidar_errors']``: the
     ``units`` the solve recorded (``LidarLayout.units``); a dict made without them (older code, by

@@ -10,11 +10,10 @@ import numpy as np
 import pytest
 import yaml
 
-from ilcc_graph.cameras import camera_class, camera_kinds
+from ilcc_graph.cameras import RefinedIntrinsics, camera_class, camera_kinds
 from ilcc_graph.config import load_config, load_rig_config, parse_rig_config, rig_config_to_dict
 from ilcc_graph.config.rig_config import flu_from_pose, pose_from_flu
 from ilcc_graph.errors import InputError
-from ilcc_graph.types import RefinedIntrinsics
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -191,7 +190,7 @@ def test_the_cameras_as_a_calibration_refined_them(tmp_path) -> None:
     front, left = rig.sensor("front").camera, rig.sensor("left").camera
     moved = front.intrinsics() * 1.01
     def lens(cam, stated, values):  # noqa: ANN001, ANN202
-        return RefinedIntrinsics(cam.intrinsic_names, stated, values, np.ones_like(values))
+        return RefinedIntrinsics(cam.intrinsic_names, stated, values, np.ones_like(values)).entry()
 
     other = left.intrinsics()  # stated otherwise than when calibrated
     refined = {"front": lens(front, front.intrinsics(), moved), "left": lens(left, other + 1, other)}

@@ -13,7 +13,6 @@ from ilcc_graph.app.console import Progress
 from ilcc_graph.app.flags import bag_options, stage_options
 from ilcc_graph.app.folders import claim_given
 from ilcc_graph.errors import InputError
-from ilcc_graph.types import RefinedIntrinsics
 
 __all__ = ["HELP", "add_arguments", "run"]
 
@@ -31,6 +30,7 @@ def add_arguments(sp: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """The paper's metric and corner errors of a calibration on a data set's frames."""
     from ilcc_graph.app.write import write_evaluation
+    from ilcc_graph.cameras import RefinedIntrinsics
     from ilcc_graph.datasets import open_source
     from ilcc_graph.evaluation import evaluation_rows
     from ilcc_graph.io.rig_results import RigCalibration

@@ -5,7 +5,7 @@ imported here. See ``camera_model.py`` for what a model file holds; nothing outs
 on the kind.
 """
 
-from .camera_model import R_FLU_OPENCV, CameraModel, LensModel
+from .camera_model import R_FLU_OPENCV, CameraModel, LensModel, RefinedIntrinsics
 from .double_sphere import DoubleSphere as DoubleSphere
 from .equirectangular import Equirectangular as Equirectangular
 from .fisheye import Fisheye as Fisheye
@@ -25,6 +25,7 @@ __all__ = [
     "R_FLU_OPENCV",
     "CameraModel",
     "LensModel",
+    "RefinedIntrinsics",
     "camera_class",
     "camera_from_config",
     "camera_section_from_kalibr",

@@ -21,9 +21,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ..board import Board
-from ..cameras import CameraModel
+from ..cameras import CameraModel, RefinedIntrinsics
 from ..lidars import LidarModel
-from ..types import RefinedIntrinsics
 from .model import Config, Roi
 
 __all__ = [
@@ -138,14 +137,15 @@ class RigConfig:
     def bag_path(self) -> Path | None:
         return None if self.data.bag is None else self.base_dir / self.data.bag
 
-    def with_intrinsics(self, refined: Mapping[str, RefinedIntrinsics]) -> tuple[RigConfig, list[str]]:
+    def with_intrinsics(self, refined: Mapping[str, Mapping[str, Any]]) -> tuple[RigConfig, list[str]]:
         """The rig with each camera as a calibration refined it (``as_calibrated``; ``refined``:
-        {camera: its refined intrinsics}); and a line per camera that keeps its own."""
+        {camera: its refined intrinsics as a calibration file's ``camera_intrinsics`` reads back});
+        and a line per camera that keeps its own."""
         sensors: list[RigSensor] = []
         notes: list[str] = []
         for s in self.sensors:
             if s.camera is not None and (got := refined.get(s.name)) is not None:
-                cam, note = as_calibrated(s.camera, got, s.name)
+                cam, note = as_calibrated(s.camera, RefinedIntrinsics.from_entry(got), s.name)
                 s = replace(s, camera=cam)
                 notes += [note] if note else []
             sensors.append(s)

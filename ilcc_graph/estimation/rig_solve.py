@@ -36,7 +36,7 @@ import numpy as np
 from gtsam.symbol_shorthand import Y
 
 from ilcc_graph.board import Board
-from ilcc_graph.cameras import CameraModel
+from ilcc_graph.cameras import CameraModel, RefinedIntrinsics
 from ilcc_graph.errors import CalibrationImpossible
 from ilcc_graph.estimation.batch import sensor_models
 from ilcc_graph.estimation.gate import BoardStats
@@ -51,7 +51,7 @@ from ilcc_graph.estimation.problem import BoardPrior, Problem, View
 from ilcc_graph.estimation.selection import AUTO, MODELS, Selection, SensorModel, mixture
 from ilcc_graph.estimation.sources import solve_sources
 from ilcc_graph.init.rig_start import RigStart, adjoint, orient_moment
-from ilcc_graph.types import Estimate, MomentResult, PoseTerms, RefinedIntrinsics
+from ilcc_graph.types import Estimate, MomentResult, PoseTerms
 
 __all__ = ["RigOptions", "RigSolution", "between", "rig_problem", "solve_rig", "to_reference"]
 

@@ -18,7 +18,7 @@ import numpy as np
 from ilcc_graph.errors import InputError, quote
 from ilcc_graph.io.files import read_yaml, write_yaml
 from ilcc_graph.io.results import intrinsics_from_doc, pose_terms_doc, pose_terms_from_doc
-from ilcc_graph.types import PoseTerms, RefinedIntrinsics, sigma_dict
+from ilcc_graph.types import PoseTerms, sigma_dict
 
 __all__ = [
     "KIND",
@@ -63,12 +63,13 @@ class RigCalibration:
         k = self.sensors.index(sensor)
         return self.covariance[6 * k : 6 * k + 6, 6 * k : 6 * k + 6]
 
-    def refined_intrinsics(self) -> dict[str, RefinedIntrinsics]:
-        """{camera: its intrinsics the run refined} from ``extra["camera_intrinsics"]`` (each as
-        ``results.intrinsics_doc`` writes it); empty when it refined none. KeyError, TypeError,
-        ValueError or AttributeError when malformed."""
+    def refined_intrinsics(self) -> dict[str, dict[str, Any]]:
+        """{camera: its intrinsics the run refined, ``{names, stated, values, sigmas}``
+        (``results.intrinsics_from_doc``; ``cameras.RefinedIntrinsics.from_entry`` types it)} from
+        ``extra["camera_intrinsics"]``; empty when it refined none. KeyError, TypeError, ValueError or
+        AttributeError when malformed."""
         stored = self.extra.get("camera_intrinsics") or {}
-        return {str(c): RefinedIntrinsics.from_entry(intrinsics_from_doc(d)) for c, d in stored.items()}
+        return {str(c): intrinsics_from_doc(d) for c, d in stored.items()}
 
 
 def rig_calibration_doc(cal: RigCalibration) -> dict[str, Any]:

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
-from ..types import Calibration, RefinedIntrinsics
+from ..types import Calibration
 from .files import read_yaml
 from .results import calibration_from_doc
 from .rig_results import KIND, WITH_TERMS, RigCalibration, rig_calibration_from_doc
@@ -146,7 +146,7 @@ class StoredSetup:
     (``selection.Selection.chosen``), or None.
     lidar_errors: the LiDAR's own errors it estimated (``names``, ``values``; a rig's also
     ``lidar``, its base LiDAR), or None. intrinsics: {camera: its intrinsics the calibration
-    refined}.
+    refined, ``{names, stated, values, sigmas}``}.
     """
 
     board: Mapping[str, Any] | None = None
@@ -155,7 +155,7 @@ class StoredSetup:
     board_where: str = ""
     sensor_model: str | None = None
     lidar_errors: Mapping[str, Any] | None = None
-    intrinsics: Mapping[str, RefinedIntrinsics] = field(default_factory=dict)
+    intrinsics: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
 
 def _board(d: Any) -> dict[str, Any] | None:
@@ -202,14 +202,14 @@ def stored_setup(path: str | Path, cal: Calibration | RigCalibration, names: tup
     return StoredSetup(board, kinds, str(p), str(p.parent / RESOLVED), model, errors, intrinsics)
 
 
-def _intrinsics(cal: Calibration | RigCalibration, camera: str, where: Path) -> dict[str, RefinedIntrinsics]:
+def _intrinsics(cal: Calibration | RigCalibration, camera: str, where: Path) -> dict[str, dict[str, Any]]:
     """The cameras' intrinsics the calibration refined (a rig's ``RigCalibration.refined_intrinsics``,
     a pair's ``camera``'s); InputError naming the file when its ``camera_intrinsics`` is malformed."""
     try:
         if isinstance(cal, RigCalibration):
             return cal.refined_intrinsics()
         refined = (cal.sensors or {}).get("camera_intrinsics")
-        return {} if refined is None else {camera: RefinedIntrinsics.from_entry(refined)}
+        return {} if refined is None else {camera: dict(refined)}
     except (AttributeError, KeyError, TypeError, ValueError):
         raise InputError(
             f"{where}: camera_intrinsics must give each camera's intrinsics, stated, refined and sigma: "

@@ -10,12 +10,12 @@ import logging
 
 import numpy as np
 
+from ilcc_graph.cameras import RefinedIntrinsics
 from ilcc_graph.config.rig_config import as_calibrated
 from ilcc_graph.datasets import FrameSource
 from ilcc_graph.evaluation import Evaluation, eval_frames, evaluate
 from ilcc_graph.run.observe import Progress, observe
 from ilcc_graph.run.stages import StageOptions
-from ilcc_graph.types import RefinedIntrinsics
 
 __all__ = ["evaluate_on"]
 

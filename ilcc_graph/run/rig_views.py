@@ -134,7 +134,7 @@ def look_rig(
     for lidar in _solved(cal.T_ref_sensor, rig.lidars):
         errors = sensors if lidar == rig.lidars[0] else {}
         for camera in _solved(cal.T_ref_sensor, rig.cameras):
-            lens = {"camera_intrinsics": refined[camera].entry()} if camera in refined else {}
+            lens = {"camera_intrinsics": refined[camera]} if camera in refined else {}
             view, pair = pair_view(out, cal.T_ref_sensor, camera, lidar, {**errors, **lens}, fates)
             again = second_pass(view, pair, stages, refit=refit)
             if again is not None:
