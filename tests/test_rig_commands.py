@@ -212,3 +212,25 @@ def _exported_poses_are_the_calibration(f: Path, fmt: str, cal) -> None:  # noqa
     for s in cal.sensors:
         want = np.linalg.solve(T_ref, np.asarray(cal.T_ref_sensor[s]))
         np.testing.assert_allclose(poses[s], want, atol=1e-9, err_msg=f"{fmt}: {s}")
+
+
+def test_verify_a_ring_whose_lenses_were_refined(tmp_path: Path) -> None:
+    """Four pinholes stated alike, calibrated with ``--refine-intrinsics``: each camera gets its own
+    lens (before: one set shared by all four), written per camera, and ``verify`` observes the
+    calibration's own capture through them. Every camera then shows no change to 0.1 deg / 3 mm
+    (through the stated lenses the back camera moved 0.63 deg / 7.1 mm on this capture)."""
+    ring = tmp_path / "ring"
+    preset = ["--rig", "ring-pinhole", "--moments", "12", "--width", "640"]
+    assert main(["simulate-rig", str(ring), *preset]) == 0
+    out = tmp_path / "cal"
+    flags = ["--out", str(out), "--no-report", "--jobs", "1", "--refine-intrinsics"]
+    assert main(["calibrate", str(ring), *flags]) == 0
+    cal = read_rig_calibration(out / "calibration.yaml")
+    lenses = cal.refined_intrinsics()
+    assert sorted(lenses) == ["back", "front", "left", "right"], sorted(lenses)
+    assert not np.allclose(lenses["front"]["values"], lenses["back"]["values"])
+    assert main(["verify", str(out / "calibration.yaml"), str(ring), "--out", str(tmp_path / "v")]) in (0, 4)
+    doc = yaml.safe_load((tmp_path / "v" / "verify.yaml").read_text())
+    for camera in lenses:
+        got = doc["sensors"][camera]
+        assert got["rotation_deg"] < 0.1 and got["translation_mm"] < 3.0, (camera, got)
