@@ -76,11 +76,16 @@ def calibration_camera(cal: Calibration) -> CameraModel | None:
     """
     camera = _camera(cal.camera)
     refined = (cal.sensors or {}).get("camera_intrinsics")
-    if camera is None or refined is None:
-        return camera
+    return camera if camera is None or refined is None else refined_camera(camera, refined)
+
+
+def refined_camera(camera: CameraModel, refined: Mapping[str, Any], where: str = "") -> CameraModel:
+    """``camera`` with the intrinsics a run refined (``{names, values, ...}``, as
+    ``Calibration.sensors["camera_intrinsics"]``); ValueError (prefixed by ``where``) when they are
+    not that camera's."""
     if tuple(refined["names"]) != camera.intrinsic_names:
         raise ValueError(
-            f"the refined intrinsics ({', '.join(refined['names'])}) are not those of the "
+            f"{where}the refined intrinsics ({', '.join(refined['names'])}) are not those of the "
             f"{camera.kind} camera ({', '.join(camera.intrinsic_names)})"
         )
     return camera.with_intrinsics(np.asarray(refined["values"], dtype=np.float64))

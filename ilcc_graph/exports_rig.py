@@ -25,7 +25,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ilcc_graph.cameras import CameraModel, make_camera
-from ilcc_graph.exports import CONVENTION, _num, _quat_xyzw, _yaml_row
+from ilcc_graph.exports import CONVENTION, _num, _quat_xyzw, _yaml_row, refined_camera
 from ilcc_graph.io.rig_results import RigCalibration
 from ilcc_graph.types import sigma_dict
 
@@ -42,11 +42,7 @@ def rig_cameras(cal: RigCalibration) -> dict[str, CameraModel]:
     out = {}
     for s in (s for s in cal.sensors if "camera" in sensors.get(s, {})):
         cam = make_camera(sensors[s]["camera"])
-        if s in refined:
-            if tuple(refined[s]["names"]) != cam.intrinsic_names:
-                raise ValueError(f"camera_intrinsics.{s}: not the intrinsics of its {cam.kind} camera")
-            cam = cam.with_intrinsics(refined[s]["values"])
-        out[s] = cam
+        out[s] = refined_camera(cam, refined[s], f"camera_intrinsics.{s}: ") if s in refined else cam
     return out
 
 

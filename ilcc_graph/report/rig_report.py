@@ -224,12 +224,12 @@ _PICTURES_NOTE = (
 
 
 def _moment_pictures(
-    m: MomentResult, cal: RigCalibration, observation: RigSeen, source: RigImages
+    m: MomentResult, cal: RigCalibration, rig: RigConfig, source: RigImages
 ) -> list[tuple[str, str, BoardPicture | None, str]]:
     """(camera, LiDAR, its picture, a note) for every camera with a pose and a file at moment ``m``
-    and every LiDAR with a pose whose board was found there (the picture None when the image could
-    not be read, with the reason; pairs whose board is neither imaged nor detected are left out)."""
-    rig = observation.rig.with_intrinsics(cal.refined_intrinsics())[0]  # the cameras as solved
+    (``rig``'s cameras as solved) and every LiDAR with a pose whose board was found there (the picture
+    None when the image could not be read, with the reason; pairs whose board is neither imaged nor
+    detected are left out)."""
     out: list[tuple[str, str, BoardPicture | None, str]] = []
     lidars = [lid for lid in m.boards if lid in cal.T_ref_sensor]
     for cam in rig.cameras:
@@ -283,9 +283,10 @@ def _pictures_html(
     rows: list[list[str]] = []
     groups: list[str] = []
     pictured: set[str] = set()
+    rig = observation.rig.with_intrinsics(cal.refined_intrinsics())[0]  # the cameras as solved
     for m in observation.moments:
         figs, low = [], False
-        for cam, lid, pic, note in _moment_pictures(m, cal, observation, source):
+        for cam, lid, pic, note in _moment_pictures(m, cal, rig, source):
             if pic is None:
                 figs.append(f'<p class="note">{esc(cam)}: {esc(note)}</p>')
                 continue
